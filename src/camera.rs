@@ -1,0 +1,147 @@
+//! The pinhole camera of SPEC §3, matching Mitsuba 3's `perspective` sensor with a
+//! `look_at` transform: frame, field of view per `fov_axis`, pixel-centre rays in f64.
+
+use glam::{DMat4, DVec3, DVec4};
+use serde::{Deserialize, Serialize};
+
+/// Which image extent `fov_deg` spans, as Mitsuba's `fov_axis`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FovAxis {
+    #[default]
+    X,
+    Y,
+    Diagonal,
+    Smaller,
+    Larger,
+}
+
+impl FovAxis {
+    pub fn name(self) -> &'static str {
+        match self {
+            FovAxis::X => "x",
+            FovAxis::Y => "y",
+            FovAxis::Diagonal => "diagonal",
+            FovAxis::Smaller => "smaller",
+            FovAxis::Larger => "larger",
+        }
+    }
+}
+
+/// A validated camera (see `scene` for the checks).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CameraSpec {
+    pub origin: DVec3,
+    pub target: DVec3,
+    pub up: DVec3,
+    pub fov_deg: f64,
+    pub fov_axis: FovAxis,
+    pub width: u32,
+    pub height: u32,
+    pub near_clip: f64,
+    pub far_clip: f64,
+}
+
+/// The camera frame and projection, derived once from a [`CameraSpec`].
+#[derive(Clone, Copy, Debug)]
+pub struct Camera {
+    pub spec: CameraSpec,
+    pub origin: DVec3,
+    /// Unit view direction, `normalize(target - origin)`.
+    pub forward: DVec3,
+    /// `normalize(up × forward)`; image x grows toward `-left`.
+    pub left: DVec3,
+    /// `forward × left`; image y grows toward `-true_up`.
+    pub true_up: DVec3,
+    /// Half extents of the image plane at unit distance: `tan` of the half angles.
+    pub tan_half_x: f64,
+    pub tan_half_y: f64,
+}
+
+impl Camera {
+    pub fn new(spec: CameraSpec) -> Self {
+        let forward = (spec.target - spec.origin).normalize();
+        let left = spec.up.cross(forward).normalize();
+        let true_up = forward.cross(left);
+        let aspect = spec.width as f64 / spec.height as f64;
+        let t = (spec.fov_deg.to_radians() / 2.0).tan();
+        // Half-width at unit distance; Mitsuba converts every fov_axis to an x fov.
+        let tan_half_x = match spec.fov_axis {
+            FovAxis::X => t,
+            FovAxis::Y => t * aspect,
+            FovAxis::Diagonal => t * aspect / (1.0 + aspect * aspect).sqrt(),
+            FovAxis::Smaller if aspect > 1.0 => t * aspect,
+            FovAxis::Smaller => t,
+            FovAxis::Larger if aspect > 1.0 => t,
+            FovAxis::Larger => t * aspect,
+        };
+        Camera {
+            spec,
+            origin: spec.origin,
+            forward,
+            left,
+            true_up,
+            tan_half_x,
+            tan_half_y: tan_half_x / aspect,
+        }
+    }
+
+    pub fn width(&self) -> u32 {
+        self.spec.width
+    }
+
+    pub fn height(&self) -> u32 {
+        self.spec.height
+    }
+
+    /// Unit direction of the ray through the centre of pixel (i, j), all in f64:
+    /// `(i + 0.5) / W` and `(j + 0.5) / H` (SPEC §3). Row 0 is the top row.
+    #[inline]
+    pub fn ray_dir(&self, i: u32, j: u32) -> DVec3 {
+        let x = ((i as f64 + 0.5) / self.spec.width as f64) * 2.0 - 1.0;
+        let y = 1.0 - ((j as f64 + 0.5) / self.spec.height as f64) * 2.0;
+        (self.forward - self.left * (x * self.tan_half_x) + self.true_up * (y * self.tan_half_y))
+            .normalize()
+    }
+
+    /// Focal lengths in pixels.
+    pub fn focal_px(&self) -> (f64, f64) {
+        (
+            self.spec.width as f64 / 2.0 / self.tan_half_x,
+            self.spec.height as f64 / 2.0 / self.tan_half_y,
+        )
+    }
+
+    /// Intrinsics in pixels, principal point at `(W/2, H/2)` (pixel centres at `i + 0.5`).
+    pub fn k_matrix(&self) -> [[f64; 3]; 3] {
+        let (fx, fy) = self.focal_px();
+        let (cx, cy) = (self.spec.width as f64 / 2.0, self.spec.height as f64 / 2.0);
+        [[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]
+    }
+
+    /// Camera-to-world, OpenCV axes (x right, y down, z forward).
+    pub fn world_from_camera_opencv(&self) -> DMat4 {
+        DMat4::from_cols(
+            (-self.left).extend(0.0),
+            (-self.true_up).extend(0.0),
+            self.forward.extend(0.0),
+            DVec4::new(self.origin.x, self.origin.y, self.origin.z, 1.0),
+        )
+    }
+
+    /// Camera-to-world, OpenGL axes (x right, y up, z backward).
+    pub fn world_from_camera_opengl(&self) -> DMat4 {
+        DMat4::from_cols(
+            (-self.left).extend(0.0),
+            self.true_up.extend(0.0),
+            (-self.forward).extend(0.0),
+            DVec4::new(self.origin.x, self.origin.y, self.origin.z, 1.0),
+        )
+    }
+}
+
+/// Row-major nested arrays, the layout JSON readers expect.
+pub fn rows(m: DMat4) -> [[f64; 4]; 4] {
+    let t = m.transpose().to_cols_array_2d();
+    [t[0], t[1], t[2], t[3]]
+}

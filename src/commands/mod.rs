@@ -1,0 +1,4 @@
+//! The work behind each CLI subcommand: IO orchestration around the pure library.
+//! `main.rs` only parses arguments and calls these.
+
+pub mod render;

@@ -1,0 +1,96 @@
+//! `cylaov render`: scene file → EXR (+ camera JSON, optional PNG previews).
+
+use crate::aov::Compression;
+use crate::camera::Camera;
+use crate::io::{atomic_write_bytes, camera_json, camera_json_path};
+use crate::preview;
+use crate::render::{RenderOptions, render};
+use crate::scene::{self, Aov};
+use anyhow::{Context, Result, bail};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Everything `render` needs from the command line.
+#[derive(Clone, Debug)]
+pub struct RenderArgs {
+    pub scene: PathBuf,
+    pub out: PathBuf,
+    /// Overrides the scene's AOVs.
+    pub aovs: Option<Vec<Aov>>,
+    pub options: RenderOptions,
+    pub preview: Option<PathBuf>,
+    pub compression: Compression,
+}
+
+/// Same file, however it is spelled (the output may not exist yet).
+fn same_file(a: &Path, b: &Path) -> bool {
+    match (a.canonicalize(), b.canonicalize()) {
+        (Ok(x), Ok(y)) => x == y,
+        _ => false,
+    }
+}
+
+/// Run a render and return the one-line summary.
+pub fn run(args: &RenderArgs) -> Result<String> {
+    let start = Instant::now();
+    let cam_path = camera_json_path(&args.out);
+    if same_file(&args.scene, &args.out) || same_file(&args.scene, &cam_path) {
+        bail!(
+            "-o {}: would overwrite the input scene {}",
+            args.out.display(),
+            args.scene.display()
+        );
+    }
+    let scene = scene::load(&args.scene).with_context(|| format!("{}", args.scene.display()))?;
+    let aovs = args.aovs.clone().unwrap_or_else(|| scene.aovs.clone());
+    let opts = RenderOptions {
+        aovs: aovs.clone(),
+        ..args.options.clone()
+    };
+    let t0 = Instant::now();
+    let r = render(&scene, &opts);
+    let trace_ms = t0.elapsed().as_secs_f64() * 1e3;
+    let t1 = Instant::now();
+    r.image.write_exr(&args.out, args.compression)?;
+    let cam = Camera::new(scene.camera);
+    atomic_write_bytes(&cam_path, camera_json(&cam, &aovs).as_bytes())
+        .with_context(|| format!("writing {}", cam_path.display()))?;
+    let write_ms = t1.elapsed().as_secs_f64() * 1e3;
+    if let Some(dir) = &args.preview {
+        write_previews(&r.image, dir, &stem(&args.out))?;
+    }
+    let (w, h) = (r.image.width, r.image.height);
+    Ok(format!(
+        "{}: {w}x{h}, {} cylinders, {} hits ({:.1}%), {:?}/{:?}, trace {trace_ms:.1} ms, write {write_ms:.1} ms, total {:.1} ms",
+        args.out.display(),
+        scene.cylinders.len(),
+        r.hits,
+        100.0 * r.hits as f64 / (w * h) as f64,
+        opts.formula,
+        opts.precision,
+        start.elapsed().as_secs_f64() * 1e3
+    ))
+}
+
+fn stem(p: &Path) -> String {
+    p.file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "render".into())
+}
+
+/// `DIR/NAME.normal.png` and `DIR/NAME.depth.png` for whichever of the AOVs exist.
+pub fn write_previews(img: &crate::aov::AovImage, dir: &Path, name: &str) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    if let Some(p) = preview::normal_rgb(img) {
+        preview::write_png(&p, &dir.join(format!("{name}.normal.png")))?;
+    }
+    let depthlike = ["depth", "distance"]
+        .into_iter()
+        .find(|c| img.f32_channel(c).is_some());
+    if let Some(c) = depthlike
+        && let Some(p) = preview::depth_colormap(img, c)
+    {
+        preview::write_png(&p, &dir.join(format!("{name}.{c}.png")))?;
+    }
+    Ok(())
+}

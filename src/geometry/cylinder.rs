@@ -1,0 +1,323 @@
+//! Ray–cylinder kernels: the documented formulas of SPEC §1 (`Literal`) and a numerically
+//! stable form of the same surface (`Stable`), both generic over f32/f64.
+//!
+//! As in pbrt-v4, a hit is two steps: [`Formula::intersect`] finds the ray parameter and
+//! the surface only (cheap; run for every BVH candidate), [`Formula::normal`] computes the
+//! normal for the one winning hit. A depth-only render never calls `normal`.
+//!
+//! Rays are `o + t·d` with `d` of unit length in f64 before rounding, so `t` is a distance.
+//! Everything is relative to the cylinder's base `c`: callers pass `oc = o - c` through
+//! [`Prepared`], which is built once per cylinder and ray origin (one camera = one origin).
+
+use super::real::Real;
+use glam::DVec3;
+
+/// A validated finite cylinder (SPEC §1): base centre `base`, unit `axis`, `height`, `radius`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Cylinder {
+    pub base: DVec3,
+    /// Unit direction from the base disk to the top disk.
+    pub axis: DVec3,
+    pub height: f64,
+    pub radius: f64,
+    /// Closed (solid, two cap disks) or an open tube.
+    pub caps: bool,
+    /// Value written to the `shape_id` AOV (> 0).
+    pub id: u32,
+}
+
+impl Cylinder {
+    /// Centre of the top disk, `base + height·axis`.
+    pub fn top(&self) -> DVec3 {
+        self.base + self.axis * self.height
+    }
+
+    /// Tight axis-aligned bounds: the boxes of the two end circles. Along world axis k a
+    /// circle of radius r with normal n reaches `r·sqrt(1 - n_k²)` from its centre.
+    pub fn bounds(&self) -> (DVec3, DVec3) {
+        let ext = self.radius * (DVec3::ONE - self.axis * self.axis).max(DVec3::ZERO).sqrt();
+        let (a, b) = (self.base, self.top());
+        (a.min(b) - ext, a.max(b) + ext)
+    }
+}
+
+/// The surface a hit lies on.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Surface {
+    Side,
+    /// The disk at `base`, outward normal `-axis`.
+    Bottom,
+    /// The disk at `base + height·axis`, outward normal `+axis`.
+    Top,
+}
+
+/// Result of the cheap intersection step: ray parameter (= distance) and surface.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BasicHit<T> {
+    pub t: T,
+    pub surface: Surface,
+}
+
+/// A cylinder ready for rays from one origin, in precision `T`.
+#[derive(Clone, Copy, Debug)]
+pub struct Prepared<T: Real> {
+    /// Unit axis `n` and an orthonormal pair `u`, `v` perpendicular to it.
+    pub n: T::V3,
+    pub u: T::V3,
+    pub v: T::V3,
+    /// `o - c` in world axes (the literal kernel's input).
+    pub oc: T::V3,
+    /// `o - c` in the (u, v, n) frame, computed in f64 before rounding to `T`.
+    pub oc_local: [T; 3],
+    /// `|oc⊥|² - r²` as `(|oc⊥| - r)(|oc⊥| + r)`, from f64 (SPEC §1: no cancellation near
+    /// the surface).
+    pub c_side: T,
+    pub r: T,
+    pub h: T,
+    pub caps: bool,
+}
+
+impl<T: Real> Prepared<T> {
+    /// Prepare `cyl` for rays leaving `origin`. With `centred`, `oc` is formed in f64 and
+    /// rounded once (a frame centred on the cylinder, SPEC §7); without, it is `T(o) - T(c)`
+    /// as the literal formulas would compute it in `T`.
+    pub fn new(cyl: &Cylinder, origin: DVec3, centred: bool) -> Self {
+        let n = cyl.axis;
+        let (u, v) = orthonormal_basis(n);
+        let oc64 = origin - cyl.base;
+        let oc = if centred {
+            T::v3(oc64)
+        } else {
+            T::v3(origin) - T::v3(cyl.base)
+        };
+        let rho = oc64.dot(u).hypot(oc64.dot(v));
+        Prepared {
+            n: T::v3(n),
+            u: T::v3(u),
+            v: T::v3(v),
+            oc,
+            oc_local: [
+                T::from_f64(oc64.dot(u)),
+                T::from_f64(oc64.dot(v)),
+                T::from_f64(oc64.dot(n)),
+            ],
+            c_side: T::from_f64((rho - cyl.radius) * (rho + cyl.radius)),
+            r: T::from_f64(cyl.radius),
+            h: T::from_f64(cyl.height),
+            caps: cyl.caps,
+        }
+    }
+}
+
+/// Orthonormal `u`, `v` with `u × v = n` (Duff et al. 2017, branchless).
+pub fn orthonormal_basis(n: DVec3) -> (DVec3, DVec3) {
+    let s = 1f64.copysign(n.z);
+    let a = -1.0 / (s + n.z);
+    let b = n.x * n.y * a;
+    (
+        DVec3::new(1.0 + s * n.x * n.x * a, s * b, -s * n.x),
+        DVec3::new(b, s + n.y * n.y * a, -n.y),
+    )
+}
+
+/// A formulation of the ray–cylinder hit: [`Literal`] or [`Stable`].
+pub trait Formula: Copy + Send + Sync + 'static {
+    const NAME: &'static str;
+    /// Whether [`Prepared::new`] should form `oc` in f64 (see there).
+    const CENTRED: bool;
+    /// Nearest hit with `t` in `[tmin, tmax]`, or `None`. Computes no normal.
+    fn intersect<T: Real>(p: &Prepared<T>, d: T::V3, tmin: T, tmax: T) -> Option<BasicHit<T>>;
+    /// World-space outward unit normal at `hit` (not flipped toward the ray).
+    fn normal<T: Real>(p: &Prepared<T>, d: T::V3, hit: BasicHit<T>) -> T::V3;
+}
+
+/// The documented formulas of SPEC §1, as written: `A`, `B`, `C`, `B² - 4AC`, the textbook
+/// roots, and the normal from the axis-point quadratic divided by `r`. Caps are separate
+/// disk tests. Nothing is guarded beyond what keeps it from crashing (NaN compares false
+/// and so never hits), so its failures stay visible in the stress table.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Literal;
+
+impl Formula for Literal {
+    const NAME: &'static str = "literal";
+    const CENTRED: bool = false;
+
+    fn intersect<T: Real>(p: &Prepared<T>, d: T::V3, tmin: T, tmax: T) -> Option<BasicHit<T>> {
+        let (n, oc, two) = (p.n, p.oc, T::TWO);
+        let nd = T::dot(n, d);
+        let noc = T::dot(n, oc);
+        let mut best: Option<BasicHit<T>> = None;
+        let mut take = |t: T, surface: Surface| {
+            if t >= tmin && t <= tmax && best.is_none_or(|b| t < b.t) {
+                best = Some(BasicHit { t, surface });
+            }
+        };
+        // Side: A t² + B t + C = 0 (SPEC §1).
+        let a = T::dot(d, d) - nd * nd;
+        let b = two * T::dot(d, oc) - two * nd * noc;
+        let c = T::dot(oc, oc) - noc * noc - p.r * p.r;
+        let disc = b * b - T::from_f64(4.0) * a * c;
+        if disc >= T::ZERO {
+            let s = disc.sqrt();
+            for t in [(-b - s) / (two * a), (-b + s) / (two * a)] {
+                let along = noc + t * nd;
+                if along >= T::ZERO && along <= p.h {
+                    take(t, Surface::Side);
+                }
+            }
+        }
+        // Caps: disks in the planes n·(x - c) = 0 and = h.
+        if p.caps {
+            for (k, surface) in [(T::ZERO, Surface::Bottom), (p.h, Surface::Top)] {
+                let t = (k - noc) / nd;
+                let x = oc + d * t - n * k;
+                if T::dot(x, x) <= p.r * p.r {
+                    take(t, surface);
+                }
+            }
+        }
+        best
+    }
+
+    fn normal<T: Real>(p: &Prepared<T>, d: T::V3, hit: BasicHit<T>) -> T::V3 {
+        match hit.surface {
+            Surface::Bottom => -p.n,
+            Surface::Top => p.n,
+            Surface::Side => {
+                // Axis point T = c + a n with a² - 2 n·(I-c) a + |I-c|² - r² = 0; N = (I-T)/r.
+                let i = p.oc + d * hit.t;
+                let m = T::dot(p.n, i);
+                let two = T::TWO;
+                let disc = two * two * m * m - two * two * (T::dot(i, i) - p.r * p.r);
+                let a = (two * m - disc.sqrt()) / two;
+                (i - p.n * a) * (T::ONE / p.r)
+            }
+        }
+    }
+}
+
+/// The stable form. In the cylinder's (u, v, n) frame, with `d⊥`, `oc⊥` the parts
+/// perpendicular to the axis (SPEC §1):
+/// - `A = |d⊥|²`, half-coefficient `b = d⊥·oc⊥`, `C = (|oc⊥| - r)(|oc⊥| + r)` (from f64);
+/// - discriminant by the Lagrange identity `b² - AC = r²A - (d⊥ × oc⊥)²`, factored as
+///   `(r√A - |X|)(r√A + |X|)` so no large terms cancel;
+/// - roots `q = -(b + sign(b)√disc)`, `q/A` and `C/q` (no subtraction of near-equal terms;
+///   `sign(0) = +1`; `q = 0` only for a tangent ray from the surface: double root at 0);
+/// - closed cylinders are the intersection of the side interval with the cap slab, so the
+///   rim has no gap: the entry parameter is `max(side entry, slab entry)` and the surface is
+///   whichever bound it was. A ray parallel to the axis (`A = 0`) is inside the side
+///   interval everywhere or nowhere, so it reaches the caps only.
+/// - the normal is the projection `normalize(I⊥)`, not the axis-point quadratic (whose
+///   double root makes its discriminant pure rounding noise).
+///
+/// Backward error: each step is a few roundings of inputs that carry no cancellation, so
+/// `t` has the error of perturbing the inputs by a few ε; tests and `stress` measure it.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Stable;
+
+impl Stable {
+    /// Parameter interval where the ray is inside the infinite cylinder, or `None`.
+    #[inline(always)]
+    fn side_interval<T: Real>(p: &Prepared<T>, du: T, dv: T) -> Option<(T, T)> {
+        let [ou, ov, _] = p.oc_local;
+        let a = du * du + dv * dv;
+        if a == T::ZERO {
+            // Parallel to the axis: inside everywhere or nowhere.
+            return (p.c_side <= T::ZERO).then_some((-T::INFINITY, T::INFINITY));
+        }
+        let b = du * ou + dv * ov;
+        let x = (du * ov - dv * ou).abs();
+        let ra = p.r * a.sqrt();
+        let disc = (ra - x) * (ra + x);
+        if disc < T::ZERO {
+            return None;
+        }
+        let q = -(b + b.sign() * disc.sqrt());
+        if q == T::ZERO {
+            // b = 0 and disc = 0, so C = 0: tangent ray starting on the surface.
+            return Some((T::ZERO, T::ZERO));
+        }
+        let (t0, t1) = (q / a, p.c_side / q);
+        Some((t0.min(t1), t0.max(t1)))
+    }
+}
+
+impl Formula for Stable {
+    const NAME: &'static str = "stable";
+    const CENTRED: bool = true;
+
+    #[inline(always)]
+    fn intersect<T: Real>(p: &Prepared<T>, d: T::V3, tmin: T, tmax: T) -> Option<BasicHit<T>> {
+        let (du, dv, dn) = (T::dot(d, p.u), T::dot(d, p.v), T::dot(d, p.n));
+        let on = p.oc_local[2];
+        let (s0, s1) = Self::side_interval(p, du, dv)?;
+        let in_range = |t: T| t >= tmin && t <= tmax;
+        if !p.caps {
+            // Open tube: each side root counts if it lies between the cap planes.
+            return [s0, s1].into_iter().find_map(|t| {
+                let along = on + t * dn;
+                (in_range(t) && along >= T::ZERO && along <= p.h).then_some(BasicHit {
+                    t,
+                    surface: Surface::Side,
+                })
+            });
+        }
+        // Slab between the cap planes; a ray parallel to them is inside it or not at all.
+        let (c0, c1, enter_cap, exit_cap) = if dn == T::ZERO {
+            if on < T::ZERO || on > p.h {
+                return None;
+            }
+            let inf = T::INFINITY;
+            (-inf, inf, Surface::Bottom, Surface::Top)
+        } else {
+            let (ta, tb) = (-on / dn, (p.h - on) / dn);
+            if dn > T::ZERO {
+                (ta, tb, Surface::Bottom, Surface::Top)
+            } else {
+                (tb, ta, Surface::Top, Surface::Bottom)
+            }
+        };
+        let enter = if s0 >= c0 {
+            BasicHit {
+                t: s0,
+                surface: Surface::Side,
+            }
+        } else {
+            BasicHit {
+                t: c0,
+                surface: enter_cap,
+            }
+        };
+        let exit = if s1 <= c1 {
+            BasicHit {
+                t: s1,
+                surface: Surface::Side,
+            }
+        } else {
+            BasicHit {
+                t: c1,
+                surface: exit_cap,
+            }
+        };
+        if enter.t > exit.t {
+            return None;
+        }
+        // From outside the entry is nearest; from inside (entry behind tmin) the exit.
+        [enter, exit].into_iter().find(|h| in_range(h.t))
+    }
+
+    #[inline(always)]
+    fn normal<T: Real>(p: &Prepared<T>, d: T::V3, hit: BasicHit<T>) -> T::V3 {
+        match hit.surface {
+            Surface::Bottom => -p.n,
+            Surface::Top => p.n,
+            Surface::Side => {
+                let [ou, ov, _] = p.oc_local;
+                let x = ou + hit.t * T::dot(d, p.u);
+                let y = ov + hit.t * T::dot(d, p.v);
+                let len = (x * x + y * y).sqrt();
+                p.u * (x / len) + p.v * (y / len)
+            }
+        }
+    }
+}

@@ -1,0 +1,7 @@
+//! Geometry: the float abstraction and the ray–cylinder kernels. No IO, no scene files.
+
+pub mod cylinder;
+pub mod real;
+
+pub use cylinder::{BasicHit, Cylinder, Formula, Literal, Prepared, Stable, Surface};
+pub use real::Real;

@@ -1,0 +1,134 @@
+//! One small trait that lets the kernels be written once for f32 and f64.
+//!
+//! f32 uses glam's `Vec3A` (16-byte, SIMD-friendly), f64 uses `DVec3`. Only what the
+//! kernels need is here; everything crosses into and out of it through f64 (`DVec3`).
+
+use glam::{DVec3, Vec3A};
+use std::fmt::Debug;
+use std::ops::{Add, Div, Mul, Neg, Sub};
+
+/// A floating-point precision the kernels can run in.
+pub trait Real:
+    Copy
+    + Debug
+    + PartialOrd
+    + Send
+    + Sync
+    + 'static
+    + Add<Output = Self>
+    + Sub<Output = Self>
+    + Mul<Output = Self>
+    + Div<Output = Self>
+    + Neg<Output = Self>
+{
+    /// The 3-vector of this precision.
+    type V3: Copy
+        + Debug
+        + Send
+        + Sync
+        + Add<Output = Self::V3>
+        + Sub<Output = Self::V3>
+        + Mul<Self, Output = Self::V3>
+        + Neg<Output = Self::V3>;
+    const ZERO: Self;
+    const ONE: Self;
+    const TWO: Self;
+    const INFINITY: Self;
+    /// Unit roundoff (half the machine epsilon).
+    const UNIT_ROUNDOFF: f64;
+    /// Name for tables: `f32` or `f64`.
+    const NAME: &'static str;
+
+    fn from_f64(x: f64) -> Self;
+    fn to_f64(self) -> f64;
+    fn sqrt(self) -> Self;
+    fn abs(self) -> Self;
+    /// +1 or -1 with the sign of `self`; never 0 (`sign(0) = +1`, SPEC §1).
+    fn sign(self) -> Self;
+    fn is_finite(self) -> bool;
+    fn min(self, o: Self) -> Self;
+    fn max(self, o: Self) -> Self;
+
+    fn v3(v: DVec3) -> Self::V3;
+    fn v3_to_f64(v: Self::V3) -> DVec3;
+    fn dot(a: Self::V3, b: Self::V3) -> Self;
+    fn cross(a: Self::V3, b: Self::V3) -> Self::V3;
+    /// Unit vector along `v`; `v` must be non-zero.
+    fn normalize(v: Self::V3) -> Self::V3;
+}
+
+macro_rules! impl_real {
+    ($t:ty, $v:ty, $name:literal, $from:expr, $to:expr) => {
+        impl Real for $t {
+            type V3 = $v;
+            const ZERO: Self = 0.0;
+            const ONE: Self = 1.0;
+            const TWO: Self = 2.0;
+            const INFINITY: Self = <$t>::INFINITY;
+            const UNIT_ROUNDOFF: f64 = <$t>::EPSILON as f64 / 2.0;
+            const NAME: &'static str = $name;
+
+            #[inline(always)]
+            fn from_f64(x: f64) -> Self {
+                x as $t
+            }
+            #[inline(always)]
+            fn to_f64(self) -> f64 {
+                self as f64
+            }
+            #[inline(always)]
+            fn sqrt(self) -> Self {
+                <$t>::sqrt(self)
+            }
+            #[inline(always)]
+            fn abs(self) -> Self {
+                <$t>::abs(self)
+            }
+            #[inline(always)]
+            fn sign(self) -> Self {
+                <$t>::copysign(1.0, self)
+            }
+            #[inline(always)]
+            fn is_finite(self) -> bool {
+                <$t>::is_finite(self)
+            }
+            #[inline(always)]
+            fn min(self, o: Self) -> Self {
+                <$t>::min(self, o)
+            }
+            #[inline(always)]
+            fn max(self, o: Self) -> Self {
+                <$t>::max(self, o)
+            }
+            #[inline(always)]
+            fn v3(v: DVec3) -> Self::V3 {
+                $from(v)
+            }
+            #[inline(always)]
+            fn v3_to_f64(v: Self::V3) -> DVec3 {
+                $to(v)
+            }
+            #[inline(always)]
+            fn dot(a: Self::V3, b: Self::V3) -> Self {
+                a.dot(b)
+            }
+            #[inline(always)]
+            fn cross(a: Self::V3, b: Self::V3) -> Self::V3 {
+                a.cross(b)
+            }
+            #[inline(always)]
+            fn normalize(v: Self::V3) -> Self::V3 {
+                v.normalize()
+            }
+        }
+    };
+}
+
+impl_real!(f64, DVec3, "f64", |v: DVec3| v, |v: DVec3| v);
+impl_real!(
+    f32,
+    Vec3A,
+    "f32",
+    |v: DVec3| Vec3A::new(v.x as f32, v.y as f32, v.z as f32),
+    |v: Vec3A| DVec3::new(v.x as f64, v.y as f64, v.z as f64)
+);

@@ -1,0 +1,144 @@
+//! File output that never leaves a half-written file, and the camera metadata JSON.
+
+use crate::camera::{Camera, rows};
+use crate::scene::Aov;
+use serde::Serialize;
+use std::fs::File;
+use std::io::{self, Write};
+use std::path::{Path, PathBuf};
+
+/// The temporary name used while `path` is written: same folder, so the rename is atomic.
+pub fn temp_path(path: &Path) -> PathBuf {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    path.with_file_name(format!(".{name}.{}.tmp", std::process::id()))
+}
+
+/// Write `path` through `fill` into a temporary file, sync it, then rename it into place.
+/// On any error the temporary file is removed and `path` is untouched.
+pub fn atomic_write(path: &Path, fill: impl FnOnce(&mut File) -> io::Result<()>) -> io::Result<()> {
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir)?;
+    }
+    let tmp = temp_path(path);
+    let result = (|| {
+        let mut f = File::create(&tmp)?;
+        fill(&mut f)?;
+        f.flush()?;
+        f.sync_all()?;
+        std::fs::rename(&tmp, path)
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result
+}
+
+/// Write bytes atomically.
+pub fn atomic_write_bytes(path: &Path, bytes: &[u8]) -> io::Result<()> {
+    atomic_write(path, |f| f.write_all(bytes))
+}
+
+/// Where `render -o OUT.exr` puts the camera metadata: `OUT.camera.json` (SPEC §7).
+pub fn camera_json_path(exr: &Path) -> PathBuf {
+    exr.with_extension("camera.json")
+}
+
+#[derive(Serialize)]
+struct AovMeaning {
+    name: &'static str,
+    channels: &'static [&'static str],
+    meaning: &'static str,
+    miss: &'static str,
+}
+
+#[derive(Serialize)]
+struct CameraMeta {
+    width: u32,
+    height: u32,
+    fov_deg: f64,
+    fov_axis: &'static str,
+    near_clip: f64,
+    far_clip: f64,
+    /// Intrinsics in pixels, row-major.
+    #[serde(rename = "K")]
+    k: [[f64; 3]; 3],
+    principal_point_note: &'static str,
+    fl_x: f64,
+    fl_y: f64,
+    cx: f64,
+    cy: f64,
+    camera_to_world_opencv: [[f64; 4]; 4],
+    world_to_camera_opencv: [[f64; 4]; 4],
+    camera_to_world_opengl: [[f64; 4]; 4],
+    world_to_camera_opengl: [[f64; 4]; 4],
+    conventions: &'static str,
+    aovs: Vec<AovMeaning>,
+}
+
+/// What an AOV means, for the metadata file (SPEC §4).
+pub fn aov_meaning(aov: Aov) -> (&'static str, &'static str) {
+    match aov {
+        Aov::Distance => (
+            "Euclidean distance from the camera origin to the hit, world units",
+            "0",
+        ),
+        Aov::Depth => (
+            "planar depth: camera-space z of the hit (distance * cos theta), world units",
+            "0",
+        ),
+        Aov::Normal => (
+            "world-space unit outward normal, not flipped toward the camera",
+            "[0,0,0]",
+        ),
+        Aov::Position => ("world-space hit point", "[0,0,0]"),
+        Aov::ShapeId => (
+            "u32 id of the hit cylinder (scene 'id', default 1-based index)",
+            "0",
+        ),
+    }
+}
+
+/// The camera metadata JSON for a render: intrinsics, both pose conventions, AOV meanings.
+pub fn camera_json(cam: &Camera, aovs: &[Aov]) -> String {
+    let (fx, fy) = cam.focal_px();
+    let k = cam.k_matrix();
+    let cv = cam.world_from_camera_opencv();
+    let gl = cam.world_from_camera_opengl();
+    let meta = CameraMeta {
+        width: cam.width(),
+        height: cam.height(),
+        fov_deg: cam.spec.fov_deg,
+        fov_axis: cam.spec.fov_axis.name(),
+        near_clip: cam.spec.near_clip,
+        far_clip: cam.spec.far_clip,
+        k,
+        principal_point_note: "cx = W/2, cy = H/2: pixel (i, j) has its centre at (i + 0.5, j + 0.5)",
+        fl_x: fx,
+        fl_y: fy,
+        cx: k[0][2],
+        cy: k[1][2],
+        camera_to_world_opencv: rows(cv),
+        world_to_camera_opencv: rows(cv.inverse()),
+        camera_to_world_opengl: rows(gl),
+        world_to_camera_opengl: rows(gl.inverse()),
+        conventions: "OpenCV camera axes: x right, y down, z forward. OpenGL: x right, y up, z backward. Matrices row-major; image row 0 is the top row.",
+        aovs: aovs
+            .iter()
+            .map(|&a| {
+                let (meaning, miss) = aov_meaning(a);
+                AovMeaning {
+                    name: a.name(),
+                    channels: crate::aov::channel_names(a),
+                    meaning,
+                    miss,
+                }
+            })
+            .collect(),
+    };
+    let mut s = serde_json::to_string_pretty(&meta).unwrap_or_default();
+    s.push('\n');
+    s
+}

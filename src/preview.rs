@@ -1,0 +1,154 @@
+//! PNG previews a person can look at: normals as RGB, depth through a colour map with a
+//! legend bar labelled with its range. Also the 16-bit depth PNG of datasets.
+
+use crate::aov::AovImage;
+use crate::io::atomic_write;
+use anyhow::{Context, Result};
+use image::{ImageBuffer, Luma, Rgb, RgbImage};
+use std::path::Path;
+
+/// Normals mapped `n * 0.5 + 0.5` to RGB; a miss is black.
+pub fn normal_rgb(img: &AovImage) -> Option<RgbImage> {
+    let [x, y, z] = img.vec3_channel("normal")?;
+    let to8 = |v: f32| ((v * 0.5 + 0.5).clamp(0.0, 1.0) * 255.0).round() as u8;
+    Some(RgbImage::from_fn(
+        img.width as u32,
+        img.height as u32,
+        |i, j| {
+            let k = j as usize * img.width + i as usize;
+            if x[k] == 0.0 && y[k] == 0.0 && z[k] == 0.0 {
+                Rgb([0, 0, 0])
+            } else {
+                Rgb([to8(x[k]), to8(y[k]), to8(z[k])])
+            }
+        },
+    ))
+}
+
+/// Viridis-like ramp from 5 control points (perceptually ordered, prints in grey).
+fn colormap(u: f32) -> [u8; 3] {
+    const P: [[f32; 3]; 5] = [
+        [68.0, 1.0, 84.0],
+        [59.0, 82.0, 139.0],
+        [33.0, 145.0, 140.0],
+        [94.0, 201.0, 98.0],
+        [253.0, 231.0, 37.0],
+    ];
+    let s = u.clamp(0.0, 1.0) * 4.0;
+    let k = (s as usize).min(3);
+    let f = s - k as f32;
+    [0, 1, 2].map(|c| (P[k][c] + (P[k + 1][c] - P[k][c]) * f).round() as u8)
+}
+
+/// 3×5 glyphs for the legend: digits, '.', '-', 'e', '+'.
+fn glyph(c: char) -> [u8; 5] {
+    match c {
+        '0' => [7, 5, 5, 5, 7],
+        '1' => [2, 6, 2, 2, 7],
+        '2' => [7, 1, 7, 4, 7],
+        '3' => [7, 1, 7, 1, 7],
+        '4' => [5, 5, 7, 1, 1],
+        '5' => [7, 4, 7, 1, 7],
+        '6' => [7, 4, 7, 5, 7],
+        '7' => [7, 1, 1, 1, 1],
+        '8' => [7, 5, 7, 5, 7],
+        '9' => [7, 5, 7, 1, 7],
+        '.' => [0, 0, 0, 0, 2],
+        '-' => [0, 0, 7, 0, 0],
+        '+' => [0, 2, 7, 2, 0],
+        'e' => [0, 7, 7, 4, 7],
+        _ => [0; 5],
+    }
+}
+
+fn draw_text(img: &mut RgbImage, x0: u32, y0: u32, scale: u32, text: &str, color: [u8; 3]) {
+    for (n, c) in text.chars().enumerate() {
+        let g = glyph(c);
+        for (row, bits) in g.iter().enumerate() {
+            for col in 0..3u32 {
+                if bits & (4 >> col) == 0 {
+                    continue;
+                }
+                for dy in 0..scale {
+                    for dx in 0..scale {
+                        let x = x0 + (n as u32 * 4 + col) * scale + dx;
+                        let y = y0 + row as u32 * scale + dy;
+                        if x < img.width() && y < img.height() {
+                            img.put_pixel(x, y, Rgb(color));
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Depth (or any float channel) through the colour map, near = dark, with a legend strip
+/// under the image: the ramp and the min and max values. Misses (0) are black.
+pub fn depth_colormap(img: &AovImage, channel: &str) -> Option<RgbImage> {
+    let v = img.f32_channel(channel)?;
+    let hits = v.iter().copied().filter(|x| *x > 0.0 && x.is_finite());
+    let (lo, hi) = hits.fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), x| {
+        (a.min(x), b.max(x))
+    });
+    let span = if hi > lo { hi - lo } else { 1.0 };
+    let (w, h) = (img.width as u32, img.height as u32);
+    let scale = (w / 160).clamp(1, 4);
+    let legend = 10 * scale + 4;
+    let mut out = RgbImage::new(w, h + legend);
+    for j in 0..h {
+        for i in 0..w {
+            let x = v[(j * w + i) as usize];
+            if x > 0.0 && x.is_finite() {
+                out.put_pixel(i, j, Rgb(colormap((x - lo) / span)));
+            }
+        }
+    }
+    for i in 0..w {
+        let c = colormap(i as f32 / (w.max(2) - 1) as f32);
+        for j in h + 2..h + 2 + 3 * scale {
+            out.put_pixel(i, j, Rgb(c));
+        }
+    }
+    if lo.is_finite() {
+        let y = h + 3 * scale + 3;
+        let (a, b) = (format!("{lo:.4e}"), format!("{hi:.4e}"));
+        draw_text(&mut out, 1, y, scale, &a, [255, 255, 255]);
+        let bx = w.saturating_sub((b.len() as u32 * 4) * scale + 1);
+        draw_text(&mut out, bx, y, scale, &b, [255, 255, 255]);
+    }
+    Some(out)
+}
+
+/// 16-bit depth PNG (Open3D/TUM): `round(depth * scale)`, 0 for a miss or a value out of
+/// the u16 range.
+pub fn depth_u16(img: &AovImage, scale: f64) -> Option<ImageBuffer<Luma<u16>, Vec<u16>>> {
+    let v = img.f32_channel("depth")?;
+    let data = v
+        .iter()
+        .map(|&z| {
+            let s = (z as f64 * scale).round();
+            if z > 0.0 && s >= 1.0 && s <= u16::MAX as f64 {
+                s as u16
+            } else {
+                0
+            }
+        })
+        .collect();
+    ImageBuffer::from_raw(img.width as u32, img.height as u32, data)
+}
+
+/// Encode any PNG-able image atomically.
+pub fn write_png<P, C>(img: &ImageBuffer<P, C>, path: &Path) -> Result<()>
+where
+    P: image::PixelWithColorType,
+    [P::Subpixel]: image::EncodableLayout,
+    C: std::ops::Deref<Target = [P::Subpixel]>,
+{
+    atomic_write(path, |f| {
+        let mut w = std::io::BufWriter::new(f);
+        img.write_to(&mut w, image::ImageFormat::Png)
+            .map_err(|e| std::io::Error::other(e.to_string()))
+    })
+    .with_context(|| format!("writing {}", path.display()))
+}
