@@ -94,14 +94,31 @@ impl Camera {
         self.spec.height
     }
 
+    /// Image-plane offset of column `i` at unit distance, toward `-left`:
+    /// `((i + 0.5) / W · 2 - 1) · tan(fov_x / 2)`, in f64 (SPEC §3).
+    #[inline]
+    pub fn column_offset(&self, i: u32) -> f64 {
+        (((i as f64 + 0.5) / self.spec.width as f64) * 2.0 - 1.0) * self.tan_half_x
+    }
+
+    /// Image-plane offset of row `j` toward `true_up` (row 0 is the top row).
+    #[inline]
+    pub fn row_offset(&self, j: u32) -> f64 {
+        (1.0 - ((j as f64 + 0.5) / self.spec.height as f64) * 2.0) * self.tan_half_y
+    }
+
+    /// Unit direction through the image-plane offsets `(x, y)` of `column_offset` and
+    /// `row_offset`: callers that sweep many pixels precompute those once per column/row.
+    #[inline(always)]
+    pub fn dir_from_offsets(&self, x: f64, y: f64) -> DVec3 {
+        (self.forward - self.left * x + self.true_up * y).normalize()
+    }
+
     /// Unit direction of the ray through the centre of pixel (i, j), all in f64:
     /// `(i + 0.5) / W` and `(j + 0.5) / H` (SPEC §3). Row 0 is the top row.
     #[inline]
     pub fn ray_dir(&self, i: u32, j: u32) -> DVec3 {
-        let x = ((i as f64 + 0.5) / self.spec.width as f64) * 2.0 - 1.0;
-        let y = 1.0 - ((j as f64 + 0.5) / self.spec.height as f64) * 2.0;
-        (self.forward - self.left * (x * self.tan_half_x) + self.true_up * (y * self.tan_half_y))
-            .normalize()
+        self.dir_from_offsets(self.column_offset(i), self.row_offset(j))
     }
 
     /// Focal lengths in pixels.

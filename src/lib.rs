@@ -17,6 +17,7 @@
 //! `scene` and `io` only; a render is a pure function of scene + options (no global state).
 
 pub mod aov;
+pub mod bench;
 pub mod bvh;
 pub mod camera;
 pub mod commands;
@@ -24,4 +25,6 @@ pub mod geometry;
 pub mod io;
 pub mod preview;
 pub mod render;
+pub mod rng;
 pub mod scene;
+pub mod tiles;

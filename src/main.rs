@@ -3,7 +3,7 @@
 use clap::{Args, Parser, Subcommand};
 use cylaov::aov::Compression;
 use cylaov::commands;
-use cylaov::render::{FormulaKind, Precision, RenderOptions};
+use cylaov::render::{Accel, FormulaKind, Precision, RenderOptions};
 use cylaov::scene::Aov;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -34,6 +34,9 @@ struct KernelCli {
     /// Kernel formulation: `stable` (default) or the SPEC §1 formulas as written.
     #[arg(long, value_enum, default_value_t = FormulaKind::Stable)]
     formula: FormulaKind,
+    /// How primary rays find candidates: screen tiles (fast) or the BVH.
+    #[arg(long, value_enum, default_value_t = Accel::Tiles)]
+    accel: Accel,
     /// Worker threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
@@ -46,10 +49,10 @@ struct RenderCli {
     /// Output EXR; the camera metadata goes to OUT.camera.json beside it.
     #[arg(short, long)]
     out: PathBuf,
-    /// AOVs to compute and store, comma-separated: distance,depth,normal,position,shape_id.
+    /// AOVs to compute and store, comma-separated (e.g. depth,normal,shape_id).
     /// Default: the scene's `aovs`, else depth,normal.
-    #[arg(long, value_parser = Aov::parse_list)]
-    aov: Option<Vec<Aov>>,
+    #[arg(long, value_enum, value_delimiter = ',')]
+    aov: Vec<Aov>,
     #[command(flatten)]
     kernel: KernelCli,
     /// Also write PNG previews (NAME.normal.png, NAME.depth.png with a legend) into DIR.
@@ -79,11 +82,12 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             let args = commands::render::RenderArgs {
                 scene: a.scene,
                 out: a.out,
-                aovs: a.aov,
+                aovs: (!a.aov.is_empty()).then_some(a.aov),
                 options: RenderOptions {
                     aovs: Vec::new(),
                     precision: a.kernel.precision,
                     formula: a.kernel.formula,
+                    accel: a.kernel.accel,
                 },
                 preview: a.preview,
                 compression: a.compression,

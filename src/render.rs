@@ -6,6 +6,7 @@ use crate::bvh::Bvh;
 use crate::camera::Camera;
 use crate::geometry::{BasicHit, Formula, Literal, Prepared, Real, Stable};
 use crate::scene::{Aov, Scene};
+use crate::tiles::{Candidate, TILE, Tiles};
 use glam::{DVec3, Vec3A};
 use rayon::prelude::*;
 
@@ -27,12 +28,23 @@ pub enum FormulaKind {
     Stable,
 }
 
+/// How primary rays find their candidate cylinders.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum Accel {
+    /// Screen tiles of projected cylinder boxes, nearest first (primary rays only).
+    #[default]
+    Tiles,
+    /// The BVH, one traversal per ray (works for any ray; kept to compare).
+    Bvh,
+}
+
 /// What to render.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RenderOptions {
     pub aovs: Vec<Aov>,
     pub precision: Precision,
     pub formula: FormulaKind,
+    pub accel: Accel,
 }
 
 impl RenderOptions {
@@ -42,6 +54,7 @@ impl RenderOptions {
             aovs,
             precision: Precision::default(),
             formula: FormulaKind::default(),
+            accel: Accel::default(),
         }
     }
 }
@@ -57,10 +70,10 @@ pub struct Render {
 /// Render `scene` with `opts` on the current rayon pool.
 pub fn render(scene: &Scene, opts: &RenderOptions) -> Render {
     match (opts.precision, opts.formula) {
-        (Precision::F32, FormulaKind::Stable) => render_with::<f32, Stable>(scene, &opts.aovs),
-        (Precision::F64, FormulaKind::Stable) => render_with::<f64, Stable>(scene, &opts.aovs),
-        (Precision::F32, FormulaKind::Literal) => render_with::<f32, Literal>(scene, &opts.aovs),
-        (Precision::F64, FormulaKind::Literal) => render_with::<f64, Literal>(scene, &opts.aovs),
+        (Precision::F32, FormulaKind::Stable) => render_with::<f32, Stable>(scene, opts),
+        (Precision::F64, FormulaKind::Stable) => render_with::<f64, Stable>(scene, opts),
+        (Precision::F32, FormulaKind::Literal) => render_with::<f32, Literal>(scene, opts),
+        (Precision::F64, FormulaKind::Literal) => render_with::<f64, Literal>(scene, opts),
     }
 }
 
@@ -68,7 +81,8 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Render {
 pub struct Tracer<T: Real, F: Formula> {
     pub camera: Camera,
     prepared: Vec<Prepared<T>>,
-    bvh: Bvh,
+    bvh: Option<Bvh>,
+    tiles: Option<Tiles>,
     _formula: std::marker::PhantomData<F>,
 }
 
@@ -91,7 +105,8 @@ fn f32_down(x: f64) -> f32 {
 }
 
 impl<T: Real, F: Formula> Tracer<T, F> {
-    pub fn new(scene: &Scene) -> Self {
+    /// Prepare `scene` for its camera, building the structure `accel` needs.
+    pub fn new(scene: &Scene, accel: Accel) -> Self {
         let camera = Camera::new(scene.camera);
         let origin = camera.origin;
         let prepared = scene
@@ -99,39 +114,100 @@ impl<T: Real, F: Formula> Tracer<T, F> {
             .iter()
             .map(|c| Prepared::new(c, origin, F::CENTRED))
             .collect();
-        let bounds: Vec<_> = scene.cylinders.iter().map(|c| c.bounds()).collect();
+        let (bvh, tiles) = match accel {
+            Accel::Bvh => {
+                let bounds: Vec<_> = scene.cylinders.iter().map(|c| c.bounds()).collect();
+                (Some(Bvh::build(&bounds, origin)), None)
+            }
+            Accel::Tiles => (None, Some(Tiles::build(&camera, &scene.cylinders))),
+        };
         Tracer {
             camera,
             prepared,
-            bvh: Bvh::build(&bounds, origin),
+            bvh,
+            tiles,
             _formula: std::marker::PhantomData,
         }
     }
 
-    /// Nearest hit along unit direction `d` from the camera origin whose camera-space z lies
-    /// in `[near_clip, far_clip]`. Ties go to the lower cylinder index (deterministic).
-    #[inline]
-    pub fn trace(&self, d: DVec3) -> Option<PixelHit<T>> {
+    /// The ray parameter range of camera-space z in `[near_clip, far_clip]` along `d`.
+    #[inline(always)]
+    fn clip(&self, d: DVec3) -> (f64, f64) {
         let spec = &self.camera.spec;
         let cos = d.dot(self.camera.forward);
-        let (tmin, tmax) = (spec.near_clip / cos, spec.far_clip / cos);
+        (spec.near_clip / cos, spec.far_clip / cos)
+    }
+
+    /// Test cylinder `index`; keep it in `best` when nearer (ties: lower index wins, so the
+    /// answer does not depend on visiting order). True when `best` changed.
+    #[inline(always)]
+    fn consider(
+        &self,
+        index: u32,
+        dt: T::V3,
+        tmin: T,
+        tmax: T,
+        best: &mut Option<PixelHit<T>>,
+    ) -> bool {
+        let limit = best.map_or(tmax, |b| b.hit.t);
+        let Some(hit) = F::intersect(&self.prepared[index as usize], dt, tmin, limit) else {
+            return false;
+        };
+        let closer = best.is_none_or(|b| hit.t < b.hit.t || (hit.t == b.hit.t && index < b.index));
+        if closer {
+            *best = Some(PixelHit { index, hit });
+        }
+        closer
+    }
+
+    /// Nearest hit along unit direction `d` from the camera origin whose camera-space z lies
+    /// in `[near_clip, far_clip]`, through the BVH (any direction; no tiles needed).
+    #[inline]
+    pub fn trace(&self, d: DVec3) -> Option<PixelHit<T>> {
+        let (tmin, tmax) = self.clip(d);
+        let (tmin_t, tmax_t) = (T::from_f64(tmin), T::from_f64(tmax));
+        let dt = T::v3(d);
+        let mut best = None;
+        match &self.bvh {
+            Some(bvh) => {
+                let d32 = Vec3A::new(d.x as f32, d.y as f32, d.z as f32);
+                bvh.traverse(d32, f32_down(tmin), f32_up(tmax), |index| {
+                    self.consider(index, dt, tmin_t, tmax_t, &mut best)
+                        .then(|| f32_up(best.map_or(tmax, |b| b.hit.t.to_f64())))
+                });
+            }
+            None => {
+                for index in 0..self.prepared.len() as u32 {
+                    self.consider(index, dt, tmin_t, tmax_t, &mut best);
+                }
+            }
+        }
+        best
+    }
+
+    /// Nearest hit for pixel (i, j) along `d` from its tile's candidates (sorted by `t_min`,
+    /// so the first one beyond the best hit ends the search).
+    #[inline]
+    pub fn trace_candidates(
+        &self,
+        d: DVec3,
+        i: u32,
+        j: u32,
+        cands: &[Candidate],
+    ) -> Option<PixelHit<T>> {
+        let (tmin, tmax) = self.clip(d);
         let (tmin_t, tmax_t) = (T::from_f64(tmin), T::from_f64(tmax));
         let dt = T::v3(d);
         let mut best: Option<PixelHit<T>> = None;
-        let d32 = Vec3A::new(d.x as f32, d.y as f32, d.z as f32);
-        self.bvh
-            .traverse(d32, f32_down(tmin), f32_up(tmax), |index| {
-                let limit = best.map_or(tmax_t, |b| b.hit.t);
-                let hit = F::intersect(&self.prepared[index as usize], dt, tmin_t, limit)?;
-                let closer =
-                    best.is_none_or(|b| hit.t < b.hit.t || (hit.t == b.hit.t && index < b.index));
-                if closer {
-                    best = Some(PixelHit { index, hit });
-                    Some(f32_up(hit.t.to_f64()))
-                } else {
-                    None
-                }
-            });
+        let mut reach = tmax;
+        for c in cands {
+            if c.t_min > reach {
+                break;
+            }
+            if c.covers(i, j) && self.consider(c.index, dt, tmin_t, tmax_t, &mut best) {
+                reach = best.map_or(tmax, |b| b.hit.t.to_f64());
+            }
+        }
         best
     }
 
@@ -142,104 +218,158 @@ impl<T: Real, F: Formula> Tracer<T, F> {
     }
 }
 
-/// Output slices of one band of rows; `None` for AOVs not requested.
+/// Output planes of the requested AOVs; `None` for the rest.
+struct Planes<P> {
+    distance: Option<P>,
+    depth: Option<P>,
+    normal: Option<[P; 3]>,
+    position: Option<[P; 3]>,
+}
+
+/// One band's slices of every requested plane (`shape_id` as u32).
 struct Band<'a> {
-    distance: Option<&'a mut [f32]>,
-    depth: Option<&'a mut [f32]>,
-    normal: Option<[&'a mut [f32]; 3]>,
-    position: Option<[&'a mut [f32]; 3]>,
+    f: Planes<&'a mut [f32]>,
     id: Option<&'a mut [u32]>,
 }
 
-/// Rows per parallel task: small enough to balance two cores, large enough to amortise.
-const BAND_ROWS: usize = 4;
-
-fn split<T>(v: &mut Option<Vec<T>>, len: usize) -> Vec<Option<&mut [T]>> {
-    match v {
-        Some(v) => v.chunks_mut(len).map(Some).collect(),
-        None => Vec::new(),
+/// Cut each requested plane into bands of `len` samples.
+fn bands<'a>(
+    f: &'a mut Planes<Vec<f32>>,
+    id: &'a mut Option<Vec<u32>>,
+    len: usize,
+    count: usize,
+) -> Vec<Band<'a>> {
+    fn cut<X>(v: Option<&mut Vec<X>>, len: usize, count: usize) -> Vec<Option<&mut [X]>> {
+        match v {
+            Some(v) => v.chunks_mut(len).map(Some).collect(),
+            None => (0..count).map(|_| None).collect(),
+        }
     }
+    let mut d = cut(f.distance.as_mut(), len, count).into_iter();
+    let mut z = cut(f.depth.as_mut(), len, count).into_iter();
+    let [n0, n1, n2] = f
+        .normal
+        .as_mut()
+        .map(|[a, b, c]| [Some(a), Some(b), Some(c)])
+        .unwrap_or_default();
+    let mut n = [
+        cut(n0, len, count).into_iter(),
+        cut(n1, len, count).into_iter(),
+        cut(n2, len, count).into_iter(),
+    ];
+    let [p0, p1, p2] = f
+        .position
+        .as_mut()
+        .map(|[a, b, c]| [Some(a), Some(b), Some(c)])
+        .unwrap_or_default();
+    let mut p = [
+        cut(p0, len, count).into_iter(),
+        cut(p1, len, count).into_iter(),
+        cut(p2, len, count).into_iter(),
+    ];
+    let mut ids = cut(id.as_mut(), len, count).into_iter();
+    let three =
+        |it: &mut [std::vec::IntoIter<Option<&'a mut [f32]>>; 3]| -> Option<[&'a mut [f32]; 3]> {
+            match (
+                it[0].next().flatten(),
+                it[1].next().flatten(),
+                it[2].next().flatten(),
+            ) {
+                (Some(x), Some(y), Some(z)) => Some([x, y, z]),
+                _ => None,
+            }
+        };
+    (0..count)
+        .map(|_| Band {
+            f: Planes {
+                distance: d.next().flatten(),
+                depth: z.next().flatten(),
+                normal: three(&mut n),
+                position: three(&mut p),
+            },
+            id: ids.next().flatten(),
+        })
+        .collect()
 }
 
-fn render_with<T: Real, F: Formula>(scene: &Scene, aovs: &[Aov]) -> Render {
-    let tracer = Tracer::<T, F>::new(scene);
-    let (w, h) = (
-        tracer.camera.width() as usize,
-        tracer.camera.height() as usize,
-    );
-    let n = w * h;
-    let want = |a: Aov| aovs.contains(&a);
-    let plane = |on: bool| on.then(|| vec![0f32; n]);
-    let mut distance = plane(want(Aov::Distance));
-    let mut depth = plane(want(Aov::Depth));
-    let mut normal = [0; 3].map(|_| plane(want(Aov::Normal)));
-    let mut position = [0; 3].map(|_| plane(want(Aov::Position)));
-    let mut id = want(Aov::ShapeId).then(|| vec![0u32; n]);
-
-    let chunk = BAND_ROWS * w;
-    let bands_count = h.div_ceil(BAND_ROWS);
-    let mut d_bands = split(&mut distance, chunk).into_iter();
-    let mut z_bands = split(&mut depth, chunk).into_iter();
-    let [n0, n1, n2] = &mut normal;
-    let mut n_bands = (
-        split(n0, chunk).into_iter(),
-        split(n1, chunk).into_iter(),
-        split(n2, chunk).into_iter(),
-    );
-    let [p0, p1, p2] = &mut position;
-    let mut p_bands = (
-        split(p0, chunk).into_iter(),
-        split(p1, chunk).into_iter(),
-        split(p2, chunk).into_iter(),
-    );
-    let mut id_bands = split(&mut id, chunk).into_iter();
-    let bands: Vec<Band> = (0..bands_count)
-        .map(|_| Band {
-            distance: d_bands.next().flatten(),
-            depth: z_bands.next().flatten(),
-            normal: match (n_bands.0.next(), n_bands.1.next(), n_bands.2.next()) {
-                (Some(Some(x)), Some(Some(y)), Some(Some(z))) => Some([x, y, z]),
-                _ => None,
-            },
-            position: match (p_bands.0.next(), p_bands.1.next(), p_bands.2.next()) {
-                (Some(Some(x)), Some(Some(y)), Some(Some(z))) => Some([x, y, z]),
-                _ => None,
-            },
-            id: id_bands.next().flatten(),
-        })
-        .collect();
-
+fn render_with<T: Real, F: Formula>(scene: &Scene, opts: &RenderOptions) -> Render {
+    let tracer = Tracer::<T, F>::new(scene, opts.accel);
     let cam = &tracer.camera;
+    let (w, h) = (cam.width() as usize, cam.height() as usize);
+    let n = w * h;
+    let want = |a: Aov| opts.aovs.contains(&a);
+    let plane = || vec![0f32; n];
+    let mut planes = Planes {
+        distance: want(Aov::Distance).then(plane),
+        depth: want(Aov::Depth).then(plane),
+        normal: want(Aov::Normal).then(|| [plane(), plane(), plane()]),
+        position: want(Aov::Position).then(|| [plane(), plane(), plane()]),
+    };
+    let mut id = want(Aov::ShapeId).then(|| vec![0u32; n]);
+    let band_rows = TILE as usize;
+    let count = h.div_ceil(band_rows);
     let ids: Vec<u32> = scene.cylinders.iter().map(|c| c.id).collect();
-    let hits: usize = bands
+    let cols_off: Vec<f64> = (0..w as u32).map(|i| cam.column_offset(i)).collect();
+    let rows_off: Vec<f64> = (0..h as u32).map(|j| cam.row_offset(j)).collect();
+    let hits: usize = bands(&mut planes, &mut id, band_rows * w, count)
         .into_par_iter()
         .enumerate()
         .map(|(b, mut band)| {
-            let row0 = b * BAND_ROWS;
-            let rows = BAND_ROWS.min(h - row0);
+            let row0 = b * band_rows;
+            let rows = band_rows.min(h - row0);
             let mut hits = 0;
-            for k in 0..rows * w {
-                let (i, j) = ((k % w) as u32, (row0 + k / w) as u32);
-                let d = cam.ray_dir(i, j);
-                let Some(ph) = tracer.trace(d) else { continue };
+            let mut shade = |k: usize, d: DVec3, hit: Option<PixelHit<T>>| {
+                let Some(ph) = hit else { return };
                 hits += 1;
                 let t = ph.hit.t.to_f64();
-                if let Some(s) = band.distance.as_deref_mut() {
+                let f = &mut band.f;
+                if let Some(s) = f.distance.as_deref_mut() {
                     s[k] = t as f32;
                 }
-                if let Some(s) = band.depth.as_deref_mut() {
+                if let Some(s) = f.depth.as_deref_mut() {
                     s[k] = (t * d.dot(cam.forward)) as f32;
                 }
-                if let Some(s) = band.normal.as_mut() {
+                if let Some(s) = f.normal.as_mut() {
                     let nrm = tracer.normal(d, &ph);
                     (s[0][k], s[1][k], s[2][k]) = (nrm.x as f32, nrm.y as f32, nrm.z as f32);
                 }
-                if let Some(s) = band.position.as_mut() {
+                if let Some(s) = f.position.as_mut() {
                     let p = cam.origin + d * t;
                     (s[0][k], s[1][k], s[2][k]) = (p.x as f32, p.y as f32, p.z as f32);
                 }
                 if let Some(s) = band.id.as_deref_mut() {
                     s[k] = ids[ph.index as usize];
+                }
+            };
+            match &tracer.tiles {
+                Some(tiles) => {
+                    for tx in 0..tiles.tiles_x {
+                        let cands = tiles.tile(tx, b as u32);
+                        if cands.is_empty() {
+                            continue; // every AOV of a miss is 0 already
+                        }
+                        let x0 = (tx * TILE) as usize;
+                        for dj in 0..rows {
+                            let j = (row0 + dj) as u32;
+                            let y = rows_off[j as usize];
+                            let x1 = (x0 + TILE as usize).min(w);
+                            for (i, &x) in cols_off.iter().enumerate().take(x1).skip(x0) {
+                                let d = cam.dir_from_offsets(x, y);
+                                shade(
+                                    dj * w + i,
+                                    d,
+                                    tracer.trace_candidates(d, i as u32, j, cands),
+                                );
+                            }
+                        }
+                    }
+                }
+                None => {
+                    for k in 0..rows * w {
+                        let (i, j) = (k % w, row0 + k / w);
+                        let d = cam.dir_from_offsets(cols_off[i], rows_off[j]);
+                        shade(k, d, tracer.trace(d));
+                    }
                 }
             }
             hits
@@ -255,14 +385,19 @@ fn render_with<T: Real, F: Formula>(scene: &Scene, aovs: &[Aov]) -> Render {
             });
         }
     };
-    push("distance", distance.map(ChannelData::F32));
-    push("depth", depth.map(ChannelData::F32));
-    for (c, v) in ["normal.X", "normal.Y", "normal.Z"].iter().zip(normal) {
+    push("distance", planes.distance.map(ChannelData::F32));
+    push("depth", planes.depth.map(ChannelData::F32));
+    let [nx, ny, nz] = planes.normal.map(|v| v.map(Some)).unwrap_or_default();
+    for (c, v) in ["normal.X", "normal.Y", "normal.Z"]
+        .iter()
+        .zip([nx, ny, nz])
+    {
         push(c, v.map(ChannelData::F32));
     }
+    let [px, py, pz] = planes.position.map(|v| v.map(Some)).unwrap_or_default();
     for (c, v) in ["position.X", "position.Y", "position.Z"]
         .iter()
-        .zip(position)
+        .zip([px, py, pz])
     {
         push(c, v.map(ChannelData::F32));
     }

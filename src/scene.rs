@@ -16,13 +16,31 @@ pub const MAX_COORD: f64 = 1e12;
 pub const MAX_SIDE: u32 = 16384;
 
 /// One AOV (SPEC §4).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[derive(
+    Clone,
+    Copy,
+    Debug,
+    PartialEq,
+    Eq,
+    Hash,
+    PartialOrd,
+    Ord,
+    Serialize,
+    Deserialize,
+    clap::ValueEnum,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum Aov {
+    /// Euclidean distance from the camera origin to the hit.
     Distance,
+    /// Planar depth: camera-space z of the hit.
     Depth,
+    /// World-space unit outward normal (normal.X/Y/Z).
     Normal,
+    /// World-space hit point (position.X/Y/Z).
     Position,
+    /// u32 id of the hit cylinder (0 = miss).
+    #[value(name = "shape_id")]
     ShapeId,
 }
 
@@ -47,25 +65,6 @@ impl Aov {
 
     pub fn parse(s: &str) -> Option<Aov> {
         Aov::ALL.into_iter().find(|a| a.name() == s)
-    }
-
-    /// Parse a comma-separated list such as `depth,normal`.
-    pub fn parse_list(s: &str) -> Result<Vec<Aov>, String> {
-        let mut out = Vec::new();
-        for part in s.split(',').map(str::trim).filter(|p| !p.is_empty()) {
-            let aov = Aov::parse(part).ok_or_else(|| {
-                format!(
-                    "unknown AOV {part:?}; expected distance, depth, normal, position or shape_id"
-                )
-            })?;
-            if !out.contains(&aov) {
-                out.push(aov);
-            }
-        }
-        if out.is_empty() {
-            return Err("no AOV given".into());
-        }
-        Ok(out)
     }
 }
 

@@ -1,7 +1,7 @@
 //! End-to-end checks of the core renderer against analytic answers (issue 3).
 
 use cylaov::aov::AovImage;
-use cylaov::render::{FormulaKind, Precision, RenderOptions, render};
+use cylaov::render::{Accel, FormulaKind, Precision, RenderOptions, render};
 use cylaov::scene::{self, Aov, Scene};
 
 fn scene(json: &str) -> Scene {
@@ -16,6 +16,7 @@ fn opts(precision: Precision, formula: FormulaKind) -> RenderOptions {
         aovs: Aov::ALL.to_vec(),
         precision,
         formula,
+        accel: Accel::Tiles,
     }
 }
 
@@ -292,6 +293,23 @@ fn exr_round_trip_keeps_names_types_and_bits() {
     let back = AovImage::read_exr(&path).unwrap();
     let _ = std::fs::remove_dir_all(&dir);
     assert_eq!((back.width, back.height), (160, 120));
+    for c in &img.channels {
+        assert_eq!(back.channel(&c.name), Some(&c.data), "channel {}", c.name);
+    }
+}
+
+#[test]
+fn direct_uncompressed_writer_reads_back_bit_exact_with_the_exr_crate() {
+    let sc = random_scene(30, 5);
+    let img = render(&sc, &opts(Precision::F32, FormulaKind::Stable)).image;
+    let dir = std::env::temp_dir().join(format!("cylaov-raw-{}", std::process::id()));
+    let path = dir.join("raw.exr");
+    img.write_exr(&path, cylaov::aov::Compression::None)
+        .unwrap();
+    let back = AovImage::read_exr(&path).unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+    assert_eq!((back.width, back.height), (img.width, img.height));
+    assert_eq!(back.channels.len(), img.channels.len());
     for c in &img.channels {
         assert_eq!(back.channel(&c.name), Some(&c.data), "channel {}", c.name);
     }

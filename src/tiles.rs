@@ -1,0 +1,189 @@
+//! Screen-space binning of cylinders for primary rays: the fast path of `render`.
+//!
+//! Every primary ray leaves the one camera origin, so a cylinder can only be hit by the
+//! pixels inside the projection of its bounding box. Each cylinder's oriented box (axis ×
+//! 2r × 2r) is projected once; the cylinder is listed in every screen tile its pixel
+//! rectangle touches, sorted by the box's nearest camera-space z. A pixel then tests only
+//! the candidates whose rectangle holds it, and stops at the first candidate whose nearest
+//! z lies beyond the best hit so far (`t ≥ z` for any point, so nothing later can be
+//! closer). A box reaching behind the camera plane projects to the whole screen.
+
+use crate::camera::Camera;
+use crate::geometry::{Cylinder, cylinder::orthonormal_basis};
+
+/// Tile side in pixels.
+pub const TILE: u32 = 16;
+
+/// A candidate in a tile: cylinder index, inclusive pixel rectangle, lower bound on `t`.
+#[derive(Clone, Copy, Debug)]
+pub struct Candidate {
+    pub index: u32,
+    pub x0: u32,
+    pub y0: u32,
+    pub x1: u32,
+    pub y1: u32,
+    /// No hit on this cylinder has a ray parameter below this.
+    pub t_min: f64,
+}
+
+impl Candidate {
+    #[inline(always)]
+    pub fn covers(&self, i: u32, j: u32) -> bool {
+        i >= self.x0 && i <= self.x1 && j >= self.y0 && j <= self.y1
+    }
+}
+
+/// Candidates per tile, stored flat (CSR): tile `k` owns `list[start[k]..start[k + 1]]`.
+#[derive(Clone, Debug)]
+pub struct Tiles {
+    pub tiles_x: u32,
+    pub tiles_y: u32,
+    start: Vec<u32>,
+    list: Vec<Candidate>,
+}
+
+/// The pixel rectangle and nearest z of a cylinder, or `None` when it lies wholly outside
+/// the view or the clip range.
+pub fn project(cam: &Camera, cyl: &Cylinder) -> Option<Candidate> {
+    let (w, h) = (cam.width(), cam.height());
+    let (u, v) = orthonormal_basis(cyl.axis);
+    let r = cyl.radius;
+    let right = -cam.left;
+    let (mut zmin, mut zmax) = (f64::INFINITY, f64::NEG_INFINITY);
+    let (mut xmin, mut xmax, mut ymin, mut ymax) = (
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+    );
+    let mut behind = false;
+    for end in [cyl.base, cyl.top()] {
+        for (su, sv) in [(-1.0, -1.0), (-1.0, 1.0), (1.0, -1.0), (1.0, 1.0)] {
+            let p = end + u * (su * r) + v * (sv * r) - cam.origin;
+            let z = p.dot(cam.forward);
+            zmin = zmin.min(z);
+            zmax = zmax.max(z);
+            if z <= 0.0 {
+                behind = true;
+                continue;
+            }
+            // Continuous pixel coordinates: pixel i spans [i, i + 1], centre i + 0.5.
+            let x = (p.dot(right) / z / cam.tan_half_x + 1.0) * 0.5 * w as f64;
+            let y = (1.0 - p.dot(cam.true_up) / z / cam.tan_half_y) * 0.5 * h as f64;
+            xmin = xmin.min(x);
+            xmax = xmax.max(x);
+            ymin = ymin.min(y);
+            ymax = ymax.max(y);
+        }
+    }
+    // Pad for rounding in the box (relative 1e-9 of its distance) and in the projection.
+    let pad = 1e-9
+        * (cyl.base - cam.origin)
+            .length()
+            .max(cyl.top().distance(cam.origin))
+        + 1e-12;
+    if zmax + pad < cam.spec.near_clip || zmin - pad > cam.spec.far_clip {
+        return None;
+    }
+    let t_min = (zmin - pad).max(cam.spec.near_clip * (1.0 - 1e-12));
+    if behind {
+        return Some(Candidate {
+            index: 0,
+            x0: 0,
+            y0: 0,
+            x1: w - 1,
+            y1: h - 1,
+            t_min,
+        });
+    }
+    // Pixel i is covered when its centre i + 0.5 lies in [xmin, xmax]; one pixel of slack.
+    let lo = |a: f64| (a - 0.5).ceil() - 1.0;
+    let hi = |a: f64| (a - 0.5).floor() + 1.0;
+    let (x0, x1, y0, y1) = (lo(xmin), hi(xmax), lo(ymin), hi(ymax));
+    if x1 < 0.0 || y1 < 0.0 || x0 > (w - 1) as f64 || y0 > (h - 1) as f64 {
+        return None;
+    }
+    let clamp = |a: f64, n: u32| a.clamp(0.0, (n - 1) as f64) as u32;
+    Some(Candidate {
+        index: 0,
+        x0: clamp(x0, w),
+        y0: clamp(y0, h),
+        x1: clamp(x1, w),
+        y1: clamp(y1, h),
+        t_min,
+    })
+}
+
+impl Tiles {
+    /// Bin `cylinders` for `cam`.
+    pub fn build(cam: &Camera, cylinders: &[Cylinder]) -> Tiles {
+        let (tiles_x, tiles_y) = (cam.width().div_ceil(TILE), cam.height().div_ceil(TILE));
+        let mut cands: Vec<Candidate> = cylinders
+            .iter()
+            .enumerate()
+            .filter_map(|(i, c)| {
+                project(cam, c).map(|mut k| {
+                    k.index = i as u32;
+                    k
+                })
+            })
+            .collect();
+        // Sorted once globally, so every tile's list comes out sorted by t_min.
+        cands.sort_by(|a, b| a.t_min.total_cmp(&b.t_min).then(a.index.cmp(&b.index)));
+        let ntiles = (tiles_x * tiles_y) as usize;
+        let tile_range = |c: &Candidate| (c.x0 / TILE, c.x1 / TILE, c.y0 / TILE, c.y1 / TILE);
+        let mut count = vec![0u32; ntiles + 1];
+        for c in &cands {
+            let (a, b, p, q) = tile_range(c);
+            for ty in p..=q {
+                for tx in a..=b {
+                    count[(ty * tiles_x + tx) as usize + 1] += 1;
+                }
+            }
+        }
+        for k in 1..count.len() {
+            count[k] += count[k - 1];
+        }
+        let start = count.clone();
+        let mut fill = count;
+        let mut list = vec![
+            cands.first().copied().unwrap_or(Candidate {
+                index: 0,
+                x0: 0,
+                y0: 0,
+                x1: 0,
+                y1: 0,
+                t_min: 0.0
+            });
+            start[ntiles] as usize
+        ];
+        for c in &cands {
+            let (a, b, p, q) = tile_range(c);
+            for ty in p..=q {
+                for tx in a..=b {
+                    let k = (ty * tiles_x + tx) as usize;
+                    list[fill[k] as usize] = *c;
+                    fill[k] += 1;
+                }
+            }
+        }
+        Tiles {
+            tiles_x,
+            tiles_y,
+            start,
+            list,
+        }
+    }
+
+    /// Candidates of the tile holding pixel column block `tx`, row block `ty`.
+    #[inline]
+    pub fn tile(&self, tx: u32, ty: u32) -> &[Candidate] {
+        let k = (ty * self.tiles_x + tx) as usize;
+        &self.list[self.start[k] as usize..self.start[k + 1] as usize]
+    }
+
+    /// Total candidate entries (for statistics).
+    pub fn entries(&self) -> usize {
+        self.list.len()
+    }
+}
