@@ -4,11 +4,18 @@
 //! by `(1000/n)^(1/3)` so every count fills the view about the same way. Every number in a
 //! row comes from one run on this machine; compare ratios within a table, not across runs.
 
+use crate::aov::AovImage;
 use crate::camera::{CameraSpec, FovAxis};
 use crate::geometry::Cylinder;
+use crate::render::{Accel, FormulaKind, Precision, RenderOptions, render, render_timed};
 use crate::rng::SplitMix64;
-use crate::scene::{Aov, Scene};
+use crate::scene::{Aov, Scene, SceneFile};
+use anyhow::{Context, Result, bail};
 use glam::DVec3;
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::{Duration, Instant};
 
 /// `n` random cylinders at `width`×`height`, the bench's standard scene.
 pub fn random_scene(n: usize, seed: u64, width: u32, height: u32) -> Scene {
@@ -56,4 +63,298 @@ pub fn random_scene(n: usize, seed: u64, width: u32, height: u32) -> Scene {
         cylinders,
         aovs: vec![Aov::Depth, Aov::Normal],
     }
+}
+
+/// One kernel: precision × formulation.
+pub type Kernel = (Precision, FormulaKind);
+
+/// Every kernel, the default (stable f64, the accuracy reference) first.
+pub const KERNELS: [Kernel; 4] = [
+    (Precision::F64, FormulaKind::Stable),
+    (Precision::F32, FormulaKind::Stable),
+    (Precision::F64, FormulaKind::Literal),
+    (Precision::F32, FormulaKind::Literal),
+];
+
+/// What `bench` runs.
+#[derive(Clone, Debug)]
+pub struct BenchOptions {
+    pub counts: Vec<usize>,
+    pub width: u32,
+    pub height: u32,
+    pub aov_sets: Vec<Vec<Aov>>,
+    pub kernels: Vec<Kernel>,
+    /// Timed repetitions per row; the minimum is reported (the machine is noisy).
+    pub repeats: usize,
+    /// Also time whole `cylaov render` processes with this executable (and read their
+    /// peak memory).
+    pub exe: Option<PathBuf>,
+    pub seed: u64,
+}
+
+/// The AOV sets of the table: depth only, depth + normal, all.
+pub fn default_aov_sets() -> Vec<Vec<Aov>> {
+    vec![
+        vec![Aov::Depth],
+        vec![Aov::Depth, Aov::Normal],
+        Aov::ALL.to_vec(),
+    ]
+}
+
+/// One line of the table.
+#[derive(Clone, Debug, Serialize)]
+pub struct Row {
+    pub cylinders: usize,
+    pub kernel: String,
+    pub aovs: String,
+    pub build_ms: f64,
+    pub trace_ms: f64,
+    /// Encoding the uncompressed EXR and writing it to a file.
+    pub write_ms: f64,
+    pub total_ms: f64,
+    pub mrays_per_s: f64,
+    /// Whole `cylaov render` process (parse, build, trace, write), when measured.
+    pub process_ms: Option<f64>,
+    pub peak_mib: Option<f64>,
+    /// Relative distance error against stable f64 where both hit the same cylinder.
+    pub err_median: f64,
+    pub err_max: f64,
+    /// Pixels where this kernel and stable f64 disagree on hit/miss or cylinder.
+    pub mismatches: usize,
+}
+
+fn ms(d: Duration) -> f64 {
+    d.as_secs_f64() * 1e3
+}
+
+/// Relative distance error of `img` against `reference` (both with distance + shape_id):
+/// (median, max, mismatched pixels).
+pub fn distance_error(img: &AovImage, reference: &AovImage) -> (f64, f64, usize) {
+    let (Some(ia), Some(ib), Some(da), Some(db)) = (
+        img.u32_channel("shape_id"),
+        reference.u32_channel("shape_id"),
+        img.f32_channel("distance"),
+        reference.f32_channel("distance"),
+    ) else {
+        return (f64::NAN, f64::NAN, 0);
+    };
+    let mut errs = Vec::new();
+    let mut mismatches = 0;
+    for k in 0..ia.len() {
+        if ia[k] != ib[k] {
+            mismatches += 1;
+        } else if ia[k] != 0 {
+            let e = ((da[k] as f64 - db[k] as f64) / db[k] as f64).abs();
+            errs.push(if e.is_nan() { f64::INFINITY } else { e });
+        }
+    }
+    if errs.is_empty() {
+        return (0.0, 0.0, mismatches);
+    }
+    errs.sort_by(f64::total_cmp);
+    (errs[errs.len() / 2], errs[errs.len() - 1], mismatches)
+}
+
+fn kernel_name((p, f): Kernel) -> String {
+    format!(
+        "{}-{}",
+        format!("{f:?}").to_lowercase(),
+        format!("{p:?}").to_lowercase()
+    )
+}
+
+fn aov_names(aovs: &[Aov]) -> String {
+    aovs.iter().map(|a| a.name()).collect::<Vec<_>>().join("+")
+}
+
+/// Time a whole `cylaov render` process; parse `peak N MiB` from its summary line.
+fn time_process(
+    exe: &Path,
+    scene: &Path,
+    out: &Path,
+    kernel: Kernel,
+    aovs: &[Aov],
+) -> Result<(f64, Option<f64>)> {
+    let start = Instant::now();
+    let o = Command::new(exe)
+        .arg("render")
+        .arg(scene)
+        .arg("-o")
+        .arg(out)
+        .arg("--aov")
+        .arg(aovs.iter().map(|a| a.name()).collect::<Vec<_>>().join(","))
+        .args(["--precision", &format!("{:?}", kernel.0).to_lowercase()])
+        .args(["--formula", &format!("{:?}", kernel.1).to_lowercase()])
+        .output()
+        .with_context(|| format!("running {}", exe.display()))?;
+    let elapsed = ms(start.elapsed());
+    if !o.status.success() {
+        bail!(
+            "{} render failed: {}",
+            exe.display(),
+            String::from_utf8_lossy(&o.stderr)
+        );
+    }
+    let text = String::from_utf8_lossy(&o.stdout);
+    let peak = text.trim().split(", ").find_map(|part| {
+        part.strip_prefix("peak ")?
+            .strip_suffix(" MiB")?
+            .trim()
+            .parse()
+            .ok()
+    });
+    Ok((elapsed, peak))
+}
+
+/// Run the benchmark, calling `progress` with each finished row.
+pub fn run(opts: &BenchOptions, mut progress: impl FnMut(&Row)) -> Result<Vec<Row>> {
+    let dir = std::env::temp_dir().join(format!("cylaov-bench-{}", std::process::id()));
+    std::fs::create_dir_all(&dir)?;
+    let mut rows = Vec::new();
+    for &n in &opts.counts {
+        let mut scene = random_scene(n, opts.seed, opts.width, opts.height);
+        let scene_path = dir.join(format!("scene-{n}.json"));
+        if opts.exe.is_some() {
+            let text = serde_json::to_string(&SceneFile::from_scene(&scene))?;
+            std::fs::write(&scene_path, text)?;
+        }
+        // Accuracy reference: stable f64 with distance + shape_id.
+        scene.aovs = vec![Aov::Distance, Aov::ShapeId];
+        let err_opts = |k: Kernel| RenderOptions {
+            aovs: vec![Aov::Distance, Aov::ShapeId],
+            precision: k.0,
+            formula: k.1,
+            accel: Accel::Tiles,
+        };
+        let reference = render(&scene, &err_opts(KERNELS[0])).image;
+        for &kernel in &opts.kernels {
+            let (err_median, err_max, mismatches) =
+                distance_error(&render(&scene, &err_opts(kernel)).image, &reference);
+            for aovs in &opts.aov_sets {
+                let ro = RenderOptions {
+                    aovs: aovs.clone(),
+                    precision: kernel.0,
+                    formula: kernel.1,
+                    accel: Accel::Tiles,
+                };
+                let (mut build, mut trace, mut write) =
+                    (f64::INFINITY, f64::INFINITY, f64::INFINITY);
+                for _ in 0..opts.repeats.max(1) {
+                    let (r, t) = render_timed(&scene, &ro);
+                    let w0 = Instant::now();
+                    let bytes = r.image.encode_uncompressed();
+                    crate::io::atomic_write_bytes(&dir.join("bench.exr"), &bytes)?;
+                    write = write.min(ms(w0.elapsed()));
+                    build = build.min(ms(t.build));
+                    trace = trace.min(ms(t.trace));
+                }
+                let (process_ms, peak_mib) = match &opts.exe {
+                    Some(exe) => {
+                        let mut best = (f64::INFINITY, None);
+                        for _ in 0..opts.repeats.max(1) {
+                            let (t, p) = time_process(
+                                exe,
+                                &scene_path,
+                                &dir.join("proc.exr"),
+                                kernel,
+                                aovs,
+                            )?;
+                            if t < best.0 {
+                                best = (t, p);
+                            }
+                        }
+                        (Some(best.0), best.1)
+                    }
+                    None => (None, None),
+                };
+                let row = Row {
+                    cylinders: n,
+                    kernel: kernel_name(kernel),
+                    aovs: aov_names(aovs),
+                    build_ms: build,
+                    trace_ms: trace,
+                    write_ms: write,
+                    total_ms: build + trace + write,
+                    mrays_per_s: (opts.width as f64 * opts.height as f64) / (trace * 1e3),
+                    process_ms,
+                    peak_mib,
+                    err_median,
+                    err_max,
+                    mismatches,
+                };
+                progress(&row);
+                rows.push(row);
+            }
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+    Ok(rows)
+}
+
+/// The table header, aligned with [`format_row`].
+pub fn header() -> String {
+    format!(
+        "{:>7} {:<14} {:<38} {:>8} {:>8} {:>8} {:>8} {:>7} {:>9} {:>8} {:>9} {:>9} {:>6}",
+        "cyl",
+        "kernel",
+        "aovs",
+        "build",
+        "trace",
+        "write",
+        "total",
+        "Mray/s",
+        "process",
+        "peakMiB",
+        "err_med",
+        "err_max",
+        "mism"
+    )
+}
+
+/// One aligned table line (times in ms).
+pub fn format_row(r: &Row) -> String {
+    let opt = |x: Option<f64>, p: usize| x.map_or("-".to_string(), |v| format!("{v:.p$}"));
+    format!(
+        "{:>7} {:<14} {:<38} {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>7.1} {:>9} {:>8} {:>9.1e} {:>9.1e} {:>6}",
+        r.cylinders,
+        r.kernel,
+        r.aovs,
+        r.build_ms,
+        r.trace_ms,
+        r.write_ms,
+        r.total_ms,
+        r.mrays_per_s,
+        opt(r.process_ms, 1),
+        opt(r.peak_mib, 0),
+        r.err_median,
+        r.err_max,
+        r.mismatches
+    )
+}
+
+/// The rows as CSV.
+pub fn csv(rows: &[Row]) -> String {
+    let mut s = String::from(
+        "cylinders,kernel,aovs,build_ms,trace_ms,write_ms,total_ms,mrays_per_s,process_ms,peak_mib,err_median,err_max,mismatches\n",
+    );
+    let opt = |x: Option<f64>| x.map_or(String::new(), |v| format!("{v}"));
+    for r in rows {
+        s += &format!(
+            "{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
+            r.cylinders,
+            r.kernel,
+            r.aovs,
+            r.build_ms,
+            r.trace_ms,
+            r.write_ms,
+            r.total_ms,
+            r.mrays_per_s,
+            opt(r.process_ms),
+            opt(r.peak_mib),
+            r.err_median,
+            r.err_max,
+            r.mismatches
+        );
+    }
+    s
 }

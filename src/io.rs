@@ -143,3 +143,11 @@ pub fn camera_json(cam: &Camera, aovs: &[Aov]) -> String {
     s.push('\n');
     s
 }
+
+/// Peak resident memory of this process in MiB (Linux `VmHWM`), if the OS tells.
+pub fn peak_rss_mib() -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib / 1024.0)
+}

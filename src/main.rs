@@ -2,9 +2,9 @@
 
 use clap::{Args, Parser, Subcommand};
 use cylaov::aov::Compression;
-use cylaov::commands;
 use cylaov::render::{Accel, FormulaKind, Precision, RenderOptions};
 use cylaov::scene::Aov;
+use cylaov::{bench, commands};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -23,6 +23,41 @@ enum Command {
     ///
     /// Example: cylaov render scenes/single.json -o out/single.exr --preview out
     Render(RenderCli),
+    /// Time against error for every kernel, AOV set and cylinder count (generated scenes).
+    ///
+    /// Prints one row per (cylinders, kernel, AOVs): build, trace and write times, Mrays/s,
+    /// the whole `cylaov render` process time and its peak memory, and the relative distance
+    /// error against the stable f64 kernel. Rows are the minimum of --repeats runs.
+    Bench(BenchCli),
+}
+
+#[derive(Args)]
+struct BenchCli {
+    /// Cylinder counts, comma-separated.
+    #[arg(long, value_delimiter = ',', default_values_t = [1usize, 100, 1000, 10000, 100000])]
+    counts: Vec<usize>,
+    #[arg(long, default_value_t = 1920)]
+    width: u32,
+    #[arg(long, default_value_t = 1080)]
+    height: u32,
+    /// Timed runs per row (the minimum is kept).
+    #[arg(long, default_value_t = 3)]
+    repeats: usize,
+    /// Only the default kernel (stable f64) and depth+normal: a quick look.
+    #[arg(long)]
+    quick: bool,
+    /// Skip timing whole `cylaov render` processes.
+    #[arg(long)]
+    no_process: bool,
+    /// Scene generator seed.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Also write the table as CSV.
+    #[arg(long, value_name = "OUT.csv")]
+    csv: Option<PathBuf>,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
 }
 
 /// Kernel choice shared by every command that traces rays.
@@ -93,6 +128,29 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 compression: a.compression,
             };
             println!("{}", commands::render::run(&args)?);
+        }
+        Command::Bench(b) => {
+            set_threads(b.threads)?;
+            let (kernels, aov_sets) = if b.quick {
+                (vec![bench::KERNELS[0]], vec![vec![Aov::Depth, Aov::Normal]])
+            } else {
+                (bench::KERNELS.to_vec(), bench::default_aov_sets())
+            };
+            let opts = bench::BenchOptions {
+                counts: b.counts,
+                width: b.width,
+                height: b.height,
+                aov_sets,
+                kernels,
+                repeats: b.repeats,
+                exe: if b.no_process {
+                    None
+                } else {
+                    Some(std::env::current_exe()?)
+                },
+                seed: b.seed,
+            };
+            commands::bench::run(&opts, b.csv)?;
         }
     }
     Ok(())

@@ -69,6 +69,18 @@ pub struct Render {
 
 /// Render `scene` with `opts` on the current rayon pool.
 pub fn render(scene: &Scene, opts: &RenderOptions) -> Render {
+    render_timed(scene, opts).0
+}
+
+/// Time spent preparing the scene (kernel form, BVH or tiles) and tracing it.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Timing {
+    pub build: std::time::Duration,
+    pub trace: std::time::Duration,
+}
+
+/// [`render`], also reporting how long the build and the trace took.
+pub fn render_timed(scene: &Scene, opts: &RenderOptions) -> (Render, Timing) {
     match (opts.precision, opts.formula) {
         (Precision::F32, FormulaKind::Stable) => render_with::<f32, Stable>(scene, opts),
         (Precision::F64, FormulaKind::Stable) => render_with::<f64, Stable>(scene, opts),
@@ -292,8 +304,10 @@ fn bands<'a>(
         .collect()
 }
 
-fn render_with<T: Real, F: Formula>(scene: &Scene, opts: &RenderOptions) -> Render {
+fn render_with<T: Real, F: Formula>(scene: &Scene, opts: &RenderOptions) -> (Render, Timing) {
+    let start = std::time::Instant::now();
     let tracer = Tracer::<T, F>::new(scene, opts.accel);
+    let build = start.elapsed();
     let cam = &tracer.camera;
     let (w, h) = (cam.width() as usize, cam.height() as usize);
     let n = w * h;
@@ -402,12 +416,14 @@ fn render_with<T: Real, F: Formula>(scene: &Scene, opts: &RenderOptions) -> Rend
         push(c, v.map(ChannelData::F32));
     }
     push("shape_id", id.map(ChannelData::U32));
-    Render {
-        image: AovImage {
-            width: w,
-            height: h,
-            channels,
-        },
-        hits,
-    }
+    let timing = Timing {
+        build,
+        trace: start.elapsed() - build,
+    };
+    let image = AovImage {
+        width: w,
+        height: h,
+        channels,
+    };
+    (Render { image, hits }, timing)
 }

@@ -219,6 +219,38 @@ fn check_positive(field: &str, x: f64) -> Result<f64, SceneError> {
 }
 
 impl SceneFile {
+    /// The file form of a validated scene (cylinders as `p0`/`p1`, every field explicit),
+    /// for writing generated scenes.
+    pub fn from_scene(scene: &Scene) -> SceneFile {
+        let c = &scene.camera;
+        SceneFile {
+            camera: CameraFile {
+                origin: c.origin.to_array(),
+                target: c.target.to_array(),
+                up: c.up.to_array(),
+                fov_deg: c.fov_deg,
+                fov_axis: c.fov_axis,
+                width: c.width,
+                height: c.height,
+                near_clip: c.near_clip,
+                far_clip: c.far_clip,
+            },
+            cylinders: scene
+                .cylinders
+                .iter()
+                .map(|y| CylinderFile {
+                    p0: Some(y.base.to_array()),
+                    p1: Some(y.top().to_array()),
+                    radius: y.radius,
+                    caps: y.caps,
+                    id: Some(y.id),
+                    ..CylinderFile::default()
+                })
+                .collect(),
+            aovs: Some(scene.aovs.clone()),
+        }
+    }
+
     /// Check every field and build the validated scene.
     pub fn validate(&self) -> Result<Scene, SceneError> {
         let camera = self.camera.validate()?;

@@ -314,3 +314,55 @@ fn direct_uncompressed_writer_reads_back_bit_exact_with_the_exr_crate() {
         assert_eq!(back.channel(&c.name), Some(&c.data), "channel {}", c.name);
     }
 }
+
+#[test]
+fn tiles_and_bvh_give_identical_images_across_thread_counts() {
+    for (n, seed, inside) in [
+        (1, 11, false),
+        (40, 12, false),
+        (400, 13, false),
+        (400, 14, true),
+    ] {
+        let mut sc = random_scene(n, seed);
+        if inside {
+            // Camera among the cylinders: boxes reach behind it and span the whole screen.
+            sc.camera.origin = glam::DVec3::new(0.3, -0.2, 0.1);
+            sc.camera.target = glam::DVec3::new(1.0, 2.0, 0.5);
+        }
+        let with = |accel: Accel, threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            let o = RenderOptions {
+                accel,
+                ..opts(Precision::F32, FormulaKind::Stable)
+            };
+            pool.install(|| render(&sc, &o).image)
+        };
+        let reference = with(Accel::Bvh, 1);
+        assert!(
+            n == 1
+                || reference
+                    .u32_channel("shape_id")
+                    .unwrap()
+                    .iter()
+                    .any(|&i| i > 0)
+        );
+        for (accel, threads) in [
+            (Accel::Bvh, 2),
+            (Accel::Tiles, 1),
+            (Accel::Tiles, 2),
+            (Accel::Tiles, 3),
+        ] {
+            let img = with(accel, threads);
+            for c in &reference.channels {
+                assert!(
+                    img.channel(&c.name) == Some(&c.data),
+                    "{n} cylinders, {accel:?}, {threads} threads: {} differs",
+                    c.name
+                );
+            }
+        }
+    }
+}

@@ -1,4 +1,5 @@
 //! The work behind each CLI subcommand: IO orchestration around the pure library.
 //! `main.rs` only parses arguments and calls these.
 
+pub mod bench;
 pub mod render;

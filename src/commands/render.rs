@@ -60,8 +60,9 @@ pub fn run(args: &RenderArgs) -> Result<String> {
         write_previews(&r.image, dir, &stem(&args.out))?;
     }
     let (w, h) = (r.image.width, r.image.height);
+    let peak = crate::io::peak_rss_mib().map_or(String::new(), |m| format!(", peak {m:.0} MiB"));
     Ok(format!(
-        "{}: {w}x{h}, {} cylinders, {} hits ({:.1}%), {:?}/{:?}, trace {trace_ms:.1} ms, write {write_ms:.1} ms, total {:.1} ms",
+        "{}: {w}x{h}, {} cylinders, {} hits ({:.1}%), {:?}/{:?}, trace {trace_ms:.1} ms, write {write_ms:.1} ms, total {:.1} ms{peak}",
         args.out.display(),
         scene.cylinders.len(),
         r.hits,
