@@ -7,7 +7,7 @@ use crate::io::atomic_write;
 use crate::scene::Aov;
 use anyhow::{Context, Result, bail};
 use exr::prelude::*;
-use rayon::prelude::*;
+use std::io::Write;
 use std::path::Path;
 
 /// The samples of one channel, row-major, row 0 at the top.
@@ -115,12 +115,15 @@ impl AovImage {
     }
 
     /// Write an OpenEXR file atomically (temporary name, then rename). Uncompressed files
-    /// are encoded by [`AovImage::encode_uncompressed`]; the rest by the `exr` crate.
+    /// are streamed by [`AovImage::write_uncompressed`]; the rest by the `exr` crate.
     pub fn write_exr(&self, path: &Path, compression: Compression) -> Result<()> {
         if compression == Compression::None {
-            let bytes = self.encode_uncompressed();
-            return crate::io::atomic_write_bytes(path, &bytes)
-                .with_context(|| format!("writing {}", path.display()));
+            return atomic_write(path, |f| {
+                let mut out = std::io::BufWriter::with_capacity(1 << 20, f);
+                self.write_uncompressed(&mut out)?;
+                out.flush()
+            })
+            .with_context(|| format!("writing {}", path.display()));
         }
         let channels: Vec<AnyChannel<FlatSamples>> = self
             .channels
@@ -153,12 +156,13 @@ impl AovImage {
         .with_context(|| format!("writing {}", path.display()))
     }
 
-    /// The whole file of an uncompressed single-part scanline OpenEXR, built directly from
-    /// the planes (the `exr` crate copies every sample through its own layout, which costs
-    /// more than the render at 1080p; SPEC §6). Layout: magic and version, the header
-    /// attributes, the offset table (one u64 per line), then per line `y`, byte count, and
-    /// each channel's samples in channel-name order. Lines are filled in parallel.
-    pub fn encode_uncompressed(&self) -> Vec<u8> {
+    /// Stream an uncompressed single-part scanline OpenEXR straight from the planes (the
+    /// `exr` crate copies every sample through its own layout, which costs more than the
+    /// render at 1080p; SPEC §6). Layout: magic and version, the header attributes, the
+    /// offset table (one u64 per line), then per line its `y`, byte count, and each
+    /// channel's row in channel-name order. Every row is already contiguous in its plane,
+    /// so a line is written as slices, with no per-sample work on little-endian machines.
+    pub fn write_uncompressed<W: std::io::Write>(&self, out: &mut W) -> std::io::Result<()> {
         let mut order: Vec<&Channel> = self.channels.iter().collect();
         order.sort_by(|a, b| a.name.as_bytes().cmp(b.name.as_bytes()));
         let (w, h) = (self.width, self.height);
@@ -166,10 +170,10 @@ impl AovImage {
         head.extend_from_slice(&20000630i32.to_le_bytes());
         head.extend_from_slice(&2i32.to_le_bytes());
         let mut attr = |name: &str, ty: &str, value: &[u8]| {
-            head.extend_from_slice(name.as_bytes());
-            head.push(0);
-            head.extend_from_slice(ty.as_bytes());
-            head.push(0);
+            for s in [name, ty] {
+                head.extend_from_slice(s.as_bytes());
+                head.push(0);
+            }
             head.extend_from_slice(&(value.len() as i32).to_le_bytes());
             head.extend_from_slice(value);
         };
@@ -183,8 +187,8 @@ impl AovImage {
             };
             chlist.extend_from_slice(&pixel_type.to_le_bytes());
             chlist.extend_from_slice(&[0, 0, 0, 0]); // pLinear, reserved
-            chlist.extend_from_slice(&1i32.to_le_bytes());
-            chlist.extend_from_slice(&1i32.to_le_bytes());
+            chlist.extend_from_slice(&1i32.to_le_bytes()); // x sampling
+            chlist.extend_from_slice(&1i32.to_le_bytes()); // y sampling
         }
         chlist.push(0);
         let window: Vec<u8> = [0i32, 0, w as i32 - 1, h as i32 - 1]
@@ -201,39 +205,32 @@ impl AovImage {
         attr("screenWindowWidth", "float", &1f32.to_le_bytes());
         head.push(0);
         let line_bytes = w * 4 * order.len();
-        let block = 8 + line_bytes;
         let data_start = head.len() + 8 * h;
-        let mut out = vec![0u8; data_start + block * h];
-        out[..head.len()].copy_from_slice(&head);
-        for (y, slot) in out[head.len()..data_start].chunks_exact_mut(8).enumerate() {
-            slot.copy_from_slice(&((data_start + y * block) as u64).to_le_bytes());
+        for y in 0..h {
+            head.extend_from_slice(&((data_start + y * (8 + line_bytes)) as u64).to_le_bytes());
         }
-        out[data_start..]
-            .par_chunks_mut(block)
-            .enumerate()
-            .for_each(|(y, b)| {
-                b[..4].copy_from_slice(&(y as i32).to_le_bytes());
-                b[4..8].copy_from_slice(&(line_bytes as i32).to_le_bytes());
-                let mut at = 8;
-                for c in &order {
-                    let dst = &mut b[at..at + 4 * w];
-                    let row = y * w..(y + 1) * w;
-                    match &c.data {
-                        ChannelData::F32(v) => {
-                            for (d, x) in dst.chunks_exact_mut(4).zip(&v[row]) {
-                                d.copy_from_slice(&x.to_le_bytes());
-                            }
-                        }
-                        ChannelData::U32(v) => {
-                            for (d, x) in dst.chunks_exact_mut(4).zip(&v[row]) {
-                                d.copy_from_slice(&x.to_le_bytes());
-                            }
-                        }
-                    }
-                    at += 4 * w;
+        out.write_all(&head)?;
+        let mut scratch: Vec<u8> = Vec::new();
+        for y in 0..h {
+            out.write_all(&(y as i32).to_le_bytes())?;
+            out.write_all(&(line_bytes as i32).to_le_bytes())?;
+            for c in &order {
+                let row = y * w..(y + 1) * w;
+                let bytes: &[u8] = match &c.data {
+                    ChannelData::F32(v) => bytemuck::cast_slice(&v[row]),
+                    ChannelData::U32(v) => bytemuck::cast_slice(&v[row]),
+                };
+                if cfg!(target_endian = "little") {
+                    out.write_all(bytes)?;
+                } else {
+                    // Samples are stored little-endian: swap each 4-byte word.
+                    scratch.clear();
+                    scratch.extend(bytes.chunks_exact(4).flat_map(|q| [q[3], q[2], q[1], q[0]]));
+                    out.write_all(&scratch)?;
                 }
-            });
-        out
+            }
+        }
+        Ok(())
     }
 
     /// Read every channel of the first layer of an OpenEXR file. Half channels become f32.

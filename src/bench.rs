@@ -4,7 +4,7 @@
 //! by `(1000/n)^(1/3)` so every count fills the view about the same way. Every number in a
 //! row comes from one run on this machine; compare ratios within a table, not across runs.
 
-use crate::aov::AovImage;
+use crate::aov::{AovImage, Compression};
 use crate::camera::{CameraSpec, FovAxis};
 use crate::geometry::Cylinder;
 use crate::render::{Accel, FormulaKind, Precision, RenderOptions, render, render_timed};
@@ -242,8 +242,8 @@ pub fn run(opts: &BenchOptions, mut progress: impl FnMut(&Row)) -> Result<Vec<Ro
                 for _ in 0..opts.repeats.max(1) {
                     let (r, t) = render_timed(&scene, &ro);
                     let w0 = Instant::now();
-                    let bytes = r.image.encode_uncompressed();
-                    crate::io::atomic_write_bytes(&dir.join("bench.exr"), &bytes)?;
+                    r.image
+                        .write_exr(&dir.join("bench.exr"), Compression::None)?;
                     write = write.min(ms(w0.elapsed()));
                     build = build.min(ms(t.build));
                     trace = trace.min(ms(t.trace));

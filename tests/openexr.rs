@@ -1,0 +1,71 @@
+//! Our direct EXR writer read back by OpenEXR itself (through Mitsuba's `Bitmap` in the
+//! reference venv), not only by the `exr` crate. Skipped, saying so, without the venv.
+
+use cylaov::render::{RenderOptions, render};
+use cylaov::scene::{self, Aov};
+use std::path::Path;
+use std::process::Command;
+
+#[test]
+fn openexr_reads_every_channel_of_our_uncompressed_files() {
+    let py = Path::new(env!("CARGO_MANIFEST_DIR")).join(".venv/bin/python");
+    if !py.exists() {
+        eprintln!("SKIPPED: no {} (run scripts/setup-venv)", py.display());
+        return;
+    }
+    let sc =
+        scene::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/single.json")).unwrap();
+    let img = render(&sc, &RenderOptions::new(Aov::ALL.to_vec())).image;
+    let dir = std::env::temp_dir().join(format!("cylaov-openexr-{}", std::process::id()));
+    let path = dir.join("all.exr");
+    img.write_exr(&path, cylaov::aov::Compression::None)
+        .unwrap();
+    let script = r#"
+import sys, numpy as np, mitsuba as mi
+mi.set_variant('scalar_rgb')
+b = mi.Bitmap(sys.argv[1])
+names = [b.struct_()[i].name for i in range(b.channel_count())]
+a = np.array(b).reshape(-1, len(names))
+k = np.arange(a.shape[0], dtype=np.float64)
+for i, n in enumerate(names):
+    print(n, repr(float((a[:, i].astype(np.float64) * (1 + k)).sum())))
+"#;
+    let out = Command::new(&py)
+        .args(["-c", script, path.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8_lossy(&out.stdout);
+    let mut seen = 0;
+    for line in text.lines() {
+        let (name, sum) = line.split_once(' ').unwrap();
+        let sum: f64 = sum.parse().unwrap();
+        let ours: f64 = match img
+            .channel(name)
+            .unwrap_or_else(|| panic!("extra channel {name}"))
+        {
+            // Weighted by 1 + pixel index, so a misplaced row or column shows.
+            cylaov::aov::ChannelData::F32(v) => v
+                .iter()
+                .enumerate()
+                .map(|(k, &x)| x as f64 * (1 + k) as f64)
+                .sum(),
+            cylaov::aov::ChannelData::U32(v) => v
+                .iter()
+                .enumerate()
+                .map(|(k, &x)| x as f64 * (1 + k) as f64)
+                .sum(),
+        };
+        assert!(
+            (sum - ours).abs() <= 1e-9 * ours.abs().max(1.0),
+            "{name}: OpenEXR {sum}, ours {ours}"
+        );
+        seen += 1;
+    }
+    assert_eq!(seen, img.channels.len(), "OpenEXR saw {text}");
+}
