@@ -116,17 +116,19 @@ pub fn cap_to_world(c: &Cylinder, part: Part) -> DMat4 {
     )
 }
 
+/// Shortest round-trip decimal; `-0` is written as `0` (same value, easier to read).
+fn num(x: f64) -> String {
+    (x + 0.0).to_string()
+}
+
 fn vec3(v: DVec3) -> String {
-    format!("{}, {}, {}", v.x, v.y, v.z)
+    format!("{}, {}, {}", num(v.x), num(v.y), num(v.z))
 }
 
 /// Row-major, as Mitsuba's `<matrix value=...>` reads it.
 fn matrix(m: DMat4) -> String {
     let rows = m.transpose().to_cols_array();
-    rows.iter()
-        .map(|x| x.to_string())
-        .collect::<Vec<_>>()
-        .join(" ")
+    rows.iter().map(|&x| num(x)).collect::<Vec<_>>().join(" ")
 }
 
 fn comment_safe(s: &str) -> String {
@@ -257,7 +259,7 @@ fn string(w: &mut Writer<&mut Vec<u8>>, name: &str, value: &str) -> io::Result<(
 fn float(w: &mut Writer<&mut Vec<u8>>, name: &str, value: f64) -> io::Result<()> {
     w.create_element("float")
         .with_attribute(("name", name))
-        .with_attribute(("value", value.to_string().as_str()))
+        .with_attribute(("value", num(value).as_str()))
         .write_empty()?;
     Ok(())
 }
