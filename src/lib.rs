@@ -12,6 +12,8 @@
 //! - [`aov`]: the in-memory AOV image and its EXR reading and writing.
 //! - [`preview`]: PNG previews and 16-bit depth PNGs.
 //! - [`io`]: atomic file writes and the camera metadata JSON.
+//! - [`mitsuba`]: the Mitsuba 3 XML of a scene (the reference renderer's input).
+//! - [`compare`]: per-pixel comparison of two AOV images (SPEC §7), heatmaps.
 //!
 //! **Architecture invariants**: geometry and render never do IO; serde types live in
 //! `scene` and `io` only; a render is a pure function of scene + options (no global state).
@@ -21,8 +23,10 @@ pub mod bench;
 pub mod bvh;
 pub mod camera;
 pub mod commands;
+pub mod compare;
 pub mod geometry;
 pub mod io;
+pub mod mitsuba;
 pub mod preview;
 pub mod render;
 pub mod rng;

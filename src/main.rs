@@ -2,6 +2,7 @@
 
 use clap::{Args, Parser, Subcommand};
 use cylaov::aov::Compression;
+use cylaov::compare::Tolerances;
 use cylaov::render::{Accel, FormulaKind, Precision, RenderOptions};
 use cylaov::scene::Aov;
 use cylaov::{bench, commands};
@@ -29,6 +30,14 @@ enum Command {
     /// the whole `cylaov render` process time and its peak memory, and the relative distance
     /// error against the stable f64 kernel. Rows are the minimum of --repeats runs.
     Bench(BenchCli),
+    /// Write the Mitsuba 3 XML of a scene (the reference renderer's input).
+    ///
+    /// Example: cylaov export-mitsuba scenes/single.json -o single.xml
+    ExportMitsuba(ExportCli),
+    /// Compare two AOV EXRs pixel by pixel (SPEC §7); exit 1 if a tolerance is broken.
+    ///
+    /// Example: cylaov compare out/single.exr reference/single.exr --heatmap diff.png
+    Compare(CompareCli),
 }
 
 #[derive(Args)]
@@ -58,6 +67,48 @@ struct BenchCli {
     /// Worker threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
+}
+
+#[derive(Args)]
+struct ExportCli {
+    /// Scene file (JSON).
+    scene: PathBuf,
+    /// Output XML.
+    #[arg(short, long)]
+    out: PathBuf,
+}
+
+#[derive(Args)]
+struct CompareCli {
+    /// First image (usually cylaov's render).
+    a: PathBuf,
+    /// Second image (usually the Mitsuba reference).
+    b: PathBuf,
+    /// Write a PNG showing where the images differ (see `compare::heatmap`).
+    #[arg(long, value_name = "OUT.png")]
+    heatmap: Option<PathBuf>,
+    /// Print the report as JSON.
+    #[arg(long)]
+    json: bool,
+    /// Largest allowed fraction of mismatched pixels (all must lie on silhouettes).
+    #[arg(long, default_value_t = Tolerances::default().max_mismatch_fraction, value_parser = non_negative)]
+    max_mismatch_fraction: f64,
+    /// Largest allowed relative distance error.
+    #[arg(long, default_value_t = Tolerances::default().rel_distance, value_parser = non_negative)]
+    rel_distance: f64,
+    /// Largest allowed relative depth error.
+    #[arg(long, default_value_t = Tolerances::default().rel_depth, value_parser = non_negative)]
+    rel_depth: f64,
+    /// Largest allowed normal angle error, degrees.
+    #[arg(long, default_value_t = Tolerances::default().normal_deg, value_parser = non_negative)]
+    normal_deg: f64,
+}
+
+fn non_negative(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(x) if x.is_finite() && x >= 0.0 => Ok(x),
+        _ => Err(format!("must be a finite number >= 0, got {s:?}")),
+    }
 }
 
 /// Kernel choice shared by every command that traces rays.
@@ -110,7 +161,8 @@ fn set_threads(threads: Option<usize>) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn run(cli: Cli) -> anyhow::Result<()> {
+/// Run the command; `Ok(false)` means it ran but found a failure (exit code 1).
+fn run(cli: Cli) -> anyhow::Result<bool> {
     match cli.command {
         Command::Render(a) => {
             set_threads(a.kernel.threads)?;
@@ -152,13 +204,34 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             };
             commands::bench::run(&opts, b.csv)?;
         }
+        Command::ExportMitsuba(a) => {
+            println!("{}", commands::export_mitsuba::run(&a.scene, &a.out)?);
+        }
+        Command::Compare(a) => {
+            let args = commands::compare::CompareArgs {
+                a: a.a,
+                b: a.b,
+                heatmap: a.heatmap,
+                json: a.json,
+                tolerances: Tolerances {
+                    max_mismatch_fraction: a.max_mismatch_fraction,
+                    rel_distance: a.rel_distance,
+                    rel_depth: a.rel_depth,
+                    normal_deg: a.normal_deg,
+                },
+            };
+            let out = commands::compare::run(&args)?;
+            println!("{}", out.text);
+            return Ok(out.passed);
+        }
     }
-    Ok(())
+    Ok(true)
 }
 
 fn main() -> ExitCode {
     match run(Cli::parse()) {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(true) => ExitCode::SUCCESS,
+        Ok(false) => ExitCode::from(1),
         Err(e) => {
             eprintln!("error: {e:#}");
             ExitCode::FAILURE

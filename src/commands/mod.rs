@@ -2,4 +2,6 @@
 //! `main.rs` only parses arguments and calls these.
 
 pub mod bench;
+pub mod compare;
+pub mod export_mitsuba;
 pub mod render;

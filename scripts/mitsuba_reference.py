@@ -1,0 +1,162 @@
+#!/usr/bin/env python3
+"""Render the Mitsuba 3 reference AOVs of a cylaov scene.
+
+Usage: mitsuba_reference.py SCENE.xml SCENE.json OUT.exr
+
+SCENE.xml comes from `cylaov export-mitsuba SCENE.json`; SCENE.json gives the camera for
+the depth conversion. Renders with the `scalar_rgb` variant (SPEC §5: cylinder quadratic in
+float64, deterministic) and writes OUT.exr (float32, lossless PIZ) with cylaov's channel
+names:
+
+  distance    = Mitsuba depth + near_clip / cos(theta)   (Mitsuba's ray starts on the near
+                plane; theta = angle between the pixel ray and the view direction)
+  depth       = distance * cos(theta)                    (planar depth)
+  normal.X/Y/Z, position.X/Y/Z  = Mitsuba sh_normal and position
+  shape_id    = our cylinder id of Mitsuba's shape_index (float32; 0 = miss)
+
+The shape_index -> shape_id map is read from the loaded scene itself: every exported shape
+has the XML id `c<file index>_id<shape_id>_<side|bottom|top>` (see src/mitsuba.rs), and
+Mitsuba's shape_index is 1 + the shape's position in `scene.shapes()`.
+
+cos(theta) comes from the pixel-centre ray built exactly as SPEC §3 (and src/camera.rs)
+builds it, in float64. Every channel of a missed pixel is 0.
+"""
+
+import json
+import os
+import re
+import sys
+
+import numpy as np
+
+import mitsuba as mi
+
+CHANNELS = [
+    "distance",
+    "depth",
+    "normal.X",
+    "normal.Y",
+    "normal.Z",
+    "position.X",
+    "position.Y",
+    "position.Z",
+    "shape_id",
+]
+MITSUBA_AOVS = ["dd.y.T", "nn.X", "nn.Y", "nn.Z", "pp.X", "pp.Y", "pp.Z", "ii.I"]
+SHAPE_ID_RE = re.compile(r"^c(\d+)_id(\d+)_(side|bottom|top)$")
+
+
+def fail(msg):
+    print(f"mitsuba_reference.py: error: {msg}", file=sys.stderr)
+    sys.exit(1)
+
+
+def normalize(v):
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def cos_theta(cam):
+    """cos of the angle between each pixel-centre ray and `forward`, shape (H, W), float64."""
+    origin = np.array(cam["origin"], dtype=np.float64)
+    target = np.array(cam["target"], dtype=np.float64)
+    up = np.array(cam["up"], dtype=np.float64)
+    w, h = int(cam["width"]), int(cam["height"])
+    forward = normalize(target - origin)
+    left = normalize(np.cross(up, forward))
+    true_up = np.cross(forward, left)
+    aspect = w / h
+    t = np.tan(np.radians(float(cam["fov_deg"])) / 2.0)
+    axis = cam.get("fov_axis", "x")
+    # Half width at unit distance: Mitsuba converts every fov_axis to an x fov.
+    if axis == "x":
+        tan_x = t
+    elif axis == "y":
+        tan_x = t * aspect
+    elif axis == "diagonal":
+        tan_x = t * aspect / np.sqrt(1.0 + aspect * aspect)
+    elif axis == "smaller":
+        tan_x = t * aspect if aspect > 1.0 else t
+    elif axis == "larger":
+        tan_x = t if aspect > 1.0 else t * aspect
+    else:
+        fail(f"camera.fov_axis: unknown value {axis!r}")
+    tan_y = tan_x / aspect
+    x = ((np.arange(w, dtype=np.float64) + 0.5) / w) * 2.0 - 1.0
+    y = 1.0 - ((np.arange(h, dtype=np.float64) + 0.5) / h) * 2.0
+    d = (
+        forward[None, None, :]
+        - left[None, None, :] * (x[None, :, None] * tan_x)
+        + true_up[None, None, :] * (y[:, None, None] * tan_y)
+    )
+    return normalize(d) @ forward
+
+
+def shape_lut(scene):
+    """lut[shape_index] = our shape_id; lut[0] = 0 (miss)."""
+    lut = [0]
+    last_cyl = -1
+    for k, shape in enumerate(scene.shapes()):
+        m = SHAPE_ID_RE.match(shape.id())
+        if not m:
+            fail(f"shape {k} has id {shape.id()!r}: not exported by cylaov export-mitsuba")
+        cyl = int(m.group(1))
+        if cyl < last_cyl:
+            fail(f"shape {k} ({shape.id()}) out of export order: Mitsuba reordered shapes")
+        last_cyl = cyl
+        lut.append(int(m.group(2)))
+    return np.array(lut, dtype=np.float64)
+
+
+def main(argv):
+    if len(argv) != 4:
+        fail("usage: mitsuba_reference.py SCENE.xml SCENE.json OUT.exr")
+    xml_path, json_path, out_path = argv[1:]
+    try:
+        with open(json_path) as f:
+            cam = json.load(f)["camera"]
+    except (OSError, ValueError, KeyError) as e:
+        fail(f"{json_path}: cannot read the camera: {e}")
+    near = float(cam.get("near_clip", 0.01))
+
+    mi.set_variant("scalar_rgb")
+    scene = mi.load_file(xml_path)
+    film = scene.sensors()[0].film()
+    size = tuple(film.size())
+    if size != (int(cam["width"]), int(cam["height"])):
+        fail(f"{xml_path}: film {size} differs from {json_path} camera size")
+    img = np.array(mi.render(scene), dtype=np.float32)
+    if img.shape[2] != len(MITSUBA_AOVS):
+        fail(f"expected {len(MITSUBA_AOVS)} AOV channels {MITSUBA_AOVS}, got {img.shape[2]}")
+
+    t = img[..., 0].astype(np.float64)
+    index = img[..., 7]
+    lut = shape_lut(scene)
+    if not (np.all(index == np.round(index)) and index.min() >= 0 and index.max() < len(lut)):
+        fail(f"shape_index outside 0..{len(lut) - 1}")
+    hit = index > 0
+    cos = cos_theta(cam)
+    distance = np.where(hit, t + near / cos, 0.0)
+    depth = distance * cos
+
+    out = np.zeros(img.shape[:2] + (len(CHANNELS),), dtype=np.float32)
+    out[..., 0] = distance
+    out[..., 1] = depth
+    out[..., 2:8] = np.where(hit[..., None], img[..., 1:7], 0.0)
+    out[..., 8] = lut[index.astype(np.int64)]
+
+    bitmap = mi.Bitmap(out, mi.Bitmap.PixelFormat.MultiChannel, channel_names=CHANNELS)
+    out_dir = os.path.dirname(os.path.abspath(out_path))
+    os.makedirs(out_dir, exist_ok=True)
+    tmp = os.path.join(out_dir, f".{os.path.basename(out_path)}.{os.getpid()}.tmp")
+    try:
+        # quality -1: lossless PIZ compression.
+        bitmap.write(tmp, mi.Bitmap.FileFormat.OpenEXR)
+        os.replace(tmp, out_path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+    print(f"{out_path}: {size[0]}x{size[1]}, {int(hit.sum())} hits, {len(lut) - 1} shapes")
+
+
+if __name__ == "__main__":
+    main(sys.argv)
