@@ -358,3 +358,102 @@ pub fn csv(rows: &[Row]) -> String {
     }
     s
 }
+
+/// Where and how far to run Mitsuba in the same benchmark.
+#[derive(Clone, Debug)]
+pub struct MitsubaBench {
+    /// The reference venv's python (with mitsuba 3.9.1).
+    pub python: PathBuf,
+    /// `scripts/bench_mitsuba.py`.
+    pub script: PathBuf,
+    /// Largest count for `scalar_rgb` (slow: ~75 s at 1 000 cylinders, SPEC §5).
+    pub scalar_max: usize,
+    /// Largest count for `llvm_ad_rgb`.
+    pub llvm_max: usize,
+}
+
+/// Mitsuba's times on one generated scene, seconds.
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
+pub struct MitsubaRow {
+    #[serde(default)]
+    pub cylinders: usize,
+    pub variant: String,
+    pub import_s: f64,
+    pub load_s: f64,
+    pub render1_s: f64,
+    pub write_s: f64,
+    pub render2_s: f64,
+    /// The whole cold process (Python start, import, load, first render, write).
+    #[serde(default)]
+    pub process_s: f64,
+}
+
+/// Render `scene` with Mitsuba `variant` through `bench_mitsuba.py`.
+pub fn time_mitsuba(m: &MitsubaBench, scene: &Scene, variant: &str, dir: &Path) -> Result<MitsubaRow> {
+    let xml = dir.join(format!("mitsuba-{}.xml", scene.cylinders.len()));
+    std::fs::write(&xml, crate::mitsuba::to_xml(scene, "cylaov bench random scene"))?;
+    let start = Instant::now();
+    let o = Command::new(&m.python)
+        .arg(&m.script)
+        .arg(&xml)
+        .arg(dir.join("mitsuba.exr"))
+        .arg(variant)
+        .output()
+        .with_context(|| format!("running {}", m.python.display()))?;
+    let wall = start.elapsed().as_secs_f64();
+    if !o.status.success() {
+        bail!("mitsuba {variant} failed: {}", String::from_utf8_lossy(&o.stderr));
+    }
+    let text = String::from_utf8_lossy(&o.stdout);
+    let line = text.lines().last().unwrap_or_default();
+    let mut row: MitsubaRow =
+        serde_json::from_str(line).with_context(|| format!("bench_mitsuba.py printed {line:?}"))?;
+    row.cylinders = scene.cylinders.len();
+    row.process_s = wall - row.render2_s;
+    Ok(row)
+}
+
+/// Run Mitsuba on the bench scenes, printing each row with the ratios of SPEC §7 against
+/// cylaov's stable-f64 depth+normal row of the same count: (a) whole process vs whole
+/// process, (b) Mitsuba's warm `render()` vs cylaov's whole process, (c) Mitsuba's warm
+/// `render()` vs cylaov's in-memory build + trace.
+pub fn run_mitsuba(opts: &BenchOptions, m: &MitsubaBench, rows: &[Row], mut progress: impl FnMut(&str)) -> Result<Vec<MitsubaRow>> {
+    let dir = std::env::temp_dir().join(format!("cylaov-bench-mi-{}", std::process::id()));
+    std::fs::create_dir_all(&dir)?;
+    progress(&format!(
+        "{:>7} {:<12} {:>8} {:>8} {:>9} {:>9} {:>9} {:>10} {:>10} {:>10}",
+        "cyl", "variant", "load s", "render1", "render2", "write s", "process", "(a) proc", "(b) warm", "(c) trace"
+    ));
+    let mut out = Vec::new();
+    for &n in &opts.counts {
+        let ours = rows.iter().find(|r| {
+            r.cylinders == n && r.kernel == kernel_name(KERNELS[0]) && r.aovs == "depth+normal"
+        });
+        let scene = random_scene(n, opts.seed, opts.width, opts.height);
+        for (variant, max) in [("llvm_ad_rgb", m.llvm_max), ("scalar_rgb", m.scalar_max)] {
+            if n > max {
+                continue;
+            }
+            let r = time_mitsuba(m, &scene, variant, &dir)?;
+            let ratio = |num: f64, den: Option<f64>| {
+                den.map_or("-".to_string(), |d| format!("{:.1}x", num * 1e3 / d))
+            };
+            progress(&format!(
+                "{:>7} {:<12} {:>8.3} {:>8.3} {:>9.3} {:>9.3} {:>9.3} {:>10} {:>10} {:>10}",
+                n,
+                variant,
+                r.load_s,
+                r.render1_s,
+                r.render2_s,
+                r.write_s,
+                r.process_s,
+                ratio(r.process_s, ours.and_then(|o| o.process_ms)),
+                ratio(r.render2_s, ours.and_then(|o| o.process_ms)),
+                ratio(r.render2_s, ours.map(|o| o.build_ms + o.trace_ms)),
+            ));
+            out.push(r);
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+    Ok(out)
+}

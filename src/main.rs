@@ -61,9 +61,19 @@ struct BenchCli {
     /// Scene generator seed.
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// Also write the table as CSV.
+    /// Also write the table as CSV (and Mitsuba's rows to OUT.mitsuba.csv).
     #[arg(long, value_name = "OUT.csv")]
     csv: Option<PathBuf>,
+    /// Also render the same scenes with Mitsuba 3 (needs the reference venv: run from the
+    /// repository root after scripts/setup-venv) and print the speed ratios.
+    #[arg(long)]
+    mitsuba: bool,
+    /// Largest cylinder count rendered with Mitsuba's scalar_rgb (~75 s at 1 000).
+    #[arg(long, default_value_t = 1000)]
+    mitsuba_scalar_max: usize,
+    /// Largest cylinder count rendered with Mitsuba's llvm_ad_rgb.
+    #[arg(long, default_value_t = 10000)]
+    mitsuba_llvm_max: usize,
     /// Worker threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
@@ -202,7 +212,22 @@ fn run(cli: Cli) -> anyhow::Result<bool> {
                 },
                 seed: b.seed,
             };
-            commands::bench::run(&opts, b.csv)?;
+            let mitsuba = b.mitsuba.then(|| bench::MitsubaBench {
+                python: PathBuf::from(".venv/bin/python"),
+                script: PathBuf::from("scripts/bench_mitsuba.py"),
+                scalar_max: b.mitsuba_scalar_max,
+                llvm_max: b.mitsuba_llvm_max,
+            });
+            if let Some(m) = &mitsuba
+                && !(m.python.exists() && m.script.exists())
+            {
+                anyhow::bail!(
+                    "--mitsuba: needs {} and {} (run from the repository root after scripts/setup-venv)",
+                    m.python.display(),
+                    m.script.display()
+                );
+            }
+            commands::bench::run(&opts, mitsuba, b.csv)?;
         }
         Command::ExportMitsuba(a) => {
             println!("{}", commands::export_mitsuba::run(&a.scene, &a.out)?);

@@ -1,12 +1,13 @@
 //! `cylaov bench`: print the time-vs-error table, optionally as CSV.
 
-use crate::bench::{self, BenchOptions, Row};
+use crate::bench::{self, BenchOptions, MitsubaBench, Row};
 use crate::io::atomic_write_bytes;
 use anyhow::{Context, Result};
 use std::path::PathBuf;
 
-/// Run the table, printing rows as they finish; write CSV if asked.
-pub fn run(opts: &BenchOptions, csv: Option<PathBuf>) -> Result<Vec<Row>> {
+/// Run the table, printing rows as they finish; then Mitsuba's, if asked; write CSV if
+/// asked (`OUT.csv`, and Mitsuba's rows to `OUT.mitsuba.csv`).
+pub fn run(opts: &BenchOptions, mitsuba: Option<MitsubaBench>, csv: Option<PathBuf>) -> Result<Vec<Row>> {
     println!(
         "cylaov bench: {}x{}, seed {}, min of {} runs, {} threads; times in ms, err = relative distance error vs stable-f64",
         opts.width,
@@ -17,10 +18,28 @@ pub fn run(opts: &BenchOptions, csv: Option<PathBuf>) -> Result<Vec<Row>> {
     );
     println!("{}", bench::header());
     let rows = bench::run(opts, |r| println!("{}", bench::format_row(r)))?;
+    let mut mi_rows = Vec::new();
+    if let Some(m) = &mitsuba {
+        println!("\nMitsuba 3 on the same scenes; ratios = Mitsuba time / cylaov stable-f64 depth+normal time");
+        mi_rows = bench::run_mitsuba(opts, m, &rows, |line| println!("{line}"))?;
+    }
     if let Some(path) = csv {
         atomic_write_bytes(&path, bench::csv(&rows).as_bytes())
             .with_context(|| format!("writing {}", path.display()))?;
         println!("wrote {}", path.display());
+        if !mi_rows.is_empty() {
+            let mpath = path.with_extension("mitsuba.csv");
+            let mut text = String::from("cylinders,variant,import_s,load_s,render1_s,write_s,render2_s,process_s\n");
+            for r in &mi_rows {
+                text += &format!(
+                    "{},{},{},{},{},{},{},{}\n",
+                    r.cylinders, r.variant, r.import_s, r.load_s, r.render1_s, r.write_s, r.render2_s, r.process_s
+                );
+            }
+            atomic_write_bytes(&mpath, text.as_bytes())
+                .with_context(|| format!("writing {}", mpath.display()))?;
+            println!("wrote {}", mpath.display());
+        }
     }
     Ok(rows)
 }
