@@ -16,7 +16,8 @@
 //! - [`compare`]: per-pixel comparison of two AOV images (SPEC §7), heatmaps.
 //!
 //! **Architecture invariants**: geometry and render never do IO; serde types live in
-//! `scene` and `io` only; a render is a pure function of scene + options (no global state).
+//! `scene`, `io` and `compare` (its report) only; a render is a pure function of
+//! scene + options (no global state); `mitsuba` knows Mitsuba's XML, not how to run it.
 
 pub mod aov;
 pub mod bench;
