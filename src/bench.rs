@@ -389,9 +389,17 @@ pub struct MitsubaRow {
 }
 
 /// Render `scene` with Mitsuba `variant` through `bench_mitsuba.py`.
-pub fn time_mitsuba(m: &MitsubaBench, scene: &Scene, variant: &str, dir: &Path) -> Result<MitsubaRow> {
+pub fn time_mitsuba(
+    m: &MitsubaBench,
+    scene: &Scene,
+    variant: &str,
+    dir: &Path,
+) -> Result<MitsubaRow> {
     let xml = dir.join(format!("mitsuba-{}.xml", scene.cylinders.len()));
-    std::fs::write(&xml, crate::mitsuba::to_xml(scene, "cylaov bench random scene"))?;
+    std::fs::write(
+        &xml,
+        crate::mitsuba::to_xml(scene, "cylaov bench random scene"),
+    )?;
     let start = Instant::now();
     let o = Command::new(&m.python)
         .arg(&m.script)
@@ -402,7 +410,10 @@ pub fn time_mitsuba(m: &MitsubaBench, scene: &Scene, variant: &str, dir: &Path) 
         .with_context(|| format!("running {}", m.python.display()))?;
     let wall = start.elapsed().as_secs_f64();
     if !o.status.success() {
-        bail!("mitsuba {variant} failed: {}", String::from_utf8_lossy(&o.stderr));
+        bail!(
+            "mitsuba {variant} failed: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
     }
     let text = String::from_utf8_lossy(&o.stdout);
     let line = text.lines().last().unwrap_or_default();
@@ -417,12 +428,26 @@ pub fn time_mitsuba(m: &MitsubaBench, scene: &Scene, variant: &str, dir: &Path) 
 /// cylaov's stable-f64 depth+normal row of the same count: (a) whole process vs whole
 /// process, (b) Mitsuba's warm `render()` vs cylaov's whole process, (c) Mitsuba's warm
 /// `render()` vs cylaov's in-memory build + trace.
-pub fn run_mitsuba(opts: &BenchOptions, m: &MitsubaBench, rows: &[Row], mut progress: impl FnMut(&str)) -> Result<Vec<MitsubaRow>> {
+pub fn run_mitsuba(
+    opts: &BenchOptions,
+    m: &MitsubaBench,
+    rows: &[Row],
+    mut progress: impl FnMut(&str),
+) -> Result<Vec<MitsubaRow>> {
     let dir = std::env::temp_dir().join(format!("cylaov-bench-mi-{}", std::process::id()));
     std::fs::create_dir_all(&dir)?;
     progress(&format!(
         "{:>7} {:<12} {:>8} {:>8} {:>9} {:>9} {:>9} {:>10} {:>10} {:>10}",
-        "cyl", "variant", "load s", "render1", "render2", "write s", "process", "(a) proc", "(b) warm", "(c) trace"
+        "cyl",
+        "variant",
+        "load s",
+        "render1",
+        "render2",
+        "write s",
+        "process",
+        "(a) proc",
+        "(b) warm",
+        "(c) trace"
     ));
     let mut out = Vec::new();
     for &n in &opts.counts {

@@ -197,36 +197,90 @@ impl<T: Real, F: Formula> Tracer<T, F> {
         best
     }
 
-    /// Nearest hit for pixel (i, j) along `d` from its tile's candidates (sorted by `t_min`,
-    /// so the first one beyond the best hit ends the search).
-    #[inline]
-    pub fn trace_candidates(
+    /// Nearest hits for the pixels `xs × ys` (inclusive) of one tile from its candidates,
+    /// rasterised nearest first: each candidate visits only the pixels of its row spans,
+    /// and skips those whose best hit is nearer than its `t_min`.
+    pub fn trace_tile(
         &self,
-        d: DVec3,
-        i: u32,
-        j: u32,
         cands: &[Candidate],
-    ) -> Option<PixelHit<T>> {
-        let (tmin, tmax) = self.clip(d);
-        let (tmin_t, tmax_t) = (T::from_f64(tmin), T::from_f64(tmax));
-        let dt = T::v3(d);
-        let mut best: Option<PixelHit<T>> = None;
-        let mut reach = tmax;
-        for c in cands {
-            if c.t_min > reach {
-                break;
-            }
-            if c.covers(i, j) && self.consider(c.index, dt, tmin_t, tmax_t, &mut best) {
-                reach = best.map_or(tmax, |b| b.hit.t.to_f64());
+        xs: (u32, u32),
+        ys: (u32, u32),
+        offsets: (&[f64], &[f64]),
+        rays: &mut TileRays<T>,
+    ) {
+        let tw = (xs.1 - xs.0 + 1) as usize;
+        for j in ys.0..=ys.1 {
+            for i in xs.0..=xs.1 {
+                let k = (j - ys.0) as usize * tw + (i - xs.0) as usize;
+                let d = self
+                    .camera
+                    .dir_from_offsets(offsets.0[i as usize], offsets.1[j as usize]);
+                let (tmin, tmax) = self.clip(d);
+                rays.d[k] = d;
+                rays.dt[k] = T::v3(d);
+                rays.tmin[k] = T::from_f64(tmin);
+                rays.tmax[k] = T::from_f64(tmax);
+                rays.reach[k] = tmax;
+                rays.best[k] = None;
             }
         }
-        best
+        for c in cands {
+            for j in c.y0.max(ys.0)..=c.y1.min(ys.1) {
+                let Some((a, b)) = c.row_span(j, xs.0, xs.1) else {
+                    continue;
+                };
+                let row = (j - ys.0) as usize * tw;
+                for i in a..=b {
+                    let k = row + (i - xs.0) as usize;
+                    if c.t_min > rays.reach[k] {
+                        continue;
+                    }
+                    if self.consider(
+                        c.index,
+                        rays.dt[k],
+                        rays.tmin[k],
+                        rays.tmax[k],
+                        &mut rays.best[k],
+                    ) {
+                        rays.reach[k] = rays.best[k].map_or(f64::INFINITY, |h| h.hit.t.to_f64());
+                    }
+                }
+            }
+        }
     }
 
     /// World-space unit outward normal of a hit along `d`.
     #[inline]
     pub fn normal(&self, d: DVec3, h: &PixelHit<T>) -> DVec3 {
         T::v3_to_f64(F::normal(&self.prepared[h.index as usize], T::v3(d), h.hit))
+    }
+}
+
+const TILE_PIXELS: usize = (TILE * TILE) as usize;
+
+/// Per-pixel rays and best hits of one tile, reused from tile to tile (no allocation per
+/// ray). Pixel `k` of a tile `tw` wide is `(x0 + k % tw, y0 + k / tw)`.
+pub struct TileRays<T: Real> {
+    pub d: [DVec3; TILE_PIXELS],
+    dt: [T::V3; TILE_PIXELS],
+    tmin: [T; TILE_PIXELS],
+    tmax: [T; TILE_PIXELS],
+    /// Ray parameter beyond which nothing can improve the pixel: its best hit, else tmax.
+    reach: [f64; TILE_PIXELS],
+    pub best: [Option<PixelHit<T>>; TILE_PIXELS],
+}
+
+impl<T: Real> TileRays<T> {
+    fn boxed() -> Box<Self> {
+        let zero = T::v3(DVec3::ZERO);
+        Box::new(TileRays {
+            d: [DVec3::ZERO; TILE_PIXELS],
+            dt: [zero; TILE_PIXELS],
+            tmin: [T::ZERO; TILE_PIXELS],
+            tmax: [T::ZERO; TILE_PIXELS],
+            reach: [0.0; TILE_PIXELS],
+            best: [None; TILE_PIXELS],
+        })
     }
 }
 
@@ -332,8 +386,7 @@ fn render_with<T: Real, F: Formula>(scene: &Scene, opts: &RenderOptions) -> (Ren
             let row0 = b * band_rows;
             let rows = band_rows.min(h - row0);
             let mut hits = 0;
-            let mut shade = |k: usize, d: DVec3, hit: Option<PixelHit<T>>| {
-                let Some(ph) = hit else { return };
+            let mut shade = |k: usize, d: DVec3, ph: PixelHit<T>| {
                 hits += 1;
                 let t = ph.hit.t.to_f64();
                 let f = &mut band.f;
@@ -357,23 +410,22 @@ fn render_with<T: Real, F: Formula>(scene: &Scene, opts: &RenderOptions) -> (Ren
             };
             match &tracer.tiles {
                 Some(tiles) => {
+                    let mut rays = TileRays::<T>::boxed();
+                    let ys = (row0 as u32, (row0 + rows - 1) as u32);
                     for tx in 0..tiles.tiles_x {
                         let cands = tiles.tile(tx, b as u32);
                         if cands.is_empty() {
                             continue; // every AOV of a miss is 0 already
                         }
-                        let x0 = (tx * TILE) as usize;
+                        let xs = (tx * TILE, ((tx + 1) * TILE).min(w as u32) - 1);
+                        tracer.trace_tile(cands, xs, ys, (&cols_off, &rows_off), &mut rays);
+                        let tw = (xs.1 - xs.0 + 1) as usize;
                         for dj in 0..rows {
-                            let j = (row0 + dj) as u32;
-                            let y = rows_off[j as usize];
-                            let x1 = (x0 + TILE as usize).min(w);
-                            for (i, &x) in cols_off.iter().enumerate().take(x1).skip(x0) {
-                                let d = cam.dir_from_offsets(x, y);
-                                shade(
-                                    dj * w + i,
-                                    d,
-                                    tracer.trace_candidates(d, i as u32, j, cands),
-                                );
+                            for di in 0..tw {
+                                let k = dj * tw + di;
+                                if let Some(hit) = rays.best[k] {
+                                    shade(dj * w + xs.0 as usize + di, rays.d[k], hit);
+                                }
                             }
                         }
                     }
@@ -382,7 +434,9 @@ fn render_with<T: Real, F: Formula>(scene: &Scene, opts: &RenderOptions) -> (Ren
                     for k in 0..rows * w {
                         let (i, j) = (k % w, row0 + k / w);
                         let d = cam.dir_from_offsets(cols_off[i], rows_off[j]);
-                        shade(k, d, tracer.trace(d));
+                        if let Some(hit) = tracer.trace(d) {
+                            shade(k, d, hit);
+                        }
                     }
                 }
             }

@@ -3,10 +3,18 @@
 //! Every primary ray leaves the one camera origin, so a cylinder can only be hit by the
 //! pixels inside the projection of its bounding box. Each cylinder's oriented box (axis ×
 //! 2r × 2r) is projected once; the cylinder is listed in every screen tile its pixel
-//! rectangle touches, sorted by the box's nearest camera-space z. A pixel then tests only
-//! the candidates whose rectangle holds it, and stops at the first candidate whose nearest
-//! z lies beyond the best hit so far (`t ≥ z` for any point, so nothing later can be
-//! closer). A box reaching behind the camera plane projects to the whole screen.
+//! rectangle touches, sorted by the box's nearest camera-space z. `render` then walks a
+//! tile's candidates nearest first, each over just the pixels it can cover, like a
+//! rasteriser with a depth test: a pixel whose best hit is nearer than the candidate's
+//! nearest z is skipped (`t ≥ z` for any point, so it cannot be improved). A box reaching behind the camera plane projects to the whole screen.
+//!
+//! The rectangle of a long, thin, slanted cylinder is mostly empty, so each row of it is
+//! also cut to the band around the projected axis that holds the projected capsule: the cylinder lies within `r` of its axis
+//! segment, and a point within `r` of a point `c` projects within
+//! `f·r·sqrt(1 + tx² + ty²) / (z - r)` pixels of `c`'s projection (`f` focal length in
+//! pixels, `tx = x/z`, `ty = y/z`: the norm of the projection's Jacobian, bounded exactly
+//! for the finite step since `z` falls by at most `r`). Along the segment `tx`, `ty` are
+//! monotone and `z` linear, so their worst values are at its ends.
 
 use crate::camera::Camera;
 use crate::geometry::{Cylinder, cylinder::orthonormal_basis};
@@ -24,14 +32,54 @@ pub struct Candidate {
     pub y1: u32,
     /// No hit on this cylinder has a ray parameter below this.
     pub t_min: f64,
+    /// The projected axis line as `n·(p - a) = 0` with unit `n` (pixel coordinates) and
+    /// the capsule's pixel radius: every visible pixel centre lies within `radius` of the
+    /// line. `radius` is infinite when the bound does not apply.
+    pub a: [f64; 2],
+    pub n: [f64; 2],
+    pub radius: f64,
 }
 
 impl Candidate {
+    /// The columns of row `j` that can see the cylinder, as an inclusive range within
+    /// `[lo, hi]`: the rectangle, cut to the band of half-width `radius` around the
+    /// projected axis line (the band holds the capsule, the rectangle its ends).
     #[inline(always)]
-    pub fn covers(&self, i: u32, j: u32) -> bool {
-        i >= self.x0 && i <= self.x1 && j >= self.y0 && j <= self.y1
+    pub fn row_span(&self, j: u32, lo: u32, hi: u32) -> Option<(u32, u32)> {
+        let (mut x0, mut x1) = (self.x0.max(lo), self.x1.min(hi));
+        if self.radius.is_finite() {
+            let q = self.n[1] * (j as f64 + 0.5 - self.a[1]);
+            if self.n[0].abs() > 1e-9 {
+                // n_x (x + 0.5 - a_x) in [-radius - q, radius - q].
+                let (u, v) = (
+                    (-self.radius - q) / self.n[0],
+                    (self.radius - q) / self.n[0],
+                );
+                let (u, v) = (u.min(v) + self.a[0] - 0.5, u.max(v) + self.a[0] - 0.5);
+                if v < x0 as f64 || u > x1 as f64 {
+                    return None;
+                }
+                x0 = x0.max(u.ceil().max(0.0) as u32);
+                x1 = x1.min(v.floor() as u32);
+            } else if q.abs() > self.radius {
+                return None;
+            }
+        }
+        (x0 <= x1).then_some((x0, x1))
     }
 }
+
+const EMPTY: Candidate = Candidate {
+    index: 0,
+    x0: 0,
+    y0: 0,
+    x1: 0,
+    y1: 0,
+    t_min: 0.0,
+    a: [0.0; 2],
+    n: [0.0; 2],
+    radius: f64::INFINITY,
+};
 
 /// Candidates per tile, stored flat (CSR): tile `k` owns `list[start[k]..start[k + 1]]`.
 #[derive(Clone, Debug)]
@@ -76,6 +124,34 @@ pub fn project(cam: &Camera, cyl: &Cylinder) -> Option<Candidate> {
             ymax = ymax.max(y);
         }
     }
+    // The capsule around the projected axis (see the module doc), with 1.5 px of slack.
+    let (fx, fy) = cam.focal_px();
+    let ends = [cyl.base - cam.origin, cyl.top() - cam.origin];
+    let proj = ends.map(|p| {
+        let z = p.dot(cam.forward);
+        let (tx, ty) = (p.dot(right) / z, p.dot(cam.true_up) / z);
+        (
+            z,
+            tx,
+            ty,
+            [tx * fx + w as f64 / 2.0, h as f64 / 2.0 - ty * fy],
+        )
+    });
+    let z_axis = proj[0].0.min(proj[1].0);
+    let slope2 = proj.iter().map(|q| q.1 * q.1).fold(0.0, f64::max)
+        + proj.iter().map(|q| q.2 * q.2).fold(0.0, f64::max);
+    let far_off = proj.iter().any(|q| q.3[0].abs().max(q.3[1].abs()) > 1e7);
+    let (a, b) = (proj[0].3, proj[1].3);
+    let e = [b[0] - a[0], b[1] - a[1]];
+    let len = e[0].hypot(e[1]);
+    let rad = fx.max(fy) * r * (1.0 + slope2).sqrt() / (z_axis - r) + 1.5;
+    // A point-like projection (view along the axis) has no line: the rectangle bounds it.
+    let band = !(far_off || z_axis - r <= 0.0 || !rad.is_finite() || len < 1e-9);
+    let (n, radius) = if band {
+        ([-e[1] / len, e[0] / len], rad)
+    } else {
+        ([0.0; 2], f64::INFINITY)
+    };
     // Pad for rounding in the box (relative 1e-9 of its distance) and in the projection.
     let pad = 1e-9
         * (cyl.base - cam.origin)
@@ -88,12 +164,10 @@ pub fn project(cam: &Camera, cyl: &Cylinder) -> Option<Candidate> {
     let t_min = (zmin - pad).max(cam.spec.near_clip * (1.0 - 1e-12));
     if behind {
         return Some(Candidate {
-            index: 0,
-            x0: 0,
-            y0: 0,
             x1: w - 1,
             y1: h - 1,
             t_min,
+            ..EMPTY
         });
     }
     // Pixel i is covered when its centre i + 0.5 lies in [xmin, xmax]; one pixel of slack.
@@ -111,6 +185,9 @@ pub fn project(cam: &Camera, cyl: &Cylinder) -> Option<Candidate> {
         x1: clamp(x1, w),
         y1: clamp(y1, h),
         t_min,
+        a,
+        n,
+        radius,
     })
 }
 
@@ -146,17 +223,7 @@ impl Tiles {
         }
         let start = count.clone();
         let mut fill = count;
-        let mut list = vec![
-            cands.first().copied().unwrap_or(Candidate {
-                index: 0,
-                x0: 0,
-                y0: 0,
-                x1: 0,
-                y1: 0,
-                t_min: 0.0
-            });
-            start[ntiles] as usize
-        ];
+        let mut list = vec![EMPTY; start[ntiles] as usize];
         for c in &cands {
             let (a, b, p, q) = tile_range(c);
             for ty in p..=q {

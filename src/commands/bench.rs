@@ -7,7 +7,11 @@ use std::path::PathBuf;
 
 /// Run the table, printing rows as they finish; then Mitsuba's, if asked; write CSV if
 /// asked (`OUT.csv`, and Mitsuba's rows to `OUT.mitsuba.csv`).
-pub fn run(opts: &BenchOptions, mitsuba: Option<MitsubaBench>, csv: Option<PathBuf>) -> Result<Vec<Row>> {
+pub fn run(
+    opts: &BenchOptions,
+    mitsuba: Option<MitsubaBench>,
+    csv: Option<PathBuf>,
+) -> Result<Vec<Row>> {
     println!(
         "cylaov bench: {}x{}, seed {}, min of {} runs, {} threads; times in ms, err = relative distance error vs stable-f64",
         opts.width,
@@ -20,7 +24,9 @@ pub fn run(opts: &BenchOptions, mitsuba: Option<MitsubaBench>, csv: Option<PathB
     let rows = bench::run(opts, |r| println!("{}", bench::format_row(r)))?;
     let mut mi_rows = Vec::new();
     if let Some(m) = &mitsuba {
-        println!("\nMitsuba 3 on the same scenes; ratios = Mitsuba time / cylaov stable-f64 depth+normal time");
+        println!(
+            "\nMitsuba 3 on the same scenes; ratios = Mitsuba time / cylaov stable-f64 depth+normal time"
+        );
         mi_rows = bench::run_mitsuba(opts, m, &rows, |line| println!("{line}"))?;
     }
     if let Some(path) = csv {
@@ -29,11 +35,20 @@ pub fn run(opts: &BenchOptions, mitsuba: Option<MitsubaBench>, csv: Option<PathB
         println!("wrote {}", path.display());
         if !mi_rows.is_empty() {
             let mpath = path.with_extension("mitsuba.csv");
-            let mut text = String::from("cylinders,variant,import_s,load_s,render1_s,write_s,render2_s,process_s\n");
+            let mut text = String::from(
+                "cylinders,variant,import_s,load_s,render1_s,write_s,render2_s,process_s\n",
+            );
             for r in &mi_rows {
                 text += &format!(
                     "{},{},{},{},{},{},{},{}\n",
-                    r.cylinders, r.variant, r.import_s, r.load_s, r.render1_s, r.write_s, r.render2_s, r.process_s
+                    r.cylinders,
+                    r.variant,
+                    r.import_s,
+                    r.load_s,
+                    r.render1_s,
+                    r.write_s,
+                    r.render2_s,
+                    r.process_s
                 );
             }
             atomic_write_bytes(&mpath, text.as_bytes())
