@@ -22,6 +22,7 @@ pub mod camera;
 pub mod commands;
 pub mod geometry;
 pub mod io;
+pub mod oracle;
 pub mod preview;
 pub mod render;
 pub mod scene;
