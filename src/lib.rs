@@ -26,3 +26,4 @@ pub mod oracle;
 pub mod preview;
 pub mod render;
 pub mod scene;
+pub mod stress;

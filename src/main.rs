@@ -23,6 +23,27 @@ enum Command {
     ///
     /// Example: cylaov render scenes/single.json -o out/single.exr --preview out
     Render(RenderCli),
+    /// Measure every kernel (literal/stable x f32/f64) against a double-double oracle on
+    /// the stress families (grazing, near-axis, far, scale, inside, rims, input).
+    ///
+    /// Example: cylaov stress --family grazing --csv out/grazing.csv --plot out/stress.png
+    Stress(StressCli),
+}
+
+#[derive(Args)]
+struct StressCli {
+    /// Run one family only: grazing, near-axis, far, scale, inside, rims, input.
+    #[arg(long)]
+    family: Option<String>,
+    /// Seeded rays per value of the difficulty parameter.
+    #[arg(long, default_value_t = 64)]
+    rays: usize,
+    /// Write one CSV line per ray and kernel (inputs included, to reproduce a ray).
+    #[arg(long, value_name = "OUT")]
+    csv: Option<PathBuf>,
+    /// Write a log-log PNG of error against the difficulty parameter.
+    #[arg(long, value_name = "OUT.png")]
+    plot: Option<PathBuf>,
 }
 
 /// Kernel choice shared by every command that traces rays.
@@ -89,6 +110,15 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                 compression: a.compression,
             };
             println!("{}", commands::render::run(&args)?);
+        }
+        Command::Stress(a) => {
+            let args = commands::stress::StressArgs {
+                family: a.family,
+                rays: a.rays,
+                csv: a.csv,
+                plot: a.plot,
+            };
+            println!("{}", commands::stress::run(&args)?);
         }
     }
     Ok(())

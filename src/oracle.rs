@@ -3,7 +3,7 @@
 //! than the kernels.
 //!
 //! **Why a hand-written double-double and not a crate.** The oracle needs `+ − × ÷ √` and
-//! comparisons at ≥ 100 bits, and `stress` calls it ~36 times per ray (κ and the tangency band
+//! comparisons at ≥ 100 bits, and `stress` calls it ~100 times per ray (κ and the tangency band
 //! are finite differences of the oracle). A double-double (`hi + lo`, Dekker/Knuth two-sum and
 //! an FMA two-product) gives 2·53 = 106 bits in ~100 lines with no dependency and runs at
 //! ~20 ns per operation. `rug`/MPFR would pull a C build (GMP) onto the shared 2-core builders
@@ -406,11 +406,27 @@ pub struct Analysis {
     pub kappa_t: f64,
     /// κ of the normal: the largest angle change (radians) per ε of relative perturbation.
     pub kappa_n: f64,
-    /// Hit/miss or surface changes when the origin moves by `BAND_ULPS·ε·(|oc| + r + h)`
-    /// in one of 10 directions: the ray is within the tangency band (silhouette, rim seam or
-    /// clip boundary), where hit/miss and the surface are not determined by the inputs.
-    pub band: bool,
+    /// Hit/miss changes when the origin moves by up to `BAND_ULPS·ε·(|oc| + r + h)` or the
+    /// direction turns by `BAND_ULPS·ε` (see `in_band`): the ray is within the tangency band
+    /// (silhouette or clip boundary), where hit/miss is not determined by the inputs at
+    /// this precision.
+    pub band_hit: bool,
+    /// The same moves change the surface hit (rim seam) or make `t` jump by more than
+    /// `JUMP·(r + h)` (another root, e.g. past an open rim to the far wall): the branch of
+    /// the answer is not determined by the inputs.
+    pub band_branch: bool,
 }
+
+impl Analysis {
+    /// In either band.
+    pub fn band(&self) -> bool {
+        self.band_hit || self.band_branch
+    }
+}
+
+/// A `t` change under a band move larger than this fraction of `r + h` is a jump to
+/// another root, not the steep-but-continuous change of a grazing ray.
+pub const JUMP: f64 = 1e-2;
 
 /// Width of the tangency band in units of `ε·(|oc| + r + h)`.
 pub const BAND_ULPS: f64 = 8.0;
@@ -459,13 +475,14 @@ fn scales(p: &Problem) -> [f64; NIN] {
 pub fn analyse(p: &Problem, tmin: f64, tmax: f64, eps: f64) -> Analysis {
     let (lo, hi) = (DD::new(tmin), DD::new(tmax));
     let hit = intersect(p, lo, hi);
-    let band = in_band(p, hit, lo, hi, eps);
+    let (band_hit, band_branch) = in_band(p, hit, lo, hi, eps);
     let Some(h0) = hit else {
         return Analysis {
             hit,
             kappa_t: 0.0,
             kappa_n: 0.0,
-            band,
+            band_hit,
+            band_branch,
         };
     };
     let sc = scales(p);
@@ -494,7 +511,8 @@ pub fn analyse(p: &Problem, tmin: f64, tmax: f64, eps: f64) -> Analysis {
             hit,
             kappa_t: f64::INFINITY,
             kappa_n: f64::INFINITY,
-            band,
+            band_hit,
+            band_branch,
         };
     }
     // Linearised worst case: blockwise Euclidean norms (Frobenius for the normal).
@@ -535,21 +553,27 @@ pub fn analyse(p: &Problem, tmin: f64, tmax: f64, eps: f64) -> Analysis {
         hit,
         kappa_t,
         kappa_n,
-        band,
+        band_hit,
+        band_branch,
     }
 }
 
-/// Whether moving the origin by `BAND_ULPS·ε·(|oc| + r + h)` along ±d or in 8 directions
-/// perpendicular to `d` changes hit/miss or the surface hit.
-fn in_band(p: &Problem, hit: Option<Hit>, lo: DD, hi: DD, eps: f64) -> bool {
+/// Whether a move of the ray within the band changes hit/miss, and whether it changes the
+/// branch (surface, or a jump of `t`). Returns `(band_hit, band_branch)`.
+///
+/// The moves: the origin by `w·f` (`w = BAND_ULPS·ε·(|oc| + r + h)`, `f` in 1, 1/4, 1/16,
+/// 1/64 so a thin miss is not jumped over) along ±d and in 8 directions perpendicular to
+/// `d`, and the direction turned by `BAND_ULPS·ε` radians in 4 directions (a long ray's
+/// hit/miss can hinge on the sign of a tiny angle, which no origin move reproduces).
+fn in_band(p: &Problem, hit: Option<Hit>, lo: DD, hi: DD, eps: f64) -> (bool, bool) {
     let w = BAND_ULPS * eps * (p.oc.length() + p.r + p.h).to_f64();
-    let d = p.d.to_f64().normalize();
+    let jump = JUMP * (p.r + p.h).to_f64();
+    let dlen = p.d.length().to_f64();
+    let d = p.d.to_f64() / dlen;
     let e1 = d.any_orthonormal_vector();
     let e2 = d.cross(e1);
     let s = std::f64::consts::FRAC_1_SQRT_2;
-    let dirs = [
-        d,
-        -d,
+    let sideways = [
         e1,
         -e1,
         e2,
@@ -559,12 +583,30 @@ fn in_band(p: &Problem, hit: Option<Hit>, lo: DD, hi: DD, eps: f64) -> bool {
         (-e1 + e2) * s,
         (-e1 - e2) * s,
     ];
-    dirs.iter().any(|&dir| {
+    let mut moved: Vec<Problem> = Vec::with_capacity(38);
+    for f in [1.0, 0.25, 0.0625, 0.015625] {
+        for dir in sideways.iter().chain([d, -d].iter()) {
+            let mut q = *p;
+            q.oc = p.oc + DV3::from_f64(*dir * (w * f));
+            moved.push(q);
+        }
+    }
+    for dir in &sideways[..4] {
         let mut q = *p;
-        q.oc = p.oc + DV3::from_f64(dir * w);
-        let h1 = intersect(&q, lo, hi);
-        h1.map(|h| h.surface) != hit.map(|h| h.surface)
-    })
+        q.d = p.d + DV3::from_f64(*dir * (BAND_ULPS * eps * dlen));
+        moved.push(q);
+    }
+    let (mut band_hit, mut band_branch) = (false, false);
+    for q in &moved {
+        match (intersect(q, lo, hi), hit) {
+            (Some(a), Some(b)) => {
+                band_branch |= a.surface != b.surface || (a.t - b.t).abs().to_f64() > jump;
+            }
+            (None, None) => {}
+            _ => band_hit = true,
+        }
+    }
+    (band_hit, band_branch)
 }
 
 #[cfg(test)]
@@ -660,7 +702,7 @@ mod tests {
         let eps = f64::EPSILON / 2.0;
         let head_on = Problem::new(&cyl, DVec3::new(5.0, 0.0, 1.0), DVec3::NEG_X);
         let a = analyse(&head_on, 0.0, f64::INFINITY, eps);
-        assert!(!a.band);
+        assert!(!a.band());
         // t = x - r = 4: |oc| = √26 moves t by ≤ 5.1ε, |d| by 4ε (t scales with 1/|d|), the
         // axis tilt by 1ε (hit at height 1), r by 1ε: κ ≈ 11.1/4 = 2.8.
         assert!((a.kappa_t - 2.77).abs() < 0.05, "{a:?}");
@@ -668,6 +710,6 @@ mod tests {
         let g = analyse(&graze, 0.0, f64::INFINITY, eps);
         assert!(g.kappa_t > 1e3 && g.kappa_t.is_finite(), "{g:?}");
         let tangent = Problem::new(&cyl, DVec3::new(1.0 - 1e-17, -5.0, 1.0), DVec3::Y);
-        assert!(analyse(&tangent, 0.0, f64::INFINITY, eps).band);
+        assert!(analyse(&tangent, 0.0, f64::INFINITY, eps).band_hit);
     }
 }

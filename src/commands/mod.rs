@@ -2,3 +2,4 @@
 //! `main.rs` only parses arguments and calls these.
 
 pub mod render;
+pub mod stress;
