@@ -259,7 +259,7 @@ fn make_case(family: Family, param: f64, i: usize, rng: &mut SplitMix64) -> Opti
         rng.range(-10.0, 10.0),
         rng.range(-10.0, 10.0),
     );
-    let caps = i % 2 == 0;
+    let caps = i.is_multiple_of(2);
     match family {
         Family::Grazing => {
             // Camera 3–7 radii from the axis; the ray's distance from the axis is
@@ -268,21 +268,17 @@ fn make_case(family: Family, param: f64, i: usize, rng: &mut SplitMix64) -> Opti
             let (r, h) = (1.0, 4.0);
             let rho0 = rng.range(3.0, 7.0);
             let phi0 = rng.range(0.0, std::f64::consts::TAU);
-            let p = if (i / 2) % 2 == 0 {
+            let p = if (i / 2).is_multiple_of(2) {
                 r * (1.0 - param)
             } else {
                 r * (1.0 + param)
             };
-            let side = if (i / 4) % 2 == 0 { 1.0 } else { -1.0 };
+            let side = if (i / 4).is_multiple_of(2) { 1.0 } else { -1.0 };
             let beta = side * (p / rho0).asin();
             let dir2 = phi0 + std::f64::consts::PI + beta;
             let tilt = rng.range(-0.2, 0.2);
             let o = DVec3::new(rho0 * phi0.cos(), rho0 * phi0.sin(), rng.range(1.5, 2.5));
-            let d = DVec3::new(
-                tilt.cos() * dir2.cos(),
-                tilt.cos() * dir2.sin(),
-                tilt.sin(),
-            );
+            let d = DVec3::new(tilt.cos() * dir2.cos(), tilt.cos() * dir2.sin(), tilt.sin());
             Some(simple(family, param, &f, f.cylinder(r, h, caps), o, d))
         }
         Family::NearAxis => {
@@ -299,23 +295,50 @@ fn make_case(family: Family, param: f64, i: usize, rng: &mut SplitMix64) -> Opti
                 0 => {
                     // From below, through the bottom cap (a cap hit; open tubes: a miss or
                     // the inner wall far away).
-                    let (rr, a) = (0.8 * rng.unit().sqrt(), rng.range(0.0, std::f64::consts::TAU));
+                    let (rr, a) = (
+                        0.8 * rng.unit().sqrt(),
+                        rng.range(0.0, std::f64::consts::TAU),
+                    );
                     let o = DVec3::new(rr * a.cos(), rr * a.sin(), -rng.range(3.0, 4.0));
-                    Some(simple(family, param, &f, f.cylinder(1.0, 2.0, caps), o, tilt(az)))
+                    Some(simple(
+                        family,
+                        param,
+                        &f,
+                        f.cylinder(1.0, 2.0, caps),
+                        o,
+                        tilt(az),
+                    ))
                 }
                 1 => {
                     // Inside a tube tall enough that the side is hit at t ≈ 1/θ.
                     let h = 20.0 / param;
-                    let (rr, a) = (0.9 * rng.unit().sqrt(), rng.range(0.0, std::f64::consts::TAU));
+                    let (rr, a) = (
+                        0.9 * rng.unit().sqrt(),
+                        rng.range(0.0, std::f64::consts::TAU),
+                    );
                     let o = DVec3::new(rr * a.cos(), rr * a.sin(), 0.05 * h);
-                    Some(simple(family, param, &f, f.cylinder(1.0, h, caps), o, tilt(az)))
+                    Some(simple(
+                        family,
+                        param,
+                        &f,
+                        f.cylinder(1.0, h, caps),
+                        o,
+                        tilt(az),
+                    ))
                 }
                 _ => {
                     // Outside (1.5 radii), converging on the axis: side hit at t ≈ 0.5/θ.
                     let h = 20.0 / param;
                     let o = DVec3::new(1.5 * az.cos(), 1.5 * az.sin(), 0.05 * h);
                     let toward = az + std::f64::consts::PI + rng.range(-0.3, 0.3);
-                    Some(simple(family, param, &f, f.cylinder(1.0, h, caps), o, tilt(toward)))
+                    Some(simple(
+                        family,
+                        param,
+                        &f,
+                        f.cylinder(1.0, h, caps),
+                        o,
+                        tilt(toward),
+                    ))
                 }
             }
         }
@@ -332,7 +355,11 @@ fn make_case(family: Family, param: f64, i: usize, rng: &mut SplitMix64) -> Opti
             let cam = f.base + rng.sphere() * dist;
             let a = rng.range(0.0, std::f64::consts::TAU);
             let rr = 1.3 * r * rng.unit().sqrt();
-            let target = f.point(DVec3::new(rr * a.cos(), rr * a.sin(), rng.range(-0.3, 2.3) * r));
+            let target = f.point(DVec3::new(
+                rr * a.cos(),
+                rr * a.sin(),
+                rng.range(-0.3, 2.3) * r,
+            ));
             Some(Case {
                 family,
                 param,
@@ -347,7 +374,7 @@ fn make_case(family: Family, param: f64, i: usize, rng: &mut SplitMix64) -> Opti
             // Camera at rho = r(1 - param) (inside) or r(1 + param) (just outside), random
             // direction.
             let f = Frame::random(rng, base);
-            let rho = if (i / 2) % 2 == 0 {
+            let rho = if (i / 2).is_multiple_of(2) {
                 1.0 - param
             } else {
                 1.0 + param
@@ -383,7 +410,14 @@ fn make_case(family: Family, param: f64, i: usize, rng: &mut SplitMix64) -> Opti
                 }
             };
             let o = target + w * rng.range(2.0, 5.0);
-            Some(simple(family, param, &f, f.cylinder(r, h, caps), o, target - o))
+            Some(simple(
+                family,
+                param,
+                &f,
+                f.cylinder(r, h, caps),
+                o,
+                target - o,
+            ))
         }
         Family::Input => input_case(param, i, rng, caps),
     }
@@ -409,7 +443,11 @@ fn input_case(param: f64, i: usize, rng: &mut SplitMix64, caps: bool) -> Option<
             let c = rng.sphere() * 3.0;
             let a = axis_dir / param;
             (
-                format!("\"center\": {}, \"axis\": {}, \"height\": 2.0", js(c), js(a)),
+                format!(
+                    "\"center\": {}, \"axis\": {}, \"height\": 2.0",
+                    js(c),
+                    js(a)
+                ),
                 RawCylinder::CenterAxis(c, a, 2.0),
                 c + axis_dir,
             )
@@ -553,6 +591,8 @@ pub struct Record {
     pub wrong: bool,
     /// `|Δt| / (ε t)`, when both hit (NaN otherwise).
     pub err_t: f64,
+    /// `|Δt|` in units in the last place of the oracle's `t` in the kernel's precision.
+    pub err_ulps: f64,
     /// Normal angle error in radians, when both hit (NaN otherwise).
     pub err_n: f64,
     /// `err_n / (ε·max(1, t/r))`: the normal bound is 16 of these.
@@ -573,10 +613,13 @@ pub fn measure(case: &Case, kernel: Kernel, analysis: &Analysis) -> Record {
     let nonfinite = got.is_some_and(|g| !g.t.is_finite() || !g.normal.is_finite());
     let wrong = !analysis.band_hit && (got.is_some() != oracle.is_some());
     let (mut err_t, mut err_n, mut err_n_units, mut len_err) = (f64::NAN, f64::NAN, f64::NAN, 0.0);
+    let mut err_ulps = f64::NAN;
     let (mut viol_t, mut viol_n) = (false, false);
     if let (Some(g), Some(o)) = (got, oracle) {
         let t0 = o.t.to_f64();
-        err_t = (DD::new(g.t) - o.t).abs().to_f64() / (eps * t0.abs().max(f64::MIN_POSITIVE));
+        let dt = (DD::new(g.t) - o.t).abs().to_f64();
+        err_t = dt / (eps * t0.abs().max(f64::MIN_POSITIVE));
+        err_ulps = dt / ulp(t0, kernel.is_f32());
         // Same surface: the oracle's normal; on another surface (possible only in the
         // band, at the seam) the oracle's normal of the kernel's surface at the same t.
         let want = if g.surface == o.surface {
@@ -589,8 +632,10 @@ pub fn measure(case: &Case, kernel: Kernel, analysis: &Analysis) -> Record {
         err_n_units = err_n / (eps * scale);
         len_err = (g.normal.length() - 1.0).abs();
         if !analysis.band() {
-            viol_t = !(err_t <= 4.0 * analysis.kappa_t.max(1.0));
-            viol_n = !(err_n <= (16.0 * eps * scale).max(4.0 * eps * analysis.kappa_n))
+            // NaN errors count as violations.
+            viol_t = err_t.is_nan() || err_t > 4.0 * analysis.kappa_t.max(1.0);
+            viol_n = err_n.is_nan()
+                || err_n > (16.0 * eps * scale).max(4.0 * eps * analysis.kappa_n)
                 || g.surface != o.surface;
         }
     }
@@ -603,12 +648,22 @@ pub fn measure(case: &Case, kernel: Kernel, analysis: &Analysis) -> Record {
         nonfinite,
         wrong,
         err_t,
+        err_ulps,
         err_n,
         err_n_units,
         len_err,
         viol_t: viol_t || nonfinite,
         viol_n: viol_n || nonfinite,
     }
+}
+
+/// Unit in the last place of `t` in f32 or f64 (the spacing above |t|; normal numbers).
+pub fn ulp(t: f64, f32: bool) -> f64 {
+    let t = t.abs().max(f64::MIN_POSITIVE);
+    let e = t.log2().floor();
+    // log2 can be off by one right at a power of two; correct it.
+    let e = if 2f64.powf(e) > t { e - 1.0 } else { e };
+    2f64.powf(e - if f32 { 23.0 } else { 52.0 })
 }
 
 /// Every kernel on every case of `family`: the oracle is analysed once per precision.
@@ -644,6 +699,8 @@ pub struct Summary {
     pub t_median: f64,
     pub t_p99: f64,
     pub t_max: f64,
+    /// Largest distance error in ulps of the kernel's precision.
+    pub ulps_max: f64,
     /// κ_t of the ray with the largest distance error.
     pub kappa_at_max: f64,
     /// Largest κ_t among the measured rays.
@@ -691,9 +748,8 @@ pub fn summarise(records: &[Record]) -> Vec<Summary> {
             let mut ns: Vec<f64> = measured.iter().map(|r| r.err_n).collect();
             ns.sort_by(f64::total_cmp);
             let worst = measured.iter().max_by(|a, b| a.err_t.total_cmp(&b.err_t));
-            let fold = |f: &dyn Fn(&Record) -> f64| {
-                measured.iter().map(|r| f(r)).fold(0.0f64, f64::max)
-            };
+            let fold =
+                |f: &dyn Fn(&Record) -> f64| measured.iter().map(|r| f(r)).fold(0.0f64, f64::max);
             Summary {
                 family,
                 kernel,
@@ -704,6 +760,7 @@ pub fn summarise(records: &[Record]) -> Vec<Summary> {
                 t_median: quantile(&ts, 0.5),
                 t_p99: quantile(&ts, 0.99),
                 t_max: ts.last().copied().unwrap_or(f64::NAN),
+                ulps_max: fold(&|r| r.err_ulps),
                 kappa_at_max: worst.map_or(f64::NAN, |r| r.analysis.kappa_t),
                 kappa_max: fold(&|r| r.analysis.kappa_t),
                 t_ratio_max: fold(&|r| r.err_t / r.analysis.kappa_t.max(1.0)),
@@ -719,7 +776,7 @@ pub fn summarise(records: &[Record]) -> Vec<Summary> {
 }
 
 /// The table header matching [`Summary`]'s `Display`.
-pub const TABLE_HEADER: &str = "family     kernel       rays  nan wrong band | dist err/eps: median      p99      max  kappa@max max(err/k) viol | angle p99   angle max  max(a/eps.t/r) viol | ||n|-1| max";
+pub const TABLE_HEADER: &str = "family     kernel       rays  nan wrong band | dist err/eps: median      p99      max  max ulps  kappa@max max(err/k) viol | angle p99   angle max  max(a/eps.t/r) viol | ||n|-1| max";
 
 fn g(x: f64) -> String {
     if x.is_nan() {
@@ -737,7 +794,7 @@ impl fmt::Display for Summary {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(
             f,
-            "{:<10} {:<11} {:>5} {:>4} {:>5} {:>4} | {:>19} {:>8} {:>8} {:>10} {:>10} {:>4} | {:>9} {:>11} {:>15} {:>4} | {:>9}",
+            "{:<10} {:<11} {:>5} {:>4} {:>5} {:>4} | {:>19} {:>8} {:>8} {:>9} {:>10} {:>10} {:>4} | {:>9} {:>11} {:>15} {:>4} | {:>9}",
             self.family.name(),
             self.kernel.name(),
             self.rays,
@@ -747,6 +804,7 @@ impl fmt::Display for Summary {
             g(self.t_median),
             g(self.t_p99),
             g(self.t_max),
+            g(self.ulps_max),
             g(self.kappa_at_max),
             g(self.t_ratio_max),
             self.viol_t,
@@ -760,14 +818,14 @@ impl fmt::Display for Summary {
 }
 
 /// CSV header for per-ray records.
-pub const CSV_HEADER: &str = "family,param,kernel,caps,oracle_hit,kernel_hit,band_hit,band_branch,t_oracle,t_kernel,err_t_eps,kappa_t,err_n_rad,err_n_units,kappa_n,len_err,wrong,viol_t,viol_n,origin_x,origin_y,origin_z,dir_x,dir_y,dir_z";
+pub const CSV_HEADER: &str = "family,param,kernel,caps,oracle_hit,kernel_hit,band_hit,band_branch,t_oracle,t_kernel,err_t_eps,err_ulps,kappa_t,err_n_rad,err_n_units,kappa_n,len_err,wrong,viol_t,viol_n,origin_x,origin_y,origin_z,dir_x,dir_y,dir_z";
 
 impl Record {
     /// One CSV line (see [`CSV_HEADER`]), with the inputs to reproduce the ray.
     pub fn csv(&self) -> String {
         let c = &self.case;
         format!(
-            "{},{:e},{},{},{},{},{},{},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{},{},{},{:?},{:?},{:?},{:?},{:?},{:?}",
+            "{},{:e},{},{},{},{},{},{},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{},{},{},{:?},{:?},{:?},{:?},{:?},{:?}",
             c.family.name(),
             c.param,
             self.kernel.name(),
@@ -779,6 +837,7 @@ impl Record {
             self.oracle.map_or(f64::NAN, |h| h.t.to_f64()),
             self.got.map_or(f64::NAN, |h| h.t),
             self.err_t,
+            self.err_ulps,
             self.analysis.kappa_t,
             self.err_n,
             self.err_n_units,

@@ -37,7 +37,13 @@ pub fn plot(records: &[Record], families: &[Family]) -> RgbImage {
     let mut x = 10;
     for k in Kernel::ALL {
         fill(&mut img, x, 8, 14, 10, colour(k));
-        text(&mut img, x + 20, 8, &k.name().replace('/', " "), Rgb([0, 0, 0]));
+        text(
+            &mut img,
+            x + 20,
+            8,
+            &k.name().replace('/', " "),
+            Rgb([0, 0, 0]),
+        );
         x += 150;
     }
     text(
@@ -145,7 +151,13 @@ fn panel(
         }
         let label = format!("1E{d}");
         let w = 8 * label.len() as u32;
-        text(img, px0.saturating_sub(w + 6), (y - 5).max(0) as u32, &label, black);
+        text(
+            img,
+            px0.saturating_sub(w + 6),
+            (y - 5).max(0) as u32,
+            &label,
+            black,
+        );
     }
     // The bound on well-conditioned rays.
     let (_, yb) = map(lx0, bound.log10());
