@@ -1,13 +1,14 @@
-//! The stress plot: per family, two log-log panels (distance error in ε and normal angle
-//! error in ε·max(1, t/r)) against the difficulty parameter, one colour per kernel. Every
+//! The stress plot: per family, three log-log panels (distance error in ε, the same over
+//! max(1, κ) — the backward-error ratio the bar holds at 4 — and normal angle error in
+//! ε·max(1, t/r)) against the difficulty parameter, one colour per kernel. Every
 //! ray is a dot; the line joins the worst ray per parameter value; the dashed line is the
-//! bound on well-conditioned rays (4 and 16). Drawn by hand (a 3×5 pixel font, no font
+//! bound (4, 4 and 16). Drawn by hand (a 3×5 pixel font, no font
 //! crate) to keep `image` lean.
 
 use crate::stress::{Family, Kernel, Record};
 use image::{Rgb, RgbImage};
 
-const PANEL_W: u32 = 440;
+const PANEL_W: u32 = 360;
 const PANEL_H: u32 = 190;
 const MARGIN_L: u32 = 56;
 const MARGIN_T: u32 = 22;
@@ -29,7 +30,7 @@ pub fn plot(records: &[Record], families: &[Family]) -> RgbImage {
     let cell_w = MARGIN_L + PANEL_W + MARGIN_R;
     let cell_h = MARGIN_T + PANEL_H + MARGIN_B;
     let mut img = RgbImage::from_pixel(
-        2 * cell_w,
+        3 * cell_w,
         LEGEND_H + cell_h * families.len() as u32,
         Rgb([255, 255, 255]),
     );
@@ -67,9 +68,19 @@ pub fn plot(records: &[Record], families: &[Family]) -> RgbImage {
             4.0,
             "DISTANCE ERR / EPS",
         );
+        let value_b = |r: &Record| r.err_t / r.analysis.kappa_t.max(1.0);
         panel(
             &mut img,
             (cell_w, y0),
+            fam,
+            &rs,
+            &value_b,
+            4.0,
+            "DIST ERR / (EPS MAX(1,KAPPA))",
+        );
+        panel(
+            &mut img,
+            (2 * cell_w, y0),
             fam,
             &rs,
             &value_n,
