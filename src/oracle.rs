@@ -424,8 +424,8 @@ impl Analysis {
     }
 }
 
-/// A `t` change under a band move larger than this fraction of `r + h` is a jump to
-/// another root, not the steep-but-continuous change of a grazing ray.
+/// A `t` change under a band move larger than this fraction of `r + h` (plus 16 times the
+/// move) is a jump to another root, not the steep-but-continuous change of a grazing ray.
 pub const JUMP: f64 = 1e-2;
 
 /// Width of the tangency band in units of `ε·(|oc| + r + h)`.
@@ -567,7 +567,8 @@ pub fn analyse(p: &Problem, tmin: f64, tmax: f64, eps: f64) -> Analysis {
 /// hit/miss can hinge on the sign of a tiny angle, which no origin move reproduces).
 fn in_band(p: &Problem, hit: Option<Hit>, lo: DD, hi: DD, eps: f64) -> (bool, bool) {
     let w = BAND_ULPS * eps * (p.oc.length() + p.r + p.h).to_f64();
-    let jump = JUMP * (p.r + p.h).to_f64();
+    // A sideways move of w changes t by w/cos(incidence): continuous, not a jump.
+    let jump = JUMP * (p.r + p.h).to_f64() + 16.0 * w;
     let dlen = p.d.length().to_f64();
     let d = p.d.to_f64() / dlen;
     let e1 = d.any_orthonormal_vector();
@@ -583,24 +584,31 @@ fn in_band(p: &Problem, hit: Option<Hit>, lo: DD, hi: DD, eps: f64) -> (bool, bo
         (-e1 + e2) * s,
         (-e1 - e2) * s,
     ];
-    let mut moved: Vec<Problem> = Vec::with_capacity(38);
+    // (problem, shift of t the move itself causes: a move along d by s shifts t by -s/|d|)
+    let mut moved: Vec<(Problem, f64)> = Vec::with_capacity(44);
     for f in [1.0, 0.25, 0.0625, 0.015625] {
-        for dir in sideways.iter().chain([d, -d].iter()) {
+        for dir in &sideways {
             let mut q = *p;
             q.oc = p.oc + DV3::from_f64(*dir * (w * f));
-            moved.push(q);
+            moved.push((q, 0.0));
+        }
+        for sgn in [1.0, -1.0] {
+            let mut q = *p;
+            q.oc = p.oc + DV3::from_f64(d * (sgn * w * f));
+            moved.push((q, -sgn * w * f / dlen));
         }
     }
     for dir in &sideways[..4] {
         let mut q = *p;
         q.d = p.d + DV3::from_f64(*dir * (BAND_ULPS * eps * dlen));
-        moved.push(q);
+        moved.push((q, 0.0));
     }
     let (mut band_hit, mut band_branch) = (false, false);
-    for q in &moved {
+    for (q, shift) in &moved {
         match (intersect(q, lo, hi), hit) {
             (Some(a), Some(b)) => {
-                band_branch |= a.surface != b.surface || (a.t - b.t).abs().to_f64() > jump;
+                let dt = (a.t - b.t - DD::new(*shift)).abs().to_f64();
+                band_branch |= a.surface != b.surface || dt > jump;
             }
             (None, None) => {}
             _ => band_hit = true,

