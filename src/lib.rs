@@ -12,6 +12,8 @@
 //! - [`aov`]: the in-memory AOV image and its EXR reading and writing.
 //! - [`preview`]: PNG previews and 16-bit depth PNGs.
 //! - [`io`]: atomic file writes and the camera metadata JSON.
+//! - [`oracle`]: double-double ray–cylinder reference answer, κ and tangency band (tests/stress).
+//! - [`stress`]: the stress families and the kernel-vs-oracle measurements of `cylaov stress`.
 //!
 //! **Architecture invariants**: geometry and render never do IO; serde types live in
 //! `scene` and `io` only; a render is a pure function of scene + options (no global state).

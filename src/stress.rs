@@ -121,8 +121,7 @@ impl Family {
     pub fn params(self) -> Vec<f64> {
         let decades = |a: i32, b: i32| (a..=b).map(|k| 10f64.powi(k)).collect::<Vec<_>>();
         match self {
-            Family::Grazing | Family::Rims => decades(-16, -1),
-            Family::Inside => decades(-16, -1),
+            Family::Grazing | Family::Rims | Family::Inside => decades(-16, -1),
             Family::NearAxis => decades(-9, -1),
             Family::Far => decades(1, 7),
             Family::Scale => decades(-6, 6),
