@@ -14,6 +14,8 @@
 //! - [`io`]: atomic file writes and the camera metadata JSON.
 //! - [`mitsuba`]: the Mitsuba 3 XML of a scene (the reference renderer's input).
 //! - [`compare`]: per-pixel comparison of two AOV images (SPEC §7), heatmaps.
+//! - [`oracle`]: double-double ray–cylinder reference answer, κ and tangency band (tests/stress).
+//! - [`stress`]: the stress families and the kernel-vs-oracle measurements of `cylaov stress`.
 //!
 //! **Architecture invariants**: geometry and render never do IO; serde types live in
 //! `scene`, `io` and `compare` (its report) only; a render is a pure function of
@@ -28,8 +30,10 @@ pub mod compare;
 pub mod geometry;
 pub mod io;
 pub mod mitsuba;
+pub mod oracle;
 pub mod preview;
 pub mod render;
 pub mod rng;
 pub mod scene;
+pub mod stress;
 pub mod tiles;

@@ -38,6 +38,11 @@ enum Command {
     ///
     /// Example: cylaov compare out/single.exr reference/single.exr --heatmap diff.png
     Compare(CompareCli),
+    /// Measure every kernel (literal/stable x f32/f64) against a double-double oracle on
+    /// the stress families (grazing, near-axis, far, scale, inside, rims, input).
+    ///
+    /// Example: cylaov stress --family grazing --csv out/grazing.csv --plot out/stress.png
+    Stress(StressCli),
 }
 
 #[derive(Args)]
@@ -77,6 +82,22 @@ struct BenchCli {
     /// Worker threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
+}
+
+#[derive(Args)]
+struct StressCli {
+    /// Run one family only: grazing, near-axis, far, scale, inside, rims, input.
+    #[arg(long)]
+    family: Option<String>,
+    /// Seeded rays per value of the difficulty parameter.
+    #[arg(long, default_value_t = 64)]
+    rays: usize,
+    /// Write one CSV line per ray and kernel (inputs included, to reproduce a ray).
+    #[arg(long, value_name = "OUT")]
+    csv: Option<PathBuf>,
+    /// Write a log-log PNG of error against the difficulty parameter.
+    #[arg(long, value_name = "OUT.png")]
+    plot: Option<PathBuf>,
 }
 
 #[derive(Args)]
@@ -228,6 +249,15 @@ fn run(cli: Cli) -> anyhow::Result<bool> {
                 );
             }
             commands::bench::run(&opts, mitsuba, b.csv)?;
+        }
+        Command::Stress(a) => {
+            let args = commands::stress::StressArgs {
+                family: a.family,
+                rays: a.rays,
+                csv: a.csv,
+                plot: a.plot,
+            };
+            println!("{}", commands::stress::run(&args)?);
         }
         Command::ExportMitsuba(a) => {
             println!("{}", commands::export_mitsuba::run(&a.scene, &a.out)?);

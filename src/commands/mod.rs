@@ -5,3 +5,4 @@ pub mod bench;
 pub mod compare;
 pub mod export_mitsuba;
 pub mod render;
+pub mod stress;

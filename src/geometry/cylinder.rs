@@ -313,10 +313,20 @@ impl Formula for Stable {
             Surface::Top => p.n,
             Surface::Side => {
                 let [ou, ov, _] = p.oc_local;
-                let x = ou + hit.t * T::dot(d, p.u);
-                let y = ov + hit.t * T::dot(d, p.v);
+                let (du, dv) = (T::dot(d, p.u), T::dot(d, p.v));
+                let x = ou + hit.t * du;
+                let y = ov + hit.t * dv;
                 let len = (x * x + y * y).sqrt();
-                p.u * (x / len) + p.v * (y / len)
+                if len > T::ZERO {
+                    return p.u * (x / len) + p.v * (y / len);
+                }
+                // Edge policy: the hit point's offset from the axis rounded to exactly zero.
+                // This happens only when the spacing of T at the hit's coordinates exceeds r
+                // (f32 with the camera ≳ 1e7 radii away: `ou + t·du` cancels to 0 in both
+                // components), so the point carries no direction; answer the side facing the
+                // ray (-d⊥), the normal at the middle of the silhouette, instead of 0/0 = NaN.
+                let a = (du * du + dv * dv).sqrt();
+                p.u * (-du / a) + p.v * (-dv / a)
             }
         }
     }
