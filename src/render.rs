@@ -146,8 +146,8 @@ impl<T: Real, F: Formula> Tracer<T, F> {
     #[inline(always)]
     fn clip(&self, d: DVec3) -> (f64, f64) {
         let spec = &self.camera.spec;
-        let cos = d.dot(self.camera.forward);
-        (spec.near_clip / cos, spec.far_clip / cos)
+        let inv_cos = 1.0 / d.dot(self.camera.forward);
+        (spec.near_clip * inv_cos, spec.far_clip * inv_cos)
     }
 
     /// Test cylinder `index`; keep it in `best` when nearer (ties: lower index wins, so the

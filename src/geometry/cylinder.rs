@@ -225,8 +225,14 @@ impl Stable {
             // Parallel to the axis: inside everywhere or nowhere.
             return (p.c_side <= T::ZERO).then_some((-T::INFINITY, T::INFINITY));
         }
-        let b = du * ou + dv * ov;
         let x = (du * ov - dv * ou).abs();
+        // Cheap reject before the square root: the ray misses by a clear margin. 8ε covers
+        // the roundings in which the two forms of the test differ (r², ×a, x², √a, ×r).
+        let r2a = p.r * p.r * a;
+        if x * x > r2a + r2a * T::from_f64(8.0 * T::UNIT_ROUNDOFF) {
+            return None;
+        }
+        let b = du * ou + dv * ov;
         let ra = p.r * a.sqrt();
         let disc = (ra - x) * (ra + x);
         if disc < T::ZERO {
