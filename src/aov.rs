@@ -48,7 +48,7 @@ pub enum Compression {
 }
 
 impl Compression {
-    fn to_exr(self) -> exr::compression::Compression {
+    pub fn to_exr(self) -> exr::compression::Compression {
         use exr::compression::Compression as C;
         match self {
             Compression::None => C::Uncompressed,

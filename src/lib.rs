@@ -12,14 +12,18 @@
 //! - [`aov`]: the in-memory AOV image and its EXR reading and writing.
 //! - [`preview`]: PNG previews and 16-bit depth PNGs.
 //! - [`io`]: atomic file writes and the camera metadata JSON.
+//! - [`generate`]: seeded procedural scenes (SplitMix64 written out) for datasets.
+//! - [`batch`]: view lists, shards, resumable kill-safe batch rendering, `transforms.json`.
 //!
 //! **Architecture invariants**: geometry and render never do IO; serde types live in
-//! `scene` and `io` only; a render is a pure function of scene + options (no global state).
+//! `scene`, `io` and the dataset file formats of `generate` and `batch` only; a render is a pure function of scene + options (no global state).
 
 pub mod aov;
+pub mod batch;
 pub mod bvh;
 pub mod camera;
 pub mod commands;
+pub mod generate;
 pub mod geometry;
 pub mod io;
 pub mod preview;

@@ -1,4 +1,6 @@
 //! The work behind each CLI subcommand: IO orchestration around the pure library.
 //! `main.rs` only parses arguments and calls these.
 
+pub mod batch;
+pub mod generate;
 pub mod render;

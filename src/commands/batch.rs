@@ -1,0 +1,24 @@
+//! `cylaov batch`: shard resolution from the command line and the environment, then
+//! [`crate::batch::run`].
+
+use crate::batch::{self, BatchOptions, ProgressMode, Shard, Summary};
+use anyhow::Result;
+use std::path::PathBuf;
+
+/// Everything `batch` needs from the command line.
+#[derive(Clone, Debug)]
+pub struct BatchArgs {
+    pub input: PathBuf,
+    pub out: PathBuf,
+    pub shard: Option<Shard>,
+    pub shards: Option<u32>,
+    pub options: BatchOptions,
+    pub progress: ProgressMode,
+}
+
+/// Run the batch; the summary says what happened (failed views are not an `Err`).
+pub fn run(args: &BatchArgs) -> Result<Summary> {
+    let shard = batch::resolve_shard(args.shard, args.shards, &|k| std::env::var(k).ok())
+        .map_err(anyhow::Error::msg)?;
+    batch::run(&args.input, &args.out, shard, &args.options, args.progress)
+}
