@@ -115,6 +115,19 @@ impl AovImage {
 
     /// Write an OpenEXR file atomically (temporary name, then rename).
     pub fn write_exr(&self, path: &Path, compression: Compression) -> Result<()> {
+        atomic_write(path, |file| {
+            self.write_exr_to(std::io::BufWriter::new(file), compression)
+                .map_err(|e| std::io::Error::other(e.to_string()))
+        })
+        .with_context(|| format!("writing {}", path.display()))
+    }
+
+    /// Encode as OpenEXR into any seekable writer (a file, or memory).
+    pub fn write_exr_to(
+        &self,
+        out: impl std::io::Write + std::io::Seek,
+        compression: Compression,
+    ) -> Result<()> {
         let channels: Vec<AnyChannel<FlatSamples>> = self
             .channels
             .iter()
@@ -136,15 +149,11 @@ impl AovImage {
             },
             AnyChannels::sort(channels.into()),
         );
-        let image = Image::from_layer(layer);
-        atomic_write(path, |file| {
-            image
-                .write()
-                .non_parallel()
-                .to_buffered(std::io::BufWriter::new(file))
-                .map_err(|e| std::io::Error::other(e.to_string()))
-        })
-        .with_context(|| format!("writing {}", path.display()))
+        Image::from_layer(layer)
+            .write()
+            .non_parallel()
+            .to_buffered(out)?;
+        Ok(())
     }
 
     /// Read every channel of the first layer of an OpenEXR file. Half channels become f32.
