@@ -58,9 +58,14 @@ struct ManifestLine {
 /// Why a view name cannot be an output file stem, if it cannot.
 fn check_name(name: &str) -> Result<(), String> {
     if name.is_empty() || name.starts_with('.') {
-        return Err(format!("view name must be non-empty and not start with '.', got {name:?}"));
+        return Err(format!(
+            "view name must be non-empty and not start with '.', got {name:?}"
+        ));
     }
-    if name.chars().any(|c| c == '/' || c == '\\' || c.is_control()) {
+    if name
+        .chars()
+        .any(|c| c == '/' || c == '\\' || c.is_control())
+    {
         return Err(format!(
             "view name must not contain '/', '\\' or control characters, got {name:?}"
         ));
@@ -424,10 +429,7 @@ pub fn exr_is_complete(
         .map(|b| u64::from_le_bytes(b.try_into().unwrap_or_default()))
         .collect();
     let last = offsets.iter().copied().max().ok_or("no chunks")?;
-    if offsets
-        .iter()
-        .any(|&o| o < table_end as u64 || o + 8 > len)
-    {
+    if offsets.iter().any(|&o| o < table_end as u64 || o + 8 > len) {
         return Err("chunk offset outside the file".into());
     }
     // A scanline chunk: i32 y, i32 byte count, the bytes.
@@ -496,9 +498,8 @@ fn write_unsynced(
     path: &Path,
     fill: impl FnOnce(&mut BufWriter<File>) -> Result<()>,
 ) -> Result<()> {
-    let mut w = BufWriter::new(
-        File::create(path).with_context(|| format!("creating {}", path.display()))?,
-    );
+    let mut w =
+        BufWriter::new(File::create(path).with_context(|| format!("creating {}", path.display()))?);
     fill(&mut w)
         .and_then(|()| Ok(w.flush()?))
         .with_context(|| format!("writing {}", path.display()))
@@ -539,14 +540,20 @@ pub fn render_view(
     let mut moves = Vec::new();
     let cam = Camera::new(scene.camera);
     let camera = tmp("camera.json");
-    write_unsynced(&camera, |w| Ok(w.write_all(camera_json(&cam, &exr_aovs).as_bytes())?))?;
+    write_unsynced(&camera, |w| {
+        Ok(w.write_all(camera_json(&cam, &exr_aovs).as_bytes())?)
+    })?;
     moves.push((camera, &done.camera));
     if opts.png {
         let normal = preview::normal_rgb(&image).context("no normal AOV")?;
         let depth = preview::depth_u16(&image, opts.depth_scale).context("no depth AOV")?;
         let (normal_tmp, depth_tmp) = (tmp("normal.png"), tmp("depth.png"));
-        write_unsynced(&normal_tmp, |w| Ok(normal.write_to(w, image::ImageFormat::Png)?))?;
-        write_unsynced(&depth_tmp, |w| Ok(depth.write_to(w, image::ImageFormat::Png)?))?;
+        write_unsynced(&normal_tmp, |w| {
+            Ok(normal.write_to(w, image::ImageFormat::Png)?)
+        })?;
+        write_unsynced(&depth_tmp, |w| {
+            Ok(depth.write_to(w, image::ImageFormat::Png)?)
+        })?;
         moves.push((normal_tmp, &done.normal_png));
         moves.push((depth_tmp, &done.depth_png));
     }
@@ -622,9 +629,10 @@ fn intrinsics(cam: &Camera) -> Intrinsics {
 /// `file_path` is the normal PNG (the EXR when PNGs are off).
 pub fn transforms_json(views: &[(&str, &Scene)], opts: &BatchOptions) -> String {
     let cams: Vec<Camera> = views.iter().map(|(_, s)| Camera::new(s.camera)).collect();
-    let shared = cams.first().map(intrinsics).filter(|first| {
-        cams.iter().all(|c| intrinsics(c) == *first)
-    });
+    let shared = cams
+        .first()
+        .map(intrinsics)
+        .filter(|first| cams.iter().all(|c| intrinsics(c) == *first));
     let frames = views
         .iter()
         .zip(&cams)
@@ -726,7 +734,11 @@ impl Progress {
         let secs = self.start.elapsed().as_secs_f64();
         // Rate over rendered views only: skipped ones cost nothing.
         let worked = c.done + c.failed;
-        let rate = if secs > 0.0 { worked as f64 / secs } else { 0.0 };
+        let rate = if secs > 0.0 {
+            worked as f64 / secs
+        } else {
+            0.0
+        };
         let eta = if rate > 0.0 {
             hms((self.total - finished) as f64 / rate)
         } else {
@@ -778,7 +790,12 @@ impl Progress {
         let mut err = std::io::stderr().lock();
         match self.mode {
             ProgressMode::Bar => {
-                let _ = writeln!(err, "\r\x1b[2K[{}] {}", "#".repeat(24), self.line(&st.counts));
+                let _ = writeln!(
+                    err,
+                    "\r\x1b[2K[{}] {}",
+                    "#".repeat(24),
+                    self.line(&st.counts)
+                );
             }
             ProgressMode::Lines(_) => {
                 let _ = writeln!(err, "{}", self.line(&st.counts));
@@ -873,8 +890,7 @@ pub fn run(
         std::fs::remove_dir_all(&partial)
             .with_context(|| format!("clearing {}", partial.display()))?;
     }
-    std::fs::create_dir_all(&partial)
-        .with_context(|| format!("creating {}", partial.display()))?;
+    std::fs::create_dir_all(&partial).with_context(|| format!("creating {}", partial.display()))?;
 
     let mine: Vec<usize> = (0..views.len()).filter(|&i| shard.contains(i)).collect();
     let progress = Progress::new(progress, format!("batch {shard}"), mine.len());
@@ -942,8 +958,7 @@ pub fn run(
     atomic_write_bytes(&transforms, transforms_json(&valid, opts).as_bytes())
         .with_context(|| format!("writing {}", transforms.display()))?;
 
-    std::fs::remove_dir_all(&partial)
-        .with_context(|| format!("removing {}", partial.display()))?;
+    std::fs::remove_dir_all(&partial).with_context(|| format!("removing {}", partial.display()))?;
     // Other shards may still be using `.partial`; it goes when the last one leaves.
     let _ = std::fs::remove_dir(out.join(".partial"));
     summary.elapsed = start.elapsed();
@@ -964,7 +979,9 @@ mod tests {
             let mut hits = vec![0; 50];
             for k in 0..n {
                 let s = Shard::new(k, n).unwrap();
-                (0..50).filter(|&i| s.contains(i)).for_each(|i| hits[i] += 1);
+                (0..50)
+                    .filter(|&i| s.contains(i))
+                    .for_each(|i| hits[i] += 1);
             }
             assert!(hits.iter().all(|&h| h == 1), "N = {n}: {hits:?}");
         }
@@ -986,16 +1003,37 @@ mod tests {
             ("SLURM_ARRAY_TASK_MIN", "10"),
             ("SLURM_ARRAY_TASK_COUNT", "4"),
         ]);
-        assert_eq!(resolve_shard(None, None, &slurm), Ok(Shard::new(2, 4).unwrap()));
+        assert_eq!(
+            resolve_shard(None, None, &slurm),
+            Ok(Shard::new(2, 4).unwrap())
+        );
         let k8s = env(&[("JOB_COMPLETION_INDEX", "3")]);
-        assert_eq!(resolve_shard(None, Some(5), &k8s), Ok(Shard::new(3, 5).unwrap()));
-        assert!(resolve_shard(None, Some(3), &k8s).unwrap_err().contains("must be < count"));
-        assert!(resolve_shard(None, Some(3), &none).unwrap_err().contains("JOB_COMPLETION_INDEX"));
+        assert_eq!(
+            resolve_shard(None, Some(5), &k8s),
+            Ok(Shard::new(3, 5).unwrap())
+        );
+        assert!(
+            resolve_shard(None, Some(3), &k8s)
+                .unwrap_err()
+                .contains("must be < count")
+        );
+        assert!(
+            resolve_shard(None, Some(3), &none)
+                .unwrap_err()
+                .contains("JOB_COMPLETION_INDEX")
+        );
         let explicit = Some(Shard::new(1, 2).unwrap());
-        assert_eq!(resolve_shard(explicit, None, &slurm), explicit.ok_or(String::new()));
+        assert_eq!(
+            resolve_shard(explicit, None, &slurm),
+            explicit.ok_or(String::new())
+        );
         assert!(resolve_shard(explicit, Some(2), &none).is_err());
         let bad = env(&[("SLURM_ARRAY_TASK_ID", "x")]);
-        assert!(resolve_shard(None, None, &bad).unwrap_err().contains("SLURM_ARRAY_TASK_ID"));
+        assert!(
+            resolve_shard(None, None, &bad)
+                .unwrap_err()
+                .contains("SLURM_ARRAY_TASK_ID")
+        );
     }
 
     #[test]

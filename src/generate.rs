@@ -50,7 +50,9 @@ impl SplitMix64 {
     /// An independent stream for item `index` of `seed`: generating item `i` never depends
     /// on how many items came before it.
     pub fn for_item(seed: u64, index: u64) -> Self {
-        SplitMix64::new(mix64(seed ^ mix64(index.wrapping_add(1).wrapping_mul(GOLDEN_GAMMA))))
+        SplitMix64::new(mix64(
+            seed ^ mix64(index.wrapping_add(1).wrapping_mul(GOLDEN_GAMMA)),
+        ))
     }
 
     pub fn next_u64(&mut self) -> u64 {
@@ -319,7 +321,10 @@ impl GenerateOptions {
         }
         for (flag, v) in [("--width", self.width), ("--height", self.height)] {
             if v == 0 || v > scene::MAX_SIDE {
-                return Err(format!("{flag}: must be in 1..={}, got {v}", scene::MAX_SIDE));
+                return Err(format!(
+                    "{flag}: must be in 1..={}, got {v}",
+                    scene::MAX_SIDE
+                ));
             }
         }
         if !(self.fov > 0.0 && self.fov < 180.0) {
@@ -457,7 +462,11 @@ mod tests {
         let got: Vec<u64> = (0..3).map(|_| r.next_u64()).collect();
         assert_eq!(
             got,
-            vec![6457827717110365317, 3203168211198807973, 9817491932198370423]
+            vec![
+                6457827717110365317,
+                3203168211198807973,
+                9817491932198370423
+            ]
         );
     }
 
@@ -465,7 +474,11 @@ mod tests {
     fn ranges_parse_and_reject() {
         assert_eq!(Range::parse("1..2"), Ok(Range::new(1.0, 2.0)));
         assert_eq!(Range::parse("3"), Ok(Range::new(3.0, 3.0)));
-        assert!(Range::parse("2..1").unwrap_err().contains("MIN must be <= MAX"));
+        assert!(
+            Range::parse("2..1")
+                .unwrap_err()
+                .contains("MIN must be <= MAX")
+        );
         assert!(Range::parse("x").is_err());
         assert!(Range::parse("nan").is_err());
         let c: ConfigFile =

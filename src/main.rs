@@ -53,17 +53,17 @@ struct GenerateCli {
     #[arg(long, value_name = "FILE.json")]
     config: Option<PathBuf>,
     /// Cylinders per scene: MIN..MAX or N [default: 8..32].
-    #[arg(long, value_parser = Range::parse, value_name = "MIN..MAX")]
+    #[arg(long, value_parser = Range::parse, allow_hyphen_values = true, value_name = "MIN..MAX")]
     cylinders: Option<Range>,
     /// Radius range [default: 0.05..0.3].
-    #[arg(long, value_parser = Range::parse, value_name = "A..B")]
+    #[arg(long, value_parser = Range::parse, allow_hyphen_values = true, value_name = "A..B")]
     radius: Option<Range>,
     /// Length (height) range [default: 0.2..2].
-    #[arg(long, value_parser = Range::parse, value_name = "A..B")]
+    #[arg(long, value_parser = Range::parse, allow_hyphen_values = true, value_name = "A..B")]
     length: Option<Range>,
     /// Half extents of the box (centred at the origin) holding the cylinder midpoints:
     /// S or X,Y,Z [default: 2,2,1].
-    #[arg(long, value_parser = Volume::parse, value_name = "X,Y,Z")]
+    #[arg(long, value_parser = Volume::parse, allow_hyphen_values = true, value_name = "X,Y,Z")]
     volume: Option<Volume>,
     /// Probability that a cylinder has caps [default: 0.8].
     #[arg(long)]
@@ -78,11 +78,11 @@ struct GenerateCli {
     #[arg(long)]
     fov: Option<f64>,
     /// Camera elevation range, degrees [default: -20..60].
-    #[arg(long, value_parser = Range::parse, value_name = "A..B")]
+    #[arg(long, value_parser = Range::parse, allow_hyphen_values = true, value_name = "A..B")]
     elevation: Option<Range>,
     /// Camera distance range, in units of the distance at which the scene's bounding
     /// sphere just fills the view [default: 0.55..0.9].
-    #[arg(long, value_parser = Range::parse, value_name = "A..B")]
+    #[arg(long, value_parser = Range::parse, allow_hyphen_values = true, value_name = "A..B")]
     distance: Option<Range>,
 }
 
@@ -96,8 +96,9 @@ struct BatchCli {
     #[arg(long)]
     out: PathBuf,
     /// AOVs in each EXR, comma-separated. Default: each scene's `aovs`.
+    // `std::vec::Vec`: one comma-separated value, not clap's repeated-values `Vec`.
     #[arg(long, value_parser = Aov::parse_list)]
-    aov: Option<Vec<Aov>>,
+    aov: Option<std::vec::Vec<Aov>>,
     #[command(flatten)]
     kernel: KernelCli,
     /// Render shard K of N (0-based): the views whose list position i has i % N == K.
@@ -146,7 +147,7 @@ struct RenderCli {
     /// AOVs to compute and store, comma-separated: distance,depth,normal,position,shape_id.
     /// Default: the scene's `aovs`, else depth,normal.
     #[arg(long, value_parser = Aov::parse_list)]
-    aov: Option<Vec<Aov>>,
+    aov: Option<std::vec::Vec<Aov>>,
     #[command(flatten)]
     kernel: KernelCli,
     /// Also write PNG previews (NAME.normal.png, NAME.depth.png with a legend) into DIR.
