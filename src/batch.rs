@@ -965,6 +965,24 @@ pub fn run(
     Ok(summary)
 }
 
+/// Whether view `name` is in the seed-determined `fraction` checked against Mitsuba:
+/// a hash of (seed, name), so the choice does not depend on sharding or order.
+pub fn selected_for_verify(seed: u64, name: &str, fraction: f64) -> bool {
+    if fraction <= 0.0 {
+        return false;
+    }
+    if fraction >= 1.0 {
+        return true;
+    }
+    // FNV-1a over the name, then mixed with the seed.
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for b in name.bytes() {
+        h = (h ^ b as u64).wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    let u = (mix64(h ^ mix64(seed)) >> 11) as f64 / (1u64 << 53) as f64;
+    u < fraction
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1053,22 +1071,4 @@ mod tests {
         assert!(!selected_for_verify(7, "a", 0.0));
         assert!(selected_for_verify(7, "a", 1.0));
     }
-}
-
-/// Whether view `name` is in the seed-determined `fraction` checked against Mitsuba:
-/// a hash of (seed, name), so the choice does not depend on sharding or order.
-pub fn selected_for_verify(seed: u64, name: &str, fraction: f64) -> bool {
-    if fraction <= 0.0 {
-        return false;
-    }
-    if fraction >= 1.0 {
-        return true;
-    }
-    // FNV-1a over the name, then mixed with the seed.
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for b in name.bytes() {
-        h = (h ^ b as u64).wrapping_mul(0x0000_0100_0000_01b3);
-    }
-    let u = (mix64(h ^ mix64(seed)) >> 11) as f64 / (1u64 << 53) as f64;
-    u < fraction
 }
