@@ -300,6 +300,10 @@ pub struct BatchOptions {
     pub png: bool,
     pub compression: Compression,
     pub schedule: Schedule,
+    /// Fraction of views also checked against an independent reference (Mitsuba), chosen
+    /// by [`selected_for_verify`] from `verify_seed` and the view name.
+    pub verify_fraction: f64,
+    pub verify_seed: u64,
 }
 
 impl Default for BatchOptions {
@@ -312,6 +316,8 @@ impl Default for BatchOptions {
             png: true,
             compression: Compression::None,
             schedule: Schedule::default(),
+            verify_fraction: 0.0,
+            verify_seed: 0,
         }
     }
 }
@@ -321,6 +327,10 @@ impl BatchOptions {
         let s = self.depth_scale;
         if !(s.is_finite() && s > 0.0) {
             return Err(format!("--depth-scale: must be finite and > 0, got {s}"));
+        }
+        let f = self.verify_fraction;
+        if !(0.0..=1.0).contains(&f) {
+            return Err(format!("--verify-fraction: must be in [0, 1], got {f}"));
         }
         Ok(())
     }
@@ -837,6 +847,8 @@ pub struct Summary {
     pub trace: Duration,
     pub write: Duration,
     pub failures_path: PathBuf,
+    /// Views checked against the verifier in this run (all agreed unless counted failed).
+    pub verified: usize,
 }
 
 impl fmt::Display for Summary {
@@ -858,6 +870,13 @@ impl fmt::Display for Summary {
                 per(self.write)
             )?;
         }
+        if self.verified > 0 {
+            write!(
+                f,
+                "; {} views verified against the reference",
+                self.verified
+            )?;
+        }
         if c.failed > 0 {
             write!(f, "; failures in {}", self.failures_path.display())?;
         }
@@ -865,14 +884,17 @@ impl fmt::Display for Summary {
     }
 }
 
-/// Render `shard` of the views of `input` into `out`; see the module docs.
-/// Per-view problems are counted in the summary; only whole-batch problems are errors.
+/// Render `shard` of the views of `input` into `out`; see the module docs. With a
+/// `verifier`, the views [`selected_for_verify`] (rendered now or earlier) are checked, and
+/// one that disagrees counts as failed. Per-view problems are counted in the summary; only
+/// whole-batch problems are errors.
 pub fn run(
     input: &Path,
     out: &Path,
     shard: Shard,
     opts: &BatchOptions,
     progress: ProgressMode,
+    verifier: Option<&dyn Verifier>,
 ) -> Result<Summary> {
     let start = Instant::now();
     opts.validate().map_err(anyhow::Error::msg)?;
@@ -894,15 +916,45 @@ pub fn run(
 
     let mine: Vec<usize> = (0..views.len()).filter(|&i| shard.contains(i)).collect();
     let progress = Progress::new(progress, format!("batch {shard}"), mine.len());
+    let verified = std::sync::atomic::AtomicUsize::new(0);
     let one = |i: usize| -> Outcome {
-        let outcome = match &scenes[i] {
+        let view = &views[i];
+        let mut outcome = match &scenes[i] {
             Err(e) => Outcome::Failed(e.clone()),
-            Ok(scene) if view_is_complete(out, &views[i].name, scene, opts) => Outcome::Skipped,
-            Ok(scene) => match render_view(out, &partial, &views[i].name, scene, opts) {
+            Ok(scene) if view_is_complete(out, &view.name, scene, opts) => Outcome::Skipped,
+            Ok(scene) => match render_view(out, &partial, &view.name, scene, opts) {
                 Ok(cost) => Outcome::Done(cost),
-                Err(e) => Outcome::Failed(format!("{}: {e:#}", views[i].path.display())),
+                Err(e) => Outcome::Failed(format!("{}: {e:#}", view.path.display())),
             },
         };
+        if let (Some(v), Ok(scene)) = (verifier, &scenes[i])
+            && !matches!(outcome, Outcome::Failed(_))
+            && selected_for_verify(opts.verify_seed, &view.name, opts.verify_fraction)
+        {
+            let exr = ViewFiles::new(out, &view.name).exr;
+            let work = partial.join(format!("{}.verify.tmp", view.name));
+            let checked = std::fs::create_dir_all(&work)
+                .map_err(anyhow::Error::from)
+                .and_then(|()| v.check(view, scene, &exr, &work));
+            let _ = std::fs::remove_dir_all(&work);
+            verified.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            match checked {
+                Ok(verdict) if verdict.passes => {}
+                Ok(verdict) => {
+                    outcome = Outcome::Failed(format!(
+                        "{}: disagrees with the reference: {}",
+                        view.path.display(),
+                        verdict.report
+                    ))
+                }
+                Err(e) => {
+                    outcome = Outcome::Failed(format!(
+                        "{}: verification could not run: {e:#}",
+                        view.path.display()
+                    ))
+                }
+            }
+        }
         progress.record(&outcome);
         outcome
     };
@@ -922,6 +974,7 @@ pub fn run(
         trace: Duration::ZERO,
         write: Duration::ZERO,
         failures_path: out.join(format!("failures.{shard}.jsonl")),
+        verified: verified.into_inner(),
     };
     for (&i, o) in mine.iter().zip(&outcomes) {
         match o {
@@ -963,6 +1016,21 @@ pub fn run(
     let _ = std::fs::remove_dir(out.join(".partial"));
     summary.elapsed = start.elapsed();
     Ok(summary)
+}
+
+/// The verdict of a [`Verifier`] on one view.
+#[derive(Clone, Debug)]
+pub struct Verdict {
+    pub passes: bool,
+    /// One line for the log or the failures file (error statistics, mismatches).
+    pub report: String,
+}
+
+/// Checks a rendered view against an independent reference. The Mitsuba implementation is
+/// `crate::verify::MitsubaVerifier`; batch only knows this interface.
+pub trait Verifier: Sync {
+    /// `exr` is the view's finished EXR; `work` a private folder for temporary files.
+    fn check(&self, view: &ViewSource, scene: &Scene, exr: &Path, work: &Path) -> Result<Verdict>;
 }
 
 /// Whether view `name` is in the seed-determined `fraction` checked against Mitsuba:

@@ -14,6 +14,7 @@
 //! - [`io`]: atomic file writes and the camera metadata JSON.
 //! - [`generate`]: seeded procedural scenes (SplitMix64 written out) for datasets.
 //! - [`batch`]: view lists, shards, resumable kill-safe batch rendering, `transforms.json`.
+//! - `verify` (feature `mitsuba-verify`): `batch --verify-fraction` against Mitsuba.
 //!
 //! **Architecture invariants**: geometry and render never do IO; serde types live in
 //! `scene`, `io` and the dataset file formats of `generate` and `batch` only; a render is a pure function of scene + options (no global state).
@@ -29,3 +30,5 @@ pub mod io;
 pub mod preview;
 pub mod render;
 pub mod scene;
+#[cfg(feature = "mitsuba-verify")]
+pub mod verify;

@@ -118,6 +118,13 @@ struct BatchCli {
     /// EXR compression.
     #[arg(long, value_enum, default_value_t = Compression::None)]
     compression: Compression,
+    /// Also render this fraction of the views (chosen from --verify-seed and the view
+    /// names) with Mitsuba, when the reference venv exists, and fail views that disagree.
+    #[arg(long, default_value_t = 0.0, value_name = "F")]
+    verify_fraction: f64,
+    /// Seed of the --verify-fraction choice.
+    #[arg(long, default_value_t = 0)]
+    verify_seed: u64,
     /// Parallelise over views (default) or within one view at a time.
     #[arg(long, value_enum, default_value_t = Schedule::Views, hide = true)]
     schedule: Schedule,
@@ -222,6 +229,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
                     png: !a.no_png,
                     compression: a.compression,
                     schedule: a.schedule,
+                    verify_fraction: a.verify_fraction,
+                    verify_seed: a.verify_seed,
                 },
                 progress: ProgressMode::auto(),
             };

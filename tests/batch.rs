@@ -459,3 +459,97 @@ fn transforms_match_cameras_and_depth_png() {
     assert!(hits > 100, "{hits} hits");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `--verify-fraction` plumbing with a stand-in reference (the Mitsuba one is
+/// `cylaov::verify`): every selected view is checked, a disagreement fails that view alone.
+#[test]
+fn verify_fraction_checks_selected_views_and_fails_disagreements() {
+    use cylaov::batch::{self, BatchOptions, ProgressMode, Shard, Verdict, Verifier, ViewSource};
+    struct ReadsBack;
+    impl Verifier for ReadsBack {
+        fn check(
+            &self,
+            view: &ViewSource,
+            scene: &cylaov::scene::Scene,
+            exr: &Path,
+            work: &Path,
+        ) -> anyhow::Result<Verdict> {
+            assert!(work.is_dir());
+            let img = AovImage::read_exr(exr)?;
+            let ok = img.width == scene.camera.width as usize && view.name != "000001";
+            Ok(Verdict {
+                passes: ok,
+                report: format!("stand-in verdict for {}", view.name),
+            })
+        }
+    }
+    let dir = fresh_dir("verify");
+    let data = dir.join("data");
+    generate(&data, "2", "4", SMALL);
+    let out = dir.join("out");
+    let opts = |fraction| BatchOptions {
+        verify_fraction: fraction,
+        verify_seed: 1,
+        ..BatchOptions::default()
+    };
+    let s = batch::run(
+        &data,
+        &out,
+        Shard::ALL,
+        &opts(1.0),
+        ProgressMode::Off,
+        Some(&ReadsBack),
+    )
+    .unwrap();
+    assert_eq!(
+        (s.counts.done, s.counts.failed, s.verified),
+        (3, 1, 4),
+        "{s}"
+    );
+    assert!(
+        s.failures[0]
+            .error
+            .contains("disagrees with the reference: stand-in verdict for 000001")
+    );
+    let s = batch::run(
+        &data,
+        &out,
+        Shard::ALL,
+        &opts(0.0),
+        ProgressMode::Off,
+        Some(&ReadsBack),
+    )
+    .unwrap();
+    assert_eq!(
+        (s.counts.skipped, s.counts.failed, s.verified),
+        (4, 0, 0),
+        "{s}"
+    );
+    let picked = (0..4)
+        .filter(|i| batch::selected_for_verify(1, &format!("{i:06}"), 0.5))
+        .count();
+    let s = batch::run(
+        &data,
+        &out,
+        Shard::ALL,
+        &opts(0.5),
+        ProgressMode::Off,
+        Some(&ReadsBack),
+    )
+    .unwrap();
+    assert_eq!(s.verified, picked);
+    // Without the feature the flag is refused rather than ignored.
+    if !cfg!(feature = "mitsuba-verify") {
+        let o = cylaov(&[
+            "batch",
+            data.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--verify-fraction",
+            "0.1",
+        ]);
+        assert!(!o.status.success());
+        assert!(String::from_utf8_lossy(&o.stderr).contains("no Mitsuba comparison"));
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

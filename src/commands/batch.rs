@@ -20,5 +20,54 @@ pub struct BatchArgs {
 pub fn run(args: &BatchArgs) -> Result<Summary> {
     let shard = batch::resolve_shard(args.shard, args.shards, &|k| std::env::var(k).ok())
         .map_err(anyhow::Error::msg)?;
-    batch::run(&args.input, &args.out, shard, &args.options, args.progress)
+    let verifier = verifier(args.options.verify_fraction)?;
+    batch::run(
+        &args.input,
+        &args.out,
+        shard,
+        &args.options,
+        args.progress,
+        verifier.as_ref().map(|v| v as &dyn batch::Verifier),
+    )
+}
+
+/// The Mitsuba verifier for `--verify-fraction`, if asked for and the reference venv exists.
+#[cfg(feature = "mitsuba-verify")]
+fn verifier(fraction: f64) -> Result<Option<crate::verify::MitsubaVerifier>> {
+    if fraction <= 0.0 {
+        return Ok(None);
+    }
+    let found = crate::verify::MitsubaVerifier::find();
+    if let Err(why) = &found {
+        eprintln!("--verify-fraction: skipped: {why}");
+    }
+    Ok(found.ok())
+}
+
+/// Without the Mitsuba comparison built in, `--verify-fraction` is refused, not ignored.
+#[cfg(not(feature = "mitsuba-verify"))]
+fn verifier(fraction: f64) -> Result<Option<NoVerifier>> {
+    if fraction > 0.0 {
+        anyhow::bail!(
+            "--verify-fraction {fraction}: this build has no Mitsuba comparison \
+             (build with --features mitsuba-verify)"
+        );
+    }
+    Ok(None)
+}
+
+#[cfg(not(feature = "mitsuba-verify"))]
+enum NoVerifier {}
+
+#[cfg(not(feature = "mitsuba-verify"))]
+impl batch::Verifier for NoVerifier {
+    fn check(
+        &self,
+        _: &batch::ViewSource,
+        _: &crate::scene::Scene,
+        _: &std::path::Path,
+        _: &std::path::Path,
+    ) -> Result<batch::Verdict> {
+        match *self {}
+    }
 }
