@@ -9,7 +9,8 @@
 //! A kill at any moment leaves only whole files in `OUT`; the partial folder of a shard is
 //! cleared when that shard starts. A view counts as done when its EXR has the expected
 //! header and its chunks reach exactly to the end of the file ([`exr_is_complete`]), and its
-//! other outputs end as they must (PNG `IEND` chunk, JSON closing brace).
+//! PNGs end as they must (`IEND` chunk), and its camera JSON is byte for byte the one this
+//! run would write (so a changed camera or AOV list is rendered again).
 //!
 //! **Determinism invariant**: the view list, the shard of each view (`index % N`) and
 //! `transforms.json` are pure functions of the input files and the options, so every shard
@@ -456,7 +457,7 @@ pub fn exr_is_complete(
     Ok(())
 }
 
-/// Whether the file exists and ends with `tail` (a PNG's IEND chunk, the JSON's last brace).
+/// Whether the file exists and ends with `tail` (a PNG's IEND chunk).
 fn file_ends_with(path: &Path, tail: &[u8]) -> bool {
     let read = || -> std::io::Result<bool> {
         let mut f = File::open(path)?;
@@ -476,7 +477,10 @@ fn file_ends_with(path: &Path, tail: &[u8]) -> bool {
 pub fn view_is_complete(dir: &Path, name: &str, scene: &Scene, opts: &BatchOptions) -> bool {
     let files = ViewFiles::new(dir, name);
     const PNG_END: &[u8] = b"\0\0\0\0IEND\xae\x42\x60\x82";
-    let others = file_ends_with(&files.camera, b"}\n")
+    // The camera file must be the one this run would write: a changed camera or AOV list
+    // (e.g. regenerated scenes under the same names) renders the view again.
+    let camera = camera_json(&Camera::new(scene.camera), &opts.exr_aovs(scene));
+    let others = std::fs::read(&files.camera).is_ok_and(|b| b == camera.as_bytes())
         && (!opts.png
             || (file_ends_with(&files.normal_png, PNG_END)
                 && file_ends_with(&files.depth_png, PNG_END)));

@@ -553,3 +553,35 @@ fn verify_fraction_checks_selected_views_and_fails_disagreements() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A scene whose camera changed under the same name is rendered again, not skipped.
+#[test]
+fn changed_camera_is_rendered_again() {
+    let dir = fresh_dir("changed");
+    let data = dir.join("data");
+    generate(&data, "6", "3", SMALL);
+    let out = dir.join("out");
+    ok(&[
+        "batch",
+        data.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let scene = data.join("scenes/000001.json");
+    let text = std::fs::read_to_string(&scene).unwrap();
+    std::fs::write(
+        &scene,
+        text.replace("\"fov_deg\": 50.0", "\"fov_deg\": 40.0"),
+    )
+    .unwrap();
+    let stdout = ok(&[
+        "batch",
+        data.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(stdout.contains("done 1 / skipped 2 / failed 0"), "{stdout}");
+    let cam = std::fs::read_to_string(out.join("000001.camera.json")).unwrap();
+    assert!(cam.contains("\"fov_deg\": 40.0"), "{cam}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
