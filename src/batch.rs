@@ -902,8 +902,8 @@ pub fn run(
 ) -> Result<Summary> {
     let start = Instant::now();
     opts.validate().map_err(anyhow::Error::msg)?;
-    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let views = list_views(input, Some(out))?;
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
 
     // Every shard reads every scene: transforms.json lists them all.
     let scenes: Vec<Result<Scene, String>> = views

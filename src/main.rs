@@ -66,7 +66,7 @@ struct GenerateCli {
     #[arg(long, value_parser = Volume::parse, allow_hyphen_values = true, value_name = "X,Y,Z")]
     volume: Option<Volume>,
     /// Probability that a cylinder has caps [default: 0.8].
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     caps_prob: Option<f64>,
     /// Image width [default: 320].
     #[arg(long)]
@@ -110,7 +110,7 @@ struct BatchCli {
     #[arg(long, value_name = "N")]
     shards: Option<u32>,
     /// 16-bit depth PNG value per world unit (1000: millimetres for metres).
-    #[arg(long, default_value_t = 1000.0)]
+    #[arg(long, default_value_t = 1000.0, allow_hyphen_values = true)]
     depth_scale: f64,
     /// Skip the PNGs (transforms.json then points at the EXRs).
     #[arg(long)]
@@ -120,7 +120,12 @@ struct BatchCli {
     compression: Compression,
     /// Also render this fraction of the views (chosen from --verify-seed and the view
     /// names) with Mitsuba, when the reference venv exists, and fail views that disagree.
-    #[arg(long, default_value_t = 0.0, value_name = "F")]
+    #[arg(
+        long,
+        default_value_t = 0.0,
+        value_name = "F",
+        allow_hyphen_values = true
+    )]
     verify_fraction: f64,
     /// Seed of the --verify-fraction choice.
     #[arg(long, default_value_t = 0)]
