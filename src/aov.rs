@@ -49,7 +49,7 @@ pub enum Compression {
 }
 
 impl Compression {
-    fn to_exr(self) -> exr::compression::Compression {
+    pub fn to_exr(self) -> exr::compression::Compression {
         use exr::compression::Compression as C;
         match self {
             Compression::None => C::Uncompressed,
@@ -114,16 +114,28 @@ impl AovImage {
             .sum()
     }
 
-    /// Write an OpenEXR file atomically (temporary name, then rename). Uncompressed files
-    /// are streamed by [`AovImage::write_uncompressed`]; the rest by the `exr` crate.
+    /// Write an OpenEXR file atomically (temporary name, then rename).
     pub fn write_exr(&self, path: &Path, compression: Compression) -> Result<()> {
+        atomic_write(path, |file| {
+            let mut out = std::io::BufWriter::with_capacity(1 << 20, file);
+            self.write_exr_to(&mut out, compression)
+                .map_err(|e| std::io::Error::other(format!("{e:#}")))?;
+            out.flush()
+        })
+        .with_context(|| format!("writing {}", path.display()))
+    }
+
+    /// Encode as OpenEXR into any seekable writer (a file, or memory). Uncompressed files
+    /// are streamed by [`AovImage::write_uncompressed`]; the rest go through the `exr`
+    /// crate, which compresses blocks in parallel.
+    pub fn write_exr_to(
+        &self,
+        mut out: impl std::io::Write + std::io::Seek,
+        compression: Compression,
+    ) -> Result<()> {
         if compression == Compression::None {
-            return atomic_write(path, |f| {
-                let mut out = std::io::BufWriter::with_capacity(1 << 20, f);
-                self.write_uncompressed(&mut out)?;
-                out.flush()
-            })
-            .with_context(|| format!("writing {}", path.display()));
+            self.write_uncompressed(&mut out)?;
+            return Ok(());
         }
         let channels: Vec<AnyChannel<FlatSamples>> = self
             .channels
@@ -146,14 +158,8 @@ impl AovImage {
             },
             AnyChannels::sort(channels.into()),
         );
-        let image = Image::from_layer(layer);
-        atomic_write(path, |file| {
-            image
-                .write()
-                .to_buffered(std::io::BufWriter::new(file))
-                .map_err(|e| std::io::Error::other(e.to_string()))
-        })
-        .with_context(|| format!("writing {}", path.display()))
+        Image::from_layer(layer).write().to_buffered(out)?;
+        Ok(())
     }
 
     /// Stream an uncompressed single-part scanline OpenEXR straight from the planes (the

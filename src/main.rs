@@ -2,7 +2,9 @@
 
 use clap::{Args, Parser, Subcommand};
 use cylaov::aov::Compression;
+use cylaov::batch::{BatchOptions, ProgressMode, Schedule, Shard};
 use cylaov::compare::Tolerances;
+use cylaov::generate::{Range, Volume};
 use cylaov::render::{Accel, FormulaKind, Precision, RenderOptions};
 use cylaov::scene::Aov;
 use cylaov::{bench, commands};
@@ -30,6 +32,16 @@ enum Command {
     /// the whole `cylaov render` process time and its peak memory, and the relative distance
     /// error against the stable f64 kernel. Rows are the minimum of --repeats runs.
     Bench(BenchCli),
+    /// Generate procedural scenes: OUT/scenes/NNNNNN.json and OUT/manifest.jsonl.
+    ///
+    /// Same options and seed, same bytes. Example:
+    /// cylaov generate --count 1000 --seed 1 --out data --cylinders 100
+    Generate(GenerateCli),
+    /// Render every view of a folder of scene files or a .jsonl manifest: resumable,
+    /// shardable, with transforms.json for nerfstudio / instant-ngp.
+    ///
+    /// Example: cylaov batch data --out data/render --shard 0/4
+    Batch(BatchCli),
     /// Write the Mitsuba 3 XML of a scene (the reference renderer's input).
     ///
     /// Example: cylaov export-mitsuba scenes/single.json -o single.xml
@@ -43,6 +55,103 @@ enum Command {
     ///
     /// Example: cylaov stress --family grazing --csv out/grazing.csv --plot out/stress.png
     Stress(StressCli),
+}
+
+#[derive(Args)]
+struct GenerateCli {
+    /// Number of views (scenes) to generate.
+    #[arg(long)]
+    count: Option<u64>,
+    /// Random seed (default 0).
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Output folder.
+    #[arg(long)]
+    out: PathBuf,
+    /// JSON file with any of these options (same names, `caps_prob` for --caps-prob);
+    /// flags override it.
+    #[arg(long, value_name = "FILE.json")]
+    config: Option<PathBuf>,
+    /// Cylinders per scene: MIN..MAX or N [default: 8..32].
+    #[arg(long, value_parser = Range::parse, allow_hyphen_values = true, value_name = "MIN..MAX")]
+    cylinders: Option<Range>,
+    /// Radius range [default: 0.05..0.3].
+    #[arg(long, value_parser = Range::parse, allow_hyphen_values = true, value_name = "A..B")]
+    radius: Option<Range>,
+    /// Length (height) range [default: 0.2..2].
+    #[arg(long, value_parser = Range::parse, allow_hyphen_values = true, value_name = "A..B")]
+    length: Option<Range>,
+    /// Half extents of the box (centred at the origin) holding the cylinder midpoints:
+    /// S or X,Y,Z [default: 2,2,1].
+    #[arg(long, value_parser = Volume::parse, allow_hyphen_values = true, value_name = "X,Y,Z")]
+    volume: Option<Volume>,
+    /// Probability that a cylinder has caps [default: 0.8].
+    #[arg(long, allow_hyphen_values = true)]
+    caps_prob: Option<f64>,
+    /// Image width [default: 320].
+    #[arg(long)]
+    width: Option<u32>,
+    /// Image height [default: 240].
+    #[arg(long)]
+    height: Option<u32>,
+    /// Horizontal field of view, degrees [default: 50].
+    #[arg(long)]
+    fov: Option<f64>,
+    /// Camera elevation range, degrees [default: -20..60].
+    #[arg(long, value_parser = Range::parse, allow_hyphen_values = true, value_name = "A..B")]
+    elevation: Option<Range>,
+    /// Camera distance range, in units of the distance at which the scene's bounding
+    /// sphere just fills the view [default: 0.55..0.9].
+    #[arg(long, value_parser = Range::parse, allow_hyphen_values = true, value_name = "A..B")]
+    distance: Option<Range>,
+}
+
+#[derive(Args)]
+struct BatchCli {
+    /// A folder of scene files (*.json, recursively; through its manifest.jsonl if it has
+    /// one) or a .jsonl manifest.
+    input: PathBuf,
+    /// Output folder: NAME.exr, NAME.camera.json, NAME.normal.png, NAME.depth.png,
+    /// transforms.json, failures.K-of-N.jsonl.
+    #[arg(long)]
+    out: PathBuf,
+    /// AOVs in each EXR, comma-separated. Default: each scene's `aovs`.
+    #[arg(long, value_enum, value_delimiter = ',')]
+    aov: Vec<Aov>,
+    #[command(flatten)]
+    kernel: KernelCli,
+    /// Render shard K of N (0-based): the views whose list position i has i % N == K.
+    /// Default: from SLURM_ARRAY_TASK_ID - SLURM_ARRAY_TASK_MIN of SLURM_ARRAY_TASK_COUNT.
+    #[arg(long, value_parser = Shard::parse, value_name = "K/N")]
+    shard: Option<Shard>,
+    /// Shard count N, the index coming from JOB_COMPLETION_INDEX (Kubernetes Indexed Job)
+    /// or SLURM_ARRAY_TASK_ID - SLURM_ARRAY_TASK_MIN.
+    #[arg(long, value_name = "N")]
+    shards: Option<u32>,
+    /// 16-bit depth PNG value per world unit (1000: millimetres for metres).
+    #[arg(long, default_value_t = 1000.0, allow_hyphen_values = true)]
+    depth_scale: f64,
+    /// Skip the PNGs (transforms.json then points at the EXRs).
+    #[arg(long)]
+    no_png: bool,
+    /// EXR compression.
+    #[arg(long, value_enum, default_value_t = Compression::None)]
+    compression: Compression,
+    /// Also render this fraction of the views (chosen from --verify-seed and the view
+    /// names) with Mitsuba, when the reference venv exists, and fail views that disagree.
+    #[arg(
+        long,
+        default_value_t = 0.0,
+        value_name = "F",
+        allow_hyphen_values = true
+    )]
+    verify_fraction: f64,
+    /// Seed of the --verify-fraction choice.
+    #[arg(long, default_value_t = 0)]
+    verify_seed: u64,
+    /// Parallelise over views (default) or within one view at a time.
+    #[arg(long, value_enum, default_value_t = Schedule::Views, hide = true)]
+    schedule: Schedule,
 }
 
 #[derive(Args)]
@@ -211,6 +320,56 @@ fn run(cli: Cli) -> anyhow::Result<bool> {
                 compression: a.compression,
             };
             println!("{}", commands::render::run(&args)?);
+        }
+        Command::Generate(a) => {
+            let args = commands::generate::GenerateArgs {
+                out: a.out,
+                count: a.count,
+                seed: a.seed,
+                config: a.config,
+                cylinders: a.cylinders,
+                radius: a.radius,
+                length: a.length,
+                volume: a.volume,
+                caps_prob: a.caps_prob,
+                width: a.width,
+                height: a.height,
+                fov: a.fov,
+                elevation: a.elevation,
+                distance: a.distance,
+            };
+            println!("{}", commands::generate::run(&args)?);
+        }
+        Command::Batch(a) => {
+            set_threads(a.kernel.threads)?;
+            let args = commands::batch::BatchArgs {
+                input: a.input,
+                out: a.out,
+                shard: a.shard,
+                shards: a.shards,
+                options: BatchOptions {
+                    aovs: (!a.aov.is_empty()).then_some(a.aov),
+                    precision: a.kernel.precision,
+                    formula: a.kernel.formula,
+                    depth_scale: a.depth_scale,
+                    png: !a.no_png,
+                    compression: a.compression,
+                    schedule: a.schedule,
+                    verify_fraction: a.verify_fraction,
+                    verify_seed: a.verify_seed,
+                },
+                progress: ProgressMode::auto(),
+            };
+            let summary = commands::batch::run(&args)?;
+            println!("{summary}");
+            if summary.counts.failed > 0 {
+                anyhow::bail!(
+                    "{} of {} views failed (see {})",
+                    summary.counts.failed,
+                    summary.in_shard,
+                    summary.failures_path.display()
+                );
+            }
         }
         Command::Bench(b) => {
             set_threads(b.threads)?;

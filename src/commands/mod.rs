@@ -1,8 +1,10 @@
 //! The work behind each CLI subcommand: IO orchestration around the pure library.
 //! `main.rs` only parses arguments and calls these.
 
+pub mod batch;
 pub mod bench;
 pub mod compare;
 pub mod export_mitsuba;
+pub mod generate;
 pub mod render;
 pub mod stress;

@@ -1,0 +1,535 @@
+//! Procedural scenes for datasets (`cylaov generate`): a seeded, hand-written random stream
+//! and the sampling of cylinders and cameras. Pure: IO lives in `commands::generate`.
+//!
+//! **Determinism invariant**: view `i` of seed `s` depends only on `(s, i)` and the
+//! options, through [`SplitMix64`] written out here (no crate whose stream could change
+//! under us), and every number is produced by IEEE-754 operations with a defined result
+//! (`+ - * /`, `sqrt`; the one transcendental is `tan(fov/2)` and `sin` of the elevation
+//! bounds, once per run). The same command therefore gives the same files, byte for byte
+//! (serde_json prints every f64 as its shortest round-trip form).
+//!
+//! | option | default | meaning |
+//! |---|---|---|
+//! | `cylinders` | `8..32` | cylinder count per scene, inclusive range or one number |
+//! | `radius` | `0.05..0.3` | radius, uniform |
+//! | `length` | `0.2..2` | height (`p0`→`p1` distance), uniform |
+//! | `volume` | `2,2,1` | half extents of the box, centred at the origin, holding the cylinders' midpoints |
+//! | `caps_prob` | `0.8` | probability that a cylinder is closed by caps |
+//! | `width`, `height` | `320`, `240` | image size |
+//! | `fov` | `50` | horizontal field of view in degrees (`fov_axis` x) |
+//! | `elevation` | `-20..60` | camera elevation above the xy plane, degrees; directions uniform over that band of the sphere |
+//! | `distance` | `0.55..0.9` | camera distance in units of the fit distance (at 1 the bounding sphere of every possible cylinder just fills the smaller fov; the cylinders' midpoints fill far less) |
+
+use crate::camera::FovAxis;
+use crate::scene::{self, CameraFile, CylinderFile, SceneFile};
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+use std::fmt;
+
+/// SplitMix64 (Steele, Lea, Flood 2014): 64-bit state, one add and a finaliser per output.
+/// Written out so that the stream is fixed forever.
+#[derive(Clone, Debug)]
+pub struct SplitMix64 {
+    state: u64,
+}
+
+const GOLDEN_GAMMA: u64 = 0x9E37_79B9_7F4A_7C15;
+
+/// The SplitMix64 finaliser (a bijection on u64 with good avalanche).
+pub fn mix64(mut z: u64) -> u64 {
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+impl SplitMix64 {
+    pub fn new(seed: u64) -> Self {
+        SplitMix64 { state: seed }
+    }
+
+    /// An independent stream for item `index` of `seed`: generating item `i` never depends
+    /// on how many items came before it.
+    pub fn for_item(seed: u64, index: u64) -> Self {
+        SplitMix64::new(mix64(
+            seed ^ mix64(index.wrapping_add(1).wrapping_mul(GOLDEN_GAMMA)),
+        ))
+    }
+
+    pub fn next_u64(&mut self) -> u64 {
+        self.state = self.state.wrapping_add(GOLDEN_GAMMA);
+        mix64(self.state)
+    }
+
+    /// Uniform in `[0, 1)` with 53 random bits.
+    pub fn next_f64(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+    }
+
+    /// Uniform in `[lo, hi]` (`lo` when the range is one point).
+    pub fn uniform(&mut self, r: Range) -> f64 {
+        r.min + (r.max - r.min) * self.next_f64()
+    }
+
+    /// Uniform direction on the unit circle, by rejection from the square.
+    pub fn unit_circle(&mut self) -> (f64, f64) {
+        loop {
+            let (x, y) = (2.0 * self.next_f64() - 1.0, 2.0 * self.next_f64() - 1.0);
+            let len2 = x * x + y * y;
+            if len2 <= 1.0 && len2 > 1e-6 {
+                let len = len2.sqrt();
+                return (x / len, y / len);
+            }
+        }
+    }
+
+    /// Uniform integer in `[lo, hi]`, inclusive, without modulo bias worth noticing
+    /// (multiply-shift on 64 bits; the ranges here are tiny).
+    pub fn int_in(&mut self, lo: u32, hi: u32) -> u32 {
+        let span = (hi - lo) as u64 + 1;
+        lo + ((self.next_u64() as u128 * span as u128) >> 64) as u32
+    }
+
+    /// Uniform direction on the unit sphere: rejection from the cube, then normalised.
+    /// Only `+ - * /` and `sqrt` (all correctly rounded), so no libm can change it.
+    pub fn unit_vector(&mut self) -> DVec3 {
+        loop {
+            let v = DVec3::new(self.next_f64(), self.next_f64(), self.next_f64()) * 2.0 - 1.0;
+            let len2 = v.length_squared();
+            if len2 <= 1.0 && len2 > 1e-6 {
+                return v / len2.sqrt();
+            }
+        }
+    }
+}
+
+/// A closed interval of reals, written `A..B` or as one number `A`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "RangeRepr", into = "RangeRepr")]
+pub struct Range {
+    pub min: f64,
+    pub max: f64,
+}
+
+impl Range {
+    pub const fn new(min: f64, max: f64) -> Self {
+        Range { min, max }
+    }
+
+    /// Parse `A..B` or `A`.
+    pub fn parse(s: &str) -> Result<Range, String> {
+        let num = |t: &str| -> Result<f64, String> {
+            let t = t.trim();
+            let x: f64 = t
+                .parse()
+                .map_err(|_| format!("expected a number or MIN..MAX, got {s:?}"))?;
+            if !x.is_finite() {
+                return Err(format!("must be finite, got {s:?}"));
+            }
+            Ok(x)
+        };
+        let r = match s.split_once("..") {
+            Some((a, b)) => Range::new(num(a)?, num(b)?),
+            None => {
+                let x = num(s)?;
+                Range::new(x, x)
+            }
+        };
+        if r.min > r.max {
+            return Err(format!("MIN must be <= MAX, got {s:?}"));
+        }
+        Ok(r)
+    }
+}
+
+impl fmt::Display for Range {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if self.min == self.max {
+            write!(f, "{}", self.min)
+        } else {
+            write!(f, "{}..{}", self.min, self.max)
+        }
+    }
+}
+
+/// How a range may be written in a config file: `"A..B"`, `A`, or `[A, B]`.
+#[derive(Serialize, Deserialize)]
+#[serde(untagged)]
+enum RangeRepr {
+    Text(String),
+    Number(f64),
+    Pair([f64; 2]),
+}
+
+impl TryFrom<RangeRepr> for Range {
+    type Error = String;
+    fn try_from(r: RangeRepr) -> Result<Range, String> {
+        match r {
+            RangeRepr::Text(s) => Range::parse(&s),
+            RangeRepr::Number(x) => Range::parse(&x.to_string()),
+            RangeRepr::Pair([a, b]) => Range::parse(&format!("{a}..{b}")),
+        }
+    }
+}
+
+impl From<Range> for RangeRepr {
+    fn from(r: Range) -> RangeRepr {
+        RangeRepr::Text(r.to_string())
+    }
+}
+
+/// The options that shape every scene; each can come from the config file or a flag.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GenerateOptions {
+    pub cylinders: Range,
+    pub radius: Range,
+    pub length: Range,
+    /// Half extents of the placement box (centred at the origin).
+    pub volume: [f64; 3],
+    pub caps_prob: f64,
+    pub width: u32,
+    pub height: u32,
+    pub fov: f64,
+    pub elevation: Range,
+    pub distance: Range,
+}
+
+impl Default for GenerateOptions {
+    fn default() -> Self {
+        GenerateOptions {
+            cylinders: Range::new(8.0, 32.0),
+            radius: Range::new(0.05, 0.3),
+            length: Range::new(0.2, 2.0),
+            volume: [2.0, 2.0, 1.0],
+            caps_prob: 0.8,
+            width: 320,
+            height: 240,
+            fov: 50.0,
+            elevation: Range::new(-20.0, 60.0),
+            distance: Range::new(0.55, 0.9),
+        }
+    }
+}
+
+/// The config file: any subset of the options, same names as the long flags
+/// (`caps_prob` for `--caps-prob`); ranges as `"A..B"`, `[A, B]` or one number.
+#[derive(Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ConfigFile {
+    pub count: Option<u64>,
+    pub seed: Option<u64>,
+    pub cylinders: Option<Range>,
+    pub radius: Option<Range>,
+    pub length: Option<Range>,
+    pub volume: Option<Volume>,
+    pub caps_prob: Option<f64>,
+    pub width: Option<u32>,
+    pub height: Option<u32>,
+    pub fov: Option<f64>,
+    pub elevation: Option<Range>,
+    pub distance: Option<Range>,
+}
+
+/// Half extents `X,Y,Z`, or one number for a cube.
+#[derive(Clone, Copy, Debug, PartialEq, Deserialize)]
+#[serde(try_from = "VolumeRepr")]
+pub struct Volume(pub [f64; 3]);
+
+#[derive(Deserialize)]
+#[serde(untagged)]
+enum VolumeRepr {
+    Text(String),
+    Number(f64),
+    Triple([f64; 3]),
+}
+
+impl TryFrom<VolumeRepr> for Volume {
+    type Error = String;
+    fn try_from(v: VolumeRepr) -> Result<Volume, String> {
+        match v {
+            VolumeRepr::Text(s) => Volume::parse(&s),
+            VolumeRepr::Number(x) => Ok(Volume([x; 3])),
+            VolumeRepr::Triple(v) => Ok(Volume(v)),
+        }
+    }
+}
+
+impl Volume {
+    /// Parse `S` (a cube of half extent S) or `X,Y,Z`.
+    pub fn parse(s: &str) -> Result<Volume, String> {
+        let parts: Vec<f64> = s
+            .split(',')
+            .map(|t| t.trim().parse::<f64>())
+            .collect::<Result<_, _>>()
+            .map_err(|_| format!("expected S or X,Y,Z (half extents), got {s:?}"))?;
+        match parts[..] {
+            [x] => Ok(Volume([x; 3])),
+            [x, y, z] => Ok(Volume([x, y, z])),
+            _ => Err(format!("expected S or X,Y,Z (half extents), got {s:?}")),
+        }
+    }
+}
+
+/// Largest cylinder count per generated scene.
+pub const MAX_CYLINDERS: f64 = 1_000_000.0;
+
+impl GenerateOptions {
+    /// Overlay the options a config file sets.
+    pub fn apply(&mut self, c: &ConfigFile) {
+        macro_rules! take {
+            ($($f:ident),*) => { $( if let Some(v) = c.$f { self.$f = v; } )* };
+        }
+        take!(
+            cylinders, radius, length, caps_prob, width, height, fov, elevation, distance
+        );
+        if let Some(v) = c.volume {
+            self.volume = v.0;
+        }
+    }
+
+    /// Check every option; the error names the flag and the value.
+    pub fn validate(&self) -> Result<(), String> {
+        let c = self.cylinders;
+        if c.min < 1.0 || c.max > MAX_CYLINDERS || c.min.fract() != 0.0 || c.max.fract() != 0.0 {
+            return Err(format!(
+                "--cylinders: must be whole numbers in 1..={MAX_CYLINDERS}, got {c}"
+            ));
+        }
+        for (flag, r) in [("--radius", self.radius), ("--length", self.length)] {
+            if r.min <= 0.0 || r.max > scene::MAX_COORD {
+                return Err(format!(
+                    "{flag}: must be > 0 and <= {:e}, got {r}",
+                    scene::MAX_COORD
+                ));
+            }
+        }
+        if self
+            .volume
+            .iter()
+            .any(|v| !v.is_finite() || *v < 0.0 || *v > scene::MAX_COORD)
+        {
+            return Err(format!(
+                "--volume: half extents must be >= 0 and finite, got {:?}",
+                self.volume
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.caps_prob) {
+            return Err(format!(
+                "--caps-prob: must be in [0, 1], got {}",
+                self.caps_prob
+            ));
+        }
+        for (flag, v) in [("--width", self.width), ("--height", self.height)] {
+            if v == 0 || v > scene::MAX_SIDE {
+                return Err(format!(
+                    "{flag}: must be in 1..={}, got {v}",
+                    scene::MAX_SIDE
+                ));
+            }
+        }
+        if !(self.fov > 0.0 && self.fov < 180.0) {
+            return Err(format!("--fov: must be in (0, 180), got {}", self.fov));
+        }
+        let e = self.elevation;
+        if e.min < -85.0 || e.max > 85.0 {
+            return Err(format!(
+                "--elevation: must lie in -85..85 degrees (the camera's up is +z), got {e}"
+            ));
+        }
+        let d = self.distance;
+        if d.min <= 0.0 || d.max > 1e6 {
+            return Err(format!("--distance: must be > 0 and <= 1e6, got {d}"));
+        }
+        Ok(())
+    }
+
+    /// Radius of a sphere about the origin that holds every cylinder any scene can have.
+    fn bounding_radius(&self) -> f64 {
+        DVec3::from_array(self.volume).length() + self.length.max / 2.0 + self.radius.max
+    }
+
+    /// Generate view `index` of `seed`: a complete scene file, validated.
+    pub fn scene(&self, seed: u64, index: u64) -> Result<SceneFile, String> {
+        let mut rng = SplitMix64::for_item(seed, index);
+        let volume = DVec3::from_array(self.volume);
+
+        // Place the cylinders: midpoint in the box, axis uniform on the sphere.
+        let count = rng.int_in(self.cylinders.min as u32, self.cylinders.max as u32);
+        let mut cylinders = Vec::with_capacity(count as usize);
+        for _ in 0..count {
+            let unit = DVec3::new(rng.next_f64(), rng.next_f64(), rng.next_f64());
+            let mid = (unit * 2.0 - 1.0) * volume;
+            let axis = rng.unit_vector();
+            let half = rng.uniform(self.length) / 2.0;
+            let radius = rng.uniform(self.radius);
+            let caps = rng.next_f64() < self.caps_prob;
+            cylinders.push(CylinderFile {
+                p0: Some((mid - axis * half).to_array()),
+                p1: Some((mid + axis * half).to_array()),
+                radius,
+                caps,
+                ..CylinderFile::default()
+            });
+        }
+
+        // Place the camera: on a sphere around the scene, far enough that the bounding
+        // sphere fits the smaller field of view at distance factor 1, looking at a point
+        // near the centre.
+        let aspect = self.width as f64 / self.height as f64;
+        let tan_x = (self.fov.to_radians() / 2.0).tan();
+        let tan_small = tan_x.min(tan_x / aspect);
+        // A sphere of radius R fills a half angle a from distance R / sin(a).
+        let sin_small = tan_small / (1.0 + tan_small * tan_small).sqrt();
+        let fit = self.bounding_radius() / sin_small;
+        let dist = fit * rng.uniform(self.distance);
+        let (z_lo, z_hi) = (
+            self.elevation.min.to_radians().sin(),
+            self.elevation.max.to_radians().sin(),
+        );
+        // Archimedes: z uniform in the band is area-uniform on the sphere.
+        let z = z_lo + (z_hi - z_lo) * rng.next_f64();
+        let (cx, cy) = rng.unit_circle();
+        let s = (1.0 - z * z).max(0.0).sqrt();
+        let dir = DVec3::new(s * cx, s * cy, z);
+        let jitter = DVec3::new(rng.next_f64(), rng.next_f64(), rng.next_f64()) * 2.0 - 1.0;
+        let target = jitter * volume * 0.25;
+        let origin = target + dir * dist;
+        // The elevation bound keeps +z usable; fall back to +y if the jitter ever tilts
+        // the view within ~6 degrees of it.
+        let forward = (target - origin).normalize();
+        let up = if forward.cross(DVec3::Z).length() > 0.1 {
+            DVec3::Z
+        } else {
+            DVec3::Y
+        };
+        let far = (2.0 * (dist + self.bounding_radius())).max(10000.0);
+        let file = SceneFile {
+            camera: CameraFile {
+                origin: origin.to_array(),
+                target: target.to_array(),
+                up: up.to_array(),
+                fov_deg: self.fov,
+                fov_axis: FovAxis::X,
+                width: self.width,
+                height: self.height,
+                near_clip: 0.01,
+                far_clip: far,
+            },
+            cylinders,
+            aovs: Some(scene::default_aovs()),
+        };
+        file.validate()
+            .map_err(|e| format!("generated view {index} is invalid: {e}"))?;
+        Ok(file)
+    }
+}
+
+/// Pretty JSON with every array of plain values on one line (`[1.0, 2.0, 3.0]`): scene files
+/// stay readable with one line per vector. Only for JSON printed by serde_json.
+pub fn to_json(value: &impl Serialize) -> serde_json::Result<String> {
+    let pretty = serde_json::to_string_pretty(value)?;
+    let mut out = String::with_capacity(pretty.len());
+    let mut rest = pretty.as_str();
+    while let Some(open) = rest.find('[') {
+        out.push_str(&rest[..=open]);
+        rest = &rest[open + 1..];
+        let close = rest.find(']').unwrap_or(0);
+        let inner = &rest[..close];
+        if close > 0 && !inner.contains(['[', '{', '"']) {
+            let items: Vec<&str> = inner.split(',').map(str::trim).collect();
+            out.push_str(&items.join(", "));
+            rest = &rest[close..];
+        }
+    }
+    out.push_str(rest);
+    out.push('\n');
+    Ok(out)
+}
+
+/// The file name stem of view `index`: six digits, more when needed.
+pub fn view_name(index: u64) -> String {
+    format!("{index:06}")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn splitmix_stream_is_fixed() {
+        // Reference values of SplitMix64 from seed 1234567 (Vigna's splitmix64.c).
+        let mut r = SplitMix64::new(1234567);
+        let got: Vec<u64> = (0..3).map(|_| r.next_u64()).collect();
+        assert_eq!(
+            got,
+            vec![
+                6457827717110365317,
+                3203168211198807973,
+                9817491932198370423
+            ]
+        );
+    }
+
+    #[test]
+    fn ranges_parse_and_reject() {
+        assert_eq!(Range::parse("1..2"), Ok(Range::new(1.0, 2.0)));
+        assert_eq!(Range::parse("3"), Ok(Range::new(3.0, 3.0)));
+        assert!(
+            Range::parse("2..1")
+                .unwrap_err()
+                .contains("MIN must be <= MAX")
+        );
+        assert!(Range::parse("x").is_err());
+        assert!(Range::parse("nan").is_err());
+        let c: ConfigFile =
+            serde_json::from_str(r#"{"radius": [0.1, 0.2], "length": "1..3", "cylinders": 5}"#)
+                .unwrap();
+        assert_eq!(c.radius, Some(Range::new(0.1, 0.2)));
+        assert_eq!(c.length, Some(Range::new(1.0, 3.0)));
+        assert_eq!(c.cylinders, Some(Range::new(5.0, 5.0)));
+    }
+
+    #[test]
+    fn scenes_are_valid_deterministic_and_in_range() {
+        let o = GenerateOptions::default();
+        for i in 0..50 {
+            let a = serde_json::to_string(&o.scene(7, i).unwrap()).unwrap();
+            let b = serde_json::to_string(&o.scene(7, i).unwrap()).unwrap();
+            assert_eq!(a, b);
+            let s = o.scene(7, i).unwrap().validate().unwrap();
+            let n = s.cylinders.len() as f64;
+            assert!((o.cylinders.min..=o.cylinders.max).contains(&n));
+            for c in &s.cylinders {
+                assert!((o.radius.min..=o.radius.max).contains(&c.radius));
+                assert!((o.length.min - 1e-12..=o.length.max + 1e-12).contains(&c.height));
+                let mid = c.base + c.axis * c.height / 2.0;
+                for k in 0..3 {
+                    assert!(mid[k].abs() <= o.volume[k] + 1e-12, "{mid:?}");
+                }
+            }
+            // The camera sits outside the bounding sphere and looks at the scene.
+            let cam = s.camera;
+            assert!(cam.origin.length() > o.bounding_radius() * 0.9);
+            let fwd = (cam.target - cam.origin).normalize();
+            assert!(fwd.dot(-cam.origin.normalize()) > 0.9);
+        }
+        assert_ne!(
+            serde_json::to_string(&o.scene(7, 0).unwrap()).unwrap(),
+            serde_json::to_string(&o.scene(8, 0).unwrap()).unwrap()
+        );
+    }
+
+    #[test]
+    fn options_name_the_bad_flag() {
+        let bad = |f: fn(&mut GenerateOptions)| {
+            let mut o = GenerateOptions::default();
+            f(&mut o);
+            o.validate().unwrap_err()
+        };
+        assert!(bad(|o| o.radius = Range::new(-1.0, 1.0)).starts_with("--radius"));
+        assert!(bad(|o| o.caps_prob = 2.0).starts_with("--caps-prob"));
+        assert!(bad(|o| o.cylinders = Range::new(0.0, 3.0)).starts_with("--cylinders"));
+        assert!(bad(|o| o.elevation = Range::new(0.0, 90.0)).starts_with("--elevation"));
+        assert!(bad(|o| o.fov = 180.0).starts_with("--fov"));
+    }
+}

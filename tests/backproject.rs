@@ -1,0 +1,172 @@
+//! `scripts/backproject.py` turns a batch view into world points that lie on the cylinders:
+//! the distance to the nearest finite cylinder surface (side or cap, SPEC §7) is at most
+//! 1e-4 of that cylinder's radius. Runs with the reference venv's Python (numpy).
+
+use cylaov::aov::AovImage;
+use cylaov::geometry::Cylinder;
+use glam::DVec3;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+const BIN: &str = env!("CARGO_BIN_EXE_cylaov");
+
+fn python() -> Result<PathBuf, String> {
+    let py = Path::new(env!("CARGO_MANIFEST_DIR")).join(".venv/bin/python");
+    if !py.exists() {
+        return Err(format!(
+            "{} not found (make it with scripts/setup-venv)",
+            py.display()
+        ));
+    }
+    let ok = Command::new(&py)
+        .args(["-c", "import numpy"])
+        .status()
+        .is_ok_and(|s| s.success());
+    if !ok {
+        return Err(format!("{} has no numpy", py.display()));
+    }
+    Ok(py)
+}
+
+/// Distance from `p` to the surface of a finite cylinder: the tube for axial coordinate
+/// in [0, h], plus the two cap disks when it has caps.
+fn distance_to_surface(c: &Cylinder, p: DVec3) -> f64 {
+    let v = p - c.base;
+    let a = v.dot(c.axis);
+    let rho = (v - c.axis * a).length();
+    let tube = ((rho - c.radius).powi(2) + (a - a.clamp(0.0, c.height)).powi(2)).sqrt();
+    if !c.caps {
+        return tube;
+    }
+    let outside = (rho - c.radius).max(0.0);
+    let disk = |a0: f64| ((a - a0).powi(2) + outside.powi(2)).sqrt();
+    tube.min(disk(0.0)).min(disk(c.height))
+}
+
+/// An N x 3 little-endian float64 `.npy`.
+fn read_npy(path: &Path) -> Vec<DVec3> {
+    let bytes = std::fs::read(path).unwrap();
+    assert_eq!(&bytes[..6], b"\x93NUMPY");
+    let header_len = u16::from_le_bytes([bytes[8], bytes[9]]) as usize;
+    let header = std::str::from_utf8(&bytes[10..10 + header_len]).unwrap();
+    assert!(
+        header.contains("'descr': '<f8'") && header.contains("'fortran_order': False"),
+        "{header}"
+    );
+    bytes[10 + header_len..]
+        .chunks_exact(24)
+        .map(|c| {
+            let f = |k: usize| f64::from_le_bytes(c[8 * k..8 * k + 8].try_into().unwrap());
+            DVec3::new(f(0), f(1), f(2))
+        })
+        .collect()
+}
+
+#[test]
+fn backprojected_points_lie_on_the_cylinders() {
+    let py = match python() {
+        Ok(py) => py,
+        Err(why) => {
+            println!("skipped: {why}");
+            return;
+        }
+    };
+    let dir = std::env::temp_dir().join(format!("cylaov-backproject-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let data = dir.join("data");
+    let run = |args: &[&str]| {
+        let o = Command::new(BIN).args(args).output().unwrap();
+        assert!(
+            o.status.success(),
+            "{args:?}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+    };
+    run(&[
+        "generate",
+        "--count",
+        "2",
+        "--seed",
+        "4",
+        "--out",
+        data.to_str().unwrap(),
+        "--width",
+        "96",
+        "--height",
+        "72",
+        "--cylinders",
+        "12",
+        "--caps-prob",
+        "0.5",
+    ]);
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/backproject.py");
+    for compression in ["none", "zip"] {
+        let out = dir.join(compression);
+        run(&[
+            "batch",
+            data.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--compression",
+            compression,
+        ]);
+        for name in ["000000", "000001"] {
+            let exr = out.join(format!("{name}.exr"));
+            let npy = out.join(format!("{name}.npy"));
+            let o = Command::new(&py)
+                .arg(&script)
+                .arg(&exr)
+                .arg("--out")
+                .arg(&npy)
+                .output()
+                .unwrap();
+            assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+            let points = read_npy(&npy);
+            let depth = AovImage::read_exr(&exr).unwrap();
+            let hits = depth
+                .f32_channel("depth")
+                .unwrap()
+                .iter()
+                .filter(|z| **z > 0.0)
+                .count();
+            assert_eq!(points.len(), hits);
+            assert!(hits > 300, "{name}: only {hits} hit pixels");
+            let scene = cylaov::scene::load(&data.join(format!("scenes/{name}.json"))).unwrap();
+            let mut worst = (0.0f64, DVec3::ZERO);
+            for p in &points {
+                let (d, r) = scene
+                    .cylinders
+                    .iter()
+                    .map(|c| (distance_to_surface(c, *p), c.radius))
+                    .fold((f64::INFINITY, 0.0), |a, b| if b.0 < a.0 { b } else { a });
+                if d / r > worst.0 {
+                    worst = (d / r, *p);
+                }
+            }
+            println!(
+                "{compression} {name}: {hits} points, max distance / radius {:.3e}",
+                worst.0
+            );
+            assert!(
+                worst.0 <= 1e-4,
+                "{name}: point {:?} is {:.3e} radii off",
+                worst.1,
+                worst.0
+            );
+            // The check can fail: the same points 1% further along their rays are off.
+            let cam = scene.camera.origin;
+            let moved = points.iter().map(|p| cam + (*p - cam) * 1.01);
+            let off = moved
+                .map(|p| {
+                    scene
+                        .cylinders
+                        .iter()
+                        .map(|c| distance_to_surface(c, p) / c.radius)
+                        .fold(f64::INFINITY, f64::min)
+                })
+                .fold(0.0, f64::max);
+            assert!(off > 1e-3, "{off}");
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
