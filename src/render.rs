@@ -209,21 +209,21 @@ impl<T: Real, F: Formula> Tracer<T, F> {
         rays: &mut TileRays<T>,
     ) {
         let tw = (xs.1 - xs.0 + 1) as usize;
-        for j in ys.0..=ys.1 {
-            for i in xs.0..=xs.1 {
-                let k = (j - ys.0) as usize * tw + (i - xs.0) as usize;
-                let d = self
-                    .camera
-                    .dir_from_offsets(offsets.0[i as usize], offsets.1[j as usize]);
-                let (tmin, tmax) = self.clip(d);
-                rays.d[k] = d;
-                rays.dt[k] = T::v3(d);
-                rays.tmin[k] = T::from_f64(tmin);
-                rays.tmax[k] = T::from_f64(tmax);
-                rays.reach[k] = tmax;
-                rays.best[k] = None;
-            }
-        }
+        // Rays are set up lazily: a pixel no candidate covers costs nothing.
+        rays.ready = [0; TILE as usize];
+        let setup = |rays: &mut TileRays<T>, i: u32, j: u32, k: usize| {
+            let d = self
+                .camera
+                .dir_from_offsets(offsets.0[i as usize], offsets.1[j as usize]);
+            let (tmin, tmax) = self.clip(d);
+            rays.d[k] = d;
+            rays.dt[k] = T::v3(d);
+            rays.tmin[k] = T::from_f64(tmin);
+            rays.tmax[k] = T::from_f64(tmax);
+            rays.reach[k] = tmax;
+            rays.best[k] = None;
+            rays.ready[(j - ys.0) as usize] |= 1 << (i - xs.0);
+        };
         for c in cands {
             for j in c.y0.max(ys.0)..=c.y1.min(ys.1) {
                 let Some((a, b)) = c.row_span(j, xs.0, xs.1) else {
@@ -232,6 +232,9 @@ impl<T: Real, F: Formula> Tracer<T, F> {
                 let row = (j - ys.0) as usize * tw;
                 for i in a..=b {
                     let k = row + (i - xs.0) as usize;
+                    if rays.ready[(j - ys.0) as usize] & (1 << (i - xs.0)) == 0 {
+                        setup(rays, i, j, k);
+                    }
                     if c.t_min > rays.reach[k] {
                         continue;
                     }
@@ -268,6 +271,8 @@ pub struct TileRays<T: Real> {
     /// Ray parameter beyond which nothing can improve the pixel: its best hit, else tmax.
     reach: [f64; TILE_PIXELS],
     pub best: [Option<PixelHit<T>>; TILE_PIXELS],
+    /// Per tile row, a bit per column: that pixel's ray is set up (and `best` valid).
+    pub ready: [u16; TILE as usize],
 }
 
 impl<T: Real> TileRays<T> {
@@ -280,6 +285,7 @@ impl<T: Real> TileRays<T> {
             tmax: [T::ZERO; TILE_PIXELS],
             reach: [0.0; TILE_PIXELS],
             best: [None; TILE_PIXELS],
+            ready: [0; TILE as usize],
         })
     }
 }
@@ -423,6 +429,9 @@ fn render_with<T: Real, F: Formula>(scene: &Scene, opts: &RenderOptions) -> (Ren
                         for dj in 0..rows {
                             for di in 0..tw {
                                 let k = dj * tw + di;
+                                if rays.ready[dj] & (1 << di) == 0 {
+                                    continue;
+                                }
                                 if let Some(hit) = rays.best[k] {
                                     shade(dj * w + xs.0 as usize + di, rays.d[k], hit);
                                 }

@@ -18,6 +18,7 @@
 
 use crate::camera::Camera;
 use crate::geometry::{Cylinder, cylinder::orthonormal_basis};
+use rayon::prelude::*;
 
 /// Tile side in pixels.
 pub const TILE: u32 = 16;
@@ -196,7 +197,7 @@ impl Tiles {
     pub fn build(cam: &Camera, cylinders: &[Cylinder]) -> Tiles {
         let (tiles_x, tiles_y) = (cam.width().div_ceil(TILE), cam.height().div_ceil(TILE));
         let mut cands: Vec<Candidate> = cylinders
-            .iter()
+            .par_iter()
             .enumerate()
             .filter_map(|(i, c)| {
                 project(cam, c).map(|mut k| {
@@ -206,7 +207,7 @@ impl Tiles {
             })
             .collect();
         // Sorted once globally, so every tile's list comes out sorted by t_min.
-        cands.sort_by(|a, b| a.t_min.total_cmp(&b.t_min).then(a.index.cmp(&b.index)));
+        cands.par_sort_unstable_by(|a, b| a.t_min.total_cmp(&b.t_min).then(a.index.cmp(&b.index)));
         let ntiles = (tiles_x * tiles_y) as usize;
         let tile_range = |c: &Candidate| (c.x0 / TILE, c.x1 / TILE, c.y0 / TILE, c.y1 / TILE);
         let mut count = vec![0u32; ntiles + 1];
