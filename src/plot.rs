@@ -55,21 +55,21 @@ pub fn rect(img: &mut RgbImage, x: i64, y: i64, w: u32, h: u32, c: Rgb<u8>) {
     }
 }
 
-/// Bresenham from `a` to `b`, both ends drawn; `keep(k)` decides pixel `k` along the way
-/// (dashes).
-fn bresenham(
+/// Bresenham from `a` to `b`, both ends included, dashed: `on` pixels drawn, `off`
+/// skipped, starting with a dash at `a` (`(1, 0)` is a solid line).
+pub fn dashed_line(
     img: &mut RgbImage,
     a: (i64, i64),
     b: (i64, i64),
+    (on, off): (u64, u64),
     c: Rgb<u8>,
-    keep: impl Fn(u64) -> bool,
 ) {
     let ((mut x0, mut y0), (x1, y1)) = (a, b);
     let (dx, dy) = ((x1 - x0).abs(), -(y1 - y0).abs());
     let (sx, sy) = (if x0 < x1 { 1 } else { -1 }, if y0 < y1 { 1 } else { -1 });
     let mut err = dx + dy;
-    for k in 0.. {
-        if keep(k) {
+    for k in 0u64.. {
+        if k % (on + off) < on {
             put(img, x0, y0, c);
         }
         if x0 == x1 && y0 == y1 {
@@ -87,25 +87,17 @@ fn bresenham(
     }
 }
 
-pub fn line(img: &mut RgbImage, a: (i64, i64), b: (i64, i64), c: Rgb<u8>) {
-    bresenham(img, a, b, c, |_| true);
-}
-
-/// `on` pixels drawn, `off` skipped, starting with a dash at `a`.
-pub fn dashed_line(
+/// A two-pixel-high line (the data lines of a panel), solid or `(on, off)` dashed.
+pub fn thick_line(
     img: &mut RgbImage,
     a: (i64, i64),
     b: (i64, i64),
-    (on, off): (u64, u64),
+    dash: Option<(u64, u64)>,
     c: Rgb<u8>,
 ) {
-    bresenham(img, a, b, c, |k| k % (on + off) < on);
-}
-
-/// A two-pixel-high line (the data lines of a panel).
-pub fn thick_line(img: &mut RgbImage, a: (i64, i64), b: (i64, i64), c: Rgb<u8>) {
-    line(img, a, b, c);
-    line(img, (a.0, a.1 + 1), (b.0, b.1 + 1), c);
+    let dash = dash.unwrap_or((1, 0));
+    dashed_line(img, a, b, dash, c);
+    dashed_line(img, (a.0, a.1 + 1), (b.0, b.1 + 1), dash, c);
 }
 
 /// Point markers, 5×5 around the point.
@@ -151,6 +143,7 @@ pub fn glyph(ch: char) -> [u8; 5] {
         '(' => [2, 4, 4, 4, 2],
         ')' => [2, 1, 1, 1, 2],
         '=' => [0, 7, 0, 7, 0],
+        '_' => [0, 0, 0, 0, 7],
         'A' => [2, 5, 7, 5, 5],
         'B' => [6, 5, 6, 5, 6],
         'C' => [3, 4, 4, 4, 3],

@@ -140,7 +140,7 @@ fn panel(
             plot::put(img, x, y, c);
         }
         for w in worst.windows(2) {
-            plot::thick_line(img, p.at(w[0].0, w[0].1), p.at(w[1].0, w[1].1), c);
+            plot::thick_line(img, p.at(w[0].0, w[0].1), p.at(w[1].0, w[1].1), None, c);
         }
         for &(lx, ly) in &worst {
             plot::marker(img, p.at(lx, ly), Marker::Square, c);
