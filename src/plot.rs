@@ -291,6 +291,44 @@ impl Axis {
     }
 }
 
+/// A figure laid out as a grid of equal cells under a legend band: each cell is a panel with
+/// room around it for its title (top), tick labels (left, bottom) and some air (right).
+#[derive(Clone, Copy, Debug)]
+pub struct Grid {
+    /// Plot area of every panel, pixels.
+    pub panel: (u32, u32),
+    /// Around each panel: left, top, right, bottom.
+    pub margin: [u32; 4],
+    /// The legend band above the cells.
+    pub legend_h: u32,
+}
+
+impl Grid {
+    pub fn cell(&self) -> (u32, u32) {
+        let [l, t, r, b] = self.margin;
+        (l + self.panel.0 + r, t + self.panel.1 + b)
+    }
+
+    /// A white image of `cols`×`rows` cells and the legend band.
+    pub fn image(&self, cols: u32, rows: u32) -> RgbImage {
+        let (w, h) = self.cell();
+        RgbImage::from_pixel(cols * w, self.legend_h + rows * h, WHITE)
+    }
+
+    /// The panel of cell (`col`, `row`) with these axes.
+    pub fn panel(&self, col: u32, row: u32, xa: Axis, ya: Axis) -> Panel {
+        let (w, h) = self.cell();
+        Panel {
+            x: (col * w + self.margin[0]) as i64,
+            y: (self.legend_h + row * h + self.margin[1]) as i64,
+            w: self.panel.0,
+            h: self.panel.1,
+            xa,
+            ya,
+        }
+    }
+}
+
 /// A plot area: its top-left pixel, size and two axes. Draw the frame with [`Panel::axes`],
 /// then data with [`Panel::pos`] (data values) or [`Panel::at`] (axis units).
 #[derive(Clone, Copy, Debug)]

@@ -6,17 +6,17 @@
 //! processes (cylaov's default kernel and Mitsuba), the numbers the speed targets compare.
 
 use crate::bench::{KERNELS, Kernel, MitsubaRow, Row, kernel_name};
-use crate::plot::{self, Axis, BLACK, Marker, NOTE, Panel};
+use crate::plot::{self, Axis, BLACK, Grid, Marker, NOTE};
 use crate::render::FormulaKind;
 use crate::render::Precision;
 use image::{Rgb, RgbImage};
 
-const PANEL_W: u32 = 440;
-const PANEL_H: u32 = 300;
-const MARGIN_L: u32 = 64;
-const MARGIN_T: u32 = 26;
-const MARGIN_B: u32 = 40;
-const MARGIN_R: u32 = 24;
+/// Two panels side by side; the legend band is sized in [`plot`].
+const GRID: Grid = Grid {
+    panel: (440, 300),
+    margin: [64, 26, 24, 40],
+    legend_h: 0,
+};
 /// One legend row: 10 px glyphs and swatches plus the gap to the next.
 const LEGEND_ROW: u32 = 20;
 
@@ -58,9 +58,8 @@ pub fn plot(rows: &[Row], mitsuba: &[MitsubaRow], kernels: &[Kernel]) -> RgbImag
     // Legend rows: kernels, Mitsuba's variants (if run), the key to markers and dashes.
     let legend_rows = if variants.is_empty() { 2 } else { 3 };
     let legend_h = 8 + legend_rows * LEGEND_ROW;
-    let cell_w = MARGIN_L + PANEL_W + MARGIN_R;
-    let cell_h = MARGIN_T + PANEL_H + MARGIN_B;
-    let mut img = RgbImage::from_pixel(2 * cell_w, legend_h + cell_h, plot::WHITE);
+    let grid = Grid { legend_h, ..GRID };
+    let mut img = grid.image(2, 1);
     legend_row(
         &mut img,
         8,
@@ -82,15 +81,8 @@ pub fn plot(rows: &[Row], mitsuba: &[MitsubaRow], kernels: &[Kernel]) -> RgbImag
         NOTE,
     );
 
-    pareto(&mut img, (0, legend_h), &dn, &kernels);
-    scaling(
-        &mut img,
-        (cell_w, legend_h),
-        &dn,
-        mitsuba,
-        &kernels,
-        &variants,
-    );
+    pareto(&mut img, &grid, &dn, &kernels);
+    scaling(&mut img, &grid, &dn, mitsuba, &kernels, &variants);
     img
 }
 
@@ -102,19 +94,8 @@ fn legend_row(img: &mut RgbImage, y: i64, entries: impl Iterator<Item = (Rgb<u8>
     }
 }
 
-fn panel_at((ox, oy): (u32, u32), xa: Axis, ya: Axis) -> Panel {
-    Panel {
-        x: (ox + MARGIN_L) as i64,
-        y: (oy + MARGIN_T) as i64,
-        w: PANEL_W,
-        h: PANEL_H,
-        xa,
-        ya,
-    }
-}
-
 /// (a) Error against time at [`PARETO_COUNT`] cylinders (or the nearest count run).
-fn pareto(img: &mut RgbImage, origin: (u32, u32), dn: &[&Row], kernels: &[(Kernel, String)]) {
+fn pareto(img: &mut RgbImage, grid: &Grid, dn: &[&Row], kernels: &[(Kernel, String)]) {
     let log_distance = |n: usize| ((n.max(1) as f64) / PARETO_COUNT as f64).log10().abs();
     let Some(n) = dn
         .iter()
@@ -132,8 +113,9 @@ fn pareto(img: &mut RgbImage, origin: (u32, u32), dn: &[&Row], kernels: &[(Kerne
         .filter(|(r, _)| r.err_max.is_finite() && r.err_median.is_finite())
         .collect();
     let err = |e: f64| e.max(ERR_FLOOR);
-    let p = panel_at(
-        origin,
+    let p = grid.panel(
+        0,
+        0,
         Axis::log_fit(pts.iter().map(|(r, _)| r.render_ms())),
         Axis::log_fit(
             pts.iter()
@@ -155,7 +137,7 @@ fn pareto(img: &mut RgbImage, origin: (u32, u32), dn: &[&Row], kernels: &[(Kerne
         }
         // Right of the point, or left of it where the frame would cut the label.
         let w = plot::text_width(&label, 2);
-        let lx = if hi.0 + 6 + w < p.x + PANEL_W as i64 {
+        let lx = if hi.0 + 6 + w < p.x + p.w as i64 {
             hi.0 + 6
         } else {
             hi.0 - 6 - w
@@ -177,7 +159,7 @@ fn pareto(img: &mut RgbImage, origin: (u32, u32), dn: &[&Row], kernels: &[(Kerne
         plot::marker(img, p.pos(x, err(r.err_max)), Marker::Square, *c);
     }
     // Under the tick labels, left; the axis name is on the right.
-    plot::text(img, p.x, p.y + PANEL_H as i64 + 20, 2, ERR_FLOOR_NOTE, NOTE);
+    plot::text(img, p.x, p.y + p.h as i64 + 20, 2, ERR_FLOOR_NOTE, NOTE);
     p.title(
         img,
         &format!("(A) DISTANCE ERROR VS TIME, {n} CYL., DEPTH+NORMAL"),
@@ -209,7 +191,7 @@ impl Line {
 /// (b) Time against cylinder count, one line per kernel, plus Mitsuba and whole processes.
 fn scaling(
     img: &mut RgbImage,
-    origin: (u32, u32),
+    grid: &Grid,
     dn: &[&Row],
     mitsuba: &[MitsubaRow],
     kernels: &[(Kernel, String)],
@@ -235,8 +217,9 @@ fn scaling(
         lines.push(Line::new(process, c, true));
     }
     let all = || lines.iter().flat_map(|l| l.pts.iter());
-    let p = panel_at(
-        origin,
+    let p = grid.panel(
+        1,
+        0,
         Axis::log_fit(all().map(|q| q.0)),
         Axis::log_fit(all().map(|q| q.1)),
     );

@@ -4,17 +4,16 @@
 //! ray is a dot; the line joins the worst ray per parameter value; the dashed line is the
 //! bound (4, 4 and 16). Drawn with [`crate::plot`].
 
-use crate::plot::{self, Axis, BOUND, Marker, NOTE, Panel};
+use crate::plot::{self, Axis, BOUND, Grid, Marker, NOTE};
 use crate::stress::{Family, Kernel, Record};
 use image::{Rgb, RgbImage};
 
-const PANEL_W: u32 = 360;
-const PANEL_H: u32 = 190;
-const MARGIN_L: u32 = 56;
-const MARGIN_T: u32 = 22;
-const MARGIN_B: u32 = 26;
-const MARGIN_R: u32 = 14;
-const LEGEND_H: u32 = 26;
+/// Three panels a row, one row a family, under a one-line legend.
+const GRID: Grid = Grid {
+    panel: (360, 190),
+    margin: [56, 22, 14, 26],
+    legend_h: 26,
+};
 
 fn colour(k: Kernel) -> Rgb<u8> {
     plot::kernel_colour(
@@ -25,13 +24,7 @@ fn colour(k: Kernel) -> Rgb<u8> {
 
 /// Draw the figure for `families` from `records`.
 pub fn plot(records: &[Record], families: &[Family]) -> RgbImage {
-    let cell_w = MARGIN_L + PANEL_W + MARGIN_R;
-    let cell_h = MARGIN_T + PANEL_H + MARGIN_B;
-    let mut img = RgbImage::from_pixel(
-        3 * cell_w,
-        LEGEND_H + cell_h * families.len() as u32,
-        plot::WHITE,
-    );
+    let mut img = GRID.image(3, families.len() as u32);
     let mut x = 10;
     for k in Kernel::ALL {
         let label = k.name().replace('/', " ").to_uppercase();
@@ -48,12 +41,11 @@ pub fn plot(records: &[Record], families: &[Family]) -> RgbImage {
     );
     for (row, &fam) in families.iter().enumerate() {
         let rs: Vec<&Record> = records.iter().filter(|r| r.case.family == fam).collect();
-        let y0 = LEGEND_H + row as u32 * cell_h;
         let value_t = |r: &Record| r.err_t;
         let value_n = |r: &Record| r.err_n_units;
         panel(
             &mut img,
-            (0, y0),
+            (0, row as u32),
             fam,
             &rs,
             &value_t,
@@ -63,7 +55,7 @@ pub fn plot(records: &[Record], families: &[Family]) -> RgbImage {
         let value_b = |r: &Record| r.err_t / r.analysis.kappa_t.max(1.0);
         panel(
             &mut img,
-            (cell_w, y0),
+            (1, row as u32),
             fam,
             &rs,
             &value_b,
@@ -72,7 +64,7 @@ pub fn plot(records: &[Record], families: &[Family]) -> RgbImage {
         );
         panel(
             &mut img,
-            (2 * cell_w, y0),
+            (2, row as u32),
             fam,
             &rs,
             &value_n,
@@ -85,7 +77,7 @@ pub fn plot(records: &[Record], families: &[Family]) -> RgbImage {
 
 fn panel(
     img: &mut RgbImage,
-    (ox, oy): (u32, u32),
+    (col, row): (u32, u32),
     fam: Family,
     rs: &[&Record],
     value: &dyn Fn(&Record) -> f64,
@@ -109,14 +101,7 @@ fn panel(
         .ceil()
         .min(18.0);
     let xa = Axis::log(lx0, lx1).with_step(if lx1 - lx0 > 12.0 { 2.0 } else { 1.0 });
-    let p = Panel {
-        x: (ox + MARGIN_L) as i64,
-        y: (oy + MARGIN_T) as i64,
-        w: PANEL_W,
-        h: PANEL_H,
-        xa,
-        ya: Axis::log(floor, top),
-    };
+    let p = GRID.panel(col, row, xa, Axis::log(floor, top));
     p.axes(img);
     // The bound on well-conditioned rays.
     p.bound(img, bound, BOUND);
