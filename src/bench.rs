@@ -125,6 +125,18 @@ pub struct Row {
     pub mismatches: usize,
 }
 
+impl Row {
+    /// A depth+normal row: the AOV set of the Mitsuba comparison and of the figure.
+    pub fn is_depth_normal(&self) -> bool {
+        self.aovs == aov_names(&[Aov::Depth, Aov::Normal])
+    }
+
+    /// Build + trace: the time to the image in memory.
+    pub fn render_ms(&self) -> f64 {
+        self.build_ms + self.trace_ms
+    }
+}
+
 fn ms(d: Duration) -> f64 {
     d.as_secs_f64() * 1e3
 }
@@ -157,7 +169,8 @@ pub fn distance_error(img: &AovImage, reference: &AovImage) -> (f64, f64, usize)
     (errs[errs.len() / 2], errs[errs.len() - 1], mismatches)
 }
 
-fn kernel_name((p, f): Kernel) -> String {
+/// The kernel's name in the table, e.g. `stable-f64`.
+pub fn kernel_name((p, f): Kernel) -> String {
     format!(
         "{}-{}",
         format!("{f:?}").to_lowercase(),
@@ -454,7 +467,7 @@ pub fn run_mitsuba(
     let mut out = Vec::new();
     for &n in &opts.counts {
         let ours = rows.iter().find(|r| {
-            r.cylinders == n && r.kernel == kernel_name(KERNELS[0]) && r.aovs == "depth+normal"
+            r.cylinders == n && r.kernel == kernel_name(KERNELS[0]) && r.is_depth_normal()
         });
         let scene = random_scene(n, opts.seed, opts.width, opts.height);
         for (variant, max) in [("llvm_ad_rgb", m.llvm_max), ("scalar_rgb", m.scalar_max)] {
@@ -476,7 +489,7 @@ pub fn run_mitsuba(
                 r.process_s,
                 ratio(r.process_s, ours.and_then(|o| o.process_ms)),
                 ratio(r.render2_s, ours.and_then(|o| o.process_ms)),
-                ratio(r.render2_s, ours.map(|o| o.build_ms + o.trace_ms)),
+                ratio(r.render2_s, ours.map(Row::render_ms)),
             ));
             out.push(r);
         }

@@ -13,6 +13,7 @@
 //! - [`render`]: parallel bands of tiles, nearest hit, only the requested AOVs.
 //! - [`aov`]: the in-memory AOV image and its EXR reading and writing.
 //! - [`preview`]: PNG previews and 16-bit depth PNGs.
+//! - [`plot`]: the 3×5 pixel font, clipped primitives and log/lin axis panels of the figures.
 //! - [`io`]: atomic file writes and the camera metadata JSON.
 //! - [`mitsuba`]: the Mitsuba 3 XML of a scene (the reference renderer's input).
 //! - [`compare`]: per-pixel comparison of two AOV images (SPEC §7), heatmaps.
@@ -42,6 +43,7 @@ pub mod geometry;
 pub mod io;
 pub mod mitsuba;
 pub mod oracle;
+pub mod plot;
 pub mod preview;
 pub mod render;
 pub mod rng;

@@ -178,6 +178,10 @@ struct BenchCli {
     /// Also write the table as CSV (and Mitsuba's rows to OUT.mitsuba.csv).
     #[arg(long, value_name = "OUT.csv")]
     csv: Option<PathBuf>,
+    /// Also draw the figure: error against time per kernel (Pareto view) and time against
+    /// cylinder count, log-log, with Mitsuba's times when `--mitsuba` ran.
+    #[arg(long, value_name = "OUT.png")]
+    plot: Option<PathBuf>,
     /// Also render the same scenes with Mitsuba 3 (needs the reference venv: run from the
     /// repository root after scripts/setup-venv) and print the speed ratios.
     #[arg(long)]
@@ -407,7 +411,7 @@ fn run(cli: Cli) -> anyhow::Result<bool> {
                     m.script.display()
                 );
             }
-            commands::bench::run(&opts, mitsuba, b.csv)?;
+            commands::bench::run(&opts, mitsuba, b.csv, b.plot)?;
         }
         Command::Stress(a) => {
             let args = commands::stress::StressArgs {

@@ -3,6 +3,7 @@
 
 use crate::aov::AovImage;
 use crate::io::atomic_write;
+use crate::plot;
 use anyhow::{Context, Result};
 use image::{ImageBuffer, Luma, Rgb, RgbImage};
 use std::path::Path;
@@ -40,49 +41,6 @@ fn colormap(u: f32) -> [u8; 3] {
     [0, 1, 2].map(|c| (P[k][c] + (P[k + 1][c] - P[k][c]) * f).round() as u8)
 }
 
-/// 3×5 glyphs for the legend: digits, '.', '-', 'e', '+'.
-fn glyph(c: char) -> [u8; 5] {
-    match c {
-        '0' => [7, 5, 5, 5, 7],
-        '1' => [2, 6, 2, 2, 7],
-        '2' => [7, 1, 7, 4, 7],
-        '3' => [7, 1, 7, 1, 7],
-        '4' => [5, 5, 7, 1, 1],
-        '5' => [7, 4, 7, 1, 7],
-        '6' => [7, 4, 7, 5, 7],
-        '7' => [7, 1, 1, 1, 1],
-        '8' => [7, 5, 7, 5, 7],
-        '9' => [7, 5, 7, 1, 7],
-        '.' => [0, 0, 0, 0, 2],
-        '-' => [0, 0, 7, 0, 0],
-        '+' => [0, 2, 7, 2, 0],
-        'e' => [0, 7, 7, 4, 7],
-        _ => [0; 5],
-    }
-}
-
-fn draw_text(img: &mut RgbImage, x0: u32, y0: u32, scale: u32, text: &str, color: [u8; 3]) {
-    for (n, c) in text.chars().enumerate() {
-        let g = glyph(c);
-        for (row, bits) in g.iter().enumerate() {
-            for col in 0..3u32 {
-                if bits & (4 >> col) == 0 {
-                    continue;
-                }
-                for dy in 0..scale {
-                    for dx in 0..scale {
-                        let x = x0 + (n as u32 * 4 + col) * scale + dx;
-                        let y = y0 + row as u32 * scale + dy;
-                        if x < img.width() && y < img.height() {
-                            img.put_pixel(x, y, Rgb(color));
-                        }
-                    }
-                }
-            }
-        }
-    }
-}
-
 /// Depth (or any float channel) through the colour map, near = dark, with a legend strip
 /// under the image: the ramp and the min and max values. Misses (0) are black.
 pub fn depth_colormap(img: &AovImage, channel: &str) -> Option<RgbImage> {
@@ -113,9 +71,9 @@ pub fn depth_colormap(img: &AovImage, channel: &str) -> Option<RgbImage> {
     if lo.is_finite() {
         let y = h + 3 * scale + 3;
         let (a, b) = (format!("{lo:.4e}"), format!("{hi:.4e}"));
-        draw_text(&mut out, 1, y, scale, &a, [255, 255, 255]);
-        let bx = w.saturating_sub((b.len() as u32 * 4) * scale + 1);
-        draw_text(&mut out, bx, y, scale, &b, [255, 255, 255]);
+        plot::text(&mut out, 1, y as i64, scale, &a, plot::WHITE);
+        let bx = (w as i64 - plot::text_width(&b, scale) - 1).max(0);
+        plot::text(&mut out, bx, y as i64, scale, &b, plot::WHITE);
     }
     Some(out)
 }

@@ -1,6 +1,8 @@
 //! SplitMix64: a tiny seeded generator written out so its stream can never change under us
 //! (generated scenes must be byte-identical across versions and machines).
 
+use glam::DVec3;
+
 /// Steele, Lea & Flood's SplitMix64.
 #[derive(Clone, Debug)]
 pub struct SplitMix64(u64);
@@ -26,6 +28,14 @@ impl SplitMix64 {
     /// Uniform in [lo, hi).
     pub fn range(&mut self, lo: f64, hi: f64) -> f64 {
         lo + (hi - lo) * self.unit()
+    }
+
+    /// Uniform on the unit sphere: z and the azimuth uniform (Archimedes' hat-box theorem).
+    pub fn sphere(&mut self) -> DVec3 {
+        let z = self.range(-1.0, 1.0);
+        let phi = self.range(0.0, std::f64::consts::TAU);
+        let s = (1.0 - z * z).max(0.0).sqrt();
+        DVec3::new(s * phi.cos(), s * phi.sin(), z)
     }
 }
 

@@ -25,43 +25,10 @@
 use crate::geometry::cylinder::orthonormal_basis;
 use crate::geometry::{Cylinder, Formula, Literal, Prepared, Real, Stable, Surface};
 use crate::oracle::{self, Analysis, DD, DV3, Problem};
+use crate::rng::SplitMix64;
 use crate::scene;
 use glam::DVec3;
 use std::fmt;
-
-// ---- deterministic random numbers -------------------------------------------------------
-
-/// SplitMix64 (Steele, Lea & Flood 2014), written out so the stream can never change.
-#[derive(Clone, Debug)]
-pub struct SplitMix64(pub u64);
-
-impl SplitMix64 {
-    pub fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-
-    /// Uniform in [0, 1).
-    pub fn unit(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
-    }
-
-    /// Uniform in [a, b).
-    pub fn range(&mut self, a: f64, b: f64) -> f64 {
-        a + (b - a) * self.unit()
-    }
-
-    /// Uniform on the unit sphere.
-    pub fn sphere(&mut self) -> DVec3 {
-        let z = self.range(-1.0, 1.0);
-        let phi = self.range(0.0, std::f64::consts::TAU);
-        let s = (1.0 - z * z).max(0.0).sqrt();
-        DVec3::new(s * phi.cos(), s * phi.sin(), z)
-    }
-}
 
 // ---- families ----------------------------------------------------------------------------
 
@@ -230,7 +197,7 @@ pub fn cases(family: Family, rays: usize) -> Vec<Case> {
     let mut out = Vec::new();
     for (k, &param) in family.params().iter().enumerate() {
         for i in 0..rays {
-            let mut rng = SplitMix64(seed(family, k, i));
+            let mut rng = SplitMix64::new(seed(family, k, i));
             if let Some(c) = make_case(family, param, i, &mut rng) {
                 out.push(c);
             }

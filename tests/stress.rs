@@ -209,7 +209,7 @@ fn literal_failures_are_reported() {
 /// coordinate at 1e12 would be an error of 1e-4 world units before any kernel runs.
 #[test]
 fn scene_numbers_are_read_exactly() {
-    let mut rng = stress::SplitMix64(7);
+    let mut rng = cylaov::rng::SplitMix64::new(7);
     for _ in 0..20_000 {
         let x = f64::from_bits(rng.next_u64() >> 2) % 1e12;
         let text = format!(

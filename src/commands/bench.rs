@@ -1,17 +1,36 @@
-//! `cylaov bench`: print the time-vs-error table, optionally as CSV.
+//! `cylaov bench`: print the time-vs-error table, optionally as CSV and as a figure.
 
 use crate::bench::{self, BenchOptions, MitsubaBench, Row};
 use crate::io::atomic_write_bytes;
-use anyhow::{Context, Result};
-use std::path::PathBuf;
+use anyhow::{Context, Result, bail};
+use std::path::{Path, PathBuf};
+
+mod plot;
+
+/// Fail before a run of minutes, not after it, when an output's folder is missing.
+fn check_parent(path: &Path, flag: &str) -> Result<()> {
+    match path.parent() {
+        Some(dir) if !dir.as_os_str().is_empty() && !dir.is_dir() => {
+            bail!("{flag}: folder {} does not exist", dir.display())
+        }
+        _ => Ok(()),
+    }
+}
 
 /// Run the table, printing rows as they finish; then Mitsuba's, if asked; write CSV if
-/// asked (`OUT.csv`, and Mitsuba's rows to `OUT.mitsuba.csv`).
+/// asked (`OUT.csv`, and Mitsuba's rows to `OUT.mitsuba.csv`) and the figure if asked.
 pub fn run(
     opts: &BenchOptions,
     mitsuba: Option<MitsubaBench>,
     csv: Option<PathBuf>,
+    plot: Option<PathBuf>,
 ) -> Result<Vec<Row>> {
+    if let Some(p) = &csv {
+        check_parent(p, "--csv")?;
+    }
+    if let Some(p) = &plot {
+        check_parent(p, "--plot")?;
+    }
     println!(
         "cylaov bench: {}x{}, seed {}, min of {} runs, {} threads; times in ms, err = relative distance error vs stable-f64",
         opts.width,
@@ -55,6 +74,11 @@ pub fn run(
                 .with_context(|| format!("writing {}", mpath.display()))?;
             println!("wrote {}", mpath.display());
         }
+    }
+    if let Some(path) = plot {
+        let img = plot::plot(&rows, &mi_rows, &opts.kernels);
+        crate::preview::write_png(&img, &path)?;
+        println!("wrote {}", path.display());
     }
     Ok(rows)
 }
