@@ -3,7 +3,7 @@
 //! Channel names are the contract: `distance`, `depth`, `normal.X/Y/Z`, `position.X/Y/Z`
 //! (float32) and `shape_id` (u32). Row 0 is the top row. A missed pixel is 0 everywhere.
 
-use crate::io::atomic_write;
+use crate::io::{Staged, stage};
 use crate::scene::Aov;
 use anyhow::{Context, Result, bail};
 use exr::prelude::*;
@@ -116,7 +116,14 @@ impl AovImage {
 
     /// Write an OpenEXR file atomically (temporary name, then rename).
     pub fn write_exr(&self, path: &Path, compression: Compression) -> Result<()> {
-        atomic_write(path, |file| {
+        self.stage_exr(path, compression)?
+            .commit()
+            .with_context(|| format!("writing {}", path.display()))
+    }
+
+    /// Encode an OpenEXR file to `path`'s temporary name, to be committed with others.
+    pub fn stage_exr(&self, path: &Path, compression: Compression) -> Result<Staged> {
+        stage(path, |file| {
             let mut out = std::io::BufWriter::with_capacity(1 << 20, file);
             self.write_exr_to(&mut out, compression)
                 .map_err(|e| std::io::Error::other(format!("{e:#}")))?;

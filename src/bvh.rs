@@ -28,7 +28,7 @@ pub struct Bvh {
     order: Vec<u32>,
 }
 
-/// Round `x - o` to f32 toward -inf (`down`) or +inf and pad by a relative 2⁻²⁰, so the box
+/// Round `x - o` to f32 toward -inf (`down`) or +inf and pad by a relative 1e-6, so the box
 /// in f32 contains the exact one and no ray lies exactly in a face plane by accident.
 fn outward(x: DVec3, o: DVec3, down: bool) -> Vec3A {
     let rel = x - o;
@@ -233,8 +233,8 @@ impl Bvh {
             let far = (t1.max(t2).min_element() * GROW).min(tmax);
             (near <= far).then_some(near)
         };
-        let root = &self.nodes[0];
-        if hit(root, tmax).is_none() {
+        // An empty scene is one leaf of nothing (read as interior below, so stop here).
+        if self.order.is_empty() || hit(&self.nodes[0], tmax).is_none() {
             return;
         }
         let mut stack = [0u32; 64];

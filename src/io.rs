@@ -21,20 +21,69 @@ pub fn temp_path(path: &Path) -> PathBuf {
 /// most a `.tmp` file, never a partial `path`. No fsync: that guards against power loss,
 /// not process death, and costs more than encoding a 1080p EXR.
 pub fn atomic_write(path: &Path, fill: impl FnOnce(&mut File) -> io::Result<()>) -> io::Result<()> {
+    stage(path, fill)?.commit()
+}
+
+/// A file written under its temporary name and not yet renamed into place: a command that
+/// writes several files stages them all, then commits them, so a failure half-way leaves
+/// none of them behind. Dropped uncommitted, the temporary file is removed.
+#[must_use = "a staged file is removed unless committed"]
+pub struct Staged {
+    tmp: PathBuf,
+    path: PathBuf,
+}
+
+/// Write `path`'s content through `fill` to its temporary name (see [`Staged`]).
+pub fn stage(path: &Path, fill: impl FnOnce(&mut File) -> io::Result<()>) -> io::Result<Staged> {
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir)?;
     }
-    let tmp = temp_path(path);
-    let result = (|| {
-        let mut f = File::create(&tmp)?;
-        fill(&mut f)?;
-        f.flush()?;
-        std::fs::rename(&tmp, path)
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
+    let staged = Staged {
+        tmp: temp_path(path),
+        path: path.to_path_buf(),
+    };
+    let mut f = File::create(&staged.tmp)?;
+    fill(&mut f)?;
+    f.flush()?;
+    Ok(staged)
+}
+
+impl Staged {
+    /// Rename the file into place.
+    pub fn commit(self) -> io::Result<()> {
+        std::fs::rename(&self.tmp, &self.path)?;
+        std::mem::forget(self);
+        Ok(())
     }
-    result
+}
+
+/// Commit staged files together: none is renamed while any destination is a folder, and
+/// if a rename still fails, the files this call already put in place are removed again.
+pub fn commit_all(staged: Vec<Staged>) -> io::Result<()> {
+    if let Some(s) = staged.iter().find(|s| s.path.is_dir()) {
+        return Err(io::Error::other(format!(
+            "{} is a folder",
+            s.path.display()
+        )));
+    }
+    let mut done: Vec<PathBuf> = Vec::new();
+    for s in staged {
+        let path = s.path.clone();
+        if let Err(e) = s.commit() {
+            for p in &done {
+                let _ = std::fs::remove_file(p);
+            }
+            return Err(io::Error::other(format!("{}: {e}", path.display())));
+        }
+        done.push(path);
+    }
+    Ok(())
+}
+
+impl Drop for Staged {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.tmp);
+    }
 }
 
 /// Write bytes atomically.

@@ -2,7 +2,7 @@
 //! legend bar labelled with its range. Also the 16-bit depth PNG of datasets.
 
 use crate::aov::AovImage;
-use crate::io::atomic_write;
+use crate::io::{Staged, stage};
 use crate::plot;
 use anyhow::{Context, Result};
 use image::{ImageBuffer, Luma, Rgb, RgbImage};
@@ -103,7 +103,19 @@ where
     [P::Subpixel]: image::EncodableLayout,
     C: std::ops::Deref<Target = [P::Subpixel]>,
 {
-    atomic_write(path, |f| {
+    stage_png(img, path)?
+        .commit()
+        .with_context(|| format!("writing {}", path.display()))
+}
+
+/// Encode a PNG to `path`'s temporary name, to be committed with others.
+pub fn stage_png<P, C>(img: &ImageBuffer<P, C>, path: &Path) -> Result<Staged>
+where
+    P: image::PixelWithColorType,
+    [P::Subpixel]: image::EncodableLayout,
+    C: std::ops::Deref<Target = [P::Subpixel]>,
+{
+    stage(path, |f| {
         let mut w = std::io::BufWriter::new(f);
         img.write_to(&mut w, image::ImageFormat::Png)
             .map_err(|e| std::io::Error::other(e.to_string()))

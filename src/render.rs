@@ -126,12 +126,16 @@ impl<T: Real, F: Formula> Tracer<T, F> {
             .iter()
             .map(|c| Prepared::new(c, origin, F::CENTRED))
             .collect();
+        let bvh = || {
+            let bounds: Vec<_> = scene.cylinders.iter().map(|c| c.bounds()).collect();
+            Bvh::build(&bounds, origin)
+        };
         let (bvh, tiles) = match accel {
-            Accel::Bvh => {
-                let bounds: Vec<_> = scene.cylinders.iter().map(|c| c.bounds()).collect();
-                (Some(Bvh::build(&bounds, origin)), None)
-            }
-            Accel::Tiles => (None, Some(Tiles::build(&camera, &scene.cylinders))),
+            Accel::Bvh => (Some(bvh()), None),
+            Accel::Tiles => match Tiles::build(&camera, &scene.cylinders) {
+                Some(tiles) => (None, Some(tiles)),
+                None => (Some(bvh()), None),
+            },
         };
         Tracer {
             camera,
@@ -245,7 +249,11 @@ impl<T: Real, F: Formula> Tracer<T, F> {
                         rays.tmax[k],
                         &mut rays.best[k],
                     ) {
-                        rays.reach[k] = rays.best[k].map_or(f64::INFINITY, |h| h.hit.t.to_f64());
+                        // Padded by 8ε of the kernel: a candidate whose t rounds just
+                        // below this hit's must still be tested (ties decide by index).
+                        rays.reach[k] = rays.best[k].map_or(f64::INFINITY, |h| {
+                            h.hit.t.to_f64() * (1.0 + 8.0 * T::UNIT_ROUNDOFF)
+                        });
                     }
                 }
             }

@@ -14,6 +14,9 @@ use std::path::Path;
 pub const MAX_COORD: f64 = 1e12;
 /// Largest image side accepted.
 pub const MAX_SIDE: u32 = 16384;
+/// Largest image accepted, in pixels (8192 × 8192): with every AOV that is 2.4 GB of
+/// buffers; 16384 × 16384 would be 9.7 GB.
+pub const MAX_PIXELS: u64 = 1 << 26;
 
 /// One AOV (SPEC §4).
 #[derive(
@@ -196,12 +199,25 @@ pub fn parse(text: &str) -> Result<Scene, SceneError> {
     file.validate()
 }
 
+/// A number as a person reads it in a message: plain, or in exponent form when plain would
+/// be a wall of digits (1e300) or zeros (1e-300).
+fn num(x: f64) -> String {
+    if x.is_finite() && x != 0.0 && !(1e-6..1e16).contains(&x.abs()) {
+        format!("{x:e}")
+    } else {
+        format!("{x}")
+    }
+}
+
 fn check_vec(field: &str, v: [f64; 3]) -> Result<DVec3, SceneError> {
     for (k, x) in v.iter().enumerate() {
         if !x.is_finite() || x.abs() > MAX_COORD {
             return Err(err(
                 format!("{field}[{k}]"),
-                format!("must be finite with magnitude <= {MAX_COORD:e}, got {x}"),
+                format!(
+                    "must be finite with magnitude <= {MAX_COORD:e}, got {}",
+                    num(*x)
+                ),
             ));
         }
     }
@@ -212,7 +228,7 @@ fn check_positive(field: &str, x: f64) -> Result<f64, SceneError> {
     if !x.is_finite() || x <= 0.0 || x > MAX_COORD {
         return Err(err(
             field,
-            format!("must be > 0 and <= {MAX_COORD:e}, got {x}"),
+            format!("must be > 0 and <= {MAX_COORD:e}, got {}", num(x)),
         ));
     }
     Ok(x)
@@ -292,7 +308,7 @@ impl CameraFile {
         if !(fov.is_finite() && fov > 0.0 && fov < 180.0) {
             return Err(err(
                 "camera.fov_deg",
-                format!("must be in (0, 180), got {fov}"),
+                format!("must be in (0, 180), got {}", num(fov)),
             ));
         }
         for (name, v) in [("width", self.width), ("height", self.height)] {
@@ -303,14 +319,31 @@ impl CameraFile {
                 ));
             }
         }
+        let pixels = self.width as u64 * self.height as u64;
+        if pixels > MAX_PIXELS {
+            return Err(err(
+                "camera.height",
+                format!(
+                    "width × height must be <= {MAX_PIXELS} pixels (8192 × 8192), got {} × {} = {pixels}",
+                    self.width, self.height
+                ),
+            ));
+        }
         let (near, far) = (self.near_clip, self.far_clip);
         if !(near.is_finite() && near > 0.0) {
-            return Err(err("camera.near_clip", format!("must be > 0, got {near}")));
+            return Err(err(
+                "camera.near_clip",
+                format!("must be > 0, got {}", num(near)),
+            ));
         }
         if !(far.is_finite() && far > near) {
             return Err(err(
                 "camera.far_clip",
-                format!("must be finite and > near_clip ({near}), got {far}"),
+                format!(
+                    "must be finite and > near_clip ({}), got {}",
+                    num(near),
+                    num(far)
+                ),
             ));
         }
         let forward = target - origin;
@@ -362,7 +395,10 @@ impl CylinderFile {
                 if h == 0.0 {
                     return Err(err(
                         f("p1"),
-                        format!("must differ from p0, got {:?}", self.p1.unwrap_or_default()),
+                        format!(
+                            "must differ from p0 by a length > 0, got {:?}",
+                            self.p1.unwrap_or_default()
+                        ),
                     ));
                 }
                 (p0, (p1 - p0) / h, h)

@@ -23,6 +23,10 @@ use rayon::prelude::*;
 /// Tile side in pixels.
 pub const TILE: u32 = 16;
 
+/// Average candidates per tile above which the BVH is used instead (a pixel then tests a
+/// long list; the BVH's per-ray traversal wins, and the lists would cost memory).
+pub const CROWDED: usize = 64;
+
 /// A candidate in a tile: cylinder index, inclusive pixel rectangle, lower bound on `t`.
 #[derive(Clone, Copy, Debug)]
 pub struct Candidate {
@@ -87,7 +91,7 @@ const EMPTY: Candidate = Candidate {
 pub struct Tiles {
     pub tiles_x: u32,
     pub tiles_y: u32,
-    start: Vec<u32>,
+    start: Vec<usize>,
     list: Vec<Candidate>,
 }
 
@@ -105,24 +109,41 @@ pub fn project(cam: &Camera, cyl: &Cylinder) -> Option<Candidate> {
         f64::INFINITY,
         f64::NEG_INFINITY,
     );
-    let mut behind = false;
-    for end in [cyl.base, cyl.top()] {
-        for (su, sv) in [(-1.0, -1.0), (-1.0, 1.0), (1.0, -1.0), (1.0, 1.0)] {
-            let p = end + u * (su * r) + v * (sv * r) - cam.origin;
-            let z = p.dot(cam.forward);
-            zmin = zmin.min(z);
-            zmax = zmax.max(z);
-            if z <= 0.0 {
-                behind = true;
-                continue;
+    // The box's corners in camera space (x right, y up, z forward); bit 2 picks the end,
+    // bits 1 and 0 the sign along u and v.
+    let corners: [[f64; 3]; 8] = std::array::from_fn(|k| {
+        let end = if k & 4 == 0 { cyl.base } else { cyl.top() };
+        let su = if k & 2 == 0 { -r } else { r };
+        let sv = if k & 1 == 0 { -r } else { r };
+        let p = end + u * su + v * sv - cam.origin;
+        [p.dot(right), p.dot(cam.true_up), p.dot(cam.forward)]
+    });
+    // Nothing nearer than the near plane can be hit, so project the part of the box in
+    // front of it (a hair nearer, to stay conservative): the corners there, and where the
+    // 12 edges cross the plane. A box straddling the camera then still gets a finite
+    // rectangle instead of the whole screen.
+    let zc = cam.spec.near_clip * (1.0 - 1e-6);
+    let mut add = |q: [f64; 3]| {
+        // Continuous pixel coordinates: pixel i spans [i, i + 1], centre i + 0.5.
+        let x = (q[0] / q[2] / cam.tan_half_x + 1.0) * 0.5 * w as f64;
+        let y = (1.0 - q[1] / q[2] / cam.tan_half_y) * 0.5 * h as f64;
+        xmin = xmin.min(x);
+        xmax = xmax.max(x);
+        ymin = ymin.min(y);
+        ymax = ymax.max(y);
+    };
+    for (k, c) in corners.iter().enumerate() {
+        zmin = zmin.min(c[2]);
+        zmax = zmax.max(c[2]);
+        if c[2] >= zc {
+            add(*c);
+        }
+        for bit in [1, 2, 4] {
+            let o = &corners[k | bit];
+            if k & bit == 0 && (c[2] < zc) != (o[2] < zc) {
+                let s = (zc - c[2]) / (o[2] - c[2]);
+                add([c[0] + s * (o[0] - c[0]), c[1] + s * (o[1] - c[1]), zc]);
             }
-            // Continuous pixel coordinates: pixel i spans [i, i + 1], centre i + 0.5.
-            let x = (p.dot(right) / z / cam.tan_half_x + 1.0) * 0.5 * w as f64;
-            let y = (1.0 - p.dot(cam.true_up) / z / cam.tan_half_y) * 0.5 * h as f64;
-            xmin = xmin.min(x);
-            xmax = xmax.max(x);
-            ymin = ymin.min(y);
-            ymax = ymax.max(y);
         }
     }
     // The capsule around the projected axis (see the module doc), with 1.5 px of slack.
@@ -163,7 +184,8 @@ pub fn project(cam: &Camera, cyl: &Cylinder) -> Option<Candidate> {
         return None;
     }
     let t_min = (zmin - pad).max(cam.spec.near_clip * (1.0 - 1e-12));
-    if behind {
+    if !(xmin.is_finite() && xmax.is_finite() && ymin.is_finite() && ymax.is_finite()) {
+        // Degenerate projection (should not happen past the checks above): whole screen.
         return Some(Candidate {
             x1: w - 1,
             y1: h - 1,
@@ -193,8 +215,10 @@ pub fn project(cam: &Camera, cyl: &Cylinder) -> Option<Candidate> {
 }
 
 impl Tiles {
-    /// Bin `cylinders` for `cam`.
-    pub fn build(cam: &Camera, cylinders: &[Cylinder]) -> Tiles {
+    /// Bin `cylinders` for `cam`, or `None` when the lists would average more than
+    /// [`CROWDED`] candidates per tile (many cylinders reaching past the camera, say):
+    /// there the BVH is faster and the lists would cost memory, so `render` uses it.
+    pub fn build(cam: &Camera, cylinders: &[Cylinder]) -> Option<Tiles> {
         let (tiles_x, tiles_y) = (cam.width().div_ceil(TILE), cam.height().div_ceil(TILE));
         let mut cands: Vec<Candidate> = cylinders
             .par_iter()
@@ -210,7 +234,17 @@ impl Tiles {
         cands.par_sort_unstable_by(|a, b| a.t_min.total_cmp(&b.t_min).then(a.index.cmp(&b.index)));
         let ntiles = (tiles_x * tiles_y) as usize;
         let tile_range = |c: &Candidate| (c.x0 / TILE, c.x1 / TILE, c.y0 / TILE, c.y1 / TILE);
-        let mut count = vec![0u32; ntiles + 1];
+        let entries: usize = cands
+            .iter()
+            .map(|c| {
+                let (a, b, p, q) = tile_range(c);
+                (b - a + 1) as usize * (q - p + 1) as usize
+            })
+            .sum();
+        if entries > CROWDED * ntiles {
+            return None;
+        }
+        let mut count = vec![0usize; ntiles + 1];
         for c in &cands {
             let (a, b, p, q) = tile_range(c);
             for ty in p..=q {
@@ -224,30 +258,30 @@ impl Tiles {
         }
         let start = count.clone();
         let mut fill = count;
-        let mut list = vec![EMPTY; start[ntiles] as usize];
+        let mut list = vec![EMPTY; start[ntiles]];
         for c in &cands {
             let (a, b, p, q) = tile_range(c);
             for ty in p..=q {
                 for tx in a..=b {
                     let k = (ty * tiles_x + tx) as usize;
-                    list[fill[k] as usize] = *c;
+                    list[fill[k]] = *c;
                     fill[k] += 1;
                 }
             }
         }
-        Tiles {
+        Some(Tiles {
             tiles_x,
             tiles_y,
             start,
             list,
-        }
+        })
     }
 
     /// Candidates of the tile holding pixel column block `tx`, row block `ty`.
     #[inline]
     pub fn tile(&self, tx: u32, ty: u32) -> &[Candidate] {
         let k = (ty * self.tiles_x + tx) as usize;
-        &self.list[self.start[k] as usize..self.start[k + 1] as usize]
+        &self.list[self.start[k]..self.start[k + 1]]
     }
 
     /// Total candidate entries (for statistics).

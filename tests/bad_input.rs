@@ -167,6 +167,24 @@ fn every_spec_case_is_rejected_clearly() {
         &cam_with("height", "100000"),
         &["camera.height", "got 100000"],
     );
+    // Each side allowed, but the whole image absurd (9.7 GB of buffers with every AOV).
+    let big = GOOD_CAMERA.replace(
+        r#""width": 32, "height": 24"#,
+        r#""width": 16384, "height": 16384"#,
+    );
+    rejects(
+        "pixels_huge",
+        &scene(&big, GOOD_CYL),
+        &["camera.height", "16384 × 16384 = 268435456"],
+    );
+    rejects(
+        "radius_1e300",
+        &scene(
+            GOOD_CAMERA,
+            r#"{ "p0": [0,0,0], "p1": [0,0,1], "radius": 1e300 }"#,
+        ),
+        &["cylinders[0].radius", "got 1e300"],
+    );
     rejects(
         "width_negative",
         &cam_with("width", "-5"),
@@ -234,4 +252,43 @@ fn output_may_not_overwrite_the_input_and_missing_input_is_clear() {
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("/nonexistent/x.json"));
     assert!(!dir.join("x.exr").exists());
+}
+
+#[test]
+fn a_failing_output_leaves_none_of_the_outputs() {
+    let dir = tmp().join("partial");
+    std::fs::create_dir_all(&dir).unwrap();
+    let input = dir.join("s.json");
+    std::fs::write(&input, scene(GOOD_CAMERA, GOOD_CYL)).unwrap();
+    let run = |out: &str, extra: &[&str]| {
+        Command::new(env!("CARGO_BIN_EXE_cylaov"))
+            .args([
+                "render",
+                input.to_str().unwrap(),
+                "-o",
+                dir.join(out).to_str().unwrap(),
+            ])
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    // The camera file's name is taken by a directory: the EXR must not appear either.
+    std::fs::create_dir_all(dir.join("a.camera.json")).unwrap();
+    let o = run("a.exr", &[]);
+    assert!(!o.status.success());
+    assert!(!dir.join("a.exr").exists(), "EXR left behind");
+    // --preview names a file, not a folder: neither the EXR nor the camera file appear.
+    std::fs::write(dir.join("not-a-dir"), "x").unwrap();
+    let o = run(
+        "b.exr",
+        &["--preview", dir.join("not-a-dir").to_str().unwrap()],
+    );
+    assert!(!o.status.success());
+    assert!(!dir.join("b.exr").exists() && !dir.join("b.camera.json").exists());
+    let tmp_left: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .filter(|e| e.file_name().to_string_lossy().ends_with(".tmp"))
+        .collect();
+    assert!(tmp_left.is_empty(), "temporary files left: {tmp_left:?}");
 }

@@ -366,3 +366,62 @@ fn tiles_and_bvh_give_identical_images_across_thread_counts() {
         }
     }
 }
+
+#[test]
+fn cylinders_straddling_the_camera_plane_and_empty_scenes() {
+    // Pipes running along the view direction past the camera: their boxes reach behind it,
+    // so the tile path clips them at the near plane; the answer must equal the BVH's.
+    let mut pipes = Vec::new();
+    for k in 0..60 {
+        let (x, y) = (((k % 8) as f64 - 3.5) * 0.7, ((k / 8) as f64 - 3.5) * 0.6);
+        pipes.push(format!(
+            r#"{{"p0": [{x}, -5, {y}], "p1": [{x}, 30, {}], "radius": 0.2, "caps": {}}}"#,
+            y * 0.5,
+            k % 2 == 0
+        ));
+    }
+    let json = format!(
+        r#"{{"camera": {{"origin": [0.1, 0, 0.05], "target": [0, 1, 0], "up": [0, 0, 1],
+            "fov_deg": 90, "width": 96, "height": 64, "near_clip": 0.05}},
+            "cylinders": [{}] }}"#,
+        pipes.join(",")
+    );
+    let sc = scene(&json);
+    let with = |accel: Accel| {
+        render(
+            &sc,
+            &RenderOptions {
+                accel,
+                ..opts(Precision::F64, FormulaKind::Stable)
+            },
+        )
+        .image
+    };
+    let (tiles, bvh) = (with(Accel::Tiles), with(Accel::Bvh));
+    assert!(
+        tiles
+            .u32_channel("shape_id")
+            .unwrap()
+            .iter()
+            .filter(|&&i| i > 0)
+            .count()
+            > 96 * 64 / 2
+    );
+    assert_eq!(tiles, bvh);
+    // No cylinders at all: every pixel a miss, with either structure.
+    let empty = scene(&format!(
+        r#"{{ {}, "cylinders": [] }}"#,
+        camera([0.0, -5.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0], "")
+    ));
+    for accel in [Accel::Tiles, Accel::Bvh] {
+        let img = render(
+            &empty,
+            &RenderOptions {
+                accel,
+                ..opts(Precision::F32, FormulaKind::Stable)
+            },
+        )
+        .image;
+        assert!(img.u32_channel("shape_id").unwrap().iter().all(|&i| i == 0));
+    }
+}

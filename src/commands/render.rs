@@ -2,11 +2,12 @@
 
 use crate::aov::Compression;
 use crate::camera::Camera;
-use crate::io::{atomic_write_bytes, camera_json, camera_json_path};
+use crate::io::{Staged, camera_json, camera_json_path, commit_all, stage};
 use crate::preview;
 use crate::render::{RenderOptions, render};
 use crate::scene::{self, Aov};
 use anyhow::{Context, Result, bail};
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -50,15 +51,21 @@ pub fn run(args: &RenderArgs) -> Result<String> {
     let t0 = Instant::now();
     let r = render(&scene, &opts);
     let trace_ms = t0.elapsed().as_secs_f64() * 1e3;
+    // Every output is staged under a temporary name and renamed into place only when all
+    // were written: a failure leaves none of them.
     let t1 = Instant::now();
-    r.image.write_exr(&args.out, args.compression)?;
+    let mut staged = vec![r.image.stage_exr(&args.out, args.compression)?];
     let cam = Camera::new(scene.camera);
-    atomic_write_bytes(&cam_path, camera_json(&cam, &aovs).as_bytes())
-        .with_context(|| format!("writing {}", cam_path.display()))?;
+    let cam_text = camera_json(&cam, &aovs);
+    staged.push(
+        stage(&cam_path, |f| f.write_all(cam_text.as_bytes()))
+            .with_context(|| format!("writing {}", cam_path.display()))?,
+    );
     let write_ms = t1.elapsed().as_secs_f64() * 1e3;
     if let Some(dir) = &args.preview {
-        write_previews(&r.image, dir, &stem(&args.out))?;
+        staged.extend(stage_previews(&r.image, dir, &stem(&args.out))?);
     }
+    commit_all(staged).context("putting the outputs in place")?;
     let (w, h) = (r.image.width, r.image.height);
     let peak = crate::io::peak_rss_mib().map_or(String::new(), |m| format!(", peak {m:.0} MiB"));
     Ok(format!(
@@ -79,11 +86,16 @@ fn stem(p: &Path) -> String {
         .unwrap_or_else(|| "render".into())
 }
 
-/// `DIR/NAME.normal.png` and `DIR/NAME.depth.png` for whichever of the AOVs exist.
-pub fn write_previews(img: &crate::aov::AovImage, dir: &Path, name: &str) -> Result<()> {
+/// `DIR/NAME.normal.png` and `DIR/NAME.depth.png` (or `.distance.png`) for whichever of
+/// the AOVs exist, staged.
+pub fn stage_previews(img: &crate::aov::AovImage, dir: &Path, name: &str) -> Result<Vec<Staged>> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let mut out = Vec::new();
     if let Some(p) = preview::normal_rgb(img) {
-        preview::write_png(&p, &dir.join(format!("{name}.normal.png")))?;
+        out.push(preview::stage_png(
+            &p,
+            &dir.join(format!("{name}.normal.png")),
+        )?);
     }
     let depthlike = ["depth", "distance"]
         .into_iter()
@@ -91,7 +103,10 @@ pub fn write_previews(img: &crate::aov::AovImage, dir: &Path, name: &str) -> Res
     if let Some(c) = depthlike
         && let Some(p) = preview::depth_colormap(img, c)
     {
-        preview::write_png(&p, &dir.join(format!("{name}.{c}.png")))?;
+        out.push(preview::stage_png(
+            &p,
+            &dir.join(format!("{name}.{c}.png")),
+        )?);
     }
-    Ok(())
+    Ok(out)
 }
