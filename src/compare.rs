@@ -558,18 +558,18 @@ fn error_colour(e: f64) -> Rgb<u8> {
 /// - dark grey: both miss;
 /// - red: mismatch off a silhouette (always a failure); orange: mismatch on a silhouette;
 /// - pixels where both hit the same cylinder: the largest of the relative distance, relative
-///   depth and normal angle errors, each divided by its default [`Tolerances`] bound, on the
-///   log colour scale of blue (≤ 1e-4 of the bound) → green (1e-2) → yellow (the bound);
-///   magenta above the bound.
+///   depth and normal angle errors, each divided by its bound in `tol` (the run's
+///   tolerances, so magenta marks exactly the pixels that break them), on the log colour
+///   scale of blue (≤ 1e-4 of the bound) → green (1e-2) → yellow (the bound); magenta above
+///   the bound.
 ///
 /// `report` must come from `compare(a, b)`; it names the channels to use.
-pub fn heatmap(a: &AovImage, b: &AovImage, report: &Report) -> RgbImage {
+pub fn heatmap(a: &AovImage, b: &AovImage, report: &Report, tol: &Tolerances) -> RgbImage {
     let (w, h) = (a.width, a.height);
     let mut img = RgbImage::new(w as u32, h as u32);
     let Ok(c) = classify(a, b) else {
         return img;
     };
-    let tol = Tolerances::default();
     let has = |name: &str| report.channels.iter().any(|c| c == name);
     let dist = has("distance")
         .then(|| Some((a.f32_channel("distance")?, b.f32_channel("distance")?)))
@@ -723,6 +723,15 @@ mod tests {
         };
         let f = r.failures(&tight);
         assert_eq!(f.len(), 2, "{f:?}");
+        // The heatmap colours against the tolerances it is given: (2, 2) is within the
+        // defaults (half of 0.1°) but magenta under the tight ones; untouched pixels are not.
+        let magenta = Rgb([255, 0, 255]);
+        let hm = heatmap(&a, &b, &r, &Tolerances::default());
+        assert_eq!(*hm.get_pixel(2, 2), error_colour(0.5));
+        assert_ne!(*hm.get_pixel(2, 2), magenta);
+        let hm = heatmap(&a, &b, &r, &tight);
+        assert_eq!(*hm.get_pixel(2, 2), magenta);
+        assert_eq!(*hm.get_pixel(1, 1), error_colour(0.0));
         // 2.25·(1 + 1e-5) rounds to f32 at 9.96e-6 relative.
         assert!(
             f[0].starts_with("relative distance error max 9.96"),
@@ -761,7 +770,7 @@ mod tests {
             ..Tolerances::default()
         };
         assert!(r.passes(&loose));
-        let hm = heatmap(&a, &b, &r);
+        let hm = heatmap(&a, &b, &r, &Tolerances::default());
         assert_eq!(*hm.get_pixel(4, 2), Rgb([255, 140, 0]));
         assert_eq!(*hm.get_pixel(0, 0), Rgb([28, 28, 28]));
         assert_eq!(*hm.get_pixel(2, 2), error_colour(0.0));
@@ -790,7 +799,7 @@ mod tests {
         assert_eq!(r.mismatches_interior, 1);
         assert_eq!(r.interior_examples, vec![[2, 2]]);
         assert!(!r.passes(&Tolerances::default()));
-        let hm = heatmap(&a3, &b3, &r);
+        let hm = heatmap(&a3, &b3, &r, &Tolerances::default());
         assert_eq!(*hm.get_pixel(2, 2), Rgb([255, 0, 0]));
     }
 
