@@ -16,7 +16,10 @@
 //! - Non-finite samples (NaN, ±inf) in any compared float channel always fail.
 //!
 //! `shape_id` may be u32 (cylaov) or float32 (Mitsuba references: one component type per
-//! bitmap); float ids must be whole numbers below 2^24.
+//! bitmap), in either image and mixed: it is compared as ids, and float ids must be whole
+//! numbers below 2^24. Any other channel both images have with different sample types
+//! (u32 in one, float32 in the other) is not compared: it is listed in
+//! [`Report::type_clashes`] and a note says so.
 
 use crate::aov::{AovImage, ChannelData};
 use anyhow::{Result, bail};
@@ -107,8 +110,12 @@ pub struct Report {
     pub height: usize,
     pub pixels: usize,
     pub identity: Identity,
-    /// Channels present in both images (compared).
+    /// Channels present in both images with compatible sample types (compared).
     pub channels: Vec<String>,
+    /// Channels present in both images but not compared because their sample types differ
+    /// (u32 in one, float32 in the other; `shape_id` never lands here: it is compared as
+    /// ids whatever its type).
+    pub type_clashes: Vec<String>,
     /// Channels only one image has (not compared).
     pub only_in_a: Vec<String>,
     pub only_in_b: Vec<String>,
@@ -301,11 +308,23 @@ pub fn compare(a: &AovImage, b: &AovImage) -> Result<Report> {
     let (w, h) = (a.width, a.height);
     let n = w * h;
     let (names_a, names_b) = (names(a), names(b));
-    let channels: Vec<String> = names_a
+    let mut notes = c.notes;
+    let (channels, type_clashes): (Vec<String>, Vec<String>) = names_a
         .iter()
         .filter(|x| names_b.contains(x))
         .cloned()
-        .collect();
+        .partition(|name| name == "shape_id" || same_sample_type(a, b, name));
+    for name in &type_clashes {
+        let kind = |img: &AovImage| match img.channel(name) {
+            Some(ChannelData::U32(_)) => "u32",
+            _ => "float32",
+        };
+        notes.push(format!(
+            "{name} not compared: it is {} in A but {} in B",
+            kind(a),
+            kind(b)
+        ));
+    }
     let only_in_a = names_a
         .iter()
         .filter(|x| !names_b.contains(x))
@@ -316,7 +335,6 @@ pub fn compare(a: &AovImage, b: &AovImage) -> Result<Report> {
         .filter(|x| !names_a.contains(x))
         .cloned()
         .collect();
-    let mut notes = c.notes;
     let both_f32 = |name: &str| Some((a.f32_channel(name)?, b.f32_channel(name)?));
     let both_vec3 = |name: &str| Some((a.vec3_channel(name)?, b.vec3_channel(name)?));
 
@@ -414,8 +432,17 @@ pub fn compare(a: &AovImage, b: &AovImage) -> Result<Report> {
         non_finite_a: non_finite(a),
         non_finite_b: non_finite(b),
         channels,
+        type_clashes,
         notes,
     })
+}
+
+fn same_sample_type(a: &AovImage, b: &AovImage, name: &str) -> bool {
+    matches!(
+        (a.channel(name), b.channel(name)),
+        (Some(ChannelData::F32(_)), Some(ChannelData::F32(_)))
+            | (Some(ChannelData::U32(_)), Some(ChannelData::U32(_)))
+    )
 }
 
 impl Report {
@@ -558,18 +585,18 @@ fn error_colour(e: f64) -> Rgb<u8> {
 /// - dark grey: both miss;
 /// - red: mismatch off a silhouette (always a failure); orange: mismatch on a silhouette;
 /// - pixels where both hit the same cylinder: the largest of the relative distance, relative
-///   depth and normal angle errors, each divided by its default [`Tolerances`] bound, on the
-///   log colour scale of blue (≤ 1e-4 of the bound) → green (1e-2) → yellow (the bound);
-///   magenta above the bound.
+///   depth and normal angle errors, each divided by its bound in `tol` (the run's
+///   tolerances, so magenta marks exactly the pixels that break them), on the log colour
+///   scale of blue (≤ 1e-4 of the bound) → green (1e-2) → yellow (the bound); magenta above
+///   the bound.
 ///
 /// `report` must come from `compare(a, b)`; it names the channels to use.
-pub fn heatmap(a: &AovImage, b: &AovImage, report: &Report) -> RgbImage {
+pub fn heatmap(a: &AovImage, b: &AovImage, report: &Report, tol: &Tolerances) -> RgbImage {
     let (w, h) = (a.width, a.height);
     let mut img = RgbImage::new(w as u32, h as u32);
     let Ok(c) = classify(a, b) else {
         return img;
     };
-    let tol = Tolerances::default();
     let has = |name: &str| report.channels.iter().any(|c| c == name);
     let dist = has("distance")
         .then(|| Some((a.f32_channel("distance")?, b.f32_channel("distance")?)))
@@ -723,6 +750,15 @@ mod tests {
         };
         let f = r.failures(&tight);
         assert_eq!(f.len(), 2, "{f:?}");
+        // The heatmap colours against the tolerances it is given: (2, 2) is within the
+        // defaults (half of 0.1°) but magenta under the tight ones; untouched pixels are not.
+        let magenta = Rgb([255, 0, 255]);
+        let hm = heatmap(&a, &b, &r, &Tolerances::default());
+        assert_eq!(*hm.get_pixel(2, 2), error_colour(0.5));
+        assert_ne!(*hm.get_pixel(2, 2), magenta);
+        let hm = heatmap(&a, &b, &r, &tight);
+        assert_eq!(*hm.get_pixel(2, 2), magenta);
+        assert_eq!(*hm.get_pixel(1, 1), error_colour(0.0));
         // 2.25·(1 + 1e-5) rounds to f32 at 9.96e-6 relative.
         assert!(
             f[0].starts_with("relative distance error max 9.96"),
@@ -761,7 +797,7 @@ mod tests {
             ..Tolerances::default()
         };
         assert!(r.passes(&loose));
-        let hm = heatmap(&a, &b, &r);
+        let hm = heatmap(&a, &b, &r, &Tolerances::default());
         assert_eq!(*hm.get_pixel(4, 2), Rgb([255, 140, 0]));
         assert_eq!(*hm.get_pixel(0, 0), Rgb([28, 28, 28]));
         assert_eq!(*hm.get_pixel(2, 2), error_colour(0.0));
@@ -790,7 +826,7 @@ mod tests {
         assert_eq!(r.mismatches_interior, 1);
         assert_eq!(r.interior_examples, vec![[2, 2]]);
         assert!(!r.passes(&Tolerances::default()));
-        let hm = heatmap(&a3, &b3, &r);
+        let hm = heatmap(&a3, &b3, &r, &Tolerances::default());
         assert_eq!(*hm.get_pixel(2, 2), Rgb([255, 0, 0]));
     }
 
@@ -810,6 +846,25 @@ mod tests {
             (r.identity, r.same, r.mismatches),
             (Identity::ShapeId, 9, 0)
         );
+        // u32 against float32 shape_id is the Mitsuba reference case: compared, as ids.
+        assert!(r.channels.contains(&"shape_id".to_string()));
+        assert!(r.type_clashes.is_empty() && r.notes.is_empty(), "{r:?}");
+        // ... and a wrong id in the float image is caught.
+        let mut b2 = b.clone();
+        if let Some(ChannelData::F32(v)) = b2
+            .channels
+            .iter_mut()
+            .find(|c| c.name == "shape_id")
+            .map(|c| &mut c.data)
+        {
+            for y in 1..=3 {
+                for x in 1..=3 {
+                    v[y * 6 + x] = 2.0;
+                }
+            }
+        }
+        let r2 = compare(&a, &b2).expect("float ids");
+        assert_eq!((r2.same, r2.mismatches, r2.mismatches_interior), (0, 9, 1));
         // A fractional id is an error naming the pixel.
         if let Some(ChannelData::F32(v)) = b
             .channels
@@ -829,6 +884,41 @@ mod tests {
         assert_eq!((r.same, r.mismatches), (9, 0));
         assert!(r.notes[0].starts_with("B lacks shape_id"));
         assert_eq!(r.only_in_a, vec!["shape_id".to_string()]);
+    }
+
+    #[test]
+    fn other_type_clash_is_reported_not_silently_skipped() {
+        let a = image();
+        let mut b = image();
+        // B stores distance as u32: not comparable, so not "compared", and a note says so.
+        let d: Vec<u32> = f32_mut(&mut b, "distance")
+            .iter()
+            .map(|&x| x as u32)
+            .collect();
+        b.channels
+            .iter_mut()
+            .find(|c| c.name == "distance")
+            .expect("distance")
+            .data = ChannelData::U32(d);
+        let r = compare(&a, &b).expect("same size");
+        assert_eq!(r.type_clashes, vec!["distance".to_string()]);
+        assert!(
+            !r.channels.contains(&"distance".to_string()),
+            "{:?}",
+            r.channels
+        );
+        assert!(r.rel_distance.is_none());
+        assert!(r.normal_deg.is_some());
+        assert_eq!(
+            r.notes,
+            vec!["distance not compared: it is float32 in A but u32 in B".to_string()]
+        );
+        assert!(r.to_string().contains("note: distance not compared"));
+        let r = compare(&b, &a).expect("same size");
+        assert_eq!(
+            r.notes,
+            vec!["distance not compared: it is u32 in A but float32 in B".to_string()]
+        );
     }
 
     #[test]

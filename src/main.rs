@@ -48,6 +48,10 @@ enum Command {
     ExportMitsuba(ExportCli),
     /// Compare two AOV EXRs pixel by pixel (SPEC §7); exit 1 if a tolerance is broken.
     ///
+    /// Exit status: 0 when every tolerance holds, 1 when one is broken (the report says
+    /// which), 2 when the comparison could not be made (a missing or unreadable file, images
+    /// of different sizes, a bad shape_id, an unwritable heatmap) or the arguments are wrong.
+    ///
     /// Example: cylaov compare out/single.exr reference/single.exr --heatmap diff.png
     Compare(CompareCli),
     /// Measure every kernel (literal/stable x f32/f64) against a double-double oracle on
@@ -305,8 +309,9 @@ fn set_threads(threads: Option<usize>) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Run the command; `Ok(false)` means it ran but found a failure (exit code 1).
-fn run(cli: Cli) -> anyhow::Result<bool> {
+/// Run the command and return its exit code: an `Err` is reported by `main` (exit 1);
+/// `compare` reports its own errors and returns 2 for them, 1 for a broken tolerance.
+fn run(cli: Cli) -> anyhow::Result<ExitCode> {
     match cli.command {
         Command::Render(a) => {
             set_threads(a.kernel.threads)?;
@@ -438,18 +443,23 @@ fn run(cli: Cli) -> anyhow::Result<bool> {
                     normal_deg: a.normal_deg,
                 },
             };
-            let out = commands::compare::run(&args)?;
+            let out = match commands::compare::run(&args) {
+                Ok(out) => out,
+                Err(e) => {
+                    eprintln!("error: {e:#}");
+                    return Ok(ExitCode::from(2));
+                }
+            };
             println!("{}", out.text);
-            return Ok(out.passed);
+            return Ok(ExitCode::from(if out.passed { 0 } else { 1 }));
         }
     }
-    Ok(true)
+    Ok(ExitCode::SUCCESS)
 }
 
 fn main() -> ExitCode {
     match run(Cli::parse()) {
-        Ok(true) => ExitCode::SUCCESS,
-        Ok(false) => ExitCode::from(1),
+        Ok(code) => code,
         Err(e) => {
             eprintln!("error: {e:#}");
             ExitCode::FAILURE

@@ -131,9 +131,25 @@ fn matrix(m: DMat4) -> String {
     rows.iter().map(|&x| num(x)).collect::<Vec<_>>().join(" ")
 }
 
+/// `s` made safe inside an XML comment. XML 1.0 (`Comment ::= '<!--' ((Char - '-') |
+/// ('-' (Char - '-')))* '-->'`) forbids `--` anywhere in the text and a `-` at its end, and
+/// only allows `Char`s: a space goes between consecutive dashes (`---` → `- - -`), after a
+/// trailing dash, and control characters other than tab/newline/CR become U+FFFD. One
+/// pass, so no `--` can survive (unlike a single `replace("--", "- -")`, which leaves
+/// `- --` from `---`).
 fn comment_safe(s: &str) -> String {
-    // "--" may not appear inside an XML comment.
-    s.replace("--", "- -")
+    let mut out = String::with_capacity(s.len() + 2);
+    for c in s.chars() {
+        if c == '-' && out.ends_with('-') {
+            out.push(' ');
+        }
+        let valid = !c.is_control() || matches!(c, '\t' | '\n' | '\r');
+        out.push(if valid { c } else { '\u{fffd}' });
+    }
+    if out.ends_with('-') {
+        out.push(' ');
+    }
+    out
 }
 
 /// The Mitsuba 3 scene XML of `scene`; `source_name` (e.g. the scene file's path) is named
@@ -366,6 +382,46 @@ mod tests {
     fn comment_cannot_be_closed_by_source_name() {
         let xml = to_xml(&scene(), "a-->b");
         assert!(xml.contains("a- ->b"));
+    }
+
+    /// The text between `<!--` and `-->` of the first comment in `xml`.
+    fn comment_body(xml: &str) -> &str {
+        let start = xml.find("<!--").expect("comment") + 4;
+        let len = xml[start..].find("-->").expect("comment end");
+        &xml[start..start + len]
+    }
+
+    #[test]
+    fn comment_is_valid_xml_for_any_run_of_dashes() {
+        for name in [
+            "a---b.json",
+            "a----b-",
+            "-",
+            "--",
+            "---",
+            "x-",
+            "scenes/a---b-.json",
+            "tab\there\u{1}",
+        ] {
+            let safe = comment_safe(name);
+            assert!(!safe.contains("--"), "{name:?} -> {safe:?}");
+            assert!(!safe.ends_with('-'), "{name:?} -> {safe:?}");
+            assert!(!safe.contains('\u{1}'), "{name:?} -> {safe:?}");
+            // Only spaces were added (and control characters replaced): dashes all kept.
+            assert_eq!(
+                safe.matches('-').count(),
+                name.matches('-').count(),
+                "{name:?}"
+            );
+            let xml = to_xml(&scene(), name);
+            let body = comment_body(&xml);
+            assert!(!body.contains("--") && !body.ends_with('-'), "{body:?}");
+            // The comment closes where we meant it to: the XML has exactly one.
+            assert_eq!(xml.matches("-->").count(), 1, "{name:?}");
+        }
+        assert_eq!(comment_safe("a---b"), "a- - -b");
+        assert_eq!(comment_safe("a-"), "a- ");
+        assert_eq!(comment_safe("a-b"), "a-b");
     }
 
     #[test]

@@ -17,22 +17,24 @@
 //! | asymmetric | 6.5e-7 / 6.3e-7 | 5.8e-7 / 6.8e-7 | 0.0010 / 0.0011 | 0 |
 //! | axis_view | 8.7e-6 / 7.9e-6 | 8.7e-6 / 7.9e-6 | 0.0017 / 0.0015 | 0 |
 //! | cluster | 5.0e-6 / 9.1e-6 | 5.2e-6 / 9.2e-6 | 0.029 / 0.051 | 0 |
-//! | far_narrow | 7.0e-7 / 9.4e-7 | 7.0e-7 / 9.4e-7 | 0.21 / 0.30 | 2 (silhouette) |
+//! | far_camera | 1.7e-6 / 1.9e-6 | 1.7e-6 / 1.9e-6 | 0.037 / 0.041 | 0 |
 //! | fov_diagonal | 4.2e-6 / 4.8e-6 | 4.2e-6 / 4.7e-6 | 0.0091 / 0.010 | 0 |
 //! | fov_smaller_portrait | 4.4e-6 / 6.7e-6 | 4.4e-6 / 6.7e-6 | 0.0033 / 0.0050 | 0 |
-//! | grazing | 9.7e-6 / 9.2e-6 | 9.7e-6 / 9.2e-6 | 0.15 / 0.14 | 1 (silhouette) |
+//! | grazing_fence | 8.2e-6 / 8.2e-6 | 8.2e-6 / 8.2e-6 | 0.034 / 0.033 | 0 |
 //! | mixed_caps | 4.3e-6 / 5.7e-6 | 4.3e-6 / 5.6e-6 | 0.0042 / 0.0041 | 0 |
 //! | near_clip | 1.6e-5 / 1.8e-5 | 1.6e-5 / 1.8e-5 | 0.0018 / 0.0023 | 0 |
 //! | portrait_fov_y | 5.1e-6 / 1.1e-5 | 5.1e-6 / 1.1e-5 | 0.0052 / 0.011 | 0 |
 //! | single | 4.2e-6 / 3.2e-6 | 4.3e-6 / 3.3e-6 | 0.0029 / 0.0022 | 0 |
 //! | tube_inside | 8.0e-7 / 8.7e-7 | 7.3e-7 / 8.9e-7 | 0.000025 / 0.000027 | 0 |
 //!
-//! Bounds: [`DEFAULT`] is the 0.05% / 3e-5 / 0.1° tightened to about 1.5× the
-//! largest measurement, plus p99 bounds at about 2× the largest p99 (which catch a
-//! systematic error, e.g. a half-pixel shift, long before the max does). Two scenes are
-//! Mitsuba-limited beyond that and get their own normal bound: `far_narrow` (camera 2100
-//! units away: ε₃₂·2100 ≈ 1.3e-4 of lateral ray error on a radius-0.25 cylinder is
-//! 0.03°/cos φ) and `grazing` (rods of radius 0.03 hit edge-on, κ ≈ 100).
+//! Bounds: one set for every scene, [`BOUNDS`]: the 0.05% / 3e-5 / 0.1° tightened
+//! to about 1.5× the largest measurement, plus p99 bounds at about 2× the largest p99
+//! (which catch a systematic error, e.g. a half-pixel shift, long before the max does).
+//! Scenes where Mitsuba's float32 is worse than that (a camera thousands of units away,
+//! rods so thin that κ ≈ 100) do not belong here: they live in `scenes/stress/` and are
+//! checked against the oracle (`tests/stress.rs`, SPEC §7). `far_camera` and
+//! `grazing_fence` are the milder versions kept here: a camera 300 units away with a 1°
+//! fov, and rods of radius 0.1 to 0.13 seen edge-on.
 
 use cylaov::aov::AovImage;
 use cylaov::compare::{Report, Tolerances, compare};
@@ -48,9 +50,10 @@ struct Bounds {
     p99_normal_deg: f64,
 }
 
-const DEFAULT: Bounds = Bounds {
+const BOUNDS: Bounds = Bounds {
     max: Tolerances {
-        // Measured at most 2 of 76 800 pixels (2.6e-5), all on silhouettes.
+        // Measured: no mismatch on this machine. Silhouette samples at a float32 ulp from
+        // tangency may flip on another CPU: allow a few (7 of 76 800), all on silhouettes.
         max_mismatch_fraction: 1e-4,
         // Measured max 1.8e-5 (near_clip, f32 kernel).
         rel_distance: 2.5e-5,
@@ -58,33 +61,10 @@ const DEFAULT: Bounds = Bounds {
         // Measured max 0.051° (cluster, f32 kernel); SPEC §5 floor 0.031°.
         normal_deg: 0.08,
     },
-    // Measured p99 at most 7.2e-7 and 0.0092° (outside far_narrow).
+    // Measured p99 at most 7.8e-7 (grazing_fence) and 0.0077° (far_camera), f32 kernel.
     p99_rel: 1.5e-6,
     p99_normal_deg: 0.02,
 };
-
-fn bounds(stem: &str) -> Bounds {
-    match stem {
-        // Measured 0.21° (f64) / 0.30° (f32), p99 0.055° / 0.074°.
-        "far_narrow" => Bounds {
-            max: Tolerances {
-                normal_deg: 0.45,
-                ..DEFAULT.max
-            },
-            p99_normal_deg: 0.15,
-            ..DEFAULT
-        },
-        // Measured 0.152° / 0.143°.
-        "grazing" => Bounds {
-            max: Tolerances {
-                normal_deg: 0.25,
-                ..DEFAULT.max
-            },
-            ..DEFAULT
-        },
-        _ => DEFAULT,
-    }
-}
 
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -111,7 +91,7 @@ fn check(stem: &str, precision: Precision, reference: &AovImage) -> Vec<String> 
     };
     let img = render(&scene, &opts).image;
     let r: Report = compare(&img, reference).unwrap_or_else(|e| panic!("{stem}: {e:#}"));
-    let b = bounds(stem);
+    let b = BOUNDS;
     let tag = format!("{stem} ({precision:?})");
     let mut fails: Vec<String> = r
         .failures(&b.max)

@@ -42,7 +42,7 @@ pub fn run(args: &CompareArgs) -> Result<CompareOutcome> {
     let report = compare(&a, &b)
         .with_context(|| format!("comparing {} with {}", args.a.display(), args.b.display()))?;
     if let Some(path) = &args.heatmap {
-        write_png(&heatmap(&a, &b, &report), path)?;
+        write_png(&heatmap(&a, &b, &report, &args.tolerances), path)?;
     }
     let failures = report.failures(&args.tolerances);
     let passed = failures.is_empty();
