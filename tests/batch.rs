@@ -600,3 +600,38 @@ fn changed_camera_is_rendered_again() {
     assert!(cam.contains("\"fov_deg\": 40.0"), "{cam}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Temporary names: hidden, ending in `.tmp`, in the target's folder, and distinct per call
+/// (shards on different nodes can share a PID), with the host in the name.
+#[test]
+fn temp_names_are_unique_per_host_and_call() {
+    let target = Path::new("/some/dir/000001.exr");
+    let a = cylaov::io::temp_path(target);
+    let b = cylaov::io::temp_path(target);
+    assert_ne!(a, b);
+    for p in [&a, &b] {
+        assert_eq!(p.parent(), target.parent());
+        let name = p.file_name().unwrap().to_string_lossy();
+        assert!(name.starts_with(".000001.exr."), "{name}");
+        assert!(name.ends_with(".tmp"), "{name}");
+        assert!(
+            name.contains(&format!(".{}.", std::process::id())),
+            "{name}"
+        );
+        assert!(!name.contains('/'));
+    }
+    let host = std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .ok()
+        .or_else(|| std::env::var("HOSTNAME").ok())
+        .map(|h| h.trim().to_string())
+        .filter(|h| !h.is_empty());
+    if let Some(host) = host {
+        let name = a.file_name().unwrap().to_string_lossy().into_owned();
+        let safe: String = host
+            .chars()
+            .filter(|c| c.is_ascii_alphanumeric() || *c == '-' || *c == '.')
+            .take(16)
+            .collect();
+        assert!(name.contains(&safe), "{name} lacks {safe}");
+    }
+}
