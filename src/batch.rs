@@ -83,8 +83,11 @@ fn stem(path: &Path) -> String {
 /// The views of INPUT: a `.jsonl` manifest, a folder holding `manifest.jsonl` (read through
 /// it), or a folder whose `*.json` files are taken recursively in sorted relative-path order
 /// (hidden entries and anything under `exclude`, the output folder, skipped).
-/// Errors here concern the input as a whole: no view is rendered.
+/// Errors here concern the input as a whole: no view is rendered. An input without views
+/// is one (a wrong path or an `--out` that holds the input must not pass as "0 views").
 pub fn list_views(input: &Path, exclude: Option<&Path>) -> Result<Vec<ViewSource>> {
+    // Entries skipped because they lie under `exclude`: `*.json` files and folders.
+    let mut excluded = Excluded::default();
     let views = if input.is_dir() {
         let manifest = input.join("manifest.jsonl");
         if manifest.is_file() {
@@ -92,7 +95,7 @@ pub fn list_views(input: &Path, exclude: Option<&Path>) -> Result<Vec<ViewSource
         } else {
             let exclude = exclude.and_then(|p| p.canonicalize().ok());
             let mut files = Vec::new();
-            scan(input, exclude.as_deref(), &mut files)
+            scan(input, exclude.as_deref(), &mut files, &mut excluded)
                 .with_context(|| format!("listing {}", input.display()))?;
             files.sort_by(|a, b| a.strip_prefix(input).ok().cmp(&b.strip_prefix(input).ok()));
             files
@@ -113,6 +116,36 @@ pub fn list_views(input: &Path, exclude: Option<&Path>) -> Result<Vec<ViewSource
             input.display()
         );
     };
+    if views.is_empty() {
+        if excluded.files + excluded.folders > 0 {
+            let count = |n: usize, what: &str| match n {
+                0 => None,
+                1 => Some(format!("1 {what}")),
+                n => Some(format!("{n} {what}s")),
+            };
+            let what: Vec<String> = [
+                count(excluded.files, "*.json file"),
+                count(excluded.folders, "folder"),
+            ]
+            .into_iter()
+            .flatten()
+            .collect();
+            bail!(
+                "INPUT {}: no scene files outside --out {}: skipped {} under it (outputs \
+                 are not read as input; give an output folder outside the input)",
+                input.display(),
+                exclude.map_or(String::new(), |p| p.display().to_string()),
+                what.join(" and ")
+            );
+        }
+        if input.is_dir() {
+            bail!(
+                "INPUT {}: no scene files (*.json, hidden entries skipped) and no manifest.jsonl",
+                input.display()
+            );
+        }
+        bail!("INPUT {}: the manifest lists no views", input.display());
+    }
     let mut seen: HashMap<&str, &Path> = HashMap::new();
     for v in &views {
         check_name(&v.name).map_err(|e| anyhow::anyhow!("{}: {e}", v.path.display()))?;
@@ -129,22 +162,43 @@ pub fn list_views(input: &Path, exclude: Option<&Path>) -> Result<Vec<ViewSource
     Ok(views)
 }
 
-fn scan(dir: &Path, exclude: Option<&Path>, out: &mut Vec<PathBuf>) -> std::io::Result<()> {
+/// What [`scan`] left out because it lies under the output folder (not walked into).
+#[derive(Default)]
+struct Excluded {
+    files: usize,
+    folders: usize,
+}
+
+/// Collect the `*.json` files under `dir` into `out`; entries under `exclude` are counted
+/// in `excluded` instead.
+fn scan(
+    dir: &Path,
+    exclude: Option<&Path>,
+    out: &mut Vec<PathBuf>,
+    excluded: &mut Excluded,
+) -> std::io::Result<()> {
     for entry in std::fs::read_dir(dir)? {
         let entry = entry?;
         let path = entry.path();
         if entry.file_name().to_string_lossy().starts_with('.') {
             continue;
         }
-        if let (Some(ex), Ok(canon)) = (exclude, path.canonicalize())
-            && canon.starts_with(ex)
-        {
-            continue;
-        }
+        let skip = matches!(
+            (exclude, path.canonicalize()),
+            (Some(ex), Ok(canon)) if canon.starts_with(ex)
+        );
         if entry.file_type()?.is_dir() {
-            scan(&path, exclude, out)?;
+            if skip {
+                excluded.folders += 1;
+            } else {
+                scan(&path, exclude, out, excluded)?;
+            }
         } else if path.extension().is_some_and(|e| e == "json") && path.is_file() {
-            out.push(path);
+            if skip {
+                excluded.files += 1;
+            } else {
+                out.push(path);
+            }
         }
     }
     Ok(())

@@ -635,3 +635,53 @@ fn temp_names_are_unique_per_host_and_call() {
         assert!(name.contains(&safe), "{name} lacks {safe}");
     }
 }
+/// An input without views is an error that names it; nothing is written.
+#[test]
+fn empty_input_is_an_error() {
+    let dir = fresh_dir("empty");
+    let empty = dir.join("empty");
+    std::fs::create_dir_all(&empty).unwrap();
+    let out = dir.join("out");
+    let o = cylaov(&[
+        "batch",
+        empty.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains(empty.to_str().unwrap()), "{err}");
+    assert!(err.contains("no scene files"), "{err}");
+    assert!(!out.join("transforms.json").exists());
+
+    // An empty manifest.
+    let manifest = dir.join("none.jsonl");
+    std::fs::write(&manifest, "\n").unwrap();
+    let o = cylaov(&[
+        "batch",
+        manifest.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains(manifest.to_str().unwrap()), "{err}");
+    assert!(!out.join("transforms.json").exists());
+
+    // --out equal to the input: every scene file lies under --out and is excluded.
+    let scenes = dir.join("scenes");
+    generate(&dir.join("data"), "1", "2", SMALL);
+    std::fs::rename(dir.join("data/scenes"), &scenes).unwrap();
+    let o = cylaov(&[
+        "batch",
+        scenes.to_str().unwrap(),
+        "--out",
+        scenes.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains(scenes.to_str().unwrap()), "{err}");
+    assert!(err.contains("skipped 2 *.json files under it"), "{err}");
+    assert!(!scenes.join("transforms.json").exists());
+    let _ = std::fs::remove_dir_all(&dir);
+}
