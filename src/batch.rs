@@ -5,12 +5,16 @@
 //! `NAME.normal.png` (8-bit) and `NAME.depth.png` (16-bit, planar depth × `depth_scale`).
 //!
 //! **Crash invariant**: every file is first written whole under
-//! `OUT/.partial/K-of-N/` (names ending in `.tmp`) and then renamed into place, the EXR last.
-//! A kill at any moment leaves only whole files in `OUT`; the partial folder of a shard is
-//! cleared when that shard starts. A view counts as done when its EXR has the expected
-//! header and its chunks reach exactly to the end of the file ([`exr_is_complete`]), and its
-//! PNGs end as they must (`IEND` chunk), and its camera JSON is byte for byte the one this
-//! run would write (so a changed camera or AOV list is rendered again).
+//! `OUT/.partial/K-of-N/` (names ending in `.tmp`) and then renamed into place. The EXR is
+//! the view's "done" marker: an existing `NAME.exr` is removed before the first rename and
+//! the new one is renamed last, so an EXR on disk means its siblings come from the same
+//! render. A kill at any moment leaves only whole files in `OUT`; the partial folder of a
+//! shard is cleared when that shard starts. A view counts as done when its EXR header has
+//! the expected size, channels and compression and the chunk at the largest offset of its
+//! offset table ends exactly at the end of the file ([`exr_is_complete`]: a truncated file
+//! fails; the pixels are not read), its PNGs end with an `IEND` chunk, and its camera JSON
+//! is byte for byte the one this run would write (so a changed camera or AOV list is
+//! rendered again).
 //!
 //! **Determinism invariant**: the view list, the shard of each view (`index % N`) and
 //! `transforms.json` are pure functions of the input files and the options, so every shard
@@ -433,9 +437,11 @@ pub fn expected_channels(aovs: &[Aov]) -> Vec<(&'static str, SampleType)> {
 }
 
 /// Cheap completeness check of an EXR written by us: the header has the expected size,
-/// channels and compression, and the last chunk of the offset table ends exactly at the end
-/// of the file (a truncated or partly overwritten file fails). Reads the header, the offset
-/// table and 8 bytes, not the pixels.
+/// channels and compression, every offset of the offset table lies inside the file, and the
+/// chunk at the largest offset ends (by the byte count in its 8-byte chunk header) exactly
+/// at the end of the file. A truncated file fails; a file damaged inside, with its length
+/// unchanged, passes (the pixels are not read: that is what the atomic renames are for).
+/// Reads the header, the offset table and 8 bytes.
 pub fn exr_is_complete(
     path: &Path,
     width: usize,
@@ -633,7 +639,16 @@ pub fn render_view(
     let exr_tmp = tmp("exr");
     write_unsynced(&exr_tmp, |w| image.write_exr_to(w, opts.compression))?;
     moves.push((exr_tmp, &done.exr));
+    // An EXR in place is the view's "done" marker, so an older one goes before any new file
+    // of the view replaces its sibling: a re-render killed between the renames leaves no
+    // EXR (the view is rendered again), never a new camera beside old PNGs and an old EXR.
     // The EXR goes last: once it is in place, so is everything else of the view.
+    match std::fs::remove_file(&done.exr) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+            return Err(e).with_context(|| format!("removing the old {}", done.exr.display()));
+        }
+        _ => {}
+    }
     for (from, to) in moves {
         std::fs::rename(&from, to)
             .with_context(|| format!("moving {} to {}", from.display(), to.display()))?;

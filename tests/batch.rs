@@ -685,3 +685,62 @@ fn empty_input_is_an_error() {
     assert!(!scenes.join("transforms.json").exists());
     let _ = std::fs::remove_dir_all(&dir);
 }
+/// A re-render that dies after moving some of the new files into place must not leave the
+/// old EXR beside them: the next run renders the view again.
+#[test]
+fn interrupted_rerender_leaves_no_stale_exr() {
+    let dir = fresh_dir("stale");
+    let data = dir.join("data");
+    generate(&data, "13", "2", SMALL);
+    let out = dir.join("out");
+    let batch = || {
+        cylaov(&[
+            "batch",
+            data.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ])
+    };
+    assert!(batch().status.success());
+    let old_png = std::fs::read(out.join("000001.normal.png")).unwrap();
+    // A new camera for view 1, and a normal PNG that cannot be replaced (a folder in its
+    // place): the re-render moves its first files, then fails, as if killed there.
+    let scene = data.join("scenes/000001.json");
+    let text = std::fs::read_to_string(&scene).unwrap();
+    std::fs::write(
+        &scene,
+        text.replace("\"fov_deg\": 50.0", "\"fov_deg\": 40.0"),
+    )
+    .unwrap();
+    let png = out.join("000001.normal.png");
+    std::fs::remove_file(&png).unwrap();
+    std::fs::create_dir_all(png.join("blocker")).unwrap();
+    let o = batch();
+    assert!(!o.status.success());
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(stdout.contains("done 0 / skipped 1 / failed 1"), "{stdout}");
+    let cam = std::fs::read_to_string(out.join("000001.camera.json")).unwrap();
+    assert!(
+        cam.contains("\"fov_deg\": 40.0"),
+        "the camera was moved first"
+    );
+    assert!(
+        !out.join("000001.exr").exists(),
+        "the old EXR is gone once a new file of its view is in place"
+    );
+    // Put the old PNG back: new camera, old PNGs, and (before the fix) the old EXR.
+    std::fs::remove_dir_all(&png).unwrap();
+    std::fs::write(&png, old_png).unwrap();
+    let o = batch();
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(stdout.contains("done 1 / skipped 1 / failed 0"), "{stdout}");
+    let fresh = dir.join("fresh");
+    ok(&[
+        "batch",
+        data.to_str().unwrap(),
+        "--out",
+        fresh.to_str().unwrap(),
+    ]);
+    assert_eq!(tree(&out), tree(&fresh));
+    let _ = std::fs::remove_dir_all(&dir);
+}
