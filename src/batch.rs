@@ -2,7 +2,9 @@
 //! through one rayon pool, and the dataset index `transforms.json`.
 //!
 //! Per view `NAME` the output folder gets `NAME.exr`, `NAME.camera.json`,
-//! `NAME.normal.png` (8-bit) and `NAME.depth.png` (16-bit, planar depth × `depth_scale`).
+//! `NAME.normal.png` (8-bit), `NAME.depth.png` (16-bit, planar depth × `depth_scale`) and
+//! `NAME.render.json`, the stamp of what made the files ([`render_stamp`]: a hash of the
+//! scene and every option that changes output bytes).
 //!
 //! **Crash invariant**: every file is first written whole under
 //! `OUT/.partial/K-of-N/` (names ending in `.tmp`) and then renamed into place. The EXR is
@@ -13,8 +15,10 @@
 //! the expected size, channels and compression and the chunk at the largest offset of its
 //! offset table ends exactly at the end of the file ([`exr_is_complete`]: a truncated file
 //! fails; the pixels are not read), its PNGs end with an `IEND` chunk, and its camera JSON
-//! is byte for byte the one this run would write (so a changed camera or AOV list is
-//! rendered again).
+//! and render stamp are byte for byte the ones this run would write (so a changed scene,
+//! AOV list, `--precision`, `--formula`, `--compression`, `--no-png` or, with PNGs,
+//! `--depth-scale` renders the view again). A view rendered with `--no-png` loses PNGs an
+//! earlier run left, so the folder is what a fresh run would write.
 //!
 //! **Determinism invariant**: the view list, the shard of each view (`index % N`) and
 //! `transforms.json` are pure functions of the input files and the options, so every shard
@@ -406,6 +410,8 @@ pub struct ViewFiles {
     pub camera: PathBuf,
     pub normal_png: PathBuf,
     pub depth_png: PathBuf,
+    /// The [`render_stamp`].
+    pub stamp: PathBuf,
 }
 
 impl ViewFiles {
@@ -415,6 +421,7 @@ impl ViewFiles {
             camera: dir.join(format!("{name}.camera.json")),
             normal_png: dir.join(format!("{name}.normal.png")),
             depth_png: dir.join(format!("{name}.depth.png")),
+            stamp: dir.join(format!("{name}.render.json")),
         }
     }
 }
@@ -533,14 +540,99 @@ fn file_ends_with(path: &Path, tail: &[u8]) -> bool {
     read().unwrap_or(false)
 }
 
+/// FNV-1a, 64 bits: a fixed, dependency-free hash for stamps and the verify choice.
+struct Fnv1a(u64);
+
+impl Fnv1a {
+    fn new() -> Fnv1a {
+        Fnv1a(0xcbf2_9ce4_8422_2325)
+    }
+    fn bytes(&mut self, bytes: &[u8]) -> &mut Fnv1a {
+        for &b in bytes {
+            self.0 = (self.0 ^ b as u64).wrapping_mul(0x0000_0100_0000_01b3);
+        }
+        self
+    }
+    fn f64s(&mut self, xs: &[f64]) -> &mut Fnv1a {
+        xs.iter().for_each(|x| {
+            self.bytes(&x.to_bits().to_le_bytes());
+        });
+        self
+    }
+}
+
+/// A hash of everything in `scene` that reaches the output files (every field of the
+/// validated camera and cylinders, exact bits; the AOV list is in the stamp itself).
+fn scene_hash(scene: &Scene) -> u64 {
+    let mut h = Fnv1a::new();
+    let c = &scene.camera;
+    h.f64s(&c.origin.to_array())
+        .f64s(&c.target.to_array())
+        .f64s(&c.up.to_array())
+        .f64s(&[c.fov_deg, c.near_clip, c.far_clip])
+        .bytes(c.fov_axis.name().as_bytes())
+        .bytes(&c.width.to_le_bytes())
+        .bytes(&c.height.to_le_bytes());
+    for y in &scene.cylinders {
+        h.f64s(&y.base.to_array())
+            .f64s(&y.axis.to_array())
+            .f64s(&[y.height, y.radius])
+            .bytes(&[y.caps as u8])
+            .bytes(&y.id.to_le_bytes());
+    }
+    h.0
+}
+
+/// What made a view's files: `NAME.render.json`.
+#[derive(Serialize)]
+struct RenderStamp {
+    /// [`scene_hash`], hex.
+    scene_fnv1a64: String,
+    /// AOVs in the EXR.
+    aovs: Vec<&'static str>,
+    precision: String,
+    formula: String,
+    compression: String,
+    png: bool,
+    /// PNG depth value per world unit; only with PNGs (otherwise it changes nothing).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    depth_scale: Option<f64>,
+}
+
+/// The `NAME.render.json` this run writes for `scene`: the scene's hash and every option
+/// that changes the view's output bytes. Resume compares it byte for byte, so a view made
+/// with other options (or from another scene under the same name) is rendered again.
+pub fn render_stamp(scene: &Scene, opts: &BatchOptions) -> String {
+    fn name(v: impl clap::ValueEnum) -> String {
+        v.to_possible_value()
+            .map(|p| p.get_name().to_string())
+            .unwrap_or_default()
+    }
+    let stamp = RenderStamp {
+        scene_fnv1a64: format!("{:016x}", scene_hash(scene)),
+        aovs: opts.exr_aovs(scene).iter().map(|a| a.name()).collect(),
+        precision: name(opts.precision),
+        formula: name(opts.formula),
+        compression: name(opts.compression),
+        png: opts.png,
+        depth_scale: opts.png.then_some(opts.depth_scale),
+    };
+    let mut s = serde_json::to_string_pretty(&stamp).unwrap_or_default();
+    s.push('\n');
+    s
+}
+
 /// Whether view `name` of `scene` is already complete in `dir`.
 pub fn view_is_complete(dir: &Path, name: &str, scene: &Scene, opts: &BatchOptions) -> bool {
     let files = ViewFiles::new(dir, name);
     const PNG_END: &[u8] = b"\0\0\0\0IEND\xae\x42\x60\x82";
-    // The camera file must be the one this run would write: a changed camera or AOV list
-    // (e.g. regenerated scenes under the same names) renders the view again.
+    // The camera file and the stamp must be the ones this run would write: a changed scene
+    // (e.g. regenerated under the same names), AOV list or output option renders the view
+    // again.
     let camera = camera_json(&Camera::new(scene.camera), &opts.exr_aovs(scene));
-    let others = std::fs::read(&files.camera).is_ok_and(|b| b == camera.as_bytes())
+    let same = |path: &Path, want: &str| std::fs::read(path).is_ok_and(|b| b == want.as_bytes());
+    let others = same(&files.camera, &camera)
+        && same(&files.stamp, &render_stamp(scene, opts))
         && (!opts.png
             || (file_ends_with(&files.normal_png, PNG_END)
                 && file_ends_with(&files.depth_png, PNG_END)));
@@ -618,6 +710,11 @@ pub fn render_view(
         Ok(w.write_all(camera_json(&cam, &exr_aovs).as_bytes())?)
     })?;
     moves.push((camera, &done.camera));
+    let stamp = tmp("render.json");
+    write_unsynced(&stamp, |w| {
+        Ok(w.write_all(render_stamp(scene, opts).as_bytes())?)
+    })?;
+    moves.push((stamp, &done.stamp));
     if opts.png {
         let normal = preview::normal_rgb(&image).context("no normal AOV")?;
         let depth = preview::depth_u16(&image, opts.depth_scale).context("no depth AOV")?;
@@ -643,11 +740,19 @@ pub fn render_view(
     // of the view replaces its sibling: a re-render killed between the renames leaves no
     // EXR (the view is rendered again), never a new camera beside old PNGs and an old EXR.
     // The EXR goes last: once it is in place, so is everything else of the view.
-    match std::fs::remove_file(&done.exr) {
-        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
-            return Err(e).with_context(|| format!("removing the old {}", done.exr.display()));
+    // Without PNGs, those of an earlier run go too (they would not match the stamp).
+    let stale: &[&PathBuf] = if opts.png {
+        &[&done.exr]
+    } else {
+        &[&done.exr, &done.normal_png, &done.depth_png]
+    };
+    for path in stale {
+        match std::fs::remove_file(path) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                return Err(e).with_context(|| format!("removing the old {}", path.display()));
+            }
+            _ => {}
         }
-        _ => {}
     }
     for (from, to) in moves {
         std::fs::rename(&from, to)
@@ -1116,10 +1221,7 @@ pub fn selected_for_verify(seed: u64, name: &str, fraction: f64) -> bool {
         return true;
     }
     // FNV-1a over the name, then mixed with the seed.
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for b in name.bytes() {
-        h = (h ^ b as u64).wrapping_mul(0x0000_0100_0000_01b3);
-    }
+    let h = Fnv1a::new().bytes(name.as_bytes()).0;
     let u = (mix64(h ^ mix64(seed)) >> 11) as f64 / (1u64 << 53) as f64;
     u < fraction
 }

@@ -108,7 +108,7 @@ fn same_seed_gives_identical_bytes() {
         ]);
     }
     let (ra, rb) = (tree(&dir.join("ra")), tree(&dir.join("rb")));
-    assert_eq!(ra.len(), 6 * 4 + 2, "{:?}", ra.keys());
+    assert_eq!(ra.len(), 6 * 5 + 2, "{:?}", ra.keys());
     assert_eq!(ra, rb);
     let _ = std::fs::remove_dir_all(&dir);
 }
@@ -341,7 +341,7 @@ fn resume_after_kill_completes_with_correct_files() {
         reference.to_str().unwrap(),
     ]);
     let (got, want) = (tree(&out), tree(&reference));
-    assert_eq!(got.len(), 40 * 4 + 2);
+    assert_eq!(got.len(), 40 * 5 + 2);
     assert!(got.keys().all(|k| !k.ends_with(".tmp")));
     assert_eq!(
         got.keys().collect::<Vec<_>>(),
@@ -598,6 +598,23 @@ fn changed_camera_is_rendered_again() {
     assert!(stdout.contains("done 1 / skipped 2 / failed 0"), "{stdout}");
     let cam = std::fs::read_to_string(out.join("000001.camera.json")).unwrap();
     assert!(cam.contains("\"fov_deg\": 40.0"), "{cam}");
+
+    // A cylinder changed, the camera not: rendered again too (the render stamp).
+    let scene = data.join("scenes/000002.json");
+    let text = std::fs::read_to_string(&scene).unwrap();
+    assert!(text.contains("\"radius\": 0."));
+    std::fs::write(
+        &scene,
+        text.replacen("\"radius\": 0.", "\"radius\": 0.0", 1),
+    )
+    .unwrap();
+    let stdout = ok(&[
+        "batch",
+        data.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(stdout.contains("done 1 / skipped 2 / failed 0"), "{stdout}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -742,5 +759,120 @@ fn interrupted_rerender_leaves_no_stale_exr() {
         fresh.to_str().unwrap(),
     ]);
     assert_eq!(tree(&out), tree(&fresh));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Every 16-bit depth PNG value of `name` in `out` is round(depth × scale) of its EXR.
+fn assert_depth_png_scale(out: &Path, name: &str, scale: f64) {
+    let img = AovImage::read_exr(&out.join(format!("{name}.exr"))).unwrap();
+    let depth = img.f32_channel("depth").unwrap();
+    let png = image::open(out.join(format!("{name}.depth.png")))
+        .unwrap()
+        .into_luma16();
+    let mut hits = 0;
+    for (k, p) in png.pixels().enumerate() {
+        let want = if depth[k] > 0.0 {
+            (depth[k] as f64 * scale).round().min(65535.0) as u16
+        } else {
+            0
+        };
+        assert_eq!(p.0[0], want, "{name} pixel {k} at scale {scale}");
+        hits += (want > 0) as usize;
+    }
+    assert!(hits > 50, "{name}: {hits} hits");
+}
+
+/// A rerun with an option that changes the output bytes renders the views again; the same
+/// options skip them.
+#[test]
+fn changed_options_are_rendered_again() {
+    let dir = fresh_dir("options");
+    let data = dir.join("data");
+    generate(&data, "12", "3", SMALL);
+    let out = dir.join("out");
+    let batch = |extra: &[&str]| {
+        let mut args = vec![
+            "batch",
+            data.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        ok(&args)
+    };
+    let stdout = batch(&[]);
+    assert!(stdout.contains("done 3 / skipped 0"), "{stdout}");
+    assert_depth_png_scale(&out, "000001", 1000.0);
+    let stdout = batch(&[]);
+    assert!(stdout.contains("done 0 / skipped 3"), "{stdout}");
+
+    // The reproduction: --depth-scale 10 must rewrite the PNGs, not only transforms.json.
+    let stdout = batch(&["--depth-scale", "10"]);
+    assert!(stdout.contains("done 3 / skipped 0"), "{stdout}");
+    for name in ["000000", "000001", "000002"] {
+        assert_depth_png_scale(&out, name, 10.0);
+    }
+    let t: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("transforms.json")).unwrap()).unwrap();
+    assert_eq!(t["depth_unit_scale_factor"], 0.1);
+    let stdout = batch(&["--depth-scale", "10"]);
+    assert!(stdout.contains("done 0 / skipped 3"), "{stdout}");
+
+    // Every other option that changes the bytes, one at a time.
+    for extra in [
+        &["--depth-scale", "10", "--precision", "f32"][..],
+        &[
+            "--depth-scale",
+            "10",
+            "--precision",
+            "f32",
+            "--formula",
+            "literal",
+        ],
+        &[
+            "--depth-scale",
+            "10",
+            "--precision",
+            "f32",
+            "--formula",
+            "literal",
+            "--compression",
+            "zip",
+        ],
+        &[
+            "--depth-scale",
+            "10",
+            "--precision",
+            "f32",
+            "--formula",
+            "literal",
+            "--compression",
+            "zip",
+            "--aov",
+            "depth",
+        ],
+    ] {
+        let stdout = batch(extra);
+        assert!(stdout.contains("done 3 / skipped 0"), "{extra:?}: {stdout}");
+        let stdout = batch(extra);
+        assert!(stdout.contains("done 0 / skipped 3"), "{extra:?}: {stdout}");
+    }
+    // --no-png renders again and leaves the outputs of a fresh --no-png run (no PNGs).
+    let stdout = batch(&["--no-png"]);
+    assert!(stdout.contains("done 3 / skipped 0"), "{stdout}");
+    assert!(!out.join("000001.depth.png").exists());
+    assert!(!out.join("000001.normal.png").exists());
+    let fresh = dir.join("fresh");
+    ok(&[
+        "batch",
+        data.to_str().unwrap(),
+        "--out",
+        fresh.to_str().unwrap(),
+        "--no-png",
+    ]);
+    assert_eq!(tree(&out), tree(&fresh));
+    // Without PNGs the depth scale changes nothing.
+    let stdout = batch(&["--no-png", "--depth-scale", "7"]);
+    assert!(stdout.contains("done 0 / skipped 3"), "{stdout}");
     let _ = std::fs::remove_dir_all(&dir);
 }
