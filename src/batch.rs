@@ -766,7 +766,7 @@ pub fn render_view(
 
 // ---- transforms.json -------------------------------------------------------------------
 
-#[derive(Serialize, PartialEq, Clone, Copy)]
+#[derive(Serialize, PartialEq, Clone, Copy, Debug)]
 struct Intrinsics {
     w: u32,
     h: u32,
@@ -799,6 +799,23 @@ struct Transforms {
     frames: Vec<Frame>,
 }
 
+/// What `transforms.json` needs of a view's camera.
+#[derive(Clone, Copy, Debug)]
+pub struct FrameCamera {
+    intrinsics: Intrinsics,
+    /// OpenGL camera-to-world, row-major.
+    transform_matrix: [[f64; 4]; 4],
+}
+
+impl FrameCamera {
+    pub fn new(cam: &Camera) -> FrameCamera {
+        FrameCamera {
+            intrinsics: intrinsics(cam),
+            transform_matrix: rows(cam.world_from_camera_opengl()),
+        }
+    }
+}
+
 fn intrinsics(cam: &Camera) -> Intrinsics {
     let (fl_x, fl_y) = cam.focal_px();
     let (w, h) = (cam.width(), cam.height());
@@ -815,16 +832,14 @@ fn intrinsics(cam: &Camera) -> Intrinsics {
 /// The nerfstudio / instant-ngp index of every valid view, in view-list order. Shared
 /// intrinsics go at the top level; if views differ, every frame carries its own.
 /// `file_path` is the normal PNG (the EXR when PNGs are off).
-pub fn transforms_json(views: &[(&str, &Scene)], opts: &BatchOptions) -> String {
-    let cams: Vec<Camera> = views.iter().map(|(_, s)| Camera::new(s.camera)).collect();
-    let shared = cams
+pub fn transforms_json(views: &[(&str, FrameCamera)], opts: &BatchOptions) -> String {
+    let shared = views
         .first()
-        .map(intrinsics)
-        .filter(|first| cams.iter().all(|c| intrinsics(c) == *first));
+        .map(|(_, c)| c.intrinsics)
+        .filter(|first| views.iter().all(|(_, c)| c.intrinsics == *first));
     let frames = views
         .iter()
-        .zip(&cams)
-        .map(|((name, _), cam)| Frame {
+        .map(|(name, cam)| Frame {
             file_path: if opts.png {
                 format!("{name}.normal.png")
             } else {
@@ -833,11 +848,11 @@ pub fn transforms_json(views: &[(&str, &Scene)], opts: &BatchOptions) -> String 
             depth_file_path: opts.png.then(|| format!("{name}.depth.png")),
             exr_file_path: format!("{name}.exr"),
             camera_file_path: format!("{name}.camera.json"),
-            transform_matrix: rows(cam.world_from_camera_opengl()),
+            transform_matrix: cam.transform_matrix,
             intrinsics: if shared.is_some() {
                 None
             } else {
-                Some(intrinsics(cam))
+                Some(cam.intrinsics)
             },
         })
         .collect();
@@ -1079,10 +1094,14 @@ pub fn run(
     let views = list_views(input, Some(out))?;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
 
-    // Every shard reads every scene: transforms.json lists them all.
-    let scenes: Vec<Result<Scene, String>> = views
+    let load =
+        |v: &ViewSource| scene::load(&v.path).map_err(|e| format!("{}: {e}", v.path.display()));
+    // Every shard reads every scene (transforms.json lists every valid view) but keeps only
+    // what transforms.json needs: memory is O(views), not O(views x cylinders). The views of
+    // this shard are read again, one at a time, when rendered.
+    let cameras: Vec<Result<FrameCamera, String>> = views
         .par_iter()
-        .map(|v| scene::load(&v.path).map_err(|e| format!("{}: {e}", v.path.display())))
+        .map(|v| load(v).map(|s| FrameCamera::new(&Camera::new(s.camera))))
         .collect();
 
     let partial = out.join(".partial").join(shard.to_string());
@@ -1097,7 +1116,11 @@ pub fn run(
     let verified = std::sync::atomic::AtomicUsize::new(0);
     let one = |i: usize| -> Outcome {
         let view = &views[i];
-        let mut outcome = match &scenes[i] {
+        let scene = match &cameras[i] {
+            Err(e) => Err(e.clone()),
+            Ok(_) => load(view),
+        };
+        let mut outcome = match &scene {
             Err(e) => Outcome::Failed(e.clone()),
             Ok(scene) if view_is_complete(out, &view.name, scene, opts) => Outcome::Skipped,
             Ok(scene) => match render_view(out, &partial, &view.name, scene, opts) {
@@ -1105,7 +1128,7 @@ pub fn run(
                 Err(e) => Outcome::Failed(format!("{}: {e:#}", view.path.display())),
             },
         };
-        if let (Some(v), Ok(scene)) = (verifier, &scenes[i])
+        if let (Some(v), Ok(scene)) = (verifier, &scene)
             && !matches!(outcome, Outcome::Failed(_))
             && selected_for_verify(opts.verify_seed, &view.name, opts.verify_fraction)
         {
@@ -1180,10 +1203,10 @@ pub fn run(
     atomic_write_bytes(&summary.failures_path, lines.as_bytes())
         .with_context(|| format!("writing {}", summary.failures_path.display()))?;
 
-    let valid: Vec<(&str, &Scene)> = views
+    let valid: Vec<(&str, FrameCamera)> = views
         .iter()
-        .zip(&scenes)
-        .filter_map(|(v, s)| s.as_ref().ok().map(|s| (v.name.as_str(), s)))
+        .zip(&cameras)
+        .filter_map(|(v, c)| c.as_ref().ok().map(|c| (v.name.as_str(), *c)))
         .collect();
     let transforms = out.join("transforms.json");
     atomic_write_bytes(&transforms, transforms_json(&valid, opts).as_bytes())
