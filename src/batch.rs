@@ -26,8 +26,8 @@
 
 use crate::aov::{Compression, channel_names};
 use crate::camera::{Camera, rows};
-use crate::generate::mix64;
 use crate::io::{atomic_write_bytes, camera_json};
+use crate::rng::mix64;
 
 use crate::preview;
 use crate::render::{FormulaKind, Precision, RenderOptions, render};
