@@ -2,15 +2,23 @@
 //! through one rayon pool, and the dataset index `transforms.json`.
 //!
 //! Per view `NAME` the output folder gets `NAME.exr`, `NAME.camera.json`,
-//! `NAME.normal.png` (8-bit) and `NAME.depth.png` (16-bit, planar depth × `depth_scale`).
+//! `NAME.normal.png` (8-bit), `NAME.depth.png` (16-bit, planar depth × `depth_scale`) and
+//! `NAME.render.json`, the stamp of what made the files ([`render_stamp`]: a hash of the
+//! scene and every option that changes output bytes).
 //!
 //! **Crash invariant**: every file is first written whole under
-//! `OUT/.partial/K-of-N/` (names ending in `.tmp`) and then renamed into place, the EXR last.
-//! A kill at any moment leaves only whole files in `OUT`; the partial folder of a shard is
-//! cleared when that shard starts. A view counts as done when its EXR has the expected
-//! header and its chunks reach exactly to the end of the file ([`exr_is_complete`]), and its
-//! PNGs end as they must (`IEND` chunk), and its camera JSON is byte for byte the one this
-//! run would write (so a changed camera or AOV list is rendered again).
+//! `OUT/.partial/K-of-N/` (names ending in `.tmp`) and then renamed into place. The EXR is
+//! the view's "done" marker: an existing `NAME.exr` is removed before the first rename and
+//! the new one is renamed last, so an EXR on disk means its siblings come from the same
+//! render. A kill at any moment leaves only whole files in `OUT`; the partial folder of a
+//! shard is cleared when that shard starts. A view counts as done when its EXR header has
+//! the expected size, channels and compression and the chunk at the largest offset of its
+//! offset table ends exactly at the end of the file ([`exr_is_complete`]: a truncated file
+//! fails; the pixels are not read), its PNGs end with an `IEND` chunk, and its camera JSON
+//! and render stamp are byte for byte the ones this run would write (so a changed scene,
+//! AOV list, `--precision`, `--formula`, `--compression`, `--no-png` or, with PNGs,
+//! `--depth-scale` renders the view again). A view rendered with `--no-png` loses PNGs an
+//! earlier run left, so the folder is what a fresh run would write.
 //!
 //! **Determinism invariant**: the view list, the shard of each view (`index % N`) and
 //! `transforms.json` are pure functions of the input files and the options, so every shard
@@ -18,8 +26,8 @@
 
 use crate::aov::{Compression, channel_names};
 use crate::camera::{Camera, rows};
-use crate::generate::mix64;
 use crate::io::{atomic_write_bytes, camera_json};
+use crate::rng::mix64;
 
 use crate::preview;
 use crate::render::{FormulaKind, Precision, RenderOptions, render};
@@ -83,8 +91,11 @@ fn stem(path: &Path) -> String {
 /// The views of INPUT: a `.jsonl` manifest, a folder holding `manifest.jsonl` (read through
 /// it), or a folder whose `*.json` files are taken recursively in sorted relative-path order
 /// (hidden entries and anything under `exclude`, the output folder, skipped).
-/// Errors here concern the input as a whole: no view is rendered.
+/// Errors here concern the input as a whole: no view is rendered. An input without views
+/// is one (a wrong path or an `--out` that holds the input must not pass as "0 views").
 pub fn list_views(input: &Path, exclude: Option<&Path>) -> Result<Vec<ViewSource>> {
+    // Entries skipped because they lie under `exclude`: `*.json` files and folders.
+    let mut excluded = Excluded::default();
     let views = if input.is_dir() {
         let manifest = input.join("manifest.jsonl");
         if manifest.is_file() {
@@ -92,7 +103,7 @@ pub fn list_views(input: &Path, exclude: Option<&Path>) -> Result<Vec<ViewSource
         } else {
             let exclude = exclude.and_then(|p| p.canonicalize().ok());
             let mut files = Vec::new();
-            scan(input, exclude.as_deref(), &mut files)
+            scan(input, exclude.as_deref(), &mut files, &mut excluded)
                 .with_context(|| format!("listing {}", input.display()))?;
             files.sort_by(|a, b| a.strip_prefix(input).ok().cmp(&b.strip_prefix(input).ok()));
             files
@@ -113,6 +124,36 @@ pub fn list_views(input: &Path, exclude: Option<&Path>) -> Result<Vec<ViewSource
             input.display()
         );
     };
+    if views.is_empty() {
+        if excluded.files + excluded.folders > 0 {
+            let count = |n: usize, what: &str| match n {
+                0 => None,
+                1 => Some(format!("1 {what}")),
+                n => Some(format!("{n} {what}s")),
+            };
+            let what: Vec<String> = [
+                count(excluded.files, "*.json file"),
+                count(excluded.folders, "folder"),
+            ]
+            .into_iter()
+            .flatten()
+            .collect();
+            bail!(
+                "INPUT {}: no scene files outside --out {}: skipped {} under it (outputs \
+                 are not read as input; give an output folder outside the input)",
+                input.display(),
+                exclude.map_or(String::new(), |p| p.display().to_string()),
+                what.join(" and ")
+            );
+        }
+        if input.is_dir() {
+            bail!(
+                "INPUT {}: no scene files (*.json, hidden entries skipped) and no manifest.jsonl",
+                input.display()
+            );
+        }
+        bail!("INPUT {}: the manifest lists no views", input.display());
+    }
     let mut seen: HashMap<&str, &Path> = HashMap::new();
     for v in &views {
         check_name(&v.name).map_err(|e| anyhow::anyhow!("{}: {e}", v.path.display()))?;
@@ -129,22 +170,43 @@ pub fn list_views(input: &Path, exclude: Option<&Path>) -> Result<Vec<ViewSource
     Ok(views)
 }
 
-fn scan(dir: &Path, exclude: Option<&Path>, out: &mut Vec<PathBuf>) -> std::io::Result<()> {
+/// What [`scan`] left out because it lies under the output folder (not walked into).
+#[derive(Default)]
+struct Excluded {
+    files: usize,
+    folders: usize,
+}
+
+/// Collect the `*.json` files under `dir` into `out`; entries under `exclude` are counted
+/// in `excluded` instead.
+fn scan(
+    dir: &Path,
+    exclude: Option<&Path>,
+    out: &mut Vec<PathBuf>,
+    excluded: &mut Excluded,
+) -> std::io::Result<()> {
     for entry in std::fs::read_dir(dir)? {
         let entry = entry?;
         let path = entry.path();
         if entry.file_name().to_string_lossy().starts_with('.') {
             continue;
         }
-        if let (Some(ex), Ok(canon)) = (exclude, path.canonicalize())
-            && canon.starts_with(ex)
-        {
-            continue;
-        }
+        let skip = matches!(
+            (exclude, path.canonicalize()),
+            (Some(ex), Ok(canon)) if canon.starts_with(ex)
+        );
         if entry.file_type()?.is_dir() {
-            scan(&path, exclude, out)?;
+            if skip {
+                excluded.folders += 1;
+            } else {
+                scan(&path, exclude, out, excluded)?;
+            }
         } else if path.extension().is_some_and(|e| e == "json") && path.is_file() {
-            out.push(path);
+            if skip {
+                excluded.files += 1;
+            } else {
+                out.push(path);
+            }
         }
     }
     Ok(())
@@ -348,6 +410,8 @@ pub struct ViewFiles {
     pub camera: PathBuf,
     pub normal_png: PathBuf,
     pub depth_png: PathBuf,
+    /// The [`render_stamp`].
+    pub stamp: PathBuf,
 }
 
 impl ViewFiles {
@@ -357,6 +421,7 @@ impl ViewFiles {
             camera: dir.join(format!("{name}.camera.json")),
             normal_png: dir.join(format!("{name}.normal.png")),
             depth_png: dir.join(format!("{name}.depth.png")),
+            stamp: dir.join(format!("{name}.render.json")),
         }
     }
 }
@@ -379,9 +444,11 @@ pub fn expected_channels(aovs: &[Aov]) -> Vec<(&'static str, SampleType)> {
 }
 
 /// Cheap completeness check of an EXR written by us: the header has the expected size,
-/// channels and compression, and the last chunk of the offset table ends exactly at the end
-/// of the file (a truncated or partly overwritten file fails). Reads the header, the offset
-/// table and 8 bytes, not the pixels.
+/// channels and compression, every offset of the offset table lies inside the file, and the
+/// chunk at the largest offset ends (by the byte count in its 8-byte chunk header) exactly
+/// at the end of the file. A truncated file fails; a file damaged inside, with its length
+/// unchanged, passes (the pixels are not read: that is what the atomic renames are for).
+/// Reads the header, the offset table and 8 bytes.
 pub fn exr_is_complete(
     path: &Path,
     width: usize,
@@ -473,14 +540,99 @@ fn file_ends_with(path: &Path, tail: &[u8]) -> bool {
     read().unwrap_or(false)
 }
 
+/// FNV-1a, 64 bits: a fixed, dependency-free hash for stamps and the verify choice.
+struct Fnv1a(u64);
+
+impl Fnv1a {
+    fn new() -> Fnv1a {
+        Fnv1a(0xcbf2_9ce4_8422_2325)
+    }
+    fn bytes(&mut self, bytes: &[u8]) -> &mut Fnv1a {
+        for &b in bytes {
+            self.0 = (self.0 ^ b as u64).wrapping_mul(0x0000_0100_0000_01b3);
+        }
+        self
+    }
+    fn f64s(&mut self, xs: &[f64]) -> &mut Fnv1a {
+        xs.iter().for_each(|x| {
+            self.bytes(&x.to_bits().to_le_bytes());
+        });
+        self
+    }
+}
+
+/// A hash of everything in `scene` that reaches the output files (every field of the
+/// validated camera and cylinders, exact bits; the AOV list is in the stamp itself).
+fn scene_hash(scene: &Scene) -> u64 {
+    let mut h = Fnv1a::new();
+    let c = &scene.camera;
+    h.f64s(&c.origin.to_array())
+        .f64s(&c.target.to_array())
+        .f64s(&c.up.to_array())
+        .f64s(&[c.fov_deg, c.near_clip, c.far_clip])
+        .bytes(c.fov_axis.name().as_bytes())
+        .bytes(&c.width.to_le_bytes())
+        .bytes(&c.height.to_le_bytes());
+    for y in &scene.cylinders {
+        h.f64s(&y.base.to_array())
+            .f64s(&y.axis.to_array())
+            .f64s(&[y.height, y.radius])
+            .bytes(&[y.caps as u8])
+            .bytes(&y.id.to_le_bytes());
+    }
+    h.0
+}
+
+/// What made a view's files: `NAME.render.json`.
+#[derive(Serialize)]
+struct RenderStamp {
+    /// [`scene_hash`], hex.
+    scene_fnv1a64: String,
+    /// AOVs in the EXR.
+    aovs: Vec<&'static str>,
+    precision: String,
+    formula: String,
+    compression: String,
+    png: bool,
+    /// PNG depth value per world unit; only with PNGs (otherwise it changes nothing).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    depth_scale: Option<f64>,
+}
+
+/// The `NAME.render.json` this run writes for `scene`: the scene's hash and every option
+/// that changes the view's output bytes. Resume compares it byte for byte, so a view made
+/// with other options (or from another scene under the same name) is rendered again.
+pub fn render_stamp(scene: &Scene, opts: &BatchOptions) -> String {
+    fn name(v: impl clap::ValueEnum) -> String {
+        v.to_possible_value()
+            .map(|p| p.get_name().to_string())
+            .unwrap_or_default()
+    }
+    let stamp = RenderStamp {
+        scene_fnv1a64: format!("{:016x}", scene_hash(scene)),
+        aovs: opts.exr_aovs(scene).iter().map(|a| a.name()).collect(),
+        precision: name(opts.precision),
+        formula: name(opts.formula),
+        compression: name(opts.compression),
+        png: opts.png,
+        depth_scale: opts.png.then_some(opts.depth_scale),
+    };
+    let mut s = serde_json::to_string_pretty(&stamp).unwrap_or_default();
+    s.push('\n');
+    s
+}
+
 /// Whether view `name` of `scene` is already complete in `dir`.
 pub fn view_is_complete(dir: &Path, name: &str, scene: &Scene, opts: &BatchOptions) -> bool {
     let files = ViewFiles::new(dir, name);
     const PNG_END: &[u8] = b"\0\0\0\0IEND\xae\x42\x60\x82";
-    // The camera file must be the one this run would write: a changed camera or AOV list
-    // (e.g. regenerated scenes under the same names) renders the view again.
+    // The camera file and the stamp must be the ones this run would write: a changed scene
+    // (e.g. regenerated under the same names), AOV list or output option renders the view
+    // again.
     let camera = camera_json(&Camera::new(scene.camera), &opts.exr_aovs(scene));
-    let others = std::fs::read(&files.camera).is_ok_and(|b| b == camera.as_bytes())
+    let same = |path: &Path, want: &str| std::fs::read(path).is_ok_and(|b| b == want.as_bytes());
+    let others = same(&files.camera, &camera)
+        && same(&files.stamp, &render_stamp(scene, opts))
         && (!opts.png
             || (file_ends_with(&files.normal_png, PNG_END)
                 && file_ends_with(&files.depth_png, PNG_END)));
@@ -558,6 +710,11 @@ pub fn render_view(
         Ok(w.write_all(camera_json(&cam, &exr_aovs).as_bytes())?)
     })?;
     moves.push((camera, &done.camera));
+    let stamp = tmp("render.json");
+    write_unsynced(&stamp, |w| {
+        Ok(w.write_all(render_stamp(scene, opts).as_bytes())?)
+    })?;
+    moves.push((stamp, &done.stamp));
     if opts.png {
         let normal = preview::normal_rgb(&image).context("no normal AOV")?;
         let depth = preview::depth_u16(&image, opts.depth_scale).context("no depth AOV")?;
@@ -579,7 +736,24 @@ pub fn render_view(
     let exr_tmp = tmp("exr");
     write_unsynced(&exr_tmp, |w| image.write_exr_to(w, opts.compression))?;
     moves.push((exr_tmp, &done.exr));
+    // An EXR in place is the view's "done" marker, so an older one goes before any new file
+    // of the view replaces its sibling: a re-render killed between the renames leaves no
+    // EXR (the view is rendered again), never a new camera beside old PNGs and an old EXR.
     // The EXR goes last: once it is in place, so is everything else of the view.
+    // Without PNGs, those of an earlier run go too (they would not match the stamp).
+    let stale: &[&PathBuf] = if opts.png {
+        &[&done.exr]
+    } else {
+        &[&done.exr, &done.normal_png, &done.depth_png]
+    };
+    for path in stale {
+        match std::fs::remove_file(path) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                return Err(e).with_context(|| format!("removing the old {}", path.display()));
+            }
+            _ => {}
+        }
+    }
     for (from, to) in moves {
         std::fs::rename(&from, to)
             .with_context(|| format!("moving {} to {}", from.display(), to.display()))?;
@@ -592,7 +766,7 @@ pub fn render_view(
 
 // ---- transforms.json -------------------------------------------------------------------
 
-#[derive(Serialize, PartialEq, Clone, Copy)]
+#[derive(Serialize, PartialEq, Clone, Copy, Debug)]
 struct Intrinsics {
     w: u32,
     h: u32,
@@ -625,6 +799,23 @@ struct Transforms {
     frames: Vec<Frame>,
 }
 
+/// What `transforms.json` needs of a view's camera.
+#[derive(Clone, Copy, Debug)]
+pub struct FrameCamera {
+    intrinsics: Intrinsics,
+    /// OpenGL camera-to-world, row-major.
+    transform_matrix: [[f64; 4]; 4],
+}
+
+impl FrameCamera {
+    pub fn new(cam: &Camera) -> FrameCamera {
+        FrameCamera {
+            intrinsics: intrinsics(cam),
+            transform_matrix: rows(cam.world_from_camera_opengl()),
+        }
+    }
+}
+
 fn intrinsics(cam: &Camera) -> Intrinsics {
     let (fl_x, fl_y) = cam.focal_px();
     let (w, h) = (cam.width(), cam.height());
@@ -641,16 +832,14 @@ fn intrinsics(cam: &Camera) -> Intrinsics {
 /// The nerfstudio / instant-ngp index of every valid view, in view-list order. Shared
 /// intrinsics go at the top level; if views differ, every frame carries its own.
 /// `file_path` is the normal PNG (the EXR when PNGs are off).
-pub fn transforms_json(views: &[(&str, &Scene)], opts: &BatchOptions) -> String {
-    let cams: Vec<Camera> = views.iter().map(|(_, s)| Camera::new(s.camera)).collect();
-    let shared = cams
+pub fn transforms_json(views: &[(&str, FrameCamera)], opts: &BatchOptions) -> String {
+    let shared = views
         .first()
-        .map(intrinsics)
-        .filter(|first| cams.iter().all(|c| intrinsics(c) == *first));
+        .map(|(_, c)| c.intrinsics)
+        .filter(|first| views.iter().all(|(_, c)| c.intrinsics == *first));
     let frames = views
         .iter()
-        .zip(&cams)
-        .map(|((name, _), cam)| Frame {
+        .map(|(name, cam)| Frame {
             file_path: if opts.png {
                 format!("{name}.normal.png")
             } else {
@@ -659,11 +848,11 @@ pub fn transforms_json(views: &[(&str, &Scene)], opts: &BatchOptions) -> String 
             depth_file_path: opts.png.then(|| format!("{name}.depth.png")),
             exr_file_path: format!("{name}.exr"),
             camera_file_path: format!("{name}.camera.json"),
-            transform_matrix: rows(cam.world_from_camera_opengl()),
+            transform_matrix: cam.transform_matrix,
             intrinsics: if shared.is_some() {
                 None
             } else {
-                Some(intrinsics(cam))
+                Some(cam.intrinsics)
             },
         })
         .collect();
@@ -905,10 +1094,14 @@ pub fn run(
     let views = list_views(input, Some(out))?;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
 
-    // Every shard reads every scene: transforms.json lists them all.
-    let scenes: Vec<Result<Scene, String>> = views
+    let load =
+        |v: &ViewSource| scene::load(&v.path).map_err(|e| format!("{}: {e}", v.path.display()));
+    // Every shard reads every scene (transforms.json lists every valid view) but keeps only
+    // what transforms.json needs: memory is O(views), not O(views x cylinders). The views of
+    // this shard are read again, one at a time, when rendered.
+    let cameras: Vec<Result<FrameCamera, String>> = views
         .par_iter()
-        .map(|v| scene::load(&v.path).map_err(|e| format!("{}: {e}", v.path.display())))
+        .map(|v| load(v).map(|s| FrameCamera::new(&Camera::new(s.camera))))
         .collect();
 
     let partial = out.join(".partial").join(shard.to_string());
@@ -923,7 +1116,11 @@ pub fn run(
     let verified = std::sync::atomic::AtomicUsize::new(0);
     let one = |i: usize| -> Outcome {
         let view = &views[i];
-        let mut outcome = match &scenes[i] {
+        let scene = match &cameras[i] {
+            Err(e) => Err(e.clone()),
+            Ok(_) => load(view),
+        };
+        let mut outcome = match &scene {
             Err(e) => Outcome::Failed(e.clone()),
             Ok(scene) if view_is_complete(out, &view.name, scene, opts) => Outcome::Skipped,
             Ok(scene) => match render_view(out, &partial, &view.name, scene, opts) {
@@ -931,7 +1128,7 @@ pub fn run(
                 Err(e) => Outcome::Failed(format!("{}: {e:#}", view.path.display())),
             },
         };
-        if let (Some(v), Ok(scene)) = (verifier, &scenes[i])
+        if let (Some(v), Ok(scene)) = (verifier, &scene)
             && !matches!(outcome, Outcome::Failed(_))
             && selected_for_verify(opts.verify_seed, &view.name, opts.verify_fraction)
         {
@@ -1006,10 +1203,10 @@ pub fn run(
     atomic_write_bytes(&summary.failures_path, lines.as_bytes())
         .with_context(|| format!("writing {}", summary.failures_path.display()))?;
 
-    let valid: Vec<(&str, &Scene)> = views
+    let valid: Vec<(&str, FrameCamera)> = views
         .iter()
-        .zip(&scenes)
-        .filter_map(|(v, s)| s.as_ref().ok().map(|s| (v.name.as_str(), s)))
+        .zip(&cameras)
+        .filter_map(|(v, c)| c.as_ref().ok().map(|c| (v.name.as_str(), *c)))
         .collect();
     let transforms = out.join("transforms.json");
     atomic_write_bytes(&transforms, transforms_json(&valid, opts).as_bytes())
@@ -1047,10 +1244,7 @@ pub fn selected_for_verify(seed: u64, name: &str, fraction: f64) -> bool {
         return true;
     }
     // FNV-1a over the name, then mixed with the seed.
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for b in name.bytes() {
-        h = (h ^ b as u64).wrapping_mul(0x0000_0100_0000_01b3);
-    }
+    let h = Fnv1a::new().bytes(name.as_bytes()).0;
     let u = (mix64(h ^ mix64(seed)) >> 11) as f64 / (1u64 << 53) as f64;
     u < fraction
 }

@@ -2,8 +2,8 @@
 //! and the sampling of cylinders and cameras. Pure: IO lives in `commands::generate`.
 //!
 //! **Determinism invariant**: view `i` of seed `s` depends only on `(s, i)` and the
-//! options, through [`SplitMix64`] written out here (no crate whose stream could change
-//! under us), and every number is produced by IEEE-754 operations with a defined result
+//! options, through [`SplitMix64`] (`crate::rng`, written out: no crate whose stream could
+//! change under us) and [`SplitMix64::for_item`], and every number is produced by IEEE-754 operations with a defined result
 //! (`+ - * /`, `sqrt`; the one transcendental is `tan(fov/2)` and `sin` of the elevation
 //! bounds, once per run). The same command therefore gives the same files, byte for byte
 //! (serde_json prints every f64 as its shortest round-trip form).
@@ -21,85 +21,15 @@
 //! | `distance` | `0.55..0.9` | camera distance in units of the fit distance (at 1 the bounding sphere of every possible cylinder just fills the smaller fov; the cylinders' midpoints fill far less) |
 
 use crate::camera::FovAxis;
+use crate::rng::SplitMix64;
 use crate::scene::{self, CameraFile, CylinderFile, SceneFile};
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use std::fmt;
 
-/// SplitMix64 (Steele, Lea, Flood 2014): 64-bit state, one add and a finaliser per output.
-/// Written out so that the stream is fixed forever.
-#[derive(Clone, Debug)]
-pub struct SplitMix64 {
-    state: u64,
-}
-
-const GOLDEN_GAMMA: u64 = 0x9E37_79B9_7F4A_7C15;
-
-/// The SplitMix64 finaliser (a bijection on u64 with good avalanche).
-pub fn mix64(mut z: u64) -> u64 {
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
-}
-
-impl SplitMix64 {
-    pub fn new(seed: u64) -> Self {
-        SplitMix64 { state: seed }
-    }
-
-    /// An independent stream for item `index` of `seed`: generating item `i` never depends
-    /// on how many items came before it.
-    pub fn for_item(seed: u64, index: u64) -> Self {
-        SplitMix64::new(mix64(
-            seed ^ mix64(index.wrapping_add(1).wrapping_mul(GOLDEN_GAMMA)),
-        ))
-    }
-
-    pub fn next_u64(&mut self) -> u64 {
-        self.state = self.state.wrapping_add(GOLDEN_GAMMA);
-        mix64(self.state)
-    }
-
-    /// Uniform in `[0, 1)` with 53 random bits.
-    pub fn next_f64(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
-    }
-
-    /// Uniform in `[lo, hi]` (`lo` when the range is one point).
-    pub fn uniform(&mut self, r: Range) -> f64 {
-        r.min + (r.max - r.min) * self.next_f64()
-    }
-
-    /// Uniform direction on the unit circle, by rejection from the square.
-    pub fn unit_circle(&mut self) -> (f64, f64) {
-        loop {
-            let (x, y) = (2.0 * self.next_f64() - 1.0, 2.0 * self.next_f64() - 1.0);
-            let len2 = x * x + y * y;
-            if len2 <= 1.0 && len2 > 1e-6 {
-                let len = len2.sqrt();
-                return (x / len, y / len);
-            }
-        }
-    }
-
-    /// Uniform integer in `[lo, hi]`, inclusive, without modulo bias worth noticing
-    /// (multiply-shift on 64 bits; the ranges here are tiny).
-    pub fn int_in(&mut self, lo: u32, hi: u32) -> u32 {
-        let span = (hi - lo) as u64 + 1;
-        lo + ((self.next_u64() as u128 * span as u128) >> 64) as u32
-    }
-
-    /// Uniform direction on the unit sphere: rejection from the cube, then normalised.
-    /// Only `+ - * /` and `sqrt` (all correctly rounded), so no libm can change it.
-    pub fn unit_vector(&mut self) -> DVec3 {
-        loop {
-            let v = DVec3::new(self.next_f64(), self.next_f64(), self.next_f64()) * 2.0 - 1.0;
-            let len2 = v.length_squared();
-            if len2 <= 1.0 && len2 > 1e-6 {
-                return v / len2.sqrt();
-            }
-        }
-    }
+/// Uniform in `[r.min, r.max]` (`r.min` when the range is one point).
+fn uniform(rng: &mut SplitMix64, r: Range) -> f64 {
+    rng.range(r.min, r.max)
 }
 
 /// A closed interval of reals, written `A..B` or as one number `A`.
@@ -357,12 +287,12 @@ impl GenerateOptions {
         let count = rng.int_in(self.cylinders.min as u32, self.cylinders.max as u32);
         let mut cylinders = Vec::with_capacity(count as usize);
         for _ in 0..count {
-            let unit = DVec3::new(rng.next_f64(), rng.next_f64(), rng.next_f64());
+            let unit = DVec3::new(rng.unit(), rng.unit(), rng.unit());
             let mid = (unit * 2.0 - 1.0) * volume;
             let axis = rng.unit_vector();
-            let half = rng.uniform(self.length) / 2.0;
-            let radius = rng.uniform(self.radius);
-            let caps = rng.next_f64() < self.caps_prob;
+            let half = uniform(&mut rng, self.length) / 2.0;
+            let radius = uniform(&mut rng, self.radius);
+            let caps = rng.unit() < self.caps_prob;
             cylinders.push(CylinderFile {
                 p0: Some((mid - axis * half).to_array()),
                 p1: Some((mid + axis * half).to_array()),
@@ -381,17 +311,17 @@ impl GenerateOptions {
         // A sphere of radius R fills a half angle a from distance R / sin(a).
         let sin_small = tan_small / (1.0 + tan_small * tan_small).sqrt();
         let fit = self.bounding_radius() / sin_small;
-        let dist = fit * rng.uniform(self.distance);
+        let dist = fit * uniform(&mut rng, self.distance);
         let (z_lo, z_hi) = (
             self.elevation.min.to_radians().sin(),
             self.elevation.max.to_radians().sin(),
         );
         // Archimedes: z uniform in the band is area-uniform on the sphere.
-        let z = z_lo + (z_hi - z_lo) * rng.next_f64();
+        let z = z_lo + (z_hi - z_lo) * rng.unit();
         let (cx, cy) = rng.unit_circle();
         let s = (1.0 - z * z).max(0.0).sqrt();
         let dir = DVec3::new(s * cx, s * cy, z);
-        let jitter = DVec3::new(rng.next_f64(), rng.next_f64(), rng.next_f64()) * 2.0 - 1.0;
+        let jitter = DVec3::new(rng.unit(), rng.unit(), rng.unit()) * 2.0 - 1.0;
         let target = jitter * volume * 0.25;
         let origin = target + dir * dist;
         // The elevation bound keeps +z usable; fall back to +y if the jitter ever tilts
@@ -454,21 +384,6 @@ pub fn view_name(index: u64) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn splitmix_stream_is_fixed() {
-        // Reference values of SplitMix64 from seed 1234567 (Vigna's splitmix64.c).
-        let mut r = SplitMix64::new(1234567);
-        let got: Vec<u64> = (0..3).map(|_| r.next_u64()).collect();
-        assert_eq!(
-            got,
-            vec![
-                6457827717110365317,
-                3203168211198807973,
-                9817491932198370423
-            ]
-        );
-    }
 
     #[test]
     fn ranges_parse_and_reject() {

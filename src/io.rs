@@ -7,13 +7,46 @@ use std::fs::File;
 use std::io::{self, Write};
 use std::path::{Path, PathBuf};
 
-/// The temporary name used while `path` is written: same folder, so the rename is atomic.
+/// The temporary name used while `path` is written: `.NAME.HOST.PID.NONCE.tmp` in the same
+/// folder, so the rename is atomic. Hidden and ending in `.tmp` (SPEC §7). Distinct for
+/// every call: the host (`/proc/sys/kernel/hostname`, else `$HOSTNAME`; shards on different
+/// nodes of a shared filesystem can have equal PIDs), the PID, and a nonce made of a
+/// per-process value (the start time, taken once) and a per-call counter (two threads, or
+/// two writes of one path, never share a name).
 pub fn temp_path(path: &Path) -> PathBuf {
+    use std::sync::OnceLock;
+    use std::sync::atomic::{AtomicU64, Ordering};
+    static PROCESS: OnceLock<(String, u64)> = OnceLock::new();
+    static CALLS: AtomicU64 = AtomicU64::new(0);
+    let (host, start) = PROCESS.get_or_init(|| {
+        let host = std::fs::read_to_string("/proc/sys/kernel/hostname")
+            .ok()
+            .or_else(|| std::env::var("HOSTNAME").ok())
+            .unwrap_or_default();
+        // File-name safe and short: a long name must still fit NAME_MAX with the rest.
+        let mut host: String = host
+            .trim()
+            .chars()
+            .filter(|c| c.is_ascii_alphanumeric() || *c == '-' || *c == '.')
+            .take(16)
+            .collect();
+        if host.is_empty() {
+            host.push_str("host");
+        }
+        let start = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos() as u64);
+        (host, start)
+    });
+    let call = CALLS.fetch_add(1, Ordering::Relaxed);
     let name = path
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
-    path.with_file_name(format!(".{name}.{}.tmp", std::process::id()))
+    path.with_file_name(format!(
+        ".{name}.{host}.{}.{start:x}-{call}.tmp",
+        std::process::id()
+    ))
 }
 
 /// Write `path` through `fill` into a temporary file, then rename it into place. On any

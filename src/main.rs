@@ -333,19 +333,21 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Generate(a) => {
             let args = commands::generate::GenerateArgs {
                 out: a.out,
-                count: a.count,
-                seed: a.seed,
                 config: a.config,
-                cylinders: a.cylinders,
-                radius: a.radius,
-                length: a.length,
-                volume: a.volume,
-                caps_prob: a.caps_prob,
-                width: a.width,
-                height: a.height,
-                fov: a.fov,
-                elevation: a.elevation,
-                distance: a.distance,
+                flags: cylaov::generate::ConfigFile {
+                    count: a.count,
+                    seed: a.seed,
+                    cylinders: a.cylinders,
+                    radius: a.radius,
+                    length: a.length,
+                    volume: a.volume,
+                    caps_prob: a.caps_prob,
+                    width: a.width,
+                    height: a.height,
+                    fov: a.fov,
+                    elevation: a.elevation,
+                    distance: a.distance,
+                },
             };
             println!("{}", commands::generate::run(&args)?);
         }

@@ -1,6 +1,7 @@
 //! `scripts/backproject.py` turns a batch view into world points that lie on the cylinders:
 //! the distance to the nearest finite cylinder surface (side or cap, SPEC §7) is at most
 //! 1e-4 of that cylinder's radius. Runs with the reference venv's Python (numpy).
+//! Without the venv it is skipped, saying so; with `CYLAOV_REQUIRE_VENV=1` it fails.
 
 use cylaov::aov::AovImage;
 use cylaov::geometry::Cylinder;
@@ -9,6 +10,16 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 const BIN: &str = env!("CARGO_BIN_EXE_cylaov");
+
+/// A test that needs the reference venv is skipped without it, saying so; with
+/// `CYLAOV_REQUIRE_VENV=1` (set by `scripts/test` once it has set the venv up) it fails
+/// instead, so a broken venv cannot pass as a skip.
+fn skip_without_venv(why: &str) {
+    if std::env::var("CYLAOV_REQUIRE_VENV").is_ok_and(|v| v == "1") {
+        panic!("CYLAOV_REQUIRE_VENV=1 but {why}");
+    }
+    eprintln!("SKIPPED: {why}");
+}
 
 fn python() -> Result<PathBuf, String> {
     let py = Path::new(env!("CARGO_MANIFEST_DIR")).join(".venv/bin/python");
@@ -67,7 +78,7 @@ fn backprojected_points_lie_on_the_cylinders() {
     let py = match python() {
         Ok(py) => py,
         Err(why) => {
-            println!("skipped: {why}");
+            skip_without_venv(&why);
             return;
         }
     };

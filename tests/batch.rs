@@ -9,6 +9,16 @@ use std::time::{Duration, Instant};
 
 const BIN: &str = env!("CARGO_BIN_EXE_cylaov");
 
+/// A test that needs the reference venv is skipped without it, saying so; with
+/// `CYLAOV_REQUIRE_VENV=1` (set by `scripts/test` once it has set the venv up) it fails
+/// instead, so a broken venv cannot pass as a skip.
+fn skip_without_venv(why: &str) {
+    if std::env::var("CYLAOV_REQUIRE_VENV").is_ok_and(|v| v == "1") {
+        panic!("CYLAOV_REQUIRE_VENV=1 but {why}");
+    }
+    eprintln!("SKIPPED: {why}");
+}
+
 fn fresh_dir(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("cylaov-batch-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
@@ -108,7 +118,7 @@ fn same_seed_gives_identical_bytes() {
         ]);
     }
     let (ra, rb) = (tree(&dir.join("ra")), tree(&dir.join("rb")));
-    assert_eq!(ra.len(), 6 * 4 + 2, "{:?}", ra.keys());
+    assert_eq!(ra.len(), 6 * 5 + 2, "{:?}", ra.keys());
     assert_eq!(ra, rb);
     let _ = std::fs::remove_dir_all(&dir);
 }
@@ -341,7 +351,7 @@ fn resume_after_kill_completes_with_correct_files() {
         reference.to_str().unwrap(),
     ]);
     let (got, want) = (tree(&out), tree(&reference));
-    assert_eq!(got.len(), 40 * 4 + 2);
+    assert_eq!(got.len(), 40 * 5 + 2);
     assert!(got.keys().all(|k| !k.ends_with(".tmp")));
     assert_eq!(
         got.keys().collect::<Vec<_>>(),
@@ -542,12 +552,17 @@ fn verify_fraction_checks_selected_views_and_fails_disagreements() {
 }
 
 /// `--verify-fraction 1` against real Mitsuba renders (skipped, saying so, without the
-/// reference venv): every view is verified and agrees.
+/// reference venv; failed then under `CYLAOV_REQUIRE_VENV=1`): every view is verified and
+/// agrees.
 #[test]
 fn verify_fraction_with_mitsuba_agrees_on_generated_views() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    if !root.join(".venv/bin/python").exists() {
-        eprintln!("SKIPPED: no .venv (run scripts/setup-venv)");
+    let python = root.join(".venv/bin/python");
+    if !python.exists() {
+        skip_without_venv(&format!(
+            "{} not found (run scripts/setup-venv)",
+            python.display()
+        ));
         return;
     }
     let dir = fresh_dir("verify-mitsuba");
@@ -598,5 +613,281 @@ fn changed_camera_is_rendered_again() {
     assert!(stdout.contains("done 1 / skipped 2 / failed 0"), "{stdout}");
     let cam = std::fs::read_to_string(out.join("000001.camera.json")).unwrap();
     assert!(cam.contains("\"fov_deg\": 40.0"), "{cam}");
+
+    // A cylinder changed, the camera not: rendered again too (the render stamp).
+    let scene = data.join("scenes/000002.json");
+    let text = std::fs::read_to_string(&scene).unwrap();
+    assert!(text.contains("\"radius\": 0."));
+    std::fs::write(
+        &scene,
+        text.replacen("\"radius\": 0.", "\"radius\": 0.0", 1),
+    )
+    .unwrap();
+    let stdout = ok(&[
+        "batch",
+        data.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(stdout.contains("done 1 / skipped 2 / failed 0"), "{stdout}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Temporary names: hidden, ending in `.tmp`, in the target's folder, and distinct per call
+/// (shards on different nodes can share a PID), with the host in the name.
+#[test]
+fn temp_names_are_unique_per_host_and_call() {
+    let target = Path::new("/some/dir/000001.exr");
+    let a = cylaov::io::temp_path(target);
+    let b = cylaov::io::temp_path(target);
+    assert_ne!(a, b);
+    for p in [&a, &b] {
+        assert_eq!(p.parent(), target.parent());
+        let name = p.file_name().unwrap().to_string_lossy();
+        assert!(name.starts_with(".000001.exr."), "{name}");
+        assert!(name.ends_with(".tmp"), "{name}");
+        assert!(
+            name.contains(&format!(".{}.", std::process::id())),
+            "{name}"
+        );
+        assert!(!name.contains('/'));
+    }
+    let host = std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .ok()
+        .or_else(|| std::env::var("HOSTNAME").ok())
+        .map(|h| h.trim().to_string())
+        .filter(|h| !h.is_empty());
+    if let Some(host) = host {
+        let name = a.file_name().unwrap().to_string_lossy().into_owned();
+        let safe: String = host
+            .chars()
+            .filter(|c| c.is_ascii_alphanumeric() || *c == '-' || *c == '.')
+            .take(16)
+            .collect();
+        assert!(name.contains(&safe), "{name} lacks {safe}");
+    }
+}
+/// An input without views is an error that names it; nothing is written.
+#[test]
+fn empty_input_is_an_error() {
+    let dir = fresh_dir("empty");
+    let empty = dir.join("empty");
+    std::fs::create_dir_all(&empty).unwrap();
+    let out = dir.join("out");
+    let o = cylaov(&[
+        "batch",
+        empty.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains(empty.to_str().unwrap()), "{err}");
+    assert!(err.contains("no scene files"), "{err}");
+    assert!(!out.join("transforms.json").exists());
+
+    // An empty manifest.
+    let manifest = dir.join("none.jsonl");
+    std::fs::write(&manifest, "\n").unwrap();
+    let o = cylaov(&[
+        "batch",
+        manifest.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains(manifest.to_str().unwrap()), "{err}");
+    assert!(!out.join("transforms.json").exists());
+
+    // --out equal to the input: every scene file lies under --out and is excluded.
+    let scenes = dir.join("scenes");
+    generate(&dir.join("data"), "1", "2", SMALL);
+    std::fs::rename(dir.join("data/scenes"), &scenes).unwrap();
+    let o = cylaov(&[
+        "batch",
+        scenes.to_str().unwrap(),
+        "--out",
+        scenes.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains(scenes.to_str().unwrap()), "{err}");
+    assert!(err.contains("skipped 2 *.json files under it"), "{err}");
+    assert!(!scenes.join("transforms.json").exists());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+/// A re-render that dies after moving some of the new files into place must not leave the
+/// old EXR beside them: the next run renders the view again.
+#[test]
+fn interrupted_rerender_leaves_no_stale_exr() {
+    let dir = fresh_dir("stale");
+    let data = dir.join("data");
+    generate(&data, "13", "2", SMALL);
+    let out = dir.join("out");
+    let batch = || {
+        cylaov(&[
+            "batch",
+            data.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ])
+    };
+    assert!(batch().status.success());
+    let old_png = std::fs::read(out.join("000001.normal.png")).unwrap();
+    // A new camera for view 1, and a normal PNG that cannot be replaced (a folder in its
+    // place): the re-render moves its first files, then fails, as if killed there.
+    let scene = data.join("scenes/000001.json");
+    let text = std::fs::read_to_string(&scene).unwrap();
+    std::fs::write(
+        &scene,
+        text.replace("\"fov_deg\": 50.0", "\"fov_deg\": 40.0"),
+    )
+    .unwrap();
+    let png = out.join("000001.normal.png");
+    std::fs::remove_file(&png).unwrap();
+    std::fs::create_dir_all(png.join("blocker")).unwrap();
+    let o = batch();
+    assert!(!o.status.success());
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(stdout.contains("done 0 / skipped 1 / failed 1"), "{stdout}");
+    let cam = std::fs::read_to_string(out.join("000001.camera.json")).unwrap();
+    assert!(
+        cam.contains("\"fov_deg\": 40.0"),
+        "the camera was moved first"
+    );
+    assert!(
+        !out.join("000001.exr").exists(),
+        "the old EXR is gone once a new file of its view is in place"
+    );
+    // Put the old PNG back: new camera, old PNGs, and (before the fix) the old EXR.
+    std::fs::remove_dir_all(&png).unwrap();
+    std::fs::write(&png, old_png).unwrap();
+    let o = batch();
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(stdout.contains("done 1 / skipped 1 / failed 0"), "{stdout}");
+    let fresh = dir.join("fresh");
+    ok(&[
+        "batch",
+        data.to_str().unwrap(),
+        "--out",
+        fresh.to_str().unwrap(),
+    ]);
+    assert_eq!(tree(&out), tree(&fresh));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Every 16-bit depth PNG value of `name` in `out` is round(depth × scale) of its EXR.
+fn assert_depth_png_scale(out: &Path, name: &str, scale: f64) {
+    let img = AovImage::read_exr(&out.join(format!("{name}.exr"))).unwrap();
+    let depth = img.f32_channel("depth").unwrap();
+    let png = image::open(out.join(format!("{name}.depth.png")))
+        .unwrap()
+        .into_luma16();
+    let mut hits = 0;
+    for (k, p) in png.pixels().enumerate() {
+        let want = if depth[k] > 0.0 {
+            (depth[k] as f64 * scale).round().min(65535.0) as u16
+        } else {
+            0
+        };
+        assert_eq!(p.0[0], want, "{name} pixel {k} at scale {scale}");
+        hits += (want > 0) as usize;
+    }
+    assert!(hits > 50, "{name}: {hits} hits");
+}
+
+/// A rerun with an option that changes the output bytes renders the views again; the same
+/// options skip them.
+#[test]
+fn changed_options_are_rendered_again() {
+    let dir = fresh_dir("options");
+    let data = dir.join("data");
+    generate(&data, "12", "3", SMALL);
+    let out = dir.join("out");
+    let batch = |extra: &[&str]| {
+        let mut args = vec![
+            "batch",
+            data.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        ok(&args)
+    };
+    let stdout = batch(&[]);
+    assert!(stdout.contains("done 3 / skipped 0"), "{stdout}");
+    assert_depth_png_scale(&out, "000001", 1000.0);
+    let stdout = batch(&[]);
+    assert!(stdout.contains("done 0 / skipped 3"), "{stdout}");
+
+    // The reproduction: --depth-scale 10 must rewrite the PNGs, not only transforms.json.
+    let stdout = batch(&["--depth-scale", "10"]);
+    assert!(stdout.contains("done 3 / skipped 0"), "{stdout}");
+    for name in ["000000", "000001", "000002"] {
+        assert_depth_png_scale(&out, name, 10.0);
+    }
+    let t: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("transforms.json")).unwrap()).unwrap();
+    assert_eq!(t["depth_unit_scale_factor"], 0.1);
+    let stdout = batch(&["--depth-scale", "10"]);
+    assert!(stdout.contains("done 0 / skipped 3"), "{stdout}");
+
+    // Every other option that changes the bytes, one at a time.
+    for extra in [
+        &["--depth-scale", "10", "--precision", "f32"][..],
+        &[
+            "--depth-scale",
+            "10",
+            "--precision",
+            "f32",
+            "--formula",
+            "literal",
+        ],
+        &[
+            "--depth-scale",
+            "10",
+            "--precision",
+            "f32",
+            "--formula",
+            "literal",
+            "--compression",
+            "zip",
+        ],
+        &[
+            "--depth-scale",
+            "10",
+            "--precision",
+            "f32",
+            "--formula",
+            "literal",
+            "--compression",
+            "zip",
+            "--aov",
+            "depth",
+        ],
+    ] {
+        let stdout = batch(extra);
+        assert!(stdout.contains("done 3 / skipped 0"), "{extra:?}: {stdout}");
+        let stdout = batch(extra);
+        assert!(stdout.contains("done 0 / skipped 3"), "{extra:?}: {stdout}");
+    }
+    // --no-png renders again and leaves the outputs of a fresh --no-png run (no PNGs).
+    let stdout = batch(&["--no-png"]);
+    assert!(stdout.contains("done 3 / skipped 0"), "{stdout}");
+    assert!(!out.join("000001.depth.png").exists());
+    assert!(!out.join("000001.normal.png").exists());
+    let fresh = dir.join("fresh");
+    ok(&[
+        "batch",
+        data.to_str().unwrap(),
+        "--out",
+        fresh.to_str().unwrap(),
+        "--no-png",
+    ]);
+    assert_eq!(tree(&out), tree(&fresh));
+    // Without PNGs the depth scale changes nothing.
+    let stdout = batch(&["--no-png", "--depth-scale", "7"]);
+    assert!(stdout.contains("done 0 / skipped 3"), "{stdout}");
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -5,7 +5,7 @@
 //! resolved options, itself a valid `--config`). Every file is written atomically; the
 //! manifest last, so a manifest on disk always names scene files that exist.
 
-use crate::generate::{ConfigFile, GenerateOptions, Range, Volume, to_json, view_name};
+use crate::generate::{ConfigFile, GenerateOptions, to_json, view_name};
 use crate::io::atomic_write_bytes;
 use anyhow::{Context, Result, bail};
 use rayon::prelude::*;
@@ -15,23 +15,15 @@ use std::path::{Path, PathBuf};
 /// Largest `--count`.
 pub const MAX_COUNT: u64 = 100_000_000;
 
-/// The command line; `None` means "from the config file, else the default".
+/// The command line.
 #[derive(Clone, Debug, Default)]
 pub struct GenerateArgs {
     pub out: PathBuf,
-    pub count: Option<u64>,
-    pub seed: Option<u64>,
+    /// `--config FILE`.
     pub config: Option<PathBuf>,
-    pub cylinders: Option<Range>,
-    pub radius: Option<Range>,
-    pub length: Option<Range>,
-    pub volume: Option<Volume>,
-    pub caps_prob: Option<f64>,
-    pub width: Option<u32>,
-    pub height: Option<u32>,
-    pub fov: Option<f64>,
-    pub elevation: Option<Range>,
-    pub distance: Option<Range>,
+    /// The other flags: the config file's fields (`--caps-prob` is `caps_prob`); `None`
+    /// means "from the config file, else the default".
+    pub flags: ConfigFile,
 }
 
 #[derive(Serialize)]
@@ -67,28 +59,16 @@ pub fn resolve(args: &GenerateArgs) -> Result<(u64, u64, GenerateOptions)> {
     };
     let mut o = GenerateOptions::default();
     o.apply(&config);
-    o.apply(&ConfigFile {
-        count: None,
-        seed: None,
-        cylinders: args.cylinders,
-        radius: args.radius,
-        length: args.length,
-        volume: args.volume,
-        caps_prob: args.caps_prob,
-        width: args.width,
-        height: args.height,
-        fov: args.fov,
-        elevation: args.elevation,
-        distance: args.distance,
-    });
+    o.apply(&args.flags);
     let count = args
+        .flags
         .count
         .or(config.count)
         .context("--count: required (or \"count\" in --config)")?;
     if count == 0 || count > MAX_COUNT {
         bail!("--count: must be in 1..={MAX_COUNT}, got {count}");
     }
-    let seed = args.seed.or(config.seed).unwrap_or(0);
+    let seed = args.flags.seed.or(config.seed).unwrap_or(0);
     o.validate().map_err(anyhow::Error::msg)?;
     Ok((count, seed, o))
 }
