@@ -116,7 +116,8 @@ struct BatchCli {
     /// one) or a .jsonl manifest.
     input: PathBuf,
     /// Output folder: NAME.exr, NAME.camera.json, NAME.normal.png, NAME.depth.png,
-    /// transforms.json, failures.K-of-N.jsonl.
+    /// NAME.render.json (what made them, checked on resume), transforms.json,
+    /// failures.K-of-N.jsonl.
     #[arg(long)]
     out: PathBuf,
     /// AOVs in each EXR, comma-separated. Default: each scene's `aovs`.
@@ -263,7 +264,8 @@ fn non_negative(s: &str) -> Result<f64, String> {
 /// Kernel choice shared by every command that traces rays.
 #[derive(Args, Clone, Debug)]
 struct KernelCli {
-    /// Kernel precision; f32 is faster, f64 is the accuracy reference.
+    /// Kernel precision: f64 is the default and the accuracy reference; f32 is about as fast
+    /// here (scalar code) and shows what float32 costs (README, Accuracy).
     #[arg(long, value_enum, default_value_t = Precision::F64)]
     precision: Precision,
     /// Kernel formulation: `stable` (default) or the SPEC §1 formulas as written.
