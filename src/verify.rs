@@ -30,7 +30,10 @@ impl MitsubaVerifier {
         let root = std::env::var_os("CYLAOV_ROOT")
             .map(PathBuf::from)
             .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")));
-        let python = root.join(".venv/bin/python");
+        let python = std::env::var_os("CYLAOV_VENV")
+            .map(PathBuf::from)
+            .unwrap_or_else(|| root.join(".venv"))
+            .join("bin/python");
         let script = root.join("scripts/mitsuba_reference.py");
         for p in [&python, &script] {
             if !p.exists() {

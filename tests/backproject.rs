@@ -3,6 +3,9 @@
 //! 1e-4 of that cylinder's radius. Runs with the reference venv's Python (numpy).
 //! Without the venv it is skipped, saying so; with `CYLAOV_REQUIRE_VENV=1` it fails.
 
+mod common;
+use common::venv_python;
+
 use cylaov::aov::AovImage;
 use cylaov::geometry::Cylinder;
 use glam::DVec3;
@@ -11,32 +14,16 @@ use std::process::Command;
 
 const BIN: &str = env!("CARGO_BIN_EXE_cylaov");
 
-/// A test that needs the reference venv is skipped without it, saying so; with
-/// `CYLAOV_REQUIRE_VENV=1` (set by `scripts/test` once it has set the venv up) it fails
-/// instead, so a broken venv cannot pass as a skip.
-fn skip_without_venv(why: &str) {
-    if std::env::var("CYLAOV_REQUIRE_VENV").is_ok_and(|v| v == "1") {
-        panic!("CYLAOV_REQUIRE_VENV=1 but {why}");
-    }
-    eprintln!("SKIPPED: {why}");
-}
-
-fn python() -> Result<PathBuf, String> {
-    let py = Path::new(env!("CARGO_MANIFEST_DIR")).join(".venv/bin/python");
-    if !py.exists() {
-        return Err(format!(
-            "{} not found (make it with scripts/setup-venv)",
-            py.display()
-        ));
-    }
+/// The venv's Python with numpy, or `None` (skipped, or failed under
+/// `CYLAOV_REQUIRE_VENV=1`).
+fn python() -> Option<PathBuf> {
+    let py = venv_python()?;
     let ok = Command::new(&py)
         .args(["-c", "import numpy"])
         .status()
         .is_ok_and(|s| s.success());
-    if !ok {
-        return Err(format!("{} has no numpy", py.display()));
-    }
-    Ok(py)
+    assert!(ok, "{} has no numpy (run scripts/setup-venv)", py.display());
+    Some(py)
 }
 
 /// Distance from `p` to the surface of a finite cylinder: the tube for axial coordinate
@@ -75,13 +62,7 @@ fn read_npy(path: &Path) -> Vec<DVec3> {
 
 #[test]
 fn backprojected_points_lie_on_the_cylinders() {
-    let py = match python() {
-        Ok(py) => py,
-        Err(why) => {
-            skip_without_venv(&why);
-            return;
-        }
-    };
+    let Some(py) = python() else { return };
     let dir = std::env::temp_dir().join(format!("cylaov-backproject-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     let data = dir.join("data");

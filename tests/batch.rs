@@ -1,6 +1,8 @@
 //! `generate` and `batch` end to end, through the binary: determinism, sharding, resume
 //! after kill -9, a bad scene among good ones, and the back-projection example.
 
+mod common;
+
 use cylaov::aov::AovImage;
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -8,16 +10,6 @@ use std::process::{Command, Output};
 use std::time::{Duration, Instant};
 
 const BIN: &str = env!("CARGO_BIN_EXE_cylaov");
-
-/// A test that needs the reference venv is skipped without it, saying so; with
-/// `CYLAOV_REQUIRE_VENV=1` (set by `scripts/test` once it has set the venv up) it fails
-/// instead, so a broken venv cannot pass as a skip.
-fn skip_without_venv(why: &str) {
-    if std::env::var("CYLAOV_REQUIRE_VENV").is_ok_and(|v| v == "1") {
-        panic!("CYLAOV_REQUIRE_VENV=1 but {why}");
-    }
-    eprintln!("SKIPPED: {why}");
-}
 
 fn fresh_dir(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("cylaov-batch-{name}-{}", std::process::id()));
@@ -556,13 +548,7 @@ fn verify_fraction_checks_selected_views_and_fails_disagreements() {
 /// agrees.
 #[test]
 fn verify_fraction_with_mitsuba_agrees_on_generated_views() {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let python = root.join(".venv/bin/python");
-    if !python.exists() {
-        skip_without_venv(&format!(
-            "{} not found (run scripts/setup-venv)",
-            python.display()
-        ));
+    if common::venv_python().is_none() {
         return;
     }
     let dir = fresh_dir("verify-mitsuba");

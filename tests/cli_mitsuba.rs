@@ -2,6 +2,9 @@
 //! and no output file on bad input. The test that loads exported XML in Mitsuba is skipped,
 //! saying so, without the reference venv, unless `CYLAOV_REQUIRE_VENV=1` (then it fails).
 
+mod common;
+use common::venv_python;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
@@ -26,26 +29,6 @@ fn scratch(name: &str) -> PathBuf {
 
 fn s(p: &Path) -> &str {
     p.to_str().expect("utf-8 path")
-}
-
-/// The reference venv's Python (`$CYLAOV_VENV`, else `.venv`, as `scripts/setup-venv`
-/// makes it). `None` (the caller skips) when it is missing, unless `CYLAOV_REQUIRE_VENV=1`:
-/// then a missing venv is a failure, not a skip.
-fn venv_python() -> Option<PathBuf> {
-    let venv = std::env::var_os("CYLAOV_VENV")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| root().join(".venv"));
-    let py = venv.join("bin/python");
-    if py.exists() {
-        return Some(py);
-    }
-    assert!(
-        std::env::var("CYLAOV_REQUIRE_VENV").as_deref() != Ok("1"),
-        "CYLAOV_REQUIRE_VENV=1 but {} does not exist (run scripts/setup-venv)",
-        py.display()
-    );
-    eprintln!("SKIPPED: no {} (run scripts/setup-venv)", py.display());
-    None
 }
 
 #[test]

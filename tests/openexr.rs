@@ -2,30 +2,13 @@
 //! reference venv), not only by the `exr` crate. Skipped, saying so, without the venv,
 //! unless `CYLAOV_REQUIRE_VENV=1` (then a missing venv fails the test).
 
+mod common;
+use common::venv_python;
+
 use cylaov::render::{RenderOptions, render};
 use cylaov::scene::{self, Aov};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
-
-/// The reference venv's Python (`$CYLAOV_VENV`, else `.venv`, as `scripts/setup-venv`
-/// makes it). `None` (the caller skips) when it is missing, unless `CYLAOV_REQUIRE_VENV=1`:
-/// then a missing venv is a failure, not a skip.
-fn venv_python() -> Option<PathBuf> {
-    let venv = std::env::var_os("CYLAOV_VENV")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join(".venv"));
-    let py = venv.join("bin/python");
-    if py.exists() {
-        return Some(py);
-    }
-    assert!(
-        std::env::var("CYLAOV_REQUIRE_VENV").as_deref() != Ok("1"),
-        "CYLAOV_REQUIRE_VENV=1 but {} does not exist (run scripts/setup-venv)",
-        py.display()
-    );
-    eprintln!("SKIPPED: no {} (run scripts/setup-venv)", py.display());
-    None
-}
 
 #[test]
 fn openexr_reads_every_channel_of_our_uncompressed_files() {
