@@ -114,6 +114,15 @@ impl Camera {
         (self.forward - self.left * x + self.true_up * y).normalize()
     }
 
+    /// [`Camera::dir_from_offsets`] and the length of the unnormalised direction, which is
+    /// `1 / cos θ` (θ from `forward`): the same `d`, bit for bit.
+    #[inline(always)]
+    pub fn dir_and_length(&self, x: f64, y: f64) -> (DVec3, f64) {
+        let v = self.forward - self.left * x + self.true_up * y;
+        let len = v.length();
+        (v * (1.0 / len), len)
+    }
+
     /// Unit direction of the ray through the centre of pixel (i, j), all in f64:
     /// `(i + 0.5) / W` and `(j + 0.5) / H` (SPEC §3). Row 0 is the top row.
     #[inline]

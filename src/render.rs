@@ -216,10 +216,13 @@ impl<T: Real, F: Formula> Tracer<T, F> {
         // Rays are set up lazily: a pixel no candidate covers costs nothing.
         rays.ready = [0; TILE as usize];
         let setup = |rays: &mut TileRays<T>, i: u32, j: u32, k: usize| {
-            let d = self
+            let (d, len) = self
                 .camera
-                .dir_from_offsets(offsets.0[i as usize], offsets.1[j as usize]);
-            let (tmin, tmax) = self.clip(d);
+                .dir_and_length(offsets.0[i as usize], offsets.1[j as usize]);
+            // cos θ = forward·d = 1/len (the image plane sits at unit distance along
+            // forward), so the clip range needs no second division.
+            let spec = &self.camera.spec;
+            let (tmin, tmax) = (spec.near_clip * len, spec.far_clip * len);
             rays.d[k] = d;
             rays.dt[k] = T::v3(d);
             rays.tmin[k] = T::from_f64(tmin);
@@ -234,11 +237,19 @@ impl<T: Real, F: Formula> Tracer<T, F> {
                     continue;
                 };
                 let row = (j - ys.0) as usize * tw;
+                // Set up the span's new rays first, in a loop of their own: their square
+                // roots and divisions are independent and overlap in the pipeline.
+                let span_bits = ((1u32 << (b - a + 1)) - 1) << (a - xs.0);
+                let fresh = span_bits & !(rays.ready[(j - ys.0) as usize] as u32);
+                if fresh != 0 {
+                    for i in a..=b {
+                        if fresh & (1 << (i - xs.0)) != 0 {
+                            setup(rays, i, j, row + (i - xs.0) as usize);
+                        }
+                    }
+                }
                 for i in a..=b {
                     let k = row + (i - xs.0) as usize;
-                    if rays.ready[(j - ys.0) as usize] & (1 << (i - xs.0)) == 0 {
-                        setup(rays, i, j, k);
-                    }
                     if c.t_min > rays.reach[k] {
                         continue;
                     }
