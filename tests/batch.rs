@@ -56,6 +56,18 @@ fn tree(dir: &Path) -> BTreeMap<String, Vec<u8>> {
     out
 }
 
+/// `cylaov batch INPUT --out OUT EXTRA...`, which must succeed; its stdout.
+fn batch_ok(input: &Path, out: &Path, extra: &[&str]) -> String {
+    let mut args = vec![
+        "batch",
+        input.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    ok(&args)
+}
+
 fn generate(out: &Path, seed: &str, count: &str, extra: &[&str]) {
     let mut args = vec![
         "generate",
@@ -140,12 +152,7 @@ fn shards_partition_the_views_and_agree_on_transforms() {
     let data = dir.join("data");
     generate(&data, "5", "9", SMALL);
     let full = dir.join("full");
-    ok(&[
-        "batch",
-        data.to_str().unwrap(),
-        "--out",
-        full.to_str().unwrap(),
-    ]);
+    batch_ok(&data, &full, &[]);
     let full_tree = tree(&full);
     let all: BTreeSet<String> = full_tree
         .keys()
@@ -159,14 +166,7 @@ fn shards_partition_the_views_and_agree_on_transforms() {
         for k in 0..n {
             let out = dir.join(format!("s{k}-{n}"));
             let shard = format!("{k}/{n}");
-            ok(&[
-                "batch",
-                data.to_str().unwrap(),
-                "--out",
-                out.to_str().unwrap(),
-                "--shard",
-                &shard,
-            ]);
+            batch_ok(&data, &out, &["--shard", &shard]);
             let t = tree(&out);
             assert_eq!(&t["transforms.json"], transforms, "shard {shard}");
             assert!(t.contains_key(&format!("failures.{k}-of-{n}.jsonl")));
@@ -336,12 +336,7 @@ fn resume_after_kill_completes_with_correct_files() {
         ".partial is removed at the end"
     );
 
-    ok(&[
-        "batch",
-        data.to_str().unwrap(),
-        "--out",
-        reference.to_str().unwrap(),
-    ]);
+    batch_ok(&data, &reference, &[]);
     let (got, want) = (tree(&out), tree(&reference));
     assert_eq!(got.len(), 40 * 5 + 2);
     assert!(got.keys().all(|k| !k.ends_with(".tmp")));
@@ -369,15 +364,7 @@ fn manifest_and_folder_inputs() {
     )
     .unwrap();
     let out = dir.join("out");
-    ok(&[
-        "batch",
-        manifest.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--no-png",
-        "--aov",
-        "depth,shape_id",
-    ]);
+    batch_ok(&manifest, &out, &["--no-png", "--aov", "depth,shape_id"]);
     let t: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("transforms.json")).unwrap()).unwrap();
     let paths: Vec<&str> = t["frames"]
@@ -421,14 +408,7 @@ fn transforms_match_cameras_and_depth_png() {
         &["--width", "80", "--height", "60", "--cylinders", "20"],
     );
     let out = dir.join("out");
-    ok(&[
-        "batch",
-        data.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--depth-scale",
-        "500",
-    ]);
+    batch_ok(&data, &out, &["--depth-scale", "500"]);
     let t: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("transforms.json")).unwrap()).unwrap();
     assert_eq!(t["w"], 80);
@@ -555,14 +535,7 @@ fn verify_fraction_with_mitsuba_agrees_on_generated_views() {
     let data = dir.join("data");
     generate(&data, "3", "3", SMALL);
     let out = dir.join("out");
-    let text = ok(&[
-        "batch",
-        data.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--verify-fraction",
-        "1",
-    ]);
+    let text = batch_ok(&data, &out, &["--verify-fraction", "1"]);
     assert!(
         text.contains("3 views verified") && text.contains("failed 0"),
         "{text}"
@@ -577,12 +550,7 @@ fn changed_camera_is_rendered_again() {
     let data = dir.join("data");
     generate(&data, "6", "3", SMALL);
     let out = dir.join("out");
-    ok(&[
-        "batch",
-        data.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    batch_ok(&data, &out, &[]);
     let scene = data.join("scenes/000001.json");
     let text = std::fs::read_to_string(&scene).unwrap();
     std::fs::write(
@@ -590,12 +558,7 @@ fn changed_camera_is_rendered_again() {
         text.replace("\"fov_deg\": 50.0", "\"fov_deg\": 40.0"),
     )
     .unwrap();
-    let stdout = ok(&[
-        "batch",
-        data.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let stdout = batch_ok(&data, &out, &[]);
     assert!(stdout.contains("done 1 / skipped 2 / failed 0"), "{stdout}");
     let cam = std::fs::read_to_string(out.join("000001.camera.json")).unwrap();
     assert!(cam.contains("\"fov_deg\": 40.0"), "{cam}");
@@ -609,12 +572,7 @@ fn changed_camera_is_rendered_again() {
         text.replacen("\"radius\": 0.", "\"radius\": 0.0", 1),
     )
     .unwrap();
-    let stdout = ok(&[
-        "batch",
-        data.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let stdout = batch_ok(&data, &out, &[]);
     assert!(stdout.contains("done 1 / skipped 2 / failed 0"), "{stdout}");
     let _ = std::fs::remove_dir_all(&dir);
 }
@@ -753,12 +711,7 @@ fn interrupted_rerender_leaves_no_stale_exr() {
     let stdout = String::from_utf8_lossy(&o.stdout);
     assert!(stdout.contains("done 1 / skipped 1 / failed 0"), "{stdout}");
     let fresh = dir.join("fresh");
-    ok(&[
-        "batch",
-        data.to_str().unwrap(),
-        "--out",
-        fresh.to_str().unwrap(),
-    ]);
+    batch_ok(&data, &fresh, &[]);
     assert_eq!(tree(&out), tree(&fresh));
     let _ = std::fs::remove_dir_all(&dir);
 }
@@ -864,13 +817,7 @@ fn changed_options_are_rendered_again() {
     assert!(!out.join("000001.depth.png").exists());
     assert!(!out.join("000001.normal.png").exists());
     let fresh = dir.join("fresh");
-    ok(&[
-        "batch",
-        data.to_str().unwrap(),
-        "--out",
-        fresh.to_str().unwrap(),
-        "--no-png",
-    ]);
+    batch_ok(&data, &fresh, &["--no-png"]);
     assert_eq!(tree(&out), tree(&fresh));
     // Without PNGs the depth scale changes nothing.
     let stdout = batch(&["--no-png", "--depth-scale", "7"]);
