@@ -37,40 +37,34 @@ pub struct Candidate {
     pub y1: u32,
     /// No hit on this cylinder has a ray parameter below this.
     pub t_min: f64,
-    /// The projected axis line as `n·(p - a) = 0` with unit `n` (pixel coordinates) and
-    /// the capsule's pixel radius: every visible pixel centre lies within `radius` of the
-    /// line. `radius` is infinite when the bound does not apply.
-    pub a: [f64; 2],
-    pub n: [f64; 2],
-    pub radius: f64,
+    /// The band around the projected axis that holds the projected capsule, per row:
+    /// row `j`'s visible pixel centres `x + 0.5` lie within `half` of
+    /// `centre + slope·j + 0.5`, i.e. columns in `[centre + slope·j ± half]`. `half` is
+    /// infinite when the bound does not apply (the rectangle alone bounds the cylinder).
+    pub centre: f64,
+    pub slope: f64,
+    pub half: f64,
 }
 
 impl Candidate {
     /// The columns of row `j` that can see the cylinder, as an inclusive range within
-    /// `[lo, hi]`: the rectangle, cut to the band of half-width `radius` around the
-    /// projected axis line (the band holds the capsule, the rectangle its ends).
+    /// `[lo, hi]`: the rectangle, cut to the band around the projected axis (the band
+    /// holds the capsule, the rectangle its ends). Two multiply-adds, no division: this
+    /// runs for every candidate on every row of its tiles.
     #[inline(always)]
     pub fn row_span(&self, j: u32, lo: u32, hi: u32) -> Option<(u32, u32)> {
-        let (mut x0, mut x1) = (self.x0.max(lo), self.x1.min(hi));
-        if self.radius.is_finite() {
-            let q = self.n[1] * (j as f64 + 0.5 - self.a[1]);
-            if self.n[0].abs() > 1e-9 {
-                // n_x (x + 0.5 - a_x) in [-radius - q, radius - q].
-                let (u, v) = (
-                    (-self.radius - q) / self.n[0],
-                    (self.radius - q) / self.n[0],
-                );
-                let (u, v) = (u.min(v) + self.a[0] - 0.5, u.max(v) + self.a[0] - 0.5);
-                if v < x0 as f64 || u > x1 as f64 {
-                    return None;
-                }
-                x0 = x0.max(u.ceil().max(0.0) as u32);
-                x1 = x1.min(v.floor() as u32);
-            } else if q.abs() > self.radius {
-                return None;
-            }
+        let (x0, x1) = (self.x0.max(lo), self.x1.min(hi));
+        let c = self.centre + self.slope * j as f64;
+        // NaN-free: `half` is finite or +inf, `c` finite; an infinite band keeps [x0, x1].
+        let u = (c - self.half).max(x0 as f64);
+        let v = (c + self.half).min(x1 as f64);
+        if !(u <= v) {
+            return None;
         }
-        (x0 <= x1).then_some((x0, x1))
+        // u, v lie in [0, 2^14]: truncation is floor, and ceil is one compare away.
+        let (a, b) = (u as u32, v as u32);
+        let a = a + ((a as f64) < u) as u32;
+        (a <= b).then_some((a, b))
     }
 }
 
@@ -81,9 +75,9 @@ const EMPTY: Candidate = Candidate {
     x1: 0,
     y1: 0,
     t_min: 0.0,
-    a: [0.0; 2],
-    n: [0.0; 2],
-    radius: f64::INFINITY,
+    centre: 0.0,
+    slope: 0.0,
+    half: f64::INFINITY,
 };
 
 /// Candidates per tile, stored flat (CSR): tile `k` owns `list[start[k]..start[k + 1]]`.
@@ -169,11 +163,24 @@ pub fn project(cam: &Camera, cyl: &Cylinder) -> Option<Candidate> {
     let rad = fx.max(fy) * r * (1.0 + slope2).sqrt() / (z_axis - r) + 1.5;
     // A point-like projection (view along the axis) has no line: the rectangle bounds it.
     let band = !(far_off || z_axis - r <= 0.0 || !rad.is_finite() || len < 1e-9);
-    let (n, radius) = if band {
-        ([-e[1] / len, e[0] / len], rad)
-    } else {
-        ([0.0; 2], f64::INFINITY)
-    };
+    // The band `|n·(p - a)| <= rad` around the axis line through `a` along `e`, with unit
+    // normal `n = (-e_y, e_x)/len`. For a pixel centre p = (x + 0.5, j + 0.5) it is the
+    // column interval `x + 0.5 = a_x - n_y (j + 0.5 - a_y)/n_x ± rad/|n_x|`; a line within
+    // 1e-9 of horizontal bounds rows instead (the columns term is then < 2e-5 px, inside
+    // the slack), so it trims `y0..y1` and leaves the columns to the rectangle.
+    let (n, mut rows) = (
+        [-e[1] / len, e[0] / len],
+        (f64::NEG_INFINITY, f64::INFINITY),
+    );
+    let (mut centre, mut slope, mut half) = (0.0, 0.0, f64::INFINITY);
+    if band && n[0].abs() > 1e-9 {
+        slope = -n[1] / n[0];
+        centre = a[0] - 0.5 + slope * (0.5 - a[1]);
+        half = rad / n[0].abs();
+    } else if band {
+        let reach = rad / n[1].abs();
+        rows = (a[1] - reach - 0.5, a[1] + reach - 0.5);
+    }
     // Pad for rounding in the box (relative 1e-9 of its distance) and in the projection.
     let pad = 1e-9
         * (cyl.base - cam.origin)
@@ -196,8 +203,9 @@ pub fn project(cam: &Camera, cyl: &Cylinder) -> Option<Candidate> {
     // Pixel i is covered when its centre i + 0.5 lies in [xmin, xmax]; one pixel of slack.
     let lo = |a: f64| (a - 0.5).ceil() - 1.0;
     let hi = |a: f64| (a - 0.5).floor() + 1.0;
-    let (x0, x1, y0, y1) = (lo(xmin), hi(xmax), lo(ymin), hi(ymax));
-    if x1 < 0.0 || y1 < 0.0 || x0 > (w - 1) as f64 || y0 > (h - 1) as f64 {
+    let (x0, x1) = (lo(xmin), hi(xmax));
+    let (y0, y1) = (lo(ymin).max(rows.0.ceil()), hi(ymax).min(rows.1.floor()));
+    if x1 < 0.0 || y1 < 0.0 || x0 > (w - 1) as f64 || y0 > (h - 1) as f64 || y0 > y1 {
         return None;
     }
     let clamp = |a: f64, n: u32| a.clamp(0.0, (n - 1) as f64) as u32;
@@ -208,9 +216,9 @@ pub fn project(cam: &Camera, cyl: &Cylinder) -> Option<Candidate> {
         x1: clamp(x1, w),
         y1: clamp(y1, h),
         t_min,
-        a,
-        n,
-        radius,
+        centre,
+        slope,
+        half,
     })
 }
 
