@@ -55,10 +55,11 @@ impl Candidate {
     pub fn row_span(&self, j: u32, lo: u32, hi: u32) -> Option<(u32, u32)> {
         let (x0, x1) = (self.x0.max(lo), self.x1.min(hi));
         let c = self.centre + self.slope * j as f64;
-        // NaN-free: `half` is finite or +inf, `c` finite; an infinite band keeps [x0, x1].
+        // `max`/`min` against the finite rectangle keep u, v finite (an infinite band
+        // keeps [x0, x1]).
         let u = (c - self.half).max(x0 as f64);
         let v = (c + self.half).min(x1 as f64);
-        if !(u <= v) {
+        if u > v {
             return None;
         }
         // u, v lie in [0, 2^14]: truncation is floor, and ceil is one compare away.
