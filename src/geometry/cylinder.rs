@@ -9,7 +9,9 @@
 //! Everything is relative to the cylinder's base `c`: callers pass `oc = o - c` through
 //! [`Prepared`], which is built once per cylinder and ray origin (one camera = one origin).
 
+use super::packet::{self, Packet};
 use super::real::Real;
+use super::wide::Wide;
 use glam::DVec3;
 
 /// A validated finite cylinder (SPEC §1): base centre `base`, unit `axis`, `height`, `radius`.
@@ -44,11 +46,23 @@ impl Cylinder {
 /// The surface a hit lies on.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Surface {
-    Side,
+    Side = 0,
     /// The disk at `base`, outward normal `-axis`.
     Bottom,
     /// The disk at `base + height·axis`, outward normal `+axis`.
     Top,
+}
+
+impl Surface {
+    /// The surface of code `Surface as u32` (as packets store it).
+    #[inline(always)]
+    pub fn from_code(code: u32) -> Surface {
+        match code {
+            1 => Surface::Bottom,
+            2 => Surface::Top,
+            _ => Surface::Side,
+        }
+    }
 }
 
 /// Result of the cheap intersection step: ray parameter (= distance) and surface.
@@ -129,6 +143,18 @@ pub trait Formula: Copy + Send + Sync + 'static {
     fn intersect<T: Real>(p: &Prepared<T>, d: T::V3, tmin: T, tmax: T) -> Option<BasicHit<T>>;
     /// World-space outward unit normal at `hit` (not flipped toward the ray).
     fn normal<T: Real>(p: &Prepared<T>, d: T::V3, hit: BasicHit<T>) -> T::V3;
+    /// [`Formula::intersect`] for the lanes of `pk` in `mask`, keeping each lane's nearer
+    /// hit on cylinder `index`; returns the lanes that changed. By default lane by lane;
+    /// a formula may use the SIMD form `W`.
+    #[inline(always)]
+    fn intersect_packet<T: Real, W: Wide<T>>(
+        p: &Prepared<T>,
+        index: u32,
+        pk: &mut Packet<T>,
+        mask: u8,
+    ) -> u8 {
+        packet::intersect_lanes::<T, Self>(p, index, pk, mask)
+    }
 }
 
 /// The documented formulas of SPEC §1, as written: `A`, `B`, `C`, `B² - 4AC`, the textbook
@@ -251,6 +277,16 @@ impl Stable {
 impl Formula for Stable {
     const NAME: &'static str = "stable";
     const CENTRED: bool = true;
+
+    #[inline(always)]
+    fn intersect_packet<T: Real, W: Wide<T>>(
+        p: &Prepared<T>,
+        index: u32,
+        pk: &mut Packet<T>,
+        mask: u8,
+    ) -> u8 {
+        packet::stable_lanes::<T, W>(p, index, pk, mask)
+    }
 
     #[inline(always)]
     fn intersect<T: Real>(p: &Prepared<T>, d: T::V3, tmin: T, tmax: T) -> Option<BasicHit<T>> {

@@ -1,0 +1,394 @@
+//! Eight lanes of f32 or f64 as one value, so the packet kernel is written once.
+//!
+//! [`Lanes`] is the portable form (arrays and loops, for any CPU). On x86-64, `Avx32`
+//! (one 256-bit register of f32) and `Avx64` (two of f64) use AVX intrinsics; they are
+//! only ever called from code compiled with AVX2 enabled, after a runtime check. Every
+//! operation is the single IEEE operation the scalar kernel performs (add, sub, mul, div,
+//! sqrt, ordered compares, sign-bit logic), so all forms give the same bits.
+
+use super::packet::LANES;
+use super::real::Real;
+use std::ops::{Add, BitAnd, BitOr, Div, Mul, Neg, Not, Sub};
+
+/// Eight lanes of `T`, with the operations the packet kernel needs.
+pub trait Wide<T>:
+    Copy
+    + Add<Output = Self>
+    + Sub<Output = Self>
+    + Mul<Output = Self>
+    + Div<Output = Self>
+    + Neg<Output = Self>
+{
+    /// A lane mask, as produced by the comparisons.
+    type Mask: Copy
+        + BitAnd<Output = Self::Mask>
+        + BitOr<Output = Self::Mask>
+        + Not<Output = Self::Mask>;
+    fn splat(x: T) -> Self;
+    fn load(a: &[T; LANES]) -> Self;
+    fn store(self, a: &mut [T; LANES]);
+    fn sqrt(self) -> Self;
+    fn abs(self) -> Self;
+    /// +1 or -1 with the sign bit of each lane (`sign(0) = +1`, as [`Real::sign`]).
+    fn sign(self) -> Self;
+    fn lt(self, o: Self) -> Self::Mask;
+    fn le(self, o: Self) -> Self::Mask;
+    fn gt(self, o: Self) -> Self::Mask;
+    fn ge(self, o: Self) -> Self::Mask;
+    fn eq(self, o: Self) -> Self::Mask;
+    /// Per lane, `a` where `m` is set, else `b`.
+    fn select(m: Self::Mask, a: Self, b: Self) -> Self;
+    /// Bit `l` set where lane `l` of `m` is.
+    fn bits(m: Self::Mask) -> u8;
+    /// Every lane set to `b`.
+    fn all(b: bool) -> Self::Mask;
+}
+
+/// The portable form: an array, one loop per operation.
+#[derive(Clone, Copy, Debug)]
+pub struct Lanes<T>([T; LANES]);
+
+/// A mask of [`Lanes`]: one bit per lane.
+#[derive(Clone, Copy, Debug)]
+pub struct Bits(u8);
+
+impl BitAnd for Bits {
+    type Output = Bits;
+    fn bitand(self, o: Bits) -> Bits {
+        Bits(self.0 & o.0)
+    }
+}
+impl BitOr for Bits {
+    type Output = Bits;
+    fn bitor(self, o: Bits) -> Bits {
+        Bits(self.0 | o.0)
+    }
+}
+impl Not for Bits {
+    type Output = Bits;
+    fn not(self) -> Bits {
+        Bits(!self.0)
+    }
+}
+
+macro_rules! lanes_op {
+    ($tr:ident, $f:ident, $op:tt) => {
+        impl<T: Real> $tr for Lanes<T> {
+            type Output = Self;
+            #[inline(always)]
+            fn $f(self, o: Self) -> Self {
+                Lanes(std::array::from_fn(|l| self.0[l] $op o.0[l]))
+            }
+        }
+    };
+}
+lanes_op!(Add, add, +);
+lanes_op!(Sub, sub, -);
+lanes_op!(Mul, mul, *);
+lanes_op!(Div, div, /);
+
+impl<T: Real> Neg for Lanes<T> {
+    type Output = Self;
+    #[inline(always)]
+    fn neg(self) -> Self {
+        Lanes(self.0.map(|x| -x))
+    }
+}
+
+impl<T: Real> Lanes<T> {
+    #[inline(always)]
+    fn cmp(self, o: Self, f: impl Fn(T, T) -> bool) -> Bits {
+        Bits((0..LANES).fold(0, |m, l| m | ((f(self.0[l], o.0[l]) as u8) << l)))
+    }
+}
+
+impl<T: Real> Wide<T> for Lanes<T> {
+    type Mask = Bits;
+    #[inline(always)]
+    fn splat(x: T) -> Self {
+        Lanes([x; LANES])
+    }
+    #[inline(always)]
+    fn load(a: &[T; LANES]) -> Self {
+        Lanes(*a)
+    }
+    #[inline(always)]
+    fn store(self, a: &mut [T; LANES]) {
+        *a = self.0;
+    }
+    #[inline(always)]
+    fn sqrt(self) -> Self {
+        Lanes(self.0.map(T::sqrt))
+    }
+    #[inline(always)]
+    fn abs(self) -> Self {
+        Lanes(self.0.map(T::abs))
+    }
+    #[inline(always)]
+    fn sign(self) -> Self {
+        Lanes(self.0.map(T::sign))
+    }
+    #[inline(always)]
+    fn lt(self, o: Self) -> Bits {
+        self.cmp(o, |a, b| a < b)
+    }
+    #[inline(always)]
+    fn le(self, o: Self) -> Bits {
+        self.cmp(o, |a, b| a <= b)
+    }
+    #[inline(always)]
+    fn gt(self, o: Self) -> Bits {
+        self.cmp(o, |a, b| a > b)
+    }
+    #[inline(always)]
+    fn ge(self, o: Self) -> Bits {
+        self.cmp(o, |a, b| a >= b)
+    }
+    #[inline(always)]
+    fn eq(self, o: Self) -> Bits {
+        self.cmp(o, |a, b| a == b)
+    }
+    #[inline(always)]
+    fn select(m: Bits, a: Self, b: Self) -> Self {
+        Lanes(std::array::from_fn(|l| {
+            if m.0 & (1 << l) != 0 { a.0[l] } else { b.0[l] }
+        }))
+    }
+    #[inline(always)]
+    fn bits(m: Bits) -> u8 {
+        m.0
+    }
+    #[inline(always)]
+    fn all(b: bool) -> Bits {
+        Bits(if b { u8::MAX } else { 0 })
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+pub use avx::{Avx32, Avx64};
+
+/// AVX forms. Each method is a handful of intrinsics; callers must run on a CPU with
+/// AVX2 and be compiled with it enabled (`render` checks at run time).
+#[cfg(target_arch = "x86_64")]
+mod avx {
+    use super::{LANES, Wide};
+    use std::arch::x86_64::*;
+    use std::ops::{Add, BitAnd, BitOr, Div, Mul, Neg, Not, Sub};
+
+    /// Eight f32 lanes in one register.
+    #[derive(Clone, Copy, Debug)]
+    pub struct Avx32(__m256);
+    /// Eight f64 lanes in two registers.
+    #[derive(Clone, Copy, Debug)]
+    pub struct Avx64([__m256d; 2]);
+    #[derive(Clone, Copy, Debug)]
+    pub struct Mask32(__m256);
+    #[derive(Clone, Copy, Debug)]
+    pub struct Mask64([__m256d; 2]);
+
+    // SAFETY (every `unsafe` block below): AVX intrinsics on values in registers; the
+    // caller runs only where the CPU has AVX2 (see the module doc).
+    macro_rules! binops {
+        ($t:ident, $m:ident, $w:ident: $($tr:ident $f:ident $intr:ident),*) => {$(
+            impl $tr for $t {
+                type Output = $t;
+                #[inline(always)]
+                fn $f(self, o: $t) -> $t {
+                    unsafe { $t(binops!(@apply $w, $intr, self.0, o.0)) }
+                }
+            }
+        )*};
+        (@apply one, $intr:ident, $a:expr, $b:expr) => { $intr($a, $b) };
+        (@apply two, $intr:ident, $a:expr, $b:expr) => { [$intr($a[0], $b[0]), $intr($a[1], $b[1])] };
+    }
+    binops!(Avx32, Mask32, one: Add add _mm256_add_ps, Sub sub _mm256_sub_ps, Mul mul _mm256_mul_ps, Div div _mm256_div_ps);
+    binops!(Mask32, Mask32, one: BitAnd bitand _mm256_and_ps, BitOr bitor _mm256_or_ps);
+    binops!(Avx64, Mask64, two: Add add _mm256_add_pd, Sub sub _mm256_sub_pd, Mul mul _mm256_mul_pd, Div div _mm256_div_pd);
+    binops!(Mask64, Mask64, two: BitAnd bitand _mm256_and_pd, BitOr bitor _mm256_or_pd);
+
+    impl Not for Mask32 {
+        type Output = Mask32;
+        #[inline(always)]
+        fn not(self) -> Mask32 {
+            unsafe {
+                Mask32(_mm256_xor_ps(
+                    self.0,
+                    _mm256_castsi256_ps(_mm256_set1_epi32(-1)),
+                ))
+            }
+        }
+    }
+    impl Not for Mask64 {
+        type Output = Mask64;
+        #[inline(always)]
+        fn not(self) -> Mask64 {
+            unsafe {
+                let ones = _mm256_castsi256_pd(_mm256_set1_epi64x(-1));
+                Mask64([
+                    _mm256_xor_pd(self.0[0], ones),
+                    _mm256_xor_pd(self.0[1], ones),
+                ])
+            }
+        }
+    }
+    impl Neg for Avx32 {
+        type Output = Avx32;
+        #[inline(always)]
+        fn neg(self) -> Avx32 {
+            unsafe { Avx32(_mm256_xor_ps(self.0, _mm256_set1_ps(-0.0))) }
+        }
+    }
+    impl Neg for Avx64 {
+        type Output = Avx64;
+        #[inline(always)]
+        fn neg(self) -> Avx64 {
+            let s = unsafe { _mm256_set1_pd(-0.0) };
+            unsafe { Avx64([_mm256_xor_pd(self.0[0], s), _mm256_xor_pd(self.0[1], s)]) }
+        }
+    }
+
+    impl Wide<f32> for Avx32 {
+        type Mask = Mask32;
+        #[inline(always)]
+        fn splat(x: f32) -> Self {
+            unsafe { Avx32(_mm256_set1_ps(x)) }
+        }
+        #[inline(always)]
+        fn load(a: &[f32; LANES]) -> Self {
+            unsafe { Avx32(_mm256_loadu_ps(a.as_ptr())) }
+        }
+        #[inline(always)]
+        fn store(self, a: &mut [f32; LANES]) {
+            unsafe { _mm256_storeu_ps(a.as_mut_ptr(), self.0) }
+        }
+        #[inline(always)]
+        fn sqrt(self) -> Self {
+            unsafe { Avx32(_mm256_sqrt_ps(self.0)) }
+        }
+        #[inline(always)]
+        fn abs(self) -> Self {
+            unsafe { Avx32(_mm256_andnot_ps(_mm256_set1_ps(-0.0), self.0)) }
+        }
+        #[inline(always)]
+        fn sign(self) -> Self {
+            unsafe {
+                let s = _mm256_and_ps(self.0, _mm256_set1_ps(-0.0));
+                Avx32(_mm256_or_ps(s, _mm256_set1_ps(1.0)))
+            }
+        }
+        #[inline(always)]
+        fn lt(self, o: Self) -> Mask32 {
+            unsafe { Mask32(_mm256_cmp_ps::<_CMP_LT_OQ>(self.0, o.0)) }
+        }
+        #[inline(always)]
+        fn le(self, o: Self) -> Mask32 {
+            unsafe { Mask32(_mm256_cmp_ps::<_CMP_LE_OQ>(self.0, o.0)) }
+        }
+        #[inline(always)]
+        fn gt(self, o: Self) -> Mask32 {
+            unsafe { Mask32(_mm256_cmp_ps::<_CMP_GT_OQ>(self.0, o.0)) }
+        }
+        #[inline(always)]
+        fn ge(self, o: Self) -> Mask32 {
+            unsafe { Mask32(_mm256_cmp_ps::<_CMP_GE_OQ>(self.0, o.0)) }
+        }
+        #[inline(always)]
+        fn eq(self, o: Self) -> Mask32 {
+            unsafe { Mask32(_mm256_cmp_ps::<_CMP_EQ_OQ>(self.0, o.0)) }
+        }
+        #[inline(always)]
+        fn select(m: Mask32, a: Self, b: Self) -> Self {
+            unsafe { Avx32(_mm256_blendv_ps(b.0, a.0, m.0)) }
+        }
+        #[inline(always)]
+        fn bits(m: Mask32) -> u8 {
+            unsafe { _mm256_movemask_ps(m.0) as u8 }
+        }
+        #[inline(always)]
+        fn all(b: bool) -> Mask32 {
+            unsafe { Mask32(_mm256_castsi256_ps(_mm256_set1_epi32(-(b as i32)))) }
+        }
+    }
+
+    /// `Avx64` method bodies: `$f` applied to both halves (no closures, so nothing
+    /// stands between the intrinsic and the AVX2 code it is inlined into).
+    macro_rules! halves {
+        ($f:ident($($a:expr),*)) => {
+            unsafe { [$f($($a[0]),*), $f($($a[1]),*)] }
+        };
+        ($f:ident::<$p:ident>($($a:expr),*)) => {
+            unsafe { [$f::<$p>($($a[0]),*), $f::<$p>($($a[1]),*)] }
+        };
+    }
+
+    impl Wide<f64> for Avx64 {
+        type Mask = Mask64;
+        #[inline(always)]
+        fn splat(x: f64) -> Self {
+            unsafe { Avx64([_mm256_set1_pd(x); 2]) }
+        }
+        #[inline(always)]
+        fn load(a: &[f64; LANES]) -> Self {
+            unsafe {
+                Avx64([
+                    _mm256_loadu_pd(a.as_ptr()),
+                    _mm256_loadu_pd(a.as_ptr().add(4)),
+                ])
+            }
+        }
+        #[inline(always)]
+        fn store(self, a: &mut [f64; LANES]) {
+            unsafe {
+                _mm256_storeu_pd(a.as_mut_ptr(), self.0[0]);
+                _mm256_storeu_pd(a.as_mut_ptr().add(4), self.0[1]);
+            }
+        }
+        #[inline(always)]
+        fn sqrt(self) -> Self {
+            Avx64(halves!(_mm256_sqrt_pd(self.0)))
+        }
+        #[inline(always)]
+        fn abs(self) -> Self {
+            let s = [unsafe { _mm256_set1_pd(-0.0) }; 2];
+            Avx64(halves!(_mm256_andnot_pd(s, self.0)))
+        }
+        #[inline(always)]
+        fn sign(self) -> Self {
+            let (s, one) = unsafe { ([_mm256_set1_pd(-0.0); 2], [_mm256_set1_pd(1.0); 2]) };
+            let signs = halves!(_mm256_and_pd(self.0, s));
+            Avx64(halves!(_mm256_or_pd(signs, one)))
+        }
+        #[inline(always)]
+        fn lt(self, o: Self) -> Mask64 {
+            Mask64(halves!(_mm256_cmp_pd::<_CMP_LT_OQ>(self.0, o.0)))
+        }
+        #[inline(always)]
+        fn le(self, o: Self) -> Mask64 {
+            Mask64(halves!(_mm256_cmp_pd::<_CMP_LE_OQ>(self.0, o.0)))
+        }
+        #[inline(always)]
+        fn gt(self, o: Self) -> Mask64 {
+            Mask64(halves!(_mm256_cmp_pd::<_CMP_GT_OQ>(self.0, o.0)))
+        }
+        #[inline(always)]
+        fn ge(self, o: Self) -> Mask64 {
+            Mask64(halves!(_mm256_cmp_pd::<_CMP_GE_OQ>(self.0, o.0)))
+        }
+        #[inline(always)]
+        fn eq(self, o: Self) -> Mask64 {
+            Mask64(halves!(_mm256_cmp_pd::<_CMP_EQ_OQ>(self.0, o.0)))
+        }
+        #[inline(always)]
+        fn select(m: Mask64, a: Self, b: Self) -> Self {
+            Avx64(halves!(_mm256_blendv_pd(b.0, a.0, m.0)))
+        }
+        #[inline(always)]
+        fn bits(m: Mask64) -> u8 {
+            unsafe { (_mm256_movemask_pd(m.0[0]) | (_mm256_movemask_pd(m.0[1]) << 4)) as u8 }
+        }
+        #[inline(always)]
+        fn all(b: bool) -> Mask64 {
+            unsafe { Mask64([_mm256_castsi256_pd(_mm256_set1_epi64x(-(b as i64))); 2]) }
+        }
+    }
+}
