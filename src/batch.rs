@@ -586,6 +586,9 @@ fn scene_hash(scene: &Scene) -> u64 {
 /// What made a view's files: `NAME.render.json`.
 #[derive(Serialize)]
 struct RenderStamp {
+    /// The cylaov that rendered the view: a new release may change output bits, so its
+    /// views render again on resume.
+    cylaov: &'static str,
     /// [`scene_hash`], hex.
     scene_fnv1a64: String,
     /// AOVs in the EXR.
@@ -609,6 +612,7 @@ pub fn render_stamp(scene: &Scene, opts: &BatchOptions) -> String {
             .unwrap_or_default()
     }
     let stamp = RenderStamp {
+        cylaov: env!("CARGO_PKG_VERSION"),
         scene_fnv1a64: format!("{:016x}", scene_hash(scene)),
         aovs: opts.exr_aovs(scene).iter().map(|a| a.name()).collect(),
         precision: name(opts.precision),
@@ -1318,6 +1322,18 @@ mod tests {
                 .unwrap_err()
                 .contains("SLURM_ARRAY_TASK_ID")
         );
+    }
+
+    #[test]
+    fn stamp_names_the_version_and_options() {
+        let scene = crate::bench::random_scene(3, 1, 8, 8);
+        let stamp = render_stamp(&scene, &BatchOptions::default());
+        let v: serde_json::Value = serde_json::from_str(&stamp).unwrap();
+        assert_eq!(v["cylaov"], env!("CARGO_PKG_VERSION"));
+        assert_eq!(v["precision"], "f64");
+        let mut other = scene.clone();
+        other.cylinders[1].radius *= 1.0 + f64::EPSILON;
+        assert_ne!(render_stamp(&other, &BatchOptions::default()), stamp);
     }
 
     #[test]
