@@ -54,7 +54,7 @@ impl Candidate {
     #[inline(always)]
     pub fn row_span(&self, j: u32, lo: u32, hi: u32) -> Option<(u32, u32)> {
         let (x0, x1) = (self.x0.max(lo), self.x1.min(hi));
-        let c = self.centre + self.slope * j as f64;
+        let c = self.line(j);
         // `max`/`min` against the finite rectangle keep u, v finite (an infinite band
         // keeps [x0, x1]).
         let u = (c - self.half).max(x0 as f64);
@@ -66,6 +66,49 @@ impl Candidate {
         let (a, b) = (u as u32, v as u32);
         let a = a + ((a as f64) < u) as u32;
         (a <= b).then_some((a, b))
+    }
+
+    /// The band's centre column on row `j`. Rounding is monotone, so for `j0 <= j <= j1`
+    /// the computed value lies between those of `j0` and `j1`: binning relies on it.
+    #[inline(always)]
+    fn line(&self, j: u32) -> f64 {
+        self.centre + self.slope * j as f64
+    }
+
+    /// The tile columns `row_span` can reach on any row `j0..=j1` (within `y0..=y1`): the
+    /// band's extreme columns over those rows are at `j0` or `j1` (the line is linear and
+    /// its rounding monotone), cut to the rectangle, as in `row_span`.
+    #[inline]
+    fn tile_columns(&self, j0: u32, j1: u32) -> Option<(u32, u32)> {
+        let (c0, c1) = (self.line(j0), self.line(j1));
+        let u = (c0.min(c1) - self.half).max(self.x0 as f64);
+        let v = (c0.max(c1) + self.half).min(self.x1 as f64);
+        if u > v {
+            return None;
+        }
+        let (a, b) = (u as u32, v as u32);
+        let a = a + ((a as f64) < u) as u32;
+        (a <= b).then_some((a / TILE, b / TILE))
+    }
+
+    /// Call `f(ty, tx0, tx1)` for each tile row the candidate reaches, with the tile
+    /// columns its band reaches there.
+    #[inline]
+    fn for_tile_rows(&self, mut f: impl FnMut(u32, u32, u32)) {
+        for ty in self.y0 / TILE..=self.y1 / TILE {
+            let j0 = (ty * TILE).max(self.y0);
+            let j1 = (ty * TILE + TILE - 1).min(self.y1);
+            if let Some((a, b)) = self.tile_columns(j0, j1) {
+                f(ty, a, b);
+            }
+        }
+    }
+
+    /// How many tile lists the candidate goes in.
+    fn tile_entries(&self) -> usize {
+        let mut n = 0;
+        self.for_tile_rows(|_, a, b| n += (b - a + 1) as usize);
+        n
     }
 }
 
@@ -242,25 +285,17 @@ impl Tiles {
         // Sorted once globally, so every tile's list comes out sorted by t_min.
         cands.par_sort_unstable_by(|a, b| a.t_min.total_cmp(&b.t_min).then(a.index.cmp(&b.index)));
         let ntiles = (tiles_x * tiles_y) as usize;
-        let tile_range = |c: &Candidate| (c.x0 / TILE, c.x1 / TILE, c.y0 / TILE, c.y1 / TILE);
-        let entries: usize = cands
-            .iter()
-            .map(|c| {
-                let (a, b, p, q) = tile_range(c);
-                (b - a + 1) as usize * (q - p + 1) as usize
-            })
-            .sum();
+        let entries: usize = cands.par_iter().map(Candidate::tile_entries).sum();
         if entries > CROWDED * ntiles {
             return None;
         }
         let mut count = vec![0usize; ntiles + 1];
         for c in &cands {
-            let (a, b, p, q) = tile_range(c);
-            for ty in p..=q {
+            c.for_tile_rows(|ty, a, b| {
                 for tx in a..=b {
                     count[(ty * tiles_x + tx) as usize + 1] += 1;
                 }
-            }
+            });
         }
         for k in 1..count.len() {
             count[k] += count[k - 1];
@@ -269,14 +304,13 @@ impl Tiles {
         let mut fill = count;
         let mut list = vec![EMPTY; start[ntiles]];
         for c in &cands {
-            let (a, b, p, q) = tile_range(c);
-            for ty in p..=q {
+            c.for_tile_rows(|ty, a, b| {
                 for tx in a..=b {
                     let k = (ty * tiles_x + tx) as usize;
                     list[fill[k]] = *c;
                     fill[k] += 1;
                 }
-            }
+            });
         }
         Some(Tiles {
             tiles_x,
@@ -296,5 +330,149 @@ impl Tiles {
     /// Total candidate entries (for statistics).
     pub fn entries(&self) -> usize {
         self.list.len()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::{CameraSpec, FovAxis};
+    use crate::rng::SplitMix64;
+    use glam::DVec3;
+
+    /// Random cameras over generated scenes: some outside the cloud of cylinders, some
+    /// among them (boxes straddling the camera plane), various fields of view and sizes.
+    fn cases() -> Vec<(Camera, Vec<Cylinder>)> {
+        let mut rng = SplitMix64::new(7);
+        (0..40)
+            .map(|k| {
+                let (w, h) = (rng.int_in(40, 300), rng.int_in(30, 200));
+                let n = [1, 20, 200, 600][k % 4];
+                let sc = crate::bench::random_scene(n, 100 + k as u64, w, h);
+                let origin = if k % 3 == 0 {
+                    DVec3::new(
+                        rng.range(-4.0, 4.0),
+                        rng.range(-4.0, 4.0),
+                        rng.range(-4.0, 4.0),
+                    )
+                } else {
+                    rng.unit_vector() * rng.range(8.0, 25.0)
+                };
+                let target = DVec3::new(
+                    rng.range(-3.0, 3.0),
+                    rng.range(-3.0, 3.0),
+                    rng.range(-3.0, 3.0),
+                );
+                let fov_axis = [FovAxis::X, FovAxis::Y, FovAxis::Diagonal][k % 3];
+                let cam = Camera::new(CameraSpec {
+                    origin,
+                    target,
+                    up: rng.unit_vector(),
+                    fov_deg: rng.range(15.0, 110.0),
+                    fov_axis,
+                    width: w,
+                    height: h,
+                    near_clip: rng.range(0.001, 0.5),
+                    far_clip: rng.range(10.0, 40.0),
+                });
+                (cam, sc.cylinders)
+            })
+            .collect()
+    }
+
+    /// Every pixel a candidate's `row_span` admits lies in a tile whose list holds it.
+    #[test]
+    fn binning_covers_every_row_span() {
+        let mut checked = 0usize;
+        for (cam, cyls) in cases() {
+            let Some(tiles) = Tiles::build(&cam, &cyls) else {
+                continue;
+            };
+            let (w, h) = (cam.width(), cam.height());
+            for (i, cyl) in cyls.iter().enumerate() {
+                let Some(c) = project(&cam, cyl) else {
+                    continue;
+                };
+                assert!(c.x1 < w && c.y1 < h && c.x0 <= c.x1 && c.y0 <= c.y1);
+                for j in c.y0..=c.y1 {
+                    for tx in 0..tiles.tiles_x {
+                        let xs = (tx * TILE, ((tx + 1) * TILE).min(w) - 1);
+                        if c.row_span(j, xs.0, xs.1).is_some() {
+                            checked += 1;
+                            assert!(
+                                tiles.tile(tx, j / TILE).iter().any(|k| k.index == i as u32),
+                                "cylinder {i} row {j} tile column {tx} not listed"
+                            );
+                        }
+                    }
+                }
+            }
+            // Every list is sorted by (t_min, index).
+            for ty in 0..tiles.tiles_y {
+                for tx in 0..tiles.tiles_x {
+                    let l = tiles.tile(tx, ty);
+                    assert!(l.windows(2).all(|p| {
+                        p[0].t_min
+                            .total_cmp(&p[1].t_min)
+                            .then(p[0].index.cmp(&p[1].index))
+                            == std::cmp::Ordering::Less
+                    }));
+                }
+            }
+        }
+        assert!(checked > 10_000, "{checked}");
+    }
+
+    /// Points on the cylinders (sides and caps) in the clip range project into a pixel
+    /// that their candidate's rectangle, band and tile list admit, at `z >= t_min`.
+    #[test]
+    fn projection_covers_sampled_surface_points() {
+        let mut rng = SplitMix64::new(8);
+        let mut checked = 0usize;
+        for (cam, cyls) in cases() {
+            let tiles = Tiles::build(&cam, &cyls);
+            let (w, h) = (cam.width() as f64, cam.height() as f64);
+            for (i, cyl) in cyls.iter().enumerate() {
+                let c = project(&cam, cyl);
+                let (u, v) = orthonormal_basis(cyl.axis);
+                for _ in 0..300 {
+                    let (cs, sn) = rng.unit_circle();
+                    let (s, rho) = match rng.int_in(0, 3) {
+                        0 => (0.0, rng.unit().sqrt()),
+                        1 => (1.0, rng.unit().sqrt()),
+                        _ => (rng.unit(), 1.0),
+                    };
+                    let p = cyl.base
+                        + cyl.axis * (cyl.height * s)
+                        + (u * cs + v * sn) * (cyl.radius * rho);
+                    let d = p - cam.origin;
+                    let (x, y, z) = (-d.dot(cam.left), d.dot(cam.true_up), d.dot(cam.forward));
+                    if z < cam.spec.near_clip || z > cam.spec.far_clip {
+                        continue;
+                    }
+                    let px = (x / z / cam.tan_half_x + 1.0) * 0.5 * w;
+                    let py = (1.0 - y / z / cam.tan_half_y) * 0.5 * h;
+                    if !(px >= 0.0 && px < w && py >= 0.0 && py < h) {
+                        continue;
+                    }
+                    let (pi, pj) = (px as u32, py as u32);
+                    checked += 1;
+                    let c = c.unwrap_or_else(|| panic!("cylinder {i} culled, sees {pi},{pj}"));
+                    assert!(c.t_min <= z, "cylinder {i}: t_min {} > z {z}", c.t_min);
+                    assert!(
+                        (c.y0..=c.y1).contains(&pj) && c.row_span(pj, pi, pi).is_some(),
+                        "cylinder {i}: pixel {pi},{pj} outside {c:?}"
+                    );
+                    if let Some(t) = &tiles {
+                        assert!(
+                            t.tile(pi / TILE, pj / TILE)
+                                .iter()
+                                .any(|k| k.index == i as u32)
+                        );
+                    }
+                }
+            }
+        }
+        assert!(checked > 100_000, "{checked}");
     }
 }
