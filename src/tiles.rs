@@ -1,12 +1,14 @@
 //! Screen-space binning of cylinders for primary rays: the fast path of `render`.
 //!
 //! Every primary ray leaves the one camera origin, so a cylinder can only be hit by the
-//! pixels inside the projection of its bounding box. Each cylinder's oriented box (axis ×
-//! 2r × 2r) is projected once; the cylinder is listed in every screen tile its pixel
-//! rectangle touches, sorted by the box's nearest camera-space z. `render` then walks a
-//! tile's candidates nearest first, each over just the pixels it can cover, like a
-//! rasteriser with a depth test: a pixel whose best hit is nearer than the candidate's
-//! nearest z is skipped (`t ≥ z` for any point, so it cannot be improved). A box reaching behind the camera plane projects to the whole screen.
+//! pixels inside the projection of a bound of it. Each cylinder is projected once (see
+//! [`project`]: the boxes of its end disks, or its oriented box clipped at the near plane
+//! when it reaches nearer) to a pixel rectangle, a band around its projected axis and a
+//! nearest camera-space z; it is listed in every screen tile that rectangle and band
+//! reach, sorted by that z. `render` then walks a tile's candidates nearest first, each
+//! over just the pixels it can cover, like a rasteriser with a depth test: a pixel whose
+//! best hit is nearer than the candidate's nearest z is skipped (`t ≥ z` for any point,
+//! so it cannot be improved).
 //!
 //! The rectangle of a long, thin, slanted cylinder is mostly empty, so each row of it is
 //! also cut to the band around the projected axis that holds the projected capsule: the cylinder lies within `r` of its axis
@@ -18,6 +20,7 @@
 
 use crate::camera::Camera;
 use crate::geometry::{Cylinder, cylinder::orthonormal_basis};
+use glam::DVec3;
 use rayon::prelude::*;
 
 /// Tile side in pixels.
@@ -133,108 +136,140 @@ pub struct Tiles {
     list: Vec<Candidate>,
 }
 
-/// The pixel rectangle and nearest z of a cylinder, or `None` when it lies wholly outside
-/// the view or the clip range.
+/// What [`project`] needs of the camera, derived once per build.
+struct View {
+    origin: DVec3,
+    /// Camera axes: x right, y up, z forward.
+    right: DVec3,
+    up: DVec3,
+    forward: DVec3,
+    /// Focal lengths in pixels, their maximum, and the principal point `(W/2, H/2)`.
+    fx: f64,
+    fy: f64,
+    f: f64,
+    cx: f64,
+    cy: f64,
+    width: u32,
+    height: u32,
+    near: f64,
+    far: f64,
+    /// A hair nearer than the near plane: nothing nearer can be hit.
+    zc: f64,
+}
+
+impl View {
+    fn new(cam: &Camera) -> View {
+        let (fx, fy) = cam.focal_px();
+        View {
+            origin: cam.origin,
+            right: -cam.left,
+            up: cam.true_up,
+            forward: cam.forward,
+            fx,
+            fy,
+            f: fx.max(fy),
+            cx: cam.width() as f64 / 2.0,
+            cy: cam.height() as f64 / 2.0,
+            width: cam.width(),
+            height: cam.height(),
+            near: cam.spec.near_clip,
+            far: cam.spec.far_clip,
+            zc: cam.spec.near_clip * (1.0 - 1e-6),
+        }
+    }
+
+    /// World vector `p` in camera axes.
+    #[inline(always)]
+    fn camera(&self, p: DVec3) -> DVec3 {
+        DVec3::new(p.dot(self.right), p.dot(self.up), p.dot(self.forward))
+    }
+}
+
+/// The pixel rectangle, nearest z and axis band of a cylinder (see [`Candidate`]), or
+/// `None` when it lies wholly outside the view or the clip range.
+///
+/// Bounds: each end disk (radius `r`, unit normal `a` in camera axes) lies in the box
+/// reaching `r·sqrt(1 - a_k²)` from its centre along camera axis `k`, and the cylinder is
+/// the convex hull of its two disks. So its camera z lies within the two boxes' z range,
+/// and when that is all in front of the near plane its projection is the hull of the
+/// disks' projections, within the union of the two boxes' projected rectangles (2
+/// reciprocals each: `x/z` over a box is extreme at its corners). A cylinder reaching
+/// nearer than the near plane instead gets the part of its oriented box (axis × 2r × 2r)
+/// in front of the plane projected: the corners there, and where the 12 edges cross it.
 pub fn project(cam: &Camera, cyl: &Cylinder) -> Option<Candidate> {
-    let (w, h) = (cam.width(), cam.height());
-    let (u, v) = orthonormal_basis(cyl.axis);
+    project_in(&View::new(cam), cyl)
+}
+
+fn project_in(view: &View, cyl: &Cylinder) -> Option<Candidate> {
+    let (w, h) = (view.width, view.height);
     let r = cyl.radius;
-    let right = -cam.left;
-    let (mut zmin, mut zmax) = (f64::INFINITY, f64::NEG_INFINITY);
+    let b = view.camera(cyl.base - view.origin);
+    let a = view.camera(cyl.axis);
+    let t = b + a * cyl.height;
+    let a2 = a * a;
+    let ext = DVec3::new(
+        (a2.y + a2.z).sqrt(),
+        (a2.x + a2.z).sqrt(),
+        (a2.x + a2.y).sqrt(),
+    ) * r;
+    let (zmin, zmax) = (b.z.min(t.z) - ext.z, b.z.max(t.z) + ext.z);
+    // Pad for rounding in the bounds (relative 1e-9 of their size) and the projection.
+    let pad = 1e-9 * (b.length_squared().max(t.length_squared()).sqrt() + r) + 1e-12;
+    if zmax + pad < view.near || zmin - pad > view.far {
+        return None;
+    }
+    let t_min = (zmin - pad).max(view.near * (1.0 - 1e-12));
+    // The rectangle in image-plane units (x/z, y/z).
     let (mut xmin, mut xmax, mut ymin, mut ymax) = (
         f64::INFINITY,
         f64::NEG_INFINITY,
         f64::INFINITY,
         f64::NEG_INFINITY,
     );
-    // The box's corners in camera space (x right, y up, z forward); bit 2 picks the end,
-    // bits 1 and 0 the sign along u and v.
-    let corners: [[f64; 3]; 8] = std::array::from_fn(|k| {
-        let end = if k & 4 == 0 { cyl.base } else { cyl.top() };
-        let su = if k & 2 == 0 { -r } else { r };
-        let sv = if k & 1 == 0 { -r } else { r };
-        let p = end + u * su + v * sv - cam.origin;
-        [p.dot(right), p.dot(cam.true_up), p.dot(cam.forward)]
-    });
-    // Nothing nearer than the near plane can be hit, so project the part of the box in
-    // front of it (a hair nearer, to stay conservative): the corners there, and where the
-    // 12 edges cross the plane. A box straddling the camera then still gets a finite
-    // rectangle instead of the whole screen.
-    let zc = cam.spec.near_clip * (1.0 - 1e-6);
-    let mut add = |q: [f64; 3]| {
-        // Continuous pixel coordinates: pixel i spans [i, i + 1], centre i + 0.5.
-        let x = (q[0] / q[2] / cam.tan_half_x + 1.0) * 0.5 * w as f64;
-        let y = (1.0 - q[1] / q[2] / cam.tan_half_y) * 0.5 * h as f64;
-        xmin = xmin.min(x);
-        xmax = xmax.max(x);
-        ymin = ymin.min(y);
-        ymax = ymax.max(y);
-    };
-    for (k, c) in corners.iter().enumerate() {
-        zmin = zmin.min(c[2]);
-        zmax = zmax.max(c[2]);
-        if c[2] >= zc {
-            add(*c);
+    if zmin >= view.zc {
+        for p in [b, t] {
+            let (i0, i1) = (1.0 / (p.z - ext.z), 1.0 / (p.z + ext.z));
+            let (xl, xh, yl, yh) = (p.x - ext.x, p.x + ext.x, p.y - ext.y, p.y + ext.y);
+            xmin = xmin.min((xl * i0).min(xl * i1));
+            xmax = xmax.max((xh * i0).max(xh * i1));
+            ymin = ymin.min((yl * i0).min(yl * i1));
+            ymax = ymax.max((yh * i0).max(yh * i1));
         }
-        for bit in [1, 2, 4] {
-            let o = &corners[k | bit];
-            if k & bit == 0 && (c[2] < zc) != (o[2] < zc) {
-                let s = (zc - c[2]) / (o[2] - c[2]);
-                add([c[0] + s * (o[0] - c[0]), c[1] + s * (o[1] - c[1]), zc]);
+    } else {
+        // Reaches nearer than the near plane (or NaN): the clipped oriented box.
+        let (u, v) = orthonormal_basis(cyl.axis);
+        let (u, v) = (view.camera(u) * r, view.camera(v) * r);
+        // Bit 2 picks the end, bits 1 and 0 the sign along u and v.
+        let corners: [DVec3; 8] = std::array::from_fn(|k| {
+            let end = if k & 4 == 0 { b } else { t };
+            let su = if k & 2 == 0 { -u } else { u };
+            let sv = if k & 1 == 0 { -v } else { v };
+            end + su + sv
+        });
+        let zc = view.zc;
+        let mut add = |x: f64, y: f64, z: f64| {
+            let iz = 1.0 / z;
+            xmin = xmin.min(x * iz);
+            xmax = xmax.max(x * iz);
+            ymin = ymin.min(y * iz);
+            ymax = ymax.max(y * iz);
+        };
+        for (k, c) in corners.iter().enumerate() {
+            if c.z >= zc {
+                add(c.x, c.y, c.z);
+            }
+            for bit in [1, 2, 4] {
+                let o = &corners[k | bit];
+                if k & bit == 0 && (c.z < zc) != (o.z < zc) {
+                    let s = (zc - c.z) / (o.z - c.z);
+                    add(c.x + s * (o.x - c.x), c.y + s * (o.y - c.y), zc);
+                }
             }
         }
     }
-    // The capsule around the projected axis (see the module doc), with 1.5 px of slack.
-    let (fx, fy) = cam.focal_px();
-    let ends = [cyl.base - cam.origin, cyl.top() - cam.origin];
-    let proj = ends.map(|p| {
-        let z = p.dot(cam.forward);
-        let (tx, ty) = (p.dot(right) / z, p.dot(cam.true_up) / z);
-        (
-            z,
-            tx,
-            ty,
-            [tx * fx + w as f64 / 2.0, h as f64 / 2.0 - ty * fy],
-        )
-    });
-    let z_axis = proj[0].0.min(proj[1].0);
-    let slope2 = proj.iter().map(|q| q.1 * q.1).fold(0.0, f64::max)
-        + proj.iter().map(|q| q.2 * q.2).fold(0.0, f64::max);
-    let far_off = proj.iter().any(|q| q.3[0].abs().max(q.3[1].abs()) > 1e7);
-    let (a, b) = (proj[0].3, proj[1].3);
-    let e = [b[0] - a[0], b[1] - a[1]];
-    let len = e[0].hypot(e[1]);
-    let rad = fx.max(fy) * r * (1.0 + slope2).sqrt() / (z_axis - r) + 1.5;
-    // A point-like projection (view along the axis) has no line: the rectangle bounds it.
-    let band = !(far_off || z_axis - r <= 0.0 || !rad.is_finite() || len < 1e-9);
-    // The band `|n·(p - a)| <= rad` around the axis line through `a` along `e`, with unit
-    // normal `n = (-e_y, e_x)/len`. For a pixel centre p = (x + 0.5, j + 0.5) it is the
-    // column interval `x + 0.5 = a_x - n_y (j + 0.5 - a_y)/n_x ± rad/|n_x|`; a line within
-    // 1e-9 of horizontal bounds rows instead (the columns term is then < 2e-5 px, inside
-    // the slack), so it trims `y0..y1` and leaves the columns to the rectangle.
-    let (n, mut rows) = (
-        [-e[1] / len, e[0] / len],
-        (f64::NEG_INFINITY, f64::INFINITY),
-    );
-    let (mut centre, mut slope, mut half) = (0.0, 0.0, f64::INFINITY);
-    if band && n[0].abs() > 1e-9 {
-        slope = -n[1] / n[0];
-        centre = a[0] - 0.5 + slope * (0.5 - a[1]);
-        half = rad / n[0].abs();
-    } else if band {
-        let reach = rad / n[1].abs();
-        rows = (a[1] - reach - 0.5, a[1] + reach - 0.5);
-    }
-    // Pad for rounding in the box (relative 1e-9 of its distance) and in the projection.
-    let pad = 1e-9
-        * (cyl.base - cam.origin)
-            .length()
-            .max(cyl.top().distance(cam.origin))
-        + 1e-12;
-    if zmax + pad < cam.spec.near_clip || zmin - pad > cam.spec.far_clip {
-        return None;
-    }
-    let t_min = (zmin - pad).max(cam.spec.near_clip * (1.0 - 1e-12));
+    // Continuous pixel coordinates: pixel i spans [i, i + 1], centre i + 0.5.
+    let (xmin, xmax) = (xmin * view.fx + view.cx, xmax * view.fx + view.cx);
+    let (ymin, ymax) = (view.cy - ymax * view.fy, view.cy - ymin * view.fy);
     if !(xmin.is_finite() && xmax.is_finite() && ymin.is_finite() && ymax.is_finite()) {
         // Degenerate projection (should not happen past the checks above): whole screen.
         return Some(Candidate {
@@ -244,15 +279,52 @@ pub fn project(cam: &Camera, cyl: &Cylinder) -> Option<Candidate> {
             ..EMPTY
         });
     }
-    // Pixel i is covered when its centre i + 0.5 lies in [xmin, xmax]; one pixel of slack.
-    let lo = |a: f64| (a - 0.5).ceil() - 1.0;
-    let hi = |a: f64| (a - 0.5).floor() + 1.0;
-    let (x0, x1) = (lo(xmin), hi(xmax));
-    let (y0, y1) = (lo(ymin).max(rows.0.ceil()), hi(ymax).min(rows.1.floor()));
-    if x1 < 0.0 || y1 < 0.0 || x0 > (w - 1) as f64 || y0 > (h - 1) as f64 || y0 > y1 {
+    // The capsule around the projected axis (see the module doc), with 1.5 px of slack:
+    // the band `|n·(p - pa)| <= rad` around the axis line through `pa` along `e`, with
+    // unit normal `n = (-e_y, e_x)/len`. For a pixel centre p = (x + 0.5, j + 0.5) it is
+    // the column interval `x + 0.5 = pa_x + (e_x/e_y)(j + 0.5 - pa_y) ± rad·len/|e_y|`; a
+    // line within 1e-9 of horizontal bounds rows instead (the columns term is then
+    // < 2e-5 px, inside the slack), so it trims `y0..y1` and leaves the columns to the
+    // rectangle. A point-like projection (view along the axis) has no line: the
+    // rectangle bounds it.
+    let (mut centre, mut slope, mut half) = (0.0, 0.0, f64::INFINITY);
+    let mut rows = (f64::NEG_INFINITY, f64::INFINITY);
+    let z_axis = b.z.min(t.z);
+    if z_axis - r > 0.0 {
+        let (ib, it) = (1.0 / b.z, 1.0 / t.z);
+        let (txb, tyb, txt, tyt) = (b.x * ib, b.y * ib, t.x * it, t.y * it);
+        let slope2 = (txb * txb).max(txt * txt) + (tyb * tyb).max(tyt * tyt);
+        let pa = [txb * view.fx + view.cx, view.cy - tyb * view.fy];
+        let pb = [txt * view.fx + view.cx, view.cy - tyt * view.fy];
+        let far_off = pa[0]
+            .abs()
+            .max(pa[1].abs())
+            .max(pb[0].abs().max(pb[1].abs()))
+            > 1e7;
+        let e = [pb[0] - pa[0], pb[1] - pa[1]];
+        let len = (e[0] * e[0] + e[1] * e[1]).sqrt();
+        let rad = view.f * r * (1.0 + slope2).sqrt() / (z_axis - r) + 1.5;
+        if !far_off && rad.is_finite() && len >= 1e-9 {
+            if e[1].abs() > 1e-9 * len {
+                let ie = 1.0 / e[1];
+                slope = e[0] * ie;
+                centre = pa[0] - 0.5 + slope * (0.5 - pa[1]);
+                half = rad * len * ie.abs();
+            } else {
+                let reach = rad * len / e[0].abs();
+                rows = (pa[1] - reach - 0.5, pa[1] + reach - 0.5);
+            }
+        }
+    }
+    // Pixel i is covered when its centre i + 0.5 lies in [min, max]; one pixel of slack.
+    let x0 = ceil_in(xmin - 0.5, w) - 1;
+    let x1 = floor_in(xmax - 0.5, w) + 1;
+    let y0 = (ceil_in(ymin - 0.5, h) - 1).max(ceil_in(rows.0, h));
+    let y1 = (floor_in(ymax - 0.5, h) + 1).min(floor_in(rows.1, h));
+    if x1 < 0 || y1 < 0 || x0 > w as i64 - 1 || y0 > h as i64 - 1 || y0 > y1 {
         return None;
     }
-    let clamp = |a: f64, n: u32| a.clamp(0.0, (n - 1) as f64) as u32;
+    let clamp = |a: i64, n: u32| a.clamp(0, n as i64 - 1) as u32;
     Some(Candidate {
         index: 0,
         x0: clamp(x0, w),
@@ -266,17 +338,35 @@ pub fn project(cam: &Camera, cyl: &Cylinder) -> Option<Candidate> {
     })
 }
 
+/// `ceil(a)` for `a` in `[-4, n + 4]`, and a value beyond that range (same side) for
+/// `a` outside it (±inf included): pixel bounds only compare with `[0, n - 1]`. No libm.
+#[inline(always)]
+fn ceil_in(a: f64, n: u32) -> i64 {
+    let a = a.clamp(-4.0, n as f64 + 4.0);
+    let t = a as i64;
+    t + ((t as f64) < a) as i64
+}
+
+/// `floor(a)`, as [`ceil_in`].
+#[inline(always)]
+fn floor_in(a: f64, n: u32) -> i64 {
+    let a = a.clamp(-4.0, n as f64 + 4.0);
+    let t = a as i64;
+    t - ((t as f64) > a) as i64
+}
+
 impl Tiles {
     /// Bin `cylinders` for `cam`, or `None` when the lists would average more than
     /// [`CROWDED`] candidates per tile (many cylinders reaching past the camera, say):
     /// there the BVH is faster and the lists would cost memory, so `render` uses it.
     pub fn build(cam: &Camera, cylinders: &[Cylinder]) -> Option<Tiles> {
         let (tiles_x, tiles_y) = (cam.width().div_ceil(TILE), cam.height().div_ceil(TILE));
+        let view = View::new(cam);
         let mut cands: Vec<Candidate> = cylinders
             .par_iter()
             .enumerate()
             .filter_map(|(i, c)| {
-                project(cam, c).map(|mut k| {
+                project_in(&view, c).map(|mut k| {
                     k.index = i as u32;
                     k
                 })
@@ -338,7 +428,6 @@ mod tests {
     use super::*;
     use crate::camera::{CameraSpec, FovAxis};
     use crate::rng::SplitMix64;
-    use glam::DVec3;
 
     /// Random cameras over generated scenes: some outside the cloud of cylinders, some
     /// among them (boxes straddling the camera plane), various fields of view and sizes.
