@@ -127,13 +127,32 @@ const EMPTY: Candidate = Candidate {
     half: f64::INFINITY,
 };
 
-/// Candidates per tile, stored flat (CSR): tile `k` owns `list[start[k]..start[k + 1]]`.
+/// Candidates per tile, stored per tile row (CSR within the row): tile `(tx, ty)` owns
+/// `rows[ty][start[ty·(tiles_x + 1) + tx]..start[ty·(tiles_x + 1) + tx + 1]]`.
 #[derive(Clone, Debug)]
 pub struct Tiles {
     pub tiles_x: u32,
     pub tiles_y: u32,
-    start: Vec<usize>,
-    list: Vec<Candidate>,
+    start: Vec<u32>,
+    rows: Vec<Vec<Candidate>>,
+    entries: usize,
+}
+
+/// A candidate's visit to one tile row while binning: its sort key (`t_min` in total
+/// order, then its position in the candidates, which is index order) and the tile
+/// columns its band reaches there.
+#[derive(Clone, Copy)]
+struct Visit {
+    key: u64,
+    pos: u32,
+    tx0: u16,
+    tx1: u16,
+}
+
+/// `f64::total_cmp` order as an unsigned key.
+fn order_key(x: f64) -> u64 {
+    let b = x.to_bits();
+    if b >> 63 == 1 { !b } else { b | 1 << 63 }
 }
 
 /// What [`project`] needs of the camera, derived once per build.
@@ -361,8 +380,9 @@ impl Tiles {
     /// there the BVH is faster and the lists would cost memory, so `render` uses it.
     pub fn build(cam: &Camera, cylinders: &[Cylinder]) -> Option<Tiles> {
         let (tiles_x, tiles_y) = (cam.width().div_ceil(TILE), cam.height().div_ceil(TILE));
+        assert!(tiles_x <= 1 << 16, "image too wide for tiles");
         let view = View::new(cam);
-        let mut cands: Vec<Candidate> = cylinders
+        let cands: Vec<Candidate> = cylinders
             .par_iter()
             .enumerate()
             .filter_map(|(i, c)| {
@@ -372,54 +392,94 @@ impl Tiles {
                 })
             })
             .collect();
-        // Sorted once globally, so every tile's list comes out sorted by t_min.
-        cands.par_sort_unstable_by(|a, b| a.t_min.total_cmp(&b.t_min).then(a.index.cmp(&b.index)));
         let ntiles = (tiles_x * tiles_y) as usize;
-        let entries: usize = cands.par_iter().map(Candidate::tile_entries).sum();
-        if entries > CROWDED * ntiles {
+        // The rectangles bound the entries cheaply; only past the limit count exactly
+        // (the decision is the exact count's either way), before listing any visits.
+        let rect = |c: &Candidate| {
+            (c.x1 / TILE - c.x0 / TILE + 1) as usize * (c.y1 / TILE - c.y0 / TILE + 1) as usize
+        };
+        if cands.par_iter().map(rect).sum::<usize>() > CROWDED * ntiles
+            && cands.par_iter().map(Candidate::tile_entries).sum::<usize>() > CROWDED * ntiles
+        {
             return None;
         }
-        let mut count = vec![0usize; ntiles + 1];
-        for c in &cands {
-            c.for_tile_rows(|ty, a, b| {
-                for tx in a..=b {
-                    count[(ty * tiles_x + tx) as usize + 1] += 1;
+        // Each chunk of candidates lists its visits per tile row; then each tile row
+        // gathers its visits, sorts them by (t_min, index) and fills its tiles' lists. The
+        // sort makes the output independent of the chunking and the thread count.
+        let chunk = cands
+            .len()
+            .div_ceil(4 * rayon::current_num_threads())
+            .max(1024);
+        let visits: Vec<Vec<Vec<Visit>>> = cands
+            .par_chunks(chunk)
+            .enumerate()
+            .map(|(ci, part)| {
+                let mut rows = vec![Vec::new(); tiles_y as usize];
+                for (k, c) in part.iter().enumerate() {
+                    let (key, pos) = (order_key(c.t_min), (ci * chunk + k) as u32);
+                    c.for_tile_rows(|ty, a, b| {
+                        rows[ty as usize].push(Visit {
+                            key,
+                            pos,
+                            tx0: a as u16,
+                            tx1: b as u16,
+                        })
+                    });
                 }
-            });
-        }
-        for k in 1..count.len() {
-            count[k] += count[k - 1];
-        }
-        let start = count.clone();
-        let mut fill = count;
-        let mut list = vec![EMPTY; start[ntiles]];
-        for c in &cands {
-            c.for_tile_rows(|ty, a, b| {
-                for tx in a..=b {
-                    let k = (ty * tiles_x + tx) as usize;
-                    list[fill[k]] = *c;
-                    fill[k] += 1;
+                rows
+            })
+            .collect();
+        let nx = tiles_x as usize;
+        let (starts, rows): (Vec<Vec<u32>>, Vec<Vec<Candidate>>) = (0..tiles_y as usize)
+            .into_par_iter()
+            .map(|ty| {
+                let mut row: Vec<Visit> =
+                    Vec::with_capacity(visits.iter().map(|v| v[ty].len()).sum());
+                for v in &visits {
+                    row.extend_from_slice(&v[ty]);
                 }
-            });
-        }
+                row.sort_unstable_by_key(|v| (v.key, v.pos));
+                let mut start = vec![0u32; nx + 1];
+                for v in &row {
+                    for tx in v.tx0..=v.tx1 {
+                        start[tx as usize + 1] += 1;
+                    }
+                }
+                for k in 1..=nx {
+                    start[k] += start[k - 1];
+                }
+                let mut fill = start.clone();
+                let mut list = vec![EMPTY; start[nx] as usize];
+                for v in &row {
+                    let c = &cands[v.pos as usize];
+                    for tx in v.tx0..=v.tx1 {
+                        let f = &mut fill[tx as usize];
+                        list[*f as usize] = *c;
+                        *f += 1;
+                    }
+                }
+                (start, list)
+            })
+            .unzip();
         Some(Tiles {
             tiles_x,
             tiles_y,
-            start,
-            list,
+            start: starts.concat(),
+            entries: rows.iter().map(Vec::len).sum(),
+            rows,
         })
     }
 
     /// Candidates of the tile holding pixel column block `tx`, row block `ty`.
     #[inline]
     pub fn tile(&self, tx: u32, ty: u32) -> &[Candidate] {
-        let k = (ty * self.tiles_x + tx) as usize;
-        &self.list[self.start[k]..self.start[k + 1]]
+        let k = (ty * (self.tiles_x + 1) + tx) as usize;
+        &self.rows[ty as usize][self.start[k] as usize..self.start[k + 1] as usize]
     }
 
     /// Total candidate entries (for statistics).
     pub fn entries(&self) -> usize {
-        self.list.len()
+        self.entries
     }
 }
 
@@ -510,6 +570,36 @@ mod tests {
             }
         }
         assert!(checked > 10_000, "{checked}");
+    }
+
+    /// The lists do not depend on the thread count (the chunking follows it).
+    #[test]
+    fn lists_are_independent_of_thread_count() {
+        let sc = crate::bench::random_scene(5000, 3, 640, 360);
+        let cam = Camera::new(sc.camera);
+        let with = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            let t = pool.install(|| Tiles::build(&cam, &sc.cylinders)).unwrap();
+            let mut out = Vec::new();
+            for ty in 0..t.tiles_y {
+                for tx in 0..t.tiles_x {
+                    out.push(u64::MAX);
+                    for c in t.tile(tx, ty) {
+                        out.extend([c.index, c.x0, c.y0, c.x1, c.y1].map(u64::from));
+                        out.extend([c.t_min, c.centre, c.slope, c.half].map(f64::to_bits));
+                    }
+                }
+            }
+            (t.entries(), out)
+        };
+        let one = with(1);
+        assert!(one.0 > 5000);
+        for threads in [2, 3, 7] {
+            assert!(with(threads) == one, "{threads} threads");
+        }
     }
 
     /// Points on the cylinders (sides and caps) in the clip range project into a pixel
