@@ -127,6 +127,13 @@ const EMPTY: Candidate = Candidate {
     half: f64::INFINITY,
 };
 
+/// The slot of a culled cylinder while binning: an empty rectangle.
+const CULLED: Candidate = Candidate {
+    x0: 1,
+    x1: 0,
+    ..EMPTY
+};
+
 /// Candidates per tile, stored per tile row (CSR within the row): tile `(tx, ty)` owns
 /// `rows[ty][start[ty·(tiles_x + 1) + tx]..start[ty·(tiles_x + 1) + tx + 1]]`.
 #[derive(Clone, Debug)]
@@ -382,11 +389,13 @@ impl Tiles {
         let (tiles_x, tiles_y) = (cam.width().div_ceil(TILE), cam.height().div_ceil(TILE));
         assert!(tiles_x <= 1 << 16, "image too wide for tiles");
         let view = View::new(cam);
+        // One slot per cylinder (an indexed collect writes each once, in place), culled
+        // ones with an empty rectangle: they reach no tile.
         let cands: Vec<Candidate> = cylinders
             .par_iter()
             .enumerate()
-            .filter_map(|(i, c)| {
-                project_in(&view, c).map(|mut k| {
+            .map(|(i, c)| {
+                project_in(&view, c).map_or(CULLED, |mut k| {
                     k.index = i as u32;
                     k
                 })
@@ -395,8 +404,11 @@ impl Tiles {
         let ntiles = (tiles_x * tiles_y) as usize;
         // The rectangles bound the entries cheaply; only past the limit count exactly
         // (the decision is the exact count's either way), before listing any visits.
-        let rect = |c: &Candidate| {
-            (c.x1 / TILE - c.x0 / TILE + 1) as usize * (c.y1 / TILE - c.y0 / TILE + 1) as usize
+        let rect = |c: &Candidate| match c.x0 <= c.x1 {
+            true => {
+                (c.x1 / TILE - c.x0 / TILE + 1) as usize * (c.y1 / TILE - c.y0 / TILE + 1) as usize
+            }
+            false => 0,
         };
         if cands.par_iter().map(rect).sum::<usize>() > CROWDED * ntiles
             && cands.par_iter().map(Candidate::tile_entries).sum::<usize>() > CROWDED * ntiles
@@ -415,7 +427,7 @@ impl Tiles {
             .enumerate()
             .map(|(ci, part)| {
                 let mut rows = vec![Vec::new(); tiles_y as usize];
-                for (k, c) in part.iter().enumerate() {
+                for (k, c) in part.iter().enumerate().filter(|(_, c)| c.x0 <= c.x1) {
                     let (key, pos) = (order_key(c.t_min), (ci * chunk + k) as u32);
                     c.for_tile_rows(|ty, a, b| {
                         rows[ty as usize].push(Visit {
