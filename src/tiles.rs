@@ -1,12 +1,14 @@
 //! Screen-space binning of cylinders for primary rays: the fast path of `render`.
 //!
 //! Every primary ray leaves the one camera origin, so a cylinder can only be hit by the
-//! pixels inside the projection of its bounding box. Each cylinder's oriented box (axis ×
-//! 2r × 2r) is projected once; the cylinder is listed in every screen tile its pixel
-//! rectangle touches, sorted by the box's nearest camera-space z. `render` then walks a
-//! tile's candidates nearest first, each over just the pixels it can cover, like a
-//! rasteriser with a depth test: a pixel whose best hit is nearer than the candidate's
-//! nearest z is skipped (`t ≥ z` for any point, so it cannot be improved). A box reaching behind the camera plane projects to the whole screen.
+//! pixels inside the projection of a bound of it. Each cylinder is projected once (see
+//! [`project`]: the boxes of its end disks, or its oriented box clipped at the near plane
+//! when it reaches nearer) to a pixel rectangle, a band around its projected axis and a
+//! nearest camera-space z; it is listed in every screen tile that rectangle and band
+//! reach, sorted by that z. `render` then walks a tile's candidates nearest first, each
+//! over just the pixels it can cover, like a rasteriser with a depth test: a pixel whose
+//! best hit is nearer than the candidate's nearest z is skipped (`t ≥ z` for any point,
+//! so it cannot be improved).
 //!
 //! The rectangle of a long, thin, slanted cylinder is mostly empty, so each row of it is
 //! also cut to the band around the projected axis that holds the projected capsule: the cylinder lies within `r` of its axis
@@ -18,6 +20,7 @@
 
 use crate::camera::Camera;
 use crate::geometry::{Cylinder, cylinder::orthonormal_basis};
+use glam::DVec3;
 use rayon::prelude::*;
 
 /// Tile side in pixels.
@@ -54,7 +57,7 @@ impl Candidate {
     #[inline(always)]
     pub fn row_span(&self, j: u32, lo: u32, hi: u32) -> Option<(u32, u32)> {
         let (x0, x1) = (self.x0.max(lo), self.x1.min(hi));
-        let c = self.centre + self.slope * j as f64;
+        let c = self.line(j);
         // `max`/`min` against the finite rectangle keep u, v finite (an infinite band
         // keeps [x0, x1]).
         let u = (c - self.half).max(x0 as f64);
@@ -66,6 +69,49 @@ impl Candidate {
         let (a, b) = (u as u32, v as u32);
         let a = a + ((a as f64) < u) as u32;
         (a <= b).then_some((a, b))
+    }
+
+    /// The band's centre column on row `j`. Rounding is monotone, so for `j0 <= j <= j1`
+    /// the computed value lies between those of `j0` and `j1`: binning relies on it.
+    #[inline(always)]
+    fn line(&self, j: u32) -> f64 {
+        self.centre + self.slope * j as f64
+    }
+
+    /// The tile columns `row_span` can reach on any row `j0..=j1` (within `y0..=y1`): the
+    /// band's extreme columns over those rows are at `j0` or `j1` (the line is linear and
+    /// its rounding monotone), cut to the rectangle, as in `row_span`.
+    #[inline]
+    fn tile_columns(&self, j0: u32, j1: u32) -> Option<(u32, u32)> {
+        let (c0, c1) = (self.line(j0), self.line(j1));
+        let u = (c0.min(c1) - self.half).max(self.x0 as f64);
+        let v = (c0.max(c1) + self.half).min(self.x1 as f64);
+        if u > v {
+            return None;
+        }
+        let (a, b) = (u as u32, v as u32);
+        let a = a + ((a as f64) < u) as u32;
+        (a <= b).then_some((a / TILE, b / TILE))
+    }
+
+    /// Call `f(ty, tx0, tx1)` for each tile row the candidate reaches, with the tile
+    /// columns its band reaches there.
+    #[inline]
+    fn for_tile_rows(&self, mut f: impl FnMut(u32, u32, u32)) {
+        for ty in self.y0 / TILE..=self.y1 / TILE {
+            let j0 = (ty * TILE).max(self.y0);
+            let j1 = (ty * TILE + TILE - 1).min(self.y1);
+            if let Some((a, b)) = self.tile_columns(j0, j1) {
+                f(ty, a, b);
+            }
+        }
+    }
+
+    /// How many tile lists the candidate goes in.
+    fn tile_entries(&self) -> usize {
+        let mut n = 0;
+        self.for_tile_rows(|_, a, b| n += (b - a + 1) as usize);
+        n
     }
 }
 
@@ -81,117 +127,175 @@ const EMPTY: Candidate = Candidate {
     half: f64::INFINITY,
 };
 
-/// Candidates per tile, stored flat (CSR): tile `k` owns `list[start[k]..start[k + 1]]`.
+/// The slot of a culled cylinder while binning: an empty rectangle.
+const CULLED: Candidate = Candidate {
+    x0: 1,
+    x1: 0,
+    ..EMPTY
+};
+
+/// Candidates per tile, stored per tile row (CSR within the row): tile `(tx, ty)` owns
+/// `rows[ty][start[ty·(tiles_x + 1) + tx]..start[ty·(tiles_x + 1) + tx + 1]]`.
 #[derive(Clone, Debug)]
 pub struct Tiles {
     pub tiles_x: u32,
     pub tiles_y: u32,
-    start: Vec<usize>,
-    list: Vec<Candidate>,
+    start: Vec<u32>,
+    rows: Vec<Vec<Candidate>>,
+    entries: usize,
 }
 
-/// The pixel rectangle and nearest z of a cylinder, or `None` when it lies wholly outside
-/// the view or the clip range.
+/// A candidate's visit to one tile row while binning: its sort key (`t_min` in total
+/// order, then its position in the candidates, which is index order) and the tile
+/// columns its band reaches there.
+#[derive(Clone, Copy)]
+struct Visit {
+    key: u64,
+    pos: u32,
+    tx0: u16,
+    tx1: u16,
+}
+
+/// `f64::total_cmp` order as an unsigned key.
+fn order_key(x: f64) -> u64 {
+    let b = x.to_bits();
+    if b >> 63 == 1 { !b } else { b | 1 << 63 }
+}
+
+/// What [`project`] needs of the camera, derived once per build.
+struct View {
+    origin: DVec3,
+    /// Camera axes: x right, y up, z forward.
+    right: DVec3,
+    up: DVec3,
+    forward: DVec3,
+    /// Focal lengths in pixels, their maximum, and the principal point `(W/2, H/2)`.
+    fx: f64,
+    fy: f64,
+    f: f64,
+    cx: f64,
+    cy: f64,
+    width: u32,
+    height: u32,
+    near: f64,
+    far: f64,
+    /// A hair nearer than the near plane: nothing nearer can be hit.
+    zc: f64,
+}
+
+impl View {
+    fn new(cam: &Camera) -> View {
+        let (fx, fy) = cam.focal_px();
+        View {
+            origin: cam.origin,
+            right: -cam.left,
+            up: cam.true_up,
+            forward: cam.forward,
+            fx,
+            fy,
+            f: fx.max(fy),
+            cx: cam.width() as f64 / 2.0,
+            cy: cam.height() as f64 / 2.0,
+            width: cam.width(),
+            height: cam.height(),
+            near: cam.spec.near_clip,
+            far: cam.spec.far_clip,
+            zc: cam.spec.near_clip * (1.0 - 1e-6),
+        }
+    }
+
+    /// World vector `p` in camera axes.
+    #[inline(always)]
+    fn camera(&self, p: DVec3) -> DVec3 {
+        DVec3::new(p.dot(self.right), p.dot(self.up), p.dot(self.forward))
+    }
+}
+
+/// The pixel rectangle, nearest z and axis band of a cylinder (see [`Candidate`]), or
+/// `None` when it lies wholly outside the view or the clip range.
+///
+/// Bounds: each end disk (radius `r`, unit normal `a` in camera axes) lies in the box
+/// reaching `r·sqrt(1 - a_k²)` from its centre along camera axis `k`, and the cylinder is
+/// the convex hull of its two disks. So its camera z lies within the two boxes' z range,
+/// and when that is all in front of the near plane its projection is the hull of the
+/// disks' projections, within the union of the two boxes' projected rectangles (2
+/// reciprocals each: `x/z` over a box is extreme at its corners). A cylinder reaching
+/// nearer than the near plane instead gets the part of its oriented box (axis × 2r × 2r)
+/// in front of the plane projected: the corners there, and where the 12 edges cross it.
 pub fn project(cam: &Camera, cyl: &Cylinder) -> Option<Candidate> {
-    let (w, h) = (cam.width(), cam.height());
-    let (u, v) = orthonormal_basis(cyl.axis);
+    project_in(&View::new(cam), cyl)
+}
+
+fn project_in(view: &View, cyl: &Cylinder) -> Option<Candidate> {
+    let (w, h) = (view.width, view.height);
     let r = cyl.radius;
-    let right = -cam.left;
-    let (mut zmin, mut zmax) = (f64::INFINITY, f64::NEG_INFINITY);
+    let b = view.camera(cyl.base - view.origin);
+    let a = view.camera(cyl.axis);
+    let t = b + a * cyl.height;
+    let a2 = a * a;
+    let ext = DVec3::new(
+        (a2.y + a2.z).sqrt(),
+        (a2.x + a2.z).sqrt(),
+        (a2.x + a2.y).sqrt(),
+    ) * r;
+    let (zmin, zmax) = (b.z.min(t.z) - ext.z, b.z.max(t.z) + ext.z);
+    // Pad for rounding in the bounds (relative 1e-9 of their size) and the projection.
+    let pad = 1e-9 * (b.length_squared().max(t.length_squared()).sqrt() + r) + 1e-12;
+    if zmax + pad < view.near || zmin - pad > view.far {
+        return None;
+    }
+    let t_min = (zmin - pad).max(view.near * (1.0 - 1e-12));
+    // The rectangle in image-plane units (x/z, y/z).
     let (mut xmin, mut xmax, mut ymin, mut ymax) = (
         f64::INFINITY,
         f64::NEG_INFINITY,
         f64::INFINITY,
         f64::NEG_INFINITY,
     );
-    // The box's corners in camera space (x right, y up, z forward); bit 2 picks the end,
-    // bits 1 and 0 the sign along u and v.
-    let corners: [[f64; 3]; 8] = std::array::from_fn(|k| {
-        let end = if k & 4 == 0 { cyl.base } else { cyl.top() };
-        let su = if k & 2 == 0 { -r } else { r };
-        let sv = if k & 1 == 0 { -r } else { r };
-        let p = end + u * su + v * sv - cam.origin;
-        [p.dot(right), p.dot(cam.true_up), p.dot(cam.forward)]
-    });
-    // Nothing nearer than the near plane can be hit, so project the part of the box in
-    // front of it (a hair nearer, to stay conservative): the corners there, and where the
-    // 12 edges cross the plane. A box straddling the camera then still gets a finite
-    // rectangle instead of the whole screen.
-    let zc = cam.spec.near_clip * (1.0 - 1e-6);
-    let mut add = |q: [f64; 3]| {
-        // Continuous pixel coordinates: pixel i spans [i, i + 1], centre i + 0.5.
-        let x = (q[0] / q[2] / cam.tan_half_x + 1.0) * 0.5 * w as f64;
-        let y = (1.0 - q[1] / q[2] / cam.tan_half_y) * 0.5 * h as f64;
-        xmin = xmin.min(x);
-        xmax = xmax.max(x);
-        ymin = ymin.min(y);
-        ymax = ymax.max(y);
-    };
-    for (k, c) in corners.iter().enumerate() {
-        zmin = zmin.min(c[2]);
-        zmax = zmax.max(c[2]);
-        if c[2] >= zc {
-            add(*c);
+    if zmin >= view.zc {
+        for p in [b, t] {
+            let (i0, i1) = (1.0 / (p.z - ext.z), 1.0 / (p.z + ext.z));
+            let (xl, xh, yl, yh) = (p.x - ext.x, p.x + ext.x, p.y - ext.y, p.y + ext.y);
+            xmin = xmin.min((xl * i0).min(xl * i1));
+            xmax = xmax.max((xh * i0).max(xh * i1));
+            ymin = ymin.min((yl * i0).min(yl * i1));
+            ymax = ymax.max((yh * i0).max(yh * i1));
         }
-        for bit in [1, 2, 4] {
-            let o = &corners[k | bit];
-            if k & bit == 0 && (c[2] < zc) != (o[2] < zc) {
-                let s = (zc - c[2]) / (o[2] - c[2]);
-                add([c[0] + s * (o[0] - c[0]), c[1] + s * (o[1] - c[1]), zc]);
+    } else {
+        // Reaches nearer than the near plane (or NaN): the clipped oriented box.
+        let (u, v) = orthonormal_basis(cyl.axis);
+        let (u, v) = (view.camera(u) * r, view.camera(v) * r);
+        // Bit 2 picks the end, bits 1 and 0 the sign along u and v.
+        let corners: [DVec3; 8] = std::array::from_fn(|k| {
+            let end = if k & 4 == 0 { b } else { t };
+            let su = if k & 2 == 0 { -u } else { u };
+            let sv = if k & 1 == 0 { -v } else { v };
+            end + su + sv
+        });
+        let zc = view.zc;
+        let mut add = |x: f64, y: f64, z: f64| {
+            let iz = 1.0 / z;
+            xmin = xmin.min(x * iz);
+            xmax = xmax.max(x * iz);
+            ymin = ymin.min(y * iz);
+            ymax = ymax.max(y * iz);
+        };
+        for (k, c) in corners.iter().enumerate() {
+            if c.z >= zc {
+                add(c.x, c.y, c.z);
+            }
+            for bit in [1, 2, 4] {
+                let o = &corners[k | bit];
+                if k & bit == 0 && (c.z < zc) != (o.z < zc) {
+                    let s = (zc - c.z) / (o.z - c.z);
+                    add(c.x + s * (o.x - c.x), c.y + s * (o.y - c.y), zc);
+                }
             }
         }
     }
-    // The capsule around the projected axis (see the module doc), with 1.5 px of slack.
-    let (fx, fy) = cam.focal_px();
-    let ends = [cyl.base - cam.origin, cyl.top() - cam.origin];
-    let proj = ends.map(|p| {
-        let z = p.dot(cam.forward);
-        let (tx, ty) = (p.dot(right) / z, p.dot(cam.true_up) / z);
-        (
-            z,
-            tx,
-            ty,
-            [tx * fx + w as f64 / 2.0, h as f64 / 2.0 - ty * fy],
-        )
-    });
-    let z_axis = proj[0].0.min(proj[1].0);
-    let slope2 = proj.iter().map(|q| q.1 * q.1).fold(0.0, f64::max)
-        + proj.iter().map(|q| q.2 * q.2).fold(0.0, f64::max);
-    let far_off = proj.iter().any(|q| q.3[0].abs().max(q.3[1].abs()) > 1e7);
-    let (a, b) = (proj[0].3, proj[1].3);
-    let e = [b[0] - a[0], b[1] - a[1]];
-    let len = e[0].hypot(e[1]);
-    let rad = fx.max(fy) * r * (1.0 + slope2).sqrt() / (z_axis - r) + 1.5;
-    // A point-like projection (view along the axis) has no line: the rectangle bounds it.
-    let band = !(far_off || z_axis - r <= 0.0 || !rad.is_finite() || len < 1e-9);
-    // The band `|n·(p - a)| <= rad` around the axis line through `a` along `e`, with unit
-    // normal `n = (-e_y, e_x)/len`. For a pixel centre p = (x + 0.5, j + 0.5) it is the
-    // column interval `x + 0.5 = a_x - n_y (j + 0.5 - a_y)/n_x ± rad/|n_x|`; a line within
-    // 1e-9 of horizontal bounds rows instead (the columns term is then < 2e-5 px, inside
-    // the slack), so it trims `y0..y1` and leaves the columns to the rectangle.
-    let (n, mut rows) = (
-        [-e[1] / len, e[0] / len],
-        (f64::NEG_INFINITY, f64::INFINITY),
-    );
-    let (mut centre, mut slope, mut half) = (0.0, 0.0, f64::INFINITY);
-    if band && n[0].abs() > 1e-9 {
-        slope = -n[1] / n[0];
-        centre = a[0] - 0.5 + slope * (0.5 - a[1]);
-        half = rad / n[0].abs();
-    } else if band {
-        let reach = rad / n[1].abs();
-        rows = (a[1] - reach - 0.5, a[1] + reach - 0.5);
-    }
-    // Pad for rounding in the box (relative 1e-9 of its distance) and in the projection.
-    let pad = 1e-9
-        * (cyl.base - cam.origin)
-            .length()
-            .max(cyl.top().distance(cam.origin))
-        + 1e-12;
-    if zmax + pad < cam.spec.near_clip || zmin - pad > cam.spec.far_clip {
-        return None;
-    }
-    let t_min = (zmin - pad).max(cam.spec.near_clip * (1.0 - 1e-12));
+    // Continuous pixel coordinates: pixel i spans [i, i + 1], centre i + 0.5.
+    let (xmin, xmax) = (xmin * view.fx + view.cx, xmax * view.fx + view.cx);
+    let (ymin, ymax) = (view.cy - ymax * view.fy, view.cy - ymin * view.fy);
     if !(xmin.is_finite() && xmax.is_finite() && ymin.is_finite() && ymax.is_finite()) {
         // Degenerate projection (should not happen past the checks above): whole screen.
         return Some(Candidate {
@@ -201,15 +305,52 @@ pub fn project(cam: &Camera, cyl: &Cylinder) -> Option<Candidate> {
             ..EMPTY
         });
     }
-    // Pixel i is covered when its centre i + 0.5 lies in [xmin, xmax]; one pixel of slack.
-    let lo = |a: f64| (a - 0.5).ceil() - 1.0;
-    let hi = |a: f64| (a - 0.5).floor() + 1.0;
-    let (x0, x1) = (lo(xmin), hi(xmax));
-    let (y0, y1) = (lo(ymin).max(rows.0.ceil()), hi(ymax).min(rows.1.floor()));
-    if x1 < 0.0 || y1 < 0.0 || x0 > (w - 1) as f64 || y0 > (h - 1) as f64 || y0 > y1 {
+    // The capsule around the projected axis (see the module doc), with 1.5 px of slack:
+    // the band `|n·(p - pa)| <= rad` around the axis line through `pa` along `e`, with
+    // unit normal `n = (-e_y, e_x)/len`. For a pixel centre p = (x + 0.5, j + 0.5) it is
+    // the column interval `x + 0.5 = pa_x + (e_x/e_y)(j + 0.5 - pa_y) ± rad·len/|e_y|`; a
+    // line within 1e-9 of horizontal bounds rows instead (the columns term is then
+    // < 2e-5 px, inside the slack), so it trims `y0..y1` and leaves the columns to the
+    // rectangle. A point-like projection (view along the axis) has no line: the
+    // rectangle bounds it.
+    let (mut centre, mut slope, mut half) = (0.0, 0.0, f64::INFINITY);
+    let mut rows = (f64::NEG_INFINITY, f64::INFINITY);
+    let z_axis = b.z.min(t.z);
+    if z_axis - r > 0.0 {
+        let (ib, it) = (1.0 / b.z, 1.0 / t.z);
+        let (txb, tyb, txt, tyt) = (b.x * ib, b.y * ib, t.x * it, t.y * it);
+        let slope2 = (txb * txb).max(txt * txt) + (tyb * tyb).max(tyt * tyt);
+        let pa = [txb * view.fx + view.cx, view.cy - tyb * view.fy];
+        let pb = [txt * view.fx + view.cx, view.cy - tyt * view.fy];
+        let far_off = pa[0]
+            .abs()
+            .max(pa[1].abs())
+            .max(pb[0].abs().max(pb[1].abs()))
+            > 1e7;
+        let e = [pb[0] - pa[0], pb[1] - pa[1]];
+        let len = (e[0] * e[0] + e[1] * e[1]).sqrt();
+        let rad = view.f * r * (1.0 + slope2).sqrt() / (z_axis - r) + 1.5;
+        if !far_off && rad.is_finite() && len >= 1e-9 {
+            if e[1].abs() > 1e-9 * len {
+                let ie = 1.0 / e[1];
+                slope = e[0] * ie;
+                centre = pa[0] - 0.5 + slope * (0.5 - pa[1]);
+                half = rad * len * ie.abs();
+            } else {
+                let reach = rad * len / e[0].abs();
+                rows = (pa[1] - reach - 0.5, pa[1] + reach - 0.5);
+            }
+        }
+    }
+    // Pixel i is covered when its centre i + 0.5 lies in [min, max]; one pixel of slack.
+    let x0 = ceil_in(xmin - 0.5, w) - 1;
+    let x1 = floor_in(xmax - 0.5, w) + 1;
+    let y0 = (ceil_in(ymin - 0.5, h) - 1).max(ceil_in(rows.0, h));
+    let y1 = (floor_in(ymax - 0.5, h) + 1).min(floor_in(rows.1, h));
+    if x1 < 0 || y1 < 0 || x0 > w as i64 - 1 || y0 > h as i64 - 1 || y0 > y1 {
         return None;
     }
-    let clamp = |a: f64, n: u32| a.clamp(0.0, (n - 1) as f64) as u32;
+    let clamp = |a: i64, n: u32| a.clamp(0, n as i64 - 1) as u32;
     Some(Candidate {
         index: 0,
         x0: clamp(x0, w),
@@ -223,78 +364,306 @@ pub fn project(cam: &Camera, cyl: &Cylinder) -> Option<Candidate> {
     })
 }
 
+/// `ceil(a)` for `a` in `[-4, n + 4]`, and a value beyond that range (same side) for
+/// `a` outside it (±inf included): pixel bounds only compare with `[0, n - 1]`. No libm.
+#[inline(always)]
+fn ceil_in(a: f64, n: u32) -> i64 {
+    let a = a.clamp(-4.0, n as f64 + 4.0);
+    let t = a as i64;
+    t + ((t as f64) < a) as i64
+}
+
+/// `floor(a)`, as [`ceil_in`].
+#[inline(always)]
+fn floor_in(a: f64, n: u32) -> i64 {
+    let a = a.clamp(-4.0, n as f64 + 4.0);
+    let t = a as i64;
+    t - ((t as f64) > a) as i64
+}
+
 impl Tiles {
     /// Bin `cylinders` for `cam`, or `None` when the lists would average more than
     /// [`CROWDED`] candidates per tile (many cylinders reaching past the camera, say):
     /// there the BVH is faster and the lists would cost memory, so `render` uses it.
     pub fn build(cam: &Camera, cylinders: &[Cylinder]) -> Option<Tiles> {
         let (tiles_x, tiles_y) = (cam.width().div_ceil(TILE), cam.height().div_ceil(TILE));
-        let mut cands: Vec<Candidate> = cylinders
+        assert!(tiles_x <= 1 << 16, "image too wide for tiles");
+        let view = View::new(cam);
+        // One slot per cylinder (an indexed collect writes each once, in place), culled
+        // ones with an empty rectangle: they reach no tile.
+        let cands: Vec<Candidate> = cylinders
             .par_iter()
             .enumerate()
-            .filter_map(|(i, c)| {
-                project(cam, c).map(|mut k| {
+            .map(|(i, c)| {
+                project_in(&view, c).map_or(CULLED, |mut k| {
                     k.index = i as u32;
                     k
                 })
             })
             .collect();
-        // Sorted once globally, so every tile's list comes out sorted by t_min.
-        cands.par_sort_unstable_by(|a, b| a.t_min.total_cmp(&b.t_min).then(a.index.cmp(&b.index)));
         let ntiles = (tiles_x * tiles_y) as usize;
-        let tile_range = |c: &Candidate| (c.x0 / TILE, c.x1 / TILE, c.y0 / TILE, c.y1 / TILE);
-        let entries: usize = cands
-            .iter()
-            .map(|c| {
-                let (a, b, p, q) = tile_range(c);
-                (b - a + 1) as usize * (q - p + 1) as usize
-            })
-            .sum();
-        if entries > CROWDED * ntiles {
+        // The rectangles bound the entries cheaply; only past the limit count exactly
+        // (the decision is the exact count's either way), before listing any visits.
+        let rect = |c: &Candidate| match c.x0 <= c.x1 {
+            true => {
+                (c.x1 / TILE - c.x0 / TILE + 1) as usize * (c.y1 / TILE - c.y0 / TILE + 1) as usize
+            }
+            false => 0,
+        };
+        if cands.par_iter().map(rect).sum::<usize>() > CROWDED * ntiles
+            && cands.par_iter().map(Candidate::tile_entries).sum::<usize>() > CROWDED * ntiles
+        {
             return None;
         }
-        let mut count = vec![0usize; ntiles + 1];
-        for c in &cands {
-            let (a, b, p, q) = tile_range(c);
-            for ty in p..=q {
-                for tx in a..=b {
-                    count[(ty * tiles_x + tx) as usize + 1] += 1;
+        // Each chunk of candidates lists its visits per tile row; then each tile row
+        // gathers its visits, sorts them by (t_min, index) and fills its tiles' lists. The
+        // sort makes the output independent of the chunking and the thread count.
+        let chunk = cands
+            .len()
+            .div_ceil(4 * rayon::current_num_threads())
+            .max(1024);
+        let visits: Vec<Vec<Vec<Visit>>> = cands
+            .par_chunks(chunk)
+            .enumerate()
+            .map(|(ci, part)| {
+                let mut rows = vec![Vec::new(); tiles_y as usize];
+                for (k, c) in part.iter().enumerate().filter(|(_, c)| c.x0 <= c.x1) {
+                    let (key, pos) = (order_key(c.t_min), (ci * chunk + k) as u32);
+                    c.for_tile_rows(|ty, a, b| {
+                        rows[ty as usize].push(Visit {
+                            key,
+                            pos,
+                            tx0: a as u16,
+                            tx1: b as u16,
+                        })
+                    });
                 }
-            }
-        }
-        for k in 1..count.len() {
-            count[k] += count[k - 1];
-        }
-        let start = count.clone();
-        let mut fill = count;
-        let mut list = vec![EMPTY; start[ntiles]];
-        for c in &cands {
-            let (a, b, p, q) = tile_range(c);
-            for ty in p..=q {
-                for tx in a..=b {
-                    let k = (ty * tiles_x + tx) as usize;
-                    list[fill[k]] = *c;
-                    fill[k] += 1;
+                rows
+            })
+            .collect();
+        let nx = tiles_x as usize;
+        let (starts, rows): (Vec<Vec<u32>>, Vec<Vec<Candidate>>) = (0..tiles_y as usize)
+            .into_par_iter()
+            .map(|ty| {
+                let mut row: Vec<Visit> =
+                    Vec::with_capacity(visits.iter().map(|v| v[ty].len()).sum());
+                for v in &visits {
+                    row.extend_from_slice(&v[ty]);
                 }
-            }
-        }
+                row.sort_unstable_by_key(|v| (v.key, v.pos));
+                let mut start = vec![0u32; nx + 1];
+                for v in &row {
+                    for tx in v.tx0..=v.tx1 {
+                        start[tx as usize + 1] += 1;
+                    }
+                }
+                for k in 1..=nx {
+                    start[k] += start[k - 1];
+                }
+                let mut fill = start.clone();
+                let mut list = vec![EMPTY; start[nx] as usize];
+                for v in &row {
+                    let c = &cands[v.pos as usize];
+                    for tx in v.tx0..=v.tx1 {
+                        let f = &mut fill[tx as usize];
+                        list[*f as usize] = *c;
+                        *f += 1;
+                    }
+                }
+                (start, list)
+            })
+            .unzip();
         Some(Tiles {
             tiles_x,
             tiles_y,
-            start,
-            list,
+            start: starts.concat(),
+            entries: rows.iter().map(Vec::len).sum(),
+            rows,
         })
     }
 
     /// Candidates of the tile holding pixel column block `tx`, row block `ty`.
     #[inline]
     pub fn tile(&self, tx: u32, ty: u32) -> &[Candidate] {
-        let k = (ty * self.tiles_x + tx) as usize;
-        &self.list[self.start[k]..self.start[k + 1]]
+        let k = (ty * (self.tiles_x + 1) + tx) as usize;
+        &self.rows[ty as usize][self.start[k] as usize..self.start[k + 1] as usize]
     }
 
     /// Total candidate entries (for statistics).
     pub fn entries(&self) -> usize {
-        self.list.len()
+        self.entries
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::{CameraSpec, FovAxis};
+    use crate::rng::SplitMix64;
+
+    /// Random cameras over generated scenes: some outside the cloud of cylinders, some
+    /// among them (boxes straddling the camera plane), various fields of view and sizes.
+    fn cases() -> Vec<(Camera, Vec<Cylinder>)> {
+        let mut rng = SplitMix64::new(7);
+        (0..40)
+            .map(|k| {
+                let (w, h) = (rng.int_in(40, 300), rng.int_in(30, 200));
+                let n = [1, 20, 200, 600][k % 4];
+                let sc = crate::bench::random_scene(n, 100 + k as u64, w, h);
+                let origin = if k % 3 == 0 {
+                    DVec3::new(
+                        rng.range(-4.0, 4.0),
+                        rng.range(-4.0, 4.0),
+                        rng.range(-4.0, 4.0),
+                    )
+                } else {
+                    rng.unit_vector() * rng.range(8.0, 25.0)
+                };
+                let target = DVec3::new(
+                    rng.range(-3.0, 3.0),
+                    rng.range(-3.0, 3.0),
+                    rng.range(-3.0, 3.0),
+                );
+                let fov_axis = [FovAxis::X, FovAxis::Y, FovAxis::Diagonal][k % 3];
+                let cam = Camera::new(CameraSpec {
+                    origin,
+                    target,
+                    up: rng.unit_vector(),
+                    fov_deg: rng.range(15.0, 110.0),
+                    fov_axis,
+                    width: w,
+                    height: h,
+                    near_clip: rng.range(0.001, 0.5),
+                    far_clip: rng.range(10.0, 40.0),
+                });
+                (cam, sc.cylinders)
+            })
+            .collect()
+    }
+
+    /// Every pixel a candidate's `row_span` admits lies in a tile whose list holds it.
+    #[test]
+    fn binning_covers_every_row_span() {
+        let mut checked = 0usize;
+        for (cam, cyls) in cases() {
+            let Some(tiles) = Tiles::build(&cam, &cyls) else {
+                continue;
+            };
+            let (w, h) = (cam.width(), cam.height());
+            for (i, cyl) in cyls.iter().enumerate() {
+                let Some(c) = project(&cam, cyl) else {
+                    continue;
+                };
+                assert!(c.x1 < w && c.y1 < h && c.x0 <= c.x1 && c.y0 <= c.y1);
+                for j in c.y0..=c.y1 {
+                    for tx in 0..tiles.tiles_x {
+                        let xs = (tx * TILE, ((tx + 1) * TILE).min(w) - 1);
+                        if c.row_span(j, xs.0, xs.1).is_some() {
+                            checked += 1;
+                            assert!(
+                                tiles.tile(tx, j / TILE).iter().any(|k| k.index == i as u32),
+                                "cylinder {i} row {j} tile column {tx} not listed"
+                            );
+                        }
+                    }
+                }
+            }
+            // Every list is sorted by (t_min, index).
+            for ty in 0..tiles.tiles_y {
+                for tx in 0..tiles.tiles_x {
+                    let l = tiles.tile(tx, ty);
+                    assert!(l.windows(2).all(|p| {
+                        p[0].t_min
+                            .total_cmp(&p[1].t_min)
+                            .then(p[0].index.cmp(&p[1].index))
+                            == std::cmp::Ordering::Less
+                    }));
+                }
+            }
+        }
+        assert!(checked > 10_000, "{checked}");
+    }
+
+    /// The lists do not depend on the thread count (the chunking follows it).
+    #[test]
+    fn lists_are_independent_of_thread_count() {
+        let sc = crate::bench::random_scene(5000, 3, 640, 360);
+        let cam = Camera::new(sc.camera);
+        let with = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            let t = pool.install(|| Tiles::build(&cam, &sc.cylinders)).unwrap();
+            let mut out = Vec::new();
+            for ty in 0..t.tiles_y {
+                for tx in 0..t.tiles_x {
+                    out.push(u64::MAX);
+                    for c in t.tile(tx, ty) {
+                        out.extend([c.index, c.x0, c.y0, c.x1, c.y1].map(u64::from));
+                        out.extend([c.t_min, c.centre, c.slope, c.half].map(f64::to_bits));
+                    }
+                }
+            }
+            (t.entries(), out)
+        };
+        let one = with(1);
+        assert!(one.0 > 5000);
+        for threads in [2, 3, 7] {
+            assert!(with(threads) == one, "{threads} threads");
+        }
+    }
+
+    /// Points on the cylinders (sides and caps) in the clip range project into a pixel
+    /// that their candidate's rectangle, band and tile list admit, at `z >= t_min`.
+    #[test]
+    fn projection_covers_sampled_surface_points() {
+        let mut rng = SplitMix64::new(8);
+        let mut checked = 0usize;
+        for (cam, cyls) in cases() {
+            let tiles = Tiles::build(&cam, &cyls);
+            let (w, h) = (cam.width() as f64, cam.height() as f64);
+            for (i, cyl) in cyls.iter().enumerate() {
+                let c = project(&cam, cyl);
+                let (u, v) = orthonormal_basis(cyl.axis);
+                for _ in 0..300 {
+                    let (cs, sn) = rng.unit_circle();
+                    let (s, rho) = match rng.int_in(0, 3) {
+                        0 => (0.0, rng.unit().sqrt()),
+                        1 => (1.0, rng.unit().sqrt()),
+                        _ => (rng.unit(), 1.0),
+                    };
+                    let p = cyl.base
+                        + cyl.axis * (cyl.height * s)
+                        + (u * cs + v * sn) * (cyl.radius * rho);
+                    let d = p - cam.origin;
+                    let (x, y, z) = (-d.dot(cam.left), d.dot(cam.true_up), d.dot(cam.forward));
+                    if z < cam.spec.near_clip || z > cam.spec.far_clip {
+                        continue;
+                    }
+                    let px = (x / z / cam.tan_half_x + 1.0) * 0.5 * w;
+                    let py = (1.0 - y / z / cam.tan_half_y) * 0.5 * h;
+                    if !(px >= 0.0 && px < w && py >= 0.0 && py < h) {
+                        continue;
+                    }
+                    let (pi, pj) = (px as u32, py as u32);
+                    checked += 1;
+                    let c = c.unwrap_or_else(|| panic!("cylinder {i} culled, sees {pi},{pj}"));
+                    assert!(c.t_min <= z, "cylinder {i}: t_min {} > z {z}", c.t_min);
+                    assert!(
+                        (c.y0..=c.y1).contains(&pj) && c.row_span(pj, pi, pi).is_some(),
+                        "cylinder {i}: pixel {pi},{pj} outside {c:?}"
+                    );
+                    if let Some(t) = &tiles {
+                        assert!(
+                            t.tile(pi / TILE, pj / TILE)
+                                .iter()
+                                .any(|k| k.index == i as u32)
+                        );
+                    }
+                }
+            }
+        }
+        assert!(checked > 100_000, "{checked}");
     }
 }
