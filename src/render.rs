@@ -95,7 +95,10 @@ pub fn render_timed(scene: &Scene, opts: &RenderOptions) -> (Render, Timing) {
 /// The scene prepared for one camera: cylinders in kernel form and the BVH over them.
 pub struct Tracer<T: Real, F: Formula> {
     pub camera: Camera,
+    /// Cylinders in kernel form, in slot order: `prepared[s]` is cylinder `order[s]`
+    /// (index order for the BVH, the tiles' visiting order for tiles).
     prepared: Vec<Prepared<T>>,
+    order: Vec<u32>,
     bvh: Option<Bvh>,
     tiles: Option<Tiles>,
     _formula: std::marker::PhantomData<F>,
@@ -104,7 +107,9 @@ pub struct Tracer<T: Real, F: Formula> {
 /// The nearest hit of a ray: cylinder index and the cheap hit record.
 #[derive(Clone, Copy, Debug)]
 pub struct PixelHit<T> {
+    /// The cylinder's index in the scene, and its slot in the tracer.
     pub index: u32,
+    pub slot: u32,
     pub hit: BasicHit<T>,
 }
 
@@ -124,25 +129,30 @@ impl<T: Real, F: Formula> Tracer<T, F> {
     pub fn new(scene: &Scene, accel: Accel) -> Self {
         let camera = Camera::new(scene.camera);
         let origin = camera.origin;
-        let prepared = scene
-            .cylinders
-            .iter()
-            .map(|c| Prepared::new(c, origin, F::CENTRED))
-            .collect();
+        let cylinders = &scene.cylinders;
         let bvh = || {
-            let bounds: Vec<_> = scene.cylinders.iter().map(|c| c.bounds()).collect();
+            let bounds: Vec<_> = cylinders.iter().map(|c| c.bounds()).collect();
             Bvh::build(&bounds, origin)
         };
-        let (bvh, tiles) = match accel {
+        let (bvh, mut tiles) = match accel {
             Accel::Bvh => (Some(bvh()), None),
-            Accel::Tiles => match Tiles::build(&camera, &scene.cylinders) {
+            Accel::Tiles => match Tiles::build(&camera, cylinders) {
                 Some(tiles) => (None, Some(tiles)),
                 None => (Some(bvh()), None),
             },
         };
+        let order = match &mut tiles {
+            Some(tiles) => tiles.assign_slots(cylinders.len()),
+            None => (0..cylinders.len() as u32).collect(),
+        };
+        let prepared = order
+            .par_iter()
+            .map(|&i| Prepared::new(&cylinders[i as usize], origin, F::CENTRED))
+            .collect();
         Tracer {
             camera,
             prepared,
+            order,
             bvh,
             tiles,
             _formula: std::marker::PhantomData,
@@ -162,19 +172,20 @@ impl<T: Real, F: Formula> Tracer<T, F> {
     #[inline(always)]
     fn consider(
         &self,
-        index: u32,
+        slot: u32,
         dt: T::V3,
         tmin: T,
         tmax: T,
         best: &mut Option<PixelHit<T>>,
     ) -> bool {
         let limit = best.map_or(tmax, |b| b.hit.t);
-        let Some(hit) = F::intersect(&self.prepared[index as usize], dt, tmin, limit) else {
+        let Some(hit) = F::intersect(&self.prepared[slot as usize], dt, tmin, limit) else {
             return false;
         };
+        let index = self.order[slot as usize];
         let closer = best.is_none_or(|b| hit.t < b.hit.t || (hit.t == b.hit.t && index < b.index));
         if closer {
-            *best = Some(PixelHit { index, hit });
+            *best = Some(PixelHit { index, slot, hit });
         }
         closer
     }
@@ -196,8 +207,8 @@ impl<T: Real, F: Formula> Tracer<T, F> {
                 });
             }
             None => {
-                for index in 0..self.prepared.len() as u32 {
-                    self.consider(index, dt, tmin_t, tmax_t, &mut best);
+                for slot in 0..self.prepared.len() as u32 {
+                    self.consider(slot, dt, tmin_t, tmax_t, &mut best);
                 }
             }
         }
@@ -221,7 +232,7 @@ impl<T: Real, F: Formula> Tracer<T, F> {
         // Packets are set up lazily: pixels no candidate covers cost nothing.
         rays.ready = 0;
         for c in cands {
-            let prepared = &self.prepared[c.index as usize];
+            let prepared = &self.prepared[c.slot as usize];
             for j in c.y0.max(ys.0)..=c.y1.min(ys.1) {
                 let Some((a, b)) = c.row_span(j, xs.0, xs.1) else {
                     continue;
@@ -254,7 +265,8 @@ impl<T: Real, F: Formula> Tracer<T, F> {
                         continue;
                     }
                     let pk = &mut rays.packets[k];
-                    let changed = F::intersect_packet::<T, W>(prepared, c.index, pk, mask);
+                    let changed =
+                        F::intersect_packet::<T, W>(prepared, (c.index, c.slot), pk, mask);
                     if changed != 0 {
                         for l in 0..LANES {
                             // Padded by 8ε of the kernel: a candidate whose t rounds just
@@ -301,7 +313,7 @@ impl<T: Real, F: Formula> Tracer<T, F> {
     /// World-space unit outward normal of a hit along `d`.
     #[inline(always)]
     pub fn normal(&self, d: DVec3, h: &PixelHit<T>) -> DVec3 {
-        T::v3_to_f64(F::normal(&self.prepared[h.index as usize], T::v3(d), h.hit))
+        T::v3_to_f64(F::normal(&self.prepared[h.slot as usize], T::v3(d), h.hit))
     }
 }
 
@@ -347,6 +359,7 @@ impl<T: Real> TileRays<T> {
                 d,
                 PixelHit {
                     index: pk.index[l],
+                    slot: pk.slot[l],
                     hit,
                 },
             )

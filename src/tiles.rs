@@ -34,6 +34,8 @@ pub const CROWDED: usize = 64;
 #[derive(Clone, Copy, Debug)]
 pub struct Candidate {
     pub index: u32,
+    /// Where the renderer keeps this cylinder's prepared form (see [`Tiles::assign_slots`]).
+    pub slot: u32,
     pub x0: u32,
     pub y0: u32,
     pub x1: u32,
@@ -117,6 +119,7 @@ impl Candidate {
 
 const EMPTY: Candidate = Candidate {
     index: 0,
+    slot: 0,
     x0: 0,
     y0: 0,
     x1: 0,
@@ -353,6 +356,7 @@ fn project_in(view: &View, cyl: &Cylinder) -> Option<Candidate> {
     let clamp = |a: i64, n: u32| a.clamp(0, n as i64 - 1) as u32;
     Some(Candidate {
         index: 0,
+        slot: 0,
         x0: clamp(x0, w),
         y0: clamp(y0, h),
         x1: clamp(x1, w),
@@ -487,6 +491,26 @@ impl Tiles {
     pub fn tile(&self, tx: u32, ty: u32) -> &[Candidate] {
         let k = (ty * (self.tiles_x + 1) + tx) as usize;
         &self.rows[ty as usize][self.start[k] as usize..self.start[k + 1] as usize]
+    }
+
+    /// Number the cylinders in the order the renderer first meets them (tile rows top to
+    /// bottom, tiles left to right, each list nearest first), set every candidate's `slot`,
+    /// and return the cylinder index of each slot; cylinders in no tile come last, in
+    /// index order. Kept in slot order, a tile's cylinders lie close together in memory:
+    /// at 100 000 cylinders, index order would scatter them over megabytes.
+    pub fn assign_slots(&mut self, cylinders: usize) -> Vec<u32> {
+        let mut slot_of = vec![u32::MAX; cylinders];
+        let mut order = Vec::with_capacity(cylinders);
+        for c in self.rows.iter_mut().flatten() {
+            let s = &mut slot_of[c.index as usize];
+            if *s == u32::MAX {
+                *s = order.len() as u32;
+                order.push(c.index);
+            }
+            c.slot = *s;
+        }
+        order.extend((0..cylinders as u32).filter(|&i| slot_of[i as usize] == u32::MAX));
+        order
     }
 
     /// Total candidate entries (for statistics).

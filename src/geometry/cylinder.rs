@@ -144,12 +144,13 @@ pub trait Formula: Copy + Send + Sync + 'static {
     /// World-space outward unit normal at `hit` (not flipped toward the ray).
     fn normal<T: Real>(p: &Prepared<T>, d: T::V3, hit: BasicHit<T>) -> T::V3;
     /// [`Formula::intersect`] for the lanes of `pk` in `mask`, keeping each lane's nearer
-    /// hit on cylinder `index`; returns the lanes that changed. By default lane by lane;
+    /// hit on cylinder `index.0` (kept by its caller in slot `index.1`); returns the lanes
+    /// that changed. By default lane by lane;
     /// a formula may use the SIMD form `W`.
     #[inline(always)]
     fn intersect_packet<T: Real, W: Wide<T>>(
         p: &Prepared<T>,
-        index: u32,
+        index: (u32, u32),
         pk: &mut Packet<T>,
         mask: u8,
     ) -> u8 {
@@ -281,7 +282,7 @@ impl Formula for Stable {
     #[inline(always)]
     fn intersect_packet<T: Real, W: Wide<T>>(
         p: &Prepared<T>,
-        index: u32,
+        index: (u32, u32),
         pk: &mut Packet<T>,
         mask: u8,
     ) -> u8 {

@@ -26,8 +26,9 @@ pub struct Packet<T: Real> {
     pub tmin: [T; LANES],
     /// The nearest hit's `t`; the ray's `tmax` until it has one.
     pub t: [T; LANES],
-    /// The nearest hit's cylinder, or [`NO_HIT`].
+    /// The nearest hit's cylinder, or [`NO_HIT`], and where its caller keeps it (its slot).
     pub index: [u32; LANES],
+    pub slot: [u32; LANES],
     /// The nearest hit's surface, as `Surface as u32`.
     pub surface: [u32; LANES],
 }
@@ -38,6 +39,7 @@ impl<T: Real> Packet<T> {
         tmin: [T::ZERO; LANES],
         t: [T::ZERO; LANES],
         index: [NO_HIT; LANES],
+        slot: [0; LANES],
         surface: [0; LANES],
     };
 
@@ -52,7 +54,7 @@ impl<T: Real> Packet<T> {
 #[inline(always)]
 pub fn intersect_lanes<T: Real, F: Formula>(
     p: &Prepared<T>,
-    index: u32,
+    (index, slot): (u32, u32),
     pk: &mut Packet<T>,
     mask: u8,
 ) -> u8 {
@@ -66,7 +68,8 @@ pub fn intersect_lanes<T: Real, F: Formula>(
             continue;
         };
         if h.t < pk.t[l] || (h.t == pk.t[l] && index < pk.index[l]) {
-            (pk.t[l], pk.index[l], pk.surface[l]) = (h.t, index, h.surface as u32);
+            (pk.t[l], pk.index[l], pk.slot[l]) = (h.t, index, slot);
+            pk.surface[l] = h.surface as u32;
             changed |= 1 << l;
         }
     }
@@ -84,7 +87,7 @@ fn dot<T: Real, W: Wide<T>>(a: [T; 3], d: [W; 3]) -> W {
 #[inline(always)]
 pub fn stable_lanes<T: Real, W: Wide<T>>(
     p: &Prepared<T>,
-    index: u32,
+    (index, slot): (u32, u32),
     pk: &mut Packet<T>,
     mask: u8,
 ) -> u8 {
@@ -171,8 +174,7 @@ pub fn stable_lanes<T: Real, W: Wide<T>>(
     let mut changed = 0;
     for l in (0..LANES).filter(|l| hits & (1 << l) != 0) {
         if lt & (1 << l) != 0 || (eq & (1 << l) != 0 && index < pk.index[l]) {
-            pk.t[l] = ts[l];
-            pk.index[l] = index;
+            (pk.t[l], pk.index[l], pk.slot[l]) = (ts[l], index, slot);
             pk.surface[l] = match (on_side & (1 << l) != 0, on_bottom & (1 << l) != 0) {
                 (true, _) => Surface::Side,
                 (false, true) => Surface::Bottom,
