@@ -7,11 +7,14 @@
 //! row comes from one run on this machine; compare ratios within a table, not across runs.
 
 use crate::aov::{AovImage, Compression};
+use crate::camera::Camera;
 use crate::camera::{CameraSpec, FovAxis};
-use crate::geometry::Cylinder;
+use crate::geometry::wide::{Lanes, Wide};
+use crate::geometry::{Cylinder, Formula, LANES, Literal, Packet, Prepared, Real, Stable};
 use crate::render::{Accel, FormulaKind, Precision, RenderOptions, render, render_timed};
 use crate::rng::SplitMix64;
 use crate::scene::{Aov, Scene, SceneFile};
+use crate::tiles;
 use anyhow::{Context, Result, bail};
 use glam::DVec3;
 use serde::Serialize;
@@ -77,6 +80,159 @@ pub const KERNELS: [Kernel; 4] = [
     (Precision::F64, FormulaKind::Literal),
     (Precision::F32, FormulaKind::Literal),
 ];
+
+/// Throughput of the kernel alone: one thread testing the rays of packets against their
+/// cylinders, with no ray set-up, tiles, shading or output around it. It isolates what
+/// f32 buys (the render as a whole also pays for memory and per-pixel work that do not
+/// depend on the kernel's precision).
+#[derive(Clone, Debug, Serialize)]
+pub struct KernelRow {
+    pub kernel: String,
+    /// `scalar` (one ray at a time, the BVH path), `lanes` (packets of eight, portable
+    /// code) or `avx2` (packets in AVX registers, the tile path on this CPU).
+    pub form: &'static str,
+    /// Million ray–cylinder tests per second.
+    pub mtests_per_s: f64,
+}
+
+/// Packets of eight pixel rays across each cylinder of `scene` (four rows through its
+/// projected band, eight columns around the band's centre): rays that graze, hit and miss,
+/// as the renderer sees them.
+fn kernel_workload<T: Real>(scene: &Scene) -> Vec<(usize, Packet<T>)> {
+    let cam = Camera::new(scene.camera);
+    let (w, h) = (cam.width() as i64, cam.height() as i64);
+    let mut work = Vec::new();
+    for (i, c) in scene.cylinders.iter().enumerate() {
+        let Some(k) = tiles::project(&cam, c) else {
+            continue;
+        };
+        for r in 0..4 {
+            let j = k.y0 + (k.y1 - k.y0) * r / 3;
+            let centre = if k.half.is_finite() {
+                k.centre + k.slope * j as f64
+            } else {
+                (k.x0 + k.x1) as f64 / 2.0
+            };
+            let x0 = (centre as i64 - 3).clamp(0, (w - LANES as i64).max(0));
+            let mut pk = Packet::<T>::EMPTY;
+            for l in 0..LANES {
+                let i = (x0 + l as i64).min(w - 1) as u32;
+                let d = cam.ray_dir(i, j.min(h as u32 - 1));
+                let len = 1.0 / d.dot(cam.forward);
+                for (a, x) in pk.d.iter_mut().zip(d.to_array()) {
+                    a[l] = T::from_f64(x);
+                }
+                pk.tmin[l] = T::from_f64(cam.spec.near_clip * len);
+                pk.t[l] = T::from_f64(cam.spec.far_clip * len);
+            }
+            work.push((i, pk));
+        }
+    }
+    work
+}
+
+/// Seconds for `reps` passes of `work` through form `form` of kernel `F`; returns the
+/// hit count too, so the work cannot be optimised away.
+#[inline(always)]
+fn kernel_pass<T: Real, F: Formula, W: Wide<T>>(
+    prepared: &[Prepared<T>],
+    work: &[(usize, Packet<T>)],
+    reps: usize,
+    scalar: bool,
+) -> (f64, u64) {
+    let start = Instant::now();
+    let mut hits = 0u64;
+    for _ in 0..reps {
+        for (i, pk) in work {
+            let (p, mut pk) = (&prepared[*i], *pk);
+            if scalar {
+                for l in 0..LANES {
+                    hits += F::intersect(p, pk.dir(l), pk.tmin[l], pk.t[l]).is_some() as u64;
+                }
+            } else {
+                hits += F::intersect_packet::<T, W>(p, (*i as u32, 0), &mut pk, u8::MAX)
+                    .count_ones() as u64;
+            }
+        }
+    }
+    (start.elapsed().as_secs_f64(), std::hint::black_box(hits))
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn kernel_pass_avx2<T: Real, F: Formula>(
+    prepared: &[Prepared<T>],
+    work: &[(usize, Packet<T>)],
+    reps: usize,
+) -> (f64, u64) {
+    kernel_pass::<T, F, T::Avx>(prepared, work, reps, false)
+}
+
+/// [`KernelRow`]s of kernel `F` in precision `T` on `scene`, best of `repeats`.
+fn kernel_rows_for<T: Real, F: Formula>(scene: &Scene, repeats: usize) -> Vec<KernelRow> {
+    let origin = Camera::new(scene.camera).origin;
+    let prepared: Vec<Prepared<T>> = scene
+        .cylinders
+        .iter()
+        .map(|c| Prepared::new(c, origin, F::CENTRED))
+        .collect();
+    let work = kernel_workload::<T>(scene);
+    // About 0.1 s per form: enough passes to dwarf the timer.
+    let reps = (2_000_000 / (work.len() * LANES).max(1)).max(1);
+    let run = |form: &str| match form {
+        "scalar" => kernel_pass::<T, F, Lanes<T>>(&prepared, &work, reps, true).0,
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: "avx2" is listed only when the CPU has it (below).
+        "avx2" => unsafe { kernel_pass_avx2::<T, F>(&prepared, &work, reps).0 },
+        _ => kernel_pass::<T, F, Lanes<T>>(&prepared, &work, reps, false).0,
+    };
+    let mut forms = vec!["scalar", "lanes"];
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        forms.push("avx2");
+    }
+    let tests = (work.len() * LANES * reps) as f64;
+    let name = kernel_name((
+        if T::NAME == "f32" {
+            Precision::F32
+        } else {
+            Precision::F64
+        },
+        if F::NAME == "stable" {
+            FormulaKind::Stable
+        } else {
+            FormulaKind::Literal
+        },
+    ));
+    forms
+        .iter()
+        .map(|&form| {
+            let secs = (0..repeats.max(1))
+                .map(|_| run(form))
+                .fold(f64::INFINITY, f64::min);
+            KernelRow {
+                kernel: name.clone(),
+                form,
+                mtests_per_s: tests / secs / 1e6,
+            }
+        })
+        .collect()
+}
+
+/// The kernel throughput table for `kernels` on the bench's 1 000-cylinder scene.
+pub fn kernel_rows(opts: &BenchOptions) -> Vec<KernelRow> {
+    let scene = random_scene(1000, opts.seed, opts.width, opts.height);
+    let r = opts.repeats;
+    opts.kernels
+        .iter()
+        .flat_map(|&k| match k {
+            (Precision::F32, FormulaKind::Stable) => kernel_rows_for::<f32, Stable>(&scene, r),
+            (Precision::F64, FormulaKind::Stable) => kernel_rows_for::<f64, Stable>(&scene, r),
+            (Precision::F32, FormulaKind::Literal) => kernel_rows_for::<f32, Literal>(&scene, r),
+            (Precision::F64, FormulaKind::Literal) => kernel_rows_for::<f64, Literal>(&scene, r),
+        })
+        .collect()
+}
 
 /// What `bench` runs.
 #[derive(Clone, Debug)]

@@ -376,7 +376,10 @@ fn zeroed<X: Copy + Default>(n: usize) -> Vec<X> {
     #[cfg(target_os = "linux")]
     {
         const HUGE: usize = 2 << 20;
-        let (begin, end) = (v.as_ptr() as usize, v.as_ptr() as usize + size_of_val(&v[..]));
+        let (begin, end) = (
+            v.as_ptr() as usize,
+            v.as_ptr() as usize + size_of_val(&v[..]),
+        );
         let (lo, hi) = (begin.next_multiple_of(HUGE), end / HUGE * HUGE);
         if hi > lo {
             // SAFETY: [lo, hi) lies inside `v`'s allocation; MADV_HUGEPAGE only changes

@@ -18,7 +18,8 @@ fn check_parent(path: &Path, flag: &str) -> Result<()> {
 }
 
 /// Run the table, printing rows as they finish; then Mitsuba's, if asked; write CSV if
-/// asked (`OUT.csv`, and Mitsuba's rows to `OUT.mitsuba.csv`) and the figure if asked.
+/// asked (`OUT.csv`, the kernel-alone rows to `OUT.kernel.csv`, Mitsuba's to
+/// `OUT.mitsuba.csv`) and the figure if asked.
 pub fn run(
     opts: &BenchOptions,
     mitsuba: Option<MitsubaBench>,
@@ -41,6 +42,14 @@ pub fn run(
     );
     println!("{}", bench::header());
     let rows = bench::run(opts, |r| println!("{}", bench::format_row(r)))?;
+    println!(
+        "\nThe kernel alone, one thread, 1000-cylinder scene (rays across each cylinder, no set-up or shading):"
+    );
+    println!("{:<14} {:<7} {:>12}", "kernel", "form", "Mtests/s");
+    let kernel_rows = bench::kernel_rows(opts);
+    for k in &kernel_rows {
+        println!("{:<14} {:<7} {:>12.1}", k.kernel, k.form, k.mtests_per_s);
+    }
     let mut mi_rows = Vec::new();
     if let Some(m) = &mitsuba {
         println!(
@@ -52,6 +61,14 @@ pub fn run(
         atomic_write_bytes(&path, bench::csv(&rows).as_bytes())
             .with_context(|| format!("writing {}", path.display()))?;
         println!("wrote {}", path.display());
+        let kpath = path.with_extension("kernel.csv");
+        let mut text = String::from("kernel,form,mtests_per_s\n");
+        for k in &kernel_rows {
+            text += &format!("{},{},{}\n", k.kernel, k.form, k.mtests_per_s);
+        }
+        atomic_write_bytes(&kpath, text.as_bytes())
+            .with_context(|| format!("writing {}", kpath.display()))?;
+        println!("wrote {}", kpath.display());
         if !mi_rows.is_empty() {
             let mpath = path.with_extension("mitsuba.csv");
             let mut text = String::from(
