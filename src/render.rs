@@ -258,9 +258,7 @@ impl<T: Real, F: Formula> Tracer<T, F> {
                         b.min(g * LANES + LANES - 1) - g * LANES,
                     );
                     let span = ((1u32 << (hi + 1)) - (1 << lo)) as u8;
-                    let reach = &rays.reach[k];
-                    let mask =
-                        span & (0..LANES).fold(0, |m, l| m | (((c.t_min <= reach[l]) as u8) << l));
+                    let mask = span & W::le_bits(c.t_min, &rays.reach[k]);
                     if mask == 0 {
                         continue;
                     }

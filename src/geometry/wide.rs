@@ -42,6 +42,9 @@ pub trait Wide<T>:
     fn bits(m: Self::Mask) -> u8;
     /// Every lane set to `b`.
     fn all(b: bool) -> Self::Mask;
+    /// Bit `l` set where `x <= a[l]`: f64 lanes, for the bookkeeping that stays in f64
+    /// whatever the kernel's precision.
+    fn le_bits(x: f64, a: &[f64; LANES]) -> u8;
 }
 
 /// The portable form: an array, one loop per operation.
@@ -162,6 +165,10 @@ impl<T: Real> Wide<T> for Lanes<T> {
     fn all(b: bool) -> Bits {
         Bits(if b { u8::MAX } else { 0 })
     }
+    #[inline(always)]
+    fn le_bits(x: f64, a: &[f64; LANES]) -> u8 {
+        (0..LANES).fold(0, |m, l| m | (((x <= a[l]) as u8) << l))
+    }
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -247,6 +254,17 @@ mod avx {
         }
     }
 
+    /// [`Wide::le_bits`] with AVX: two compares and two sign masks.
+    #[inline(always)]
+    fn le_bits_avx(x: f64, a: &[f64; LANES]) -> u8 {
+        unsafe {
+            let x = _mm256_set1_pd(x);
+            let lo = _mm256_cmp_pd::<_CMP_LE_OQ>(x, _mm256_loadu_pd(a.as_ptr()));
+            let hi = _mm256_cmp_pd::<_CMP_LE_OQ>(x, _mm256_loadu_pd(a.as_ptr().add(4)));
+            (_mm256_movemask_pd(lo) | (_mm256_movemask_pd(hi) << 4)) as u8
+        }
+    }
+
     impl Wide<f32> for Avx32 {
         type Mask = Mask32;
         #[inline(always)]
@@ -307,6 +325,10 @@ mod avx {
         #[inline(always)]
         fn all(b: bool) -> Mask32 {
             unsafe { Mask32(_mm256_castsi256_ps(_mm256_set1_epi32(-(b as i32)))) }
+        }
+        #[inline(always)]
+        fn le_bits(x: f64, a: &[f64; LANES]) -> u8 {
+            le_bits_avx(x, a)
         }
     }
 
@@ -389,6 +411,10 @@ mod avx {
         #[inline(always)]
         fn all(b: bool) -> Mask64 {
             unsafe { Mask64([_mm256_castsi256_pd(_mm256_set1_epi64x(-(b as i64))); 2]) }
+        }
+        #[inline(always)]
+        fn le_bits(x: f64, a: &[f64; LANES]) -> u8 {
+            le_bits_avx(x, a)
         }
     }
 }
