@@ -145,8 +145,7 @@ pub trait Formula: Copy + Send + Sync + 'static {
     fn normal<T: Real>(p: &Prepared<T>, d: T::V3, hit: BasicHit<T>) -> T::V3;
     /// [`Formula::intersect`] for the lanes of `pk` in `mask`, keeping each lane's nearer
     /// hit on cylinder `index.0` (kept by its caller in slot `index.1`); returns the lanes
-    /// that changed. By default lane by lane;
-    /// a formula may use the SIMD form `W`.
+    /// that changed. By default lane by lane; a formula may use the SIMD form `W`.
     #[inline(always)]
     fn intersect_packet<T: Real, W: Wide<T>>(
         p: &Prepared<T>,
