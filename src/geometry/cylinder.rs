@@ -104,7 +104,10 @@ impl<T: Real> Prepared<T> {
         } else {
             T::v3(origin) - T::v3(cyl.base)
         };
-        let rho = oc64.dot(u).hypot(oc64.dot(v));
+        // |oc⊥|: coordinates are below 1e12 (validated), so the squares cannot overflow, and
+        // libm's `hypot` was a tenth of building 100 000 cylinders.
+        let (x, y) = (oc64.dot(u), oc64.dot(v));
+        let rho = (x * x + y * y).sqrt();
         Prepared {
             n: T::v3(n),
             u: T::v3(u),
