@@ -258,6 +258,9 @@ pub struct BenchOptions {
     /// peak memory).
     pub exe: Option<PathBuf>,
     pub seed: u64,
+    /// How the timed renders find their candidates (the error reference always uses tiles;
+    /// both give the same bits).
+    pub accel: Accel,
 }
 
 /// The AOV sets of the table: depth only, depth + normal, all.
@@ -355,6 +358,7 @@ fn time_process(
     out: &Path,
     kernel: Kernel,
     aovs: &[Aov],
+    accel: Accel,
 ) -> Result<(f64, Option<f64>)> {
     let start = Instant::now();
     let o = Command::new(exe)
@@ -366,6 +370,7 @@ fn time_process(
         .arg(aovs.iter().map(|a| a.name()).collect::<Vec<_>>().join(","))
         .args(["--precision", &format!("{:?}", kernel.0).to_lowercase()])
         .args(["--formula", &format!("{:?}", kernel.1).to_lowercase()])
+        .args(["--accel", &format!("{accel:?}").to_lowercase()])
         .output()
         .with_context(|| format!("running {}", exe.display()))?;
     let elapsed = ms(start.elapsed());
@@ -416,7 +421,7 @@ pub fn run(opts: &BenchOptions, mut progress: impl FnMut(&Row)) -> Result<Vec<Ro
                     aovs: aovs.clone(),
                     precision: kernel.0,
                     formula: kernel.1,
-                    accel: Accel::Tiles,
+                    accel: opts.accel,
                 };
                 let (mut build, mut trace, mut write) =
                     (f64::INFINITY, f64::INFINITY, f64::INFINITY);
@@ -439,6 +444,7 @@ pub fn run(opts: &BenchOptions, mut progress: impl FnMut(&Row)) -> Result<Vec<Ro
                                 &dir.join("proc.exr"),
                                 kernel,
                                 aovs,
+                                opts.accel,
                             )?;
                             if t < best.0 {
                                 best = (t, p);

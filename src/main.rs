@@ -180,6 +180,10 @@ struct BenchCli {
     /// Scene generator seed.
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// How rays find their cylinders in the timed renders: `bvh` shows what the screen
+    /// tiles save (both give the same image, bit for bit).
+    #[arg(long, value_enum, default_value_t = Accel::Tiles)]
+    accel: Accel,
     /// Also write the table as CSV (and Mitsuba's rows to OUT.mitsuba.csv).
     #[arg(long, value_name = "OUT.csv")]
     csv: Option<PathBuf>,
@@ -405,6 +409,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                     Some(std::env::current_exe()?)
                 },
                 seed: b.seed,
+                accel: b.accel,
             };
             let mitsuba = b.mitsuba.then(|| bench::MitsubaBench {
                 python: PathBuf::from(".venv/bin/python"),

@@ -33,10 +33,11 @@ pub fn run(
         check_parent(p, "--plot")?;
     }
     println!(
-        "cylaov bench: {}x{}, seed {}, min of {} runs, {} threads; times in ms, err = relative distance error vs stable-f64",
+        "cylaov bench: {}x{}, seed {}, accel {:?}, min of {} runs, {} threads; times in ms, err = relative distance error vs stable-f64",
         opts.width,
         opts.height,
         opts.seed,
+        opts.accel,
         opts.repeats,
         rayon::current_num_threads()
     );
