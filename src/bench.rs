@@ -9,8 +9,10 @@
 use crate::aov::{AovImage, Compression};
 use crate::camera::Camera;
 use crate::camera::{CameraSpec, FovAxis};
+use crate::geometry::packet::{LANES, Packet, PacketFormula};
+use crate::geometry::wide::Simd;
 use crate::geometry::wide::{Lanes, Wide};
-use crate::geometry::{Cylinder, Formula, LANES, Literal, Packet, Prepared, Real, Stable};
+use crate::geometry::{Cylinder, Literal, Prepared, Real, Stable};
 use crate::render::{Accel, FormulaKind, Precision, RenderOptions, render, render_timed};
 use crate::rng::SplitMix64;
 use crate::scene::{Aov, Scene, SceneFile};
@@ -85,11 +87,12 @@ pub const KERNELS: [Kernel; 4] = [
 /// cylinders, with no ray set-up, tiles, shading or output around it. It isolates what
 /// f32 buys (the render as a whole also pays for memory and per-pixel work that do not
 /// depend on the kernel's precision).
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug)]
 pub struct KernelRow {
     pub kernel: String,
-    /// `scalar` (one ray at a time, the BVH path), `lanes` (packets of eight, portable
-    /// code) or `avx2` (packets in AVX registers, the tile path on this CPU).
+    /// `scalar` (one ray at a time, the BVH path; all a formula without a SIMD form has),
+    /// `lanes` (packets of eight, portable code) or `avx2` (packets in AVX registers, the
+    /// tile path on this CPU).
     pub form: &'static str,
     /// Million ray–cylinder tests per second.
     pub mtests_per_s: f64,
@@ -134,7 +137,7 @@ fn kernel_workload<T: Real>(scene: &Scene) -> Vec<(usize, Packet<T>)> {
 /// Seconds for `reps` passes of `work` through form `form` of kernel `F`; returns the
 /// hit count too, so the work cannot be optimised away.
 #[inline(always)]
-fn kernel_pass<T: Real, F: Formula, W: Wide<T>>(
+fn kernel_pass<T: Real, F: PacketFormula, W: Wide<T>>(
     prepared: &[Prepared<T>],
     work: &[(usize, Packet<T>)],
     reps: usize,
@@ -160,7 +163,7 @@ fn kernel_pass<T: Real, F: Formula, W: Wide<T>>(
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn kernel_pass_avx2<T: Real, F: Formula>(
+fn kernel_pass_avx2<T: Simd, F: PacketFormula>(
     prepared: &[Prepared<T>],
     work: &[(usize, Packet<T>)],
     reps: usize,
@@ -169,7 +172,7 @@ fn kernel_pass_avx2<T: Real, F: Formula>(
 }
 
 /// [`KernelRow`]s of kernel `F` in precision `T` on `scene`, one timing each.
-fn kernel_rows_for<T: Real, F: Formula>(scene: &Scene) -> Vec<KernelRow> {
+fn kernel_rows_for<T: Simd, F: PacketFormula>(scene: &Scene, kernel: Kernel) -> Vec<KernelRow> {
     let origin = Camera::new(scene.camera).origin;
     let prepared: Vec<Prepared<T>> = scene
         .cylinders
@@ -187,24 +190,17 @@ fn kernel_rows_for<T: Real, F: Formula>(scene: &Scene) -> Vec<KernelRow> {
         "avx2" => unsafe { kernel_pass_avx2::<T, F>(&prepared, &work, reps).0 },
         _ => kernel_pass::<T, F, Lanes<T>>(&prepared, &work, reps, false).0,
     };
-    let mut forms = vec!["scalar", "lanes"];
+    // A formula without a SIMD form runs its packets lane by lane: that is the scalar row.
+    let mut forms = vec!["scalar"];
+    if F::SIMD {
+        forms.push("lanes");
+    }
     #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
+    if F::SIMD && std::arch::is_x86_feature_detected!("avx2") {
         forms.push("avx2");
     }
     let tests = (work.len() * LANES * reps) as f64;
-    let name = kernel_name((
-        if T::NAME == "f32" {
-            Precision::F32
-        } else {
-            Precision::F64
-        },
-        if F::NAME == "stable" {
-            FormulaKind::Stable
-        } else {
-            FormulaKind::Literal
-        },
-    ));
+    let name = kernel_name(kernel);
     forms
         .iter()
         .map(|&form| {
@@ -228,10 +224,14 @@ pub fn kernel_rows(opts: &BenchOptions) -> Vec<KernelRow> {
         opts.kernels
             .iter()
             .flat_map(|&k| match k {
-                (Precision::F32, FormulaKind::Stable) => kernel_rows_for::<f32, Stable>(&scene),
-                (Precision::F64, FormulaKind::Stable) => kernel_rows_for::<f64, Stable>(&scene),
-                (Precision::F32, FormulaKind::Literal) => kernel_rows_for::<f32, Literal>(&scene),
-                (Precision::F64, FormulaKind::Literal) => kernel_rows_for::<f64, Literal>(&scene),
+                (Precision::F32, FormulaKind::Stable) => kernel_rows_for::<f32, Stable>(&scene, k),
+                (Precision::F64, FormulaKind::Stable) => kernel_rows_for::<f64, Stable>(&scene, k),
+                (Precision::F32, FormulaKind::Literal) => {
+                    kernel_rows_for::<f32, Literal>(&scene, k)
+                }
+                (Precision::F64, FormulaKind::Literal) => {
+                    kernel_rows_for::<f64, Literal>(&scene, k)
+                }
             })
             .collect()
     };
@@ -242,6 +242,15 @@ pub fn kernel_rows(opts: &BenchOptions) -> Vec<KernelRow> {
         }
     }
     best
+}
+
+/// The kernel-alone rows as CSV.
+pub fn kernel_csv(rows: &[KernelRow]) -> String {
+    let mut text = String::from("kernel,form,mtests_per_s\n");
+    for k in rows {
+        text += &format!("{},{},{}\n", k.kernel, k.form, k.mtests_per_s);
+    }
+    text
 }
 
 /// What `bench` runs.

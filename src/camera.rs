@@ -123,6 +123,14 @@ impl Camera {
         (v * (1.0 / len), len)
     }
 
+    /// The ray parameters of camera-space z = near and far clip along a pixel ray whose
+    /// unnormalised direction has length `len` (= 1/cos θ: the image plane is at unit
+    /// distance along `forward`), with no further division.
+    #[inline(always)]
+    pub fn clip_range(&self, len: f64) -> (f64, f64) {
+        (self.spec.near_clip * len, self.spec.far_clip * len)
+    }
+
     /// Unit direction of the ray through the centre of pixel (i, j), all in f64:
     /// `(i + 0.5) / W` and `(j + 0.5) / H` (SPEC §3). Row 0 is the top row.
     #[inline]

@@ -4,10 +4,9 @@
 use crate::aov::{AovImage, Channel, ChannelData};
 use crate::bvh::Bvh;
 use crate::camera::Camera;
-use crate::geometry::wide::{Lanes, Wide};
-use crate::geometry::{
-    BasicHit, Formula, LANES, Literal, NO_HIT, Packet, Prepared, Real, Stable, Surface,
-};
+use crate::geometry::packet::{self, LANES, NO_HIT, Packet, PacketFormula};
+use crate::geometry::wide::{Lanes, Simd, Wide};
+use crate::geometry::{BasicHit, Formula, Literal, Prepared, Real, Stable, Surface};
 use crate::scene::{Aov, Scene};
 use crate::tiles::{Candidate, TILE, Tiles};
 use glam::{DVec3, Vec3A};
@@ -170,8 +169,8 @@ impl<T: Real, F: Formula> Tracer<T, F> {
         (spec.near_clip * inv_cos, spec.far_clip * inv_cos)
     }
 
-    /// Test cylinder `index`; keep it in `best` when nearer (ties: lower index wins, so the
-    /// answer does not depend on visiting order). True when `best` changed.
+    /// Test the cylinder in `slot`; keep it in `best` when nearer (ties: lower scene index
+    /// wins, so the answer does not depend on visiting order). True when `best` changed.
     #[inline(always)]
     fn consider(
         &self,
@@ -186,7 +185,7 @@ impl<T: Real, F: Formula> Tracer<T, F> {
             return false;
         };
         let index = self.order[slot as usize];
-        let closer = best.is_none_or(|b| hit.t < b.hit.t || (hit.t == b.hit.t && index < b.index));
+        let closer = best.is_none_or(|b| packet::nearer(hit.t, index, b.hit.t, b.index));
         if closer {
             *best = Some(PixelHit { index, slot, hit });
         }
@@ -198,14 +197,24 @@ impl<T: Real, F: Formula> Tracer<T, F> {
     #[inline]
     pub fn trace(&self, d: DVec3) -> Option<PixelHit<T>> {
         let (tmin, tmax) = self.clip(d);
+        self.trace_within(d, tmin, tmax)
+    }
+
+    /// [`Tracer::trace`] with the ray parameter range given: a pixel ray's, from
+    /// [`Camera::dir_and_length`] and [`Camera::clip_range`], the same bits as the tiles'.
+    #[inline]
+    pub fn trace_within(&self, d: DVec3, tmin: f64, tmax: f64) -> Option<PixelHit<T>> {
         let (tmin_t, tmax_t) = (T::from_f64(tmin), T::from_f64(tmax));
         let dt = T::v3(d);
         let mut best = None;
         match &self.bvh {
             Some(bvh) => {
                 let d32 = Vec3A::new(d.x as f32, d.y as f32, d.z as f32);
-                bvh.traverse(d32, f32_down(tmin), f32_up(tmax), |index| {
-                    self.consider(index, dt, tmin_t, tmax_t, &mut best)
+                // With a BVH there are no tiles and slots are scene indices (`order` is
+                // the identity), which is what the BVH's primitives are.
+                debug_assert!(self.tiles.is_none());
+                bvh.traverse(d32, f32_down(tmin), f32_up(tmax), |slot| {
+                    self.consider(slot, dt, tmin_t, tmax_t, &mut best)
                         .then(|| f32_up(best.map_or(tmax, |b| b.hit.t.to_f64())))
                 });
             }
@@ -218,99 +227,6 @@ impl<T: Real, F: Formula> Tracer<T, F> {
         best
     }
 
-    /// Nearest hits for the pixels `xs × ys` (inclusive) of one tile from its candidates,
-    /// rasterised nearest first: each candidate visits only the pixels of its row spans,
-    /// eight at a time ([`Packet`]), and skips those whose best hit is nearer than its
-    /// `t_min`. `offsets` are the image-plane offsets per column (padded to whole tiles)
-    /// and per row.
-    #[inline(always)]
-    pub fn trace_tile<W: Wide<T>>(
-        &self,
-        cands: &[Candidate],
-        xs: (u32, u32),
-        ys: (u32, u32),
-        offsets: (&[f64], &[f64]),
-        rays: &mut TileRays<T>,
-    ) {
-        // Packets are set up lazily: pixels no candidate covers cost nothing.
-        rays.ready = 0;
-        for c in cands {
-            let prepared = &self.prepared[c.slot as usize];
-            for j in c.y0.max(ys.0)..=c.y1.min(ys.1) {
-                let Some((a, b)) = c.row_span(j, xs.0, xs.1) else {
-                    continue;
-                };
-                let (a, b) = ((a - xs.0) as usize, (b - xs.0) as usize);
-                for g in a / LANES..=b / LANES {
-                    let k = (j - ys.0) as usize * PACKETS_PER_ROW + g;
-                    if rays.ready & (1 << k) == 0 {
-                        let x0 = xs.0 as usize + g * LANES;
-                        let cols = &offsets.0[x0..x0 + LANES];
-                        self.setup(
-                            &mut rays.packets[k],
-                            &mut rays.dirs[k],
-                            cols,
-                            offsets.1[j as usize],
-                        );
-                        rays.reach[k] = rays.packets[k].t.map(T::to_f64);
-                        rays.ready |= 1 << k;
-                    }
-                    // Lanes of the span whose best hit is not nearer than the candidate.
-                    let (lo, hi) = (
-                        a.max(g * LANES) - g * LANES,
-                        b.min(g * LANES + LANES - 1) - g * LANES,
-                    );
-                    let span = ((1u32 << (hi + 1)) - (1 << lo)) as u8;
-                    let mask = span & W::le_bits(c.t_min, &rays.reach[k]);
-                    if mask == 0 {
-                        continue;
-                    }
-                    let pk = &mut rays.packets[k];
-                    let changed =
-                        F::intersect_packet::<T, W>(prepared, (c.index, c.slot), pk, mask);
-                    if changed != 0 {
-                        for l in 0..LANES {
-                            // Padded by 8ε of the kernel: a candidate whose t rounds just
-                            // below this hit's must still be tested (ties decide by index).
-                            if changed & (1 << l) != 0 {
-                                rays.reach[k][l] =
-                                    pk.t[l].to_f64() * (1.0 + 8.0 * T::UNIT_ROUNDOFF);
-                            }
-                        }
-                    }
-                }
-            }
-        }
-    }
-
-    /// Eight rays through columns `cols` of the row at offset `y`: [`Camera::dir_and_length`]
-    /// step for step (so the same bits as [`Tracer::trace`]'s), written lane-wise so it
-    /// vectorises. The clip range comes from `1/cos θ = len` (the image plane sits at unit
-    /// distance along `forward`), with no second division.
-    #[inline(always)]
-    fn setup(&self, pk: &mut Packet<T>, dirs: &mut [[f64; LANES]; 3], cols: &[f64], y: f64) {
-        let cam = &self.camera;
-        let (f, left, up) = (
-            cam.forward.to_array(),
-            cam.left.to_array(),
-            cam.true_up.to_array(),
-        );
-        let (near, far) = (cam.spec.near_clip, cam.spec.far_clip);
-        for l in 0..LANES {
-            let x = cols[l];
-            let v: [f64; 3] = std::array::from_fn(|c| f[c] - left[c] * x + up[c] * y);
-            let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-            let inv = 1.0 / len;
-            for c in 0..3 {
-                dirs[c][l] = v[c] * inv;
-                pk.d[c][l] = T::from_f64(dirs[c][l]);
-            }
-            pk.tmin[l] = T::from_f64(near * len);
-            pk.t[l] = T::from_f64(far * len);
-            pk.index[l] = NO_HIT;
-        }
-    }
-
     /// World-space unit outward normal of a hit along `d`.
     #[inline(always)]
     pub fn normal(&self, d: DVec3, h: &PixelHit<T>) -> DVec3 {
@@ -318,13 +234,116 @@ impl<T: Real, F: Formula> Tracer<T, F> {
     }
 }
 
+/// Nearest hits for the pixels `xs × ys` (inclusive) of one tile from its candidates,
+/// rasterised nearest first: each candidate visits only the pixels of its row spans,
+/// eight at a time ([`Packet`]), and skips those whose best hit is nearer than its
+/// `t_min`. `offsets` are the image-plane offsets per column (padded to whole tiles)
+/// and per row.
+#[inline(always)]
+fn trace_tile<T: Real, F: PacketFormula, W: Wide<T>>(
+    tracer: &Tracer<T, F>,
+    cands: &[Candidate],
+    xs: (u32, u32),
+    ys: (u32, u32),
+    offsets: (&[f64], &[f64]),
+    rays: &mut TileRays<T>,
+) {
+    // Packets are set up lazily: pixels no candidate covers cost nothing.
+    rays.ready = 0;
+    for c in cands {
+        let prepared = &tracer.prepared[c.slot as usize];
+        for j in c.y0.max(ys.0)..=c.y1.min(ys.1) {
+            let Some((a, b)) = c.row_span(j, xs.0, xs.1) else {
+                continue;
+            };
+            let (a, b) = ((a - xs.0) as usize, (b - xs.0) as usize);
+            for g in a / LANES..=b / LANES {
+                let k = (j - ys.0) as usize * PACKETS_PER_ROW + g;
+                if rays.ready & (1 << k) == 0 {
+                    let x0 = xs.0 as usize + g * LANES;
+                    let cols = &offsets.0[x0..x0 + LANES];
+                    setup(
+                        &tracer.camera,
+                        &mut rays.packets[k],
+                        &mut rays.dirs[k],
+                        cols,
+                        offsets.1[j as usize],
+                    );
+                    // tmax padded as a best hit is (below): a hit the kernel keeps at
+                    // its rounded tmax must not be skipped.
+                    rays.reach[k] = rays.packets[k]
+                        .t
+                        .map(|t| t.to_f64() * (1.0 + 8.0 * T::UNIT_ROUNDOFF));
+                    rays.ready |= 1 << k;
+                }
+                // Lanes of the span whose best hit is not nearer than the candidate.
+                let (lo, hi) = (
+                    a.max(g * LANES) - g * LANES,
+                    b.min(g * LANES + LANES - 1) - g * LANES,
+                );
+                let span = ((1u32 << (hi + 1)) - (1 << lo)) as u8;
+                let mask = span & W::le_bits(c.t_min, &rays.reach[k]);
+                if mask == 0 {
+                    continue;
+                }
+                let pk = &mut rays.packets[k];
+                let changed = F::intersect_packet::<T, W>(prepared, (c.index, c.slot), pk, mask);
+                if changed != 0 {
+                    for l in 0..LANES {
+                        // Padded by 8ε of the kernel: a candidate whose t rounds just
+                        // below this hit's must still be tested (ties decide by index).
+                        if changed & (1 << l) != 0 {
+                            rays.reach[k][l] = pk.t[l].to_f64() * (1.0 + 8.0 * T::UNIT_ROUNDOFF);
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Eight rays through columns `cols` of the row at offset `y`: [`Camera::dir_and_length`]
+/// and [`Camera::clip_range`] step for step (so the same bits as the BVH path's pixel
+/// rays), written lane-wise so it vectorises.
+#[inline(always)]
+fn setup<T: Real>(
+    cam: &Camera,
+    pk: &mut Packet<T>,
+    dirs: &mut [[f64; LANES]; 3],
+    cols: &[f64],
+    y: f64,
+) {
+    let (f, left, up) = (
+        cam.forward.to_array(),
+        cam.left.to_array(),
+        cam.true_up.to_array(),
+    );
+    for l in 0..LANES {
+        let x = cols[l];
+        let v: [f64; 3] = std::array::from_fn(|c| f[c] - left[c] * x + up[c] * y);
+        let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        let inv = 1.0 / len;
+        for c in 0..3 {
+            dirs[c][l] = v[c] * inv;
+            pk.d[c][l] = T::from_f64(dirs[c][l]);
+        }
+        let (tmin, tmax) = cam.clip_range(len);
+        pk.tmin[l] = T::from_f64(tmin);
+        pk.t[l] = T::from_f64(tmax);
+        pk.index[l] = NO_HIT;
+    }
+}
+
 /// Packets per tile row and per tile.
 const PACKETS_PER_ROW: usize = TILE as usize / LANES;
 const PACKETS: usize = PACKETS_PER_ROW * TILE as usize;
+// `TileRays::ready` has a bit per packet.
+const _: () = assert!(PACKETS <= 32);
 
 /// Per-pixel rays and best hits of one tile, reused from tile to tile (no allocation per
-/// ray). Packet `k` holds columns `x0 + (k % 2)·8 ..` of row `y0 + k / 2`.
-pub struct TileRays<T: Real> {
+/// ray). Packet `k` holds the `LANES` columns from `x0 + (k % PACKETS_PER_ROW)·LANES` of
+/// row `y0 + k / PACKETS_PER_ROW`.
+pub(crate) struct TileRays<T: Real> {
     packets: [Packet<T>; PACKETS],
     /// The same directions in f64, for shading.
     dirs: [[[f64; LANES]; 3]; PACKETS],
@@ -375,16 +394,16 @@ fn zeroed<X: Copy + Default>(n: usize) -> Vec<X> {
     v
 }
 
-/// Ask Linux to back the untouched memory of `v` (its length, or its capacity if longer)
-/// with 2 MiB pages. A 1080p plane is 8 MB: faulting it in 4 KiB pages took about a third
-/// of a render's time. Only the 2 MiB-aligned interior can be marked; the hint changes no
-/// byte, and a kernel without transparent huge pages ignores it.
+/// Ask Linux to back the untouched memory of `v` (its whole capacity) with 2 MiB pages.
+/// A 1080p plane is 8 MB: faulting it in 4 KiB pages took about a third of a render's
+/// time. Only the 2 MiB-aligned interior can be marked; the hint changes no byte, and a
+/// kernel without transparent huge pages ignores it.
 fn huge_pages<X>(v: &Vec<X>) {
     #[cfg(target_os = "linux")]
     {
         const HUGE: usize = 2 << 20;
         let begin = v.as_ptr() as usize;
-        let end = begin + v.capacity().max(v.len()) * size_of::<X>();
+        let end = begin + v.capacity() * size_of::<X>();
         let (lo, hi) = (begin.next_multiple_of(HUGE), end / HUGE * HUGE);
         if hi > lo {
             // SAFETY: [lo, hi) lies inside `v`'s allocation; MADV_HUGEPAGE only changes
@@ -513,7 +532,7 @@ fn shade<T: Real, F: Formula>(
 
 /// Trace and shade band `b` (one row of tiles), returning its hit count.
 #[inline(always)]
-fn render_band<T: Real, F: Formula, W: Wide<T>>(
+fn render_band<T: Real, F: PacketFormula, W: Wide<T>>(
     fr: &Frame<T, F>,
     b: usize,
     band: &mut Band,
@@ -534,7 +553,7 @@ fn render_band<T: Real, F: Formula, W: Wide<T>>(
                     continue; // every AOV of a miss is 0 already
                 }
                 let xs = (tx * TILE, ((tx + 1) * TILE).min(w as u32) - 1);
-                tracer.trace_tile::<W>(cands, xs, ys, (fr.cols_off, fr.rows_off), &mut rays);
+                trace_tile::<T, F, W>(tracer, cands, xs, ys, (fr.cols_off, fr.rows_off), &mut rays);
                 let tw = (xs.1 - xs.0 + 1) as usize;
                 for k in (0..PACKETS).filter(|&k| rays.ready & (1 << k) != 0) {
                     let x0 = (k % PACKETS_PER_ROW) * LANES;
@@ -551,8 +570,9 @@ fn render_band<T: Real, F: Formula, W: Wide<T>>(
         None => {
             for k in 0..rows * w {
                 let (i, j) = (k % w, row0 + k / w);
-                let d = cam.dir_from_offsets(fr.cols_off[i], fr.rows_off[j]);
-                if let Some(hit) = tracer.trace(d) {
+                let (d, len) = cam.dir_and_length(fr.cols_off[i], fr.rows_off[j]);
+                let (tmin, tmax) = cam.clip_range(len);
+                if let Some(hit) = tracer.trace_within(d, tmin, tmax) {
                     shade(fr, band, k, d, hit);
                     hits += 1;
                 }
@@ -566,12 +586,18 @@ fn render_band<T: Real, F: Formula, W: Wide<T>>(
 /// one, f64 two). No FMA: the results are the same bits as the portable form.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn render_band_avx2<T: Real, F: Formula>(fr: &Frame<T, F>, b: usize, band: &mut Band) -> usize {
+fn render_band_avx2<T: Simd, F: PacketFormula>(
+    fr: &Frame<T, F>,
+    b: usize,
+    band: &mut Band,
+) -> usize {
     render_band::<T, F, T::Avx>(fr, b, band)
 }
 
 /// The band renderer for this CPU: AVX2 when it has it (and `simd`), else the baseline.
-fn band_renderer<T: Real, F: Formula>(simd: bool) -> fn(&Frame<T, F>, usize, &mut Band) -> usize {
+fn band_renderer<T: Simd, F: PacketFormula>(
+    simd: bool,
+) -> fn(&Frame<T, F>, usize, &mut Band) -> usize {
     #[cfg(target_arch = "x86_64")]
     if simd && std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU has AVX2, checked just above.
@@ -581,12 +607,12 @@ fn band_renderer<T: Real, F: Formula>(simd: bool) -> fn(&Frame<T, F>, usize, &mu
     render_band::<T, F, Lanes<T>>
 }
 
-fn render_with<T: Real, F: Formula>(scene: &Scene, opts: &RenderOptions) -> (Render, Timing) {
+fn render_with<T: Simd, F: PacketFormula>(scene: &Scene, opts: &RenderOptions) -> (Render, Timing) {
     render_simd::<T, F>(scene, opts, true)
 }
 
 /// [`render_with`], with the AVX2 path allowed or not (the test of their agreement).
-fn render_simd<T: Real, F: Formula>(
+fn render_simd<T: Simd, F: PacketFormula>(
     scene: &Scene,
     opts: &RenderOptions,
     simd: bool,

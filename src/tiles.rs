@@ -51,6 +51,20 @@ pub struct Candidate {
     pub half: f64,
 }
 
+/// The whole columns in `[lo, hi]` ∩ `[x0, x1]`, if any. `max`/`min` against the finite
+/// `x0`, `x1` keep the bounds finite (an infinite band keeps `[x0, x1]`), and they lie in
+/// `[0, 2^14]`: truncation is floor, and ceil is one compare away (no libm).
+#[inline(always)]
+fn columns(lo: f64, hi: f64, x0: u32, x1: u32) -> Option<(u32, u32)> {
+    let (u, v) = (lo.max(x0 as f64), hi.min(x1 as f64));
+    if u > v {
+        return None;
+    }
+    let (a, b) = (u as u32, v as u32);
+    let a = a + ((a as f64) < u) as u32;
+    (a <= b).then_some((a, b))
+}
+
 impl Candidate {
     /// The columns of row `j` that can see the cylinder, as an inclusive range within
     /// `[lo, hi]`: the rectangle, cut to the band around the projected axis (the band
@@ -58,19 +72,13 @@ impl Candidate {
     /// runs for every candidate on every row of its tiles.
     #[inline(always)]
     pub fn row_span(&self, j: u32, lo: u32, hi: u32) -> Option<(u32, u32)> {
-        let (x0, x1) = (self.x0.max(lo), self.x1.min(hi));
         let c = self.line(j);
-        // `max`/`min` against the finite rectangle keep u, v finite (an infinite band
-        // keeps [x0, x1]).
-        let u = (c - self.half).max(x0 as f64);
-        let v = (c + self.half).min(x1 as f64);
-        if u > v {
-            return None;
-        }
-        // u, v lie in [0, 2^14]: truncation is floor, and ceil is one compare away.
-        let (a, b) = (u as u32, v as u32);
-        let a = a + ((a as f64) < u) as u32;
-        (a <= b).then_some((a, b))
+        columns(
+            c - self.half,
+            c + self.half,
+            self.x0.max(lo),
+            self.x1.min(hi),
+        )
     }
 
     /// The band's centre column on row `j`. Rounding is monotone, so for `j0 <= j <= j1`
@@ -86,14 +94,8 @@ impl Candidate {
     #[inline]
     fn tile_columns(&self, j0: u32, j1: u32) -> Option<(u32, u32)> {
         let (c0, c1) = (self.line(j0), self.line(j1));
-        let u = (c0.min(c1) - self.half).max(self.x0 as f64);
-        let v = (c0.max(c1) + self.half).min(self.x1 as f64);
-        if u > v {
-            return None;
-        }
-        let (a, b) = (u as u32, v as u32);
-        let a = a + ((a as f64) < u) as u32;
-        (a <= b).then_some((a / TILE, b / TILE))
+        let (lo, hi) = (c0.min(c1) - self.half, c0.max(c1) + self.half);
+        columns(lo, hi, self.x0, self.x1).map(|(a, b)| (a / TILE, b / TILE))
     }
 
     /// Call `f(ty, tx0, tx1)` for each tile row the candidate reaches, with the tile
@@ -145,7 +147,6 @@ pub struct Tiles {
     pub tiles_y: u32,
     start: Vec<u32>,
     rows: Vec<Vec<Candidate>>,
-    entries: usize,
 }
 
 /// A candidate's visit to one tile row while binning: its sort key (`t_min` in total
@@ -481,7 +482,6 @@ impl Tiles {
             tiles_x,
             tiles_y,
             start: starts.concat(),
-            entries: rows.iter().map(Vec::len).sum(),
             rows,
         })
     }
@@ -515,7 +515,7 @@ impl Tiles {
 
     /// Total candidate entries (for statistics).
     pub fn entries(&self) -> usize {
-        self.entries
+        self.rows.iter().map(Vec::len).sum()
     }
 }
 

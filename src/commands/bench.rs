@@ -63,11 +63,7 @@ pub fn run(
             .with_context(|| format!("writing {}", path.display()))?;
         println!("wrote {}", path.display());
         let kpath = path.with_extension("kernel.csv");
-        let mut text = String::from("kernel,form,mtests_per_s\n");
-        for k in &kernel_rows {
-            text += &format!("{},{},{}\n", k.kernel, k.form, k.mtests_per_s);
-        }
-        atomic_write_bytes(&kpath, text.as_bytes())
+        atomic_write_bytes(&kpath, bench::kernel_csv(&kernel_rows).as_bytes())
             .with_context(|| format!("writing {}", kpath.display()))?;
         println!("wrote {}", kpath.display());
         if !mi_rows.is_empty() {

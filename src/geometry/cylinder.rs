@@ -9,9 +9,7 @@
 //! Everything is relative to the cylinder's base `c`: callers pass `oc = o - c` through
 //! [`Prepared`], which is built once per cylinder and ray origin (one camera = one origin).
 
-use super::packet::{self, Packet};
 use super::real::Real;
-use super::wide::Wide;
 use glam::DVec3;
 
 /// A validated finite cylinder (SPEC §1): base centre `base`, unit `axis`, `height`, `radius`.
@@ -146,18 +144,6 @@ pub trait Formula: Copy + Send + Sync + 'static {
     fn intersect<T: Real>(p: &Prepared<T>, d: T::V3, tmin: T, tmax: T) -> Option<BasicHit<T>>;
     /// World-space outward unit normal at `hit` (not flipped toward the ray).
     fn normal<T: Real>(p: &Prepared<T>, d: T::V3, hit: BasicHit<T>) -> T::V3;
-    /// [`Formula::intersect`] for the lanes of `pk` in `mask`, keeping each lane's nearer
-    /// hit on cylinder `index.0` (kept by its caller in slot `index.1`); returns the lanes
-    /// that changed. By default lane by lane; a formula may use the SIMD form `W`.
-    #[inline(always)]
-    fn intersect_packet<T: Real, W: Wide<T>>(
-        p: &Prepared<T>,
-        index: (u32, u32),
-        pk: &mut Packet<T>,
-        mask: u8,
-    ) -> u8 {
-        packet::intersect_lanes::<T, Self>(p, index, pk, mask)
-    }
 }
 
 /// The documented formulas of SPEC §1, as written: `A`, `B`, `C`, `B² - 4AC`, the textbook
@@ -280,16 +266,6 @@ impl Stable {
 impl Formula for Stable {
     const NAME: &'static str = "stable";
     const CENTRED: bool = true;
-
-    #[inline(always)]
-    fn intersect_packet<T: Real, W: Wide<T>>(
-        p: &Prepared<T>,
-        index: (u32, u32),
-        pk: &mut Packet<T>,
-        mask: u8,
-    ) -> u8 {
-        packet::stable_lanes::<T, W>(p, index, pk, mask)
-    }
 
     #[inline(always)]
     fn intersect<T: Real>(p: &Prepared<T>, d: T::V3, tmin: T, tmax: T) -> Option<BasicHit<T>> {

@@ -1,26 +1,26 @@
 //! Eight rays at a time: the packet form of [`Formula::intersect`].
 //!
 //! Primary rays of neighbouring pixels meet the same cylinders, so `render` tests a
-//! cylinder against the eight pixels of a tile row at once. The lanes are plain arrays
-//! and every step is a loop over them without branches (selects instead), which the
-//! compiler turns into SIMD: one AVX register of f32 lanes or two of f64, so f32 does
-//! twice the rays per instruction. Each lane performs exactly the IEEE operations of the
-//! scalar kernel in the same order (no fused multiply-add, no reassociation), so a packet
-//! gives the scalar kernel's results bit for bit; a test checks it.
+//! cylinder against the eight pixels of a tile row at once. The stable kernel is written
+//! once over [`Wide`] and runs branch-free on eight lanes: in AVX registers (one of f32
+//! lanes or two of f64, so f32 does twice the rays per instruction) or, portably, on
+//! arrays. Each lane performs exactly the IEEE operations of the scalar kernel in the same
+//! order (no fused multiply-add, no reassociation), so a packet gives the scalar kernel's
+//! results bit for bit; tests check it.
 
-use super::cylinder::{Formula, Prepared, Surface};
+use super::cylinder::{Formula, Literal, Prepared, Stable, Surface};
 use super::real::Real;
 use super::wide::Wide;
 
 /// Rays per packet: eight pixels of a tile row.
-pub const LANES: usize = 8;
+pub(crate) const LANES: usize = 8;
 
 /// Lane value of "no hit yet" in [`Packet::index`].
-pub const NO_HIT: u32 = u32::MAX;
+pub(crate) const NO_HIT: u32 = u32::MAX;
 
 /// Eight rays from the camera origin and the nearest hit each has found so far.
 #[derive(Clone, Copy, Debug)]
-pub struct Packet<T: Real> {
+pub(crate) struct Packet<T: Real> {
     /// Unit directions, one array per world axis.
     pub d: [[T; LANES]; 3],
     pub tmin: [T; LANES],
@@ -50,9 +50,54 @@ impl<T: Real> Packet<T> {
     }
 }
 
+/// The keep rule of every path: a hit on cylinder `index` replaces the best one if it is
+/// nearer, or as near and on a lower scene index, so the answer does not depend on the
+/// order cylinders are visited in. A lane with no hit yet has `best_t` = its tmax, which
+/// bounds every hit it is offered, and `best_index` = [`NO_HIT`], above every index.
+#[inline(always)]
+pub(crate) fn nearer<T: PartialOrd>(t: T, index: u32, best_t: T, best_index: u32) -> bool {
+    t < best_t || (t == best_t && index < best_index)
+}
+
+/// A formula's packet form: [`Formula::intersect`] for the lanes of a packet in `mask`,
+/// keeping each lane's nearer hit on cylinder `index.0` (kept by its caller in slot
+/// `index.1`); returns the lanes that changed. By default lane by lane; a formula may use
+/// the SIMD form `W`.
+pub(crate) trait PacketFormula: Formula {
+    /// Whether it has a SIMD form (else its packets run the scalar kernel lane by lane).
+    const SIMD: bool = false;
+
+    #[inline(always)]
+    fn intersect_packet<T: Real, W: Wide<T>>(
+        p: &Prepared<T>,
+        index: (u32, u32),
+        pk: &mut Packet<T>,
+        mask: u8,
+    ) -> u8 {
+        intersect_lanes::<T, Self>(p, index, pk, mask)
+    }
+}
+
+/// The literal formulas stay as written: no SIMD form.
+impl PacketFormula for Literal {}
+
+impl PacketFormula for Stable {
+    const SIMD: bool = true;
+
+    #[inline(always)]
+    fn intersect_packet<T: Real, W: Wide<T>>(
+        p: &Prepared<T>,
+        index: (u32, u32),
+        pk: &mut Packet<T>,
+        mask: u8,
+    ) -> u8 {
+        stable_lanes::<T, W>(p, index, pk, mask)
+    }
+}
+
 /// Any formula: the scalar kernel lane by lane (the literal form stays as written).
 #[inline(always)]
-pub fn intersect_lanes<T: Real, F: Formula>(
+pub(crate) fn intersect_lanes<T: Real, F: Formula>(
     p: &Prepared<T>,
     (index, slot): (u32, u32),
     pk: &mut Packet<T>,
@@ -63,11 +108,10 @@ pub fn intersect_lanes<T: Real, F: Formula>(
         if mask & (1 << l) == 0 {
             continue;
         }
-        // A hit has t <= pk.t[l] (its limit), so a first hit (index NO_HIT) is always kept.
         let Some(h) = F::intersect(p, pk.dir(l), pk.tmin[l], pk.t[l]) else {
             continue;
         };
-        if h.t < pk.t[l] || (h.t == pk.t[l] && index < pk.index[l]) {
+        if nearer(h.t, index, pk.t[l], pk.index[l]) {
             (pk.t[l], pk.index[l], pk.slot[l]) = (h.t, index, slot);
             pk.surface[l] = h.surface as u32;
             changed |= 1 << l;
@@ -85,7 +129,7 @@ fn dot<T: Real, W: Wide<T>>(a: [T; 3], d: [W; 3]) -> W {
 /// [`Stable::intersect`] on eight lanes at once, step for step (see there for the maths),
 /// in the SIMD form `W`.
 #[inline(always)]
-pub fn stable_lanes<T: Real, W: Wide<T>>(
+pub(crate) fn stable_lanes<T: Real, W: Wide<T>>(
     p: &Prepared<T>,
     (index, slot): (u32, u32),
     pk: &mut Packet<T>,
@@ -125,7 +169,7 @@ pub fn stable_lanes<T: Real, W: Wide<T>>(
         inf,
         W::select(tangent, zero, W::select(t0.gt(t1), t0, t1)),
     );
-    let side = (parallel & W::all(p.c_side <= T::ZERO)) | (!parallel & disc.ge(zero));
+    let side = (parallel & W::all(p.c_side <= T::ZERO)) | (!parallel & !disc.lt(zero));
     let (tmin, limit) = (W::load(&pk.tmin), W::load(&pk.t));
     // The hit per lane, and its surface as bits: on the side, else on the bottom cap.
     let (hit, t, on_side, on_bottom) = if p.caps {
@@ -135,7 +179,7 @@ pub fn stable_lanes<T: Real, W: Wide<T>>(
         let up = dn.gt(zero);
         let c0 = W::select(flat, -inf, W::select(up, ta, tb));
         let c1 = W::select(flat, inf, W::select(up, tb, ta));
-        let slab = !flat | W::all(on >= T::ZERO && on <= p.h);
+        let slab = !flat | W::all(!(on < T::ZERO || on > p.h));
         let (side_in, side_out) = (s0.ge(c0), s1.le(c1));
         let (enter, exit) = (W::select(side_in, s0, c0), W::select(side_out, s1, c1));
         let first = enter.ge(tmin) & enter.le(limit);
@@ -167,13 +211,12 @@ pub fn stable_lanes<T: Real, W: Wide<T>>(
     if hits == 0 {
         return 0;
     }
-    // Keep the nearer hit per lane (ties: the lower index); rare enough to do lane by lane.
-    let (lt, eq) = (W::bits(t.lt(limit)), W::bits(t.eq(limit)));
+    // Keep the nearer hits; few lanes hit, so lane by lane.
     let mut ts = [T::ZERO; LANES];
     t.store(&mut ts);
     let mut changed = 0;
     for l in (0..LANES).filter(|l| hits & (1 << l) != 0) {
-        if lt & (1 << l) != 0 || (eq & (1 << l) != 0 && index < pk.index[l]) {
+        if nearer(ts[l], index, pk.t[l], pk.index[l]) {
             (pk.t[l], pk.index[l], pk.slot[l]) = (ts[l], index, slot);
             pk.surface[l] = match (on_side & (1 << l) != 0, on_bottom & (1 << l) != 0) {
                 (true, _) => Surface::Side,

@@ -3,8 +3,6 @@
 //! f32 uses glam's `Vec3A` (16-byte, SIMD-friendly), f64 uses `DVec3`. Only what the
 //! kernels need is here; everything crosses into and out of it through f64 (`DVec3`).
 
-#[cfg(target_arch = "x86_64")]
-use super::wide::Wide;
 use glam::{DVec3, Vec3A};
 use std::fmt::Debug;
 use std::ops::{Add, Div, Mul, Neg, Sub};
@@ -32,9 +30,6 @@ pub trait Real:
         + Sub<Output = Self::V3>
         + Mul<Self, Output = Self::V3>
         + Neg<Output = Self::V3>;
-    /// Eight lanes of this precision in AVX registers (see [`super::wide`]).
-    #[cfg(target_arch = "x86_64")]
-    type Avx: Wide<Self>;
     const ZERO: Self;
     const ONE: Self;
     const TWO: Self;
@@ -65,11 +60,9 @@ pub trait Real:
 }
 
 macro_rules! impl_real {
-    ($t:ty, $v:ty, $avx:ty, $name:literal, $from:expr, $to:expr) => {
+    ($t:ty, $v:ty, $name:literal, $from:expr, $to:expr) => {
         impl Real for $t {
             type V3 = $v;
-            #[cfg(target_arch = "x86_64")]
-            type Avx = $avx;
             const ZERO: Self = 0.0;
             const ONE: Self = 1.0;
             const TWO: Self = 2.0;
@@ -141,18 +134,10 @@ macro_rules! impl_real {
     };
 }
 
-impl_real!(
-    f64,
-    DVec3,
-    super::wide::Avx64,
-    "f64",
-    |v: DVec3| v,
-    |v: DVec3| v
-);
+impl_real!(f64, DVec3, "f64", |v: DVec3| v, |v: DVec3| v);
 impl_real!(
     f32,
     Vec3A,
-    super::wide::Avx32,
     "f32",
     |v: DVec3| Vec3A::new(v.x as f32, v.y as f32, v.z as f32),
     |v: Vec3A| DVec3::new(v.x as f64, v.y as f64, v.z as f64)

@@ -11,7 +11,7 @@ use super::real::Real;
 use std::ops::{Add, BitAnd, BitOr, Div, Mul, Neg, Not, Sub};
 
 /// Eight lanes of `T`, with the operations the packet kernel needs.
-pub trait Wide<T>:
+pub(crate) trait Wide<T>:
     Copy
     + Add<Output = Self>
     + Sub<Output = Self>
@@ -49,11 +49,11 @@ pub trait Wide<T>:
 
 /// The portable form: an array, one loop per operation.
 #[derive(Clone, Copy, Debug)]
-pub struct Lanes<T>([T; LANES]);
+pub(crate) struct Lanes<T>([T; LANES]);
 
 /// A mask of [`Lanes`]: one bit per lane.
 #[derive(Clone, Copy, Debug)]
-pub struct Bits(u8);
+pub(crate) struct Bits(u8);
 
 impl BitAnd for Bits {
     type Output = Bits;
@@ -171,8 +171,30 @@ impl<T: Real> Wide<T> for Lanes<T> {
     }
 }
 
+/// A precision with an AVX lane type. Crate-private, like everything here: building an
+/// AVX value runs AVX instructions, so only `render` and `bench` may, after checking the
+/// CPU; code outside the crate cannot name these types.
+pub(crate) trait Simd: Real {
+    /// Eight lanes of this precision in AVX registers.
+    #[cfg(target_arch = "x86_64")]
+    type Avx: Wide<Self>;
+}
+
 #[cfg(target_arch = "x86_64")]
-pub use avx::{Avx32, Avx64};
+impl Simd for f32 {
+    type Avx = avx::Avx32;
+}
+
+#[cfg(target_arch = "x86_64")]
+impl Simd for f64 {
+    type Avx = avx::Avx64;
+}
+
+#[cfg(not(target_arch = "x86_64"))]
+impl Simd for f32 {}
+
+#[cfg(not(target_arch = "x86_64"))]
+impl Simd for f64 {}
 
 /// AVX forms. Each method is a handful of intrinsics; callers must run on a CPU with
 /// AVX2 and be compiled with it enabled (`render` checks at run time).
