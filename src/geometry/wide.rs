@@ -287,6 +287,25 @@ mod avx {
         }
     }
 
+    /// The ordered comparisons (false with a NaN, as Rust's `<`), as AVX compares.
+    macro_rules! cmps {
+        ($m:ident: $f:ident) => {
+            cmps!($m: $f, lt _CMP_LT_OQ, le _CMP_LE_OQ, gt _CMP_GT_OQ, ge _CMP_GE_OQ, eq _CMP_EQ_OQ);
+        };
+        (Mask32: $f:ident, $($name:ident $p:ident),*) => {$(
+            #[inline(always)]
+            fn $name(self, o: Self) -> Mask32 {
+                unsafe { Mask32($f::<$p>(self.0, o.0)) }
+            }
+        )*};
+        (Mask64: $f:ident, $($name:ident $p:ident),*) => {$(
+            #[inline(always)]
+            fn $name(self, o: Self) -> Mask64 {
+                Mask64(halves!($f::<$p>(self.0, o.0)))
+            }
+        )*};
+    }
+
     impl Wide<f32> for Avx32 {
         type Mask = Mask32;
         #[inline(always)]
@@ -316,26 +335,7 @@ mod avx {
                 Avx32(_mm256_or_ps(s, _mm256_set1_ps(1.0)))
             }
         }
-        #[inline(always)]
-        fn lt(self, o: Self) -> Mask32 {
-            unsafe { Mask32(_mm256_cmp_ps::<_CMP_LT_OQ>(self.0, o.0)) }
-        }
-        #[inline(always)]
-        fn le(self, o: Self) -> Mask32 {
-            unsafe { Mask32(_mm256_cmp_ps::<_CMP_LE_OQ>(self.0, o.0)) }
-        }
-        #[inline(always)]
-        fn gt(self, o: Self) -> Mask32 {
-            unsafe { Mask32(_mm256_cmp_ps::<_CMP_GT_OQ>(self.0, o.0)) }
-        }
-        #[inline(always)]
-        fn ge(self, o: Self) -> Mask32 {
-            unsafe { Mask32(_mm256_cmp_ps::<_CMP_GE_OQ>(self.0, o.0)) }
-        }
-        #[inline(always)]
-        fn eq(self, o: Self) -> Mask32 {
-            unsafe { Mask32(_mm256_cmp_ps::<_CMP_EQ_OQ>(self.0, o.0)) }
-        }
+        cmps!(Mask32: _mm256_cmp_ps);
         #[inline(always)]
         fn select(m: Mask32, a: Self, b: Self) -> Self {
             unsafe { Avx32(_mm256_blendv_ps(b.0, a.0, m.0)) }
@@ -402,26 +402,7 @@ mod avx {
             let signs = halves!(_mm256_and_pd(self.0, s));
             Avx64(halves!(_mm256_or_pd(signs, one)))
         }
-        #[inline(always)]
-        fn lt(self, o: Self) -> Mask64 {
-            Mask64(halves!(_mm256_cmp_pd::<_CMP_LT_OQ>(self.0, o.0)))
-        }
-        #[inline(always)]
-        fn le(self, o: Self) -> Mask64 {
-            Mask64(halves!(_mm256_cmp_pd::<_CMP_LE_OQ>(self.0, o.0)))
-        }
-        #[inline(always)]
-        fn gt(self, o: Self) -> Mask64 {
-            Mask64(halves!(_mm256_cmp_pd::<_CMP_GT_OQ>(self.0, o.0)))
-        }
-        #[inline(always)]
-        fn ge(self, o: Self) -> Mask64 {
-            Mask64(halves!(_mm256_cmp_pd::<_CMP_GE_OQ>(self.0, o.0)))
-        }
-        #[inline(always)]
-        fn eq(self, o: Self) -> Mask64 {
-            Mask64(halves!(_mm256_cmp_pd::<_CMP_EQ_OQ>(self.0, o.0)))
-        }
+        cmps!(Mask64: _mm256_cmp_pd);
         #[inline(always)]
         fn select(m: Mask64, a: Self, b: Self) -> Self {
             Avx64(halves!(_mm256_blendv_pd(b.0, a.0, m.0)))
