@@ -317,17 +317,23 @@ fn direct_uncompressed_writer_reads_back_bit_exact_with_the_exr_crate() {
 
 #[test]
 fn tiles_and_bvh_give_identical_images_across_thread_counts() {
-    for (n, seed, inside) in [
-        (1, 11, false),
-        (40, 12, false),
-        (400, 13, false),
-        (400, 14, true),
+    for (n, seed, inside, far_cut) in [
+        (1, 11, false, false),
+        (40, 12, false, false),
+        (400, 13, false, false),
+        (400, 14, true, false),
+        (400, 15, false, true),
     ] {
         let mut sc = random_scene(n, seed);
         if inside {
             // Camera among the cylinders: boxes reach behind it and span the whole screen.
             sc.camera.origin = glam::DVec3::new(0.3, -0.2, 0.1);
             sc.camera.target = glam::DVec3::new(1.0, 2.0, 0.5);
+        }
+        if far_cut {
+            // The far plane through the middle of the scene: hits at the clip range's end,
+            // where tiles and BVH must round the same range the same way.
+            sc.camera.far_clip = sc.camera.origin.distance(sc.camera.target);
         }
         for precision in [Precision::F32, Precision::F64] {
             // Tiles trace packets of eight rays (AVX where the CPU has it), the BVH one ray
@@ -344,6 +350,14 @@ fn tiles_and_bvh_give_identical_images_across_thread_counts() {
                 pool.install(|| render(&sc, &o).image)
             };
             let reference = with(Accel::Bvh, 1);
+            if far_cut {
+                // The cut matters: many hits lie just in front of the far plane, where
+                // the clip range's rounding decides hit or miss.
+                let far = sc.camera.far_clip as f32;
+                let depth = reference.f32_channel("depth").unwrap();
+                let at_plane = depth.iter().filter(|&&z| z > 0.9 * far).count();
+                assert!(at_plane > 100, "{at_plane} pixels near the far plane");
+            }
             assert!(
                 n == 1
                     || reference
