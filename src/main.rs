@@ -30,7 +30,13 @@ enum Command {
     ///
     /// Prints one row per (cylinders, kernel, AOVs): build, trace and write times, Mrays/s,
     /// the whole `cylaov render` process time and its peak memory, and the relative distance
-    /// error against the stable f64 kernel. Rows are the minimum of --repeats runs.
+    /// error against the stable f64 kernel. Rows are the minimum of --repeats runs. Then the
+    /// kernel alone (one thread, million ray-cylinder tests per second; scalar, portable
+    /// packets and AVX2 packets), which shows what f32 buys where the kernel is all the work.
+    ///
+    /// Example (about a minute): cylaov bench --counts 1000 --quick --mitsuba
+    ///
+    /// Example (what the screen tiles save over the BVH): cylaov bench --quick --accel bvh
     Bench(BenchCli),
     /// Generate procedural scenes: OUT/scenes/NNNNNN.json and OUT/manifest.jsonl.
     ///
