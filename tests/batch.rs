@@ -68,6 +68,18 @@ fn batch_ok(input: &Path, out: &Path, extra: &[&str]) -> String {
     ok(&args)
 }
 
+/// `cylaov batch INPUT --out OUT`, which must fail; its output, to check the reason.
+fn batch_fails(input: &Path, out: &Path) -> Output {
+    let o = cylaov(&[
+        "batch",
+        input.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success(), "batch {} succeeded", input.display());
+    o
+}
+
 fn generate(out: &Path, seed: &str, count: &str, extra: &[&str]) {
     let mut args = vec![
         "generate",
@@ -242,13 +254,7 @@ fn a_bad_scene_fails_alone() {
 
     // A semantic error names the field and the value.
     std::fs::write(&bad, text.replacen("\"radius\": ", "\"radius\": -1.5, \"caps\": true, \"id\": 7 }, { \"p0\": [0,0,0], \"p1\": [0,0,1], \"radius\": ", 1)).unwrap();
-    let o = cylaov(&[
-        "batch",
-        scenes.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    assert!(!o.status.success());
+    let o = batch_fails(&scenes, &out);
     let stdout = String::from_utf8_lossy(&o.stdout);
     assert!(stdout.contains("done 0 / skipped 4 / failed 1"), "{stdout}");
     let failures = std::fs::read_to_string(out.join("failures.0-of-1.jsonl")).unwrap();
@@ -384,13 +390,7 @@ fn manifest_and_folder_inputs() {
     std::fs::create_dir_all(dir.join("twice/x")).unwrap();
     std::fs::copy(data.join("scenes/000000.json"), dir.join("twice/s.json")).unwrap();
     std::fs::copy(data.join("scenes/000001.json"), dir.join("twice/x/s.json")).unwrap();
-    let o = cylaov(&[
-        "batch",
-        dir.join("twice").to_str().unwrap(),
-        "--out",
-        dir.join("o2").to_str().unwrap(),
-    ]);
-    assert!(!o.status.success());
+    let o = batch_fails(&dir.join("twice"), &dir.join("o2"));
     assert!(String::from_utf8_lossy(&o.stderr).contains("view name \"s\" is used twice"));
     assert!(!dir.join("o2/s.exr").exists());
     let _ = std::fs::remove_dir_all(&dir);
@@ -618,13 +618,7 @@ fn empty_input_is_an_error() {
     let empty = dir.join("empty");
     std::fs::create_dir_all(&empty).unwrap();
     let out = dir.join("out");
-    let o = cylaov(&[
-        "batch",
-        empty.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    assert!(!o.status.success());
+    let o = batch_fails(&empty, &out);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains(empty.to_str().unwrap()), "{err}");
     assert!(err.contains("no scene files"), "{err}");
@@ -633,13 +627,7 @@ fn empty_input_is_an_error() {
     // An empty manifest.
     let manifest = dir.join("none.jsonl");
     std::fs::write(&manifest, "\n").unwrap();
-    let o = cylaov(&[
-        "batch",
-        manifest.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    assert!(!o.status.success());
+    let o = batch_fails(&manifest, &out);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains(manifest.to_str().unwrap()), "{err}");
     assert!(!out.join("transforms.json").exists());
@@ -648,13 +636,7 @@ fn empty_input_is_an_error() {
     let scenes = dir.join("scenes");
     generate(&dir.join("data"), "1", "2", SMALL);
     std::fs::rename(dir.join("data/scenes"), &scenes).unwrap();
-    let o = cylaov(&[
-        "batch",
-        scenes.to_str().unwrap(),
-        "--out",
-        scenes.to_str().unwrap(),
-    ]);
-    assert!(!o.status.success());
+    let o = batch_fails(&scenes, &scenes);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains(scenes.to_str().unwrap()), "{err}");
     assert!(err.contains("skipped 2 *.json files under it"), "{err}");
