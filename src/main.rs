@@ -1,12 +1,12 @@
 //! The `cylaov` command line: parses arguments, calls the library, reports errors.
 
 use clap::{Args, Parser, Subcommand};
-use cylaov::aov::Compression;
-use cylaov::batch::{BatchOptions, ProgressMode, Schedule, Shard};
-use cylaov::compare::Tolerances;
-use cylaov::generate::{Range, Volume};
+use cylaov::dataset::batch::{BatchOptions, ProgressMode, Schedule, Shard};
+use cylaov::dataset::generate::{Range, Volume};
+use cylaov::output::aov::Compression;
 use cylaov::render::{Accel, FormulaKind, Precision, RenderOptions};
 use cylaov::scene::Aov;
+use cylaov::verify::compare::Tolerances;
 use cylaov::{bench, commands};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -347,7 +347,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             let args = commands::generate::GenerateArgs {
                 out: a.out,
                 config: a.config,
-                flags: cylaov::generate::ConfigFile {
+                flags: cylaov::dataset::generate::ConfigFile {
                     count: a.count,
                     seed: a.seed,
                     cylinders: a.cylinders,

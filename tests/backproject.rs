@@ -6,8 +6,8 @@
 mod common;
 use common::venv_python;
 
-use cylaov::aov::AovImage;
 use cylaov::geometry::Cylinder;
+use cylaov::output::aov::AovImage;
 use glam::DVec3;
 use std::path::{Path, PathBuf};
 use std::process::Command;

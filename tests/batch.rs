@@ -3,7 +3,7 @@
 
 mod common;
 
-use cylaov::aov::AovImage;
+use cylaov::output::aov::AovImage;
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -446,7 +446,9 @@ fn transforms_match_cameras_and_depth_png() {
 /// `cylaov::verify`): every selected view is checked, a disagreement fails that view alone.
 #[test]
 fn verify_fraction_checks_selected_views_and_fails_disagreements() {
-    use cylaov::batch::{self, BatchOptions, ProgressMode, Shard, Verdict, Verifier, ViewSource};
+    use cylaov::dataset::batch::{
+        self, BatchOptions, ProgressMode, Shard, Verdict, Verifier, ViewSource,
+    };
     struct ReadsBack;
     impl Verifier for ReadsBack {
         fn check(
@@ -582,8 +584,8 @@ fn changed_camera_is_rendered_again() {
 #[test]
 fn temp_names_are_unique_per_host_and_call() {
     let target = Path::new("/some/dir/000001.exr");
-    let a = cylaov::io::temp_path(target);
-    let b = cylaov::io::temp_path(target);
+    let a = cylaov::output::io::temp_path(target);
+    let b = cylaov::output::io::temp_path(target);
     assert_ne!(a, b);
     for p in [&a, &b] {
         assert_eq!(p.parent(), target.parent());

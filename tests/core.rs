@@ -1,6 +1,6 @@
 //! End-to-end checks of the core renderer against analytic answers (issue 3).
 
-use cylaov::aov::AovImage;
+use cylaov::output::aov::AovImage;
 use cylaov::render::{Accel, FormulaKind, Precision, RenderOptions, render};
 use cylaov::scene::{self, Aov, Scene};
 
@@ -289,7 +289,8 @@ fn exr_round_trip_keeps_names_types_and_bits() {
     let img = render(&sc, &opts(Precision::F64, FormulaKind::Stable)).image;
     let dir = std::env::temp_dir().join(format!("cylaov-core-{}", std::process::id()));
     let path = dir.join("rt.exr");
-    img.write_exr(&path, cylaov::aov::Compression::Zip).unwrap();
+    img.write_exr(&path, cylaov::output::aov::Compression::Zip)
+        .unwrap();
     let back = AovImage::read_exr(&path).unwrap();
     let _ = std::fs::remove_dir_all(&dir);
     assert_eq!((back.width, back.height), (160, 120));
@@ -304,7 +305,7 @@ fn direct_uncompressed_writer_reads_back_bit_exact_with_the_exr_crate() {
     let img = render(&sc, &opts(Precision::F32, FormulaKind::Stable)).image;
     let dir = std::env::temp_dir().join(format!("cylaov-raw-{}", std::process::id()));
     let path = dir.join("raw.exr");
-    img.write_exr(&path, cylaov::aov::Compression::None)
+    img.write_exr(&path, cylaov::output::aov::Compression::None)
         .unwrap();
     let back = AovImage::read_exr(&path).unwrap();
     let _ = std::fs::remove_dir_all(&dir);

@@ -18,7 +18,7 @@ fn openexr_reads_every_channel_of_our_uncompressed_files() {
     let img = render(&sc, &RenderOptions::new(Aov::ALL.to_vec())).image;
     let dir = std::env::temp_dir().join(format!("cylaov-openexr-{}", std::process::id()));
     let path = dir.join("all.exr");
-    img.write_exr(&path, cylaov::aov::Compression::None)
+    img.write_exr(&path, cylaov::output::aov::Compression::None)
         .unwrap();
     let script = r#"
 import sys, numpy as np, mitsuba as mi
@@ -50,12 +50,12 @@ for i, n in enumerate(names):
             .unwrap_or_else(|| panic!("extra channel {name}"))
         {
             // Weighted by 1 + pixel index, so a misplaced row or column shows.
-            cylaov::aov::ChannelData::F32(v) => v
+            cylaov::output::aov::ChannelData::F32(v) => v
                 .iter()
                 .enumerate()
                 .map(|(k, &x)| x as f64 * (1 + k) as f64)
                 .sum(),
-            cylaov::aov::ChannelData::U32(v) => v
+            cylaov::output::aov::ChannelData::U32(v) => v
                 .iter()
                 .enumerate()
                 .map(|(k, &x)| x as f64 * (1 + k) as f64)

@@ -36,10 +36,10 @@
 //! `grazing_fence` are the milder versions kept here: a camera 300 units away with a 1°
 //! fov, and rods of radius 0.1 to 0.13 seen edge-on.
 
-use cylaov::aov::AovImage;
-use cylaov::compare::{Report, Tolerances, compare};
+use cylaov::output::aov::AovImage;
 use cylaov::render::{Precision, RenderOptions, render};
 use cylaov::scene::{self, Aov};
+use cylaov::verify::compare::{Report, Tolerances, compare};
 use std::path::{Path, PathBuf};
 
 /// Pass/fail bounds of one scene: the max bounds of [`Tolerances`] and p99 bounds.
@@ -99,7 +99,7 @@ fn check(stem: &str, precision: Precision, reference: &AovImage) -> Vec<String> 
         .map(|f| format!("{tag}: {f}"))
         .collect();
     // The reference carries shape_id, and so does our render: identity must be exact.
-    if r.identity != cylaov::compare::Identity::ShapeId {
+    if r.identity != cylaov::verify::compare::Identity::ShapeId {
         fails.push(format!("{tag}: compared without shape_id"));
     }
     for (name, stat, limit) in [

@@ -2,10 +2,10 @@
 //! stress scenes in `scenes/stress/`. Every failure prints the offending rays' inputs.
 
 use cylaov::geometry::{Formula, Literal, Real, Stable};
-use cylaov::oracle::{self, DD, Problem};
 use cylaov::render::{Accel, FormulaKind, Precision, RenderOptions, Tracer, render};
 use cylaov::scene::{self, Aov, Scene};
-use cylaov::stress::{self, Family, Kernel, Record, Summary};
+use cylaov::verify::oracle::{self, DD, Problem};
+use cylaov::verify::stress::{self, Family, Kernel, Record, Summary};
 use std::path::Path;
 
 /// Rays per parameter value: ~2 800 rays per kernel over the 7 families, ~1 s.

@@ -1,7 +1,7 @@
 //! `cylaov batch`: shard resolution from the command line and the environment, then
-//! [`crate::batch::run`].
+//! [`crate::dataset::batch::run`].
 
-use crate::batch::{self, BatchOptions, ProgressMode, Shard, Summary};
+use crate::dataset::batch::{self, BatchOptions, ProgressMode, Shard, Summary};
 use anyhow::Result;
 use std::path::PathBuf;
 
@@ -34,11 +34,11 @@ pub fn run(args: &BatchArgs) -> Result<Summary> {
 /// The Mitsuba verifier for `--verify-fraction`, if asked for and the reference venv exists
 /// (without it verification is skipped with a notice: the issue's "when the reference venv
 /// is present").
-fn verifier(fraction: f64) -> Result<Option<crate::verify::MitsubaVerifier>> {
+fn verifier(fraction: f64) -> Result<Option<crate::verify::reference::MitsubaVerifier>> {
     if fraction <= 0.0 {
         return Ok(None);
     }
-    let found = crate::verify::MitsubaVerifier::find();
+    let found = crate::verify::reference::MitsubaVerifier::find();
     if let Err(why) = &found {
         eprintln!("--verify-fraction: skipped: {why}");
     }

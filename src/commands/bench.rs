@@ -1,7 +1,7 @@
 //! `cylaov bench`: print the time-vs-error table, optionally as CSV and as a figure.
 
 use crate::bench::{self, BenchOptions, MitsubaBench, Row};
-use crate::io::atomic_write_bytes;
+use crate::output::io::atomic_write_bytes;
 use anyhow::{Context, Result, bail};
 use std::path::{Path, PathBuf};
 
@@ -91,7 +91,7 @@ pub fn run(
     }
     if let Some(path) = plot {
         let img = plot::plot(&rows, &mi_rows, &opts.kernels);
-        crate::preview::write_png(&img, &path)?;
+        crate::output::preview::write_png(&img, &path)?;
         println!("wrote {}", path.display());
     }
     Ok(rows)

@@ -1,8 +1,8 @@
 //! `cylaov compare`: two AOV EXRs → report (table or JSON), optional heatmap, pass/fail.
 
-use crate::aov::AovImage;
-use crate::compare::{Report, Tolerances, compare, heatmap};
-use crate::preview::write_png;
+use crate::output::aov::AovImage;
+use crate::output::preview::write_png;
+use crate::verify::compare::{Report, Tolerances, compare, heatmap};
 use anyhow::{Context, Result};
 use serde::Serialize;
 use std::path::PathBuf;

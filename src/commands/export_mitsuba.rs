@@ -1,7 +1,7 @@
-//! `cylaov export-mitsuba`: scene file → Mitsuba 3 XML (see [`crate::mitsuba`]).
+//! `cylaov export-mitsuba`: scene file → Mitsuba 3 XML (see [`crate::output::mitsuba`]).
 
-use crate::io::atomic_write_bytes;
-use crate::mitsuba::{shapes, to_xml};
+use crate::output::io::atomic_write_bytes;
+use crate::output::mitsuba::{shapes, to_xml};
 use crate::scene;
 use anyhow::{Context, Result, bail};
 use std::path::Path;

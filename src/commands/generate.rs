@@ -5,8 +5,8 @@
 //! resolved options, itself a valid `--config`). Every file is written atomically; the
 //! manifest last, so a manifest on disk always names scene files that exist.
 
-use crate::generate::{ConfigFile, GenerateOptions, to_json, view_name};
-use crate::io::atomic_write_bytes;
+use crate::dataset::generate::{ConfigFile, GenerateOptions, to_json, view_name};
+use crate::output::io::atomic_write_bytes;
 use anyhow::{Context, Result, bail};
 use rayon::prelude::*;
 use serde::Serialize;

@@ -1,10 +1,10 @@
 //! `cylaov render`: scene file → EXR (+ camera JSON, optional PNG previews).
 
-use crate::aov::Compression;
-use crate::camera::Camera;
-use crate::io::{Staged, camera_json, camera_json_path, commit_all, stage};
-use crate::preview;
+use crate::output::aov::Compression;
+use crate::output::io::{Staged, camera_json, camera_json_path, commit_all, stage};
+use crate::output::preview;
 use crate::render::{RenderOptions, render};
+use crate::scene::camera::Camera;
 use crate::scene::{self, Aov};
 use anyhow::{Context, Result, bail};
 use std::io::Write;
@@ -67,7 +67,8 @@ pub fn run(args: &RenderArgs) -> Result<String> {
     }
     commit_all(staged).context("putting the outputs in place")?;
     let (w, h) = (r.image.width, r.image.height);
-    let peak = crate::io::peak_rss_mib().map_or(String::new(), |m| format!(", peak {m:.0} MiB"));
+    let peak =
+        crate::output::io::peak_rss_mib().map_or(String::new(), |m| format!(", peak {m:.0} MiB"));
     Ok(format!(
         "{}: {w}x{h}, {} cylinders, {} hits ({:.1}%), {:?}/{:?}, trace {trace_ms:.1} ms, write {write_ms:.1} ms, total {:.1} ms{peak}",
         args.out.display(),
@@ -88,7 +89,11 @@ fn stem(p: &Path) -> String {
 
 /// `DIR/NAME.normal.png` and `DIR/NAME.depth.png` (or `.distance.png`) for whichever of
 /// the AOVs exist, staged.
-pub fn stage_previews(img: &crate::aov::AovImage, dir: &Path, name: &str) -> Result<Vec<Staged>> {
+pub fn stage_previews(
+    img: &crate::output::aov::AovImage,
+    dir: &Path,
+    name: &str,
+) -> Result<Vec<Staged>> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     let mut out = Vec::new();
     if let Some(p) = preview::normal_rgb(img) {

@@ -1,8 +1,8 @@
 //! `cylaov stress`: run the stress families through every kernel, print the table, and
 //! optionally write the per-ray CSV and a log-log plot of error against difficulty.
 
-use crate::io::atomic_write_bytes;
-use crate::stress::{self, CSV_HEADER, Family, Kernel, Record, TABLE_HEADER};
+use crate::output::io::atomic_write_bytes;
+use crate::verify::stress::{self, CSV_HEADER, Family, Kernel, Record, TABLE_HEADER};
 use anyhow::{Context, Result, bail};
 use std::path::PathBuf;
 use std::time::Instant;
@@ -64,7 +64,7 @@ pub fn run(args: &StressArgs) -> Result<String> {
             .with_context(|| format!("writing {}", path.display()))?;
     }
     if let Some(path) = &args.plot {
-        crate::preview::write_png(&plot::plot(&records, &families), path)?;
+        crate::output::preview::write_png(&plot::plot(&records, &families), path)?;
     }
     Ok(out)
 }

@@ -1,4 +1,4 @@
-//! The bench figure, two log-log panels drawn with [`crate::plot`]:
+//! The bench figure, two log-log panels drawn with [`crate::output::plot`]:
 //! (a) the Pareto view: error against build + trace time at one cylinder count (1 000, or
 //! the nearest count run), one point per kernel: filled = max error, open = median;
 //! (b) build + trace time against cylinder count, one line per kernel, with Mitsuba's warm
@@ -6,7 +6,7 @@
 //! processes (cylaov's default kernel and Mitsuba), the numbers the speed targets compare.
 
 use crate::bench::{KERNELS, Kernel, MitsubaRow, Row, kernel_name};
-use crate::plot::{self, Axis, BLACK, Grid, Marker, NOTE};
+use crate::output::plot::{self, Axis, BLACK, Grid, Marker, NOTE};
 use crate::render::FormulaKind;
 use crate::render::Precision;
 use image::{Rgb, RgbImage};

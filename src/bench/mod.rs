@@ -6,17 +6,17 @@
 //! acceleration, not a scene that grows denser. Every number in a
 //! row comes from one run on this machine; compare ratios within a table, not across runs.
 
-use crate::aov::{AovImage, Compression};
-use crate::camera::Camera;
-use crate::camera::{CameraSpec, FovAxis};
+use crate::accel::tiles;
 use crate::geometry::packet::{LANES, Packet, PacketFormula};
 use crate::geometry::wide::Simd;
 use crate::geometry::wide::{Lanes, Wide};
 use crate::geometry::{Cylinder, Literal, Prepared, Real, Stable};
+use crate::output::aov::{AovImage, Compression};
 use crate::render::{Accel, FormulaKind, Precision, RenderOptions, render, render_timed};
 use crate::rng::SplitMix64;
+use crate::scene::camera::Camera;
+use crate::scene::camera::{CameraSpec, FovAxis};
 use crate::scene::{Aov, Scene, SceneFile};
-use crate::tiles;
 use anyhow::{Context, Result, bail};
 use glam::DVec3;
 use serde::Serialize;
@@ -594,7 +594,7 @@ pub fn time_mitsuba(
     let xml = dir.join(format!("mitsuba-{}.xml", scene.cylinders.len()));
     std::fs::write(
         &xml,
-        crate::mitsuba::to_xml(scene, "cylaov bench random scene"),
+        crate::output::mitsuba::to_xml(scene, "cylaov bench random scene"),
     )?;
     let start = Instant::now();
     let o = Command::new(&m.python)

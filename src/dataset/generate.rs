@@ -20,8 +20,8 @@
 //! | `elevation` | `-20..60` | camera elevation above the xy plane, degrees; directions uniform over that band of the sphere |
 //! | `distance` | `0.55..0.9` | camera distance in units of the fit distance (at 1 the bounding sphere of every possible cylinder just fills the smaller fov; the cylinders' midpoints fill far less) |
 
-use crate::camera::FovAxis;
 use crate::rng::SplitMix64;
+use crate::scene::camera::FovAxis;
 use crate::scene::{self, CameraFile, CylinderFile, SceneFile};
 use glam::DVec3;
 use serde::{Deserialize, Serialize};

@@ -24,12 +24,12 @@
 //! `transforms.json` are pure functions of the input files and the options, so every shard
 //! computes the same list and writes the same `transforms.json` bytes.
 
-use crate::aov::{Compression, channel_names};
-use crate::camera::{Camera, rows};
-use crate::io::{atomic_write_bytes, camera_json};
+use crate::output::aov::{Compression, channel_names};
+use crate::output::io::{atomic_write_bytes, camera_json};
 use crate::rng::mix64;
+use crate::scene::camera::{Camera, rows};
 
-use crate::preview;
+use crate::output::preview;
 use crate::render::{FormulaKind, Precision, RenderOptions, render};
 use crate::scene::{self, Aov, Scene};
 use anyhow::{Context, Result, bail};
@@ -1232,7 +1232,7 @@ pub struct Verdict {
 }
 
 /// Checks a rendered view against an independent reference. The Mitsuba implementation is
-/// `crate::verify::MitsubaVerifier`; batch only knows this interface.
+/// `crate::verify::reference::MitsubaVerifier`; batch only knows this interface.
 pub trait Verifier: Sync {
     /// `exr` is the view's finished EXR; `work` a private folder for temporary files.
     fn check(&self, view: &ViewSource, scene: &Scene, exr: &Path, work: &Path) -> Result<Verdict>;

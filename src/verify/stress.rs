@@ -1,6 +1,6 @@
-//! The stress suite of issue 5: families of rays where ray–cylinder arithmetic breaks, each
+//! The stress suite: families of rays where ray–cylinder arithmetic breaks, each
 //! swept over its difficulty parameter, run through every kernel (literal/stable × f32/f64)
-//! and measured against the double-double [`oracle`](crate::oracle).
+//! and measured against the double-double [`oracle`].
 //!
 //! **What the oracle is fed.** A kernel's inputs are the f64 ray origin, the cylinder in f64,
 //! and the ray direction *in the kernel's precision*: the f32 pipeline rounds the f64 camera
@@ -13,7 +13,7 @@
 //! the hit by up to `ε₃₂·t` sideways; see the README's "Accuracy" for what that costs.
 //!
 //! **Tangency band.** Rays whose hit/miss changes when the origin moves by
-//! [`BAND_ULPS`](crate::oracle::BAND_ULPS)`·ε·(|oc| + r + h)` are not counted as wrong
+//! [`BAND_ULPS`](crate::verify::oracle::BAND_ULPS)`·ε·(|oc| + r + h)` are not counted as wrong
 //! hit/miss, and rays whose branch (surface, or root) changes are not held to the bounds;
 //! both are counted in the `band` column.
 //!
@@ -24,9 +24,9 @@
 
 use crate::geometry::cylinder::orthonormal_basis;
 use crate::geometry::{Cylinder, Formula, Literal, Prepared, Real, Stable, Surface};
-use crate::oracle::{self, Analysis, DD, DV3, Problem};
 use crate::rng::SplitMix64;
 use crate::scene;
+use crate::verify::oracle::{self, Analysis, DD, DV3, Problem};
 use glam::DVec3;
 use std::fmt;
 

@@ -21,7 +21,7 @@
 //! (u32 in one, float32 in the other) is not compared: it is listed in
 //! [`Report::type_clashes`] and a note says so.
 
-use crate::aov::{AovImage, ChannelData};
+use crate::output::aov::{AovImage, ChannelData};
 use anyhow::{Result, bail};
 use image::{Rgb, RgbImage};
 use serde::Serialize;
@@ -638,7 +638,7 @@ pub fn heatmap(a: &AovImage, b: &AovImage, report: &Report, tol: &Tolerances) ->
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::aov::Channel;
+    use crate::output::aov::Channel;
 
     /// A 6x5 image: cylinder 1 fills columns 1..=3 of rows 1..=3, the rest misses.
     fn image() -> AovImage {

@@ -1,14 +1,14 @@
 //! Rendering: one ray per pixel through the BVH and a cylinder kernel, in parallel bands
 //! of rows, filling only the requested AOVs. A render is a pure function of scene + options.
 
-use crate::aov::{AovImage, Channel, ChannelData};
-use crate::bvh::Bvh;
-use crate::camera::Camera;
+use crate::accel::bvh::Bvh;
+use crate::accel::tiles::{Candidate, TILE, Tiles};
 use crate::geometry::packet::{self, LANES, NO_HIT, Packet, PacketFormula};
 use crate::geometry::wide::{Lanes, Simd, Wide};
 use crate::geometry::{BasicHit, Formula, Literal, Prepared, Real, Stable, Surface};
+use crate::output::aov::{AovImage, Channel, ChannelData};
+use crate::scene::camera::Camera;
 use crate::scene::{Aov, Scene};
-use crate::tiles::{Candidate, TILE, Tiles};
 use glam::{DVec3, Vec3A};
 use rayon::prelude::*;
 

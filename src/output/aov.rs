@@ -3,7 +3,7 @@
 //! Channel names are the contract: `distance`, `depth`, `normal.X/Y/Z`, `position.X/Y/Z`
 //! (float32) and `shape_id` (u32). Row 0 is the top row. A missed pixel is 0 everywhere.
 
-use crate::io::{Staged, stage};
+use crate::output::io::{Staged, stage};
 use crate::scene::Aov;
 use anyhow::{Context, Result, bail};
 use exr::prelude::*;

@@ -9,10 +9,10 @@
 //! binary was built from; without them verification is skipped with a notice (the issue:
 //! "when the reference venv is present").
 
-use crate::aov::AovImage;
-use crate::batch::{Verdict, Verifier, ViewSource};
-use crate::compare::{Tolerances, compare};
+use crate::dataset::batch::{Verdict, Verifier, ViewSource};
+use crate::output::aov::AovImage;
 use crate::scene::Scene;
+use crate::verify::compare::{Tolerances, compare};
 use anyhow::{Context, Result, bail};
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -56,7 +56,7 @@ impl Verifier for MitsubaVerifier {
     fn check(&self, view: &ViewSource, scene: &Scene, exr: &Path, work: &Path) -> Result<Verdict> {
         let xml_path = work.join("scene.xml");
         let reference = work.join("reference.exr");
-        let xml = crate::mitsuba::to_xml(scene, &view.path.display().to_string());
+        let xml = crate::output::mitsuba::to_xml(scene, &view.path.display().to_string());
         std::fs::write(&xml_path, xml)
             .with_context(|| format!("writing {}", xml_path.display()))?;
         let out = Command::new(&self.python)

@@ -3,8 +3,10 @@
 //! Serde types live here only; everything past [`Scene`] is plain validated data. Every
 //! rejection names the field and the value: `cylinders[3].radius: must be > 0, got -1`.
 
-use crate::camera::{CameraSpec, FovAxis};
+pub mod camera;
+
 use crate::geometry::Cylinder;
+use crate::scene::camera::{CameraSpec, FovAxis};
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use std::fmt;

@@ -18,8 +18,8 @@
 //! for the finite step since `z` falls by at most `r`). Along the segment `tx`, `ty` are
 //! monotone and `z` linear, so their worst values are at its ends.
 
-use crate::camera::Camera;
 use crate::geometry::{Cylinder, cylinder::orthonormal_basis};
+use crate::scene::camera::Camera;
 use glam::DVec3;
 use rayon::prelude::*;
 
@@ -522,8 +522,8 @@ impl Tiles {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::camera::{CameraSpec, FovAxis};
     use crate::rng::SplitMix64;
+    use crate::scene::camera::{CameraSpec, FovAxis};
 
     /// Random cameras over generated scenes: some outside the cloud of cylinders, some
     /// among them (boxes straddling the camera plane), various fields of view and sizes.

@@ -1,9 +1,9 @@
 //! PNG previews a person can look at: normals as RGB, depth through a colour map with a
 //! legend bar labelled with its range. Also the 16-bit depth PNG of datasets.
 
-use crate::aov::AovImage;
-use crate::io::{Staged, stage};
-use crate::plot;
+use crate::output::aov::AovImage;
+use crate::output::io::{Staged, stage};
+use crate::output::plot;
 use anyhow::{Context, Result};
 use image::{ImageBuffer, Luma, Rgb, RgbImage};
 use std::path::Path;

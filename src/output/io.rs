@@ -1,7 +1,7 @@
 //! File output that never leaves a half-written file, and the camera metadata JSON.
 
-use crate::camera::{Camera, rows};
 use crate::scene::Aov;
+use crate::scene::camera::{Camera, rows};
 use serde::Serialize;
 use std::fs::File;
 use std::io::{self, Write};
@@ -214,7 +214,7 @@ pub fn camera_json(cam: &Camera, aovs: &[Aov]) -> String {
                 let (meaning, miss) = aov_meaning(a);
                 AovMeaning {
                     name: a.name(),
-                    channels: crate::aov::channel_names(a),
+                    channels: crate::output::aov::channel_names(a),
                     meaning,
                     miss,
                 }

@@ -1,0 +1,8 @@
+//! Output files: the AOV EXR, PNG previews and figures, atomic writes, camera metadata and
+//! the Mitsuba 3 XML export. The last stage of the pipeline; nothing here traces rays.
+
+pub mod aov;
+pub mod io;
+pub mod mitsuba;
+pub mod plot;
+pub mod preview;
