@@ -4,8 +4,8 @@
 Usage: mitsuba_reference.py SCENE.xml SCENE.json OUT.exr
 
 SCENE.xml comes from `cylaov export-mitsuba SCENE.json`; SCENE.json gives the camera for
-the depth conversion. Renders with the `scalar_rgb` variant (SPEC §5: cylinder quadratic in
-float64, deterministic) and writes OUT.exr (float32, lossless PIZ) with cylaov's channel
+the depth conversion. Renders with the `scalar_rgb` variant (in Mitsuba 3.9.1 it solves the
+cylinder quadratic in float64, deterministically; the `*_ad_*` variants use float32) and writes OUT.exr (float32, lossless PIZ) with cylaov's channel
 names:
 
   distance    = Mitsuba depth + near_clip / cos(theta)   (Mitsuba's ray starts on the near
@@ -15,10 +15,10 @@ names:
   shape_id    = our cylinder id of Mitsuba's shape_index (float32; 0 = miss)
 
 The shape_index -> shape_id map is read from the loaded scene itself: every exported shape
-has the XML id `c<file index>_id<shape_id>_<side|bottom|top>` (see src/mitsuba.rs), and
+has the XML id `c<file index>_id<shape_id>_<side|bottom|top>` (see src/output/mitsuba.rs), and
 Mitsuba's shape_index is 1 + the shape's position in `scene.shapes()`.
 
-cos(theta) comes from the pixel-centre ray built exactly as SPEC §3 (and src/camera.rs)
+cos(theta) comes from the pixel-centre ray built exactly as src/scene/camera.rs
 builds it, in float64. Every channel of a missed pixel is 0.
 """
 

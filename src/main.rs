@@ -52,7 +52,7 @@ enum Command {
     ///
     /// Example: cylaov export-mitsuba scenes/single.json -o single.xml
     ExportMitsuba(ExportCli),
-    /// Compare two AOV EXRs pixel by pixel (SPEC §7); exit 1 if a tolerance is broken.
+    /// Compare two AOV EXRs pixel by pixel; exit 1 if a tolerance is broken.
     ///
     /// Exit status: 0 when every tolerance holds, 1 when one is broken (the report says
     /// which), 2 when the comparison could not be made (a missing or unreadable file, images
@@ -278,7 +278,7 @@ struct KernelCli {
     /// here (scalar code) and shows what float32 costs (README, Accuracy).
     #[arg(long, value_enum, default_value_t = Precision::F64)]
     precision: Precision,
-    /// Kernel formulation: `stable` (default) or the SPEC §1 formulas as written.
+    /// Kernel formulation: `stable` (default) or the textbook formulas as written.
     #[arg(long, value_enum, default_value_t = FormulaKind::Stable)]
     formula: FormulaKind,
     /// How primary rays find candidates: screen tiles (fast) or the BVH.

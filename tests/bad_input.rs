@@ -1,5 +1,5 @@
 //! Bad scene input: one clear error naming the field and value, non-zero exit, no file
-//! (SPEC §2). Runs the real binary.
+//! (the README's scene format). Runs the real binary.
 
 use std::path::PathBuf;
 use std::process::Command;

@@ -1,5 +1,5 @@
-//! Issue 5's accuracy bar (SPEC §7), asserted on the stress families and on the image-level
-//! stress scenes in `scenes/stress/`. Every failure prints the offending rays' inputs.
+//! The accuracy bar (backward stability, `error ≤ 4ε·max(1, κ)`), asserted on the stress
+//! families and on the image-level stress scenes in `scenes/stress/`. Every failure prints the offending rays' inputs.
 
 use cylaov::geometry::{Formula, Literal, Real, Stable};
 use cylaov::render::{Accel, FormulaKind, Precision, RenderOptions, Tracer, render};
@@ -90,7 +90,7 @@ fn stable_f64_meets_the_bar_in_every_family() {
     assert_bar(&records);
     // Away from tangency the bar is the plain 4-ulp bound. Our κ is a worst case summed
     // over the inputs (≥ 2 for any hit: |d| alone moves t by ε·t, and |oc| ≥ t - r - h), so
-    // SPEC's "κ ≤ 2" is our κ ≤ 3. Check it is met on many rays, so the κ-widened bound is
+    // the bar's "well-conditioned: κ ≤ 2" is our κ ≤ 3. Check it is met on many rays, so the κ-widened bound is
     // not what carries the test.
     let well: Vec<&Record> = records
         .iter()
@@ -199,7 +199,7 @@ fn literal_failures_are_reported() {
         stab.t_max
     );
     assert!(lit.viol_t > 0 && lit.viol_n > 0);
-    // The axis-point normal quadratic of SPEC §1 has a double root: NaN normals.
+    // The axis-point normal quadratic of the textbook formulas has a double root: NaN normals.
     assert!(get(Family::Grazing, Kernel::LiteralF64).nonfinite > 0);
     assert!(get(Family::Grazing, Kernel::LiteralF32).nonfinite > 0);
     assert_eq!(get(Family::Grazing, Kernel::StableF64).nonfinite, 0);
@@ -229,7 +229,7 @@ fn scene_numbers_are_read_exactly() {
 
 /// Every scene in `scenes/stress/` (`stress_scene_list_is_complete` checks): the first five
 /// were made for the stability issue; `far_narrow` and `grazing` moved here from `scenes/`
-/// because Mitsuba's float32 is the inaccurate side on them (SPEC §7).
+/// because Mitsuba's float32 is the inaccurate side on them (far from the origin, or radius ≫ 1e3).
 const SCENES: [&str; 7] = [
     "far_tiny_fov",
     "inside_tube",
@@ -285,7 +285,7 @@ fn speckles(ids: &[u32], w: usize, h: usize) -> Vec<(usize, usize)> {
 }
 
 /// Render `name` with kernel `F` in `T`; return every broken rule: NaN, hole or speckle,
-/// and per pixel a different hit from the oracle's (except on silhouettes, SPEC §7) or an
+/// and per pixel a different hit from the oracle's (except on silhouettes, as in `cylaov compare`) or an
 /// error over the bar.
 fn scene_failures<T: Real, F: Formula>(name: &str) -> Vec<String> {
     let sc = load(name);

@@ -562,7 +562,7 @@ pub struct MitsubaBench {
     pub python: PathBuf,
     /// `scripts/bench_mitsuba.py`.
     pub script: PathBuf,
-    /// Largest count for `scalar_rgb` (slow: ~75 s at 1 000 cylinders, SPEC §5).
+    /// Largest count for `scalar_rgb` (slow: ~75 s at 1 000 cylinders on 2 cores).
     pub scalar_max: usize,
     /// Largest count for `llvm_ad_rgb`.
     pub llvm_max: usize,
@@ -626,7 +626,7 @@ pub fn time_mitsuba(
     Ok(row)
 }
 
-/// Run Mitsuba on the bench scenes, printing each row with the ratios of SPEC §7 against
+/// Run Mitsuba on the bench scenes, printing each row with three ratios against
 /// cylaov's stable-f64 depth+normal row of the same count: (a) whole process vs whole
 /// process, (b) Mitsuba's warm `render()` vs cylaov's whole process, (c) Mitsuba's warm
 /// `render()` vs cylaov's in-memory build + trace.

@@ -1,4 +1,4 @@
-//! Batches of views (`cylaov batch`, SPEC §7): the view list, sharding, resumable rendering
+//! Batches of views (`cylaov batch`): the view list, sharding, resumable rendering
 //! through one rayon pool, and the dataset index `transforms.json`.
 //!
 //! Per view `NAME` the output folder gets `NAME.exr`, `NAME.camera.json`,

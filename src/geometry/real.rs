@@ -43,7 +43,7 @@ pub trait Real:
     fn to_f64(self) -> f64;
     fn sqrt(self) -> Self;
     fn abs(self) -> Self;
-    /// +1 or -1 with the sign of `self`; never 0 (`sign(0) = +1`, SPEC §1).
+    /// +1 or -1 with the sign of `self`; never 0 (`sign(0) = +1`: the stable root needs ±1).
     fn sign(self) -> Self;
     fn is_finite(self) -> bool;
     fn min(self, o: Self) -> Self;

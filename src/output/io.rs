@@ -8,7 +8,7 @@ use std::io::{self, Write};
 use std::path::{Path, PathBuf};
 
 /// The temporary name used while `path` is written: `.NAME.HOST.PID.NONCE.tmp` in the same
-/// folder, so the rename is atomic. Hidden and ending in `.tmp` (SPEC §7). Distinct for
+/// folder, so the rename is atomic. Hidden and ending in `.tmp`, so a cleaner can tell it from data. Distinct for
 /// every call: the host (`/proc/sys/kernel/hostname`, else `$HOSTNAME`; shards on different
 /// nodes of a shared filesystem can have equal PIDs), the PID, and a nonce made of a
 /// per-process value (the start time, taken once) and a per-call counter (two threads, or
@@ -124,7 +124,7 @@ pub fn atomic_write_bytes(path: &Path, bytes: &[u8]) -> io::Result<()> {
     atomic_write(path, |f| f.write_all(bytes))
 }
 
-/// Where `render -o OUT.exr` puts the camera metadata: `OUT.camera.json` (SPEC §7).
+/// Where `render -o OUT.exr` puts the camera metadata: `OUT.camera.json` (not `OUT.json`, which could be the scene itself).
 pub fn camera_json_path(exr: &Path) -> PathBuf {
     exr.with_extension("camera.json")
 }
@@ -161,7 +161,7 @@ struct CameraMeta {
     aovs: Vec<AovMeaning>,
 }
 
-/// What an AOV means, for the metadata file (SPEC §4).
+/// What an AOV means, for the metadata file.
 pub fn aov_meaning(aov: Aov) -> (&'static str, &'static str) {
     match aov {
         Aov::Distance => (

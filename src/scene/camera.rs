@@ -1,4 +1,4 @@
-//! The pinhole camera of SPEC §3, matching Mitsuba 3's `perspective` sensor with a
+//! The pinhole camera, matching Mitsuba 3's `perspective` sensor with a
 //! `look_at` transform: frame, field of view per `fov_axis`, pixel-centre rays in f64.
 
 use glam::{DMat4, DVec3, DVec4};
@@ -95,7 +95,7 @@ impl Camera {
     }
 
     /// Image-plane offset of column `i` at unit distance, toward `-left`:
-    /// `((i + 0.5) / W · 2 - 1) · tan(fov_x / 2)`, in f64 (SPEC §3).
+    /// `((i + 0.5) / W · 2 - 1) · tan(fov_x / 2)`, in f64 (Mitsuba's sample position, without its f32 step).
     #[inline]
     pub fn column_offset(&self, i: u32) -> f64 {
         (((i as f64 + 0.5) / self.spec.width as f64) * 2.0 - 1.0) * self.tan_half_x
@@ -132,7 +132,7 @@ impl Camera {
     }
 
     /// Unit direction of the ray through the centre of pixel (i, j), all in f64:
-    /// `(i + 0.5) / W` and `(j + 0.5) / H` (SPEC §3). Row 0 is the top row.
+    /// `(i + 0.5) / W` and `(j + 0.5) / H` (pixel centres; no f32 step before the final store). Row 0 is the top row.
     #[inline]
     pub fn ray_dir(&self, i: u32, j: u32) -> DVec3 {
         self.dir_from_offsets(self.column_offset(i), self.row_offset(j))

@@ -1,4 +1,4 @@
-//! Scene files (SPEC §2): the serde schema, defaults, and validation into a [`Scene`].
+//! Scene files (the README's "Scene format"): the serde schema, defaults, and validation into a [`Scene`].
 //!
 //! Serde types live here only; everything past [`Scene`] is plain validated data. Every
 //! rejection names the field and the value: `cylinders[3].radius: must be > 0, got -1`.
@@ -12,7 +12,7 @@ use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::path::Path;
 
-/// Largest coordinate, radius or height accepted: f32 squares overflow near 1.8e19 (SPEC §7).
+/// Largest coordinate, radius or height accepted: f32 squares overflow near 1.8e19.
 pub const MAX_COORD: f64 = 1e12;
 /// Largest image side accepted.
 pub const MAX_SIDE: u32 = 16384;
@@ -20,7 +20,7 @@ pub const MAX_SIDE: u32 = 16384;
 /// buffers; 16384 × 16384 would be 9.7 GB.
 pub const MAX_PIXELS: u64 = 1 << 26;
 
-/// One AOV (SPEC §4).
+/// One AOV (the README's AOV table says what each stores).
 #[derive(
     Clone,
     Copy,
@@ -79,7 +79,7 @@ impl fmt::Display for Aov {
     }
 }
 
-/// The default AOV set (SPEC §2).
+/// The default AOV set, when neither the scene nor the command line names one.
 pub fn default_aovs() -> Vec<Aov> {
     vec![Aov::Depth, Aov::Normal]
 }
@@ -170,7 +170,7 @@ pub struct CylinderFile {
     pub id: Option<u32>,
 }
 
-/// A whole scene file (SPEC §2).
+/// A whole scene file, as read (before validation).
 #[derive(Clone, Debug, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SceneFile {

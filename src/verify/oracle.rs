@@ -13,7 +13,7 @@
 //! The unit tests check the arithmetic (√2² = 2, (1/3)·3 = 1, … to < 1e-30) and the oracle
 //! against exact answers, including a ray 1.8e-12 relative from tangency.
 //!
-//! The geometry is SPEC §1's, solved with the cancellation-free forms (Lagrange
+//! The geometry is that of [`crate::geometry::cylinder`]'s module doc, solved with the cancellation-free forms (Lagrange
 //! discriminant, citardauq roots, `C = (ρ − r)(ρ + r)`) but organised differently from the
 //! `Stable` kernel on purpose: every candidate (two side roots that lie between the cap
 //! planes, two cap-disk hits) is tested on its own and the nearest in `[tmin, tmax]` wins, so
@@ -465,7 +465,8 @@ fn scales(p: &Problem) -> [f64; NIN] {
 /// The oracle's answer, κ of `t` and of the normal, and whether the ray is in the tangency
 /// band, for a kernel of unit roundoff `eps`.
 ///
-/// κ follows SPEC §7 with a normwise relative perturbation model: `oc` may move by
+/// κ is the condition number of the exact answer: the largest relative change of `t` (or of
+/// the normal angle) when the inputs are perturbed by `ε` relative, in a normwise model: `oc` may move by
 /// `ε|oc|`, `d` by `ε|d|`, the axis by `ε` (a tilt), `r` by `εr`, `h` by `εh`. We take the
 /// larger of (a) the linearised worst case, from a finite-difference gradient (11 oracle
 /// calls; for a vector input the worst perturbation is along its gradient block), and (b)

@@ -3,7 +3,7 @@
 //! For each selected view: the scene goes through `mitsuba::to_xml`, the reference venv's
 //! Python runs `scripts/mitsuba_reference.py XML SCENE.json OUT.exr`, and `compare` judges
 //! our EXR against the reference with the tolerances of the reference tests
-//! (`Tolerances::default()`, SPEC §7 "Comparing two images").
+//! (`Tolerances::default()`, the rule of [`crate::verify::compare`]).
 //!
 //! The venv and the script are looked up under `$CYLAOV_ROOT`, else the source tree this
 //! binary was built from; without them verification is skipped with a notice (the issue:

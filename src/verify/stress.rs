@@ -4,7 +4,7 @@
 //!
 //! **What the oracle is fed.** A kernel's inputs are the f64 ray origin, the cylinder in f64,
 //! and the ray direction *in the kernel's precision*: the f32 pipeline rounds the f64 camera
-//! direction to f32 before the kernel sees it (SPEC §3). The oracle gets exactly those
+//! direction to f32 before the kernel sees it (the f64 pipeline never rounds it). The oracle gets exactly those
 //! inputs — the f64 origin and cylinder, and the direction after that rounding — so the
 //! error we report is the kernel's own forward error, comparable with its backward-stability
 //! bound `4ε·max(1, κ)`. Everything the kernel does after receiving its inputs (forming `oc`
@@ -17,9 +17,10 @@
 //! hit/miss, and rays whose branch (surface, or root) changes are not held to the bounds;
 //! both are counted in the `band` column.
 //!
-//! **Bounds** (SPEC §7, issue 5), for rays outside the band where both oracle and kernel hit:
-//! distance `|Δt|/t ≤ 4ε·max(1, κ_t)`; normal angle `≤ max(16ε·max(1, t/r), 4ε·κ_n)` (the
-//! issue's bound, widened by κ_n only where the normal itself is ill-conditioned: a grazing
+//! **Bounds** (the accuracy bar: backward stability, `error ≤ 4ε·max(1, κ)`, which is the
+//! 4-ulp bound on well-conditioned rays, κ ≤ 2), for rays outside the band where both oracle
+//! and kernel hit: distance `|Δt|/t ≤ 4ε·max(1, κ_t)`; normal angle
+//! `≤ max(16ε·max(1, t/r), 4ε·κ_n)` (the normal's own bound, widened by κ_n only where the normal itself is ill-conditioned: a grazing
 //! hit's normal turns by `Δp/√(r² − p²)` for a sideways move `Δp`).
 
 use crate::geometry::cylinder::orthonormal_basis;
