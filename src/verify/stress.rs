@@ -221,6 +221,7 @@ fn simple(family: Family, param: f64, frame: &Frame, cyl: Cylinder, o: DVec3, d:
 
 /// One ray of `family` at difficulty `param`; `i` picks the sub-case.
 fn make_case(family: Family, param: f64, i: usize, rng: &mut SplitMix64) -> Option<Case> {
+    // Every family draws the base first, so the stream of each case is fixed by `i` alone.
     let base = DVec3::new(
         rng.range(-10.0, 10.0),
         rng.range(-10.0, 10.0),
@@ -228,166 +229,210 @@ fn make_case(family: Family, param: f64, i: usize, rng: &mut SplitMix64) -> Opti
     );
     let caps = i.is_multiple_of(2);
     match family {
-        Family::Grazing => {
-            // Camera 3–7 radii from the axis; the ray's distance from the axis is
-            // p = r(1 ± param), tilted up to ±0.2 rad so it stays between the caps.
-            let f = Frame::random(rng, base);
-            let (r, h) = (1.0, 4.0);
-            let rho0 = rng.range(3.0, 7.0);
-            let phi0 = rng.range(0.0, std::f64::consts::TAU);
-            let p = if (i / 2).is_multiple_of(2) {
-                r * (1.0 - param)
-            } else {
-                r * (1.0 + param)
-            };
-            let side = if (i / 4).is_multiple_of(2) { 1.0 } else { -1.0 };
-            let beta = side * (p / rho0).asin();
-            let dir2 = phi0 + std::f64::consts::PI + beta;
-            let tilt = rng.range(-0.2, 0.2);
-            let o = DVec3::new(rho0 * phi0.cos(), rho0 * phi0.sin(), rng.range(1.5, 2.5));
-            let d = DVec3::new(tilt.cos() * dir2.cos(), tilt.cos() * dir2.sin(), tilt.sin());
-            Some(simple(family, param, &f, f.cylinder(r, h, caps), o, d))
-        }
-        Family::NearAxis => {
-            let f = Frame::random(rng, base);
-            let az = rng.range(0.0, std::f64::consts::TAU);
-            let tilt = |toward: f64| {
-                DVec3::new(
-                    param.sin() * toward.cos(),
-                    param.sin() * toward.sin(),
-                    param.cos(),
-                )
-            };
-            match i % 3 {
-                0 => {
-                    // From below, through the bottom cap (a cap hit; open tubes: a miss or
-                    // the inner wall far away).
-                    let (rr, a) = (
-                        0.8 * rng.unit().sqrt(),
-                        rng.range(0.0, std::f64::consts::TAU),
-                    );
-                    let o = DVec3::new(rr * a.cos(), rr * a.sin(), -rng.range(3.0, 4.0));
-                    Some(simple(
-                        family,
-                        param,
-                        &f,
-                        f.cylinder(1.0, 2.0, caps),
-                        o,
-                        tilt(az),
-                    ))
-                }
-                1 => {
-                    // Inside a tube tall enough that the side is hit at t ≈ 1/θ.
-                    let h = 20.0 / param;
-                    let (rr, a) = (
-                        0.9 * rng.unit().sqrt(),
-                        rng.range(0.0, std::f64::consts::TAU),
-                    );
-                    let o = DVec3::new(rr * a.cos(), rr * a.sin(), 0.05 * h);
-                    Some(simple(
-                        family,
-                        param,
-                        &f,
-                        f.cylinder(1.0, h, caps),
-                        o,
-                        tilt(az),
-                    ))
-                }
-                _ => {
-                    // Outside (1.5 radii), converging on the axis: side hit at t ≈ 0.5/θ.
-                    let h = 20.0 / param;
-                    let o = DVec3::new(1.5 * az.cos(), 1.5 * az.sin(), 0.05 * h);
-                    let toward = az + std::f64::consts::PI + rng.range(-0.3, 0.3);
-                    Some(simple(
-                        family,
-                        param,
-                        &f,
-                        f.cylinder(1.0, h, caps),
-                        o,
-                        tilt(toward),
-                    ))
-                }
-            }
-        }
-        Family::Far | Family::Scale => {
-            // Far: a unit cylinder `param` radii from the world origin and from the camera.
-            // Scale: radius `param`, everything else proportional.
-            let (r, base, dist) = if family == Family::Far {
-                (1.0, rng.sphere() * param, param)
-            } else {
-                (param, base * param * 0.3, 5.0 * param)
-            };
-            let f = Frame::random(rng, base);
-            let h = 2.0 * r;
-            let cam = f.base + rng.sphere() * dist;
-            let a = rng.range(0.0, std::f64::consts::TAU);
-            let rr = 1.3 * r * rng.unit().sqrt();
-            let target = f.point(DVec3::new(
-                rr * a.cos(),
-                rr * a.sin(),
-                rng.range(-0.3, 2.3) * r,
-            ));
-            Some(Case {
-                family,
-                param,
-                cyl: f.cylinder(r, h, caps),
-                raw: RawCylinder::Validated,
-                origin: cam,
-                dir: (target - cam).normalize(),
-                tmin: 0.0,
-            })
-        }
-        Family::Inside => {
-            // Camera at rho = r(1 - param) (inside) or r(1 + param) (just outside), random
-            // direction.
-            let f = Frame::random(rng, base);
-            let rho = if (i / 2).is_multiple_of(2) {
-                1.0 - param
-            } else {
-                1.0 + param
-            };
-            let a = rng.range(0.0, std::f64::consts::TAU);
-            let o = DVec3::new(rho * a.cos(), rho * a.sin(), 2.0);
-            let d = rng.sphere();
-            Some(simple(family, param, &f, f.cylinder(1.0, 4.0, caps), o, d))
-        }
-        Family::Rims => {
-            // Aim at a point `param` radii from the seam (along the axis or radially, either
-            // side), from a camera 2–5 units away where the rim is visible.
-            let f = Frame::random(rng, base);
-            let (r, h) = (1.0, 2.0);
-            let a = rng.range(0.0, std::f64::consts::TAU);
-            let radial = DVec3::new(a.cos(), a.sin(), 0.0);
-            let (z, cap_n) = if i % 4 < 2 {
-                (0.0, DVec3::NEG_Z)
-            } else {
-                (h, DVec3::Z)
-            };
-            let offset = match (i / 4) % 4 {
-                0 => DVec3::Z,
-                1 => DVec3::NEG_Z,
-                2 => radial,
-                _ => -radial,
-            } * param;
-            let target = radial * r + DVec3::new(0.0, 0.0, z) + offset;
-            let w = loop {
-                let w = rng.sphere();
-                if w.dot(radial) > 0.1 || w.dot(cap_n) > 0.1 {
-                    break w;
-                }
-            };
-            let o = target + w * rng.range(2.0, 5.0);
+        Family::Grazing => grazing_case(param, i, base, caps, rng),
+        Family::NearAxis => near_axis_case(param, i, base, caps, rng),
+        Family::Far | Family::Scale => far_or_scale_case(family, param, base, caps, rng),
+        Family::Inside => inside_case(param, i, base, caps, rng),
+        Family::Rims => rims_case(param, i, base, caps, rng),
+        Family::Input => input_case(param, i, rng, caps),
+    }
+}
+
+/// Grazing: rays passing `param` radii inside or outside the side's silhouette.
+fn grazing_case(
+    param: f64,
+    i: usize,
+    base: DVec3,
+    caps: bool,
+    rng: &mut SplitMix64,
+) -> Option<Case> {
+    let family = Family::Grazing;
+    // Camera 3–7 radii from the axis; the ray's distance from the axis is
+    // p = r(1 ± param), tilted up to ±0.2 rad so it stays between the caps.
+    let f = Frame::random(rng, base);
+    let (r, h) = (1.0, 4.0);
+    let rho0 = rng.range(3.0, 7.0);
+    let phi0 = rng.range(0.0, std::f64::consts::TAU);
+    let p = if (i / 2).is_multiple_of(2) {
+        r * (1.0 - param)
+    } else {
+        r * (1.0 + param)
+    };
+    let side = if (i / 4).is_multiple_of(2) { 1.0 } else { -1.0 };
+    let beta = side * (p / rho0).asin();
+    let dir2 = phi0 + std::f64::consts::PI + beta;
+    let tilt = rng.range(-0.2, 0.2);
+    let o = DVec3::new(rho0 * phi0.cos(), rho0 * phi0.sin(), rng.range(1.5, 2.5));
+    let d = DVec3::new(tilt.cos() * dir2.cos(), tilt.cos() * dir2.sin(), tilt.sin());
+    Some(simple(family, param, &f, f.cylinder(r, h, caps), o, d))
+}
+
+/// Near-axis: rays at angle `param` to the axis, through a cap, inside a tall tube, or
+/// converging on the axis from outside.
+fn near_axis_case(
+    param: f64,
+    i: usize,
+    base: DVec3,
+    caps: bool,
+    rng: &mut SplitMix64,
+) -> Option<Case> {
+    let family = Family::NearAxis;
+    let f = Frame::random(rng, base);
+    let az = rng.range(0.0, std::f64::consts::TAU);
+    let tilt = |toward: f64| {
+        DVec3::new(
+            param.sin() * toward.cos(),
+            param.sin() * toward.sin(),
+            param.cos(),
+        )
+    };
+    match i % 3 {
+        0 => {
+            // From below, through the bottom cap (a cap hit; open tubes: a miss or
+            // the inner wall far away).
+            let (rr, a) = (
+                0.8 * rng.unit().sqrt(),
+                rng.range(0.0, std::f64::consts::TAU),
+            );
+            let o = DVec3::new(rr * a.cos(), rr * a.sin(), -rng.range(3.0, 4.0));
             Some(simple(
                 family,
                 param,
                 &f,
-                f.cylinder(r, h, caps),
+                f.cylinder(1.0, 2.0, caps),
                 o,
-                target - o,
+                tilt(az),
             ))
         }
-        Family::Input => input_case(param, i, rng, caps),
+        1 => {
+            // Inside a tube tall enough that the side is hit at t ≈ 1/θ.
+            let h = 20.0 / param;
+            let (rr, a) = (
+                0.9 * rng.unit().sqrt(),
+                rng.range(0.0, std::f64::consts::TAU),
+            );
+            let o = DVec3::new(rr * a.cos(), rr * a.sin(), 0.05 * h);
+            Some(simple(
+                family,
+                param,
+                &f,
+                f.cylinder(1.0, h, caps),
+                o,
+                tilt(az),
+            ))
+        }
+        _ => {
+            // Outside (1.5 radii), converging on the axis: side hit at t ≈ 0.5/θ.
+            let h = 20.0 / param;
+            let o = DVec3::new(1.5 * az.cos(), 1.5 * az.sin(), 0.05 * h);
+            let toward = az + std::f64::consts::PI + rng.range(-0.3, 0.3);
+            Some(simple(
+                family,
+                param,
+                &f,
+                f.cylinder(1.0, h, caps),
+                o,
+                tilt(toward),
+            ))
+        }
     }
+}
+
+/// Far and scale: the camera `param` radii away, or everything scaled by `param`.
+fn far_or_scale_case(
+    family: Family,
+    param: f64,
+    base: DVec3,
+    caps: bool,
+    rng: &mut SplitMix64,
+) -> Option<Case> {
+    // Far: a unit cylinder `param` radii from the world origin and from the camera.
+    // Scale: radius `param`, everything else proportional.
+    let (r, base, dist) = if family == Family::Far {
+        (1.0, rng.sphere() * param, param)
+    } else {
+        (param, base * param * 0.3, 5.0 * param)
+    };
+    let f = Frame::random(rng, base);
+    let h = 2.0 * r;
+    let cam = f.base + rng.sphere() * dist;
+    let a = rng.range(0.0, std::f64::consts::TAU);
+    let rr = 1.3 * r * rng.unit().sqrt();
+    let target = f.point(DVec3::new(
+        rr * a.cos(),
+        rr * a.sin(),
+        rng.range(-0.3, 2.3) * r,
+    ));
+    Some(Case {
+        family,
+        param,
+        cyl: f.cylinder(r, h, caps),
+        raw: RawCylinder::Validated,
+        origin: cam,
+        dir: (target - cam).normalize(),
+        tmin: 0.0,
+    })
+}
+
+/// Inside: the camera `param` radii inside or outside the wall.
+fn inside_case(
+    param: f64,
+    i: usize,
+    base: DVec3,
+    caps: bool,
+    rng: &mut SplitMix64,
+) -> Option<Case> {
+    let family = Family::Inside;
+    // Camera at rho = r(1 - param) (inside) or r(1 + param) (just outside), random
+    // direction.
+    let f = Frame::random(rng, base);
+    let rho = if (i / 2).is_multiple_of(2) {
+        1.0 - param
+    } else {
+        1.0 + param
+    };
+    let a = rng.range(0.0, std::f64::consts::TAU);
+    let o = DVec3::new(rho * a.cos(), rho * a.sin(), 2.0);
+    let d = rng.sphere();
+    Some(simple(family, param, &f, f.cylinder(1.0, 4.0, caps), o, d))
+}
+
+/// Rims: aimed `param` radii from the cap/side seam.
+fn rims_case(param: f64, i: usize, base: DVec3, caps: bool, rng: &mut SplitMix64) -> Option<Case> {
+    let family = Family::Rims;
+    // Aim at a point `param` radii from the seam (along the axis or radially, either
+    // side), from a camera 2–5 units away where the rim is visible.
+    let f = Frame::random(rng, base);
+    let (r, h) = (1.0, 2.0);
+    let a = rng.range(0.0, std::f64::consts::TAU);
+    let radial = DVec3::new(a.cos(), a.sin(), 0.0);
+    let (z, cap_n) = if i % 4 < 2 {
+        (0.0, DVec3::NEG_Z)
+    } else {
+        (h, DVec3::Z)
+    };
+    let offset = match (i / 4) % 4 {
+        0 => DVec3::Z,
+        1 => DVec3::NEG_Z,
+        2 => radial,
+        _ => -radial,
+    } * param;
+    let target = radial * r + DVec3::new(0.0, 0.0, z) + offset;
+    let w = loop {
+        let w = rng.sphere();
+        if w.dot(radial) > 0.1 || w.dot(cap_n) > 0.1 {
+            break w;
+        }
+    };
+    let o = target + w * rng.range(2.0, 5.0);
+    Some(simple(
+        family,
+        param,
+        &f,
+        f.cylinder(r, h, caps),
+        o,
+        target - o,
+    ))
 }
 
 /// Input family: the cylinder goes through scene validation (as a user's file would), the
