@@ -36,16 +36,24 @@ use std::fmt;
 /// A stress family; each sweeps one difficulty parameter.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Family {
+    /// Rays passing near the side's silhouette (`param`: distance from tangency, in radii).
     Grazing,
+    /// Rays at a small angle to the axis (`param`: that angle, radians).
     NearAxis,
+    /// A unit cylinder far from the origin and the camera (`param`: the distance, in radii).
     Far,
+    /// Everything scaled (`param`: the radius).
     Scale,
+    /// Cameras just inside or outside the wall (`param`: distance from it, in radii).
     Inside,
+    /// Rays aimed near the cap/side seam (`param`: distance from the rim, in radii).
     Rims,
+    /// Cylinders given in either file form and read through scene validation.
     Input,
 }
 
 impl Family {
+    /// Every family, in table order.
     pub const ALL: [Family; 7] = [
         Family::Grazing,
         Family::NearAxis,
@@ -56,6 +64,7 @@ impl Family {
         Family::Input,
     ];
 
+    /// The name used on the command line and in tables.
     pub fn name(self) -> &'static str {
         match self {
             Family::Grazing => "grazing",
@@ -68,6 +77,7 @@ impl Family {
         }
     }
 
+    /// The family of a command-line name.
     pub fn parse(s: &str) -> Option<Family> {
         Family::ALL.into_iter().find(|f| f.name() == s)
     }
@@ -118,14 +128,19 @@ pub enum RawCylinder {
 /// One stress ray.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Case {
+    /// The family the ray belongs to.
     pub family: Family,
     /// The difficulty parameter this ray belongs to.
     pub param: f64,
+    /// The cylinder, as the renderer gets it after validation.
     pub cyl: Cylinder,
+    /// The cylinder as written in the file, for the oracle.
     pub raw: RawCylinder,
+    /// Ray origin (f64).
     pub origin: DVec3,
     /// Unit direction in f64 (before any rounding to the kernel's precision).
     pub dir: DVec3,
+    /// Smallest accepted `t` (the near clip of a camera ray, else 0).
     pub tmin: f64,
 }
 
@@ -513,13 +528,18 @@ fn js(v: DVec3) -> String {
 /// One of the four kernels.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Kernel {
+    /// The textbook formulas in f32.
     LiteralF32,
+    /// The textbook formulas in f64.
     LiteralF64,
+    /// The stable kernel in f32.
     StableF32,
+    /// The stable kernel in f64.
     StableF64,
 }
 
 impl Kernel {
+    /// Every kernel, in table order.
     pub const ALL: [Kernel; 4] = [
         Kernel::LiteralF32,
         Kernel::LiteralF64,
@@ -527,6 +547,7 @@ impl Kernel {
         Kernel::StableF64,
     ];
 
+    /// The name printed in tables and CSV files.
     pub fn name(self) -> &'static str {
         match self {
             Kernel::LiteralF32 => "literal/f32",
@@ -536,6 +557,7 @@ impl Kernel {
         }
     }
 
+    /// Whether the kernel computes in f32.
     pub fn is_f32(self) -> bool {
         matches!(self, Kernel::LiteralF32 | Kernel::StableF32)
     }
@@ -571,8 +593,11 @@ impl Kernel {
 /// A kernel's answer, widened to f64.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct KernelHit {
+    /// Ray parameter (a distance: the direction is a unit vector).
     pub t: f64,
+    /// Which part of the cylinder was hit.
     pub surface: Surface,
+    /// World-space unit outward normal.
     pub normal: DVec3,
 }
 
@@ -592,10 +617,15 @@ fn run<T: Real, F: Formula>(c: &Case) -> Option<KernelHit> {
 /// One ray through one kernel, measured.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Record {
+    /// The ray.
     pub case: Case,
+    /// The kernel that traced it.
     pub kernel: Kernel,
+    /// The oracle's answer.
     pub oracle: Option<oracle::Hit>,
+    /// The kernel's answer.
     pub got: Option<KernelHit>,
+    /// κ and the tangency band of the ray.
     pub analysis: Analysis,
     /// `t` or the normal is NaN/inf.
     pub nonfinite: bool,
@@ -700,16 +730,23 @@ pub fn run_family(family: Family, rays: usize, kernels: &[Kernel]) -> Vec<Record
 /// One row of the stress table: a family × kernel.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Summary {
+    /// The family.
     pub family: Family,
+    /// The kernel.
     pub kernel: Kernel,
+    /// Rays traced.
     pub rays: usize,
+    /// Rays whose `t` or normal was NaN or infinite.
     pub nonfinite: usize,
+    /// Rays with the wrong hit/miss or surface outside the band.
     pub wrong: usize,
     /// Rays in the tangency band (hit/miss or branch undetermined at this precision).
     pub band: usize,
     /// Distance error `|Δt|/(ε t)` over rays out of the band where both hit.
     pub t_median: f64,
+    /// p99 of the distance error.
     pub t_p99: f64,
+    /// Largest distance error.
     pub t_max: f64,
     /// Largest distance error in ulps of the kernel's precision.
     pub ulps_max: f64,
@@ -719,13 +756,17 @@ pub struct Summary {
     pub kappa_max: f64,
     /// Largest `err_t / max(1, κ_t)` (the bound is 4).
     pub t_ratio_max: f64,
+    /// Rays over the distance bound.
     pub viol_t: usize,
     /// Normal angle error (radians), p99 and max.
     pub n_p99: f64,
+    /// Largest normal angle error (radians).
     pub n_max: f64,
     /// Largest `angle / (ε·max(1, t/r))` (the bound is 16).
     pub n_units_max: f64,
+    /// Rays over the normal bound.
     pub viol_n: usize,
+    /// Largest deviation of the normal's length from 1.
     pub len_max: f64,
 }
 
