@@ -738,7 +738,7 @@ pub struct Summary {
     pub rays: usize,
     /// Rays whose `t` or normal was NaN or infinite.
     pub nonfinite: usize,
-    /// Rays with the wrong hit/miss or surface outside the band.
+    /// Rays with the wrong hit or miss, outside the tangency band.
     pub wrong: usize,
     /// Rays in the tangency band (hit/miss or branch undetermined at this precision).
     pub band: usize,
