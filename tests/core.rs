@@ -166,14 +166,8 @@ fn image_is_not_mirrored_or_flipped() {
 
 /// Seeded scene of `n` random cylinders seen from outside.
 fn random_scene(n: usize, seed: u64) -> Scene {
-    let mut s = seed;
-    let mut rnd = move || {
-        s = s.wrapping_add(0x9E3779B97F4A7C15);
-        let mut z = s;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58476D1CE4E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D049BB133111EB);
-        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-    };
+    let mut rng = cylaov::rng::SplitMix64::new(seed);
+    let mut rnd = move || rng.unit();
     let cyl: Vec<String> = (0..n)
         .map(|_| {
             let c = [rnd() * 8.0 - 4.0, rnd() * 8.0 - 4.0, rnd() * 8.0 - 4.0];

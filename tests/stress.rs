@@ -209,20 +209,34 @@ fn literal_failures_are_reported() {
 /// coordinate at 1e12 would be an error of 1e-4 world units before any kernel runs.
 #[test]
 fn scene_numbers_are_read_exactly() {
+    // Every binade from 2^-20 to 2^38 (up to ~5.5e11) and just below 1e12, both signs, random
+    // mantissas: all 53 bits matter, and most so at the large magnitudes.
     let mut rng = cylaov::rng::SplitMix64::new(7);
-    for _ in 0..20_000 {
-        let x = f64::from_bits(rng.next_u64() >> 2) % 1e12;
+    let (mut read, mut large) = (0, 0);
+    for k in 0..20_000 {
+        let bits = rng.next_u64();
+        let mantissa = 1.0 + (bits >> 12) as f64 / (1u64 << 52) as f64;
+        let x = if k % 10 == 0 {
+            1e12 - mantissa * 1e3 // the top of the accepted range
+        } else {
+            mantissa * 2f64.powi((bits % 59) as i32 - 20)
+        };
+        let x = if bits & (1 << 11) != 0 { -x } else { x };
         let text = format!(
             "{{\"camera\": {{\"origin\": [{x:?}, 0, 0], \"target\": [0, 1, 0], \"up\": [0, 0, 1], \
              \"fov_deg\": 40, \"width\": 4, \"height\": 4}}, \"cylinders\": [{{\"p0\": [0, 0, 0], \"p1\": [0, 0, 1], \"radius\": 1}}]}}"
         );
-        let Ok(s) = scene::parse(&text) else { continue };
+        let s = scene::parse(&text).unwrap_or_else(|e| panic!("{x:?} rejected: {e}"));
         assert_eq!(
             s.camera.origin.x, x,
             "{x:?} read as {:?}",
             s.camera.origin.x
         );
+        read += 1;
+        large += usize::from(x.abs() > 1e9);
     }
+    assert_eq!(read, 20_000);
+    assert!(large > 2_000, "only {large} values above 1e9");
 }
 
 // ---- image-level stress scenes --------------------------------------------------------------
