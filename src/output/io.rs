@@ -547,7 +547,9 @@ fn address_space_left() -> Option<u64> {
     }
     let status = std::fs::read_to_string("/proc/self/status").ok()?;
     let used = kib_field(&status, "VmSize:").unwrap_or(0);
-    Some((lim.rlim_cur as u64).saturating_sub(used))
+    #[allow(clippy::unnecessary_cast)] // rlim_t is narrower than u64 on some targets
+    let cur = lim.rlim_cur as u64;
+    Some(cur.saturating_sub(used))
 }
 
 #[cfg(not(target_os = "linux"))]
