@@ -6,9 +6,10 @@
 use std::path::Path;
 use std::process::Command;
 
-/// The three citation patterns, matched case-sensitively as `git grep -E` would:
-/// `SPEC`, `§ ?[0-9]` and `[Ii]ssues? #?[0-9]+`. Built from pieces so that this file does
-/// not match itself.
+/// The three citation patterns, matched case-sensitively as `git grep -E` would: the
+/// spec's name in capitals, a section sign with an optional space and a digit, and
+/// `[Ii]ssues? #?` followed by a digit. Built from pieces so that this file does not match
+/// itself.
 fn citations(line: &str) -> Vec<&'static str> {
     let mut found = Vec::new();
     if line.contains(concat!("SP", "EC")) {
