@@ -77,7 +77,7 @@ enum Command {
 #[derive(Args)]
 struct GenerateCli {
     /// Number of views (scenes) to generate.
-    #[arg(long)]
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=commands::generate::MAX_COUNT))]
     count: Option<u64>,
     /// Random seed (default 0).
     #[arg(long)]
@@ -223,10 +223,10 @@ struct BenchCli {
 #[derive(Args)]
 struct StressCli {
     /// Run one family only: grazing, near-axis, far, scale, inside, rims, input.
-    #[arg(long)]
+    #[arg(long, value_parser = family)]
     family: Option<String>,
     /// Seeded rays per value of the difficulty parameter.
-    #[arg(long, default_value_t = 64)]
+    #[arg(long, default_value_t = 64, value_parser = at_least_one)]
     rays: usize,
     /// Write one CSV line per ray and kernel (inputs included, to reproduce a ray).
     #[arg(long, value_name = "OUT")]
@@ -333,6 +333,25 @@ fn threads(s: &str) -> Result<usize, String> {
             "must be a whole number from 1 to {MAX_THREADS}, got {}",
             shorten(s)
         )),
+    }
+}
+
+fn family(s: &str) -> Result<String, String> {
+    use cylaov::verify::stress::Family;
+    match Family::parse(s) {
+        Some(_) => Ok(s.to_string()),
+        None => Err(format!(
+            "unknown family {:?}; expected one of {}",
+            shorten(s),
+            Family::ALL.map(|f| f.name()).join(", ")
+        )),
+    }
+}
+
+fn at_least_one(s: &str) -> Result<usize, String> {
+    match s.parse::<usize>() {
+        Ok(n) if n >= 1 => Ok(n),
+        _ => Err(format!("must be a whole number >= 1, got {}", shorten(s))),
     }
 }
 

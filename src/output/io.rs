@@ -157,7 +157,9 @@ pub fn check_output(flag: &str, path: &Path, inputs: &[&Path]) -> io::Result<()>
                 }
             }
         }
-        Err(e) if e.kind() == io::ErrorKind::NotFound => check_folders(flag, path)?,
+        Err(e) if e.kind() == io::ErrorKind::NotFound || e.raw_os_error() == Some(20) => {
+            check_folders(flag, path)?
+        }
         Err(e) => return Err(refuse(flag, path, e.to_string())),
     }
     Ok(())
@@ -183,7 +185,10 @@ fn check_folders(flag: &str, path: &Path) -> io::Result<()> {
                     ),
                 ));
             }
-            Err(e) if e.kind() == io::ErrorKind::NotFound => continue,
+            // Missing, or below a file (ENOTDIR): look further up.
+            Err(e) if e.kind() == io::ErrorKind::NotFound || e.raw_os_error() == Some(20) => {
+                continue;
+            }
             Err(e) => return Err(refuse(flag, path, format!("{}: {e}", dir.display()))),
         }
     }
@@ -236,7 +241,9 @@ pub fn check_output_dir(flag: &str, dir: &Path) -> io::Result<()> {
             dir,
             format!("is {}, not a folder", kind_name(m.file_type())),
         )),
-        Err(e) if e.kind() == io::ErrorKind::NotFound => check_folders(flag, dir),
+        Err(e) if e.kind() == io::ErrorKind::NotFound || e.raw_os_error() == Some(20) => {
+            check_folders(flag, dir)
+        }
         Err(e) => Err(refuse(flag, dir, e.to_string())),
     }
 }
@@ -270,6 +277,12 @@ impl NewDirs {
             Some(d) if !d.as_os_str().is_empty() => self.create(d),
             _ => Ok(()),
         }
+    }
+
+    /// Whether any folder was made (the target is new: what the command wrote in it is all
+    /// its own).
+    pub fn made_any(&self) -> bool {
+        !self.made.is_empty()
     }
 
     /// The command succeeded: keep every folder.
