@@ -21,6 +21,8 @@ pub struct RenderArgs {
     pub options: RenderOptions,
     pub preview: Option<PathBuf>,
     pub compression: Compression,
+    /// `--camera K`: the camera of a several-camera scene (0 = the first).
+    pub camera: usize,
 }
 
 /// Same file, however it is spelled (the output may not exist yet).
@@ -42,7 +44,11 @@ pub fn run(args: &RenderArgs) -> Result<String> {
             args.scene.display()
         );
     }
-    let scene = scene::load(&args.scene).with_context(|| format!("{}", args.scene.display()))?;
+    let mut scene =
+        scene::load(&args.scene).with_context(|| format!("{}", args.scene.display()))?;
+    scene
+        .select_camera(args.camera)
+        .with_context(|| format!("--camera {}: {}", args.camera, args.scene.display()))?;
     let aovs = args.aovs.clone().unwrap_or_else(|| scene.aovs.clone());
     let opts = RenderOptions {
         aovs: aovs.clone(),
