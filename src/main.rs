@@ -4,6 +4,7 @@ use clap::{Args, Parser, Subcommand};
 use cylaov::dataset::batch::{BatchOptions, ProgressMode, Schedule, Shard};
 use cylaov::dataset::generate::{Range, Volume};
 use cylaov::output::aov::Compression;
+use cylaov::output::depth_png::OutOfRange;
 use cylaov::render::{Accel, FormulaKind, Precision, RenderOptions};
 use cylaov::scene::Aov;
 use cylaov::verify::compare::Tolerances;
@@ -121,6 +122,10 @@ struct GenerateCli {
     /// sphere just fills the view [default: 0.55..0.9].
     #[arg(long, value_parser = Range::parse, allow_hyphen_values = true, value_name = "A..B")]
     distance: Option<Range>,
+    /// Cameras per scene, around the same cylinders (camera 0 is the one a one-camera
+    /// scene gets) [default: 1].
+    #[arg(long, value_name = "V")]
+    views_per_scene: Option<u32>,
 }
 
 #[derive(Args)]
@@ -128,9 +133,10 @@ struct BatchCli {
     /// A folder of scene files (*.json, recursively; through its manifest.jsonl if it has
     /// one) or a .jsonl manifest.
     input: PathBuf,
-    /// Output folder: NAME.exr, NAME.camera.json, NAME.normal.png, NAME.depth.png,
-    /// NAME.render.json (what made them, checked on resume), transforms.json,
-    /// failures.K-of-N.jsonl.
+    /// Output folder: per view NAME.exr, NAME.camera.json, NAME.open3d.json,
+    /// NAME.normal.preview.png, NAME.depth.png, NAME.mask.png, NAME.render.json (what made
+    /// them, checked on resume); index.json (every view), failures.K-of-N.jsonl. A scene with
+    /// several cameras gets a folder SCENE/ with views 00, 01, ... and SCENE/transforms.json.
     #[arg(long)]
     out: PathBuf,
     /// AOVs in each EXR, comma-separated. Default: each scene's `aovs`.
@@ -146,10 +152,15 @@ struct BatchCli {
     /// or SLURM_ARRAY_TASK_ID - SLURM_ARRAY_TASK_MIN.
     #[arg(long, value_name = "N")]
     shards: Option<u32>,
-    /// 16-bit depth PNG value per world unit (1000: millimetres for metres).
+    /// 16-bit depth PNG value per world unit (1000: millimetres for metres; nerfstudio
+    /// assumes 1000 unless given its `depth_unit_scale_factor` option).
     #[arg(long, default_value_t = 1000.0, allow_hyphen_values = true)]
     depth_scale: f64,
-    /// Skip the PNGs (transforms.json then points at the EXRs).
+    /// A view with a hit whose depth × scale does not fit 16 bits: fail it (default; the
+    /// message gives the largest scale that fits), or store those pixels as 0 and count them.
+    #[arg(long, value_enum, default_value_t = OutOfRange::Fail, value_name = "fail|zero")]
+    depth_out_of_range: OutOfRange,
+    /// Skip the PNGs (the indexes then point at the EXRs).
     #[arg(long)]
     no_png: bool,
     /// EXR compression.
@@ -317,6 +328,9 @@ struct RenderCli {
     /// EXR compression.
     #[arg(long, value_enum, default_value_t = Compression::None)]
     compression: Compression,
+    /// Which camera of a `"cameras"` scene to render (0-based, file order).
+    #[arg(long, value_name = "K", default_value_t = 0)]
+    camera: usize,
 }
 
 /// Largest `--threads`: 1024 is more hardware threads than any single node this runs on
@@ -390,6 +404,7 @@ fn render(a: RenderCli) -> anyhow::Result<ExitCode> {
         },
         preview: a.preview,
         compression: a.compression,
+        camera: a.camera,
     };
     say(&commands::render::run(&args)?)?;
     Ok(ExitCode::SUCCESS)
@@ -412,6 +427,7 @@ fn generate(a: GenerateCli) -> anyhow::Result<ExitCode> {
             fov: a.fov,
             elevation: a.elevation,
             distance: a.distance,
+            views_per_scene: a.views_per_scene,
         },
     };
     say(&commands::generate::run(&args)?)?;
@@ -432,6 +448,7 @@ fn batch(a: BatchCli) -> anyhow::Result<ExitCode> {
             formula: a.kernel.formula,
             depth_scale: a.depth_scale,
             png: !a.no_png,
+            depth_out_of_range: a.depth_out_of_range,
             compression: a.compression,
             schedule: a.schedule,
             verify_fraction: a.verify_fraction,

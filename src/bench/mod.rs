@@ -55,18 +55,20 @@ pub fn random_scene(n: usize, seed: u64, width: u32, height: u32) -> Scene {
             }
         })
         .collect();
+    let camera = CameraSpec {
+        origin: DVec3::new(12.0, -16.0, 8.0),
+        target: DVec3::ZERO,
+        up: DVec3::Z,
+        fov_deg: 45.0,
+        fov_axis: FovAxis::X,
+        width,
+        height,
+        near_clip: 0.01,
+        far_clip: 10000.0,
+    };
     Scene {
-        camera: CameraSpec {
-            origin: DVec3::new(12.0, -16.0, 8.0),
-            target: DVec3::ZERO,
-            up: DVec3::Z,
-            fov_deg: 45.0,
-            fov_axis: FovAxis::X,
-            width,
-            height,
-            near_clip: 0.01,
-            far_clip: 10000.0,
-        },
+        camera,
+        cameras: vec![camera],
         cylinders,
         aovs: vec![Aov::Depth, Aov::Normal],
     }

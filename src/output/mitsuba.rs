@@ -4,7 +4,7 @@
 //! |---|---|---|
 //! | `<scene version="3.0.0">` | Mitsuba 3 scene syntax | loads with `mitsuba.load_file` |
 //! | `integrator type="aov"` | `dd.y:depth,nn:sh_normal,pp:position,ii:shape_index` | AOVs only: with only AOVs requested the film holds just those channels |
-//! | `sensor type="perspective"` | `lookat` `to_world`, `fov`, `fov_axis`, `near_clip`, `far_clip` | the camera of [`crate::scene::camera`] |
+//! | `sensor type="perspective"`, one per camera in file order | `lookat` `to_world`, `fov`, `fov_axis`, `near_clip`, `far_clip` | the scene's look-at camera(s); `scene.sensors()[k]` is camera `k` |
 //! | `sampler type="stratified"` | `sample_count` 1, `jitter` false | one ray through each pixel centre |
 //! | `film type="hdrfilm"` | width, height, float32, box `rfilter` | no float16 rounding, no filter blur |
 //! | `shape type="cylinder"` | `p0` = base, `p1` = top, `radius` | Mitsuba's cylinder is an open tube |
@@ -27,6 +27,7 @@
 use crate::geometry::Cylinder;
 use crate::geometry::cylinder::orthonormal_basis;
 use crate::scene::Scene;
+use crate::scene::camera::CameraSpec;
 use glam::{DMat4, DVec3};
 use quick_xml::Writer;
 use quick_xml::events::{BytesDecl, BytesText, Event};
@@ -166,7 +167,6 @@ pub fn to_xml(scene: &Scene, source_name: &str) -> String {
 
 fn write_xml(buf: &mut Vec<u8>, scene: &Scene, source_name: &str) -> io::Result<()> {
     let mut w = Writer::new_with_indent(buf, b' ', 4);
-    let cam = &scene.camera;
     let exported = shapes(scene);
     w.write_event(Event::Decl(BytesDecl::new("1.0", Some("utf-8"), None)))?;
     let header = format!(
@@ -188,44 +188,9 @@ fn write_xml(buf: &mut Vec<u8>, scene: &Scene, source_name: &str) -> io::Result<
                     string(w, "aovs", AOV_LIST)?;
                     Ok(())
                 })?;
-            w.create_element("sensor")
-                .with_attribute(("type", "perspective"))
-                .write_inner_content(|w| {
-                    string(w, "fov_axis", cam.fov_axis.name())?;
-                    float(w, "fov", cam.fov_deg)?;
-                    float(w, "near_clip", cam.near_clip)?;
-                    float(w, "far_clip", cam.far_clip)?;
-                    w.create_element("transform")
-                        .with_attribute(("name", "to_world"))
-                        .write_inner_content(|w| {
-                            w.create_element("lookat")
-                                .with_attribute(("origin", vec3(cam.origin).as_str()))
-                                .with_attribute(("target", vec3(cam.target).as_str()))
-                                .with_attribute(("up", vec3(cam.up).as_str()))
-                                .write_empty()?;
-                            Ok(())
-                        })?;
-                    w.create_element("sampler")
-                        .with_attribute(("type", "stratified"))
-                        .write_inner_content(|w| {
-                            integer(w, "sample_count", 1)?;
-                            boolean(w, "jitter", false)?;
-                            Ok(())
-                        })?;
-                    w.create_element("film")
-                        .with_attribute(("type", "hdrfilm"))
-                        .write_inner_content(|w| {
-                            integer(w, "width", u64::from(cam.width))?;
-                            integer(w, "height", u64::from(cam.height))?;
-                            string(w, "pixel_format", "rgb")?;
-                            string(w, "component_format", "float32")?;
-                            w.create_element("rfilter")
-                                .with_attribute(("type", "box"))
-                                .write_empty()?;
-                            Ok(())
-                        })?;
-                    Ok(())
-                })?;
+            for cam in &scene.cameras {
+                sensor(w, cam)?;
+            }
             for s in &exported {
                 let c = &scene.cylinders[s.cylinder];
                 let id = shape_xml_id(scene, *s);
@@ -260,6 +225,51 @@ fn write_xml(buf: &mut Vec<u8>, scene: &Scene, source_name: &str) -> io::Result<
                     }
                 }
             }
+            Ok(())
+        })?;
+    Ok(())
+}
+
+/// One `perspective` sensor: the look-at camera with its own film and sampler. A scene
+/// with several cameras gets one sensor per camera, in file order, so Mitsuba's
+/// `scene.sensors()[k]` is camera `k`.
+fn sensor(w: &mut Writer<&mut Vec<u8>>, cam: &CameraSpec) -> io::Result<()> {
+    w.create_element("sensor")
+        .with_attribute(("type", "perspective"))
+        .write_inner_content(|w| {
+            string(w, "fov_axis", cam.fov_axis.name())?;
+            float(w, "fov", cam.fov_deg)?;
+            float(w, "near_clip", cam.near_clip)?;
+            float(w, "far_clip", cam.far_clip)?;
+            w.create_element("transform")
+                .with_attribute(("name", "to_world"))
+                .write_inner_content(|w| {
+                    w.create_element("lookat")
+                        .with_attribute(("origin", vec3(cam.origin).as_str()))
+                        .with_attribute(("target", vec3(cam.target).as_str()))
+                        .with_attribute(("up", vec3(cam.up).as_str()))
+                        .write_empty()?;
+                    Ok(())
+                })?;
+            w.create_element("sampler")
+                .with_attribute(("type", "stratified"))
+                .write_inner_content(|w| {
+                    integer(w, "sample_count", 1)?;
+                    boolean(w, "jitter", false)?;
+                    Ok(())
+                })?;
+            w.create_element("film")
+                .with_attribute(("type", "hdrfilm"))
+                .write_inner_content(|w| {
+                    integer(w, "width", u64::from(cam.width))?;
+                    integer(w, "height", u64::from(cam.height))?;
+                    string(w, "pixel_format", "rgb")?;
+                    string(w, "component_format", "float32")?;
+                    w.create_element("rfilter")
+                        .with_attribute(("type", "box"))
+                        .write_empty()?;
+                    Ok(())
+                })?;
             Ok(())
         })?;
     Ok(())

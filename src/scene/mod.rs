@@ -1,4 +1,9 @@
-//! Scene files (the README's "Scene format"): the serde schema, defaults, and validation into a [`Scene`].
+//! Scene files (the README's "Scene format"): the serde schema, defaults, and validation
+//! into a [`Scene`].
+//!
+//! A scene file has exactly one of `"camera": {…}` (one view) and `"cameras": [{…}, …]`
+//! (several views of the same cylinders, in order: camera 0, 1, …); giving both or neither
+//! is an error.
 //!
 //! Serde types live here only; everything past [`Scene`] is plain validated data. Every
 //! rejection names the field and the value: `cylinders[3].radius: must be > 0, got -1`.
@@ -88,7 +93,10 @@ pub fn default_aovs() -> Vec<Aov> {
 /// A validated scene.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Scene {
+    /// The camera a render uses: camera 0 when loaded, another after [`Scene::select_camera`].
     pub camera: CameraSpec,
+    /// Every camera of the file, in file order (one for a `"camera"` file).
+    pub cameras: Vec<CameraSpec>,
     pub cylinders: Vec<Cylinder>,
     /// Requested AOVs, in file order, without repeats.
     pub aovs: Vec<Aov>,
@@ -190,12 +198,22 @@ pub struct CylinderFile {
     pub id: Option<u32>,
 }
 
-/// A whole scene file, as read (before validation).
+/// A whole scene file: exactly one of `camera` and `cameras` is given.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SceneFile {
-    #[serde(deserialize_with = "strict::object")]
-    pub camera: CameraFile,
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "strict::opt_object"
+    )]
+    pub camera: Option<CameraFile>,
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "strict::opt_objects"
+    )]
+    pub cameras: Option<Vec<CameraFile>>,
     #[serde(deserialize_with = "strict::objects")]
     pub cylinders: Vec<CylinderFile>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -322,19 +340,14 @@ impl SceneFile {
     /// The file form of a validated scene (cylinders as `p0`/`p1`, every field explicit),
     /// for writing generated scenes.
     pub fn from_scene(scene: &Scene) -> SceneFile {
-        let c = &scene.camera;
+        let files: Vec<CameraFile> = scene.cameras.iter().map(CameraFile::from_spec).collect();
+        let (camera, cameras) = match &files[..] {
+            [one] => (Some(one.clone()), None),
+            _ => (None, Some(files)),
+        };
         SceneFile {
-            camera: CameraFile {
-                origin: c.origin.to_array(),
-                target: c.target.to_array(),
-                up: c.up.to_array(),
-                fov_deg: c.fov_deg,
-                fov_axis: c.fov_axis,
-                width: c.width,
-                height: c.height,
-                near_clip: c.near_clip,
-                far_clip: c.far_clip,
-            },
+            camera,
+            cameras,
             cylinders: scene
                 .cylinders
                 .iter()
@@ -353,7 +366,29 @@ impl SceneFile {
 
     /// Check every field and build the validated scene.
     pub fn validate(&self) -> Result<Scene, SceneError> {
-        let camera = self.camera.validate()?;
+        let cameras = match (&self.camera, &self.cameras) {
+            (Some(c), None) => vec![c.validate("camera")?],
+            (None, Some(list)) if list.is_empty() => {
+                return Err(err("cameras", "must list at least one camera, got []"));
+            }
+            (None, Some(list)) => list
+                .iter()
+                .enumerate()
+                .map(|(k, c)| c.validate(&format!("cameras[{k}]")))
+                .collect::<Result<Vec<_>, _>>()?,
+            (Some(_), Some(_)) => {
+                return Err(err(
+                    "",
+                    "give exactly one of \"camera\" and \"cameras\", got both",
+                ));
+            }
+            (None, None) => {
+                return Err(err(
+                    "",
+                    "missing the camera: give \"camera\": {...} or \"cameras\": [{...}, ...]",
+                ));
+            }
+        };
         let cylinders = self
             .cylinders
             .iter()
@@ -376,29 +411,63 @@ impl SceneFile {
             }
         };
         Ok(Scene {
-            camera,
+            camera: cameras[0],
+            cameras,
             cylinders,
             aovs,
         })
     }
 }
 
+impl Scene {
+    /// Make camera `k` (0-based, file order) the one a render uses.
+    pub fn select_camera(&mut self, k: usize) -> Result<(), SceneError> {
+        let n = self.cameras.len();
+        self.camera = *self.cameras.get(k).ok_or_else(|| {
+            err(
+                "",
+                format!(
+                    "the scene has {n} camera(s), numbered 0..={}, got {k}",
+                    n - 1
+                ),
+            )
+        })?;
+        Ok(())
+    }
+}
+
 impl CameraFile {
-    fn validate(&self) -> Result<CameraSpec, SceneError> {
-        let origin = check_vec("camera.origin", self.origin)?;
-        let target = check_vec("camera.target", self.target)?;
-        let up = check_vec("camera.up", self.up)?;
+    /// The file form of a validated camera, every field explicit.
+    pub fn from_spec(c: &CameraSpec) -> CameraFile {
+        CameraFile {
+            origin: c.origin.to_array(),
+            target: c.target.to_array(),
+            up: c.up.to_array(),
+            fov_deg: c.fov_deg,
+            fov_axis: c.fov_axis,
+            width: c.width,
+            height: c.height,
+            near_clip: c.near_clip,
+            far_clip: c.far_clip,
+        }
+    }
+
+    /// Check every field; `at` is the camera's field path (`camera` or `cameras[K]`).
+    fn validate(&self, at: &str) -> Result<CameraSpec, SceneError> {
+        let origin = check_vec(&format!("{at}.origin"), self.origin)?;
+        let target = check_vec(&format!("{at}.target"), self.target)?;
+        let up = check_vec(&format!("{at}.up"), self.up)?;
         let fov = self.fov_deg;
         if !(fov.is_finite() && fov > 0.0 && fov < 180.0) {
             return Err(err(
-                "camera.fov_deg",
+                format!("{at}.fov_deg"),
                 format!("must be in (0, 180), got {}", num(fov)),
             ));
         }
         for (name, v) in [("width", self.width), ("height", self.height)] {
             if v == 0 || v > MAX_SIDE {
                 return Err(err(
-                    format!("camera.{name}"),
+                    format!("{at}.{name}"),
                     format!("must be in 1..={MAX_SIDE}, got {v}"),
                 ));
             }
@@ -406,7 +475,7 @@ impl CameraFile {
         let pixels = self.width as u64 * self.height as u64;
         if pixels > MAX_PIXELS {
             return Err(err(
-                "camera.height",
+                format!("{at}.height"),
                 format!(
                     "width × height must be <= {MAX_PIXELS} pixels (8192 × 8192), got {} × {} = {pixels}",
                     self.width, self.height
@@ -416,13 +485,13 @@ impl CameraFile {
         let (near, far) = (self.near_clip, self.far_clip);
         if !(near.is_finite() && near > 0.0) {
             return Err(err(
-                "camera.near_clip",
+                format!("{at}.near_clip"),
                 format!("must be > 0, got {}", num(near)),
             ));
         }
         if !(far.is_finite() && far > near) {
             return Err(err(
-                "camera.far_clip",
+                format!("{at}.far_clip"),
                 format!(
                     "must be finite and > near_clip ({}), got {}",
                     num(near),
@@ -433,13 +502,13 @@ impl CameraFile {
         let forward = target - origin;
         if forward.length() == 0.0 {
             return Err(err(
-                "camera.target",
-                format!("must differ from camera.origin, got {:?}", self.target),
+                format!("{at}.target"),
+                format!("must differ from {at}.origin, got {:?}", self.target),
             ));
         }
         if up.length() == 0.0 {
             return Err(err(
-                "camera.up",
+                format!("{at}.up"),
                 format!("must be non-zero, got {:?}", self.up),
             ));
         }
@@ -447,7 +516,7 @@ impl CameraFile {
         let sin = up.normalize().cross(forward.normalize()).length();
         if sin < 1e-9 {
             return Err(err(
-                "camera.up",
+                format!("{at}.up"),
                 format!(
                     "must not be parallel to the view direction (target - origin), got {:?}",
                     self.up

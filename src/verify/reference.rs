@@ -64,6 +64,7 @@ impl Verifier for MitsubaVerifier {
             .arg(&xml_path)
             .arg(&view.path)
             .arg(&reference)
+            .arg(view.camera.to_string())
             .output()
             .with_context(|| format!("running {}", self.python.display()))?;
         if !out.status.success() {

@@ -1,6 +1,7 @@
 //! What a batch renders and writes, and how its threads share the work.
 
 use crate::output::aov::Compression;
+use crate::output::depth_png::OutOfRange;
 use crate::render::{FormulaKind, Precision};
 use crate::scene::{Aov, Scene};
 
@@ -24,8 +25,10 @@ pub struct BatchOptions {
     pub formula: FormulaKind,
     /// Depth PNG value per world unit (1000: millimetres for metre scenes).
     pub depth_scale: f64,
-    /// Write `NAME.normal.png` and `NAME.depth.png`.
+    /// Write `NAME.normal.preview.png`, `NAME.depth.png` and `NAME.mask.png`.
     pub png: bool,
+    /// What the depth PNG does with a hit beyond 16 bits at `depth_scale`.
+    pub depth_out_of_range: OutOfRange,
     pub compression: Compression,
     pub schedule: Schedule,
     /// Fraction of views also checked against an independent reference (Mitsuba), chosen
@@ -42,6 +45,7 @@ impl Default for BatchOptions {
             formula: FormulaKind::default(),
             depth_scale: 1000.0,
             png: true,
+            depth_out_of_range: OutOfRange::Fail,
             compression: Compression::None,
             schedule: Schedule::default(),
             verify_fraction: 0.0,

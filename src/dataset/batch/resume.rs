@@ -3,7 +3,7 @@
 
 use super::options::BatchOptions;
 use crate::output::aov::{Compression, channel_names};
-use crate::output::io::camera_json;
+use crate::output::io::{camera_json, open3d_json};
 use crate::scene::camera::Camera;
 use crate::scene::{Aov, Scene};
 use exr::meta::MetaData;
@@ -13,14 +13,22 @@ use std::fs::File;
 use std::io::{Cursor, Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 
-/// The output paths of view `name` in `dir`.
+/// The output paths of view `name` in `dir` (the names of `crate::dataset::names`).
 pub struct ViewFiles {
     pub exr: PathBuf,
     pub camera: PathBuf,
+    /// Open3D `PinholeCameraParameters`.
+    pub open3d: PathBuf,
+    /// The 8-bit normal picture (`NAME.normal.preview.png`).
     pub normal_png: PathBuf,
+    /// 16-bit planar depth × scale: data.
     pub depth_png: PathBuf,
+    /// 8-bit hit mask.
+    pub mask_png: PathBuf,
     /// The [`render_stamp`].
     pub stamp: PathBuf,
+    /// Where versions before 0.2 put the normal picture; removed when the view is rendered.
+    pub legacy_normal_png: PathBuf,
 }
 
 impl ViewFiles {
@@ -28,9 +36,12 @@ impl ViewFiles {
         ViewFiles {
             exr: dir.join(format!("{name}.exr")),
             camera: dir.join(format!("{name}.camera.json")),
-            normal_png: dir.join(format!("{name}.normal.png")),
+            open3d: dir.join(format!("{name}.open3d.json")),
+            normal_png: dir.join(format!("{name}.normal.preview.png")),
             depth_png: dir.join(format!("{name}.depth.png")),
+            mask_png: dir.join(format!("{name}.mask.png")),
             stamp: dir.join(format!("{name}.render.json")),
+            legacy_normal_png: dir.join(format!("{name}.normal.png")),
         }
     }
 }
@@ -209,6 +220,9 @@ struct RenderStamp {
     /// PNG depth value per world unit; only with PNGs (otherwise it changes nothing).
     #[serde(skip_serializing_if = "Option::is_none")]
     depth_scale: Option<f64>,
+    /// What the depth PNG does with depths beyond 16 bits; only with PNGs.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    depth_out_of_range: Option<String>,
 }
 
 /// The `NAME.render.json` this run writes for `scene`: the scene's hash and every option
@@ -229,6 +243,7 @@ pub fn render_stamp(scene: &Scene, opts: &BatchOptions) -> String {
         compression: name(opts.compression),
         png: opts.png,
         depth_scale: opts.png.then_some(opts.depth_scale),
+        depth_out_of_range: opts.png.then(|| name(opts.depth_out_of_range)),
     };
     let mut s = serde_json::to_string_pretty(&stamp).unwrap_or_default();
     s.push('\n');
@@ -242,13 +257,16 @@ pub fn view_is_complete(dir: &Path, name: &str, scene: &Scene, opts: &BatchOptio
     // The camera file and the stamp must be the ones this run would write: a changed scene
     // (e.g. regenerated under the same names), AOV list or output option renders the view
     // again.
-    let camera = camera_json(&Camera::new(scene.camera), &opts.exr_aovs(scene));
+    let cam = Camera::new(scene.camera);
+    let camera = camera_json(&cam, &opts.exr_aovs(scene));
     let same = |path: &Path, want: &str| std::fs::read(path).is_ok_and(|b| b == want.as_bytes());
     let others = same(&files.camera, &camera)
+        && same(&files.open3d, &open3d_json(&cam))
         && same(&files.stamp, &render_stamp(scene, opts))
         && (!opts.png
-            || (file_ends_with(&files.normal_png, PNG_END)
-                && file_ends_with(&files.depth_png, PNG_END)));
+            || [&files.normal_png, &files.depth_png, &files.mask_png]
+                .iter()
+                .all(|p| file_ends_with(p, PNG_END)));
     others
         && exr_is_complete(
             &files.exr,

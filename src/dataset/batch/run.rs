@@ -1,12 +1,13 @@
-//! The run loop: read every camera, render this shard's views through one rayon pool
-//! (resuming what is complete, verifying the selected ones), then write the failures file and
-//! `transforms.json`.
+//! The run loop: read every scene's cameras (a scene with several becomes several views),
+//! render this shard's views through one rayon pool (resuming what is complete, verifying
+//! the selected ones), then write the failures file, `OUT/index.json` and each
+//! several-camera scene's `OUT/<scene>/transforms.json`.
 
 use super::options::{BatchOptions, Schedule};
 use super::progress::{Counts, Progress, ProgressMode};
 use super::resume::{ViewFiles, view_is_complete};
 use super::shard::Shard;
-use super::transforms::{FrameCamera, transforms_json};
+use super::transforms::{FrameCamera, index_json, transforms_json};
 use super::verify::{Verifier, selected_for_verify};
 use super::views::{ViewSource, list_views};
 use super::write::{ViewCost, render_view};
@@ -53,6 +54,10 @@ pub struct Summary {
     pub failures_path: PathBuf,
     /// Views checked against the verifier in this run (all agreed unless counted failed).
     pub verified: usize,
+    /// Views rendered now whose depth PNG stores some hits as 0, and how many hits in all
+    /// (`--depth-out-of-range zero`).
+    pub depth_zeroed_views: usize,
+    pub depth_zeroed: usize,
 }
 
 impl fmt::Display for Summary {
@@ -81,6 +86,13 @@ impl fmt::Display for Summary {
                 self.verified
             )?;
         }
+        if self.depth_zeroed > 0 {
+            write!(
+                f,
+                "; depth PNG: {} hit pixels beyond 16 bits stored as 0 in {} views",
+                self.depth_zeroed, self.depth_zeroed_views
+            )?;
+        }
         if c.failed > 0 {
             write!(f, "; failures in {}", self.failures_path.display())?;
         }
@@ -102,9 +114,9 @@ pub fn run(
 ) -> Result<Summary> {
     let start = Instant::now();
     opts.validate().map_err(anyhow::Error::msg)?;
-    let views = list_views(input, Some(out))?;
+    let scenes = list_views(input, Some(out))?;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let cameras = read_cameras(&views);
+    let (views, cameras) = expand_views(&scenes);
     let partial = clear_partial(out, shard)?;
 
     let mine: Vec<usize> = (0..views.len()).filter(|&i| shard.contains(i)).collect();
@@ -127,7 +139,12 @@ pub fn run(
     let mut summary = summarize(shard, &views, &mine, &outcomes, out);
     summary.verified = work.verified.into_inner();
     write_failures(&summary)?;
-    write_transforms(out, &views, &cameras, opts)?;
+    let input_dir = if input.is_dir() {
+        input
+    } else {
+        input.parent().unwrap_or(Path::new(""))
+    };
+    write_index(out, input_dir, &views, &cameras, opts)?;
 
     std::fs::remove_dir_all(&partial).with_context(|| format!("removing {}", partial.display()))?;
     // Other shards may still be using `.partial`; it goes when the last one leaves.
@@ -141,15 +158,38 @@ fn load(view: &ViewSource) -> Result<Scene, String> {
     scene::load(&view.path).map_err(|e| format!("{}: {e}", view.path.display()))
 }
 
-/// What `transforms.json` needs of every view, or why its scene does not load.
-/// Every shard reads every scene (transforms.json lists every valid view) but keeps only
-/// what transforms.json needs: memory is O(views), not O(views x cylinders). The views of
-/// this shard are read again, one at a time, when rendered.
-fn read_cameras(views: &[ViewSource]) -> Vec<Result<FrameCamera, String>> {
-    views
+/// Every view of the listed scenes (one per camera) and what the index needs of its camera,
+/// or why its scene does not load (such a scene is one failing view).
+/// Every shard reads every scene (the index lists every valid view) but keeps only what the
+/// index needs: memory is O(views), not O(views x cylinders). The views of this shard are
+/// read again, one at a time, when rendered. The list is a pure function of the input.
+fn expand_views(scenes: &[ViewSource]) -> (Vec<ViewSource>, Vec<Result<FrameCamera, String>>) {
+    let read: Vec<Result<Vec<FrameCamera>, String>> = scenes
         .par_iter()
-        .map(|v| load(v).map(|s| FrameCamera::new(&Camera::new(s.camera))))
-        .collect()
+        .map(|v| {
+            load(v).map(|s| {
+                s.cameras
+                    .iter()
+                    .map(|&c| FrameCamera::new(&Camera::new(c)))
+                    .collect()
+            })
+        })
+        .collect();
+    let mut views = Vec::new();
+    let mut cameras = Vec::new();
+    for (scene, cams) in scenes.iter().zip(read) {
+        match cams {
+            Ok(cams) => {
+                views.extend(scene.cameras(cams.len()));
+                cameras.extend(cams.into_iter().map(Ok));
+            }
+            Err(e) => {
+                views.push(scene.clone());
+                cameras.push(Err(e));
+            }
+        }
+    }
+    (views, cameras)
 }
 
 /// Clear and recreate this shard's work-in-progress folder `OUT/.partial/K-of-N`.
@@ -182,21 +222,45 @@ impl ShardWork<'_> {
         let view = &self.views[i];
         let scene = match &self.cameras[i] {
             Err(e) => Err(e.clone()),
-            Ok(_) => load(view),
+            Ok(_) => load(view).and_then(|mut s| {
+                s.select_camera(view.camera)
+                    .map_err(|e| format!("{}: {e}", view.path.display()))?;
+                Ok(s)
+            }),
         };
+        let dir = view.dir(self.out);
         let mut outcome = match &scene {
             Err(e) => Outcome::Failed(e.clone()),
-            Ok(scene) if view_is_complete(self.out, &view.name, scene, self.opts) => {
-                Outcome::Skipped
+            Ok(scene) if view_is_complete(&dir, &view.name, scene, self.opts) => Outcome::Skipped,
+            Ok(scene) => {
+                // Temporary files are named by the view's position: names repeat across the
+                // folders of several-camera scenes.
+                let tmp_stem = format!("{i:06}");
+                let rendered = std::fs::create_dir_all(&dir)
+                    .with_context(|| format!("creating {}", dir.display()))
+                    .and_then(|()| {
+                        render_view(&dir, self.partial, &view.name, &tmp_stem, scene, self.opts)
+                    });
+                match rendered {
+                    Ok(cost) => {
+                        if cost.depth_zeroed > 0 {
+                            eprintln!(
+                                "{}: depth PNG: {} hit pixels beyond 16 bits at --depth-scale {} \
+                                 stored as 0",
+                                view.id(),
+                                cost.depth_zeroed,
+                                self.opts.depth_scale
+                            );
+                        }
+                        Outcome::Done(cost)
+                    }
+                    Err(e) => Outcome::Failed(format!("{}: {e:#}", view.path.display())),
+                }
             }
-            Ok(scene) => match render_view(self.out, self.partial, &view.name, scene, self.opts) {
-                Ok(cost) => Outcome::Done(cost),
-                Err(e) => Outcome::Failed(format!("{}: {e:#}", view.path.display())),
-            },
         };
         if let (Some(v), Ok(scene)) = (self.verifier, &scene)
             && !matches!(outcome, Outcome::Failed(_))
-            && selected_for_verify(self.opts.verify_seed, &view.name, self.opts.verify_fraction)
+            && selected_for_verify(self.opts.verify_seed, &view.id(), self.opts.verify_fraction)
             && let Err(why) = self.verify(v, view, scene)
         {
             outcome = Outcome::Failed(why);
@@ -213,8 +277,10 @@ impl ShardWork<'_> {
         view: &ViewSource,
         scene: &Scene,
     ) -> Result<(), String> {
-        let exr = ViewFiles::new(self.out, &view.name).exr;
-        let work = self.partial.join(format!("{}.verify.tmp", view.name));
+        let exr = ViewFiles::new(&view.dir(self.out), &view.name).exr;
+        let work = self
+            .partial
+            .join(format!("{}.verify.tmp", view.id().replace('/', ".")));
         let checked = std::fs::create_dir_all(&work)
             .map_err(anyhow::Error::from)
             .and_then(|()| verifier.check(view, scene, &exr, &work));
@@ -255,6 +321,8 @@ fn summarize(
         write: Duration::ZERO,
         failures_path: out.join(format!("failures.{shard}.jsonl")),
         verified: 0,
+        depth_zeroed_views: 0,
+        depth_zeroed: 0,
     };
     for (&i, o) in mine.iter().zip(outcomes) {
         match o {
@@ -262,12 +330,16 @@ fn summarize(
                 summary.counts.done += 1;
                 summary.trace += cost.trace;
                 summary.write += cost.write;
+                if cost.depth_zeroed > 0 {
+                    summary.depth_zeroed_views += 1;
+                    summary.depth_zeroed += cost.depth_zeroed;
+                }
             }
             Outcome::Skipped => summary.counts.skipped += 1,
             Outcome::Failed(e) => {
                 summary.counts.failed += 1;
                 summary.failures.push(Failure {
-                    name: views[i].name.clone(),
+                    name: views[i].id(),
                     scene: views[i].path.display().to_string(),
                     error: e.clone(),
                 });
@@ -288,19 +360,40 @@ fn write_failures(summary: &Summary) -> Result<()> {
         .with_context(|| format!("writing {}", summary.failures_path.display()))
 }
 
-/// Write `OUT/transforms.json` of every view whose scene loads.
-fn write_transforms(
+/// Write `OUT/index.json` (every view whose scene loads) and the `transforms.json` of each
+/// several-camera scene in its folder; remove the `OUT/transforms.json` of older versions,
+/// which listed unrelated scenes as one (a resumed old dataset must not keep it).
+fn write_index(
     out: &Path,
+    input_dir: &Path,
     views: &[ViewSource],
     cameras: &[Result<FrameCamera, String>],
     opts: &BatchOptions,
 ) -> Result<()> {
-    let valid: Vec<(&str, FrameCamera)> = views
+    let valid: Vec<(&ViewSource, FrameCamera)> = views
         .iter()
         .zip(cameras)
-        .filter_map(|(v, c)| c.as_ref().ok().map(|c| (v.name.as_str(), *c)))
+        .filter_map(|(v, c)| c.as_ref().ok().map(|c| (v, *c)))
         .collect();
-    let transforms = out.join("transforms.json");
-    atomic_write_bytes(&transforms, transforms_json(&valid, opts).as_bytes())
-        .with_context(|| format!("writing {}", transforms.display()))
+    let index = out.join("index.json");
+    atomic_write_bytes(&index, index_json(&valid, input_dir, opts).as_bytes())
+        .with_context(|| format!("writing {}", index.display()))?;
+    for scene in valid.chunk_by(|a, b| a.0.folder == b.0.folder && a.0.path == b.0.path) {
+        let Some(folder) = &scene[0].0.folder else {
+            continue;
+        };
+        let frames: Vec<(&str, FrameCamera)> =
+            scene.iter().map(|(v, c)| (v.name.as_str(), *c)).collect();
+        let dir = out.join(folder);
+        std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+        let path = dir.join("transforms.json");
+        atomic_write_bytes(&path, transforms_json(&frames, opts).as_bytes())
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    let old = out.join("transforms.json");
+    if old.symlink_metadata().is_ok_and(|m| m.is_file()) {
+        std::fs::remove_file(&old)
+            .with_context(|| format!("removing the old {}", old.display()))?;
+    }
+    Ok(())
 }

@@ -8,6 +8,7 @@ use crate::scene::Scene;
 use anyhow::Result;
 use std::path::Path;
 
+/// The verdict of a [`Verifier`] on one view.
 #[derive(Clone, Debug)]
 pub struct Verdict {
     pub passes: bool,

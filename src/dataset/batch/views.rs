@@ -1,18 +1,79 @@
-//! The view list: a `.jsonl` manifest or a folder scanned for scene files, each view named
+//! The view list: a `.jsonl` manifest or a folder scanned for scene files, each scene named
 //! by its scene file's stem (or the manifest's `name`), names checked to be usable stems.
+//!
+//! A view is one (scene, camera) pair. [`list_views`] lists scenes (each as its camera 0);
+//! [`ViewSource::cameras`] expands a scene with several cameras, once it is read, into one
+//! view per camera in the sub folder `OUT/<scene>/`, named `00`, `01`, … A one-camera scene
+//! stays one view, `OUT/<scene>.*`.
 
 use anyhow::{Context, Result, bail};
 use serde::Deserialize;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
-/// One view of the input: its name and where its scene file is.
+/// One view of the input: which scene file and camera, and where its outputs go.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct ViewSource {
-    /// Output file stem: the scene file's stem, or the manifest's `name`.
+    /// Output file stem: the scene's name for a one-camera scene, else the camera number
+    /// (`00`, `01`, …) inside the scene's folder.
     pub name: String,
     /// The scene file to read.
     pub path: PathBuf,
+    /// The scene's name: its file's stem, or the manifest's `name`.
+    pub scene: String,
+    /// Which camera of the scene (0-based, file order).
+    pub camera: usize,
+    /// The output sub folder (the scene's name) of a several-camera scene; `None`: `OUT`.
+    pub folder: Option<String>,
+}
+
+impl ViewSource {
+    /// Camera 0 of scene `name`, flat in `OUT`: what a listed scene is before it is read.
+    fn scene(name: String, path: PathBuf) -> ViewSource {
+        ViewSource {
+            name: name.clone(),
+            path,
+            scene: name,
+            camera: 0,
+            folder: None,
+        }
+    }
+
+    /// The views of this scene once it is known to have `count` cameras: itself for one
+    /// camera, else one view per camera in the folder `<scene>/`, named by the camera
+    /// number, zero-padded to at least two digits (all of one width).
+    pub fn cameras(&self, count: usize) -> Vec<ViewSource> {
+        if count <= 1 {
+            return vec![self.clone()];
+        }
+        let width = (count - 1).to_string().len().max(2);
+        (0..count)
+            .map(|k| ViewSource {
+                name: format!("{k:0width$}"),
+                path: self.path.clone(),
+                scene: self.scene.clone(),
+                camera: k,
+                folder: Some(self.scene.clone()),
+            })
+            .collect()
+    }
+
+    /// The view's name relative to `OUT`: `scene` or `scene/00`. Unique in a batch; used in
+    /// messages, the failures file and the verify choice.
+    pub fn id(&self) -> String {
+        match &self.folder {
+            Some(f) => format!("{f}/{}", self.name),
+            None => self.name.clone(),
+        }
+    }
+
+    /// The folder the view's files go in.
+    pub fn dir(&self, out: &Path) -> PathBuf {
+        match &self.folder {
+            Some(f) => out.join(f),
+            None => out.to_path_buf(),
+        }
+    }
 }
 
 /// A manifest line: `{"name": ..., "scene": ...}`; the scene path is relative to the
@@ -67,10 +128,7 @@ pub fn list_views(input: &Path, exclude: Option<&Path>) -> Result<Vec<ViewSource
             files.sort_by(|a, b| a.strip_prefix(input).ok().cmp(&b.strip_prefix(input).ok()));
             files
                 .into_iter()
-                .map(|path| ViewSource {
-                    name: stem(&path),
-                    path,
-                })
+                .map(|path| ViewSource::scene(stem(&path), path))
                 .collect()
         }
     } else if input.extension().is_some_and(|e| e == "jsonl") {
@@ -190,7 +248,7 @@ fn read_manifest(path: &Path) -> Result<Vec<ViewSource>> {
         let scene = base.join(&m.scene);
         let name = m.name.unwrap_or_else(|| stem(&scene));
         check_name(&name).map_err(|e| anyhow::anyhow!("{}:{}: {e}", path.display(), k + 1))?;
-        views.push(ViewSource { name, path: scene });
+        views.push(ViewSource::scene(name, scene));
     }
     Ok(views)
 }

@@ -4,28 +4,32 @@
 use super::options::BatchOptions;
 use super::resume::{ViewFiles, render_stamp};
 use crate::output::aov::channel_names;
-use crate::output::io::camera_json;
+use crate::output::depth_png;
+use crate::output::io::{camera_json, open3d_json};
 use crate::output::preview;
 use crate::render::{RenderOptions, render};
 use crate::scene::camera::Camera;
 use crate::scene::{Aov, Scene};
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, anyhow};
 use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
+/// Time spent on one rendered view, and what its depth PNG could not hold.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct ViewCost {
     /// BVH build + tracing into the in-memory AOV image.
     pub trace: Duration,
     /// PNG encoding, EXR encoding, camera JSON, all writes and renames.
     pub write: Duration,
+    /// Hit pixels stored as 0 in the depth PNG (`--depth-out-of-range zero`).
+    pub depth_zeroed: usize,
 }
 
 /// Write a file under `.partial/` through a buffer. No fsync: a rename after a complete
 /// write is what makes a kill at any moment safe; fsync would only add power-loss
-/// durability, at ~3 ms per file here (four files per view), and the resume check reads
+/// durability, at ~3 ms per file here (several files per view), and the resume check reads
 /// every output back (a file emptied by a power cut fails it and is rendered again).
 fn write_unsynced(
     path: &Path,
@@ -38,11 +42,15 @@ fn write_unsynced(
         .with_context(|| format!("writing {}", path.display()))
 }
 
-/// Render one view into `partial` and move its files into `dir`, the EXR last.
+/// Render one view into `partial` (temporary names `TMP_STEM.*.tmp`) and move its files
+/// into `dir` as `NAME.*`, the EXR last. A depth PNG that cannot hold the view's depths
+/// (under [`OutOfRange::Fail`](depth_png::OutOfRange::Fail)) fails the view before
+/// anything is moved.
 pub fn render_view(
     dir: &Path,
     partial: &Path,
     name: &str,
+    tmp_stem: &str,
     scene: &Scene,
     opts: &BatchOptions,
 ) -> Result<ViewCost> {
@@ -68,32 +76,48 @@ pub fn render_view(
     let trace = t0.elapsed();
 
     let t1 = Instant::now();
-    let tmp = |suffix: &str| partial.join(format!("{name}.{suffix}.tmp"));
+    let tmp = |suffix: &str| partial.join(format!("{tmp_stem}.{suffix}.tmp"));
     let done = ViewFiles::new(dir, name);
     let mut moves = Vec::new();
+    let mut depth_zeroed = 0;
+    // The depth PNG first: a view whose depths do not fit fails before any write.
+    let depth = if opts.png {
+        let d = depth_png::encode(&image, opts.depth_scale, opts.depth_out_of_range)
+            .context("no depth AOV")?
+            .map_err(|e| anyhow!(e))?;
+        depth_zeroed = d.zeroed;
+        Some(d.png)
+    } else {
+        None
+    };
     let cam = Camera::new(scene.camera);
-    let camera = tmp("camera.json");
-    write_unsynced(&camera, |w| {
-        Ok(w.write_all(camera_json(&cam, &exr_aovs).as_bytes())?)
-    })?;
-    moves.push((camera, &done.camera));
-    let stamp = tmp("render.json");
-    write_unsynced(&stamp, |w| {
-        Ok(w.write_all(render_stamp(scene, opts).as_bytes())?)
-    })?;
-    moves.push((stamp, &done.stamp));
-    if opts.png {
+    for (suffix, text, to) in [
+        ("camera.json", camera_json(&cam, &exr_aovs), &done.camera),
+        ("open3d.json", open3d_json(&cam), &done.open3d),
+        ("render.json", render_stamp(scene, opts), &done.stamp),
+    ] {
+        let path = tmp(suffix);
+        write_unsynced(&path, |w| Ok(w.write_all(text.as_bytes())?))?;
+        moves.push((path, to));
+    }
+    if let Some(depth) = depth {
         let normal = preview::normal_rgb(&image).context("no normal AOV")?;
-        let depth = preview::depth_u16(&image, opts.depth_scale).context("no depth AOV")?;
-        let (normal_tmp, depth_tmp) = (tmp("normal.png"), tmp("depth.png"));
+        let mask = depth_png::mask(&image).context("no depth AOV")?;
+        let (normal_tmp, depth_tmp, mask_tmp) =
+            (tmp("normal.png"), tmp("depth.png"), tmp("mask.png"));
         write_unsynced(&normal_tmp, |w| {
             Ok(normal.write_to(w, image::ImageFormat::Png)?)
         })?;
         write_unsynced(&depth_tmp, |w| {
             Ok(depth.write_to(w, image::ImageFormat::Png)?)
         })?;
+        write_unsynced(
+            &mask_tmp,
+            |w| Ok(mask.write_to(w, image::ImageFormat::Png)?),
+        )?;
         moves.push((normal_tmp, &done.normal_png));
         moves.push((depth_tmp, &done.depth_png));
+        moves.push((mask_tmp, &done.mask_png));
     }
     let keep: Vec<&str> = exr_aovs
         .iter()
@@ -107,11 +131,18 @@ pub fn render_view(
     // of the view replaces its sibling: a re-render killed between the renames leaves no
     // EXR (the view is rendered again), never a new camera beside old PNGs and an old EXR.
     // The EXR goes last: once it is in place, so is everything else of the view.
-    // Without PNGs, those of an earlier run go too (they would not match the stamp).
+    // Without PNGs, those of an earlier run go too (they would not match the stamp), and
+    // the normal picture under its pre-0.2 name always goes.
     let stale: &[&PathBuf] = if opts.png {
-        &[&done.exr]
+        &[&done.exr, &done.legacy_normal_png]
     } else {
-        &[&done.exr, &done.normal_png, &done.depth_png]
+        &[
+            &done.exr,
+            &done.legacy_normal_png,
+            &done.normal_png,
+            &done.depth_png,
+            &done.mask_png,
+        ]
     };
     for path in stale {
         match std::fs::remove_file(path) {
@@ -128,5 +159,6 @@ pub fn render_view(
     Ok(ViewCost {
         trace,
         write: t1.elapsed(),
+        depth_zeroed,
     })
 }
