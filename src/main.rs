@@ -41,7 +41,7 @@ enum Command {
     /// kernel alone (one thread, million ray-cylinder tests per second; scalar, portable
     /// packets and AVX2 packets), which shows what f32 buys where the kernel is all the work.
     ///
-    /// Example (about a minute): cylaov bench --counts 1000 --quick --mitsuba
+    /// Example (about 10 seconds): cylaov bench --counts 1000 --quick --mitsuba
     ///
     /// Example (what the screen tiles save over the BVH): cylaov bench --quick --accel bvh
     Bench(BenchCli),

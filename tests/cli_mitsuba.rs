@@ -69,7 +69,7 @@ fn export_writes_loadable_xml_and_rejects_bad_scenes() {
 
     let o = cylaov(&["export-mitsuba", s(&scene), "-o", s(&scene)]);
     assert!(!o.status.success());
-    assert!(String::from_utf8_lossy(&o.stderr).contains("would overwrite the input scene"));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("would overwrite the input"));
 }
 
 /// A scene file whose name has a run of dashes and a trailing dash: its name goes into the

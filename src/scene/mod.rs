@@ -279,7 +279,10 @@ pub fn parse(text: &str) -> Result<Scene, SceneError> {
         ));
     }
     let invalid = |field: String, e: serde_json::Error| {
-        err(field, strict::shorten(&format!("invalid JSON: {e}")))
+        err(
+            strict::shorten(&field),
+            strict::shorten(&format!("invalid JSON: {e}")),
+        )
     };
     let mut de = serde_json::Deserializer::from_str(text);
     let file: strict::Object<SceneFile> =
