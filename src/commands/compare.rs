@@ -1,9 +1,11 @@
 //! `cylaov compare`: two AOV EXRs → report (table or JSON), optional heatmap, pass/fail.
+//! With `--scene`, A must be cylaov's render of that scene (with `shape_id`, `distance` and
+//! `normal`), and grazing pixels get their float32 conditioning bound.
 
 use crate::output::aov::AovImage;
 use crate::output::preview::write_png;
-use crate::verify::compare::{Report, Tolerances, compare, heatmap};
-use anyhow::{Context, Result};
+use crate::verify::compare::{Conditioning, Report, Tolerances, compare_with, heatmap};
+use anyhow::{Context, Result, bail};
 use serde::Serialize;
 use std::path::PathBuf;
 
@@ -12,6 +14,8 @@ use std::path::PathBuf;
 pub struct CompareArgs {
     pub a: PathBuf,
     pub b: PathBuf,
+    /// The scene A was rendered from: enables the per-pixel float32 conditioning bounds.
+    pub scene: Option<PathBuf>,
     pub heatmap: Option<PathBuf>,
     pub json: bool,
     pub tolerances: Tolerances,
@@ -35,14 +39,51 @@ pub struct CompareOutcome {
     pub report: Report,
 }
 
+/// The tolerance line of a text report.
+pub fn tolerance_line(t: &Tolerances) -> String {
+    format!(
+        "tolerances: silhouette mismatches <= {:.2e}, seam mismatches <= {:.2e}, rel distance <= {:.1e}, rel depth <= {:.1e}, normal <= {} deg",
+        t.max_mismatch_fraction, t.max_seam_fraction, t.rel_distance, t.rel_depth, t.normal_deg
+    )
+}
+
+/// `PASS`, or `FAIL:` and one indented line per broken tolerance.
+pub fn verdict_lines(failures: &[String]) -> String {
+    if failures.is_empty() {
+        return "PASS".into();
+    }
+    let mut s = String::from("FAIL:");
+    for f in failures {
+        s += &format!("\n  {f}");
+    }
+    s
+}
+
 /// Read both images, compare, write the heatmap if asked, and format the result.
 pub fn run(args: &CompareArgs) -> Result<CompareOutcome> {
     let a = AovImage::read_exr(&args.a)?;
     let b = AovImage::read_exr(&args.b)?;
-    let report = compare(&a, &b)
+    let cond = match &args.scene {
+        None => None,
+        Some(path) => {
+            let scene = crate::scene::load(path)
+                .map_err(|e| anyhow::anyhow!("--scene {}: {e}", path.display()))?;
+            match Conditioning::new(&scene, &a) {
+                Some(c) => Some(c),
+                None => bail!(
+                    "--scene: {} must be that scene's render with shape_id, distance and normal, at its size",
+                    args.a.display()
+                ),
+            }
+        }
+    };
+    let report = compare_with(&a, &b, cond.as_ref())
         .with_context(|| format!("comparing {} with {}", args.a.display(), args.b.display()))?;
     if let Some(path) = &args.heatmap {
-        write_png(&heatmap(&a, &b, &report, &args.tolerances), path)?;
+        write_png(
+            &heatmap(&a, &b, &report, &args.tolerances, cond.as_ref()),
+            path,
+        )?;
     }
     let failures = report.failures(&args.tolerances);
     let passed = failures.is_empty();
@@ -57,25 +98,16 @@ pub fn run(args: &CompareArgs) -> Result<CompareOutcome> {
         };
         serde_json::to_string_pretty(&out)?
     } else {
-        let t = &args.tolerances;
         let mut s = format!(
-            "A: {}\nB: {}\n{report}\n",
+            "A: {}\nB: {}\n{report}\n{}\n",
             args.a.display(),
-            args.b.display()
+            args.b.display(),
+            tolerance_line(&args.tolerances),
         );
-        s += &format!(
-            "tolerances: mismatches <= {:.2e} (silhouettes only), rel distance <= {:.1e}, rel depth <= {:.1e}, normal <= {} deg\n",
-            t.max_mismatch_fraction, t.rel_distance, t.rel_depth, t.normal_deg
-        );
-        if passed {
-            s += "PASS";
-        } else {
-            s += "FAIL:";
-            for f in &failures {
-                s += &format!("\n  {f}");
-            }
+        for line in report.explained_lines(&args.tolerances) {
+            s += &format!("accepted: {line}\n");
         }
-        s
+        s + &verdict_lines(&failures)
     };
     Ok(CompareOutcome {
         text,
