@@ -298,6 +298,10 @@ struct CompareCli {
     /// (A must hold shape_id, distance and normal).
     #[arg(long, value_name = "SCENE.json")]
     scene: Option<PathBuf>,
+    /// With --scene: the float32 ulps of sideways ray error the conditioning bound allows
+    /// (2: the drift between two runs of one float32 renderer).
+    #[arg(long, value_name = "K", default_value_t = cylaov::verify::compare::CONDITIONING_ULPS, value_parser = non_negative)]
+    conditioning_ulps: f64,
     #[command(flatten)]
     tolerances: TolerancesCli,
 }
@@ -546,6 +550,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 a: a.a,
                 b: a.b,
                 scene: a.scene,
+                conditioning_ulps: a.conditioning_ulps,
                 heatmap: a.heatmap,
                 json: a.json,
                 tolerances: a.tolerances.get(),

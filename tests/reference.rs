@@ -24,14 +24,22 @@
 //! | fov_diagonal | 3.7e-6 / 4.2e-6 | 3.6e-6 / 4.2e-6 | 0.0080 / 0.0092 | 0 |
 //! | fov_smaller_portrait | 4.4e-6 / 6.7e-6 | 4.4e-6 / 6.7e-6 | 0.0033 / 0.0050 | 0 |
 //! | grazing_fence | 8.2e-6 / 8.2e-6 | 8.2e-6 / 8.2e-6 | 0.034 / 0.033 | 0 |
+//! | grazing_steep | 5.9e-5 / 2.1e-5 | 5.9e-5 / 2.1e-5 | 0.037 / 0.013 | 0 |
 //! | mixed_caps | 4.3e-6 / 5.7e-6 | 4.3e-6 / 5.6e-6 | 0.0042 / 0.0041 | 0 |
 //! | near_clip | 1.6e-5 / 1.8e-5 | 1.6e-5 / 1.8e-5 | 0.0018 / 0.0023 | 0 |
 //! | portrait_fov_y | 5.1e-6 / 1.1e-5 | 5.1e-6 / 1.1e-5 | 0.0052 / 0.011 | 0 |
+//! | rim_seam | 2.7e-6 / 4.0e-6 | 2.7e-6 / 4.0e-6 | 0.031 / 0.045 | 1 seam |
+//! | rims | 7.9e-6 / 8.8e-6 | 8.0e-6 / 8.8e-6 | 0.010 / 0.013 | 0 |
 //! | single | 4.2e-6 / 3.2e-6 | 4.3e-6 / 3.3e-6 | 0.0029 / 0.0022 | 0 |
 //! | tube_inside | 8.0e-7 / 8.7e-7 | 7.3e-7 / 8.9e-7 | 0.000025 / 0.000027 | 0 |
 //!
-//! No scene has a seam mismatch, and every pixel meets the flat bounds (so the float32
-//! conditioning rule accepts nothing here; the test fails if it ever does).
+//! `rims` (48 short cylinders and open tubes seen from above: thousands of cap and tube
+//! rim pixels) has no seam mismatch; `rim_seam` (a generated view) has one pixel where
+//! cylaov takes a cap and Mitsuba the side of the same rim. Every pixel of every scene but
+//! `grazing_steep` meets the flat bounds, so the float32 conditioning rule accepts nothing
+//! there (the test fails if it ever does); in `grazing_steep` (a generated view with a
+//! steep camera) it accepts one pixel at 5.9e-5 relative distance whose bound is 1.2e-4,
+//! and `tests/verify.rs` shows with the oracle that cylaov is right there.
 //!
 //! Bounds: one set for every scene, [`BOUNDS`]: the default 0.05% / 3e-5 / 0.1° tightened
 //! to about 1.5× the largest measurement, plus p99 bounds at about 2× the largest p99
@@ -106,9 +114,16 @@ fn check(stem: &str, precision: Precision, reference: &AovImage) -> Vec<String> 
         .iter()
         .map(|f| format!("{tag}: {f}"))
         .collect();
-    // Every committed scene meets the flat bounds on every pixel: the conditioning rule
-    // accepts nothing here (it matters for the grazing views of generated datasets).
-    fails.extend(checked.accepted.iter().map(|a| format!("{tag}: {a}")));
+    // Every committed scene but the one kept for it meets the flat bounds on every pixel:
+    // the conditioning rule accepts nothing elsewhere (tests/verify.rs shows with the
+    // oracle that cylaov is right on the pixels it accepts in `grazing_steep`).
+    if stem != "grazing_steep" {
+        fails.extend(checked.accepted.iter().map(|a| format!("{tag}: {a}")));
+    } else if checked.accepted.is_empty() {
+        fails.push(format!(
+            "{tag}: no grazing pixel above the flat bounds any more"
+        ));
+    }
     // The reference carries shape_id and part, and so does our render: identity is exact.
     if r.identity != Identity::ShapeIdPart {
         fails.push(format!("{tag}: compared without shape_id and part"));

@@ -1,6 +1,6 @@
 //! `cylaov compare`: two AOV EXRs → report (table or JSON), optional heatmap, pass/fail.
-//! With `--scene`, A must be cylaov's render of that scene (with `shape_id`, `distance` and
-//! `normal`), and grazing pixels get their float32 conditioning bound.
+//! With `--scene`, A must be a render of that scene (cylaov's or Mitsuba's, with `shape_id`,
+//! `distance` and `normal`), and grazing pixels get their float32 conditioning bound.
 
 use crate::output::aov::AovImage;
 use crate::output::preview::write_png;
@@ -16,6 +16,8 @@ pub struct CompareArgs {
     pub b: PathBuf,
     /// The scene A was rendered from: enables the per-pixel float32 conditioning bounds.
     pub scene: Option<PathBuf>,
+    /// The float32 ulps of ray error the conditioning bound allows (with `scene`).
+    pub conditioning_ulps: f64,
     pub heatmap: Option<PathBuf>,
     pub json: bool,
     pub tolerances: Tolerances,
@@ -68,7 +70,7 @@ pub fn run(args: &CompareArgs) -> Result<CompareOutcome> {
         Some(path) => {
             let scene = crate::scene::load(path)
                 .map_err(|e| anyhow::anyhow!("--scene {}: {e}", path.display()))?;
-            match Conditioning::new(&scene, &a) {
+            match Conditioning::with_ulps(&scene, &a, args.conditioning_ulps) {
                 Some(c) => Some(c),
                 None => bail!(
                     "--scene: {} must be that scene's render with shape_id, distance and normal, at its size",

@@ -132,9 +132,17 @@ pub struct Conditioning {
 
 impl Conditioning {
     /// The bounds of `scene`'s pixels from `img`'s `shape_id`, `distance` and `normal`
-    /// (a cylaov render with those AOVs). `None` if a channel is missing.
+    /// (a render of `scene` with those AOVs, cylaov's or Mitsuba's), at
+    /// [`CONDITIONING_ULPS`]. `None` if a channel is missing or the size differs.
     pub fn new(scene: &Scene, img: &AovImage) -> Option<Conditioning> {
-        let ids = img.u32_channel("shape_id")?;
+        Conditioning::with_ulps(scene, img, CONDITIONING_ULPS)
+    }
+
+    /// [`Conditioning::new`] with a sideways ray error of `ulps` float32 ulps. The
+    /// reference drift check uses 2: two runs of the same float32 renderer whose inputs
+    /// differ in the last bit (another CPU or numpy) are each about 1 ulp off.
+    pub fn with_ulps(scene: &Scene, img: &AovImage, ulps: f64) -> Option<Conditioning> {
+        let ids = id_labels(img, "shape_id", "conditioning").ok()??;
         let dist = img.f32_channel("distance")?;
         let normal = img.vec3_channel("normal")?;
         let cam = Camera::new(scene.camera);
@@ -173,7 +181,7 @@ impl Conditioning {
                 let Some(n) = n.try_normalize() else {
                     continue;
                 };
-                let delta = CONDITIONING_ULPS * eps32 * (origin + reach + t);
+                let delta = ulps * eps32 * (origin + reach + t);
                 // Linear in δ down to cos i = √(δ/r); nearer tangency the change is √(δr).
                 let cos = n.dot(d).abs().max((delta / r).sqrt());
                 rel[k] = delta / (t * cos);
