@@ -119,7 +119,7 @@ fn check(stem: &str, precision: Precision, reference: &AovImage) -> Vec<String> 
     // oracle that cylaov is right on the pixels it accepts in `grazing_steep`).
     if stem != "grazing_steep" {
         fails.extend(checked.accepted.iter().map(|a| format!("{tag}: {a}")));
-    } else if checked.accepted.is_empty() {
+    } else if precision == Precision::F64 && checked.accepted.is_empty() {
         fails.push(format!(
             "{tag}: no grazing pixel above the flat bounds any more"
         ));
