@@ -59,6 +59,16 @@ enum Command {
     ///
     /// Example: cylaov export-mitsuba scenes/single.json -o single.xml
     ExportMitsuba(ExportCli),
+    /// Check scenes against Mitsuba 3: render each view with cylaov and with Mitsuba
+    /// (the pinned venv) and compare them pixel by pixel.
+    ///
+    /// Exit status: 1 if any view fails a tolerance, else 2 if any view could not be
+    /// checked (a bad scene, no venv, Mitsuba failed), else 0.
+    ///
+    /// Example: cylaov verify scenes/single.json --heatmap out
+    ///
+    /// Example (a twentieth of a generated dataset): cylaov verify data --fraction 0.05
+    Verify(VerifyCli),
     /// Compare two AOV EXRs pixel by pixel (README, Comparing two renders); exit 1 if a
     /// tolerance is broken.
     ///
@@ -178,6 +188,8 @@ struct BatchCli {
     /// Seed of the --verify-fraction choice.
     #[arg(long, default_value_t = 0)]
     verify_seed: u64,
+    #[command(flatten, next_help_heading = "Bounds of --verify-fraction")]
+    tolerances: TolerancesCli,
     /// Parallelise over views (default) or within one view at a time.
     #[arg(long, value_enum, default_value_t = Schedule::Views, hide = true)]
     schedule: Schedule,
@@ -257,6 +269,38 @@ struct ExportCli {
 }
 
 #[derive(Args)]
+struct VerifyCli {
+    /// A scene file, a folder of scene files (or holding manifest.jsonl), or a .jsonl
+    /// manifest.
+    input: PathBuf,
+    /// Fraction of the views to check, chosen from --seed and the view names.
+    #[arg(
+        long,
+        default_value_t = 1.0,
+        value_name = "F",
+        allow_hyphen_values = true
+    )]
+    fraction: f64,
+    /// Seed of the --fraction choice (the same choice as batch --verify-seed).
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Write DIR/NAME.heatmap.png for every checked view (see `compare::heatmap`).
+    #[arg(long, value_name = "DIR")]
+    heatmap: Option<PathBuf>,
+    /// Print the results as JSON.
+    #[arg(long)]
+    json: bool,
+    /// Kernel precision of cylaov's side.
+    #[arg(long, value_enum, default_value_t = Precision::F64)]
+    precision: Precision,
+    /// Kernel formulation of cylaov's side.
+    #[arg(long, value_enum, default_value_t = FormulaKind::Stable)]
+    formula: FormulaKind,
+    #[command(flatten)]
+    tolerances: TolerancesCli,
+}
+
+#[derive(Args)]
 struct CompareCli {
     /// First image (usually cylaov's render).
     a: PathBuf,
@@ -268,9 +312,30 @@ struct CompareCli {
     /// Print the report as JSON.
     #[arg(long)]
     json: bool,
-    /// Largest allowed fraction of mismatched pixels (all must lie on silhouettes).
+    /// The scene A was rendered from: grazing pixels get their float32 conditioning bound
+    /// (A must hold shape_id, distance and normal).
+    #[arg(long, value_name = "SCENE.json")]
+    scene: Option<PathBuf>,
+    /// With --scene: the float32 ulps of sideways ray error the conditioning bound allows
+    /// (2: the drift between two runs of one float32 renderer).
+    #[arg(long, value_name = "K", default_value_t = cylaov::verify::compare::CONDITIONING_ULPS, value_parser = non_negative)]
+    conditioning_ulps: f64,
+    #[command(flatten)]
+    tolerances: TolerancesCli,
+}
+
+/// The pass/fail bounds of every verifying command (defaults: what "agrees with Mitsuba"
+/// means, README "Verification against Mitsuba 3").
+#[derive(Args, Clone, Copy, Debug)]
+struct TolerancesCli {
+    /// Largest allowed fraction of silhouette-mismatched pixels (different cylinder or hit
+    /// vs miss; all must lie on silhouettes).
     #[arg(long, default_value_t = Tolerances::default().max_mismatch_fraction, value_parser = non_negative)]
     max_mismatch_fraction: f64,
+    /// Largest allowed fraction of seam-mismatched pixels (same cylinder, another part; all
+    /// must lie on a part boundary).
+    #[arg(long, default_value_t = Tolerances::default().max_seam_fraction, value_parser = non_negative)]
+    max_seam_fraction: f64,
     /// Largest allowed relative distance error.
     #[arg(long, default_value_t = Tolerances::default().rel_distance, value_parser = non_negative)]
     rel_distance: f64,
@@ -280,6 +345,18 @@ struct CompareCli {
     /// Largest allowed normal angle error, degrees.
     #[arg(long, default_value_t = Tolerances::default().normal_deg, value_parser = non_negative)]
     normal_deg: f64,
+}
+
+impl TolerancesCli {
+    fn get(self) -> Tolerances {
+        Tolerances {
+            max_mismatch_fraction: self.max_mismatch_fraction,
+            max_seam_fraction: self.max_seam_fraction,
+            rel_distance: self.rel_distance,
+            rel_depth: self.rel_depth,
+            normal_deg: self.normal_deg,
+        }
+    }
 }
 
 fn non_negative(s: &str) -> Result<f64, String> {
@@ -455,6 +532,7 @@ fn batch(a: BatchCli) -> anyhow::Result<ExitCode> {
             verify_seed: a.verify_seed,
         },
         progress: ProgressMode::auto(),
+        tolerances: a.tolerances.get(),
     };
     let summary = commands::batch::run(&args)?;
     say(&summary.to_string())?;
@@ -532,14 +610,11 @@ fn compare(a: CompareCli) -> ExitCode {
     let args = commands::compare::CompareArgs {
         a: a.a,
         b: a.b,
+        scene: a.scene,
+        conditioning_ulps: a.conditioning_ulps,
         heatmap: a.heatmap,
         json: a.json,
-        tolerances: Tolerances {
-            max_mismatch_fraction: a.max_mismatch_fraction,
-            rel_distance: a.rel_distance,
-            rel_depth: a.rel_depth,
-            normal_deg: a.normal_deg,
-        },
+        tolerances: a.tolerances.get(),
     };
     let outcome = commands::compare::run(&args).and_then(|out| {
         say(&out.text)?;
@@ -548,6 +623,32 @@ fn compare(a: CompareCli) -> ExitCode {
     match outcome {
         Ok(true) => ExitCode::SUCCESS,
         Ok(false) => ExitCode::from(1),
+        Err(e) => {
+            report(&e);
+            ExitCode::from(2)
+        }
+    }
+}
+
+/// 0 when every checked view agrees, 1 when one breaks a tolerance, 2 when a view could
+/// not be checked or the check could not start (reported here).
+fn verify(a: VerifyCli) -> ExitCode {
+    let args = commands::verify::VerifyArgs {
+        input: a.input,
+        fraction: a.fraction,
+        seed: a.seed,
+        heatmap: a.heatmap,
+        json: a.json,
+        tolerances: a.tolerances.get(),
+        precision: a.precision,
+        formula: a.formula,
+    };
+    let outcome = commands::verify::run(&args).and_then(|out| {
+        say(&out.text)?;
+        Ok(out.code)
+    });
+    match outcome {
+        Ok(code) => ExitCode::from(code),
         Err(e) => {
             report(&e);
             ExitCode::from(2)
@@ -565,6 +666,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Stress(a) => stress(a),
         Command::ExportMitsuba(a) => export_mitsuba(a),
         Command::Compare(a) => Ok(compare(a)),
+        Command::Verify(a) => Ok(verify(a)),
     }
 }
 

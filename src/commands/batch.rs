@@ -17,13 +17,15 @@ pub struct BatchArgs {
     pub shards: Option<u32>,
     pub options: BatchOptions,
     pub progress: ProgressMode,
+    /// Bounds of `--verify-fraction`'s check.
+    pub tolerances: crate::verify::compare::Tolerances,
 }
 
 /// Run the batch; the summary says what happened (failed views are not an `Err`).
 pub fn run(args: &BatchArgs) -> Result<Summary> {
     let shard = batch::resolve_shard(args.shard, args.shards, &|k| std::env::var(k).ok())
         .map_err(anyhow::Error::msg)?;
-    let verifier = verifier(args.options.verify_fraction)?;
+    let verifier = verifier(args)?;
     if args.options.png && args.options.depth_scale != NERFSTUDIO_DEPTH_SCALE {
         eprintln!(
             "warning: --depth-scale {}: nerfstudio reads depth PNGs at {NERFSTUDIO_DEPTH_SCALE} \
@@ -45,13 +47,16 @@ pub fn run(args: &BatchArgs) -> Result<Summary> {
 }
 
 /// The Mitsuba verifier for `--verify-fraction`, if asked for and the reference venv exists
-/// (without it verification is skipped with a notice: the issue's "when the reference venv
-/// is present").
-fn verifier(fraction: f64) -> Result<Option<crate::verify::reference::MitsubaVerifier>> {
-    if fraction <= 0.0 {
+/// (without it verification is skipped with a notice saying how to make the venv).
+fn verifier(args: &BatchArgs) -> Result<Option<crate::verify::reference::MitsubaVerifier>> {
+    if args.options.verify_fraction <= 0.0 {
         return Ok(None);
     }
-    let found = crate::verify::reference::MitsubaVerifier::find();
+    let found = crate::verify::reference::MitsubaVerifier::find(
+        args.tolerances,
+        args.options.precision,
+        args.options.formula,
+    );
     if let Err(why) = &found {
         eprintln!("--verify-fraction: skipped: {why}");
     }

@@ -14,6 +14,8 @@
 //! | `NAME.depth.png` | batch | 16-bit planar depth × `--depth-scale` |
 //! | `NAME.mask.png` | batch | 8-bit hit mask, 255 = hit |
 //! | `NAME.render.json` | batch | what made the view's files, checked on resume |
+//! | `NAME.verify.json` | batch `--verify-fraction` | the view's Mitsuba verdict, keyed to its render stamp |
+//! | `NAME.heatmap.png` | verify `--heatmap` | where and how much cylaov and Mitsuba differ |
 //! | `index.json` | batch | every view of the batch: scene, camera, files, pose |
 //! | `SCENE/transforms.json` | batch | nerfstudio index of one several-camera scene |
 //! | `failures.K-of-N.jsonl` | batch | the views of shard K that failed, and why |
@@ -50,6 +52,8 @@ pub const OUTPUT_NAMES: &[OutputName] = &[
     out("NAME.depth.png", "batch"),
     out("NAME.mask.png", "batch"),
     out("NAME.render.json", "batch"),
+    out("NAME.verify.json", "batch --verify-fraction"),
+    out("NAME.heatmap.png", "verify --heatmap"),
     out("index.json", "batch"),
     out("transforms.json", "batch (in SCENE/)"),
     out("failures.K-of-N.jsonl", "batch"),

@@ -1,7 +1,7 @@
 //! AOV images in memory and as OpenEXR files.
 //!
 //! Channel names are the contract: `distance`, `depth`, `normal.X/Y/Z`, `position.X/Y/Z`
-//! (float32) and `shape_id` (u32). Row 0 is the top row. A missed pixel is 0 everywhere.
+//! (float32), `shape_id` and `part` (u32). Row 0 is the top row. A missed pixel is 0 everywhere.
 
 use crate::output::io::{Staged, stage};
 use crate::scene::Aov;
@@ -69,6 +69,7 @@ pub fn channel_names(aov: Aov) -> &'static [&'static str] {
         Aov::Normal => &["normal.X", "normal.Y", "normal.Z"],
         Aov::Position => &["position.X", "position.Y", "position.Z"],
         Aov::ShapeId => &["shape_id"],
+        Aov::Part => &["part"],
     }
 }
 

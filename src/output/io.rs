@@ -467,6 +467,10 @@ pub fn aov_meaning(aov: Aov) -> (&'static str, &'static str) {
             "u32 id of the hit cylinder (scene 'id', default 1-based index)",
             "0",
         ),
+        Aov::Part => (
+            "u32 part of the hit cylinder: 1 side seen from outside, 2 side seen from inside, 3 bottom cap (at p0), 4 top cap (at p1)",
+            "0",
+        ),
     }
 }
 

@@ -423,16 +423,18 @@ struct Planes<P> {
     position: Option<[P; 3]>,
 }
 
-/// One band's slices of every requested plane (`shape_id` as u32).
+/// One band's slices of every requested plane (`shape_id` and `part` as u32).
 struct Band<'a> {
     f: Planes<&'a mut [f32]>,
     id: Option<&'a mut [u32]>,
+    part: Option<&'a mut [u32]>,
 }
 
 /// Cut each requested plane into bands of `len` samples.
 fn bands<'a>(
     f: &'a mut Planes<Vec<f32>>,
     id: &'a mut Option<Vec<u32>>,
+    part: &'a mut Option<Vec<u32>>,
     len: usize,
     count: usize,
 ) -> Vec<Band<'a>> {
@@ -465,6 +467,7 @@ fn bands<'a>(
         cut(p2, len, count).into_iter(),
     ];
     let mut ids = cut(id.as_mut(), len, count).into_iter();
+    let mut parts = cut(part.as_mut(), len, count).into_iter();
     let three =
         |it: &mut [std::vec::IntoIter<Option<&'a mut [f32]>>; 3]| -> Option<[&'a mut [f32]; 3]> {
             match (
@@ -485,6 +488,7 @@ fn bands<'a>(
                 position: three(&mut p),
             },
             id: ids.next().flatten(),
+            part: parts.next().flatten(),
         })
         .collect()
 }
@@ -527,6 +531,22 @@ fn shade<T: Real, F: Formula>(
     }
     if let Some(s) = band.id.as_deref_mut() {
         s[k] = fr.ids[ph.index as usize];
+    }
+    if let Some(s) = band.part.as_deref_mut() {
+        s[k] = part_code(fr.tracer, d, &ph);
+    }
+}
+
+/// The `part` AOV of a hit: 1 side from outside, 2 side from inside, 3 bottom cap, 4 top
+/// cap. The side's facing is the sign of `normal · d`, as the Mitsuba reference decides it
+/// (the outward normal points away from the camera on the wall's inner face).
+#[inline(always)]
+fn part_code<T: Real, F: Formula>(tracer: &Tracer<T, F>, d: DVec3, ph: &PixelHit<T>) -> u32 {
+    match ph.hit.surface {
+        Surface::Side if tracer.normal(d, ph).dot(d) > 0.0 => 2,
+        Surface::Side => 1,
+        Surface::Bottom => 3,
+        Surface::Top => 4,
     }
 }
 
@@ -632,6 +652,7 @@ fn render_simd<T: Simd, F: PacketFormula>(
         position: want(Aov::Position).then(|| [plane(), plane(), plane()]),
     };
     let mut id = want(Aov::ShapeId).then(|| zeroed::<u32>(n));
+    let mut part = want(Aov::Part).then(|| zeroed::<u32>(n));
     let band_rows = TILE as usize;
     let count = h.div_ceil(band_rows);
     let ids: Vec<u32> = scene.cylinders.iter().map(|c| c.id).collect();
@@ -645,7 +666,7 @@ fn render_simd<T: Simd, F: PacketFormula>(
         rows_off: &rows_off,
     };
     let band_fn = band_renderer::<T, F>(simd);
-    let hits: usize = bands(&mut planes, &mut id, band_rows * w, count)
+    let hits: usize = bands(&mut planes, &mut id, &mut part, band_rows * w, count)
         .into_par_iter()
         .enumerate()
         .map(|(b, mut band)| band_fn(&frame, b, &mut band))
@@ -677,6 +698,7 @@ fn render_simd<T: Simd, F: PacketFormula>(
         push(c, v.map(ChannelData::F32));
     }
     push("shape_id", id.map(ChannelData::U32));
+    push("part", part.map(ChannelData::U32));
     let timing = Timing {
         build,
         trace: start.elapsed() - build,

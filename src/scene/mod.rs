@@ -53,15 +53,20 @@ pub enum Aov {
     /// u32 id of the hit cylinder (0 = miss).
     #[value(name = "shape_id")]
     ShapeId,
+    /// u32 part of the hit cylinder: 0 miss, 1 side seen from outside, 2 side seen from
+    /// inside (the wall's inner face, e.g. through an open end), 3 bottom cap (at `p0`),
+    /// 4 top cap (at `p1`). With `shape_id` it is the pixel identity verification uses.
+    Part,
 }
 
 impl Aov {
-    pub const ALL: [Aov; 5] = [
+    pub const ALL: [Aov; 6] = [
         Aov::Distance,
         Aov::Depth,
         Aov::Normal,
         Aov::Position,
         Aov::ShapeId,
+        Aov::Part,
     ];
 
     pub fn name(self) -> &'static str {
@@ -71,7 +76,13 @@ impl Aov {
             Aov::Normal => "normal",
             Aov::Position => "position",
             Aov::ShapeId => "shape_id",
+            Aov::Part => "part",
         }
+    }
+
+    /// Whether the AOV is stored as u32 samples (ids), not float32.
+    pub fn is_u32(self) -> bool {
+        matches!(self, Aov::ShapeId | Aov::Part)
     }
 
     pub fn parse(s: &str) -> Option<Aov> {

@@ -51,7 +51,7 @@ pub fn expected_channels(aovs: &[Aov]) -> Vec<(&'static str, SampleType)> {
     let mut v: Vec<_> = aovs
         .iter()
         .flat_map(|&a| {
-            let ty = if a == Aov::ShapeId {
+            let ty = if a.is_u32() {
                 SampleType::U32
             } else {
                 SampleType::F32

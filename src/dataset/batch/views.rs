@@ -29,7 +29,7 @@ pub struct ViewSource {
 
 impl ViewSource {
     /// Camera 0 of scene `name`, flat in `OUT`: what a listed scene is before it is read.
-    fn scene(name: String, path: PathBuf) -> ViewSource {
+    pub fn scene(name: String, path: PathBuf) -> ViewSource {
         ViewSource {
             name: name.clone(),
             path,
