@@ -4,12 +4,24 @@
 //! and padded, so the f32 slab test stays conservative even for scenes far from the world
 //! origin, and rays start at 0. A scene of at most [`LEAF_SIZE`] cylinders is one leaf:
 //! one box test per ray, no tree to pay for.
+//!
+//! Depth is bounded: traversal keeps its pending nodes on a fixed stack of [`MAX_DEPTH`]
+//! entries (one per level at most), and SAH on a skewed scene (sizes or positions in
+//! geometric progression) can peel one box off per level. Below [`SAH_DEPTH`] levels the
+//! build therefore splits at the object median, which halves the count, so no leaf lies
+//! deeper than `SAH_DEPTH + log2(n)` < [`MAX_DEPTH`] for any `n` below 2³².
 
 use glam::{DVec3, Vec3A};
+use std::ops::Range;
 
-/// Most primitives in a leaf.
+/// Most primitives in a leaf (below [`SAH_DEPTH`]; a median-split leaf may hold more only
+/// when its boxes cannot be told apart).
 pub const LEAF_SIZE: usize = 4;
 const BINS: usize = 16;
+/// Levels split by SAH; deeper nodes split at the object median.
+pub const SAH_DEPTH: usize = 30;
+/// Entries of the traversal stack: more than any leaf's depth.
+pub const MAX_DEPTH: usize = 64;
 
 #[derive(Clone, Copy, Debug)]
 struct Node {
@@ -61,6 +73,12 @@ fn area(min: Vec3A, max: Vec3A) -> f32 {
 impl Bvh {
     /// Build over world-space boxes, stored relative to `origin`.
     pub fn build(bounds: &[(DVec3, DVec3)], origin: DVec3) -> Bvh {
+        Self::build_capped(bounds, origin, SAH_DEPTH)
+    }
+
+    /// [`Bvh::build`] with SAH down to `sah_depth` levels (the test of the cap builds
+    /// without it to show the scene needs it).
+    fn build_capped(bounds: &[(DVec3, DVec3)], origin: DVec3, sah_depth: usize) -> Bvh {
         let mut items: Vec<Item> = bounds
             .iter()
             .enumerate()
@@ -82,7 +100,7 @@ impl Bvh {
             count: 0,
         });
         let len = items.len();
-        Self::build_node(&mut nodes, 0, &mut items, 0, len);
+        Self::build_node(&mut nodes, 0, &mut items, 0, len, (0, sah_depth));
         Bvh {
             nodes,
             order: items.iter().map(|it| it.index).collect(),
@@ -95,6 +113,7 @@ impl Bvh {
         items: &mut [Item],
         start: usize,
         end: usize,
+        (depth, sah_depth): (usize, usize),
     ) {
         let slice = &mut items[start..end];
         let (mut min, mut max) = (Vec3A::splat(f32::INFINITY), Vec3A::splat(f32::NEG_INFINITY));
@@ -128,6 +147,15 @@ impl Bvh {
         };
         let mid = if extent[axis] <= 0.0 {
             // All centroids coincide: split in the middle of the list.
+            n / 2
+        } else if depth >= sah_depth {
+            // Deep: the object median (ties by index, so the tree does not depend on the
+            // input order's accidents), which halves the count at every level.
+            slice.select_nth_unstable_by(n / 2, |p, q| {
+                p.centroid[axis]
+                    .total_cmp(&q.centroid[axis])
+                    .then(p.index.cmp(&q.index))
+            });
             n / 2
         } else {
             let scale = BINS as f32 / extent[axis];
@@ -195,8 +223,30 @@ impl Bvh {
         let blank = nodes[node];
         nodes.push(blank);
         nodes.push(blank);
-        Self::build_node(nodes, child, items, start, start + mid);
-        Self::build_node(nodes, child + 1, items, start + mid, end);
+        let next = (depth + 1, sah_depth);
+        Self::build_node(nodes, child, items, start, start + mid, next);
+        Self::build_node(nodes, child + 1, items, start + mid, end, next);
+    }
+
+    /// Levels below the root of the deepest leaf.
+    pub fn depth(&self) -> usize {
+        let mut deepest = 0;
+        let mut todo = vec![(0usize, 0usize)];
+        while let Some((k, d)) = todo.pop() {
+            let n = &self.nodes[k];
+            deepest = deepest.max(d);
+            if n.count == 0 && !self.order.is_empty() {
+                todo.extend([(n.offset as usize, d + 1), (n.offset as usize + 1, d + 1)]);
+            }
+        }
+        deepest
+    }
+
+    /// The primitive order of the leaves: a leaf covers positions `offset..offset + count`
+    /// of it, and traversal reports positions, so whoever keeps per-primitive data in this
+    /// order reads a leaf's primitives from consecutive memory.
+    pub fn order(&self) -> &[u32] {
+        &self.order
     }
 
     /// Number of nodes (for statistics).
@@ -205,8 +255,9 @@ impl Bvh {
     }
 
     /// Visit the primitives whose boxes the ray `t·d` (origin at the build origin) meets
-    /// within `[tmin, tmax]`, nearest box first. `visit(index)` returns a new, smaller
-    /// `tmax` when it found a closer hit, which prunes the rest.
+    /// within `[tmin, tmax]`, nearest box first. `visit(position)` gets the primitive's
+    /// position in [`Bvh::order`] and returns a new, smaller `tmax` when it found a closer
+    /// hit, which prunes the rest.
     #[inline]
     pub fn traverse(
         &self,
@@ -237,15 +288,15 @@ impl Bvh {
         if self.order.is_empty() || hit(&self.nodes[0], tmax).is_none() {
             return;
         }
-        let mut stack = [0u32; 64];
+        let mut stack = [0u32; MAX_DEPTH];
         let mut sp = 0usize;
         let mut current = 0u32;
         loop {
             let node = &self.nodes[current as usize];
             if node.count > 0 {
                 let start = node.offset as usize;
-                for &prim in &self.order[start..start + node.count as usize] {
-                    if let Some(t) = visit(prim) {
+                for pos in start as u32..start as u32 + node.count {
+                    if let Some(t) = visit(pos) {
                         tmax = tmax.min(t);
                     }
                 }
@@ -288,9 +339,139 @@ impl Bvh {
     }
 }
 
+/// The view cone of a block of pixel rays from the build origin: four planes through the
+/// origin with inward normals (a point `p` is inside when `n·p >= 0` for all four), and the
+/// camera's forward axis, along which a box's nearest camera-space z is measured.
+#[derive(Clone, Copy, Debug)]
+pub struct Cone {
+    pub planes: [Vec3A; 4],
+    pub forward: Vec3A,
+}
+
+impl Cone {
+    /// Whether the f32 box `[min, max]` may meet the cone. Conservative: a box is rejected
+    /// only when its farthest corner along some plane normal is behind that plane by more
+    /// than the f32 rounding of the dot product (relative 1e-6 of its terms, 4 ulps of
+    /// three products and two sums, plus the normal's own rounding).
+    #[inline(always)]
+    fn meets(&self, min: Vec3A, max: Vec3A) -> bool {
+        self.planes.iter().all(|&n| {
+            let (a, b) = (n * min, n * max);
+            let far = a.max(b);
+            far.element_sum() >= -1e-6 * a.abs().max(b.abs()).element_sum()
+        })
+    }
+
+    /// A lower bound on the camera-space z of the points of the box `[min, max]` (its
+    /// nearest corner along `forward`, less the same rounding allowance). For a unit ray
+    /// direction z = t·cos θ ≤ t, so it also bounds the ray parameter of any hit inside.
+    #[inline(always)]
+    fn z_min(&self, min: Vec3A, max: Vec3A) -> f32 {
+        let (a, b) = (self.forward * min, self.forward * max);
+        a.min(b).element_sum() - 1e-6 * a.abs().max(b.abs()).element_sum()
+    }
+}
+
+/// A walk of the leaves of a [`Bvh`] whose boxes meet a [`Cone`], nearest first (children
+/// in order of their nearest z), skipping every node whose nearest z lies beyond the reach
+/// given to [`ConeWalk::next_leaf`]: no point in it can improve a ray whose best hit is
+/// nearer. The caller passes the farthest best hit (or tmax) over all the cone's rays, so a
+/// block of rays stops as soon as everything left is behind what it has found: occlusion
+/// culling. (A loop the caller drives rather than a callback, so the caller's leaf code is
+/// compiled into its own function, AVX and all.)
+pub struct ConeWalk<'a> {
+    bvh: &'a Bvh,
+    cone: Cone,
+    /// Pending far children and their nearest z.
+    stack: [(u32, f32); MAX_DEPTH],
+    sp: usize,
+    /// The node to open next, if not the top of the stack.
+    current: Option<u32>,
+}
+
+impl<'a> ConeWalk<'a> {
+    /// Start at the root (an empty scene or a root outside the cone gives no leaf).
+    #[inline(always)]
+    pub fn new(bvh: &'a Bvh, cone: Cone) -> Self {
+        let root = &bvh.nodes[0];
+        let open = !bvh.order.is_empty() && cone.meets(root.min, root.max);
+        ConeWalk {
+            bvh,
+            cone,
+            stack: [(0, 0.0); MAX_DEPTH],
+            sp: 0,
+            current: open.then_some(0),
+        }
+    }
+
+    /// The next leaf's range of positions in [`Bvh::order`], or `None` when no node left
+    /// meets the cone at or before `reach`.
+    #[inline(always)]
+    pub fn next_leaf(&mut self, reach: f32) -> Option<Range<u32>> {
+        let (nodes, cone) = (&self.bvh.nodes, &self.cone);
+        loop {
+            let current = match self.current.take() {
+                Some(c) => c,
+                None => loop {
+                    if self.sp == 0 {
+                        return None;
+                    }
+                    self.sp -= 1;
+                    let (n, z) = self.stack[self.sp];
+                    if z <= reach {
+                        break n;
+                    }
+                },
+            };
+            let node = &nodes[current as usize];
+            if node.count > 0 {
+                return Some(node.offset..node.offset + node.count);
+            }
+            let (l, r) = (node.offset, node.offset + 1);
+            let z = |k: u32| {
+                let n = &nodes[k as usize];
+                let z = cone.z_min(n.min, n.max);
+                (z <= reach && cone.meets(n.min, n.max)).then_some(z)
+            };
+            match (z(l), z(r)) {
+                (Some(a), Some(b)) => {
+                    let (first, second) = if a <= b { (l, (r, b)) } else { (r, (l, a)) };
+                    self.stack[self.sp] = second;
+                    self.sp += 1;
+                    self.current = Some(first);
+                }
+                (Some(_), None) => self.current = Some(l),
+                (None, Some(_)) => self.current = Some(r),
+                (None, None) => {}
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Every box a brute-force f64 slab test finds along each direction (clearly, not at
+    /// a touching corner), the BVH reports.
+    fn assert_finds_what_brute_force_does(bvh: &Bvh, boxes: &[(DVec3, DVec3)], dirs: &[DVec3]) {
+        for &d in dirs {
+            let mut found = vec![];
+            bvh.traverse(d.as_vec3().into(), 0.0, f32::INFINITY, |i| {
+                found.push(bvh.order()[i as usize]);
+                None
+            });
+            for (i, &(lo, hi)) in boxes.iter().enumerate() {
+                let t1 = lo / d;
+                let t2 = hi / d;
+                let near = t1.min(t2).max_element().max(0.0);
+                let far = t1.max(t2).min_element();
+                if near < far * (1.0 - 1e-9) {
+                    assert!(found.contains(&(i as u32)), "box {i} missed for d = {d:?}");
+                }
+            }
+        }
+    }
 
     /// Differential test: the BVH reports every box a brute-force slab test finds.
     #[test]
@@ -310,22 +491,53 @@ mod tests {
             })
             .collect();
         let bvh = Bvh::build(&boxes, DVec3::ZERO);
-        for _ in 0..2000 {
-            let d = (DVec3::new(rnd(), rnd(), rnd()) * 2.0 - 1.0).normalize();
-            let mut found = vec![];
-            bvh.traverse(d.as_vec3().into(), 0.0, f32::INFINITY, |i| {
-                found.push(i);
-                None
-            });
-            for (i, &(lo, hi)) in boxes.iter().enumerate() {
-                let t1 = lo / d;
-                let t2 = hi / d;
-                let near = t1.min(t2).max_element().max(0.0);
-                let far = t1.max(t2).min_element();
-                if near < far * (1.0 - 1e-9) {
-                    assert!(found.contains(&(i as u32)), "box {i} missed for d = {d:?}");
-                }
-            }
+        let dirs: Vec<DVec3> = (0..2000)
+            .map(|_| (DVec3::new(rnd(), rnd(), rnd()) * 2.0 - 1.0).normalize())
+            .collect();
+        assert_finds_what_brute_force_does(&bvh, &boxes, &dirs);
+    }
+
+    /// Boxes at ±2^k along x (k from -120 to 80): binned SAH peels off the few boxes
+    /// outside the first bin per level, so without the cap the tree is 99 levels deep, past
+    /// the 64-entry traversal stack. With it the depth stays bounded and traversal still
+    /// finds every box.
+    #[test]
+    fn skewed_scene_stays_within_the_stack() {
+        let boxes: Vec<(DVec3, DVec3)> = (-120..=80)
+            .flat_map(|k| {
+                [1.0, -1.0].map(|s| {
+                    let x = s * 2f64.powi(k);
+                    let e = DVec3::new(0.25 * x.abs(), 1.0, 1.0);
+                    (DVec3::new(x, 0.0, 0.0) - e, DVec3::new(x, 0.0, 0.0) + e)
+                })
+            })
+            .collect();
+        let uncapped = Bvh::build_capped(&boxes, DVec3::ZERO, usize::MAX).depth();
+        assert!(
+            uncapped > MAX_DEPTH,
+            "the scene is skewed: depth {uncapped}"
+        );
+        let bvh = Bvh::build(&boxes, DVec3::ZERO);
+        let depth = bvh.depth();
+        // 30 SAH levels, then halving at most 402 boxes down to leaves of 4: 7 more.
+        assert!(depth <= SAH_DEPTH + 7, "depth {depth}");
+        let mut dirs = vec![DVec3::X, -DVec3::X];
+        for k in 0..200 {
+            let a = k as f64 * 0.0314;
+            let tilt = 10f64.powi(-(k % 7));
+            let d = DVec3::new(
+                if k % 2 == 0 { 1.0 } else { -1.0 },
+                tilt * a.cos(),
+                tilt * a.sin(),
+            );
+            dirs.push(d.normalize());
         }
+        assert_finds_what_brute_force_does(&bvh, &boxes, &dirs);
+        let mut along_x = vec![];
+        bvh.traverse(Vec3A::X, 0.0, f32::INFINITY, |i| {
+            along_x.push(i);
+            None
+        });
+        assert!(along_x.len() > 220, "{} boxes along +x", along_x.len());
     }
 }
