@@ -85,10 +85,13 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Render {
     render_timed(scene, opts).0
 }
 
-/// Time spent preparing the scene (kernel form, BVH or tiles) and tracing it.
+/// Time spent preparing the scene: the acceleration structure (`build`: tiles or BVH,
+/// and the projections a cone walk reads), the kernel form of every cylinder (`prepare`),
+/// and tracing it.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Timing {
     pub build: std::time::Duration,
+    pub prepare: std::time::Duration,
     pub trace: std::time::Duration,
 }
 
@@ -139,6 +142,11 @@ fn f32_down(x: f64) -> f32 {
 impl<T: Real, F: Formula> Tracer<T, F> {
     /// Prepare `scene` for its camera, building the structure `accel` needs.
     pub fn new(scene: &Scene, accel: Accel) -> Self {
+        Self::new_timed(scene, accel).0
+    }
+
+    /// [`Tracer::new`], also reporting how long the kernel forms took.
+    fn new_timed(scene: &Scene, accel: Accel) -> (Self, std::time::Duration) {
         let camera = Camera::new(scene.camera);
         let origin = camera.origin;
         let cylinders = &scene.cylinders;
@@ -162,6 +170,7 @@ impl<T: Real, F: Formula> Tracer<T, F> {
         };
         let cone_cands = (bvh.is_some() && accel != Accel::Bvh)
             .then(|| tiles::project_slots(&camera, cylinders, &order));
+        let t0 = std::time::Instant::now();
         let mut prepared = Vec::with_capacity(order.len());
         huge_pages(&prepared);
         prepared.par_extend(
@@ -169,7 +178,8 @@ impl<T: Real, F: Formula> Tracer<T, F> {
                 .par_iter()
                 .map(|&i| Prepared::new(&cylinders[i as usize], origin, F::CENTRED)),
         );
-        Tracer {
+        let prepare = t0.elapsed();
+        let tracer = Tracer {
             camera,
             prepared,
             order,
@@ -177,7 +187,8 @@ impl<T: Real, F: Formula> Tracer<T, F> {
             tiles,
             cone_cands,
             _formula: std::marker::PhantomData,
-        }
+        };
+        (tracer, prepare)
     }
 
     /// The ray parameter range of camera-space z in `[near_clip, far_clip]` along `d`.
@@ -753,8 +764,8 @@ fn render_simd<T: Simd, F: PacketFormula>(
     simd: bool,
 ) -> (Render, Timing) {
     let start = std::time::Instant::now();
-    let tracer = Tracer::<T, F>::new(scene, opts.accel);
-    let build = start.elapsed();
+    let (tracer, prepare) = Tracer::<T, F>::new_timed(scene, opts.accel);
+    let build = start.elapsed() - prepare;
     let cam = &tracer.camera;
     let (w, h) = (cam.width() as usize, cam.height() as usize);
     let n = w * h;
@@ -814,7 +825,8 @@ fn render_simd<T: Simd, F: PacketFormula>(
     push("shape_id", id.map(ChannelData::U32));
     let timing = Timing {
         build,
-        trace: start.elapsed() - build,
+        prepare,
+        trace: start.elapsed() - build - prepare,
     };
     let image = AovImage {
         width: w,
@@ -834,7 +846,10 @@ mod tests {
     #[test]
     fn avx2_and_portable_paths_agree() {
         let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes");
-        let mut scenes = vec![crate::bench::random_scene(700, 5, 211, 117)];
+        let mut scenes = vec![
+            crate::bench::random_scene(700, 5, 211, 117),
+            crate::bench::dense_scene(3000, 5, 211, 117),
+        ];
         for sub in [dir.clone(), dir.join("stress")] {
             for e in std::fs::read_dir(sub).unwrap() {
                 let path = e.unwrap().path();
