@@ -12,6 +12,7 @@
 //! deeper than `SAH_DEPTH + log2(n)` < [`MAX_DEPTH`] for any `n` below 2³².
 
 use glam::{DVec3, Vec3A};
+use rayon::prelude::*;
 use std::ops::Range;
 
 /// Most primitives in a leaf (below [`SAH_DEPTH`]; a median-split leaf may hold more only
@@ -22,8 +23,11 @@ const BINS: usize = 16;
 pub const SAH_DEPTH: usize = 30;
 /// Entries of the traversal stack: more than any leaf's depth.
 pub const MAX_DEPTH: usize = 64;
+/// Subtrees of more primitives than this build their two halves in parallel. A count,
+/// not a thread count: the tree is the same on any machine.
+const PARALLEL_MIN: usize = 8192;
 
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 struct Node {
     min: Vec3A,
     max: Vec3A,
@@ -80,7 +84,7 @@ impl Bvh {
     /// without it to show the scene needs it).
     fn build_capped(bounds: &[(DVec3, DVec3)], origin: DVec3, sah_depth: usize) -> Bvh {
         let mut items: Vec<Item> = bounds
-            .iter()
+            .par_iter()
             .enumerate()
             .map(|(i, &(lo, hi))| {
                 let (min, max) = (outward(lo, origin, true), outward(hi, origin, false));
@@ -92,19 +96,68 @@ impl Bvh {
                 }
             })
             .collect();
-        let mut nodes = Vec::with_capacity(2 * items.len().max(1));
-        nodes.push(Node {
+        let nodes = Self::build_tree(&mut items, 0, (0, sah_depth));
+        Bvh {
+            nodes,
+            order: items.par_iter().map(|it| it.index).collect(),
+        }
+    }
+
+    /// The subtree over `items` (positions `start..` of the final order), root first.
+    /// Large subtrees split here and build their halves in parallel, then are laid out
+    /// as the sequential build would lay them out: root, left root, right root, the rest
+    /// of the left subtree, the rest of the right.
+    fn build_tree(items: &mut [Item], start: usize, depth: (usize, usize)) -> Vec<Node> {
+        let n = items.len();
+        let blank = Node {
             min: Vec3A::ZERO,
             max: Vec3A::ZERO,
             offset: 0,
             count: 0,
-        });
-        let len = items.len();
-        Self::build_node(&mut nodes, 0, &mut items, 0, len, (0, sah_depth));
-        Bvh {
-            nodes,
-            order: items.iter().map(|it| it.index).collect(),
+        };
+        let mut nodes = Vec::with_capacity(2 * n.max(1));
+        nodes.push(blank);
+        if n <= PARALLEL_MIN {
+            Self::build_node(&mut nodes, 0, items, 0, n, depth);
+            // Leaves index the slice; shift them to positions in the whole order.
+            for node in nodes.iter_mut().filter(|k| k.count > 0) {
+                node.offset += start as u32;
+            }
+            return nodes;
         }
+        let Some((root, mid)) = Self::split(items, depth.0, depth.1) else {
+            Self::build_node(&mut nodes, 0, items, 0, n, depth);
+            for node in nodes.iter_mut().filter(|k| k.count > 0) {
+                node.offset += start as u32;
+            }
+            return nodes;
+        };
+        let (left, right) = items.split_at_mut(mid);
+        let next = (depth.0 + 1, depth.1);
+        let (l, r) = rayon::join(
+            || Self::build_tree(left, start, next),
+            || Self::build_tree(right, start + mid, next),
+        );
+        // New index of a node at local index i of the left (right) subtree.
+        let (nl, nr) = (l.len() as u32, r.len() as u32);
+        let at_l = |i: u32| if i == 0 { 1 } else { i + 2 };
+        let at_r = |i: u32| if i == 0 { 2 } else { i + 1 + nl };
+        let moved = |k: &Node, at: &dyn Fn(u32) -> u32| Node {
+            offset: if k.count > 0 { k.offset } else { at(k.offset) },
+            ..*k
+        };
+        nodes[0] = Node {
+            offset: 1,
+            count: 0,
+            ..root
+        };
+        nodes.reserve((nl + nr) as usize);
+        nodes.push(moved(&l[0], &at_l));
+        nodes.push(moved(&r[0], &at_r));
+        nodes.extend(l[1..].iter().map(|k| moved(k, &at_l)));
+        nodes.extend(r[1..].iter().map(|k| moved(k, &at_r)));
+        debug_assert_eq!(nodes.len() as u32, 1 + nl + nr);
+        nodes
     }
 
     fn build_node(
@@ -116,6 +169,43 @@ impl Bvh {
         (depth, sah_depth): (usize, usize),
     ) {
         let slice = &mut items[start..end];
+        let Some((bounds, mid)) = Self::split(slice, depth, sah_depth) else {
+            let (min, max) = Self::bounds(slice);
+            nodes[node] = Node {
+                min,
+                max,
+                offset: start as u32,
+                count: (end - start) as u32,
+            };
+            return;
+        };
+        let child = nodes.len();
+        nodes[node] = Node {
+            offset: child as u32,
+            count: 0,
+            ..bounds
+        };
+        let blank = nodes[node];
+        nodes.push(blank);
+        nodes.push(blank);
+        let next = (depth + 1, sah_depth);
+        Self::build_node(nodes, child, items, start, start + mid, next);
+        Self::build_node(nodes, child + 1, items, start + mid, end, next);
+    }
+
+    /// The box around `slice`'s boxes.
+    fn bounds(slice: &[Item]) -> (Vec3A, Vec3A) {
+        let (mut min, mut max) = (Vec3A::splat(f32::INFINITY), Vec3A::splat(f32::NEG_INFINITY));
+        for it in slice {
+            min = min.min(it.min);
+            max = max.max(it.max);
+        }
+        (min, max)
+    }
+
+    /// Partition `slice` for an interior node: its box (as a node with no children yet)
+    /// and the size of the left part; `None` when it should be a leaf.
+    fn split(slice: &mut [Item], depth: usize, sah_depth: usize) -> Option<(Node, usize)> {
         let (mut min, mut max) = (Vec3A::splat(f32::INFINITY), Vec3A::splat(f32::NEG_INFINITY));
         let (mut cmin, mut cmax) = (min, max);
         for it in slice.iter() {
@@ -124,18 +214,16 @@ impl Bvh {
             cmin = cmin.min(it.centroid);
             cmax = cmax.max(it.centroid);
         }
-        let make_leaf = |nodes: &mut Vec<Node>| {
-            nodes[node] = Node {
-                min,
-                max,
-                offset: start as u32,
-                count: (end - start) as u32,
-            };
-        };
         let n = slice.len();
         if n <= LEAF_SIZE {
-            return make_leaf(nodes);
+            return None;
         }
+        let node = Node {
+            min,
+            max,
+            offset: 0,
+            count: 0,
+        };
         // Binned SAH along the axis of largest centroid extent.
         let extent = cmax - cmin;
         let axis = if extent.x >= extent.y && extent.x >= extent.z {
@@ -145,10 +233,11 @@ impl Bvh {
         } else {
             2
         };
-        let mid = if extent[axis] <= 0.0 {
+        if extent[axis] <= 0.0 {
             // All centroids coincide: split in the middle of the list.
-            n / 2
-        } else if depth >= sah_depth {
+            return Some((node, n / 2));
+        }
+        if depth >= sah_depth {
             // Deep: the object median (ties by index, so the tree does not depend on the
             // input order's accidents), which halves the count at every level.
             slice.select_nth_unstable_by(n / 2, |p, q| {
@@ -156,76 +245,62 @@ impl Bvh {
                     .total_cmp(&q.centroid[axis])
                     .then(p.index.cmp(&q.index))
             });
-            n / 2
-        } else {
-            let scale = BINS as f32 / extent[axis];
-            let bin_of = |c: Vec3A| (((c[axis] - cmin[axis]) * scale) as usize).min(BINS - 1);
-            let mut bins = [(
-                0usize,
-                Vec3A::splat(f32::INFINITY),
-                Vec3A::splat(f32::NEG_INFINITY),
-            ); BINS];
-            for it in slice.iter() {
-                let b = &mut bins[bin_of(it.centroid)];
-                b.0 += 1;
-                b.1 = b.1.min(it.min);
-                b.2 = b.2.max(it.max);
+            return Some((node, n / 2));
+        }
+        let scale = BINS as f32 / extent[axis];
+        let bin_of = |c: Vec3A| (((c[axis] - cmin[axis]) * scale) as usize).min(BINS - 1);
+        let mut bins = [(
+            0usize,
+            Vec3A::splat(f32::INFINITY),
+            Vec3A::splat(f32::NEG_INFINITY),
+        ); BINS];
+        for it in slice.iter() {
+            let b = &mut bins[bin_of(it.centroid)];
+            b.0 += 1;
+            b.1 = b.1.min(it.min);
+            b.2 = b.2.max(it.max);
+        }
+        // Sweep from the right to get suffix areas, then from the left to find the best cut.
+        let mut right_cost = [0f32; BINS];
+        let (mut c, mut lo, mut hi) = (
+            0usize,
+            Vec3A::splat(f32::INFINITY),
+            Vec3A::splat(f32::NEG_INFINITY),
+        );
+        for k in (1..BINS).rev() {
+            c += bins[k].0;
+            lo = lo.min(bins[k].1);
+            hi = hi.max(bins[k].2);
+            right_cost[k] = c as f32 * area(lo, hi);
+        }
+        let (mut best, mut best_cost) = (0usize, f32::INFINITY);
+        let (mut c, mut lo, mut hi) = (
+            0usize,
+            Vec3A::splat(f32::INFINITY),
+            Vec3A::splat(f32::NEG_INFINITY),
+        );
+        for k in 0..BINS - 1 {
+            c += bins[k].0;
+            lo = lo.min(bins[k].1);
+            hi = hi.max(bins[k].2);
+            let cost = c as f32 * area(lo, hi) + right_cost[k + 1];
+            if c > 0 && c < n && cost < best_cost {
+                best_cost = cost;
+                best = k;
             }
-            // Sweep from the right to get suffix areas, then from the left to find the best cut.
-            let mut right_cost = [0f32; BINS];
-            let (mut c, mut lo, mut hi) = (
-                0usize,
-                Vec3A::splat(f32::INFINITY),
-                Vec3A::splat(f32::NEG_INFINITY),
-            );
-            for k in (1..BINS).rev() {
-                c += bins[k].0;
-                lo = lo.min(bins[k].1);
-                hi = hi.max(bins[k].2);
-                right_cost[k] = c as f32 * area(lo, hi);
+        }
+        // Leaf when splitting costs more than testing everything (box test ≈ 1/2 a cylinder).
+        if n <= 2 * LEAF_SIZE && best_cost >= (n as f32 - 0.5) * area(min, max) {
+            return None;
+        }
+        let mut left = 0;
+        for k in 0..n {
+            if bin_of(slice[k].centroid) <= best {
+                slice.swap(k, left);
+                left += 1;
             }
-            let (mut best, mut best_cost) = (0usize, f32::INFINITY);
-            let (mut c, mut lo, mut hi) = (
-                0usize,
-                Vec3A::splat(f32::INFINITY),
-                Vec3A::splat(f32::NEG_INFINITY),
-            );
-            for k in 0..BINS - 1 {
-                c += bins[k].0;
-                lo = lo.min(bins[k].1);
-                hi = hi.max(bins[k].2);
-                let cost = c as f32 * area(lo, hi) + right_cost[k + 1];
-                if c > 0 && c < n && cost < best_cost {
-                    best_cost = cost;
-                    best = k;
-                }
-            }
-            // Leaf when splitting costs more than testing everything (box test ≈ 1/2 a cylinder).
-            if n <= 2 * LEAF_SIZE && best_cost >= (n as f32 - 0.5) * area(min, max) {
-                return make_leaf(nodes);
-            }
-            let mut left = 0;
-            for k in 0..n {
-                if bin_of(slice[k].centroid) <= best {
-                    slice.swap(k, left);
-                    left += 1;
-                }
-            }
-            if left == 0 || left == n { n / 2 } else { left }
-        };
-        let child = nodes.len();
-        nodes[node] = Node {
-            min,
-            max,
-            offset: child as u32,
-            count: 0,
-        };
-        let blank = nodes[node];
-        nodes.push(blank);
-        nodes.push(blank);
-        let next = (depth + 1, sah_depth);
-        Self::build_node(nodes, child, items, start, start + mid, next);
-        Self::build_node(nodes, child + 1, items, start + mid, end, next);
+        }
+        Some((node, if left == 0 || left == n { n / 2 } else { left }))
     }
 
     /// Levels below the root of the deepest leaf.
@@ -539,5 +614,55 @@ mod tests {
             None
         });
         assert!(along_x.len() > 220, "{} boxes along +x", along_x.len());
+    }
+
+    /// The parallel build lays out exactly the tree the sequential one does (same nodes,
+    /// same order), whatever the thread count.
+    #[test]
+    fn parallel_build_lays_out_the_sequential_tree() {
+        let mut rng = crate::rng::SplitMix64::new(9);
+        let boxes: Vec<(DVec3, DVec3)> = (0..40_000)
+            .map(|_| {
+                let c = rng.unit_vector() * rng.range(0.0, 30.0);
+                let e = DVec3::new(rng.unit(), rng.unit(), rng.unit()) * 0.4 + 0.01;
+                (c - e, c + e)
+            })
+            .collect();
+        let origin = DVec3::new(40.0, -3.0, 7.0);
+        // The sequential build: one call of the recursive builder over everything.
+        let seq = {
+            let mut items: Vec<Item> = boxes
+                .iter()
+                .enumerate()
+                .map(|(i, &(lo, hi))| {
+                    let (min, max) = (outward(lo, origin, true), outward(hi, origin, false));
+                    Item {
+                        min,
+                        max,
+                        centroid: (min + max) * 0.5,
+                        index: i as u32,
+                    }
+                })
+                .collect();
+            let mut nodes = vec![Node {
+                min: Vec3A::ZERO,
+                max: Vec3A::ZERO,
+                offset: 0,
+                count: 0,
+            }];
+            let n = items.len();
+            Bvh::build_node(&mut nodes, 0, &mut items, 0, n, (0, SAH_DEPTH));
+            (nodes, items.iter().map(|it| it.index).collect::<Vec<u32>>())
+        };
+        assert!(seq.0.len() > 10_000);
+        for threads in [1, 3] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            let bvh = pool.install(|| Bvh::build(&boxes, origin));
+            assert!(bvh.nodes == seq.0, "{threads} threads: nodes differ");
+            assert!(bvh.order == seq.1, "{threads} threads: order differs");
+        }
     }
 }
