@@ -197,6 +197,10 @@ struct BatchCli {
 
 #[derive(Args)]
 struct BenchCli {
+    /// Scene families, comma-separated: `sparse` (sizes shrink as the count grows, the
+    /// same depth complexity at every count) and `dense` (the same sizes at every count).
+    #[arg(long, value_enum, value_delimiter = ',', default_values_t = [bench::Family::Sparse, bench::Family::Dense])]
+    family: Vec<bench::Family>,
     /// Cylinder counts, comma-separated.
     #[arg(long, value_delimiter = ',', default_values_t = [1usize, 100, 1000, 10000, 100000])]
     counts: Vec<usize>,
@@ -555,6 +559,7 @@ fn bench(b: BenchCli) -> anyhow::Result<ExitCode> {
         (bench::KERNELS.to_vec(), bench::default_aov_sets())
     };
     let opts = bench::BenchOptions {
+        families: b.family,
         counts: b.counts,
         width: b.width,
         height: b.height,

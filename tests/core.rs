@@ -366,6 +366,8 @@ fn tiles_and_bvh_give_identical_images_across_thread_counts() {
                 (Accel::Tiles, 1),
                 (Accel::Tiles, 2),
                 (Accel::Tiles, 3),
+                (Accel::Frustum, 1),
+                (Accel::Frustum, 3),
             ] {
                 let img = with(accel, threads);
                 for c in &reference.channels {
@@ -411,6 +413,7 @@ fn cylinders_straddling_the_camera_plane_and_empty_scenes() {
         .image
     };
     let (tiles, bvh) = (with(Accel::Tiles), with(Accel::Bvh));
+    assert_eq!(tiles, with(Accel::Frustum));
     assert!(
         tiles
             .u32_channel("shape_id")
@@ -426,7 +429,7 @@ fn cylinders_straddling_the_camera_plane_and_empty_scenes() {
         r#"{{ {}, "cylinders": [] }}"#,
         camera([0.0, -5.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0], "")
     ));
-    for accel in [Accel::Tiles, Accel::Bvh] {
+    for accel in [Accel::Tiles, Accel::Bvh, Accel::Frustum] {
         let img = render(
             &empty,
             &RenderOptions {
