@@ -574,21 +574,17 @@ fn bench(b: BenchCli) -> anyhow::Result<ExitCode> {
         seed: b.seed,
         accel: b.accel,
     };
-    let mitsuba = b.mitsuba.then(|| bench::MitsubaBench {
-        python: PathBuf::from(".venv/bin/python"),
-        script: PathBuf::from("scripts/bench_mitsuba.py"),
-        scalar_max: b.mitsuba_scalar_max,
-        llvm_max: b.mitsuba_llvm_max,
-    });
-    if let Some(m) = &mitsuba
-        && !(m.python.exists() && m.script.exists())
-    {
-        anyhow::bail!(
-            "--mitsuba: needs {} and {} (run from the repository root after scripts/setup-venv)",
-            m.python.display(),
-            m.script.display()
-        );
-    }
+    let mitsuba = match b.mitsuba {
+        false => None,
+        true => Some(bench::MitsubaBench {
+            python: cylaov::verify::reference::Mitsuba::find()
+                .map_err(|why| anyhow::anyhow!("--mitsuba: {why}"))?
+                .python,
+            script: bench::BENCH_SCRIPT,
+            scalar_max: b.mitsuba_scalar_max,
+            llvm_max: b.mitsuba_llvm_max,
+        }),
+    };
     commands::bench::run(&opts, mitsuba, b.csv, b.plot)?;
     Ok(ExitCode::SUCCESS)
 }

@@ -663,13 +663,17 @@ pub fn csv(rows: &[Row]) -> String {
     s
 }
 
+/// `scripts/bench_mitsuba.py`, written into the bench's scratch folder when it runs.
+pub const BENCH_SCRIPT: &str = include_str!("../../scripts/bench_mitsuba.py");
+
 /// Where and how far to run Mitsuba in the same benchmark.
 #[derive(Clone, Debug)]
 pub struct MitsubaBench {
     /// The reference venv's python (with mitsuba 3.9.1).
     pub python: PathBuf,
-    /// `scripts/bench_mitsuba.py`.
-    pub script: PathBuf,
+    /// The timing script, `scripts/bench_mitsuba.py`, compiled in ([`BENCH_SCRIPT`]) so an
+    /// installed binary needs no source tree.
+    pub script: &'static str,
     /// Largest count for `scalar_rgb` (slow: ~75 s at 1 000 cylinders on 2 cores).
     pub scalar_max: usize,
     /// Largest count for `llvm_ad_rgb`.
@@ -706,9 +710,11 @@ pub fn time_mitsuba(
         &xml,
         crate::output::mitsuba::to_xml(scene, "cylaov bench random scene"),
     )?;
+    let script = dir.join("bench_mitsuba.py");
+    std::fs::write(&script, m.script)?;
     let start = Instant::now();
     let o = Command::new(&m.python)
-        .arg(&m.script)
+        .arg(&script)
         .arg(&xml)
         .arg(dir.join("mitsuba.exr"))
         .arg(variant)
