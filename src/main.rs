@@ -3,9 +3,10 @@
 use clap::{Args, Parser, Subcommand};
 use cylaov::dataset::batch::{BatchOptions, ProgressMode, Schedule, Shard};
 use cylaov::dataset::generate::{Range, Volume};
+use cylaov::geometry::{FormulaKind, Kernel, Precision};
 use cylaov::output::aov::Compression;
 use cylaov::output::depth_png::OutOfRange;
-use cylaov::render::{Accel, FormulaKind, Precision, RenderOptions};
+use cylaov::render::{Accel, RenderOptions};
 use cylaov::scene::Aov;
 use cylaov::verify::compare::Tolerances;
 use cylaov::{bench, commands};
@@ -554,9 +555,12 @@ fn batch(a: BatchCli) -> anyhow::Result<ExitCode> {
 fn bench(b: BenchCli) -> anyhow::Result<ExitCode> {
     set_threads(b.threads)?;
     let (kernels, aov_sets) = if b.quick {
-        (vec![bench::KERNELS[0]], vec![vec![Aov::Depth, Aov::Normal]])
+        (
+            vec![Kernel::STABLE_F64],
+            vec![vec![Aov::Depth, Aov::Normal]],
+        )
     } else {
-        (bench::KERNELS.to_vec(), bench::default_aov_sets())
+        (Kernel::ALL.to_vec(), bench::default_aov_sets())
     };
     let opts = bench::BenchOptions {
         families: b.family,

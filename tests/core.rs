@@ -1,7 +1,8 @@
 //! End-to-end checks of the core renderer against analytic answers.
 
+use cylaov::geometry::{FormulaKind, Precision};
 use cylaov::output::aov::AovImage;
-use cylaov::render::{Accel, FormulaKind, Precision, RenderOptions, render};
+use cylaov::render::{Accel, RenderOptions, render};
 use cylaov::scene::{self, Aov, Scene};
 
 fn scene(json: &str) -> Scene {

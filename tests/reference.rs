@@ -50,8 +50,8 @@
 //! milder versions kept here: a camera 300 units away with a 1° fov, and rods of radius 0.1
 //! to 0.13 seen edge-on.
 
+use cylaov::geometry::{FormulaKind, Precision};
 use cylaov::output::aov::AovImage;
-use cylaov::render::{FormulaKind, Precision};
 use cylaov::scene;
 use cylaov::verify::compare::{Identity, Tolerances};
 use cylaov::verify::reference::{check_against, check_render};

@@ -1,11 +1,12 @@
 //! The accuracy bar (backward stability, `error ≤ 4ε·max(1, κ)`), asserted on the stress
 //! families and on the image-level stress scenes in `scenes/stress/`. Every failure prints the offending rays' inputs.
 
+use cylaov::geometry::Kernel;
 use cylaov::geometry::{Formula, Literal, Real, Stable};
-use cylaov::render::{Accel, FormulaKind, Precision, RenderOptions, Tracer, render};
+use cylaov::render::{Accel, RenderOptions, Tracer, render};
 use cylaov::scene::{self, Aov, Scene};
 use cylaov::verify::oracle::{self, DD, Problem};
-use cylaov::verify::stress::{self, Family, Kernel, Record, Summary};
+use cylaov::verify::stress::{self, Family, Record, Summary, TABLE_ORDER};
 use std::path::Path;
 
 /// Rays per parameter value: ~2 800 rays per kernel over the 7 families, ~1 s.
@@ -35,7 +36,7 @@ fn offenders(records: &[Record], bad: impl Fn(&Record) -> bool) -> String {
         s.push_str(&format!(
             "  {} {} param={:e}\n    cylinder={:?}\n    origin={:?} dir={:?} tmin={}\n    oracle={:?}\n    got={:?}\n    kappa_t={:e} kappa_n={:e} band_hit={} band_branch={} err_t/eps={:e} err_n={:e}\n",
             r.case.family,
-            r.kernel.name(),
+            r.kernel,
             r.case.param,
             r.case.cyl,
             r.case.origin,
@@ -85,7 +86,7 @@ fn assert_bar(records: &[Record]) {
 
 #[test]
 fn stable_f64_meets_the_bar_in_every_family() {
-    let records = run(&Family::ALL, &[Kernel::StableF64]);
+    let records = run(&Family::ALL, &[Kernel::STABLE_F64]);
     let summary = table(&records);
     assert_bar(&records);
     // Away from tangency the bar is the plain 4-ulp bound. Our κ is a worst case summed
@@ -128,7 +129,7 @@ fn stable_f32_meets_the_bar_in_grazing_near_axis_inside_rims_input() {
         Family::Rims,
         Family::Input,
     ];
-    let records = run(&families, &[Kernel::StableF32]);
+    let records = run(&families, &[Kernel::STABLE_F32]);
     table(&records);
     assert_bar(&records);
 }
@@ -138,7 +139,7 @@ fn stable_f32_meets_the_bar_in_grazing_near_axis_inside_rims_input() {
 /// error like ε₃₂·D/r. These are the measured numbers the README quotes.
 #[test]
 fn stable_f32_far_and_scale_measured_bounds() {
-    let records = run(&[Family::Far, Family::Scale], &[Kernel::StableF32]);
+    let records = run(&[Family::Far, Family::Scale], &[Kernel::STABLE_F32]);
     let summary = table(&records);
     assert_bar(&records);
     // Measured (seeded, so the same every run): far 33 eps32 of distance at kappa 32, and
@@ -178,7 +179,7 @@ fn stable_f32_far_and_scale_measured_bounds() {
 /// The table must not be vacuous: the literal kernels' known failures show up.
 #[test]
 fn literal_failures_are_reported() {
-    let records = run(&[Family::Far, Family::Grazing], &Kernel::ALL);
+    let records = run(&[Family::Far, Family::Grazing], &TABLE_ORDER);
     let summary = table(&records);
     let get = |f: Family, k: Kernel| {
         summary
@@ -187,8 +188,8 @@ fn literal_failures_are_reported() {
             .expect("row")
     };
     let (lit, stab) = (
-        get(Family::Far, Kernel::LiteralF32),
-        get(Family::Far, Kernel::StableF32),
+        get(Family::Far, Kernel::LITERAL_F32),
+        get(Family::Far, Kernel::STABLE_F32),
     );
     // Literal f32 forms o - c in f32: at 1e7 radii the cylinder is lost.
     assert!(lit.wrong > 10, "literal f32 far wrong = {}", lit.wrong);
@@ -200,9 +201,9 @@ fn literal_failures_are_reported() {
     );
     assert!(lit.viol_t > 0 && lit.viol_n > 0);
     // The axis-point normal quadratic of the textbook formulas has a double root: NaN normals.
-    assert!(get(Family::Grazing, Kernel::LiteralF64).nonfinite > 0);
-    assert!(get(Family::Grazing, Kernel::LiteralF32).nonfinite > 0);
-    assert_eq!(get(Family::Grazing, Kernel::StableF64).nonfinite, 0);
+    assert!(get(Family::Grazing, Kernel::LITERAL_F64).nonfinite > 0);
+    assert!(get(Family::Grazing, Kernel::LITERAL_F32).nonfinite > 0);
+    assert_eq!(get(Family::Grazing, Kernel::STABLE_F64).nonfinite, 0);
 }
 
 /// Scene files are read exactly (serde_json's `float_roundtrip`): a one-ulp misread of a
@@ -303,15 +304,10 @@ fn speckles(ids: &[u32], w: usize, h: usize) -> Vec<(usize, usize)> {
 /// error over the bar.
 fn scene_failures<T: Real, F: Formula>(name: &str) -> Vec<String> {
     let sc = load(name);
-    let (precision, formula) = match (T::NAME, F::NAME) {
-        ("f32", "stable") => (Precision::F32, FormulaKind::Stable),
-        ("f32", _) => (Precision::F32, FormulaKind::Literal),
-        (_, "stable") => (Precision::F64, FormulaKind::Stable),
-        _ => (Precision::F64, FormulaKind::Literal),
-    };
+    let kernel = Kernel::of::<T, F>();
     let opts = RenderOptions {
-        precision,
-        formula,
+        precision: kernel.precision,
+        formula: kernel.formula,
         ..RenderOptions::new(vec![Aov::Distance, Aov::Normal, Aov::ShapeId])
     };
     let img = render(&sc, &opts).image;
@@ -333,11 +329,6 @@ fn scene_failures<T: Real, F: Formula>(name: &str) -> Vec<String> {
     // Per pixel against the oracle, with the rays the renderer uses.
     let tracer = Tracer::<T, F>::new(&sc, Accel::Bvh);
     let cam = tracer.camera;
-    let kernel = if T::NAME == "f32" {
-        Kernel::StableF32
-    } else {
-        Kernel::StableF64
-    };
     let eps = kernel.eps();
     let mut oracle_ids = vec![0u32; w * h];
     let mut checks = Vec::new();
@@ -346,7 +337,7 @@ fn scene_failures<T: Real, F: Formula>(name: &str) -> Vec<String> {
             let d = cam.ray_dir(i as u32, j as u32);
             let cos = d.dot(cam.forward);
             let (tmin, tmax) = (sc.camera.near_clip / cos, sc.camera.far_clip / cos);
-            let seen = kernel.dir_seen(d);
+            let seen = stress::dir_seen(kernel, d);
             let best = sc
                 .cylinders
                 .iter()

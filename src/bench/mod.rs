@@ -13,12 +13,14 @@
 //! table, not across runs.
 
 use crate::accel::tiles;
+use crate::geometry::Kernel;
+use crate::geometry::kernel::KernelFn;
 use crate::geometry::packet::{LANES, Packet, PacketFormula};
 use crate::geometry::wide::Simd;
 use crate::geometry::wide::{Lanes, Wide};
-use crate::geometry::{Cylinder, Literal, Prepared, Real, Stable};
+use crate::geometry::{Cylinder, Prepared, Real};
 use crate::output::aov::{AovImage, Compression};
-use crate::render::{Accel, FormulaKind, Precision, RenderOptions, render, render_timed};
+use crate::render::{Accel, RenderOptions, render, render_timed};
 use crate::rng::SplitMix64;
 use crate::scene::camera::Camera;
 use crate::scene::camera::{CameraSpec, FovAxis};
@@ -147,17 +149,6 @@ impl Family {
     }
 }
 
-/// One kernel: precision × formulation.
-pub type Kernel = (Precision, FormulaKind);
-
-/// Every kernel, the default (stable f64, the accuracy reference) first.
-pub const KERNELS: [Kernel; 4] = [
-    (Precision::F64, FormulaKind::Stable),
-    (Precision::F32, FormulaKind::Stable),
-    (Precision::F64, FormulaKind::Literal),
-    (Precision::F32, FormulaKind::Literal),
-];
-
 /// Throughput of the kernel alone: one thread testing the rays of packets against their
 /// cylinders, with no ray set-up, tiles, shading or output around it. It isolates what
 /// f32 buys (the render as a whole also pays for memory and per-pixel work that do not
@@ -247,7 +238,7 @@ fn kernel_pass_avx2<T: Simd, F: PacketFormula>(
 }
 
 /// [`KernelRow`]s of kernel `F` in precision `T` on `scene`, one timing each.
-fn kernel_rows_for<T: Simd, F: PacketFormula>(scene: &Scene, kernel: Kernel) -> Vec<KernelRow> {
+fn kernel_rows_for<T: Simd, F: PacketFormula>(scene: &Scene) -> Vec<KernelRow> {
     let origin = Camera::new(scene.camera).origin;
     let prepared: Vec<Prepared<T>> = scene
         .cylinders
@@ -275,7 +266,7 @@ fn kernel_rows_for<T: Simd, F: PacketFormula>(scene: &Scene, kernel: Kernel) -> 
         forms.push("avx2");
     }
     let tests = (work.len() * LANES * reps) as f64;
-    let name = kernel_name(kernel);
+    let name = Kernel::of::<T, F>().to_string();
     forms
         .iter()
         .map(|&form| {
@@ -295,19 +286,17 @@ fn kernel_rows_for<T: Simd, F: PacketFormula>(scene: &Scene, kernel: Kernel) -> 
 /// ratios between them hold.
 pub fn kernel_rows(opts: &BenchOptions) -> Vec<KernelRow> {
     let scene = random_scene(1000, opts.seed, opts.width, opts.height);
+    struct Rows<'a>(&'a Scene);
+    impl KernelFn for Rows<'_> {
+        type Output = Vec<KernelRow>;
+        fn call<T: Simd, F: PacketFormula>(self) -> Vec<KernelRow> {
+            kernel_rows_for::<T, F>(self.0)
+        }
+    }
     let round = || -> Vec<KernelRow> {
         opts.kernels
             .iter()
-            .flat_map(|&k| match k {
-                (Precision::F32, FormulaKind::Stable) => kernel_rows_for::<f32, Stable>(&scene, k),
-                (Precision::F64, FormulaKind::Stable) => kernel_rows_for::<f64, Stable>(&scene, k),
-                (Precision::F32, FormulaKind::Literal) => {
-                    kernel_rows_for::<f32, Literal>(&scene, k)
-                }
-                (Precision::F64, FormulaKind::Literal) => {
-                    kernel_rows_for::<f64, Literal>(&scene, k)
-                }
-            })
+            .flat_map(|&k| k.dispatch(Rows(&scene)))
             .collect()
     };
     let mut best = round();
@@ -431,17 +420,15 @@ pub fn distance_error(img: &AovImage, reference: &AovImage) -> (f64, f64, usize)
     (errs[errs.len() / 2], errs[errs.len() - 1], mismatches)
 }
 
-/// The kernel's name in the table, e.g. `stable-f64`.
-pub fn kernel_name((p, f): Kernel) -> String {
-    format!(
-        "{}-{}",
-        format!("{f:?}").to_lowercase(),
-        format!("{p:?}").to_lowercase()
-    )
-}
-
 fn aov_names(aovs: &[Aov]) -> String {
     aovs.iter().map(|a| a.name()).collect::<Vec<_>>().join("+")
+}
+
+/// How the command line spells `v` (clap's own name for it, not a guess from `Debug`).
+fn cli_value<V: clap::ValueEnum>(v: V) -> String {
+    v.to_possible_value()
+        .map(|p| p.get_name().to_owned())
+        .unwrap_or_default()
 }
 
 /// Time a whole `cylaov render` process; parse `peak N MiB` from its summary line.
@@ -461,9 +448,9 @@ fn time_process(
         .arg(out)
         .arg("--aov")
         .arg(aovs.iter().map(|a| a.name()).collect::<Vec<_>>().join(","))
-        .args(["--precision", &format!("{:?}", kernel.0).to_lowercase()])
-        .args(["--formula", &format!("{:?}", kernel.1).to_lowercase()])
-        .args(["--accel", &format!("{accel:?}").to_lowercase()])
+        .args(["--precision", &cli_value(kernel.precision)])
+        .args(["--formula", &cli_value(kernel.formula)])
+        .args(["--accel", &cli_value(accel)])
         .output()
         .with_context(|| format!("running {}", exe.display()))?;
     let elapsed = ms(start.elapsed());
@@ -512,19 +499,19 @@ pub fn run(opts: &BenchOptions, mut progress: impl FnMut(&Row)) -> Result<Vec<Ro
         scene.aovs = vec![Aov::Distance, Aov::ShapeId];
         let err_opts = |k: Kernel| RenderOptions {
             aovs: vec![Aov::Distance, Aov::ShapeId],
-            precision: k.0,
-            formula: k.1,
+            precision: k.precision,
+            formula: k.formula,
             accel: Accel::Tiles,
         };
-        let reference = render(&scene, &err_opts(KERNELS[0])).image;
+        let reference = render(&scene, &err_opts(Kernel::STABLE_F64)).image;
         for &kernel in &opts.kernels {
             let (err_median, err_max, mismatches) =
                 distance_error(&render(&scene, &err_opts(kernel)).image, &reference);
             for aovs in &opts.aov_sets {
                 let ro = RenderOptions {
                     aovs: aovs.clone(),
-                    precision: kernel.0,
-                    formula: kernel.1,
+                    precision: kernel.precision,
+                    formula: kernel.formula,
                     accel: opts.accel,
                 };
                 let (mut prepare, mut build, mut trace, mut write) =
@@ -562,7 +549,7 @@ pub fn run(opts: &BenchOptions, mut progress: impl FnMut(&Row)) -> Result<Vec<Ro
                 let row = Row {
                     family: family.name().to_string(),
                     cylinders: n,
-                    kernel: kernel_name(kernel),
+                    kernel: kernel.to_string(),
                     aovs: aov_names(aovs),
                     parse_ms: parse,
                     prepare_ms: prepare,
@@ -777,7 +764,7 @@ pub fn run_mitsuba(
         let ours = rows.iter().find(|r| {
             r.family == family.name()
                 && r.cylinders == n
-                && r.kernel == kernel_name(KERNELS[0])
+                && r.kernel == Kernel::STABLE_F64.to_string()
                 && r.is_depth_normal()
         });
         let scene = family.scene(n, opts.seed, opts.width, opts.height);

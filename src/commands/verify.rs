@@ -5,8 +5,8 @@
 //! status is 1 if any view fails a tolerance, else 2 if any could not be checked, else 0.
 
 use crate::dataset::batch::{ViewSource, list_views, selected_for_verify};
+use crate::geometry::{FormulaKind, Precision};
 use crate::output::preview::write_png;
-use crate::render::{FormulaKind, Precision};
 use crate::verify::compare::{Conditioning, Report, Tolerances, heatmap};
 use crate::verify::reference::{Mitsuba, ViewCheck, summary_line, verify_scene};
 use anyhow::Result;

@@ -172,7 +172,10 @@ pub fn orthonormal_basis(n: DVec3) -> (DVec3, DVec3) {
 
 /// A formulation of the ray–cylinder hit: [`Literal`] or [`Stable`].
 pub trait Formula: Copy + Send + Sync + 'static {
+    /// Name for tables: `literal` or `stable`.
     const NAME: &'static str;
+    /// The same, as the kernel choice names it.
+    const KIND: super::kernel::FormulaKind;
     /// Whether [`Prepared::new`] should form `oc` in f64 (see there).
     const CENTRED: bool;
     /// Nearest hit with `t` in `[tmin, tmax]`, or `None`. Computes no normal.
@@ -190,6 +193,7 @@ pub struct Literal;
 
 impl Formula for Literal {
     const NAME: &'static str = "literal";
+    const KIND: super::kernel::FormulaKind = super::kernel::FormulaKind::Literal;
     const CENTRED: bool = false;
 
     fn intersect<T: Real>(p: &Prepared<T>, d: T::V3, tmin: T, tmax: T) -> Option<BasicHit<T>> {
@@ -300,6 +304,7 @@ impl Stable {
 
 impl Formula for Stable {
     const NAME: &'static str = "stable";
+    const KIND: super::kernel::FormulaKind = super::kernel::FormulaKind::Stable;
     const CENTRED: bool = true;
 
     #[inline(always)]

@@ -42,6 +42,8 @@ pub trait Real:
     const UNIT_ROUNDOFF: f64;
     /// Name for tables: `f32` or `f64`.
     const NAME: &'static str;
+    /// The same, as the kernel choice names it.
+    const PRECISION: super::kernel::Precision;
 
     /// Round an f64 to this precision (identity for f64).
     fn from_f64(x: f64) -> Self;
@@ -77,7 +79,7 @@ pub trait Real:
 }
 
 macro_rules! impl_real {
-    ($t:ty, $v:ty, $name:literal, $from:expr, $to:expr) => {
+    ($t:ty, $v:ty, $name:literal, $precision:expr, $from:expr, $to:expr) => {
         impl Real for $t {
             type V3 = $v;
             const ZERO: Self = 0.0;
@@ -86,6 +88,7 @@ macro_rules! impl_real {
             const INFINITY: Self = <$t>::INFINITY;
             const UNIT_ROUNDOFF: f64 = <$t>::EPSILON as f64 / 2.0;
             const NAME: &'static str = $name;
+            const PRECISION: super::kernel::Precision = $precision;
 
             #[inline(always)]
             fn from_f64(x: f64) -> Self {
@@ -151,11 +154,19 @@ macro_rules! impl_real {
     };
 }
 
-impl_real!(f64, DVec3, "f64", |v: DVec3| v, |v: DVec3| v);
+impl_real!(
+    f64,
+    DVec3,
+    "f64",
+    super::kernel::Precision::F64,
+    |v: DVec3| v,
+    |v: DVec3| v
+);
 impl_real!(
     f32,
     Vec3A,
     "f32",
+    super::kernel::Precision::F32,
     |v: DVec3| Vec3A::new(v.x as f32, v.y as f32, v.z as f32),
     |v: Vec3A| DVec3::new(v.x as f64, v.y as f64, v.z as f64)
 );

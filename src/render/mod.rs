@@ -10,32 +10,16 @@
 
 use crate::accel::bvh::{Bvh, Cone, ConeWalk};
 use crate::accel::tiles::{self, Candidate, TILE, Tiles};
+use crate::geometry::kernel::KernelFn;
 use crate::geometry::packet::{self, LANES, NO_HIT, Packet, PacketFormula};
 use crate::geometry::wide::{Lanes, Simd, Wide};
-use crate::geometry::{BasicHit, Formula, Literal, Prepared, Real, Stable, Surface};
+use crate::geometry::{BasicHit, Formula, Kernel, Prepared, Real, Surface};
+use crate::geometry::{FormulaKind, Precision};
 use crate::output::aov::{AovImage, Channel, ChannelData};
 use crate::scene::camera::Camera;
 use crate::scene::{Aov, Scene};
 use glam::{DVec3, Vec3A};
 use rayon::prelude::*;
-
-/// Kernel precision.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
-pub enum Precision {
-    F32,
-    #[default]
-    F64,
-}
-
-/// Kernel formulation (see `geometry::cylinder`).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
-pub enum FormulaKind {
-    /// The textbook formulas as written: textbook roots, axis-point normal quadratic.
-    Literal,
-    /// Lagrange discriminant, citardauq roots, projected normal, gap-free rims.
-    #[default]
-    Stable,
-}
 
 /// How primary rays find their candidate cylinders.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
@@ -97,12 +81,14 @@ pub struct Timing {
 
 /// [`render`], also reporting how long the build and the trace took.
 pub fn render_timed(scene: &Scene, opts: &RenderOptions) -> (Render, Timing) {
-    match (opts.precision, opts.formula) {
-        (Precision::F32, FormulaKind::Stable) => render_with::<f32, Stable>(scene, opts),
-        (Precision::F64, FormulaKind::Stable) => render_with::<f64, Stable>(scene, opts),
-        (Precision::F32, FormulaKind::Literal) => render_with::<f32, Literal>(scene, opts),
-        (Precision::F64, FormulaKind::Literal) => render_with::<f64, Literal>(scene, opts),
+    struct Run<'a>(&'a Scene, &'a RenderOptions);
+    impl KernelFn for Run<'_> {
+        type Output = (Render, Timing);
+        fn call<T: Simd, F: PacketFormula>(self) -> Self::Output {
+            render_with::<T, F>(self.0, self.1)
+        }
     }
+    Kernel::new(opts.formula, opts.precision).dispatch(Run(scene, opts))
 }
 
 /// The scene prepared for one camera: cylinders in kernel form and the BVH over them.
@@ -861,6 +847,7 @@ fn render_simd<T: Simd, F: PacketFormula>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geometry::Stable;
 
     /// The AVX2 band renderer and the portable one give the same bits, on every committed
     /// scene (grazing, inside, far, huge, axis-parallel views among them) and a crowd,

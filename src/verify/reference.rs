@@ -22,9 +22,10 @@
 //! binary).
 
 use crate::dataset::batch::{Verdict, Verifier, ViewSource};
+use crate::geometry::{FormulaKind, Precision};
 use crate::output::aov::AovImage;
 use crate::output::io::atomic_write_bytes;
-use crate::render::{FormulaKind, Precision, RenderOptions, render};
+use crate::render::{RenderOptions, render};
 use crate::scene::{Aov, Scene};
 use crate::verify::compare::{Conditioning, Report, Tolerances, compare_with};
 use anyhow::{Context, Result, bail};

@@ -24,7 +24,10 @@
 //! hit's normal turns by `Δp/√(r² − p²)` for a sideways move `Δp`).
 
 use crate::geometry::cylinder::orthonormal_basis;
-use crate::geometry::{Cylinder, Formula, Literal, Prepared, Real, Stable, Surface};
+use crate::geometry::kernel::KernelFn;
+use crate::geometry::packet::PacketFormula;
+use crate::geometry::wide::Simd;
+use crate::geometry::{Cylinder, Formula, Kernel, Prepared, Real, Surface};
 use crate::rng::SplitMix64;
 use crate::scene;
 use crate::verify::oracle::{self, Analysis, DD, DV3, Problem};
@@ -525,69 +528,35 @@ fn js(v: DVec3) -> String {
 
 // ---- kernels and measurements ------------------------------------------------------------
 
-/// One of the four kernels.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Kernel {
-    /// The textbook formulas in f32.
-    LiteralF32,
-    /// The textbook formulas in f64.
-    LiteralF64,
-    /// The stable kernel in f32.
-    StableF32,
-    /// The stable kernel in f64.
-    StableF64,
+/// The stress table's order of the kernels: the textbook formulas first, so a reader sees
+/// each failure and then the stable kernel that has none.
+pub const TABLE_ORDER: [Kernel; 4] = [
+    Kernel::LITERAL_F32,
+    Kernel::LITERAL_F64,
+    Kernel::STABLE_F32,
+    Kernel::STABLE_F64,
+];
+
+/// The ray direction as `kernel` receives it: the f32 pipeline rounds the f64 camera
+/// direction to f32 first.
+pub fn dir_seen(kernel: Kernel, dir: DVec3) -> DVec3 {
+    if kernel.is_f32() {
+        f32::v3_to_f64(f32::v3(dir))
+    } else {
+        dir
+    }
 }
 
-impl Kernel {
-    /// Every kernel, in table order.
-    pub const ALL: [Kernel; 4] = [
-        Kernel::LiteralF32,
-        Kernel::LiteralF64,
-        Kernel::StableF32,
-        Kernel::StableF64,
-    ];
-
-    /// The name printed in tables and CSV files.
-    pub fn name(self) -> &'static str {
-        match self {
-            Kernel::LiteralF32 => "literal/f32",
-            Kernel::LiteralF64 => "literal/f64",
-            Kernel::StableF32 => "stable/f32",
-            Kernel::StableF64 => "stable/f64",
+/// `kernel` on one case, as the renderer calls it.
+fn run_kernel(kernel: Kernel, c: &Case) -> Option<KernelHit> {
+    struct Run<'a>(&'a Case);
+    impl KernelFn for Run<'_> {
+        type Output = Option<KernelHit>;
+        fn call<T: Simd, F: PacketFormula>(self) -> Option<KernelHit> {
+            run::<T, F>(self.0)
         }
     }
-
-    /// Whether the kernel computes in f32.
-    pub fn is_f32(self) -> bool {
-        matches!(self, Kernel::LiteralF32 | Kernel::StableF32)
-    }
-
-    /// Unit roundoff of the kernel's precision.
-    pub fn eps(self) -> f64 {
-        if self.is_f32() {
-            f32::UNIT_ROUNDOFF
-        } else {
-            f64::UNIT_ROUNDOFF
-        }
-    }
-
-    /// The ray direction as this kernel receives it.
-    pub fn dir_seen(self, dir: DVec3) -> DVec3 {
-        if self.is_f32() {
-            f32::v3_to_f64(f32::v3(dir))
-        } else {
-            dir
-        }
-    }
-
-    fn run(self, c: &Case) -> Option<KernelHit> {
-        match self {
-            Kernel::LiteralF32 => run::<f32, Literal>(c),
-            Kernel::LiteralF64 => run::<f64, Literal>(c),
-            Kernel::StableF32 => run::<f32, Stable>(c),
-            Kernel::StableF64 => run::<f64, Stable>(c),
-        }
-    }
+    kernel.dispatch(Run(c))
 }
 
 /// A kernel's answer, widened to f64.
@@ -650,7 +619,7 @@ pub struct Record {
 /// Measure one case with one kernel, given the oracle's analysis for that kernel's inputs.
 pub fn measure(case: &Case, kernel: Kernel, analysis: &Analysis) -> Record {
     let eps = kernel.eps();
-    let got = kernel.run(case);
+    let got = run_kernel(kernel, case);
     let oracle = analysis.hit;
     let nonfinite = got.is_some_and(|g| !g.t.is_finite() || !g.normal.is_finite());
     let wrong = !analysis.band_hit && (got.is_some() != oracle.is_some());
@@ -667,7 +636,7 @@ pub fn measure(case: &Case, kernel: Kernel, analysis: &Analysis) -> Record {
         let want = if g.surface == o.surface {
             o.normal
         } else {
-            oracle::normal_at(&case.problem(kernel.dir_seen(case.dir)), o.t, g.surface)
+            oracle::normal_at(&case.problem(dir_seen(kernel, case.dir)), o.t, g.surface)
         };
         err_n = oracle::angle(g.normal.normalize_or_zero(), want.to_f64());
         let scale = (t0 / case.cyl.radius).max(1.0);
@@ -716,7 +685,7 @@ pub fn run_family(family: Family, rays: usize, kernels: &[Kernel]) -> Vec<Record
         for &k in kernels {
             let slot = usize::from(k.is_f32());
             let a = *cache[slot].get_or_insert_with(|| {
-                let p = case.problem(k.dir_seen(case.dir));
+                let p = case.problem(dir_seen(k, case.dir));
                 oracle::analyse(&p, case.tmin, f64::INFINITY, k.eps())
             });
             out.push(measure(&case, k, &a));
@@ -849,7 +818,7 @@ impl fmt::Display for Summary {
             f,
             "{:<10} {:<11} {:>5} {:>4} {:>5} {:>4} | {:>19} {:>8} {:>8} {:>9} {:>10} {:>10} {:>4} | {:>9} {:>11} {:>15} {:>4} | {:>9}",
             self.family.name(),
-            self.kernel.name(),
+            self.kernel,
             self.rays,
             self.nonfinite,
             self.wrong,
@@ -881,7 +850,7 @@ impl Record {
             "{},{:e},{},{},{},{},{},{},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{},{},{},{:?},{:?},{:?},{:?},{:?},{:?}",
             c.family.name(),
             c.param,
-            self.kernel.name(),
+            self.kernel,
             c.cyl.caps,
             self.oracle.is_some(),
             self.got.is_some(),

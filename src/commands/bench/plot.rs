@@ -7,10 +7,9 @@
 //! (c) the same for the dense scene family, when it was run. Panels (a) and (b) show the
 //! first family run.
 
-use crate::bench::{KERNELS, Kernel, MitsubaRow, Row, kernel_name};
+use crate::bench::{MitsubaRow, Row};
+use crate::geometry::{FormulaKind, Kernel, Precision};
 use crate::output::plot::{self, Axis, BLACK, Grid, Marker, NOTE};
-use crate::render::FormulaKind;
-use crate::render::Precision;
 use image::{Rgb, RgbImage};
 
 /// Two panels side by side; the legend band is sized in [`plot`].
@@ -31,7 +30,10 @@ const ERR_FLOOR_NOTE: &str = "ERROR 0 DRAWN AT 1E-17";
 const PARETO_COUNT: usize = 1000;
 
 fn colour(k: Kernel) -> Rgb<u8> {
-    plot::kernel_colour(k.1 == FormulaKind::Literal, k.0 == Precision::F64)
+    plot::kernel_colour(
+        k.formula == FormulaKind::Literal,
+        k.precision == Precision::F64,
+    )
 }
 
 /// Mitsuba variants get their own colours (not a kernel's).
@@ -57,7 +59,7 @@ pub fn plot(rows: &[Row], mitsuba: &[MitsubaRow], kernels: &[Kernel]) -> RgbImag
         .collect();
     let kernels: Vec<(Kernel, String)> = kernels
         .iter()
-        .map(|&k| (k, kernel_name(k)))
+        .map(|&k| (k, k.to_string()))
         .filter(|(_, name)| dn.iter().any(|r| &r.kernel == name))
         .collect();
     let mut variants: Vec<&str> = Vec::new();
@@ -162,7 +164,7 @@ fn pareto(img: &mut RgbImage, grid: &Grid, dn: &[&Row], kernels: &[(Kernel, Stri
         ),
     );
     p.axes(img);
-    let reference = kernel_name(KERNELS[0]);
+    let reference = Kernel::STABLE_F64.to_string();
     // Label boxes placed so far (x, y, width): a label that would overlap one moves up.
     let mut placed: Vec<(i64, i64, i64)> = Vec::new();
     for (r, _) in &pts {
@@ -247,10 +249,10 @@ fn scaling(
         let pts = of_kernel(name.clone()).map(|r| (r.cylinders as f64, r.render_ms()));
         lines.push(Line::new(pts, colour(*k), false));
     }
-    let default = kernel_name(KERNELS[0]);
+    let default = Kernel::STABLE_F64.to_string();
     if kernels.iter().any(|(_, name)| *name == default) {
         let pts = of_kernel(default).filter_map(|r| Some((r.cylinders as f64, r.process_ms?)));
-        lines.push(Line::new(pts, colour(KERNELS[0]), true));
+        lines.push(Line::new(pts, colour(Kernel::ALL[0]), true));
     }
     for v in variants {
         let c = mitsuba_colour(v);
@@ -298,7 +300,7 @@ mod tests {
         Row {
             family: "sparse".into(),
             cylinders: n,
-            kernel: kernel_name(k),
+            kernel: k.to_string(),
             aovs: aovs.into(),
             parse_ms: ms / 20.0,
             prepare_ms: ms / 20.0,
@@ -323,10 +325,10 @@ mod tests {
     fn draws_kernels_and_mitsuba_and_survives_empty_input() {
         let mut rows = Vec::new();
         for n in [1, 100, 1000] {
-            rows.push(row(n, KERNELS[0], "depth+normal", n as f64, 0.0));
-            rows.push(row(n, KERNELS[1], "depth+normal", n as f64 / 2.0, 1e-6));
+            rows.push(row(n, Kernel::ALL[0], "depth+normal", n as f64, 0.0));
+            rows.push(row(n, Kernel::ALL[1], "depth+normal", n as f64 / 2.0, 1e-6));
             // Other AOV sets are not drawn.
-            rows.push(row(n, KERNELS[3], "depth", 1.0, 1e-3));
+            rows.push(row(n, Kernel::ALL[3], "depth", 1.0, 1e-3));
         }
         let mi = MitsubaRow {
             family: "sparse".into(),
@@ -348,14 +350,14 @@ mod tests {
                     ..mi
                 },
             ],
-            &KERNELS,
+            &Kernel::ALL,
         );
-        assert!(count(&img, colour(KERNELS[0])) > 100);
-        assert!(count(&img, colour(KERNELS[1])) > 100);
-        assert_eq!(count(&img, colour(KERNELS[3])), 0);
+        assert!(count(&img, colour(Kernel::ALL[0])) > 100);
+        assert!(count(&img, colour(Kernel::ALL[1])) > 100);
+        assert_eq!(count(&img, colour(Kernel::ALL[3])), 0);
         assert!(count(&img, mitsuba_colour("llvm_ad_rgb")) > 100);
 
-        let empty = plot(&[], &[], &KERNELS);
-        assert_eq!(count(&empty, colour(KERNELS[0])), 0);
+        let empty = plot(&[], &[], &Kernel::ALL);
+        assert_eq!(count(&empty, colour(Kernel::ALL[0])), 0);
     }
 }

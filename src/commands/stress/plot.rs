@@ -4,8 +4,9 @@
 //! ray is a dot; the line joins the worst ray per parameter value; the dashed line is the
 //! bound (4, 4 and 16). Drawn with [`crate::output::plot`].
 
+use crate::geometry::{FormulaKind, Kernel};
 use crate::output::plot::{self, Axis, BOUND, Grid, Marker, NOTE};
-use crate::verify::stress::{Family, Kernel, Record};
+use crate::verify::stress::{Family, Record, TABLE_ORDER};
 use image::{Rgb, RgbImage};
 
 /// Three panels a row, one row a family, under a one-line legend.
@@ -16,18 +17,15 @@ const GRID: Grid = Grid {
 };
 
 fn colour(k: Kernel) -> Rgb<u8> {
-    plot::kernel_colour(
-        matches!(k, Kernel::LiteralF32 | Kernel::LiteralF64),
-        !k.is_f32(),
-    )
+    plot::kernel_colour(k.formula == FormulaKind::Literal, !k.is_f32())
 }
 
 /// Draw the figure for `families` from `records`.
 pub fn plot(records: &[Record], families: &[Family]) -> RgbImage {
     let mut img = GRID.image(3, families.len() as u32);
     let mut x = 10;
-    for k in Kernel::ALL {
-        let label = k.name().replace('/', " ").to_uppercase();
+    for k in TABLE_ORDER {
+        let label = k.to_string().replace('-', " ").to_uppercase();
         plot::legend_entry(&mut img, x, 8, colour(k), &label);
         x += 150;
     }

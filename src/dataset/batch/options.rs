@@ -1,8 +1,8 @@
 //! What a batch renders and writes, and how its threads share the work.
 
+use crate::geometry::{FormulaKind, Precision};
 use crate::output::aov::Compression;
 use crate::output::depth_png::OutOfRange;
-use crate::render::{FormulaKind, Precision};
 use crate::scene::{Aov, Scene};
 
 /// How the pool's threads share the work.
