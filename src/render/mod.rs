@@ -617,7 +617,7 @@ fn bands<'a>(
 }
 
 /// What every band of a render shares.
-struct Frame<'a, T: Real, F: Formula> {
+struct BandInputs<'a, T: Real, F: Formula> {
     tracer: &'a Tracer<T, F>,
     /// `shape_id` per cylinder.
     ids: &'a [u32],
@@ -629,7 +629,7 @@ struct Frame<'a, T: Real, F: Formula> {
 /// Write the requested AOVs of a hit along `d` into sample `k` of `band`.
 #[inline(always)]
 fn shade<T: Real, F: Formula>(
-    fr: &Frame<T, F>,
+    fr: &BandInputs<T, F>,
     band: &mut Band,
     k: usize,
     d: DVec3,
@@ -676,7 +676,7 @@ fn part_code<T: Real, F: Formula>(tracer: &Tracer<T, F>, d: DVec3, ph: &PixelHit
 /// Trace and shade band `b` (one row of tiles), returning its hit count.
 #[inline(always)]
 fn render_band<T: Real, F: PacketFormula, W: Wide<T>>(
-    fr: &Frame<T, F>,
+    fr: &BandInputs<T, F>,
     b: usize,
     band: &mut Band,
 ) -> usize {
@@ -739,7 +739,7 @@ fn render_band<T: Real, F: PacketFormula, W: Wide<T>>(
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 fn render_band_avx2<T: Simd, F: PacketFormula>(
-    fr: &Frame<T, F>,
+    fr: &BandInputs<T, F>,
     b: usize,
     band: &mut Band,
 ) -> usize {
@@ -749,7 +749,7 @@ fn render_band_avx2<T: Simd, F: PacketFormula>(
 /// The band renderer for this CPU: AVX2 when it has it (and `simd`), else the baseline.
 fn band_renderer<T: Simd, F: PacketFormula>(
     simd: bool,
-) -> fn(&Frame<T, F>, usize, &mut Band) -> usize {
+) -> fn(&BandInputs<T, F>, usize, &mut Band) -> usize {
     #[cfg(target_arch = "x86_64")]
     if simd && std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU has AVX2, checked just above.
@@ -791,7 +791,7 @@ fn render_simd<T: Simd, F: PacketFormula>(
     let padded = w.div_ceil(TILE as usize) * TILE as usize;
     let cols_off: Vec<f64> = (0..padded as u32).map(|i| cam.column_offset(i)).collect();
     let rows_off: Vec<f64> = (0..h as u32).map(|j| cam.row_offset(j)).collect();
-    let frame = Frame {
+    let inputs = BandInputs {
         tracer: &tracer,
         ids: &ids,
         cols_off: &cols_off,
@@ -801,7 +801,7 @@ fn render_simd<T: Simd, F: PacketFormula>(
     let hits: usize = bands(&mut planes, &mut id, &mut part, band_rows * w, count)
         .into_par_iter()
         .enumerate()
-        .map(|(b, mut band)| band_fn(&frame, b, &mut band))
+        .map(|(b, mut band)| band_fn(&inputs, b, &mut band))
         .sum();
 
     let mut channels = Vec::new();

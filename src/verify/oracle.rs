@@ -329,7 +329,7 @@ pub struct Hit {
 }
 
 /// Per-problem quantities shared by the hit and the normal.
-struct Frame {
+struct AxisParts {
     n: DV3,
     on: DD,
     dn: DD,
@@ -337,11 +337,11 @@ struct Frame {
     d_perp: DV3,
 }
 
-fn frame(p: &Problem) -> Frame {
+fn axis_parts(p: &Problem) -> AxisParts {
     let n = p.axis.normalize();
     let on = p.oc.dot(n);
     let dn = p.d.dot(n);
-    Frame {
+    AxisParts {
         n,
         on,
         dn,
@@ -353,11 +353,11 @@ fn frame(p: &Problem) -> Frame {
 /// Outward unit normal of `surface` at ray parameter `t` (side: the projection of the hit
 /// point off the axis, normalised; caps: ∓axis).
 pub fn normal_at(p: &Problem, t: DD, surface: Surface) -> DV3 {
-    let f = frame(p);
+    let f = axis_parts(p);
     normal_in(&f, t, surface)
 }
 
-fn normal_in(f: &Frame, t: DD, surface: Surface) -> DV3 {
+fn normal_in(f: &AxisParts, t: DD, surface: Surface) -> DV3 {
     match surface {
         Surface::Bottom => DV3::default() - f.n,
         Surface::Top => f.n,
@@ -368,7 +368,7 @@ fn normal_in(f: &Frame, t: DD, surface: Surface) -> DV3 {
 /// Nearest hit with `tmin ≤ t ≤ tmax`, or `None`. Edge policy: a hit exactly on a cap
 /// plane or the rim counts (closed intervals everywhere); at equal `t` the side wins.
 pub fn intersect(p: &Problem, tmin: DD, tmax: DD) -> Option<Hit> {
-    let f = frame(p);
+    let f = axis_parts(p);
     let mut best: Option<(DD, Surface)> = None;
     let mut take = |t: DD, s: Surface| {
         if t >= tmin && t <= tmax && best.is_none_or(|(b, _)| t < b) {

@@ -174,18 +174,18 @@ impl Case {
 
 /// A cylinder with a random frame: base `base`, random unit axis; maps local
 /// (x, y, along-axis) coordinates to world.
-struct Frame {
+struct CylinderFrame {
     base: DVec3,
     u: DVec3,
     v: DVec3,
     n: DVec3,
 }
 
-impl Frame {
-    fn random(rng: &mut SplitMix64, base: DVec3) -> Frame {
+impl CylinderFrame {
+    fn random(rng: &mut SplitMix64, base: DVec3) -> CylinderFrame {
         let n = rng.sphere();
         let (u, v) = orthonormal_basis(n);
-        Frame { base, u, v, n }
+        CylinderFrame { base, u, v, n }
     }
     fn point(&self, l: DVec3) -> DVec3 {
         self.base + self.u * l.x + self.v * l.y + self.n * l.z
@@ -225,7 +225,14 @@ pub fn cases(family: Family, rays: usize) -> Vec<Case> {
     out
 }
 
-fn simple(family: Family, param: f64, frame: &Frame, cyl: Cylinder, o: DVec3, d: DVec3) -> Case {
+fn simple(
+    family: Family,
+    param: f64,
+    frame: &CylinderFrame,
+    cyl: Cylinder,
+    o: DVec3,
+    d: DVec3,
+) -> Case {
     Case {
         family,
         param,
@@ -267,7 +274,7 @@ fn grazing_case(
     let family = Family::Grazing;
     // Camera 3–7 radii from the axis; the ray's distance from the axis is
     // p = r(1 ± param), tilted up to ±0.2 rad so it stays between the caps.
-    let f = Frame::random(rng, base);
+    let f = CylinderFrame::random(rng, base);
     let (r, h) = (1.0, 4.0);
     let rho0 = rng.range(3.0, 7.0);
     let phi0 = rng.range(0.0, std::f64::consts::TAU);
@@ -295,7 +302,7 @@ fn near_axis_case(
     rng: &mut SplitMix64,
 ) -> Option<Case> {
     let family = Family::NearAxis;
-    let f = Frame::random(rng, base);
+    let f = CylinderFrame::random(rng, base);
     let az = rng.range(0.0, std::f64::consts::TAU);
     let tilt = |toward: f64| {
         DVec3::new(
@@ -371,7 +378,7 @@ fn far_or_scale_case(
     } else {
         (param, base * param * 0.3, 5.0 * param)
     };
-    let f = Frame::random(rng, base);
+    let f = CylinderFrame::random(rng, base);
     let h = 2.0 * r;
     let cam = f.base + rng.sphere() * dist;
     let a = rng.range(0.0, std::f64::consts::TAU);
@@ -403,7 +410,7 @@ fn inside_case(
     let family = Family::Inside;
     // Camera at rho = r(1 - param) (inside) or r(1 + param) (just outside), random
     // direction.
-    let f = Frame::random(rng, base);
+    let f = CylinderFrame::random(rng, base);
     let rho = if (i / 2).is_multiple_of(2) {
         1.0 - param
     } else {
@@ -420,7 +427,7 @@ fn rims_case(param: f64, i: usize, base: DVec3, caps: bool, rng: &mut SplitMix64
     let family = Family::Rims;
     // Aim at a point `param` radii from the seam (along the axis or radially, either
     // side), from a camera 2–5 units away where the rim is visible.
-    let f = Frame::random(rng, base);
+    let f = CylinderFrame::random(rng, base);
     let (r, h) = (1.0, 2.0);
     let a = rng.range(0.0, std::f64::consts::TAU);
     let radial = DVec3::new(a.cos(), a.sin(), 0.0);
