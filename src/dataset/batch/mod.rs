@@ -25,11 +25,13 @@
 //! computes the same list and writes the same `transforms.json` bytes.
 //!
 //! The pieces, in the order a run uses them: `views` (the view list), `shard` (which views
-//! this process renders), `options`, `resume` (output paths, render stamp, completeness
+//! this process renders), `lock` (the shard's lock and its real, unfollowed partial
+//! folder), `options`, `resume` (output paths, render stamp, completeness
 //! checks), `write` (one view rendered and moved into place), `verify` (the reference check
 //! interface), `transforms` (`transforms.json`), `progress`, and `run` (the loop tying them
 //! together).
 
+mod lock;
 mod options;
 mod progress;
 mod resume;
@@ -47,5 +49,5 @@ pub use run::{Failure, Outcome, Summary, run};
 pub use shard::{Shard, resolve_shard};
 pub use transforms::{FrameCamera, transforms_json};
 pub use verify::{Verdict, Verifier, selected_for_verify};
-pub use views::{ViewSource, list_views};
+pub use views::{Skipped, ViewSource, list_views};
 pub use write::{ViewCost, render_view};
