@@ -5,8 +5,8 @@ Usage: mitsuba_reference.py SCENE.xml SCENE.json OUT.exr [SENSOR]
 
 SCENE.xml comes from `cylaov export-mitsuba SCENE.json`; SCENE.json gives the camera for
 the depth conversion. SENSOR (default 0) picks the camera of a scene with several
-(`"cameras"`): the export writes one sensor per camera, in file order. Renders with the `scalar_rgb` variant (SPEC §5: cylinder quadratic in
-float64, deterministic) and writes OUT.exr (float32, lossless PIZ) with cylaov's channel
+(`"cameras"`): the export writes one sensor per camera, in file order. Renders with the
+`scalar_rgb` variant (cylinder quadratic in float64, deterministic) and writes OUT.exr (float32, lossless PIZ) with cylaov's channel
 names:
 
   distance    = Mitsuba depth + near_clip / cos(theta)   (Mitsuba's ray starts on the near

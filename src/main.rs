@@ -313,7 +313,8 @@ struct RenderCli {
     aov: Vec<Aov>,
     #[command(flatten)]
     kernel: KernelCli,
-    /// Also write PNG previews (NAME.normal.png, NAME.depth.png with a legend) into DIR.
+    /// Also write PNG previews (NAME.normal.preview.png, NAME.depth.preview.png with a
+    /// legend) into DIR.
     #[arg(long, value_name = "DIR")]
     preview: Option<PathBuf>,
     /// EXR compression.
@@ -322,6 +323,21 @@ struct RenderCli {
     /// Which camera of a `"cameras"` scene to render (0-based, file order).
     #[arg(long, value_name = "K", default_value_t = 0)]
     camera: usize,
+    /// Also write OUT.depth.png: 16-bit round(planar depth × --depth-scale), 0 = no depth.
+    #[arg(long)]
+    depth_png: bool,
+    /// Depth PNG value per world unit (with --depth-png).
+    #[arg(
+        long,
+        default_value_t = 1000.0,
+        allow_hyphen_values = true,
+        requires = "depth_png"
+    )]
+    depth_scale: f64,
+    /// With --depth-png, a hit whose depth × scale does not fit 16 bits: fail (default) or
+    /// store 0 and count.
+    #[arg(long, value_enum, default_value_t = OutOfRange::Fail, value_name = "fail|zero")]
+    depth_out_of_range: OutOfRange,
 }
 
 fn set_threads(threads: Option<usize>) -> anyhow::Result<()> {
@@ -355,6 +371,8 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 preview: a.preview,
                 compression: a.compression,
                 camera: a.camera,
+                depth_png: a.depth_png.then_some(a.depth_scale),
+                depth_out_of_range: a.depth_out_of_range,
             };
             println!("{}", commands::render::run(&args)?);
         }

@@ -1,7 +1,14 @@
-//! `cylaov render`: scene file → EXR (+ camera JSON, optional PNG previews).
+//! `cylaov render`: scene file → EXR (+ camera JSON, Open3D camera, optional 16-bit depth PNG
+//! and PNG previews).
+//!
+//! Beside `OUT.exr` it writes `OUT.camera.json` and `OUT.open3d.json`; `--depth-png` adds
+//! `OUT.depth.png` (the same 16-bit depth PNG as `batch`, see [`crate::output::depth_png`]);
+//! `--preview DIR` writes `DIR/OUT.normal.preview.png` and `DIR/OUT.depth.preview.png`
+//! (pictures for people: the names say so).
 
 use crate::output::aov::Compression;
-use crate::output::io::{Staged, camera_json, camera_json_path, commit_all, stage};
+use crate::output::depth_png::{self, OutOfRange};
+use crate::output::io::{Staged, camera_json, camera_json_path, commit_all, open3d_json, stage};
 use crate::output::preview;
 use crate::render::{RenderOptions, render};
 use crate::scene::camera::Camera;
@@ -23,6 +30,19 @@ pub struct RenderArgs {
     pub compression: Compression,
     /// `--camera K`: the camera of a several-camera scene (0 = the first).
     pub camera: usize,
+    /// `--depth-png`: also write `OUT.depth.png` at this many values per world unit.
+    pub depth_png: Option<f64>,
+    pub depth_out_of_range: OutOfRange,
+}
+
+/// Where `render -o OUT.exr` puts the 16-bit depth PNG: `OUT.depth.png`.
+pub fn depth_png_path(exr: &Path) -> PathBuf {
+    exr.with_extension("depth.png")
+}
+
+/// Where `render -o OUT.exr` puts the Open3D camera: `OUT.open3d.json`.
+pub fn open3d_json_path(exr: &Path) -> PathBuf {
+    exr.with_extension("open3d.json")
 }
 
 /// Same file, however it is spelled (the output may not exist yet).
@@ -50,13 +70,43 @@ pub fn run(args: &RenderArgs) -> Result<String> {
         .select_camera(args.camera)
         .with_context(|| format!("--camera {}: {}", args.camera, args.scene.display()))?;
     let aovs = args.aovs.clone().unwrap_or_else(|| scene.aovs.clone());
+    if let Some(s) = args.depth_png
+        && !(s.is_finite() && s > 0.0)
+    {
+        bail!("--depth-scale: must be finite and > 0, got {s}");
+    }
+    // The depth PNG needs planar depth even when the EXR does not store it.
+    let mut traced = aovs.clone();
+    if args.depth_png.is_some() && !traced.contains(&Aov::Depth) {
+        traced.push(Aov::Depth);
+    }
     let opts = RenderOptions {
-        aovs: aovs.clone(),
+        aovs: traced,
         ..args.options.clone()
     };
     let t0 = Instant::now();
-    let r = render(&scene, &opts);
+    let mut r = render(&scene, &opts);
     let trace_ms = t0.elapsed().as_secs_f64() * 1e3;
+    let depth = match args.depth_png {
+        Some(scale) => {
+            let d = depth_png::encode(&r.image, scale, args.depth_out_of_range)
+                .context("no depth AOV")?
+                .map_err(anyhow::Error::msg)
+                .with_context(|| format!("{}", args.scene.display()))?;
+            if d.zeroed > 0 {
+                eprintln!(
+                    "{}: depth PNG: {} hit pixels beyond 16 bits at --depth-scale {scale} stored as 0",
+                    args.out.display(),
+                    d.zeroed
+                );
+            }
+            Some(d.png)
+        }
+        None => None,
+    };
+    if !aovs.contains(&Aov::Depth) {
+        r.image.channels.retain(|c| c.name != "depth");
+    }
     // Every output is staged under a temporary name and renamed into place only when all
     // were written: a failure leaves none of them.
     let t1 = Instant::now();
@@ -67,6 +117,15 @@ pub fn run(args: &RenderArgs) -> Result<String> {
         stage(&cam_path, |f| f.write_all(cam_text.as_bytes()))
             .with_context(|| format!("writing {}", cam_path.display()))?,
     );
+    let o3d_path = open3d_json_path(&args.out);
+    let o3d_text = open3d_json(&cam);
+    staged.push(
+        stage(&o3d_path, |f| f.write_all(o3d_text.as_bytes()))
+            .with_context(|| format!("writing {}", o3d_path.display()))?,
+    );
+    if let Some(png) = &depth {
+        staged.push(preview::stage_png(png, &depth_png_path(&args.out))?);
+    }
     let write_ms = t1.elapsed().as_secs_f64() * 1e3;
     if let Some(dir) = &args.preview {
         staged.extend(stage_previews(&r.image, dir, &stem(&args.out))?);
@@ -93,8 +152,8 @@ fn stem(p: &Path) -> String {
         .unwrap_or_else(|| "render".into())
 }
 
-/// `DIR/NAME.normal.png` and `DIR/NAME.depth.png` (or `.distance.png`) for whichever of
-/// the AOVs exist, staged.
+/// `DIR/NAME.normal.preview.png` and `DIR/NAME.depth.preview.png` (or
+/// `.distance.preview.png`) for whichever of the AOVs exist, staged.
 pub fn stage_previews(
     img: &crate::output::aov::AovImage,
     dir: &Path,
@@ -105,7 +164,7 @@ pub fn stage_previews(
     if let Some(p) = preview::normal_rgb(img) {
         out.push(preview::stage_png(
             &p,
-            &dir.join(format!("{name}.normal.png")),
+            &dir.join(format!("{name}.normal.preview.png")),
         )?);
     }
     let depthlike = ["depth", "distance"]
@@ -116,7 +175,7 @@ pub fn stage_previews(
     {
         out.push(preview::stage_png(
             &p,
-            &dir.join(format!("{name}.{c}.png")),
+            &dir.join(format!("{name}.{c}.preview.png")),
         )?);
     }
     Ok(out)

@@ -3,14 +3,15 @@
 //! | element | what it says | why |
 //! |---|---|---|
 //! | `<scene version="3.0.0">` | Mitsuba 3 scene syntax | loads with `mitsuba.load_file` |
-//! | `integrator type="aov"` | `dd.y:depth,nn:sh_normal,pp:position,ii:shape_index` | AOVs only, no RGB (SPEC §5) |
+//! | `integrator type="aov"` | `dd.y:depth,nn:sh_normal,pp:position,ii:shape_index` | AOVs only, no RGB: the reference needs geometry, not shading |
 //! | `sensor type="perspective"`, one per camera in file order | `lookat` `to_world`, `fov`, `fov_axis`, `near_clip`, `far_clip` | the scene's look-at camera(s); `scene.sensors()[k]` is camera `k` |
 //! | `sampler type="stratified"` | `sample_count` 1, `jitter` false | one ray through each pixel centre |
 //! | `film type="hdrfilm"` | width, height, float32, box `rfilter` | no float16 rounding, no filter blur |
 //! | `shape type="cylinder"` | `p0` = base, `p1` = top, `radius` | Mitsuba's cylinder is an open tube |
 //! | `shape type="disk"` (caps only) | explicit `to_world` matrix | bottom: normal `-axis` at base; top: `+axis` at top |
 //!
-//! **Shape order and identity** (SPEC §7). Per cylinder, in file order: its side, then (if
+//! **Shape order and identity** (the comparison needs to know which cylinder a reference
+//! pixel hit). Per cylinder, in file order: its side, then (if
 //! `caps`) its bottom and its top disk. Mitsuba's `shape_index` AOV is 1 + the index in
 //! that list, and [`shape_ids`] gives our `shape_id` for each index. Each shape also
 //! carries it in its XML `id`: `c<INDEX>_id<SHAPE_ID>_<side|bottom|top>` (`INDEX` is the
@@ -21,7 +22,8 @@
 //! Numbers are written as the shortest decimal that round-trips the f64. Mitsuba's scalar
 //! variants parse them into float32, so scene values that are not float32-representable
 //! differ by up to half an f32 ulp (relative 3e-8) between the two renderers: far below the
-//! comparison floor of SPEC §5.
+//! few-float32-ulp agreement the reference tests measure (README, "Measured agreement with
+//! Mitsuba 3.9.1").
 
 use crate::geometry::Cylinder;
 use crate::geometry::cylinder::orthonormal_basis;
@@ -99,7 +101,7 @@ pub fn shape_xml_id(scene: &Scene, s: ExportedShape) -> String {
 /// `to_world` of a cap disk. Mitsuba's `disk` is the unit disk in local xy with normal +z;
 /// this scales it uniformly by `r`, turns local (x, y, z) onto `(u, v, n_out)` with
 /// `u × v = n_out`, and moves it to the cap centre. Bottom: centre `base`, `n_out = -axis`;
-/// top: centre `base + height·axis`, `n_out = +axis` (SPEC §1). The matrix is a similarity,
+/// top: centre `base + height·axis`, `n_out = +axis` (the outward cap normals). The matrix is a similarity,
 /// so its normal transform (inverse transpose) maps +z to exactly `n_out` after normalising.
 pub fn cap_to_world(c: &Cylinder, part: Part) -> DMat4 {
     let (centre, n_out) = match part {
