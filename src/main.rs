@@ -3,7 +3,7 @@
 use clap::{Args, Parser, Subcommand};
 use cylaov::dataset::batch::{BatchOptions, ProgressMode, Schedule, Shard};
 use cylaov::dataset::generate::{Range, Volume};
-use cylaov::output::aov::Compression;
+use cylaov::output::aov::{Compression, ExrLayout};
 use cylaov::output::depth_png::OutOfRange;
 use cylaov::render::{Accel, FormulaKind, Precision, RenderOptions};
 use cylaov::scene::Aov;
@@ -153,6 +153,10 @@ struct BatchCli {
     /// message gives the largest scale that fits), or store those pixels as 0 and count them.
     #[arg(long, value_enum, default_value_t = OutOfRange::Fail, value_name = "fail|zero")]
     depth_out_of_range: OutOfRange,
+    /// `layers`: one NAME.exr with every AOV; `per-aov`: NAME.<aov>.exr each, channels Y or
+    /// R,G,B in float32, which OpenCV and imageio read.
+    #[arg(long, value_enum, default_value_t = ExrLayout::Layers)]
+    exr_layout: ExrLayout,
     /// Skip the PNGs (the indexes then point at the EXRs).
     #[arg(long)]
     no_png: bool,
@@ -338,6 +342,10 @@ struct RenderCli {
     /// store 0 and count.
     #[arg(long, value_enum, default_value_t = OutOfRange::Fail, value_name = "fail|zero")]
     depth_out_of_range: OutOfRange,
+    /// `layers`: one OUT.exr with every AOV; `per-aov`: OUT.<aov>.exr each, channels Y or
+    /// R,G,B in float32, which OpenCV and imageio read.
+    #[arg(long, value_enum, default_value_t = ExrLayout::Layers)]
+    exr_layout: ExrLayout,
 }
 
 fn set_threads(threads: Option<usize>) -> anyhow::Result<()> {
@@ -373,6 +381,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 camera: a.camera,
                 depth_png: a.depth_png.then_some(a.depth_scale),
                 depth_out_of_range: a.depth_out_of_range,
+                exr_layout: a.exr_layout,
             };
             println!("{}", commands::render::run(&args)?);
         }
@@ -413,6 +422,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                     png: !a.no_png,
                     depth_out_of_range: a.depth_out_of_range,
                     compression: a.compression,
+                    exr_layout: a.exr_layout,
                     schedule: a.schedule,
                     verify_fraction: a.verify_fraction,
                     verify_seed: a.verify_seed,

@@ -298,3 +298,185 @@ fn nerfstudio_reading_puts_every_view_of_a_scene_on_its_cylinders() {
     eprintln!("nerfstudio: largest distance to the cylinders {worst:.2e} (bound {bound:.2e})");
     assert!(worst <= bound, "{worst:e} > {bound:e}");
 }
+
+/// Python OpenEXR reads the header: the standard `worldToCamera` and `worldToNDC` in
+/// OpenEXR's conventions (Imath row vectors; camera z forward; NDC (0, 0) top-left) map the
+/// view's own hit points to their planar depth and their pixel centres, and the cylaov
+/// attributes name what each channel means, for compressed and uncompressed files.
+#[test]
+fn openexr_header_says_what_the_file_holds() {
+    let Some(py) = python() else { return };
+    let dir = dataset();
+    let zip = dir.parent().unwrap().join("zip");
+    let o = Command::new(BIN)
+        .args([
+            "batch",
+            dir.parent().unwrap().join("data").to_str().unwrap(),
+            "--out",
+        ])
+        .arg(&zip)
+        .args([
+            "--aov",
+            "depth,normal,position,shape_id",
+            "--compression",
+            "zip",
+        ])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for exr in [dir.join("000001/02.exr"), zip.join("000001/02.exr")] {
+        let out = Command::new(&py)
+            .arg("-c")
+            .arg(
+                r#"
+import sys, numpy as np, OpenEXR
+f = OpenEXR.File(sys.argv[1])
+h, ch = f.header(), f.channels()
+for k in ["cylaov:units", "cylaov:miss", "cylaov:channel:depth", "cylaov:channel:normal"]:
+    print(k, "=", h[k])
+print("cx", h["cylaov:cx"], "cx_opencv", h["cylaov:cx_opencv"])
+depth = ch["depth"].pixels.astype(np.float64)
+p = np.stack([ch[f"position.{a}"].pixels for a in "XYZ"], -1).astype(np.float64)
+j, i = np.nonzero(depth)
+P = np.concatenate([p[j, i], np.ones((len(i), 1))], 1)
+cam = P @ np.array(h["worldToCamera"], dtype=np.float64)
+ndc = P @ np.array(h["worldToNDC"], dtype=np.float64)
+H, W = depth.shape
+print("z", np.max(np.abs(cam[:, 2] - depth[j, i]) / depth[j, i]))
+print("ndc_px", max(np.max(np.abs(ndc[:, 0] / ndc[:, 3] * W - (i + 0.5))),
+                    np.max(np.abs(ndc[:, 1] / ndc[:, 3] * H - (j + 0.5)))))
+print("hits", len(i))
+"#,
+            )
+            .arg(&exr)
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let text = String::from_utf8_lossy(&out.stdout);
+        let value = |key: &str| -> f64 {
+            text.lines()
+                .find_map(|l| l.strip_prefix(&format!("{key} ")))
+                .unwrap_or_else(|| panic!("{key}: {text}"))
+                .parse()
+                .unwrap()
+        };
+        assert!(
+            text.contains("cylaov:channel:depth = depth: planar depth"),
+            "{text}"
+        );
+        assert!(
+            text.contains("cylaov:channel:normal = normal.X, normal.Y, normal.Z: world-space"),
+            "{text}"
+        );
+        assert!(
+            text.contains("cylaov:miss = a pixel whose ray hits nothing is 0"),
+            "{text}"
+        );
+        assert!(text.contains("cx 48.0 cx_opencv 47.5"), "{text}");
+        assert!(value("hits") > 200.0, "{text}");
+        // float32 matrices applied in float64 to float32 points: measured z relative
+        // 6.7e-8 and 1.6e-6 pixels; the bounds leave 15x and 60x of room, far below the
+        // half pixel or the 1/W-relative NDC error that a wrong convention would give.
+        let (z, px) = (value("z"), value("ndc_px"));
+        eprintln!(
+            "{}: worldToCamera z rel {z:.1e}, worldToNDC {px:.1e} px",
+            exr.display()
+        );
+        assert!(z < 1e-6, "{text}");
+        assert!(px < 1e-4, "{text}");
+    }
+}
+
+/// OpenCV 4 reads the per-AOV EXRs (`OPENCV_IO_ENABLE_OPENEXR=1`, `IMREAD_UNCHANGED`): the
+/// samples are bitwise those of the layered EXR (normals and positions as B, G, R: OpenCV's
+/// channel order), ids as exact float32. The README block loads one.
+#[test]
+fn opencv_reads_per_aov_exrs_bitwise_equal_to_the_layered_file() {
+    let Some(py) = python() else { return };
+    let dir = dataset();
+    let per = dir.parent().unwrap().join("per-aov");
+    let o = Command::new(BIN)
+        .args([
+            "batch",
+            dir.parent().unwrap().join("data").to_str().unwrap(),
+            "--out",
+        ])
+        .arg(&per)
+        .args([
+            "--aov",
+            "depth,normal,position,shape_id",
+            "--exr-layout",
+            "per-aov",
+        ])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let index: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(per.join("index.json")).unwrap()).unwrap();
+    assert_eq!(
+        index["views"][0]["exr_file_paths"]["normal"],
+        "000000/00.normal.exr"
+    );
+    assert!(!per.join("000000/00.exr").exists());
+    run_python(&py, &snippet("opencv-exr", &per), "");
+    for view in ["000000/00", "000001/02"] {
+        let layered = AovImage::read_exr(&dir.join(format!("{view}.exr"))).unwrap();
+        let out = Command::new(&py)
+            .arg("-c")
+            .arg(
+                r#"
+import sys, cv2, numpy as np
+for aov in ["depth", "normal", "position", "shape_id"]:
+    a = cv2.imread(f"{sys.argv[1]}.{aov}.exr", cv2.IMREAD_UNCHANGED)
+    assert a.dtype == np.float32, (aov, a.dtype)
+    a = a.reshape(a.shape[0] * a.shape[1], -1)[:, ::-1]  # BGR -> RGB = X, Y, Z
+    for k in range(a.shape[1]):
+        sys.stdout.buffer.write(np.ascontiguousarray(a[:, k]).tobytes())
+"#,
+            )
+            .arg(per.join(view))
+            .env("OPENCV_IO_ENABLE_OPENEXR", "1")
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let got: Vec<u32> = out
+            .stdout
+            .chunks_exact(4)
+            .map(|b| u32::from_le_bytes(b.try_into().unwrap()))
+            .collect();
+        let mut want: Vec<u32> = Vec::new();
+        for name in [
+            "depth",
+            "normal.X",
+            "normal.Y",
+            "normal.Z",
+            "position.X",
+            "position.Y",
+            "position.Z",
+        ] {
+            want.extend(
+                layered
+                    .f32_channel(name)
+                    .unwrap()
+                    .iter()
+                    .map(|x| x.to_bits()),
+            );
+        }
+        let ids = layered.u32_channel("shape_id").unwrap();
+        want.extend(ids.iter().map(|&id| (id as f32).to_bits()));
+        assert!(ids.iter().any(|&id| id > 1));
+        assert_eq!(got.len(), want.len(), "{view}");
+        assert!(
+            got == want,
+            "{view}: OpenCV's samples differ from the layered EXR"
+        );
+    }
+}

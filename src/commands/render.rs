@@ -6,7 +6,7 @@
 //! `--preview DIR` writes `DIR/OUT.normal.preview.png` and `DIR/OUT.depth.preview.png`
 //! (pictures for people: the names say so).
 
-use crate::output::aov::Compression;
+use crate::output::aov::{Compression, ExrLayout, exr_attributes, per_aov_image};
 use crate::output::depth_png::{self, OutOfRange};
 use crate::output::io::{Staged, camera_json, camera_json_path, commit_all, open3d_json, stage};
 use crate::output::preview;
@@ -33,6 +33,13 @@ pub struct RenderArgs {
     /// `--depth-png`: also write `OUT.depth.png` at this many values per world unit.
     pub depth_png: Option<f64>,
     pub depth_out_of_range: OutOfRange,
+    /// One layered `OUT.exr`, or `OUT.<aov>.exr` per AOV.
+    pub exr_layout: ExrLayout,
+}
+
+/// Where `render -o OUT.exr --exr-layout per-aov` puts AOV `aov`: `OUT.<aov>.exr`.
+pub fn per_aov_path(exr: &Path, aov: Aov) -> PathBuf {
+    exr.with_extension(format!("{}.exr", aov.name()))
 }
 
 /// Where `render -o OUT.exr` puts the 16-bit depth PNG: `OUT.depth.png`.
@@ -110,8 +117,28 @@ pub fn run(args: &RenderArgs) -> Result<String> {
     // Every output is staged under a temporary name and renamed into place only when all
     // were written: a failure leaves none of them.
     let t1 = Instant::now();
-    let mut staged = vec![r.image.stage_exr(&args.out, args.compression)?];
     let cam = Camera::new(scene.camera);
+    let attrs = exr_attributes(&cam, &aovs);
+    let mut staged = Vec::new();
+    match args.exr_layout {
+        ExrLayout::Layers => {
+            staged.push(
+                r.image
+                    .stage_exr_with(&args.out, args.compression, &attrs)?,
+            );
+        }
+        ExrLayout::PerAov => {
+            for &a in &aovs {
+                let one = per_aov_image(&r.image, a)?;
+                let attrs = exr_attributes(&cam, &[a]);
+                staged.push(one.stage_exr_with(
+                    &per_aov_path(&args.out, a),
+                    args.compression,
+                    &attrs,
+                )?);
+            }
+        }
+    }
     let cam_text = camera_json(&cam, &aovs);
     staged.push(
         stage(&cam_path, |f| f.write_all(cam_text.as_bytes()))

@@ -120,7 +120,7 @@ pub fn run(
         eprintln!("{}: skipped {skipped}", input.display());
     }
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let (views, cameras) = expand_views(&scenes);
+    let (views, cameras) = expand_views(&scenes, opts);
     let (partial, lock) = clear_partial(out, shard)?;
 
     let mine: Vec<usize> = (0..views.len()).filter(|&i| shard.contains(i)).collect();
@@ -168,14 +168,17 @@ fn load(view: &ViewSource) -> Result<Scene, String> {
 /// Every shard reads every scene (the index lists every valid view) but keeps only what the
 /// index needs: memory is O(views), not O(views x cylinders). The views of this shard are
 /// read again, one at a time, when rendered. The list is a pure function of the input.
-fn expand_views(scenes: &[ViewSource]) -> (Vec<ViewSource>, Vec<Result<FrameCamera, String>>) {
+fn expand_views(
+    scenes: &[ViewSource],
+    opts: &BatchOptions,
+) -> (Vec<ViewSource>, Vec<Result<FrameCamera, String>>) {
     let read: Vec<Result<Vec<FrameCamera>, String>> = scenes
         .par_iter()
         .map(|v| {
             load(v).map(|s| {
                 s.cameras
                     .iter()
-                    .map(|&c| FrameCamera::new(&Camera::new(c)))
+                    .map(|&c| FrameCamera::new(&Camera::new(c), &opts.exr_aovs(&s)))
                     .collect()
             })
         })
