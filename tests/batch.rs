@@ -551,6 +551,31 @@ fn verify_fraction_with_mitsuba_agrees_on_generated_views() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// Every view of a several-camera scene is checked against Mitsuba's render of its own
+/// sensor (the export writes one per camera; the reference script takes the index): with
+/// sensor 0 for all, views 01 and 02 would disagree.
+#[test]
+fn verify_fraction_checks_every_camera_of_a_scene() {
+    if common::venv_python().is_none() {
+        return;
+    }
+    let dir = fresh_dir("verify-cameras");
+    let data = dir.join("data");
+    generate(
+        &data,
+        "4",
+        "1",
+        &[SMALL, &["--views-per-scene", "3"]].concat(),
+    );
+    let out = dir.join("out");
+    let text = batch_ok(&data, &out, &["--verify-fraction", "1"]);
+    assert!(
+        text.contains("done 3 /") && text.contains("3 views verified") && text.contains("failed 0"),
+        "{text}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// A scene whose camera changed under the same name is rendered again, not skipped.
 #[test]
 fn changed_camera_is_rendered_again() {

@@ -90,6 +90,7 @@ pub fn channel_names(aov: Aov) -> &'static [&'static str] {
         Aov::Normal => &["normal.X", "normal.Y", "normal.Z"],
         Aov::Position => &["position.X", "position.Y", "position.Z"],
         Aov::ShapeId => &["shape_id"],
+        Aov::NormalCamera => &["normal_camera.X", "normal_camera.Y", "normal_camera.Z"],
     }
 }
 

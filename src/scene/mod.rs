@@ -51,15 +51,20 @@ pub enum Aov {
     /// u32 id of the hit cylinder (0 = miss).
     #[value(name = "shape_id")]
     ShapeId,
+    /// Camera-space unit outward normal, OpenCV axes: x right, y down, z forward
+    /// (normal_camera.X/Y/Z).
+    #[value(name = "normal_camera")]
+    NormalCamera,
 }
 
 impl Aov {
-    pub const ALL: [Aov; 5] = [
+    pub const ALL: [Aov; 6] = [
         Aov::Distance,
         Aov::Depth,
         Aov::Normal,
         Aov::Position,
         Aov::ShapeId,
+        Aov::NormalCamera,
     ];
 
     pub fn name(self) -> &'static str {
@@ -69,6 +74,7 @@ impl Aov {
             Aov::Normal => "normal",
             Aov::Position => "position",
             Aov::ShapeId => "shape_id",
+            Aov::NormalCamera => "normal_camera",
         }
     }
 
