@@ -410,7 +410,22 @@ fn transforms_match_cameras_and_depth_png() {
         &["--width", "80", "--height", "60", "--cylinders", "20"],
     );
     let out = dir.join("out");
-    batch_ok(&data, &out, &["--depth-scale", "500"]);
+    let o = cylaov(&[
+        "batch",
+        data.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--depth-scale",
+        "500",
+    ]);
+    assert!(o.status.success());
+    // nerfstudio does not read the scale from the file: the batch says what to pass.
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("warning: --depth-scale 500")
+            && err.contains("depth_unit_scale_factor = 0.002"),
+        "{err}"
+    );
     let t: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("index.json")).unwrap()).unwrap();
     let v = &t["views"][1];

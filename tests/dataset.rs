@@ -451,3 +451,42 @@ fn per_aov_layout_refuses_ids_a_float_cannot_hold() {
     assert!(img.u32_channel("shape_id").unwrap().contains(&16777217));
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// The per-AOV layout resumes like the layered one, and switching layouts renders again and
+/// leaves only the new layout's EXRs.
+#[test]
+fn per_aov_layout_resumes_and_switches_cleanly() {
+    let dir = fresh_dir("per-aov");
+    let data = dir.join("data");
+    generate(&data, "2", "2");
+    let out = dir.join("out");
+    let run = |layout: &str| {
+        ok(&[
+            "batch",
+            s(&data),
+            "--out",
+            s(&out),
+            "--aov",
+            "depth,normal",
+            "--exr-layout",
+            layout,
+        ])
+    };
+    assert!(run("per-aov").contains("done 4 / skipped 0"));
+    assert!(out.join("000001/01.normal.exr").is_file() && !out.join("000001/01.exr").exists());
+    let normal = AovImage::read_exr(&out.join("000001/01.normal.exr")).unwrap();
+    let names: Vec<&str> = normal.channels.iter().map(|c| c.name.as_str()).collect();
+    assert_eq!(names, ["B", "G", "R"]);
+    assert!(run("per-aov").contains("done 0 / skipped 4"));
+    // A truncated per-AOV file is caught by the resume check.
+    let depth = out.join("000000/00.depth.exr");
+    let bytes = std::fs::read(&depth).unwrap();
+    std::fs::write(&depth, &bytes[..bytes.len() - 100]).unwrap();
+    assert!(run("per-aov").contains("done 1 / skipped 3"));
+    assert!(run("layers").contains("done 4 / skipped 0"));
+    assert!(out.join("000001/01.exr").is_file());
+    assert!(
+        !out.join("000001/01.normal.exr").exists() && !out.join("000001/01.depth.exr").exists()
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

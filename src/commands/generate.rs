@@ -107,8 +107,12 @@ pub fn run(args: &GenerateArgs) -> Result<String> {
     let manifest_path = args.out.join("manifest.jsonl");
     atomic_write_bytes(&manifest_path, manifest.as_bytes())
         .with_context(|| format!("writing {}", manifest_path.display()))?;
+    let views = match options.views_per_scene {
+        1 => String::new(),
+        v => format!(" x {v} cameras"),
+    };
     Ok(format!(
-        "{count} scenes (seed {seed}, {} cylinders, {}x{}) in {}; manifest {}",
+        "{count} scenes{views} (seed {seed}, {} cylinders, {}x{}) in {}; manifest {}",
         options.cylinders,
         options.width,
         options.height,
