@@ -119,6 +119,10 @@ struct GenerateCli {
     /// scene gets) [default: 1].
     #[arg(long, value_name = "V")]
     views_per_scene: Option<u32>,
+    /// Put cameras 1.. on camera 0's orbit (same target, distance and height, azimuth
+    /// stepped by 360°/V) instead of drawing them at random.
+    #[arg(long)]
+    orbit: bool,
 }
 
 #[derive(Args)]
@@ -403,6 +407,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                     elevation: a.elevation,
                     distance: a.distance,
                     views_per_scene: a.views_per_scene,
+                    orbit: a.orbit.then_some(true),
                 },
             };
             println!("{}", commands::generate::run(&args)?);

@@ -490,3 +490,44 @@ fn per_aov_layout_resumes_and_switches_cleanly() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `--orbit`: cameras 1.. circle camera 0's target at its distance and height, 360°/V apart.
+#[test]
+fn orbit_cameras_circle_the_target() {
+    let dir = fresh_dir("orbit");
+    let out = dir.join("g");
+    let mut args = vec!["generate", "--count", "2", "--seed", "5", "--out", s(&out)];
+    args.extend_from_slice(SMALL);
+    args.extend_from_slice(&["--views-per-scene", "4", "--orbit"]);
+    ok(&args);
+    let plain = dir.join("p");
+    generate(&plain, "2", "1");
+    let scene = json(&out.join("scenes/000001.json"));
+    let cams = scene["cameras"].as_array().unwrap();
+    assert_eq!(cams[0], json(&plain.join("scenes/000001.json"))["camera"]);
+    let v3 = |c: &serde_json::Value, k: &str| -> [f64; 3] {
+        let a = c[k].as_array().unwrap();
+        [0, 1, 2].map(|i| a[i].as_f64().unwrap())
+    };
+    let t = v3(&cams[0], "target");
+    let rel = |c: &serde_json::Value| {
+        let o = v3(c, "origin");
+        [o[0] - t[0], o[1] - t[1], o[2] - t[2]]
+    };
+    let r0 = rel(&cams[0]);
+    for (k, c) in cams.iter().enumerate() {
+        assert_eq!(v3(c, "target"), t);
+        let r = rel(c);
+        assert!((r[2] - r0[2]).abs() < 1e-12, "height of camera {k}");
+        let (a0, a) = (r0[1].atan2(r0[0]), r[1].atan2(r[0]));
+        let step = (a - a0).rem_euclid(std::f64::consts::TAU);
+        let want = std::f64::consts::FRAC_PI_2 * k as f64;
+        assert!(
+            (step - want).abs() < 1e-9,
+            "camera {k}: azimuth step {step}"
+        );
+        assert!((r[0].hypot(r[1]) - r0[0].hypot(r0[1])).abs() < 1e-9);
+    }
+    assert_eq!(json(&out.join("generate.json"))["orbit"], true);
+    let _ = std::fs::remove_dir_all(&dir);
+}
