@@ -4,7 +4,7 @@ use clap::{Args, Parser, Subcommand};
 use cylaov::dataset::batch::{BatchOptions, ProgressMode, Schedule, Shard};
 use cylaov::dataset::generate::{Range, Volume};
 use cylaov::geometry::{FormulaKind, Kernel, Precision};
-use cylaov::output::aov::Compression;
+use cylaov::output::aov::{Compression, ExrLayout};
 use cylaov::output::depth_png::OutOfRange;
 use cylaov::render::{Accel, RenderOptions};
 use cylaov::scene::Aov;
@@ -137,6 +137,10 @@ struct GenerateCli {
     /// scene gets) [default: 1].
     #[arg(long, value_name = "V")]
     views_per_scene: Option<u32>,
+    /// Put cameras 1.. on camera 0's orbit (same target, distance and height, azimuth
+    /// stepped by 360°/V) instead of drawing them at random.
+    #[arg(long)]
+    orbit: bool,
 }
 
 #[derive(Args)]
@@ -171,6 +175,10 @@ struct BatchCli {
     /// message gives the largest scale that fits), or store those pixels as 0 and count them.
     #[arg(long, value_enum, default_value_t = OutOfRange::Fail, value_name = "fail|zero")]
     depth_out_of_range: OutOfRange,
+    /// `layers`: one NAME.exr with every AOV; `per-aov`: NAME.<aov>.exr each, channels Y or
+    /// R,G,B in float32, which OpenCV and imageio read.
+    #[arg(long, value_enum, default_value_t = ExrLayout::Layers)]
+    exr_layout: ExrLayout,
     /// Skip the PNGs (the indexes then point at the EXRs).
     #[arg(long)]
     no_png: bool,
@@ -404,7 +412,8 @@ struct RenderCli {
     aov: Vec<Aov>,
     #[command(flatten)]
     kernel: KernelCli,
-    /// Also write PNG previews (NAME.normal.png, NAME.depth.png with a legend) into DIR.
+    /// Also write PNG previews (NAME.normal.preview.png, NAME.depth.preview.png with a
+    /// legend) into DIR.
     #[arg(long, value_name = "DIR")]
     preview: Option<PathBuf>,
     /// EXR compression.
@@ -413,6 +422,25 @@ struct RenderCli {
     /// Which camera of a `"cameras"` scene to render (0-based, file order).
     #[arg(long, value_name = "K", default_value_t = 0)]
     camera: usize,
+    /// Also write OUT.depth.png: 16-bit round(planar depth × --depth-scale), 0 = no depth.
+    #[arg(long)]
+    depth_png: bool,
+    /// Depth PNG value per world unit (with --depth-png).
+    #[arg(
+        long,
+        default_value_t = 1000.0,
+        allow_hyphen_values = true,
+        requires = "depth_png"
+    )]
+    depth_scale: f64,
+    /// With --depth-png, a hit whose depth × scale does not fit 16 bits: fail (default) or
+    /// store 0 and count.
+    #[arg(long, value_enum, default_value_t = OutOfRange::Fail, value_name = "fail|zero")]
+    depth_out_of_range: OutOfRange,
+    /// `layers`: one OUT.exr with every AOV; `per-aov`: OUT.<aov>.exr each, channels Y or
+    /// R,G,B in float32, which OpenCV and imageio read.
+    #[arg(long, value_enum, default_value_t = ExrLayout::Layers)]
+    exr_layout: ExrLayout,
 }
 
 /// Largest `--threads`: 1024 is more hardware threads than any single node this runs on
@@ -487,6 +515,9 @@ fn render(a: RenderCli) -> anyhow::Result<ExitCode> {
         preview: a.preview,
         compression: a.compression,
         camera: a.camera,
+        depth_png: a.depth_png.then_some(a.depth_scale),
+        depth_out_of_range: a.depth_out_of_range,
+        exr_layout: a.exr_layout,
     };
     say(&commands::render::run(&args)?)?;
     Ok(ExitCode::SUCCESS)
@@ -510,6 +541,7 @@ fn generate(a: GenerateCli) -> anyhow::Result<ExitCode> {
             elevation: a.elevation,
             distance: a.distance,
             views_per_scene: a.views_per_scene,
+            orbit: a.orbit.then_some(true),
         },
     };
     say(&commands::generate::run(&args)?)?;
@@ -532,6 +564,7 @@ fn batch(a: BatchCli) -> anyhow::Result<ExitCode> {
             png: !a.no_png,
             depth_out_of_range: a.depth_out_of_range,
             compression: a.compression,
+            exr_layout: a.exr_layout,
             schedule: a.schedule,
             verify_fraction: a.verify_fraction,
             verify_seed: a.verify_seed,

@@ -410,7 +410,22 @@ fn transforms_match_cameras_and_depth_png() {
         &["--width", "80", "--height", "60", "--cylinders", "20"],
     );
     let out = dir.join("out");
-    batch_ok(&data, &out, &["--depth-scale", "500"]);
+    let o = cylaov(&[
+        "batch",
+        data.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--depth-scale",
+        "500",
+    ]);
+    assert!(o.status.success());
+    // nerfstudio does not read the scale from the file: the batch says what to pass.
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("warning: --depth-scale 500")
+            && err.contains("depth_unit_scale_factor = 0.002"),
+        "{err}"
+    );
     let t: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("index.json")).unwrap()).unwrap();
     let v = &t["views"][1];
@@ -546,6 +561,31 @@ fn verify_fraction_with_mitsuba_agrees_on_generated_views() {
     let text = batch_ok(&data, &out, &["--verify-fraction", "1"]);
     assert!(
         text.contains("3 views verified") && text.contains("failed 0"),
+        "{text}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Every view of a several-camera scene is checked against Mitsuba's render of its own
+/// sensor (the export writes one per camera; the reference script takes the index): with
+/// sensor 0 for all, views 01 and 02 would disagree.
+#[test]
+fn verify_fraction_checks_every_camera_of_a_scene() {
+    if common::venv_python().is_none() {
+        return;
+    }
+    let dir = fresh_dir("verify-cameras");
+    let data = dir.join("data");
+    generate(
+        &data,
+        "4",
+        "1",
+        &[SMALL, &["--views-per-scene", "3"]].concat(),
+    );
+    let out = dir.join("out");
+    let text = batch_ok(&data, &out, &["--verify-fraction", "1"]);
+    assert!(
+        text.contains("done 3 /") && text.contains("3 views verified") && text.contains("failed 0"),
         "{text}"
     );
     let _ = std::fs::remove_dir_all(&dir);

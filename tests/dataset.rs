@@ -355,3 +355,179 @@ fn far_depth_fails_loudly_or_zeroes_with_a_count() {
     assert!(png.pixels().all(|p| p.0[0] == 0));
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `normal_camera` is the world normal in OpenCV camera axes (the camera JSON's
+/// world_to_camera_opencv rotation), unit length, 0 on a miss.
+#[test]
+fn normal_camera_is_the_world_normal_in_opencv_axes() {
+    let dir = fresh_dir("normal-camera");
+    let exr = dir.join("c.exr");
+    let scene = Path::new(ROOT).join("scenes/cluster.json");
+    ok(&[
+        "render",
+        s(&scene),
+        "-o",
+        s(&exr),
+        "--aov",
+        "depth,normal,normal_camera",
+    ]);
+    let img = AovImage::read_exr(&exr).unwrap();
+    let cam = json(&dir.join("c.camera.json"));
+    let m = &cam["world_to_camera_opencv"];
+    let r = |i: usize, j: usize| m[i][j].as_f64().unwrap();
+    let [wx, wy, wz] = img.vec3_channel("normal").unwrap();
+    let [cx, cy, cz] = img.vec3_channel("normal_camera").unwrap();
+    let depth = img.f32_channel("depth").unwrap();
+    let (mut worst, mut hits) = (0.0f64, 0);
+    for k in 0..depth.len() {
+        let c = [cx[k] as f64, cy[k] as f64, cz[k] as f64];
+        if depth[k] == 0.0 {
+            assert_eq!(c, [0.0; 3], "pixel {k}: a miss");
+            continue;
+        }
+        hits += 1;
+        let w = [wx[k] as f64, wy[k] as f64, wz[k] as f64];
+        for (i, ci) in c.iter().enumerate() {
+            let want = r(i, 0) * w[0] + r(i, 1) * w[1] + r(i, 2) * w[2];
+            worst = worst.max((ci - want).abs());
+        }
+        let len = (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt();
+        assert!((len - 1.0).abs() < 1e-6, "pixel {k}: |n| = {len}");
+    }
+    // One rounding to f32 of a rotation of the stored normal: half an f32 ulp of 1 (6e-8)
+    // plus the rotation's f64 rounding.
+    assert!(
+        hits > 1000 && worst <= 1.2e-7,
+        "{hits} hits, worst {worst:e}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Ids above 2^24 cannot be stored exactly as float32: the per-AOV layout refuses them and
+/// writes nothing; the layered file stores them as u32.
+#[test]
+fn per_aov_layout_refuses_ids_a_float_cannot_hold() {
+    let dir = fresh_dir("big-id");
+    let scene = dir.join("s.json");
+    std::fs::write(
+        &scene,
+        r#"{"camera": {"origin": [3, -5, 2], "target": [0, 0, 0.5], "up": [0, 0, 1], "fov_deg": 40, "width": 32, "height": 24},
+            "cylinders": [{"p0": [0, 0, 0], "p1": [0, 0, 1], "radius": 0.5, "id": 16777217}]}"#,
+    )
+    .unwrap();
+    let out = dir.join("o.exr");
+    let err = fails(&[
+        "render",
+        s(&scene),
+        "-o",
+        s(&out),
+        "--aov",
+        "depth,shape_id",
+        "--exr-layout",
+        "per-aov",
+    ]);
+    assert!(
+        err.contains("shape_id 16777217 does not fit a float32 channel exactly"),
+        "{err}"
+    );
+    let left: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert_eq!(
+        left,
+        vec![std::ffi::OsString::from("s.json")],
+        "nothing written"
+    );
+    ok(&[
+        "render",
+        s(&scene),
+        "-o",
+        s(&out),
+        "--aov",
+        "depth,shape_id",
+    ]);
+    let img = AovImage::read_exr(&out).unwrap();
+    assert!(img.u32_channel("shape_id").unwrap().contains(&16777217));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The per-AOV layout resumes like the layered one, and switching layouts renders again and
+/// leaves only the new layout's EXRs.
+#[test]
+fn per_aov_layout_resumes_and_switches_cleanly() {
+    let dir = fresh_dir("per-aov");
+    let data = dir.join("data");
+    generate(&data, "2", "2");
+    let out = dir.join("out");
+    let run = |layout: &str| {
+        ok(&[
+            "batch",
+            s(&data),
+            "--out",
+            s(&out),
+            "--aov",
+            "depth,normal",
+            "--exr-layout",
+            layout,
+        ])
+    };
+    assert!(run("per-aov").contains("done 4 / skipped 0"));
+    assert!(out.join("000001/01.normal.exr").is_file() && !out.join("000001/01.exr").exists());
+    let normal = AovImage::read_exr(&out.join("000001/01.normal.exr")).unwrap();
+    let names: Vec<&str> = normal.channels.iter().map(|c| c.name.as_str()).collect();
+    assert_eq!(names, ["B", "G", "R"]);
+    assert!(run("per-aov").contains("done 0 / skipped 4"));
+    // A truncated per-AOV file is caught by the resume check.
+    let depth = out.join("000000/00.depth.exr");
+    let bytes = std::fs::read(&depth).unwrap();
+    std::fs::write(&depth, &bytes[..bytes.len() - 100]).unwrap();
+    assert!(run("per-aov").contains("done 1 / skipped 3"));
+    assert!(run("layers").contains("done 4 / skipped 0"));
+    assert!(out.join("000001/01.exr").is_file());
+    assert!(
+        !out.join("000001/01.normal.exr").exists() && !out.join("000001/01.depth.exr").exists()
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `--orbit`: cameras 1.. circle camera 0's target at its distance and height, 360°/V apart.
+#[test]
+fn orbit_cameras_circle_the_target() {
+    let dir = fresh_dir("orbit");
+    let out = dir.join("g");
+    let mut args = vec!["generate", "--count", "2", "--seed", "5", "--out", s(&out)];
+    args.extend_from_slice(SMALL);
+    args.extend_from_slice(&["--views-per-scene", "4", "--orbit"]);
+    ok(&args);
+    let plain = dir.join("p");
+    generate(&plain, "2", "1");
+    let scene = json(&out.join("scenes/000001.json"));
+    let cams = scene["cameras"].as_array().unwrap();
+    assert_eq!(cams[0], json(&plain.join("scenes/000001.json"))["camera"]);
+    let v3 = |c: &serde_json::Value, k: &str| -> [f64; 3] {
+        let a = c[k].as_array().unwrap();
+        [0, 1, 2].map(|i| a[i].as_f64().unwrap())
+    };
+    let t = v3(&cams[0], "target");
+    let rel = |c: &serde_json::Value| {
+        let o = v3(c, "origin");
+        [o[0] - t[0], o[1] - t[1], o[2] - t[2]]
+    };
+    let r0 = rel(&cams[0]);
+    for (k, c) in cams.iter().enumerate() {
+        assert_eq!(v3(c, "target"), t);
+        let r = rel(c);
+        assert!((r[2] - r0[2]).abs() < 1e-12, "height of camera {k}");
+        let (a0, a) = (r0[1].atan2(r0[0]), r[1].atan2(r[0]));
+        let step = (a - a0).rem_euclid(std::f64::consts::TAU);
+        let want = std::f64::consts::FRAC_PI_2 * k as f64;
+        assert!(
+            (step - want).abs() < 1e-9,
+            "camera {k}: azimuth step {step}"
+        );
+        assert!((r[0].hypot(r[1]) - r0[0].hypot(r0[1])).abs() < 1e-9);
+    }
+    assert_eq!(json(&out.join("generate.json"))["orbit"], true);
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -94,8 +94,12 @@ pub fn run(args: &GenerateArgs) -> Result<String> {
     }
     let manifest_path = written?;
     dirs.keep();
+    let views = match options.views_per_scene {
+        1 => String::new(),
+        v => format!(" x {v} cameras"),
+    };
     Ok(format!(
-        "{count} scenes (seed {seed}, {} cylinders, {}x{}) in {}; manifest {}",
+        "{count} scenes{views} (seed {seed}, {} cylinders, {}x{}) in {}; manifest {}",
         options.cylinders,
         options.width,
         options.height,

@@ -1,15 +1,22 @@
-//! `cylaov render`: scene file → EXR (+ camera JSON, optional PNG previews).
+//! `cylaov render`: scene file → EXR (+ camera JSON, Open3D camera, optional 16-bit depth PNG
+//! and PNG previews).
+//!
+//! Beside `OUT.exr` it writes `OUT.camera.json` and `OUT.open3d.json`; `--depth-png` adds
+//! `OUT.depth.png` (the same 16-bit depth PNG as `batch`, see [`crate::output::depth_png`]);
+//! `--preview DIR` writes `DIR/OUT.normal.preview.png` and `DIR/OUT.depth.preview.png`
+//! (pictures for people: the names say so).
 
-use crate::output::aov::Compression;
+use crate::output::aov::{Compression, ExrLayout, exr_attributes, per_aov_image};
+use crate::output::depth_png::{self, OutOfRange};
 use crate::output::io::{
     NewDirs, Staged, camera_json, camera_json_path, check_memory, check_output_dir, check_outputs,
-    commit_all, stage,
+    commit_all, open3d_json, stage,
 };
 use crate::output::preview;
 use crate::render::{RenderOptions, render};
 use crate::scene::camera::Camera;
 use crate::scene::{self, Aov};
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -26,6 +33,26 @@ pub struct RenderArgs {
     pub compression: Compression,
     /// `--camera K`: the camera of a several-camera scene (0 = the first).
     pub camera: usize,
+    /// `--depth-png`: also write `OUT.depth.png` at this many values per world unit.
+    pub depth_png: Option<f64>,
+    pub depth_out_of_range: OutOfRange,
+    /// One layered `OUT.exr`, or `OUT.<aov>.exr` per AOV.
+    pub exr_layout: ExrLayout,
+}
+
+/// Where `render -o OUT.exr --exr-layout per-aov` puts AOV `aov`: `OUT.<aov>.exr`.
+pub fn per_aov_path(exr: &Path, aov: Aov) -> PathBuf {
+    exr.with_extension(format!("{}.exr", aov.name()))
+}
+
+/// Where `render -o OUT.exr` puts the 16-bit depth PNG: `OUT.depth.png`.
+pub fn depth_png_path(exr: &Path) -> PathBuf {
+    exr.with_extension("depth.png")
+}
+
+/// Where `render -o OUT.exr` puts the Open3D camera: `OUT.open3d.json`.
+pub fn open3d_json_path(exr: &Path) -> PathBuf {
+    exr.with_extension("open3d.json")
 }
 
 /// Bytes a render of `width × height` with `aovs` holds at its peak: one plane per channel
@@ -58,28 +85,49 @@ pub fn memory_needed(
 pub fn run(args: &RenderArgs) -> Result<String> {
     let start = Instant::now();
     let cam_path = camera_json_path(&args.out);
+    let o3d_path = open3d_json_path(&args.out);
     let name = stem(&args.out);
     let previews: Vec<PathBuf> = match &args.preview {
         Some(dir) => {
             check_output_dir("--preview", dir)?;
             ["normal", "depth", "distance"]
                 .iter()
-                .map(|k| dir.join(format!("{name}.{k}.png")))
+                .map(|k| dir.join(format!("{name}.{k}.preview.png")))
                 .collect()
         }
         None => Vec::new(),
     };
-    let mut outputs = vec![("-o", args.out.as_path()), ("-o", cam_path.as_path())];
-    outputs.extend(previews.iter().map(|p| ("--preview", p.as_path())));
-    check_outputs(&outputs, &[&args.scene])?;
     let mut scene =
         scene::load(&args.scene).with_context(|| format!("{}", args.scene.display()))?;
     scene
         .select_camera(args.camera)
         .with_context(|| format!("--camera {}: {}", args.camera, args.scene.display()))?;
     let aovs = args.aovs.clone().unwrap_or_else(|| scene.aovs.clone());
+    // Every file this render can write, checked against the scene before any work.
+    let exrs: Vec<PathBuf> = match args.exr_layout {
+        ExrLayout::Layers => vec![args.out.clone()],
+        ExrLayout::PerAov => aovs.iter().map(|&a| per_aov_path(&args.out, a)).collect(),
+    };
+    let depth_path = depth_png_path(&args.out);
+    let mut outputs: Vec<(&str, &Path)> = exrs.iter().map(|p| ("-o", p.as_path())).collect();
+    outputs.extend([("-o", cam_path.as_path()), ("-o", o3d_path.as_path())]);
+    if args.depth_png.is_some() {
+        outputs.push(("--depth-png", depth_path.as_path()));
+    }
+    outputs.extend(previews.iter().map(|p| ("--preview", p.as_path())));
+    check_outputs(&outputs, &[&args.scene])?;
+    if let Some(s) = args.depth_png
+        && !(s.is_finite() && s > 0.0)
+    {
+        bail!("--depth-scale: must be finite and > 0, got {s}");
+    }
+    // The depth PNG needs planar depth even when the EXR does not store it.
+    let mut traced = aovs.clone();
+    if args.depth_png.is_some() && !traced.contains(&Aov::Depth) {
+        traced.push(Aov::Depth);
+    }
     let opts = RenderOptions {
-        aovs: aovs.clone(),
+        aovs: traced,
         ..args.options.clone()
     };
     check_memory(
@@ -87,21 +135,45 @@ pub fn run(args: &RenderArgs) -> Result<String> {
             "rendering {}x{} with {}",
             scene.camera.width,
             scene.camera.height,
-            aovs.iter().map(|a| a.name()).collect::<Vec<_>>().join(",")
+            opts.aovs
+                .iter()
+                .map(|a| a.name())
+                .collect::<Vec<_>>()
+                .join(",")
         ),
         memory_needed(
             scene.camera.width,
             scene.camera.height,
-            &aovs,
+            &opts.aovs,
             args.compression,
-            args.preview.is_some(),
+            args.preview.is_some() || args.depth_png.is_some(),
         ),
     )?;
     let t0 = Instant::now();
-    let r = render(&scene, &opts);
+    let mut r = render(&scene, &opts);
     let trace_ms = t0.elapsed().as_secs_f64() * 1e3;
+    let depth = match args.depth_png {
+        Some(scale) => {
+            let d = depth_png::encode(&r.image, scale, args.depth_out_of_range)
+                .context("no depth AOV")?
+                .map_err(anyhow::Error::msg)
+                .with_context(|| format!("{}", args.scene.display()))?;
+            if d.zeroed > 0 {
+                eprintln!(
+                    "{}: depth PNG: {} hit pixels beyond 16 bits at --depth-scale {scale} stored as 0",
+                    args.out.display(),
+                    d.zeroed
+                );
+            }
+            Some(d.png)
+        }
+        None => None,
+    };
+    if !aovs.contains(&Aov::Depth) {
+        r.image.channels.retain(|c| c.name != "depth");
+    }
     // Every output is staged under a temporary name and renamed into place only when all
-    // were written: a failure leaves none of them.
+    // were written: a failure leaves none of them (nor the folders it made for them).
     let t1 = Instant::now();
     let mut dirs = NewDirs::default();
     dirs.create_parent(&args.out)
@@ -110,13 +182,37 @@ pub fn run(args: &RenderArgs) -> Result<String> {
         dirs.create(dir)
             .with_context(|| format!("--preview {}", dir.display()))?;
     }
-    let mut staged = vec![r.image.stage_exr(&args.out, args.compression)?];
     let cam = Camera::new(scene.camera);
+    let attrs = exr_attributes(&cam, &aovs);
+    let mut staged = Vec::new();
+    match args.exr_layout {
+        ExrLayout::Layers => {
+            staged.push(
+                r.image
+                    .stage_exr_with(&args.out, args.compression, &attrs)?,
+            );
+        }
+        ExrLayout::PerAov => {
+            for (&a, path) in aovs.iter().zip(&exrs) {
+                let one = per_aov_image(&r.image, a)?;
+                let attrs = exr_attributes(&cam, &[a]);
+                staged.push(one.stage_exr_with(path, args.compression, &attrs)?);
+            }
+        }
+    }
     let cam_text = camera_json(&cam, &aovs);
     staged.push(
         stage(&cam_path, |f| f.write_all(cam_text.as_bytes()))
             .with_context(|| format!("writing {}", cam_path.display()))?,
     );
+    let o3d_text = open3d_json(&cam);
+    staged.push(
+        stage(&o3d_path, |f| f.write_all(o3d_text.as_bytes()))
+            .with_context(|| format!("writing {}", o3d_path.display()))?,
+    );
+    if let Some(png) = &depth {
+        staged.push(preview::stage_png(png, &depth_path)?);
+    }
     let write_ms = t1.elapsed().as_secs_f64() * 1e3;
     if let Some(dir) = &args.preview {
         staged.extend(stage_previews(&r.image, dir, &name)?);
@@ -127,13 +223,12 @@ pub fn run(args: &RenderArgs) -> Result<String> {
     let peak =
         crate::output::io::peak_rss_mib().map_or(String::new(), |m| format!(", peak {m:.0} MiB"));
     Ok(format!(
-        "{}: {w}x{h}, {} cylinders, {} hits ({:.1}%), {:?}/{:?}, trace {trace_ms:.1} ms, write {write_ms:.1} ms, total {:.1} ms{peak}",
+        "{}: {w}x{h}, {} cylinders, {} hits ({:.1}%), {}, trace {trace_ms:.1} ms, write {write_ms:.1} ms, total {:.1} ms{peak}",
         args.out.display(),
         scene.cylinders.len(),
         r.hits,
         100.0 * r.hits as f64 / (w * h) as f64,
-        opts.formula,
-        opts.precision,
+        crate::geometry::Kernel::new(opts.formula, opts.precision),
         start.elapsed().as_secs_f64() * 1e3
     ))
 }
@@ -144,8 +239,8 @@ fn stem(p: &Path) -> String {
         .unwrap_or_else(|| "render".into())
 }
 
-/// `DIR/NAME.normal.png` and `DIR/NAME.depth.png` (or `.distance.png`) for whichever of
-/// the AOVs exist, staged.
+/// `DIR/NAME.normal.preview.png` and `DIR/NAME.depth.preview.png` (or
+/// `.distance.preview.png`) for whichever of the AOVs exist, staged.
 pub fn stage_previews(
     img: &crate::output::aov::AovImage,
     dir: &Path,
@@ -156,7 +251,7 @@ pub fn stage_previews(
     if let Some(p) = preview::normal_rgb(img) {
         out.push(preview::stage_png(
             &p,
-            &dir.join(format!("{name}.normal.png")),
+            &dir.join(format!("{name}.normal.preview.png")),
         )?);
     }
     let depthlike = ["depth", "distance"]
@@ -167,7 +262,7 @@ pub fn stage_previews(
     {
         out.push(preview::stage_png(
             &p,
-            &dir.join(format!("{name}.{c}.png")),
+            &dir.join(format!("{name}.{c}.preview.png")),
         )?);
     }
     Ok(out)

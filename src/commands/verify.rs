@@ -80,7 +80,7 @@ fn views(input: &Path) -> Result<Vec<ViewSource>> {
             .unwrap_or_else(|| "scene".into());
         vec![ViewSource::scene(name, input.to_path_buf())]
     } else {
-        list_views(input, None)?
+        list_views(input, None)?.0
     };
     // A scene that does not load counts as one view: its check reports why.
     Ok(scenes

@@ -20,6 +20,7 @@
 //! | `elevation` | `-20..60` | camera elevation above the xy plane, degrees; directions uniform over that band of the sphere |
 //! | `distance` | `0.55..0.9` | camera distance in units of the fit distance (at 1 the bounding sphere of every possible cylinder just fills the smaller fov; the cylinders' midpoints fill far less) |
 //! | `views_per_scene` | `1` | cameras per scene; with more than one the file has `"cameras"` |
+//! | `orbit` | `false` | cameras 1, 2, … on camera 0's orbit (same target, distance and height, azimuth stepped by 360°/V) instead of drawn at random |
 //!
 //! **Several views of one scene.** Camera 0 is drawn exactly as a one-camera scene's (same
 //! stream position), and cameras 1, 2, … are drawn after it from the same stream and the
@@ -131,6 +132,9 @@ pub struct GenerateOptions {
     /// Cameras per scene (left out of `generate.json` when 1, so that file keeps its bytes).
     #[serde(default = "one", skip_serializing_if = "is_one")]
     pub views_per_scene: u32,
+    /// Cameras 1.. on camera 0's orbit (left out of `generate.json` when false).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub orbit: bool,
 }
 
 fn one() -> u32 {
@@ -157,6 +161,7 @@ impl Default for GenerateOptions {
             elevation: Range::new(-20.0, 60.0),
             distance: Range::new(0.55, 0.9),
             views_per_scene: 1,
+            orbit: false,
         }
     }
 }
@@ -179,6 +184,7 @@ pub struct ConfigFile {
     pub elevation: Option<Range>,
     pub distance: Option<Range>,
     pub views_per_scene: Option<u32>,
+    pub orbit: Option<bool>,
 }
 
 /// Half extents `X,Y,Z`, or one number for a cube.
@@ -240,7 +246,8 @@ impl GenerateOptions {
             fov,
             elevation,
             distance,
-            views_per_scene
+            views_per_scene,
+            orbit
         );
         if let Some(v) = c.volume {
             self.volume = v.0;
@@ -339,9 +346,14 @@ impl GenerateOptions {
         }
 
         // Camera 0 first, exactly where a one-camera scene draws its camera.
-        let mut cameras: Vec<CameraFile> = (0..self.views_per_scene)
-            .map(|_| self.camera(&mut rng))
-            .collect();
+        let mut cameras: Vec<CameraFile> = Vec::new();
+        for k in 0..self.views_per_scene {
+            let cam = match cameras.first() {
+                Some(first) if self.orbit => orbit(first, k, self.views_per_scene),
+                _ => self.camera(&mut rng),
+            };
+            cameras.push(cam);
+        }
         let (camera, cameras) = if cameras.len() == 1 {
             (cameras.pop(), None)
         } else {
@@ -405,6 +417,27 @@ impl GenerateOptions {
             near_clip: 0.01,
             far_clip: far,
         }
+    }
+}
+
+/// Camera `k` of `count` on the orbit of `first`: its offset from the target turned about
+/// +z by `k · 360° / count` (same target, distance and height; the same up rule).
+fn orbit(first: &CameraFile, k: u32, count: u32) -> CameraFile {
+    let target = DVec3::from_array(first.target);
+    let v = DVec3::from_array(first.origin) - target;
+    let a = std::f64::consts::TAU * k as f64 / count as f64;
+    let (s, c) = a.sin_cos();
+    let origin = target + DVec3::new(c * v.x - s * v.y, s * v.x + c * v.y, v.z);
+    let forward = (target - origin).normalize();
+    let up = if forward.cross(DVec3::Z).length() > 0.1 {
+        DVec3::Z
+    } else {
+        DVec3::Y
+    };
+    CameraFile {
+        origin: origin.to_array(),
+        up: up.to_array(),
+        ..first.clone()
     }
 }
 

@@ -2,9 +2,30 @@
 //!
 //! Channel names are the contract: `distance`, `depth`, `normal.X/Y/Z`, `position.X/Y/Z`
 //! (float32), `shape_id` and `part` (u32). Row 0 is the top row. A missed pixel is 0 everywhere.
+//!
+//! **Self-describing files.** `render` and `batch` write header attributes
+//! ([`exr_attributes`]) so a file separated from its JSON still says what it holds:
+//!
+//! | attribute | type | content |
+//! |---|---|---|
+//! | `worldToCamera` | m44f | OpenEXR's standard attribute, in its convention: camera x right, y up, z forward (the view direction; points in front have z > 0); an Imath matrix for row vectors, `p_cam = p_world · M` (translation in the last row) |
+//! | `worldToNDC` | m44f | standard too: `(x, y, _, w) = (p_world, 1) · M`, NDC `(x/w, y/w)` with (0, 0) the top-left and (1, 1) the bottom-right corner of the image, y down |
+//! | `cylaov:version` | string | the cylaov that wrote it |
+//! | `cylaov:units` | string | world units: those of the scene file |
+//! | `cylaov:miss` | string | a pixel whose ray hits nothing is 0 in every channel |
+//! | `cylaov:channel:NAME` | string | per AOV: meaning, frame and miss value (e.g. `depth`: planar, camera-space z; `distance`: along the ray) |
+//! | `cylaov:fl_x`, `cylaov:fl_y` | float | focal lengths in pixels |
+//! | `cylaov:cx`, `cylaov:cy` | float | principal point, pixel centres at `i + 0.5` (W/2, H/2: nerfstudio, Mitsuba) |
+//! | `cylaov:cx_opencv`, `cylaov:cy_opencv` | float | principal point, pixel centres at integers (W/2 − 0.5: OpenCV, Open3D, COLMAP) |
+//!
+//! **Per-AOV layout** (`--exr-layout per-aov`, [`per_aov_image`]): one file per AOV with
+//! the channel names OpenCV and imageio understand: `depth`, `distance`, `shape_id` and `part` as
+//! `Y` (all float32; ids are exact up to 2^24 and larger ones are refused), `normal` and
+//! `position` as `R, G, B` (= X, Y, Z). The samples are bitwise those of the layered file.
 
-use crate::output::io::{Staged, stage};
+use crate::output::io::{Staged, aov_meaning, stage};
 use crate::scene::Aov;
+use crate::scene::camera::Camera;
 use anyhow::{Context, Result, bail};
 use exr::prelude::*;
 use std::io::Write;
@@ -70,7 +91,125 @@ pub fn channel_names(aov: Aov) -> &'static [&'static str] {
         Aov::Position => &["position.X", "position.Y", "position.Z"],
         Aov::ShapeId => &["shape_id"],
         Aov::Part => &["part"],
+        Aov::NormalCamera => &["normal_camera.X", "normal_camera.Y", "normal_camera.Z"],
     }
+}
+
+/// One header attribute beyond the required ones.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ExrAttr {
+    /// A 4×4 float matrix (`m44f`), stored row by row as Imath does.
+    M44f(&'static str, [f32; 16]),
+    Text(String, String),
+    Float(&'static str, f32),
+}
+
+/// How the AOVs of a render go to disk.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum ExrLayout {
+    /// One EXR with every AOV as named channels (`depth`, `normal.X`, …).
+    #[default]
+    Layers,
+    /// One EXR per AOV (`OUT.<aov>.exr`), channels `Y` or `R, G, B`, float32.
+    PerAov,
+}
+
+/// The header attributes of a view rendered from `cam` holding `aovs` (see the module
+/// docs for their meanings and conventions).
+pub fn exr_attributes(cam: &Camera, aovs: &[Aov]) -> Vec<ExrAttr> {
+    use glam::DMat4;
+    // Camera frame of OpenEXR: x right (= -left), y up, z forward, as column-vector rows.
+    let (right, up, fwd, o) = (-cam.left, cam.true_up, cam.forward, cam.origin);
+    let world_to_camera = DMat4::from_cols(
+        glam::DVec4::new(right.x, up.x, fwd.x, 0.0),
+        glam::DVec4::new(right.y, up.y, fwd.y, 0.0),
+        glam::DVec4::new(right.z, up.z, fwd.z, 0.0),
+        glam::DVec4::new(-right.dot(o), -up.dot(o), -fwd.dot(o), 1.0),
+    );
+    // Camera to NDC: x/z at unit distance spans [-tan, tan] over the image width; NDC x =
+    // (x / (z tan_x) + 1) / 2, NDC y = (1 - y / (z tan_y)) / 2 (y down); w = z.
+    let (tx, ty) = (cam.tan_half_x, cam.tan_half_y);
+    let camera_to_ndc = DMat4::from_cols(
+        glam::DVec4::new(0.5 / tx, 0.0, 0.0, 0.0),
+        glam::DVec4::new(0.0, -0.5 / ty, 0.0, 0.0),
+        glam::DVec4::new(0.5, 0.5, 1.0, 1.0),
+        glam::DVec4::ZERO,
+    );
+    // Imath multiplies row vectors (p · M): its M is the transpose of the column-vector
+    // matrix, i.e. the column-major array read row by row.
+    let imath = |m: DMat4| m.to_cols_array().map(|x| x as f32);
+    let k = cam.k_matrix();
+    let k_cv = cam.k_matrix_opencv();
+    let mut attrs = vec![
+        ExrAttr::M44f("worldToCamera", imath(world_to_camera)),
+        ExrAttr::M44f("worldToNDC", imath(camera_to_ndc * world_to_camera)),
+        ExrAttr::Text("cylaov:version".into(), env!("CARGO_PKG_VERSION").into()),
+        ExrAttr::Text(
+            "cylaov:units".into(),
+            "world units: those of the scene file (distance, depth, position)".into(),
+        ),
+        ExrAttr::Text(
+            "cylaov:miss".into(),
+            "a pixel whose ray hits nothing is 0 in every channel".into(),
+        ),
+        ExrAttr::Float("cylaov:fl_x", k[0][0] as f32),
+        ExrAttr::Float("cylaov:fl_y", k[1][1] as f32),
+        ExrAttr::Float("cylaov:cx", k[0][2] as f32),
+        ExrAttr::Float("cylaov:cy", k[1][2] as f32),
+        ExrAttr::Float("cylaov:cx_opencv", k_cv[0][2] as f32),
+        ExrAttr::Float("cylaov:cy_opencv", k_cv[1][2] as f32),
+    ];
+    for &a in aovs {
+        let (meaning, miss) = aov_meaning(a);
+        attrs.push(ExrAttr::Text(
+            format!("cylaov:channel:{}", a.name()),
+            format!("{}: {meaning}; miss = {miss}", channel_names(a).join(", ")),
+        ));
+    }
+    attrs
+}
+
+/// The channel names of `aov` in the per-AOV layout, in order (`Y`, or `R, G, B`).
+pub fn per_aov_channel_names(aov: Aov) -> &'static [&'static str] {
+    match channel_names(aov) {
+        [_] => &["Y"],
+        _ => &["R", "G", "B"],
+    }
+}
+
+/// Largest shape id a float32 `Y` channel holds exactly.
+pub const MAX_FLOAT_ID: u32 = 1 << 24;
+
+/// The per-AOV image of `aov` from `img`: its channels renamed (`Y` or `R, G, B`) and, for
+/// `shape_id`, converted to float32 (exact up to 2^24; larger ids are an error naming the
+/// id, since a float32 cannot tell them apart).
+pub fn per_aov_image(img: &AovImage, aov: Aov) -> Result<AovImage> {
+    let mut channels = Vec::new();
+    for (from, to) in channel_names(aov).iter().zip(per_aov_channel_names(aov)) {
+        let data = match img.channel(from) {
+            Some(ChannelData::F32(v)) => ChannelData::F32(v.clone()),
+            Some(ChannelData::U32(v)) => {
+                if let Some(&big) = v.iter().find(|&&id| id > MAX_FLOAT_ID) {
+                    bail!(
+                        "--exr-layout per-aov: {from} {big} does not fit a float32 channel \
+                         exactly (ids up to 2^24 = {MAX_FLOAT_ID} do); use --exr-layout layers, \
+                         which stores ids as u32"
+                    );
+                }
+                ChannelData::F32(v.iter().map(|&id| id as f32).collect())
+            }
+            None => bail!("no {from} channel"),
+        };
+        channels.push(Channel {
+            name: (*to).to_string(),
+            data,
+        });
+    }
+    Ok(AovImage {
+        width: img.width,
+        height: img.height,
+        channels,
+    })
 }
 
 impl AovImage {
@@ -124,9 +263,19 @@ impl AovImage {
 
     /// Encode an OpenEXR file to `path`'s temporary name, to be committed with others.
     pub fn stage_exr(&self, path: &Path, compression: Compression) -> Result<Staged> {
+        self.stage_exr_with(path, compression, &[])
+    }
+
+    /// [`AovImage::stage_exr`] with extra header attributes.
+    pub fn stage_exr_with(
+        &self,
+        path: &Path,
+        compression: Compression,
+        attrs: &[ExrAttr],
+    ) -> Result<Staged> {
         stage(path, |file| {
             let mut out = std::io::BufWriter::with_capacity(1 << 20, file);
-            self.write_exr_to(&mut out, compression)
+            self.write_exr_with(&mut out, compression, attrs)
                 .map_err(|e| std::io::Error::other(format!("{e:#}")))?;
             out.flush()
         })
@@ -138,12 +287,45 @@ impl AovImage {
     /// crate, which compresses blocks in parallel.
     pub fn write_exr_to(
         &self,
-        mut out: impl std::io::Write + std::io::Seek,
+        out: impl std::io::Write + std::io::Seek,
         compression: Compression,
     ) -> Result<()> {
+        self.write_exr_with(out, compression, &[])
+    }
+
+    /// [`AovImage::write_exr_to`] with extra header attributes.
+    pub fn write_exr_with(
+        &self,
+        mut out: impl std::io::Write + std::io::Seek,
+        compression: Compression,
+        attrs: &[ExrAttr],
+    ) -> Result<()> {
         if compression == Compression::None {
-            self.write_uncompressed(&mut out)?;
+            self.write_uncompressed_with(&mut out, attrs)?;
             return Ok(());
+        }
+        let mut layer_attrs = LayerAttributes::default();
+        for a in attrs {
+            match a {
+                ExrAttr::M44f("worldToCamera", m) => layer_attrs.world_to_camera = Some(*m),
+                ExrAttr::M44f("worldToNDC", m) => layer_attrs.world_to_normalized_device = Some(*m),
+                ExrAttr::M44f(name, m) => {
+                    layer_attrs
+                        .other
+                        .insert(Text::from(*name), AttributeValue::Matrix4x4(*m));
+                }
+                ExrAttr::Text(name, s) => {
+                    layer_attrs.other.insert(
+                        Text::from(name.as_str()),
+                        AttributeValue::Text(Text::from(s.as_str())),
+                    );
+                }
+                ExrAttr::Float(name, x) => {
+                    layer_attrs
+                        .other
+                        .insert(Text::from(*name), AttributeValue::F32(*x));
+                }
+            }
         }
         let channels: Vec<AnyChannel<FlatSamples>> = self
             .channels
@@ -158,7 +340,7 @@ impl AovImage {
             .collect();
         let layer = Layer::new(
             (self.width, self.height),
-            LayerAttributes::default(),
+            layer_attrs,
             Encoding {
                 compression: compression.to_exr(),
                 blocks: Blocks::ScanLines,
@@ -177,6 +359,16 @@ impl AovImage {
     /// channel's row in channel-name order. Every row is already contiguous in its plane,
     /// so a line is written as slices, with no per-sample work on little-endian machines.
     pub fn write_uncompressed<W: std::io::Write>(&self, out: &mut W) -> std::io::Result<()> {
+        self.write_uncompressed_with(out, &[])
+    }
+
+    /// [`AovImage::write_uncompressed`] with extra header attributes (after the required
+    /// ones, in the given order).
+    pub fn write_uncompressed_with<W: std::io::Write>(
+        &self,
+        out: &mut W,
+        attrs: &[ExrAttr],
+    ) -> std::io::Result<()> {
         let mut order: Vec<&Channel> = self.channels.iter().collect();
         order.sort_by(|a, b| a.name.as_bytes().cmp(b.name.as_bytes()));
         let (w, h) = (self.width, self.height);
@@ -217,6 +409,16 @@ impl AovImage {
         attr("pixelAspectRatio", "float", &1f32.to_le_bytes());
         attr("screenWindowCenter", "v2f", &[0u8; 8]);
         attr("screenWindowWidth", "float", &1f32.to_le_bytes());
+        for a in attrs {
+            match a {
+                ExrAttr::M44f(name, m) => {
+                    let bytes: Vec<u8> = m.iter().flat_map(|x| x.to_le_bytes()).collect();
+                    attr(name, "m44f", &bytes);
+                }
+                ExrAttr::Text(name, s) => attr(name, "string", s.as_bytes()),
+                ExrAttr::Float(name, x) => attr(name, "float", &x.to_le_bytes()),
+            }
+        }
         head.push(0);
         let line_bytes = w * 4 * order.len();
         let data_start = head.len() + 8 * h;

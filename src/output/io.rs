@@ -463,6 +463,10 @@ pub fn aov_meaning(aov: Aov) -> (&'static str, &'static str) {
             "[0,0,0]",
         ),
         Aov::Position => ("world-space hit point", "[0,0,0]"),
+        Aov::NormalCamera => (
+            "camera-space unit outward normal, OpenCV axes (x right, y down, z forward), not flipped toward the camera",
+            "[0,0,0]",
+        ),
         Aov::ShapeId => (
             "u32 id of the hit cylinder (scene 'id', default 1-based index)",
             "0",

@@ -759,6 +759,25 @@ fn band_renderer<T: Simd, F: PacketFormula>(
     render_band::<T, F, Lanes<T>>
 }
 
+/// The `normal_camera` planes: each stored world normal rotated into OpenCV camera axes
+/// (x right = -left, y down = -true_up, z forward) in f64 and rounded once to f32; a miss
+/// (0, 0, 0) stays 0. Rotating the stored f32 normal adds at most an ulp or so to its error.
+fn normals_in_camera(cam: &crate::scene::camera::Camera, n: &[Vec<f32>; 3]) -> [Vec<f32>; 3] {
+    let axes = [-cam.left, -cam.true_up, cam.forward];
+    let len = n[0].len();
+    let mut out = [vec![0f32; len], vec![0f32; len], vec![0f32; len]];
+    for k in 0..len {
+        let v = DVec3::new(n[0][k] as f64, n[1][k] as f64, n[2][k] as f64);
+        if v == DVec3::ZERO {
+            continue;
+        }
+        for (o, a) in out.iter_mut().zip(axes) {
+            o[k] = a.dot(v) as f32;
+        }
+    }
+    out
+}
+
 fn render_with<T: Simd, F: PacketFormula>(scene: &Scene, opts: &RenderOptions) -> (Render, Timing) {
     render_simd::<T, F>(scene, opts, true)
 }
@@ -780,7 +799,8 @@ fn render_simd<T: Simd, F: PacketFormula>(
     let mut planes = Planes {
         distance: want(Aov::Distance).then(plane),
         depth: want(Aov::Depth).then(plane),
-        normal: want(Aov::Normal).then(|| [plane(), plane(), plane()]),
+        // Camera-frame normals are the world normals rotated: both need these planes.
+        normal: (want(Aov::Normal) || want(Aov::NormalCamera)).then(|| [plane(), plane(), plane()]),
         position: want(Aov::Position).then(|| [plane(), plane(), plane()]),
     };
     let mut id = want(Aov::ShapeId).then(|| zeroed::<u32>(n));
@@ -815,6 +835,12 @@ fn render_simd<T: Simd, F: PacketFormula>(
     };
     push("distance", planes.distance.map(ChannelData::F32));
     push("depth", planes.depth.map(ChannelData::F32));
+    let normal_camera = want(Aov::NormalCamera)
+        .then(|| planes.normal.as_ref().map(|n| normals_in_camera(cam, n)))
+        .flatten();
+    if !want(Aov::Normal) {
+        planes.normal = None;
+    }
     let [nx, ny, nz] = planes.normal.map(|v| v.map(Some)).unwrap_or_default();
     for (c, v) in ["normal.X", "normal.Y", "normal.Z"]
         .iter()
@@ -831,6 +857,13 @@ fn render_simd<T: Simd, F: PacketFormula>(
     }
     push("shape_id", id.map(ChannelData::U32));
     push("part", part.map(ChannelData::U32));
+    let [cx, cy, cz] = normal_camera.map(|v| v.map(Some)).unwrap_or_default();
+    for (c, v) in ["normal_camera.X", "normal_camera.Y", "normal_camera.Z"]
+        .iter()
+        .zip([cx, cy, cz])
+    {
+        push(c, v.map(ChannelData::F32));
+    }
     let timing = Timing {
         build,
         prepare,

@@ -57,16 +57,21 @@ pub enum Aov {
     /// inside (the wall's inner face, e.g. through an open end), 3 bottom cap (at `p0`),
     /// 4 top cap (at `p1`). With `shape_id` it is the pixel identity verification uses.
     Part,
+    /// Camera-space unit outward normal, OpenCV axes: x right, y down, z forward
+    /// (normal_camera.X/Y/Z).
+    #[value(name = "normal_camera")]
+    NormalCamera,
 }
 
 impl Aov {
-    pub const ALL: [Aov; 6] = [
+    pub const ALL: [Aov; 7] = [
         Aov::Distance,
         Aov::Depth,
         Aov::Normal,
         Aov::Position,
         Aov::ShapeId,
         Aov::Part,
+        Aov::NormalCamera,
     ];
 
     pub fn name(self) -> &'static str {
@@ -77,6 +82,7 @@ impl Aov {
             Aov::Position => "position",
             Aov::ShapeId => "shape_id",
             Aov::Part => "part",
+            Aov::NormalCamera => "normal_camera",
         }
     }
 

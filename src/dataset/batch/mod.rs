@@ -1,10 +1,15 @@
 //! Batches of views (`cylaov batch`): the view list, sharding, resumable rendering through
-//! one rayon pool, and the dataset index `transforms.json`.
+//! one rayon pool, and the dataset indexes `index.json` and `SCENE/transforms.json`.
 //!
-//! Per view `NAME` the output folder gets `NAME.exr`, `NAME.camera.json`,
-//! `NAME.normal.png` (8-bit), `NAME.depth.png` (16-bit, planar depth × `depth_scale`) and
-//! `NAME.render.json`, the stamp of what made the files ([`render_stamp`]: a hash of the
-//! scene and every option that changes output bytes).
+//! A view is one (scene, camera) pair: a one-camera scene `NAME` writes `OUT/NAME.*`, a
+//! scene with several cameras writes `OUT/NAME/00.*`, `OUT/NAME/01.*`, … and its own
+//! `OUT/NAME/transforms.json` (nerfstudio reads one such file as one static scene).
+//! Per view the folder gets `NAME.exr` (or `NAME.<aov>.exr` per AOV), `NAME.camera.json`,
+//! `NAME.open3d.json`, `NAME.normal.preview.png` (8-bit picture), `NAME.depth.png` (16-bit,
+//! planar depth × `depth_scale`; a view that does not fit fails unless told to store 0),
+//! `NAME.mask.png` and `NAME.render.json`, the stamp of what made the files
+//! ([`render_stamp`]: a hash of the scene and camera and every option that changes output
+//! bytes). Every name is in `crate::dataset::names`.
 //!
 //! **Crash invariant**: every file is first written whole under
 //! `OUT/.partial/K-of-N/` (names ending in `.tmp`) and then renamed into place. The EXR is
@@ -20,16 +25,18 @@
 //! `--depth-scale` renders the view again). A view rendered with `--no-png` loses PNGs an
 //! earlier run left, so the folder is what a fresh run would write.
 //!
-//! **Determinism invariant**: the view list, the shard of each view (`index % N`) and
-//! `transforms.json` are pure functions of the input files and the options, so every shard
-//! computes the same list and writes the same `transforms.json` bytes.
+//! **Determinism invariant**: the view list, the shard of each view (`index % N`),
+//! `index.json` and every `transforms.json` are pure functions of the input files and the
+//! options, so every shard computes the same list and writes the same index bytes.
 //!
 //! The pieces, in the order a run uses them: `views` (the view list), `shard` (which views
-//! this process renders), `options`, `resume` (output paths, render stamp, completeness
+//! this process renders), `lock` (the shard's lock and its real, unfollowed partial
+//! folder), `options`, `resume` (output paths, render stamp, completeness
 //! checks), `write` (one view rendered and moved into place), `verify` (the reference check
 //! interface), `transforms` (`transforms.json`), `progress`, and `run` (the loop tying them
 //! together).
 
+mod lock;
 mod options;
 mod progress;
 mod resume;
@@ -47,5 +54,5 @@ pub use run::{Failure, Outcome, Summary, run};
 pub use shard::{Shard, resolve_shard};
 pub use transforms::{FrameCamera, transforms_json};
 pub use verify::{Verdict, Verifier, selected_for_verify};
-pub use views::{ViewSource, list_views};
+pub use views::{Skipped, ViewSource, list_views};
 pub use write::{ViewCost, render_view};

@@ -1,7 +1,7 @@
 //! What a batch renders and writes, and how its threads share the work.
 
 use crate::geometry::{FormulaKind, Precision};
-use crate::output::aov::Compression;
+use crate::output::aov::{Compression, ExrLayout};
 use crate::output::depth_png::OutOfRange;
 use crate::scene::{Aov, Scene};
 
@@ -30,6 +30,8 @@ pub struct BatchOptions {
     /// What the depth PNG does with a hit beyond 16 bits at `depth_scale`.
     pub depth_out_of_range: OutOfRange,
     pub compression: Compression,
+    /// One layered `NAME.exr`, or `NAME.<aov>.exr` per AOV.
+    pub exr_layout: ExrLayout,
     pub schedule: Schedule,
     /// Fraction of views also checked against an independent reference (Mitsuba), chosen
     /// by [`selected_for_verify`](super::selected_for_verify) from `verify_seed` and the view name.
@@ -47,6 +49,7 @@ impl Default for BatchOptions {
             png: true,
             depth_out_of_range: OutOfRange::Fail,
             compression: Compression::None,
+            exr_layout: ExrLayout::Layers,
             schedule: Schedule::default(),
             verify_fraction: 0.0,
             verify_seed: 0,
@@ -63,6 +66,12 @@ impl BatchOptions {
         let f = self.verify_fraction;
         if !(0.0..=1.0).contains(&f) {
             return Err(format!("--verify-fraction: must be in [0, 1], got {f}"));
+        }
+        if f > 0.0 && self.exr_layout == ExrLayout::PerAov {
+            return Err(
+                "--verify-fraction: needs --exr-layout layers (the check reads the layered EXR)"
+                    .into(),
+            );
         }
         Ok(())
     }

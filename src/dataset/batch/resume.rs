@@ -2,7 +2,7 @@
 //! cheap checks that tell a complete view from a partial or stale one.
 
 use super::options::BatchOptions;
-use crate::output::aov::{Compression, channel_names};
+use crate::output::aov::{Compression, ExrLayout, channel_names, per_aov_channel_names};
 use crate::output::io::{camera_json, open3d_json};
 use crate::scene::camera::Camera;
 use crate::scene::{Aov, Scene};
@@ -29,6 +29,8 @@ pub struct ViewFiles {
     pub stamp: PathBuf,
     /// Where versions before 0.2 put the normal picture; removed when the view is rendered.
     pub legacy_normal_png: PathBuf,
+    dir: PathBuf,
+    name: String,
 }
 
 impl ViewFiles {
@@ -42,8 +44,25 @@ impl ViewFiles {
             mask_png: dir.join(format!("{name}.mask.png")),
             stamp: dir.join(format!("{name}.render.json")),
             legacy_normal_png: dir.join(format!("{name}.normal.png")),
+            dir: dir.to_path_buf(),
+            name: name.to_string(),
         }
     }
+
+    /// `NAME.<aov>.exr` of the per-AOV layout.
+    pub fn per_aov(&self, aov: Aov) -> PathBuf {
+        self.dir.join(format!("{}.{}.exr", self.name, aov.name()))
+    }
+}
+
+/// The per-AOV EXR channels of `aov`, sorted as the file stores them: all float32.
+fn per_aov_channels(aov: Aov) -> Vec<(&'static str, SampleType)> {
+    let mut v: Vec<_> = per_aov_channel_names(aov)
+        .iter()
+        .map(|&c| (c, SampleType::F32))
+        .collect();
+    v.sort_by(|a, b| a.0.cmp(b.0));
+    v
 }
 
 /// EXR channels of `aovs`, sorted as the file stores them, with their sample types.
@@ -216,6 +235,9 @@ struct RenderStamp {
     precision: String,
     formula: String,
     compression: String,
+    /// `layers` or `per-aov`; only when not `layers` (older stamps stay valid).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    exr_layout: Option<String>,
     png: bool,
     /// PNG depth value per world unit; only with PNGs (otherwise it changes nothing).
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -241,6 +263,7 @@ pub fn render_stamp(scene: &Scene, opts: &BatchOptions) -> String {
         precision: name(opts.precision),
         formula: name(opts.formula),
         compression: name(opts.compression),
+        exr_layout: (opts.exr_layout != ExrLayout::Layers).then(|| name(opts.exr_layout)),
         png: opts.png,
         depth_scale: opts.png.then_some(opts.depth_scale),
         depth_out_of_range: opts.png.then(|| name(opts.depth_out_of_range)),
@@ -267,15 +290,28 @@ pub fn view_is_complete(dir: &Path, name: &str, scene: &Scene, opts: &BatchOptio
             || [&files.normal_png, &files.depth_png, &files.mask_png]
                 .iter()
                 .all(|p| file_ends_with(p, PNG_END)));
+    let (w, h) = (scene.camera.width as usize, scene.camera.height as usize);
     others
-        && exr_is_complete(
-            &files.exr,
-            scene.camera.width as usize,
-            scene.camera.height as usize,
-            &expected_channels(&opts.exr_aovs(scene)),
-            opts.compression,
-        )
-        .is_ok()
+        && match opts.exr_layout {
+            ExrLayout::Layers => exr_is_complete(
+                &files.exr,
+                w,
+                h,
+                &expected_channels(&opts.exr_aovs(scene)),
+                opts.compression,
+            )
+            .is_ok(),
+            ExrLayout::PerAov => opts.exr_aovs(scene).iter().all(|&a| {
+                exr_is_complete(
+                    &files.per_aov(a),
+                    w,
+                    h,
+                    &per_aov_channels(a),
+                    opts.compression,
+                )
+                .is_ok()
+            }),
+        }
 }
 
 #[cfg(test)]

@@ -3,6 +3,7 @@
 //! the selected ones), then write the failures file, `OUT/index.json` and each
 //! several-camera scene's `OUT/<scene>/transforms.json`.
 
+use super::lock::{ShardLock, lock_shard, partial_root};
 use super::options::{BatchOptions, Schedule};
 use super::progress::{Counts, Progress, ProgressMode};
 use super::resume::{ViewFiles, view_is_complete};
@@ -114,10 +115,13 @@ pub fn run(
 ) -> Result<Summary> {
     let start = Instant::now();
     opts.validate().map_err(anyhow::Error::msg)?;
-    let scenes = list_views(input, Some(out))?;
+    let (scenes, skipped) = list_views(input, Some(out))?;
+    if !skipped.is_empty() {
+        eprintln!("{}: skipped {skipped}", input.display());
+    }
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let (views, cameras) = expand_views(&scenes);
-    let partial = clear_partial(out, shard)?;
+    let (views, cameras) = expand_views(&scenes, opts);
+    let (partial, lock) = clear_partial(out, shard)?;
 
     let mine: Vec<usize> = (0..views.len()).filter(|&i| shard.contains(i)).collect();
     let work = ShardWork {
@@ -147,6 +151,7 @@ pub fn run(
     write_index(out, input_dir, &views, &cameras, opts)?;
 
     std::fs::remove_dir_all(&partial).with_context(|| format!("removing {}", partial.display()))?;
+    drop(lock);
     // Other shards may still be using `.partial`; it goes when the last one leaves.
     let _ = std::fs::remove_dir(out.join(".partial"));
     summary.elapsed = start.elapsed();
@@ -163,14 +168,17 @@ fn load(view: &ViewSource) -> Result<Scene, String> {
 /// Every shard reads every scene (the index lists every valid view) but keeps only what the
 /// index needs: memory is O(views), not O(views x cylinders). The views of this shard are
 /// read again, one at a time, when rendered. The list is a pure function of the input.
-fn expand_views(scenes: &[ViewSource]) -> (Vec<ViewSource>, Vec<Result<FrameCamera, String>>) {
+fn expand_views(
+    scenes: &[ViewSource],
+    opts: &BatchOptions,
+) -> (Vec<ViewSource>, Vec<Result<FrameCamera, String>>) {
     let read: Vec<Result<Vec<FrameCamera>, String>> = scenes
         .par_iter()
         .map(|v| {
             load(v).map(|s| {
                 s.cameras
                     .iter()
-                    .map(|&c| FrameCamera::new(&Camera::new(c)))
+                    .map(|&c| FrameCamera::new(&Camera::new(c), &opts.exr_aovs(&s)))
                     .collect()
             })
         })
@@ -193,14 +201,20 @@ fn expand_views(scenes: &[ViewSource]) -> (Vec<ViewSource>, Vec<Result<FrameCame
 }
 
 /// Clear and recreate this shard's work-in-progress folder `OUT/.partial/K-of-N`.
-fn clear_partial(out: &Path, shard: Shard) -> Result<PathBuf> {
-    let partial = out.join(".partial").join(shard.to_string());
-    if partial.exists() {
+/// Lock this shard, then clear and recreate its work-in-progress folder
+/// `OUT/.partial/K-of-N` (see [`super::lock`]: a real folder inside `--out`, never a link).
+fn clear_partial(out: &Path, shard: Shard) -> Result<(PathBuf, ShardLock)> {
+    let root = partial_root(out)?;
+    let lock = lock_shard(out, &root, shard)?;
+    let partial = root.join(shard.to_string());
+    // remove_dir_all removes a symlink itself, never what it points to.
+    if partial.symlink_metadata().is_ok() {
         std::fs::remove_dir_all(&partial)
+            .or_else(|_| std::fs::remove_file(&partial))
             .with_context(|| format!("clearing {}", partial.display()))?;
     }
-    std::fs::create_dir_all(&partial).with_context(|| format!("creating {}", partial.display()))?;
-    Ok(partial)
+    std::fs::create_dir(&partial).with_context(|| format!("creating {}", partial.display()))?;
+    Ok((partial, lock))
 }
 
 /// Everything the views of one shard share while they are rendered.

@@ -13,6 +13,8 @@
 
 use super::options::BatchOptions;
 use super::views::ViewSource;
+use crate::output::aov::ExrLayout;
+use crate::scene::Aov;
 use crate::scene::camera::{Camera, rows};
 use serde::Serialize;
 use std::path::Path;
@@ -34,7 +36,11 @@ struct Frame {
     depth_file_path: Option<String>,
     #[serde(skip_serializing_if = "Option::is_none")]
     mask_path: Option<String>,
-    exr_file_path: String,
+    /// The layered EXR; with `--exr-layout per-aov`, `exr_file_paths` instead.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    exr_file_path: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    exr_file_paths: Option<std::collections::BTreeMap<&'static str, String>>,
     camera_file_path: String,
     open3d_file_path: String,
     transform_matrix: [[f64; 4]; 4],
@@ -83,14 +89,29 @@ pub struct FrameCamera {
     intrinsics: Intrinsics,
     /// OpenGL camera-to-world, row-major.
     transform_matrix: [[f64; 4]; 4],
+    /// The AOVs in the view's EXR (bit k: `Aov::ALL[k]`), for per-AOV file names.
+    aovs: u32,
 }
 
 impl FrameCamera {
-    pub fn new(cam: &Camera) -> FrameCamera {
+    pub fn new(cam: &Camera, aovs: &[Aov]) -> FrameCamera {
         FrameCamera {
             intrinsics: intrinsics(cam),
             transform_matrix: rows(cam.world_from_camera_opengl()),
+            aovs: Aov::ALL
+                .iter()
+                .enumerate()
+                .filter(|(_, a)| aovs.contains(a))
+                .fold(0, |m, (k, _)| m | 1 << k),
         }
+    }
+
+    fn aovs(&self) -> impl Iterator<Item = Aov> + '_ {
+        Aov::ALL
+            .into_iter()
+            .enumerate()
+            .filter(|(k, _)| self.aovs & (1 << k) != 0)
+            .map(|(_, a)| a)
     }
 }
 
@@ -116,15 +137,26 @@ fn frame(
     opts: &BatchOptions,
 ) -> Frame {
     let p = |suffix: &str| format!("{prefix}{name}.{suffix}");
+    let per_aov: Option<std::collections::BTreeMap<&'static str, String>> =
+        (opts.exr_layout == ExrLayout::PerAov).then(|| {
+            cam.aovs()
+                .map(|a| (a.name(), p(&format!("{}.exr", a.name()))))
+                .collect()
+        });
+    let first_exr = per_aov
+        .as_ref()
+        .and_then(|m| m.values().next().cloned())
+        .unwrap_or_else(|| p("exr"));
     Frame {
         file_path: if opts.png {
             p("normal.preview.png")
         } else {
-            p("exr")
+            first_exr
         },
         depth_file_path: opts.png.then(|| p("depth.png")),
         mask_path: opts.png.then(|| p("mask.png")),
-        exr_file_path: p("exr"),
+        exr_file_path: per_aov.is_none().then(|| p("exr")),
+        exr_file_paths: per_aov,
         camera_file_path: p("camera.json"),
         open3d_file_path: p("open3d.json"),
         transform_matrix: cam.transform_matrix,

@@ -110,12 +110,15 @@ fn stem(path: &Path) -> String {
 
 /// The views of INPUT: a `.jsonl` manifest, a folder holding `manifest.jsonl` (read through
 /// it), or a folder whose `*.json` files are taken recursively in sorted relative-path order
-/// (hidden entries and anything under `exclude`, the output folder, skipped).
+/// (hidden entries and anything under `exclude`, the output folder, skipped; so are
+/// cylaov's own outputs by name, dangling links, links to folders and special files, and
+/// [`Skipped`] says which).
 /// Errors here concern the input as a whole: no view is rendered. An input without views
 /// is one (a wrong path or an `--out` that holds the input must not pass as "0 views").
-pub fn list_views(input: &Path, exclude: Option<&Path>) -> Result<Vec<ViewSource>> {
+pub fn list_views(input: &Path, exclude: Option<&Path>) -> Result<(Vec<ViewSource>, Skipped)> {
     // Entries skipped because they lie under `exclude`: `*.json` files and folders.
     let mut excluded = Excluded::default();
+    let mut skipped = Skipped::default();
     let views = if input.is_dir() {
         let manifest = input.join("manifest.jsonl");
         if manifest.is_file() {
@@ -123,8 +126,14 @@ pub fn list_views(input: &Path, exclude: Option<&Path>) -> Result<Vec<ViewSource
         } else {
             let exclude = exclude.and_then(|p| p.canonicalize().ok());
             let mut files = Vec::new();
-            scan(input, exclude.as_deref(), &mut files, &mut excluded)
-                .with_context(|| format!("listing {}", input.display()))?;
+            scan(
+                input,
+                exclude.as_deref(),
+                &mut files,
+                &mut excluded,
+                &mut skipped,
+            )
+            .with_context(|| format!("listing {}", input.display()))?;
             files.sort_by(|a, b| a.strip_prefix(input).ok().cmp(&b.strip_prefix(input).ok()));
             files
                 .into_iter()
@@ -164,8 +173,14 @@ pub fn list_views(input: &Path, exclude: Option<&Path>) -> Result<Vec<ViewSource
             );
         }
         if input.is_dir() {
+            let also = if skipped.is_empty() {
+                String::new()
+            } else {
+                format!("; skipped {skipped}")
+            };
             bail!(
-                "INPUT {}: no scene files (*.json, hidden entries skipped) and no manifest.jsonl",
+                "INPUT {}: no scene files (*.json, hidden entries skipped) and no \
+                 manifest.jsonl{also}",
                 input.display()
             );
         }
@@ -184,7 +199,8 @@ pub fn list_views(input: &Path, exclude: Option<&Path>) -> Result<Vec<ViewSource
             );
         }
     }
-    Ok(views)
+    skipped.under_out = excluded.files + excluded.folders;
+    Ok((views, skipped))
 }
 
 /// What [`scan`] left out because it lies under the output folder (not walked into).
@@ -194,36 +210,111 @@ struct Excluded {
     folders: usize,
 }
 
-/// Collect the `*.json` files under `dir` into `out`; entries under `exclude` are counted
-/// in `excluded` instead.
+/// What a folder scan left out, besides hidden entries and the output folder: reported
+/// (on stderr, by `run`) so nothing is dropped without a word.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Skipped {
+    /// `*.json` files cylaov writes beside its data (`NAME.camera.json`, `index.json`, …:
+    /// the names of `crate::dataset::names`), e.g. an earlier batch's outputs.
+    pub outputs: Vec<PathBuf>,
+    /// Entries under the `--out` folder (files and folders).
+    pub under_out: usize,
+    /// Symbolic links to nothing.
+    pub dangling: Vec<PathBuf>,
+    /// Symbolic links to folders: not followed (they can loop, or lead out of the input).
+    pub linked_folders: Vec<PathBuf>,
+    /// `*.json` entries that are neither files nor folders (FIFOs, sockets, devices).
+    pub special: Vec<PathBuf>,
+}
+
+impl Skipped {
+    pub fn is_empty(&self) -> bool {
+        *self == Skipped::default()
+    }
+}
+
+impl std::fmt::Display for Skipped {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let mut parts = Vec::new();
+        let mut list = |paths: &[PathBuf], what: &str| {
+            if let Some(first) = paths.first() {
+                let more = match paths.len() {
+                    1 => String::new(),
+                    n => format!(" and {} more", n - 1),
+                };
+                parts.push(format!(
+                    "{} {what} ({}{more})",
+                    paths.len(),
+                    first.display()
+                ));
+            }
+        };
+        list(&self.outputs, "of cylaov's own output files");
+        list(&self.dangling, "dangling symbolic links");
+        list(
+            &self.linked_folders,
+            "symbolic links to folders, not followed",
+        );
+        list(&self.special, "special files (not regular files)");
+        if self.under_out > 0 {
+            parts.push(format!("{} entries under --out", self.under_out));
+        }
+        write!(f, "{}", parts.join("; "))
+    }
+}
+
+/// Collect the scene files (`*.json`) under `dir` into `out`; entries under `exclude` are
+/// counted in `excluded`, everything else left out in `skipped`.
 fn scan(
     dir: &Path,
     exclude: Option<&Path>,
     out: &mut Vec<PathBuf>,
     excluded: &mut Excluded,
+    skipped: &mut Skipped,
 ) -> std::io::Result<()> {
     for entry in std::fs::read_dir(dir)? {
         let entry = entry?;
         let path = entry.path();
-        if entry.file_name().to_string_lossy().starts_with('.') {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        if name.starts_with('.') {
             continue;
         }
         let skip = matches!(
             (exclude, path.canonicalize()),
             (Some(ex), Ok(canon)) if canon.starts_with(ex)
         );
-        if entry.file_type()?.is_dir() {
+        let json = path.extension().is_some_and(|e| e == "json");
+        let own = entry.file_type()?;
+        // What a link points to; an entry that is not a link is itself.
+        let target = if own.is_symlink() {
+            match std::fs::metadata(&path) {
+                Ok(m) => m.file_type(),
+                Err(_) => {
+                    skipped.dangling.push(path);
+                    continue;
+                }
+            }
+        } else {
+            own
+        };
+        if target.is_dir() {
             if skip {
                 excluded.folders += 1;
+            } else if own.is_symlink() {
+                skipped.linked_folders.push(path);
             } else {
-                scan(&path, exclude, out, excluded)?;
+                scan(&path, exclude, out, excluded, skipped)?;
             }
-        } else if path.extension().is_some_and(|e| e == "json") && path.is_file() {
-            if skip {
-                excluded.files += 1;
-            } else {
-                out.push(path);
-            }
+        } else if !json {
+            continue;
+        } else if skip {
+            excluded.files += 1;
+        } else if !target.is_file() {
+            skipped.special.push(path);
+        } else if crate::dataset::names::is_cylaov_output(&name) {
+            skipped.outputs.push(path);
+        } else {
+            out.push(path);
         }
     }
     Ok(())

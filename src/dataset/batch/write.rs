@@ -3,7 +3,7 @@
 
 use super::options::BatchOptions;
 use super::resume::{ViewFiles, render_stamp};
-use crate::output::aov::channel_names;
+use crate::output::aov::{ExrLayout, channel_names, exr_attributes, per_aov_image};
 use crate::output::depth_png;
 use crate::output::io::{camera_json, open3d_json};
 use crate::output::preview;
@@ -124,26 +124,40 @@ pub fn render_view(
         .flat_map(|&a| channel_names(a).iter().copied())
         .collect();
     image.channels.retain(|c| keep.contains(&c.name.as_str()));
-    let exr_tmp = tmp("exr");
-    write_unsynced(&exr_tmp, |w| image.write_exr_to(w, opts.compression))?;
-    moves.push((exr_tmp, &done.exr));
+    let per_aov_paths: Vec<PathBuf> = Aov::ALL.iter().map(|&a| done.per_aov(a)).collect();
+    match opts.exr_layout {
+        ExrLayout::Layers => {
+            let attrs = exr_attributes(&cam, &exr_aovs);
+            let exr_tmp = tmp("exr");
+            write_unsynced(&exr_tmp, |w| {
+                image.write_exr_with(w, opts.compression, &attrs)
+            })?;
+            moves.push((exr_tmp, &done.exr));
+        }
+        ExrLayout::PerAov => {
+            for &a in &exr_aovs {
+                let one = per_aov_image(&image, a)?;
+                let attrs = exr_attributes(&cam, &[a]);
+                let path = tmp(&format!("{}.exr", a.name()));
+                write_unsynced(&path, |w| one.write_exr_with(w, opts.compression, &attrs))?;
+                let k = Aov::ALL.iter().position(|&x| x == a).unwrap_or(0);
+                moves.push((path, &per_aov_paths[k]));
+            }
+        }
+    }
     // An EXR in place is the view's "done" marker, so an older one goes before any new file
     // of the view replaces its sibling: a re-render killed between the renames leaves no
     // EXR (the view is rendered again), never a new camera beside old PNGs and an old EXR.
     // The EXR goes last: once it is in place, so is everything else of the view.
     // Without PNGs, those of an earlier run go too (they would not match the stamp), and
     // the normal picture under its pre-0.2 name always goes.
-    let stale: &[&PathBuf] = if opts.png {
-        &[&done.exr, &done.legacy_normal_png]
-    } else {
-        &[
-            &done.exr,
-            &done.legacy_normal_png,
-            &done.normal_png,
-            &done.depth_png,
-            &done.mask_png,
-        ]
-    };
+    // Every EXR of either layout is a "done" marker: all go first.
+    let mut stale: Vec<&PathBuf> = vec![&done.exr];
+    stale.extend(&per_aov_paths);
+    stale.push(&done.legacy_normal_png);
+    if !opts.png {
+        stale.extend([&done.normal_png, &done.depth_png, &done.mask_png]);
+    }
     for path in stale {
         match std::fs::remove_file(path) {
             Err(e) if e.kind() != std::io::ErrorKind::NotFound => {

@@ -1,0 +1,140 @@
+//! The work-in-progress folder of a shard and its lock.
+//!
+//! `OUT/.partial/` must be a real folder inside `--out`: a symlink there (or a file) is
+//! refused, never followed, so clearing a shard's partial folder cannot delete anything
+//! outside `--out` and temporary files never land elsewhere.
+//!
+//! Two batches writing the same shard into one `--out` would clear each other's work. Each
+//! shard therefore takes an advisory lock (`flock`, exclusive, non-blocking) on
+//! `OUT/.partial/K-of-N.lock` before anything in its partial folder is cleared, and writes
+//! its host and pid into the file: advisory locks can be node-local on cluster file systems,
+//! so the recorded host tells a user which machine to look at. A second batch fails at once
+//! with "another batch is writing shard K of N in OUT (host …, pid …)". The lock goes with
+//! the process (a kill -9 releases it); the file is removed on a normal exit while the lock
+//! is still held, and whoever locks checks that the file it locked is still the one at the
+//! path (else it retries), so a lock taken on a just-removed file never counts.
+//! (On systems other than Linux the lock is not taken.)
+
+use super::shard::Shard;
+use anyhow::{Context, Result, bail};
+use std::fs::File;
+use std::path::{Path, PathBuf};
+
+/// A held shard lock; dropping it removes the lock file and releases the lock.
+pub struct ShardLock {
+    path: PathBuf,
+    _file: File,
+}
+
+impl Drop for ShardLock {
+    fn drop(&mut self) {
+        // Removed while still locked (the file closes after this): see the module docs.
+        let _ = std::fs::remove_file(&self.path);
+    }
+}
+
+/// `OUT/.partial`, created if needed; an error if it exists and is not a real folder.
+pub fn partial_root(out: &Path) -> Result<PathBuf> {
+    let root = out.join(".partial");
+    match root.symlink_metadata() {
+        Ok(m) if m.file_type().is_symlink() => bail!(
+            "{} is a symbolic link: the work-in-progress folder must be a real folder inside \
+             --out (it is cleared and written to); remove the link",
+            root.display()
+        ),
+        Ok(m) if !m.is_dir() => bail!(
+            "{} exists and is not a folder: remove it (batch keeps its work in progress there)",
+            root.display()
+        ),
+        Ok(_) => {}
+        Err(_) => {
+            std::fs::create_dir(&root).with_context(|| format!("creating {}", root.display()))?
+        }
+    }
+    Ok(root)
+}
+
+/// This machine's name, for the lock file.
+fn host() -> String {
+    std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .ok()
+        .or_else(|| std::env::var("HOSTNAME").ok())
+        .map(|h| h.trim().to_string())
+        .filter(|h| !h.is_empty())
+        .unwrap_or_else(|| "?".into())
+}
+
+/// Lock `shard` of the batch writing into `out` (see the module docs).
+pub fn lock_shard(out: &Path, root: &Path, shard: Shard) -> Result<ShardLock> {
+    let path = root.join(format!("{shard}.lock"));
+    loop {
+        let file = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(&path)
+            .with_context(|| format!("opening {}", path.display()))?;
+        if !try_lock(&file)? {
+            let holder = std::fs::read_to_string(&path).unwrap_or_default();
+            let holder = holder.trim();
+            let holder = if holder.is_empty() {
+                "host ?, pid ?"
+            } else {
+                holder
+            };
+            bail!(
+                "another batch is writing shard {} of {} in {} ({holder}); wait for it, or \
+                 give this one another --out",
+                shard.index,
+                shard.count,
+                out.display()
+            );
+        }
+        if same_file(&file, &path) {
+            use std::io::Write;
+            let mut f = &file;
+            f.set_len(0)?;
+            write!(f, "host {}, pid {}", host(), std::process::id())
+                .with_context(|| format!("writing {}", path.display()))?;
+            return Ok(ShardLock { path, _file: file });
+        }
+        // The holder removed the file between our open and our lock: try again.
+    }
+}
+
+#[cfg(target_os = "linux")]
+fn try_lock(file: &File) -> Result<bool> {
+    use std::os::fd::AsRawFd;
+    // SAFETY: flock on a file descriptor this function borrows; no memory is involved.
+    let rc = unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) };
+    if rc == 0 {
+        return Ok(true);
+    }
+    let e = std::io::Error::last_os_error();
+    if e.raw_os_error() == Some(libc::EWOULDBLOCK) {
+        Ok(false)
+    } else {
+        Err(e).context("locking the shard")
+    }
+}
+
+#[cfg(not(target_os = "linux"))]
+fn try_lock(_file: &File) -> Result<bool> {
+    Ok(true)
+}
+
+/// Whether the open `file` is the file now at `path` (same device and inode).
+#[cfg(unix)]
+fn same_file(file: &File, path: &Path) -> bool {
+    use std::os::unix::fs::MetadataExt;
+    match (file.metadata(), path.metadata()) {
+        (Ok(a), Ok(b)) => a.dev() == b.dev() && a.ino() == b.ino(),
+        _ => false,
+    }
+}
+
+#[cfg(not(unix))]
+fn same_file(_file: &File, path: &Path) -> bool {
+    path.exists()
+}
