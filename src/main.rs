@@ -234,6 +234,9 @@ struct StressCli {
     /// Write a log-log PNG of error against the difficulty parameter.
     #[arg(long, value_name = "OUT.png")]
     plot: Option<PathBuf>,
+    /// Print the table as Markdown, as in the README (the same bytes on every run).
+    #[arg(long)]
+    markdown: bool,
 }
 
 #[derive(Args)]
@@ -499,6 +502,7 @@ fn stress(a: StressCli) -> anyhow::Result<ExitCode> {
         rays: a.rays,
         csv: a.csv,
         plot: a.plot,
+        markdown: a.markdown,
     };
     say(&commands::stress::run(&args)?)?;
     Ok(ExitCode::SUCCESS)
