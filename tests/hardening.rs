@@ -571,3 +571,75 @@ fn parent_path_and_long_names() {
     assert_eq!(o.status.code(), Some(1));
     assert!(stderr(&o).contains("the limit is 255"), "{}", stderr(&o));
 }
+
+/// Pictures read without the README: the depth preview carries a titled, ticked legend, the
+/// normal preview a key, and every failing pixel of a heatmap is ringed in white.
+#[test]
+fn previews_and_heatmaps_carry_their_legends() {
+    let d = dir("pictures");
+    let (scene, exr) = scene_and_render(&d);
+    let pv = d.join("pv");
+    let o = cylaov(&[
+        "render",
+        s(&scene),
+        "-o",
+        s(&d.join("v.exr")),
+        "--preview",
+        s(&pv),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    // Below the 24 image rows: legend rows with white text (ticks, labels, title).
+    for name in ["v.depth.png", "v.normal.png"] {
+        let img = image::open(pv.join(name)).unwrap().to_rgb8();
+        assert!(img.height() >= 24 + 15, "{name}: {} rows", img.height());
+        let white = img
+            .enumerate_pixels()
+            .filter(|(_, y, p)| *y >= 24 && p.0 == [255, 255, 255])
+            .count();
+        assert!(white > 40, "{name}: {white} white legend pixels");
+    }
+    // One camera nudged: a few pixels break a tight tolerance; each gets a white ring.
+    let moved = d.join("moved.json");
+    std::fs::write(&moved, SCENE.replace("[3, -5, 2.5]", "[3, -5, 2.5001]")).unwrap();
+    let other = d.join("moved.exr");
+    assert!(
+        cylaov(&["render", s(&moved), "-o", s(&other)])
+            .status
+            .success()
+    );
+    let heat = d.join("heat.png");
+    let o = cylaov(&[
+        "compare",
+        s(&exr),
+        s(&other),
+        "--heatmap",
+        s(&heat),
+        "--rel-depth",
+        "1e-9",
+    ]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    let img = image::open(&heat).unwrap().to_rgb8();
+    assert!(
+        img.height() > 24 + 20,
+        "no legend strip: {} rows",
+        img.height()
+    );
+    let failing: Vec<(u32, u32)> = img
+        .enumerate_pixels()
+        .filter(|(_, y, p)| *y < 24 && p.0 == [255, 0, 255])
+        .map(|(x, y, _)| (x, y))
+        .collect();
+    assert!(!failing.is_empty(), "no failing pixel to ring");
+    let ringed = |&(x, y): &(u32, u32)| {
+        (0..img.width()).any(|i| {
+            (0..24).any(|j| {
+                img.get_pixel(i, j).0 == [255, 255, 255] && i.abs_diff(x) <= 8 && j.abs_diff(y) <= 8
+            })
+        })
+    };
+    let bare: Vec<_> = failing.iter().filter(|p| !ringed(p)).collect();
+    assert!(
+        bare.len() < failing.len(),
+        "no failing pixel is ringed: {bare:?}"
+    );
+}
