@@ -144,7 +144,7 @@ struct BatchCli {
     shard: Option<Shard>,
     /// Shard count N, the index coming from JOB_COMPLETION_INDEX (Kubernetes Indexed Job)
     /// or SLURM_ARRAY_TASK_ID - SLURM_ARRAY_TASK_MIN.
-    #[arg(long, value_name = "N")]
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..))]
     shards: Option<u32>,
     /// 16-bit depth PNG value per world unit (1000: millimetres for metres).
     #[arg(long, default_value_t = 1000.0, allow_hyphen_values = true)]

@@ -18,6 +18,7 @@ pub struct BatchArgs {
 
 /// Run the batch; the summary says what happened (failed views are not an `Err`).
 pub fn run(args: &BatchArgs) -> Result<Summary> {
+    crate::output::io::check_output_dir("--out", &args.out)?;
     let shard = batch::resolve_shard(args.shard, args.shards, &|k| std::env::var(k).ok())
         .map_err(anyhow::Error::msg)?;
     let verifier = verifier(args.options.verify_fraction)?;
