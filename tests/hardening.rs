@@ -299,6 +299,19 @@ fn stdout_failures_never_panic_and_keep_the_exit_status() {
             ));
         }
     }
+    // A full stderr: the error cannot be shown, but the status is still the command's.
+    let full = std::fs::OpenOptions::new()
+        .write(true)
+        .open("/dev/full")
+        .unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_cylaov"))
+        .args(["render", "/nonexistent.json", "-o", s(&out)])
+        .stderr(full)
+        .output()
+        .unwrap();
+    if o.status.code() != Some(1) {
+        failures.push(format!("render 2> /dev/full: exit {:?}", o.status.code()));
+    }
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
 
