@@ -1,25 +1,31 @@
 #!/usr/bin/env python3
 """Render the Mitsuba 3 reference AOVs of a cylaov scene.
 
-Usage: mitsuba_reference.py SCENE.xml SCENE.json OUT.exr
+Usage: mitsuba_reference.py SCENE.xml SCENE.json OUT.exr [SENSOR]
 
 SCENE.xml comes from `cylaov export-mitsuba SCENE.json`; SCENE.json gives the camera for
-the depth conversion. Renders with the `scalar_rgb` variant (SPEC §5: cylinder quadratic in
-float64, deterministic) and writes OUT.exr (float32, lossless PIZ) with cylaov's channel
-names:
+the depth conversion. SENSOR (default 0) picks the camera of a scene with several
+(`"cameras"`): the export writes one sensor per camera, in file order. Renders with the `scalar_rgb` variant of mitsuba 3.9.1 (there the
+cylinder quadratic is solved in float64, and the render is deterministic) and writes OUT.exr
+(float32, lossless PIZ) with cylaov's channel names:
 
   distance    = Mitsuba depth + near_clip / cos(theta)   (Mitsuba's ray starts on the near
                 plane; theta = angle between the pixel ray and the view direction)
   depth       = distance * cos(theta)                    (planar depth)
   normal.X/Y/Z, position.X/Y/Z  = Mitsuba sh_normal and position
   shape_id    = our cylinder id of Mitsuba's shape_index (float32; 0 = miss)
+  part        = which part of it was hit (float32; 0 = miss): 1 side seen from outside,
+                2 side seen from inside (normal . ray > 0: the wall's inner face),
+                3 bottom cap (at p0), 4 top cap (at p1)
 
-The shape_index -> shape_id map is read from the loaded scene itself: every exported shape
-has the XML id `c<file index>_id<shape_id>_<side|bottom|top>` (see src/mitsuba.rs), and
-Mitsuba's shape_index is 1 + the shape's position in `scene.shapes()`.
+The shape_index -> (shape_id, part) map is read from the loaded scene itself: every exported
+shape has the XML id `c<file index>_id<shape_id>_<side|bottom|top>` (see
+src/output/mitsuba.rs), and Mitsuba's shape_index is 1 + the shape's position in
+`scene.shapes()`. Side, bottom and top are separate Mitsuba shapes, so the part is exact;
+only the side's facing is computed, from Mitsuba's outward normal and the pixel ray.
 
-cos(theta) comes from the pixel-centre ray built exactly as SPEC §3 (and src/camera.rs)
-builds it, in float64. Every channel of a missed pixel is 0.
+cos(theta) and the pixel ray come from the pixel-centre ray built exactly as cylaov's camera
+(src/scene/camera.rs) builds it, in float64. Every channel of a missed pixel is 0.
 """
 
 import json
@@ -41,9 +47,12 @@ CHANNELS = [
     "position.Y",
     "position.Z",
     "shape_id",
+    "part",
 ]
 MITSUBA_AOVS = ["dd.y.T", "nn.X", "nn.Y", "nn.Z", "pp.X", "pp.Y", "pp.Z", "ii.I"]
 SHAPE_ID_RE = re.compile(r"^c(\d+)_id(\d+)_(side|bottom|top)$")
+# The part AOV of each exported shape kind (the side's 1 becomes 2 when seen from inside).
+PART = {"side": 1, "bottom": 3, "top": 4}
 
 
 def fail(msg):
@@ -55,8 +64,8 @@ def normalize(v):
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
-def cos_theta(cam):
-    """cos of the angle between each pixel-centre ray and `forward`, shape (H, W), float64."""
+def pixel_rays(cam):
+    """Unit pixel-centre ray directions (H, W, 3) and their cos to `forward` (H, W), float64."""
     origin = np.array(cam["origin"], dtype=np.float64)
     target = np.array(cam["target"], dtype=np.float64)
     up = np.array(cam["up"], dtype=np.float64)
@@ -88,12 +97,14 @@ def cos_theta(cam):
         - left[None, None, :] * (x[None, :, None] * tan_x)
         + true_up[None, None, :] * (y[:, None, None] * tan_y)
     )
-    return normalize(d) @ forward
+    d = normalize(d)
+    return d, d @ forward
 
 
 def shape_lut(scene):
-    """lut[shape_index] = our shape_id; lut[0] = 0 (miss)."""
+    """ids[shape_index] = our shape_id, parts[shape_index] = its part; index 0 = miss."""
     lut = [0]
+    parts = [0]
     last_cyl = -1
     for k, shape in enumerate(scene.shapes()):
         m = SHAPE_ID_RE.match(shape.id())
@@ -104,37 +115,48 @@ def shape_lut(scene):
             fail(f"shape {k} ({shape.id()}) out of export order: Mitsuba reordered shapes")
         last_cyl = cyl
         lut.append(int(m.group(2)))
-    return np.array(lut, dtype=np.float64)
+        parts.append(PART[m.group(3)])
+    return np.array(lut, dtype=np.float64), np.array(parts, dtype=np.float64)
 
 
 def main(argv):
-    if len(argv) != 4:
-        fail("usage: mitsuba_reference.py SCENE.xml SCENE.json OUT.exr")
-    xml_path, json_path, out_path = argv[1:]
+    if len(argv) not in (4, 5):
+        fail("usage: mitsuba_reference.py SCENE.xml SCENE.json OUT.exr [SENSOR]")
+    xml_path, json_path, out_path = argv[1:4]
+    try:
+        sensor = int(argv[4]) if len(argv) == 5 else 0
+    except ValueError:
+        fail(f"SENSOR: expected a camera index (0, 1, ...), got {argv[4]!r}")
     try:
         with open(json_path) as f:
-            cam = json.load(f)["camera"]
-    except (OSError, ValueError, KeyError) as e:
+            doc = json.load(f)
+        cams = doc["cameras"] if "cameras" in doc else [doc["camera"]]
+        if not 0 <= sensor < len(cams):
+            fail(f"SENSOR: {json_path} has {len(cams)} camera(s), got {sensor}")
+        cam = cams[sensor]
+    except (OSError, ValueError, KeyError, TypeError) as e:
         fail(f"{json_path}: cannot read the camera: {e}")
     near = float(cam.get("near_clip", 0.01))
 
     mi.set_variant("scalar_rgb")
     scene = mi.load_file(xml_path)
-    film = scene.sensors()[0].film()
+    if len(scene.sensors()) != len(cams):
+        fail(f"{xml_path}: {len(scene.sensors())} sensors, {json_path} has {len(cams)} cameras")
+    film = scene.sensors()[sensor].film()
     size = tuple(film.size())
     if size != (int(cam["width"]), int(cam["height"])):
         fail(f"{xml_path}: film {size} differs from {json_path} camera size")
-    img = np.array(mi.render(scene), dtype=np.float32)
+    img = np.array(mi.render(scene, sensor=sensor), dtype=np.float32)
     if img.shape[2] != len(MITSUBA_AOVS):
         fail(f"expected {len(MITSUBA_AOVS)} AOV channels {MITSUBA_AOVS}, got {img.shape[2]}")
 
     t = img[..., 0].astype(np.float64)
     index = img[..., 7]
-    lut = shape_lut(scene)
+    lut, parts = shape_lut(scene)
     if not (np.all(index == np.round(index)) and index.min() >= 0 and index.max() < len(lut)):
         fail(f"shape_index outside 0..{len(lut) - 1}")
     hit = index > 0
-    cos = cos_theta(cam)
+    rays, cos = pixel_rays(cam)
     distance = np.where(hit, t + near / cos, 0.0)
     depth = distance * cos
 
@@ -143,6 +165,10 @@ def main(argv):
     out[..., 1] = depth
     out[..., 2:8] = np.where(hit[..., None], img[..., 1:7], 0.0)
     out[..., 8] = lut[index.astype(np.int64)]
+    part = parts[index.astype(np.int64)]
+    facing = np.sum(img[..., 1:4].astype(np.float64) * rays, axis=-1)
+    part = np.where((part == 1) & (facing > 0.0), 2.0, part)
+    out[..., 9] = part
 
     bitmap = mi.Bitmap(out, mi.Bitmap.PixelFormat.MultiChannel, channel_names=CHANNELS)
     out_dir = os.path.dirname(os.path.abspath(out_path))

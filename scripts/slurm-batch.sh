@@ -3,13 +3,6 @@
 #
 #   cylaov generate --count 100000 --seed 1 --out /shared/data     # once, anywhere
 #   sbatch --array=0-63 scripts/slurm-batch.sh /shared/data /shared/data/render
-#   sbatch --array=0-63 --cpus-per-task=8 scripts/slurm-batch.sh IN OUT  # 8 threads a task
-#
-# Each task asks for one CPU unless --cpus-per-task is given on the sbatch command line;
-# cylaov runs that many threads (SLURM_CPUS_PER_TASK). No CPU count is fixed here: a task
-# asking for more CPUs than a node has stays pending forever, and Slurm does not say why.
-# Memory: 2G covers a 1080p all-AOV view with room; ask for more with --mem for larger
-# images (the batch bounds how many views are in flight to the memory it is given).
 #
 # Each task renders shard (SLURM_ARRAY_TASK_ID - SLURM_ARRAY_TASK_MIN) of
 # SLURM_ARRAY_TASK_COUNT; cylaov reads both from the environment. Use a contiguous
@@ -18,8 +11,15 @@
 # Failed views are listed in OUT/failures.K-of-N.jsonl and make the task exit non-zero.
 #
 # Extra cylaov options go after the two paths, e.g. --aov depth,normal,shape_id.
+#
+# Resources: one CPU and 1 GB per task by default, which any node can give (a request larger
+# than every node, such as 8 CPUs on a 2-core node, leaves the array pending forever without
+# a word). Ask for more on the command line and cylaov uses them:
+#   sbatch --array=0-63 --cpus-per-task=4 --mem=2G scripts/slurm-batch.sh IN OUT
+# scripts/slurm-test runs this script on a real one-node cluster.
 #SBATCH --job-name=cylaov
-#SBATCH --mem=2G
+#SBATCH --cpus-per-task=1
+#SBATCH --mem=1G
 #SBATCH --time=04:00:00
 #SBATCH --output=cylaov-%A_%a.log
 set -euo pipefail

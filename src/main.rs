@@ -4,6 +4,7 @@ use clap::{Args, Parser, Subcommand};
 use cylaov::dataset::batch::{BatchOptions, ProgressMode, Schedule, Shard};
 use cylaov::dataset::generate::{Range, Volume};
 use cylaov::output::aov::Compression;
+use cylaov::output::depth_png::OutOfRange;
 use cylaov::render::{Accel, FormulaKind, Precision, RenderOptions};
 use cylaov::scene::Aov;
 use cylaov::verify::compare::Tolerances;
@@ -58,6 +59,16 @@ enum Command {
     ///
     /// Example: cylaov export-mitsuba scenes/single.json -o single.xml
     ExportMitsuba(ExportCli),
+    /// Check scenes against Mitsuba 3: render each view with cylaov and with Mitsuba
+    /// (the pinned venv) and compare them pixel by pixel.
+    ///
+    /// Exit status: 1 if any view fails a tolerance, else 2 if any view could not be
+    /// checked (a bad scene, no venv, Mitsuba failed), else 0.
+    ///
+    /// Example: cylaov verify scenes/single.json --heatmap out
+    ///
+    /// Example (a twentieth of a generated dataset): cylaov verify data --fraction 0.05
+    Verify(VerifyCli),
     /// Compare two AOV EXRs pixel by pixel (README, Comparing two renders); exit 1 if a
     /// tolerance is broken.
     ///
@@ -121,6 +132,10 @@ struct GenerateCli {
     /// sphere just fills the view [default: 0.55..0.9].
     #[arg(long, value_parser = Range::parse, allow_hyphen_values = true, value_name = "A..B")]
     distance: Option<Range>,
+    /// Cameras per scene, around the same cylinders (camera 0 is the one a one-camera
+    /// scene gets) [default: 1].
+    #[arg(long, value_name = "V")]
+    views_per_scene: Option<u32>,
 }
 
 #[derive(Args)]
@@ -128,9 +143,10 @@ struct BatchCli {
     /// A folder of scene files (*.json, recursively; through its manifest.jsonl if it has
     /// one) or a .jsonl manifest.
     input: PathBuf,
-    /// Output folder: NAME.exr, NAME.camera.json, NAME.normal.png, NAME.depth.png,
-    /// NAME.render.json (what made them, checked on resume), transforms.json,
-    /// failures.K-of-N.jsonl.
+    /// Output folder: per view NAME.exr, NAME.camera.json, NAME.open3d.json,
+    /// NAME.normal.preview.png, NAME.depth.png, NAME.mask.png, NAME.render.json (what made
+    /// them, checked on resume); index.json (every view), failures.K-of-N.jsonl. A scene with
+    /// several cameras gets a folder SCENE/ with views 00, 01, ... and SCENE/transforms.json.
     #[arg(long)]
     out: PathBuf,
     /// AOVs in each EXR, comma-separated. Default: each scene's `aovs`.
@@ -146,10 +162,15 @@ struct BatchCli {
     /// or SLURM_ARRAY_TASK_ID - SLURM_ARRAY_TASK_MIN.
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..))]
     shards: Option<u32>,
-    /// 16-bit depth PNG value per world unit (1000: millimetres for metres).
+    /// 16-bit depth PNG value per world unit (1000: millimetres for metres; nerfstudio
+    /// assumes 1000 unless given its `depth_unit_scale_factor` option).
     #[arg(long, default_value_t = 1000.0, allow_hyphen_values = true)]
     depth_scale: f64,
-    /// Skip the PNGs (transforms.json then points at the EXRs).
+    /// A view with a hit whose depth × scale does not fit 16 bits: fail it (default; the
+    /// message gives the largest scale that fits), or store those pixels as 0 and count them.
+    #[arg(long, value_enum, default_value_t = OutOfRange::Fail, value_name = "fail|zero")]
+    depth_out_of_range: OutOfRange,
+    /// Skip the PNGs (the indexes then point at the EXRs).
     #[arg(long)]
     no_png: bool,
     /// EXR compression.
@@ -167,6 +188,8 @@ struct BatchCli {
     /// Seed of the --verify-fraction choice.
     #[arg(long, default_value_t = 0)]
     verify_seed: u64,
+    #[command(flatten, next_help_heading = "Bounds of --verify-fraction")]
+    tolerances: TolerancesCli,
     /// Parallelise over views (default) or within one view at a time.
     #[arg(long, value_enum, default_value_t = Schedule::Views, hide = true)]
     schedule: Schedule,
@@ -174,6 +197,10 @@ struct BatchCli {
 
 #[derive(Args)]
 struct BenchCli {
+    /// Scene families, comma-separated: `sparse` (sizes shrink as the count grows, the
+    /// same depth complexity at every count) and `dense` (the same sizes at every count).
+    #[arg(long, value_enum, value_delimiter = ',', default_values_t = [bench::Family::Sparse, bench::Family::Dense])]
+    family: Vec<bench::Family>,
     /// Cylinder counts, comma-separated.
     #[arg(long, value_delimiter = ',', default_values_t = [1usize, 100, 1000, 10000, 100000])]
     counts: Vec<usize>,
@@ -249,6 +276,38 @@ struct ExportCli {
 }
 
 #[derive(Args)]
+struct VerifyCli {
+    /// A scene file, a folder of scene files (or holding manifest.jsonl), or a .jsonl
+    /// manifest.
+    input: PathBuf,
+    /// Fraction of the views to check, chosen from --seed and the view names.
+    #[arg(
+        long,
+        default_value_t = 1.0,
+        value_name = "F",
+        allow_hyphen_values = true
+    )]
+    fraction: f64,
+    /// Seed of the --fraction choice (the same choice as batch --verify-seed).
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Write DIR/NAME.heatmap.png for every checked view (see `compare::heatmap`).
+    #[arg(long, value_name = "DIR")]
+    heatmap: Option<PathBuf>,
+    /// Print the results as JSON.
+    #[arg(long)]
+    json: bool,
+    /// Kernel precision of cylaov's side.
+    #[arg(long, value_enum, default_value_t = Precision::F64)]
+    precision: Precision,
+    /// Kernel formulation of cylaov's side.
+    #[arg(long, value_enum, default_value_t = FormulaKind::Stable)]
+    formula: FormulaKind,
+    #[command(flatten)]
+    tolerances: TolerancesCli,
+}
+
+#[derive(Args)]
 struct CompareCli {
     /// First image (usually cylaov's render).
     a: PathBuf,
@@ -260,9 +319,30 @@ struct CompareCli {
     /// Print the report as JSON.
     #[arg(long)]
     json: bool,
-    /// Largest allowed fraction of mismatched pixels (all must lie on silhouettes).
+    /// The scene A was rendered from: grazing pixels get their float32 conditioning bound
+    /// (A must hold shape_id, distance and normal).
+    #[arg(long, value_name = "SCENE.json")]
+    scene: Option<PathBuf>,
+    /// With --scene: the float32 ulps of sideways ray error the conditioning bound allows
+    /// (2: the drift between two runs of one float32 renderer).
+    #[arg(long, value_name = "K", default_value_t = cylaov::verify::compare::CONDITIONING_ULPS, value_parser = non_negative)]
+    conditioning_ulps: f64,
+    #[command(flatten)]
+    tolerances: TolerancesCli,
+}
+
+/// The pass/fail bounds of every verifying command (defaults: what "agrees with Mitsuba"
+/// means, README "Verification against Mitsuba 3").
+#[derive(Args, Clone, Copy, Debug)]
+struct TolerancesCli {
+    /// Largest allowed fraction of silhouette-mismatched pixels (different cylinder or hit
+    /// vs miss; all must lie on silhouettes).
     #[arg(long, default_value_t = Tolerances::default().max_mismatch_fraction, value_parser = non_negative)]
     max_mismatch_fraction: f64,
+    /// Largest allowed fraction of seam-mismatched pixels (same cylinder, another part; all
+    /// must lie on a part boundary).
+    #[arg(long, default_value_t = Tolerances::default().max_seam_fraction, value_parser = non_negative)]
+    max_seam_fraction: f64,
     /// Largest allowed relative distance error.
     #[arg(long, default_value_t = Tolerances::default().rel_distance, value_parser = non_negative)]
     rel_distance: f64,
@@ -272,6 +352,18 @@ struct CompareCli {
     /// Largest allowed normal angle error, degrees.
     #[arg(long, default_value_t = Tolerances::default().normal_deg, value_parser = non_negative)]
     normal_deg: f64,
+}
+
+impl TolerancesCli {
+    fn get(self) -> Tolerances {
+        Tolerances {
+            max_mismatch_fraction: self.max_mismatch_fraction,
+            max_seam_fraction: self.max_seam_fraction,
+            rel_distance: self.rel_distance,
+            rel_depth: self.rel_depth,
+            normal_deg: self.normal_deg,
+        }
+    }
 }
 
 fn non_negative(s: &str) -> Result<f64, String> {
@@ -320,6 +412,9 @@ struct RenderCli {
     /// EXR compression.
     #[arg(long, value_enum, default_value_t = Compression::None)]
     compression: Compression,
+    /// Which camera of a `"cameras"` scene to render (0-based, file order).
+    #[arg(long, value_name = "K", default_value_t = 0)]
+    camera: usize,
 }
 
 /// Largest `--threads`: 1024 is more hardware threads than any single node this runs on
@@ -393,6 +488,7 @@ fn render(a: RenderCli) -> anyhow::Result<ExitCode> {
         },
         preview: a.preview,
         compression: a.compression,
+        camera: a.camera,
     };
     say(&commands::render::run(&args)?)?;
     Ok(ExitCode::SUCCESS)
@@ -415,6 +511,7 @@ fn generate(a: GenerateCli) -> anyhow::Result<ExitCode> {
             fov: a.fov,
             elevation: a.elevation,
             distance: a.distance,
+            views_per_scene: a.views_per_scene,
         },
     };
     say(&commands::generate::run(&args)?)?;
@@ -435,12 +532,14 @@ fn batch(a: BatchCli) -> anyhow::Result<ExitCode> {
             formula: a.kernel.formula,
             depth_scale: a.depth_scale,
             png: !a.no_png,
+            depth_out_of_range: a.depth_out_of_range,
             compression: a.compression,
             schedule: a.schedule,
             verify_fraction: a.verify_fraction,
             verify_seed: a.verify_seed,
         },
         progress: ProgressMode::auto(),
+        tolerances: a.tolerances.get(),
     };
     let summary = commands::batch::run(&args)?;
     say(&summary.to_string())?;
@@ -463,6 +562,7 @@ fn bench(b: BenchCli) -> anyhow::Result<ExitCode> {
         (bench::KERNELS.to_vec(), bench::default_aov_sets())
     };
     let opts = bench::BenchOptions {
+        families: b.family,
         counts: b.counts,
         width: b.width,
         height: b.height,
@@ -477,21 +577,17 @@ fn bench(b: BenchCli) -> anyhow::Result<ExitCode> {
         seed: b.seed,
         accel: b.accel,
     };
-    let mitsuba = b.mitsuba.then(|| bench::MitsubaBench {
-        python: PathBuf::from(".venv/bin/python"),
-        script: PathBuf::from("scripts/bench_mitsuba.py"),
-        scalar_max: b.mitsuba_scalar_max,
-        llvm_max: b.mitsuba_llvm_max,
-    });
-    if let Some(m) = &mitsuba
-        && !(m.python.exists() && m.script.exists())
-    {
-        anyhow::bail!(
-            "--mitsuba: needs {} and {} (run from the repository root after scripts/setup-venv)",
-            m.python.display(),
-            m.script.display()
-        );
-    }
+    let mitsuba = match b.mitsuba {
+        false => None,
+        true => Some(bench::MitsubaBench {
+            python: cylaov::verify::reference::Mitsuba::find()
+                .map_err(|why| anyhow::anyhow!("--mitsuba: {why}"))?
+                .python,
+            script: bench::BENCH_SCRIPT,
+            scalar_max: b.mitsuba_scalar_max,
+            llvm_max: b.mitsuba_llvm_max,
+        }),
+    };
     commands::bench::run(&opts, mitsuba, b.csv, b.plot)?;
     Ok(ExitCode::SUCCESS)
 }
@@ -519,14 +615,11 @@ fn compare(a: CompareCli) -> ExitCode {
     let args = commands::compare::CompareArgs {
         a: a.a,
         b: a.b,
+        scene: a.scene,
+        conditioning_ulps: a.conditioning_ulps,
         heatmap: a.heatmap,
         json: a.json,
-        tolerances: Tolerances {
-            max_mismatch_fraction: a.max_mismatch_fraction,
-            rel_distance: a.rel_distance,
-            rel_depth: a.rel_depth,
-            normal_deg: a.normal_deg,
-        },
+        tolerances: a.tolerances.get(),
     };
     let outcome = commands::compare::run(&args).and_then(|out| {
         say(&out.text)?;
@@ -535,6 +628,32 @@ fn compare(a: CompareCli) -> ExitCode {
     match outcome {
         Ok(true) => ExitCode::SUCCESS,
         Ok(false) => ExitCode::from(1),
+        Err(e) => {
+            report(&e);
+            ExitCode::from(2)
+        }
+    }
+}
+
+/// 0 when every checked view agrees, 1 when one breaks a tolerance, 2 when a view could
+/// not be checked or the check could not start (reported here).
+fn verify(a: VerifyCli) -> ExitCode {
+    let args = commands::verify::VerifyArgs {
+        input: a.input,
+        fraction: a.fraction,
+        seed: a.seed,
+        heatmap: a.heatmap,
+        json: a.json,
+        tolerances: a.tolerances.get(),
+        precision: a.precision,
+        formula: a.formula,
+    };
+    let outcome = commands::verify::run(&args).and_then(|out| {
+        say(&out.text)?;
+        Ok(out.code)
+    });
+    match outcome {
+        Ok(code) => ExitCode::from(code),
         Err(e) => {
             report(&e);
             ExitCode::from(2)
@@ -552,6 +671,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Stress(a) => stress(a),
         Command::ExportMitsuba(a) => export_mitsuba(a),
         Command::Compare(a) => Ok(compare(a)),
+        Command::Verify(a) => Ok(verify(a)),
     }
 }
 

@@ -1,5 +1,7 @@
 //! Every scene in `scenes/` rendered by cylaov (stable kernel, f64 and f32) against its
-//! committed Mitsuba 3.9.1 `scalar_rgb` reference in `reference/` (SPEC §7).
+//! committed Mitsuba 3.9.1 `scalar_rgb` reference in `reference/`, through the check that
+//! `cylaov verify` and `batch --verify-fraction` run (`verify::reference::check_against`:
+//! identity by cylinder and part, float32 conditioning bounds), at tighter bounds.
 //!
 //! **What the bounds measure.** At every worst pixel we checked against an independent
 //! float64 evaluation of the same pixel ray, cylaov (f64) agrees with it to the float32
@@ -9,37 +11,50 @@
 //! ε₃₂·|ray origin - shape| (ε₃₂ = 6e-8), which grazing incidence amplifies by the
 //! condition number κ ≈ 1/cos(incidence). The maximum over a scene's pixels is therefore
 //! set by its most grazing pixel, while the median and p99 sit at a few float32 ulps.
-//! SPEC §5 measured this floor on a 200-cylinder scene at 8e-6 relative distance and
-//! 0.031°; the scenes here reach (f64 / f32 kernels, max):
+//! Mitsuba's floor measured on a 200-cylinder scene is 8e-6 relative distance and 0.031°;
+//! the scenes here reach (f64 / f32 kernels, max; references re-rendered with the `part`
+//! channel on this machine):
 //!
 //! | scene | rel distance | rel depth | normal ° | mismatches |
 //! |---|---|---|---|---|
 //! | asymmetric | 6.5e-7 / 6.3e-7 | 5.8e-7 / 6.8e-7 | 0.0010 / 0.0011 | 0 |
-//! | axis_view | 8.7e-6 / 7.9e-6 | 8.7e-6 / 7.9e-6 | 0.0017 / 0.0015 | 0 |
+//! | axis_view | 1.0e-5 / 9.3e-6 | 1.0e-5 / 9.4e-6 | 0.0020 / 0.0018 | 0 |
 //! | cluster | 5.0e-6 / 9.1e-6 | 5.2e-6 / 9.2e-6 | 0.029 / 0.051 | 0 |
 //! | far_camera | 1.7e-6 / 1.9e-6 | 1.7e-6 / 1.9e-6 | 0.037 / 0.041 | 0 |
-//! | fov_diagonal | 4.2e-6 / 4.8e-6 | 4.2e-6 / 4.7e-6 | 0.0091 / 0.010 | 0 |
+//! | fov_diagonal | 3.7e-6 / 4.2e-6 | 3.6e-6 / 4.2e-6 | 0.0080 / 0.0092 | 0 |
 //! | fov_smaller_portrait | 4.4e-6 / 6.7e-6 | 4.4e-6 / 6.7e-6 | 0.0033 / 0.0050 | 0 |
 //! | grazing_fence | 8.2e-6 / 8.2e-6 | 8.2e-6 / 8.2e-6 | 0.034 / 0.033 | 0 |
+//! | grazing_steep | 5.9e-5 / 2.1e-5 | 5.9e-5 / 2.1e-5 | 0.037 / 0.013 | 0 |
 //! | mixed_caps | 4.3e-6 / 5.7e-6 | 4.3e-6 / 5.6e-6 | 0.0042 / 0.0041 | 0 |
 //! | near_clip | 1.6e-5 / 1.8e-5 | 1.6e-5 / 1.8e-5 | 0.0018 / 0.0023 | 0 |
 //! | portrait_fov_y | 5.1e-6 / 1.1e-5 | 5.1e-6 / 1.1e-5 | 0.0052 / 0.011 | 0 |
+//! | rim_seam | 2.7e-6 / 4.0e-6 | 2.7e-6 / 4.0e-6 | 0.031 / 0.045 | 1 seam |
+//! | rims | 7.9e-6 / 8.8e-6 | 8.0e-6 / 8.8e-6 | 0.010 / 0.013 | 0 |
 //! | single | 4.2e-6 / 3.2e-6 | 4.3e-6 / 3.3e-6 | 0.0029 / 0.0022 | 0 |
 //! | tube_inside | 8.0e-7 / 8.7e-7 | 7.3e-7 / 8.9e-7 | 0.000025 / 0.000027 | 0 |
 //!
-//! Bounds: one set for every scene, [`BOUNDS`]: the issue's 0.05% / 3e-5 / 0.1° tightened
+//! `rims` (48 short cylinders and open tubes seen from above: thousands of cap and tube
+//! rim pixels) has no seam mismatch; `rim_seam` (a generated view) has one pixel where
+//! cylaov takes a cap and Mitsuba the side of the same rim. Every pixel of every scene but
+//! `grazing_steep` meets the flat bounds, so the float32 conditioning rule accepts nothing
+//! there (the test fails if it ever does); in `grazing_steep` (a generated view with a
+//! steep camera) it accepts one pixel at 5.9e-5 relative distance whose bound is 1.2e-4,
+//! and `tests/verify.rs` shows with the oracle that cylaov is right there.
+//!
+//! Bounds: one set for every scene, [`BOUNDS`]: the default 0.05% / 3e-5 / 0.1° tightened
 //! to about 1.5× the largest measurement, plus p99 bounds at about 2× the largest p99
 //! (which catch a systematic error, e.g. a half-pixel shift, long before the max does).
 //! Scenes where Mitsuba's float32 is worse than that (a camera thousands of units away,
 //! rods so thin that κ ≈ 100) do not belong here: they live in `scenes/stress/` and are
-//! checked against the oracle (`tests/stress.rs`, SPEC §7). `far_camera` and
-//! `grazing_fence` are the milder versions kept here: a camera 300 units away with a 1°
-//! fov, and rods of radius 0.1 to 0.13 seen edge-on.
+//! checked against the oracle (`tests/stress.rs`). `far_camera` and `grazing_fence` are the
+//! milder versions kept here: a camera 300 units away with a 1° fov, and rods of radius 0.1
+//! to 0.13 seen edge-on.
 
 use cylaov::output::aov::AovImage;
-use cylaov::render::{Precision, RenderOptions, render};
-use cylaov::scene::{self, Aov};
-use cylaov::verify::compare::{Report, Tolerances, compare};
+use cylaov::render::{FormulaKind, Precision};
+use cylaov::scene;
+use cylaov::verify::compare::{Identity, Tolerances};
+use cylaov::verify::reference::{check_against, check_render};
 use std::path::{Path, PathBuf};
 
 /// Pass/fail bounds of one scene: the max bounds of [`Tolerances`] and p99 bounds.
@@ -55,10 +70,13 @@ const BOUNDS: Bounds = Bounds {
         // Measured: no mismatch on this machine. Silhouette samples at a float32 ulp from
         // tangency may flip on another CPU: allow a few (7 of 76 800), all on silhouettes.
         max_mismatch_fraction: 1e-4,
+        // Measured: no seam mismatch (cap rims seen at an angle are few pixels); the same
+        // room as silhouettes.
+        max_seam_fraction: 1e-4,
         // Measured max 1.8e-5 (near_clip, f32 kernel).
         rel_distance: 2.5e-5,
         rel_depth: 2.5e-5,
-        // Measured max 0.051° (cluster, f32 kernel); SPEC §5 floor 0.031°.
+        // Measured max 0.051° (cluster, f32 kernel); Mitsuba's float32 floor 0.031°.
         normal_deg: 0.08,
     },
     // Measured p99 at most 7.8e-7 (grazing_fence) and 0.0077° (far_camera), f32 kernel.
@@ -85,29 +103,37 @@ fn stems(dir: &Path, ext: &str) -> Vec<String> {
 fn check(stem: &str, precision: Precision, reference: &AovImage) -> Vec<String> {
     let scene_path = root().join("scenes").join(format!("{stem}.json"));
     let scene = scene::load(&scene_path).unwrap_or_else(|e| panic!("{stem}: {e}"));
-    let opts = RenderOptions {
-        precision,
-        ..RenderOptions::new(Aov::ALL.to_vec())
-    };
-    let img = render(&scene, &opts).image;
-    let r: Report = compare(&img, reference).unwrap_or_else(|e| panic!("{stem}: {e:#}"));
+    let img = check_render(&scene, precision, FormulaKind::Stable);
     let b = BOUNDS;
+    let checked =
+        check_against(&scene, &img, reference, &b.max).unwrap_or_else(|e| panic!("{stem}: {e:#}"));
+    let r = &checked.report;
     let tag = format!("{stem} ({precision:?})");
-    let mut fails: Vec<String> = r
-        .failures(&b.max)
-        .into_iter()
+    let mut fails: Vec<String> = checked
+        .failures
+        .iter()
         .map(|f| format!("{tag}: {f}"))
         .collect();
-    // The reference carries shape_id, and so does our render: identity must be exact.
-    if r.identity != cylaov::verify::compare::Identity::ShapeId {
-        fails.push(format!("{tag}: compared without shape_id"));
+    // Every committed scene but the one kept for it meets the flat bounds on every pixel:
+    // the conditioning rule accepts nothing elsewhere (tests/verify.rs shows with the
+    // oracle that cylaov is right on the pixels it accepts in `grazing_steep`).
+    if stem != "grazing_steep" {
+        fails.extend(checked.accepted.iter().map(|a| format!("{tag}: {a}")));
+    } else if precision == Precision::F64 && checked.accepted.is_empty() {
+        fails.push(format!(
+            "{tag}: no grazing pixel above the flat bounds any more"
+        ));
+    }
+    // The reference carries shape_id and part, and so does our render: identity is exact.
+    if r.identity != Identity::ShapeIdPart {
+        fails.push(format!("{tag}: compared without shape_id and part"));
     }
     for (name, stat, limit) in [
         ("distance", &r.rel_distance, b.p99_rel),
         ("depth", &r.rel_depth, b.p99_rel),
         ("normal", &r.normal_deg, b.p99_normal_deg),
     ] {
-        match stat {
+        match stat.as_ref().map(|m| &m.all) {
             None => fails.push(format!("{tag}: {name} not compared")),
             Some(s) if s.p99 > limit => {
                 fails.push(format!("{tag}: {name} p99 {:.3e} > {limit:.3e}", s.p99))
@@ -122,15 +148,20 @@ fn check(stem: &str, precision: Precision, reference: &AovImage) -> Vec<String> 
     if r.same == 0 {
         fails.push(format!("{tag}: no pixel hits in both images"));
     }
+    let max =
+        |m: &Option<cylaov::verify::compare::Metric>| m.as_ref().map_or(f64::NAN, |m| m.all.max);
+    let p99 =
+        |m: &Option<cylaov::verify::compare::Metric>| m.as_ref().map_or(f64::NAN, |m| m.all.p99);
     println!(
-        "{tag}: same {} mismatches {} | rel distance max {:.2e} p99 {:.2e} | rel depth max {:.2e} | normal max {:.4}° p99 {:.4}°",
+        "{tag}: same {} mismatches {} seams {} | rel distance max {:.2e} p99 {:.2e} | rel depth max {:.2e} | normal max {:.4}° p99 {:.4}°",
         r.same,
         r.mismatches,
-        r.rel_distance.as_ref().map_or(f64::NAN, |s| s.max),
-        r.rel_distance.as_ref().map_or(f64::NAN, |s| s.p99),
-        r.rel_depth.as_ref().map_or(f64::NAN, |s| s.max),
-        r.normal_deg.as_ref().map_or(f64::NAN, |s| s.max),
-        r.normal_deg.as_ref().map_or(f64::NAN, |s| s.p99),
+        r.seams,
+        max(&r.rel_distance),
+        p99(&r.rel_distance),
+        max(&r.rel_depth),
+        max(&r.normal_deg),
+        p99(&r.normal_deg),
     );
     fails
 }
@@ -165,7 +196,7 @@ fn every_scene_matches_its_mitsuba_reference() {
 
 #[test]
 fn references_are_small_and_complete() {
-    // SPEC/issue 4: the whole folder under 10 MB; every reference has our channel names.
+    // The whole folder stays under 10 MB; every reference has our channel names.
     let dir = root().join("reference");
     let mut total = 0;
     for stem in stems(&dir, "exr") {
@@ -182,6 +213,7 @@ fn references_are_small_and_complete() {
                 "normal.X",
                 "normal.Y",
                 "normal.Z",
+                "part",
                 "position.X",
                 "position.Y",
                 "position.Z",

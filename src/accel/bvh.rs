@@ -4,14 +4,30 @@
 //! and padded, so the f32 slab test stays conservative even for scenes far from the world
 //! origin, and rays start at 0. A scene of at most [`LEAF_SIZE`] cylinders is one leaf:
 //! one box test per ray, no tree to pay for.
+//!
+//! Depth is bounded: traversal keeps its pending nodes on a fixed stack of [`MAX_DEPTH`]
+//! entries (one per level at most), and SAH on a skewed scene (sizes or positions in
+//! geometric progression) can peel one box off per level. Below [`SAH_DEPTH`] levels the
+//! build therefore splits at the object median, which halves the count, so no leaf lies
+//! deeper than `SAH_DEPTH + log2(n)` < [`MAX_DEPTH`] for any `n` below 2³².
 
 use glam::{DVec3, Vec3A};
+use rayon::prelude::*;
+use std::ops::Range;
 
-/// Most primitives in a leaf.
+/// Most primitives in a leaf (below [`SAH_DEPTH`]; a median-split leaf may hold more only
+/// when its boxes cannot be told apart).
 pub const LEAF_SIZE: usize = 4;
 const BINS: usize = 16;
+/// Levels split by SAH; deeper nodes split at the object median.
+pub const SAH_DEPTH: usize = 30;
+/// Entries of the traversal stack: more than any leaf's depth.
+pub const MAX_DEPTH: usize = 64;
+/// Subtrees of more primitives than this build their two halves in parallel. A count,
+/// not a thread count: the tree is the same on any machine.
+const PARALLEL_MIN: usize = 8192;
 
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 struct Node {
     min: Vec3A,
     max: Vec3A,
@@ -61,8 +77,14 @@ fn area(min: Vec3A, max: Vec3A) -> f32 {
 impl Bvh {
     /// Build over world-space boxes, stored relative to `origin`.
     pub fn build(bounds: &[(DVec3, DVec3)], origin: DVec3) -> Bvh {
+        Self::build_capped(bounds, origin, SAH_DEPTH)
+    }
+
+    /// [`Bvh::build`] with SAH down to `sah_depth` levels (the test of the cap builds
+    /// without it to show the scene needs it).
+    fn build_capped(bounds: &[(DVec3, DVec3)], origin: DVec3, sah_depth: usize) -> Bvh {
         let mut items: Vec<Item> = bounds
-            .iter()
+            .par_iter()
             .enumerate()
             .map(|(i, &(lo, hi))| {
                 let (min, max) = (outward(lo, origin, true), outward(hi, origin, false));
@@ -74,19 +96,68 @@ impl Bvh {
                 }
             })
             .collect();
-        let mut nodes = Vec::with_capacity(2 * items.len().max(1));
-        nodes.push(Node {
+        let nodes = Self::build_tree(&mut items, 0, (0, sah_depth));
+        Bvh {
+            nodes,
+            order: items.par_iter().map(|it| it.index).collect(),
+        }
+    }
+
+    /// The subtree over `items` (positions `start..` of the final order), root first.
+    /// Large subtrees split here and build their halves in parallel, then are laid out
+    /// as the sequential build would lay them out: root, left root, right root, the rest
+    /// of the left subtree, the rest of the right.
+    fn build_tree(items: &mut [Item], start: usize, depth: (usize, usize)) -> Vec<Node> {
+        let n = items.len();
+        let blank = Node {
             min: Vec3A::ZERO,
             max: Vec3A::ZERO,
             offset: 0,
             count: 0,
-        });
-        let len = items.len();
-        Self::build_node(&mut nodes, 0, &mut items, 0, len);
-        Bvh {
-            nodes,
-            order: items.iter().map(|it| it.index).collect(),
+        };
+        let mut nodes = Vec::with_capacity(2 * n.max(1));
+        nodes.push(blank);
+        if n <= PARALLEL_MIN {
+            Self::build_node(&mut nodes, 0, items, 0, n, depth);
+            // Leaves index the slice; shift them to positions in the whole order.
+            for node in nodes.iter_mut().filter(|k| k.count > 0) {
+                node.offset += start as u32;
+            }
+            return nodes;
         }
+        let Some((root, mid)) = Self::split(items, depth.0, depth.1) else {
+            Self::build_node(&mut nodes, 0, items, 0, n, depth);
+            for node in nodes.iter_mut().filter(|k| k.count > 0) {
+                node.offset += start as u32;
+            }
+            return nodes;
+        };
+        let (left, right) = items.split_at_mut(mid);
+        let next = (depth.0 + 1, depth.1);
+        let (l, r) = rayon::join(
+            || Self::build_tree(left, start, next),
+            || Self::build_tree(right, start + mid, next),
+        );
+        // New index of a node at local index i of the left (right) subtree.
+        let (nl, nr) = (l.len() as u32, r.len() as u32);
+        let at_l = |i: u32| if i == 0 { 1 } else { i + 2 };
+        let at_r = |i: u32| if i == 0 { 2 } else { i + 1 + nl };
+        let moved = |k: &Node, at: &dyn Fn(u32) -> u32| Node {
+            offset: if k.count > 0 { k.offset } else { at(k.offset) },
+            ..*k
+        };
+        nodes[0] = Node {
+            offset: 1,
+            count: 0,
+            ..root
+        };
+        nodes.reserve((nl + nr) as usize);
+        nodes.push(moved(&l[0], &at_l));
+        nodes.push(moved(&r[0], &at_r));
+        nodes.extend(l[1..].iter().map(|k| moved(k, &at_l)));
+        nodes.extend(r[1..].iter().map(|k| moved(k, &at_r)));
+        debug_assert_eq!(nodes.len() as u32, 1 + nl + nr);
+        nodes
     }
 
     fn build_node(
@@ -95,8 +166,46 @@ impl Bvh {
         items: &mut [Item],
         start: usize,
         end: usize,
+        (depth, sah_depth): (usize, usize),
     ) {
         let slice = &mut items[start..end];
+        let Some((bounds, mid)) = Self::split(slice, depth, sah_depth) else {
+            let (min, max) = Self::bounds(slice);
+            nodes[node] = Node {
+                min,
+                max,
+                offset: start as u32,
+                count: (end - start) as u32,
+            };
+            return;
+        };
+        let child = nodes.len();
+        nodes[node] = Node {
+            offset: child as u32,
+            count: 0,
+            ..bounds
+        };
+        let blank = nodes[node];
+        nodes.push(blank);
+        nodes.push(blank);
+        let next = (depth + 1, sah_depth);
+        Self::build_node(nodes, child, items, start, start + mid, next);
+        Self::build_node(nodes, child + 1, items, start + mid, end, next);
+    }
+
+    /// The box around `slice`'s boxes.
+    fn bounds(slice: &[Item]) -> (Vec3A, Vec3A) {
+        let (mut min, mut max) = (Vec3A::splat(f32::INFINITY), Vec3A::splat(f32::NEG_INFINITY));
+        for it in slice {
+            min = min.min(it.min);
+            max = max.max(it.max);
+        }
+        (min, max)
+    }
+
+    /// Partition `slice` for an interior node: its box (as a node with no children yet)
+    /// and the size of the left part; `None` when it should be a leaf.
+    fn split(slice: &mut [Item], depth: usize, sah_depth: usize) -> Option<(Node, usize)> {
         let (mut min, mut max) = (Vec3A::splat(f32::INFINITY), Vec3A::splat(f32::NEG_INFINITY));
         let (mut cmin, mut cmax) = (min, max);
         for it in slice.iter() {
@@ -105,18 +214,16 @@ impl Bvh {
             cmin = cmin.min(it.centroid);
             cmax = cmax.max(it.centroid);
         }
-        let make_leaf = |nodes: &mut Vec<Node>| {
-            nodes[node] = Node {
-                min,
-                max,
-                offset: start as u32,
-                count: (end - start) as u32,
-            };
-        };
         let n = slice.len();
         if n <= LEAF_SIZE {
-            return make_leaf(nodes);
+            return None;
         }
+        let node = Node {
+            min,
+            max,
+            offset: 0,
+            count: 0,
+        };
         // Binned SAH along the axis of largest centroid extent.
         let extent = cmax - cmin;
         let axis = if extent.x >= extent.y && extent.x >= extent.z {
@@ -126,77 +233,95 @@ impl Bvh {
         } else {
             2
         };
-        let mid = if extent[axis] <= 0.0 {
+        if extent[axis] <= 0.0 {
             // All centroids coincide: split in the middle of the list.
-            n / 2
-        } else {
-            let scale = BINS as f32 / extent[axis];
-            let bin_of = |c: Vec3A| (((c[axis] - cmin[axis]) * scale) as usize).min(BINS - 1);
-            let mut bins = [(
-                0usize,
-                Vec3A::splat(f32::INFINITY),
-                Vec3A::splat(f32::NEG_INFINITY),
-            ); BINS];
-            for it in slice.iter() {
-                let b = &mut bins[bin_of(it.centroid)];
-                b.0 += 1;
-                b.1 = b.1.min(it.min);
-                b.2 = b.2.max(it.max);
+            return Some((node, n / 2));
+        }
+        if depth >= sah_depth {
+            // Deep: the object median (ties by index, so the tree does not depend on the
+            // input order's accidents), which halves the count at every level.
+            slice.select_nth_unstable_by(n / 2, |p, q| {
+                p.centroid[axis]
+                    .total_cmp(&q.centroid[axis])
+                    .then(p.index.cmp(&q.index))
+            });
+            return Some((node, n / 2));
+        }
+        let scale = BINS as f32 / extent[axis];
+        let bin_of = |c: Vec3A| (((c[axis] - cmin[axis]) * scale) as usize).min(BINS - 1);
+        let mut bins = [(
+            0usize,
+            Vec3A::splat(f32::INFINITY),
+            Vec3A::splat(f32::NEG_INFINITY),
+        ); BINS];
+        for it in slice.iter() {
+            let b = &mut bins[bin_of(it.centroid)];
+            b.0 += 1;
+            b.1 = b.1.min(it.min);
+            b.2 = b.2.max(it.max);
+        }
+        // Sweep from the right to get suffix areas, then from the left to find the best cut.
+        let mut right_cost = [0f32; BINS];
+        let (mut c, mut lo, mut hi) = (
+            0usize,
+            Vec3A::splat(f32::INFINITY),
+            Vec3A::splat(f32::NEG_INFINITY),
+        );
+        for k in (1..BINS).rev() {
+            c += bins[k].0;
+            lo = lo.min(bins[k].1);
+            hi = hi.max(bins[k].2);
+            right_cost[k] = c as f32 * area(lo, hi);
+        }
+        let (mut best, mut best_cost) = (0usize, f32::INFINITY);
+        let (mut c, mut lo, mut hi) = (
+            0usize,
+            Vec3A::splat(f32::INFINITY),
+            Vec3A::splat(f32::NEG_INFINITY),
+        );
+        for k in 0..BINS - 1 {
+            c += bins[k].0;
+            lo = lo.min(bins[k].1);
+            hi = hi.max(bins[k].2);
+            let cost = c as f32 * area(lo, hi) + right_cost[k + 1];
+            if c > 0 && c < n && cost < best_cost {
+                best_cost = cost;
+                best = k;
             }
-            // Sweep from the right to get suffix areas, then from the left to find the best cut.
-            let mut right_cost = [0f32; BINS];
-            let (mut c, mut lo, mut hi) = (
-                0usize,
-                Vec3A::splat(f32::INFINITY),
-                Vec3A::splat(f32::NEG_INFINITY),
-            );
-            for k in (1..BINS).rev() {
-                c += bins[k].0;
-                lo = lo.min(bins[k].1);
-                hi = hi.max(bins[k].2);
-                right_cost[k] = c as f32 * area(lo, hi);
+        }
+        // Leaf when splitting costs more than testing everything (box test ≈ 1/2 a cylinder).
+        if n <= 2 * LEAF_SIZE && best_cost >= (n as f32 - 0.5) * area(min, max) {
+            return None;
+        }
+        let mut left = 0;
+        for k in 0..n {
+            if bin_of(slice[k].centroid) <= best {
+                slice.swap(k, left);
+                left += 1;
             }
-            let (mut best, mut best_cost) = (0usize, f32::INFINITY);
-            let (mut c, mut lo, mut hi) = (
-                0usize,
-                Vec3A::splat(f32::INFINITY),
-                Vec3A::splat(f32::NEG_INFINITY),
-            );
-            for k in 0..BINS - 1 {
-                c += bins[k].0;
-                lo = lo.min(bins[k].1);
-                hi = hi.max(bins[k].2);
-                let cost = c as f32 * area(lo, hi) + right_cost[k + 1];
-                if c > 0 && c < n && cost < best_cost {
-                    best_cost = cost;
-                    best = k;
-                }
+        }
+        Some((node, if left == 0 || left == n { n / 2 } else { left }))
+    }
+
+    /// Levels below the root of the deepest leaf.
+    pub fn depth(&self) -> usize {
+        let mut deepest = 0;
+        let mut todo = vec![(0usize, 0usize)];
+        while let Some((k, d)) = todo.pop() {
+            let n = &self.nodes[k];
+            deepest = deepest.max(d);
+            if n.count == 0 && !self.order.is_empty() {
+                todo.extend([(n.offset as usize, d + 1), (n.offset as usize + 1, d + 1)]);
             }
-            // Leaf when splitting costs more than testing everything (box test ≈ 1/2 a cylinder).
-            if n <= 2 * LEAF_SIZE && best_cost >= (n as f32 - 0.5) * area(min, max) {
-                return make_leaf(nodes);
-            }
-            let mut left = 0;
-            for k in 0..n {
-                if bin_of(slice[k].centroid) <= best {
-                    slice.swap(k, left);
-                    left += 1;
-                }
-            }
-            if left == 0 || left == n { n / 2 } else { left }
-        };
-        let child = nodes.len();
-        nodes[node] = Node {
-            min,
-            max,
-            offset: child as u32,
-            count: 0,
-        };
-        let blank = nodes[node];
-        nodes.push(blank);
-        nodes.push(blank);
-        Self::build_node(nodes, child, items, start, start + mid);
-        Self::build_node(nodes, child + 1, items, start + mid, end);
+        }
+        deepest
+    }
+
+    /// The primitive order of the leaves: a leaf covers positions `offset..offset + count`
+    /// of it, and traversal reports positions, so whoever keeps per-primitive data in this
+    /// order reads a leaf's primitives from consecutive memory.
+    pub fn order(&self) -> &[u32] {
+        &self.order
     }
 
     /// Number of nodes (for statistics).
@@ -205,8 +330,9 @@ impl Bvh {
     }
 
     /// Visit the primitives whose boxes the ray `t·d` (origin at the build origin) meets
-    /// within `[tmin, tmax]`, nearest box first. `visit(index)` returns a new, smaller
-    /// `tmax` when it found a closer hit, which prunes the rest.
+    /// within `[tmin, tmax]`, nearest box first. `visit(position)` gets the primitive's
+    /// position in [`Bvh::order`] and returns a new, smaller `tmax` when it found a closer
+    /// hit, which prunes the rest.
     #[inline]
     pub fn traverse(
         &self,
@@ -237,15 +363,15 @@ impl Bvh {
         if self.order.is_empty() || hit(&self.nodes[0], tmax).is_none() {
             return;
         }
-        let mut stack = [0u32; 64];
+        let mut stack = [0u32; MAX_DEPTH];
         let mut sp = 0usize;
         let mut current = 0u32;
         loop {
             let node = &self.nodes[current as usize];
             if node.count > 0 {
                 let start = node.offset as usize;
-                for &prim in &self.order[start..start + node.count as usize] {
-                    if let Some(t) = visit(prim) {
+                for pos in start as u32..start as u32 + node.count {
+                    if let Some(t) = visit(pos) {
                         tmax = tmax.min(t);
                     }
                 }
@@ -288,9 +414,139 @@ impl Bvh {
     }
 }
 
+/// The view cone of a block of pixel rays from the build origin: four planes through the
+/// origin with inward normals (a point `p` is inside when `n·p >= 0` for all four), and the
+/// camera's forward axis, along which a box's nearest camera-space z is measured.
+#[derive(Clone, Copy, Debug)]
+pub struct Cone {
+    pub planes: [Vec3A; 4],
+    pub forward: Vec3A,
+}
+
+impl Cone {
+    /// Whether the f32 box `[min, max]` may meet the cone. Conservative: a box is rejected
+    /// only when its farthest corner along some plane normal is behind that plane by more
+    /// than the f32 rounding of the dot product (relative 1e-6 of its terms, 4 ulps of
+    /// three products and two sums, plus the normal's own rounding).
+    #[inline(always)]
+    fn meets(&self, min: Vec3A, max: Vec3A) -> bool {
+        self.planes.iter().all(|&n| {
+            let (a, b) = (n * min, n * max);
+            let far = a.max(b);
+            far.element_sum() >= -1e-6 * a.abs().max(b.abs()).element_sum()
+        })
+    }
+
+    /// A lower bound on the camera-space z of the points of the box `[min, max]` (its
+    /// nearest corner along `forward`, less the same rounding allowance). For a unit ray
+    /// direction z = t·cos θ ≤ t, so it also bounds the ray parameter of any hit inside.
+    #[inline(always)]
+    fn z_min(&self, min: Vec3A, max: Vec3A) -> f32 {
+        let (a, b) = (self.forward * min, self.forward * max);
+        a.min(b).element_sum() - 1e-6 * a.abs().max(b.abs()).element_sum()
+    }
+}
+
+/// A walk of the leaves of a [`Bvh`] whose boxes meet a [`Cone`], nearest first (children
+/// in order of their nearest z), skipping every node whose nearest z lies beyond the reach
+/// given to [`ConeWalk::next_leaf`]: no point in it can improve a ray whose best hit is
+/// nearer. The caller passes the farthest best hit (or tmax) over all the cone's rays, so a
+/// block of rays stops as soon as everything left is behind what it has found: occlusion
+/// culling. (A loop the caller drives rather than a callback, so the caller's leaf code is
+/// compiled into its own function, AVX and all.)
+pub struct ConeWalk<'a> {
+    bvh: &'a Bvh,
+    cone: Cone,
+    /// Pending far children and their nearest z.
+    stack: [(u32, f32); MAX_DEPTH],
+    sp: usize,
+    /// The node to open next, if not the top of the stack.
+    current: Option<u32>,
+}
+
+impl<'a> ConeWalk<'a> {
+    /// Start at the root (an empty scene or a root outside the cone gives no leaf).
+    #[inline(always)]
+    pub fn new(bvh: &'a Bvh, cone: Cone) -> Self {
+        let root = &bvh.nodes[0];
+        let open = !bvh.order.is_empty() && cone.meets(root.min, root.max);
+        ConeWalk {
+            bvh,
+            cone,
+            stack: [(0, 0.0); MAX_DEPTH],
+            sp: 0,
+            current: open.then_some(0),
+        }
+    }
+
+    /// The next leaf's range of positions in [`Bvh::order`], or `None` when no node left
+    /// meets the cone at or before `reach`.
+    #[inline(always)]
+    pub fn next_leaf(&mut self, reach: f32) -> Option<Range<u32>> {
+        let (nodes, cone) = (&self.bvh.nodes, &self.cone);
+        loop {
+            let current = match self.current.take() {
+                Some(c) => c,
+                None => loop {
+                    if self.sp == 0 {
+                        return None;
+                    }
+                    self.sp -= 1;
+                    let (n, z) = self.stack[self.sp];
+                    if z <= reach {
+                        break n;
+                    }
+                },
+            };
+            let node = &nodes[current as usize];
+            if node.count > 0 {
+                return Some(node.offset..node.offset + node.count);
+            }
+            let (l, r) = (node.offset, node.offset + 1);
+            let z = |k: u32| {
+                let n = &nodes[k as usize];
+                let z = cone.z_min(n.min, n.max);
+                (z <= reach && cone.meets(n.min, n.max)).then_some(z)
+            };
+            match (z(l), z(r)) {
+                (Some(a), Some(b)) => {
+                    let (first, second) = if a <= b { (l, (r, b)) } else { (r, (l, a)) };
+                    self.stack[self.sp] = second;
+                    self.sp += 1;
+                    self.current = Some(first);
+                }
+                (Some(_), None) => self.current = Some(l),
+                (None, Some(_)) => self.current = Some(r),
+                (None, None) => {}
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Every box a brute-force f64 slab test finds along each direction (clearly, not at
+    /// a touching corner), the BVH reports.
+    fn assert_finds_what_brute_force_does(bvh: &Bvh, boxes: &[(DVec3, DVec3)], dirs: &[DVec3]) {
+        for &d in dirs {
+            let mut found = vec![];
+            bvh.traverse(d.as_vec3().into(), 0.0, f32::INFINITY, |i| {
+                found.push(bvh.order()[i as usize]);
+                None
+            });
+            for (i, &(lo, hi)) in boxes.iter().enumerate() {
+                let t1 = lo / d;
+                let t2 = hi / d;
+                let near = t1.min(t2).max_element().max(0.0);
+                let far = t1.max(t2).min_element();
+                if near < far * (1.0 - 1e-9) {
+                    assert!(found.contains(&(i as u32)), "box {i} missed for d = {d:?}");
+                }
+            }
+        }
+    }
 
     /// Differential test: the BVH reports every box a brute-force slab test finds.
     #[test]
@@ -310,22 +566,103 @@ mod tests {
             })
             .collect();
         let bvh = Bvh::build(&boxes, DVec3::ZERO);
-        for _ in 0..2000 {
-            let d = (DVec3::new(rnd(), rnd(), rnd()) * 2.0 - 1.0).normalize();
-            let mut found = vec![];
-            bvh.traverse(d.as_vec3().into(), 0.0, f32::INFINITY, |i| {
-                found.push(i);
-                None
-            });
-            for (i, &(lo, hi)) in boxes.iter().enumerate() {
-                let t1 = lo / d;
-                let t2 = hi / d;
-                let near = t1.min(t2).max_element().max(0.0);
-                let far = t1.max(t2).min_element();
-                if near < far * (1.0 - 1e-9) {
-                    assert!(found.contains(&(i as u32)), "box {i} missed for d = {d:?}");
-                }
-            }
+        let dirs: Vec<DVec3> = (0..2000)
+            .map(|_| (DVec3::new(rnd(), rnd(), rnd()) * 2.0 - 1.0).normalize())
+            .collect();
+        assert_finds_what_brute_force_does(&bvh, &boxes, &dirs);
+    }
+
+    /// Boxes at ±2^k along x (k from -120 to 80): binned SAH peels off the few boxes
+    /// outside the first bin per level, so without the cap the tree is 99 levels deep, past
+    /// the 64-entry traversal stack. With it the depth stays bounded and traversal still
+    /// finds every box.
+    #[test]
+    fn skewed_scene_stays_within_the_stack() {
+        let boxes: Vec<(DVec3, DVec3)> = (-120..=80)
+            .flat_map(|k| {
+                [1.0, -1.0].map(|s| {
+                    let x = s * 2f64.powi(k);
+                    let e = DVec3::new(0.25 * x.abs(), 1.0, 1.0);
+                    (DVec3::new(x, 0.0, 0.0) - e, DVec3::new(x, 0.0, 0.0) + e)
+                })
+            })
+            .collect();
+        let uncapped = Bvh::build_capped(&boxes, DVec3::ZERO, usize::MAX).depth();
+        assert!(
+            uncapped > MAX_DEPTH,
+            "the scene is skewed: depth {uncapped}"
+        );
+        let bvh = Bvh::build(&boxes, DVec3::ZERO);
+        let depth = bvh.depth();
+        // 30 SAH levels, then halving at most 402 boxes down to leaves of 4: 7 more.
+        assert!(depth <= SAH_DEPTH + 7, "depth {depth}");
+        let mut dirs = vec![DVec3::X, -DVec3::X];
+        for k in 0..200 {
+            let a = k as f64 * 0.0314;
+            let tilt = 10f64.powi(-(k % 7));
+            let d = DVec3::new(
+                if k % 2 == 0 { 1.0 } else { -1.0 },
+                tilt * a.cos(),
+                tilt * a.sin(),
+            );
+            dirs.push(d.normalize());
+        }
+        assert_finds_what_brute_force_does(&bvh, &boxes, &dirs);
+        let mut along_x = vec![];
+        bvh.traverse(Vec3A::X, 0.0, f32::INFINITY, |i| {
+            along_x.push(i);
+            None
+        });
+        assert!(along_x.len() > 220, "{} boxes along +x", along_x.len());
+    }
+
+    /// The parallel build lays out exactly the tree the sequential one does (same nodes,
+    /// same order), whatever the thread count.
+    #[test]
+    fn parallel_build_lays_out_the_sequential_tree() {
+        let mut rng = crate::rng::SplitMix64::new(9);
+        let boxes: Vec<(DVec3, DVec3)> = (0..40_000)
+            .map(|_| {
+                let c = rng.unit_vector() * rng.range(0.0, 30.0);
+                let e = DVec3::new(rng.unit(), rng.unit(), rng.unit()) * 0.4 + 0.01;
+                (c - e, c + e)
+            })
+            .collect();
+        let origin = DVec3::new(40.0, -3.0, 7.0);
+        // The sequential build: one call of the recursive builder over everything.
+        let seq = {
+            let mut items: Vec<Item> = boxes
+                .iter()
+                .enumerate()
+                .map(|(i, &(lo, hi))| {
+                    let (min, max) = (outward(lo, origin, true), outward(hi, origin, false));
+                    Item {
+                        min,
+                        max,
+                        centroid: (min + max) * 0.5,
+                        index: i as u32,
+                    }
+                })
+                .collect();
+            let mut nodes = vec![Node {
+                min: Vec3A::ZERO,
+                max: Vec3A::ZERO,
+                offset: 0,
+                count: 0,
+            }];
+            let n = items.len();
+            Bvh::build_node(&mut nodes, 0, &mut items, 0, n, (0, SAH_DEPTH));
+            (nodes, items.iter().map(|it| it.index).collect::<Vec<u32>>())
+        };
+        assert!(seq.0.len() > 10_000);
+        for threads in [1, 3] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            let bvh = pool.install(|| Bvh::build(&boxes, origin));
+            assert!(bvh.nodes == seq.0, "{threads} threads: nodes differ");
+            assert!(bvh.order == seq.1, "{threads} threads: order differs");
         }
     }
 }

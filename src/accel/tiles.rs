@@ -26,8 +26,9 @@ use rayon::prelude::*;
 /// Tile side in pixels.
 pub const TILE: u32 = 16;
 
-/// Average candidates per tile above which the BVH is used instead (a pixel then tests a
-/// long list; the BVH's per-ray traversal wins, and the lists would cost memory).
+/// Average candidates per tile above which `render` walks the BVH tile by tile instead
+/// (the lists would be long and cost memory, and most of a crowded list is hidden behind
+/// its first few cylinders, which the walk's occlusion culling never visits).
 pub const CROWDED: usize = 64;
 
 /// A candidate in a tile: cylinder index, inclusive pixel rectangle, lower bound on `t`.
@@ -66,6 +67,12 @@ fn columns(lo: f64, hi: f64, x0: u32, x1: u32) -> Option<(u32, u32)> {
 }
 
 impl Candidate {
+    /// Whether the cylinder lies wholly outside the view (an empty rectangle).
+    #[inline(always)]
+    pub fn is_culled(&self) -> bool {
+        self.x0 > self.x1
+    }
+
     /// The columns of row `j` that can see the cylinder, as an inclusive range within
     /// `[lo, hi]`: the rectangle, cut to the band around the projected axis (the band
     /// holds the capsule, the rectangle its ends). Two multiply-adds, no division: this
@@ -386,10 +393,29 @@ fn floor_in(a: f64, n: u32) -> i64 {
     t - ((t as f64) > a) as i64
 }
 
+/// The projections of `cylinders[order[s]]` in slot `s` (index and slot set), for walking a
+/// hierarchy tile by tile instead of binning: a culled cylinder gets an empty rectangle
+/// ([`Candidate::is_culled`]).
+pub fn project_slots(cam: &Camera, cylinders: &[Cylinder], order: &[u32]) -> Vec<Candidate> {
+    let view = View::new(cam);
+    order
+        .par_iter()
+        .enumerate()
+        .map(|(s, &i)| {
+            let c = project_in(&view, &cylinders[i as usize]).unwrap_or(CULLED);
+            Candidate {
+                index: i,
+                slot: s as u32,
+                ..c
+            }
+        })
+        .collect()
+}
+
 impl Tiles {
     /// Bin `cylinders` for `cam`, or `None` when the lists would average more than
-    /// [`CROWDED`] candidates per tile (many cylinders reaching past the camera, say):
-    /// there the BVH is faster and the lists would cost memory, so `render` uses it.
+    /// [`CROWDED`] candidates per tile (a dense scene, or many cylinders reaching past the
+    /// camera): `render` then walks the BVH tile by tile.
     pub fn build(cam: &Camera, cylinders: &[Cylinder]) -> Option<Tiles> {
         let (tiles_x, tiles_y) = (cam.width().div_ceil(TILE), cam.height().div_ceil(TILE));
         assert!(tiles_x <= 1 << 16, "image too wide for tiles");

@@ -1,10 +1,16 @@
 //! `cylaov bench`: run time against error, per kernel, AOV set and cylinder count.
 //!
-//! Scenes are generated from a fixed seed: `n` cylinders in a fixed cube, their size scaled
-//! by `(1000/n)^(1/2)`, so their total projected area, and so the depth complexity of the
-//! image, stays about the same at every count: the time-vs-count curve then measures the
-//! acceleration, not a scene that grows denser. Every number in a
-//! row comes from one run on this machine; compare ratios within a table, not across runs.
+//! Scenes are generated from a fixed seed, in two families ([`Family`]):
+//! - *sparse* ([`random_scene`]): `n` cylinders in a fixed cube, their size scaled by
+//!   `(1000/n)^(1/2)`, so their total projected area, and so the depth complexity of the
+//!   image, stays about the same at every count: the time-vs-count curve then measures the
+//!   acceleration, not a scene that grows denser;
+//! - *dense* ([`dense_scene`]): the same sizes at every count, so the scene does grow
+//!   denser, as real clutter does (bin picking, pipe racks, forests): 100 000 cylinders
+//!   hide all but a few thousand.
+//!
+//! Every number in a row comes from one run on this machine; compare ratios within a
+//! table, not across runs.
 
 use crate::accel::tiles;
 use crate::geometry::packet::{LANES, Packet, PacketFormula};
@@ -55,20 +61,89 @@ pub fn random_scene(n: usize, seed: u64, width: u32, height: u32) -> Scene {
             }
         })
         .collect();
+    let camera = CameraSpec {
+        origin: DVec3::new(12.0, -16.0, 8.0),
+        target: DVec3::ZERO,
+        up: DVec3::Z,
+        fov_deg: 45.0,
+        fov_axis: FovAxis::X,
+        width,
+        height,
+        near_clip: 0.01,
+        far_clip: 10000.0,
+    };
     Scene {
-        camera: CameraSpec {
-            origin: DVec3::new(12.0, -16.0, 8.0),
-            target: DVec3::ZERO,
-            up: DVec3::Z,
-            fov_deg: 45.0,
-            fov_axis: FovAxis::X,
-            width,
-            height,
-            near_clip: 0.01,
-            far_clip: 10000.0,
-        },
+        camera,
+        cameras: vec![camera],
         cylinders,
         aovs: vec![Aov::Depth, Aov::Normal],
+    }
+}
+
+/// `n` cylinders of the dense family at `width`×`height`: `p0` uniform in [−10, 10]³,
+/// direction uniform on the sphere, length U(0.3, 3), radius U(0.05, 0.6), 70% capped,
+/// seen from (26, −30, 18) looking at the origin, up +z, 50° horizontal field of view.
+pub fn dense_scene(n: usize, seed: u64, width: u32, height: u32) -> Scene {
+    let mut rng = SplitMix64::new(seed);
+    let cylinders = (0..n)
+        .map(|i| {
+            let base = DVec3::new(
+                rng.range(-10.0, 10.0),
+                rng.range(-10.0, 10.0),
+                rng.range(-10.0, 10.0),
+            );
+            Cylinder {
+                base,
+                axis: rng.unit_vector(),
+                height: rng.range(0.3, 3.0),
+                radius: rng.range(0.05, 0.6),
+                caps: rng.unit() < 0.7,
+                id: i as u32 + 1,
+            }
+        })
+        .collect();
+    let camera = CameraSpec {
+        origin: DVec3::new(26.0, -30.0, 18.0),
+        target: DVec3::ZERO,
+        up: DVec3::Z,
+        fov_deg: 50.0,
+        fov_axis: FovAxis::X,
+        width,
+        height,
+        near_clip: 0.01,
+        far_clip: 10000.0,
+    };
+    Scene {
+        camera,
+        cameras: vec![camera],
+        cylinders,
+        aovs: vec![Aov::Depth, Aov::Normal],
+    }
+}
+
+/// A bench scene family (see the module doc).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Family {
+    /// Sizes shrink as the count grows: the same depth complexity at every count.
+    Sparse,
+    /// The same sizes at every count: denser and denser.
+    Dense,
+}
+
+impl Family {
+    pub fn name(self) -> &'static str {
+        match self {
+            Family::Sparse => "sparse",
+            Family::Dense => "dense",
+        }
+    }
+
+    /// The family's scene of `n` cylinders.
+    pub fn scene(self, n: usize, seed: u64, width: u32, height: u32) -> Scene {
+        match self {
+            Family::Sparse => random_scene(n, seed, width, height),
+            Family::Dense => dense_scene(n, seed, width, height),
+        }
     }
 }
 
@@ -256,6 +331,8 @@ pub fn kernel_csv(rows: &[KernelRow]) -> String {
 /// What `bench` runs.
 #[derive(Clone, Debug)]
 pub struct BenchOptions {
+    /// Scene families, each run over every count.
+    pub families: Vec<Family>,
     pub counts: Vec<usize>,
     pub width: u32,
     pub height: u32,
@@ -284,9 +361,16 @@ pub fn default_aov_sets() -> Vec<Vec<Aov>> {
 /// One line of the table.
 #[derive(Clone, Debug, Serialize)]
 pub struct Row {
+    /// The scene family's name.
+    pub family: String,
     pub cylinders: usize,
     pub kernel: String,
     pub aovs: String,
+    /// Parsing the scene's JSON text into a validated scene (in process).
+    pub parse_ms: f64,
+    /// The kernel form of every cylinder (part of the in-memory render).
+    pub prepare_ms: f64,
+    /// The acceleration structure: tiles or BVH (part of the in-memory render).
     pub build_ms: f64,
     pub trace_ms: f64,
     /// Encoding the uncompressed EXR and writing it to a file.
@@ -309,9 +393,9 @@ impl Row {
         self.aovs == aov_names(&[Aov::Depth, Aov::Normal])
     }
 
-    /// Build + trace: the time to the image in memory.
+    /// Prepare + build + trace: the time to the image in memory.
     pub fn render_ms(&self) -> f64 {
-        self.build_ms + self.trace_ms
+        self.prepare_ms + self.build_ms + self.trace_ms
     }
 }
 
@@ -406,12 +490,23 @@ pub fn run(opts: &BenchOptions, mut progress: impl FnMut(&Row)) -> Result<Vec<Ro
     let dir = std::env::temp_dir().join(format!("cylaov-bench-{}", std::process::id()));
     std::fs::create_dir_all(&dir)?;
     let mut rows = Vec::new();
-    for &n in &opts.counts {
-        let mut scene = random_scene(n, opts.seed, opts.width, opts.height);
-        let scene_path = dir.join(format!("scene-{n}.json"));
+    for (&family, &n) in opts
+        .families
+        .iter()
+        .flat_map(|f| opts.counts.iter().map(move |n| (f, n)))
+    {
+        let mut scene = family.scene(n, opts.seed, opts.width, opts.height);
+        let scene_path = dir.join(format!("scene-{}-{n}.json", family.name()));
+        let text = serde_json::to_string(&SceneFile::from_scene(&scene))?;
         if opts.exe.is_some() {
-            let text = serde_json::to_string(&SceneFile::from_scene(&scene))?;
-            std::fs::write(&scene_path, text)?;
+            std::fs::write(&scene_path, &text)?;
+        }
+        let mut parse = f64::INFINITY;
+        for _ in 0..opts.repeats.max(1) {
+            let t0 = Instant::now();
+            let parsed = crate::scene::parse(&text)?;
+            parse = parse.min(ms(t0.elapsed()));
+            std::hint::black_box(parsed);
         }
         // Accuracy reference: stable f64 with distance + shape_id.
         scene.aovs = vec![Aov::Distance, Aov::ShapeId];
@@ -432,14 +527,15 @@ pub fn run(opts: &BenchOptions, mut progress: impl FnMut(&Row)) -> Result<Vec<Ro
                     formula: kernel.1,
                     accel: opts.accel,
                 };
-                let (mut build, mut trace, mut write) =
-                    (f64::INFINITY, f64::INFINITY, f64::INFINITY);
+                let (mut prepare, mut build, mut trace, mut write) =
+                    (f64::INFINITY, f64::INFINITY, f64::INFINITY, f64::INFINITY);
                 for _ in 0..opts.repeats.max(1) {
                     let (r, t) = render_timed(&scene, &ro);
                     let w0 = Instant::now();
                     r.image
                         .write_exr(&dir.join("bench.exr"), Compression::None)?;
                     write = write.min(ms(w0.elapsed()));
+                    prepare = prepare.min(ms(t.prepare));
                     build = build.min(ms(t.build));
                     trace = trace.min(ms(t.trace));
                 }
@@ -464,13 +560,16 @@ pub fn run(opts: &BenchOptions, mut progress: impl FnMut(&Row)) -> Result<Vec<Ro
                     None => (None, None),
                 };
                 let row = Row {
+                    family: family.name().to_string(),
                     cylinders: n,
                     kernel: kernel_name(kernel),
                     aovs: aov_names(aovs),
+                    parse_ms: parse,
+                    prepare_ms: prepare,
                     build_ms: build,
                     trace_ms: trace,
                     write_ms: write,
-                    total_ms: build + trace + write,
+                    total_ms: prepare + build + trace + write,
                     mrays_per_s: (opts.width as f64 * opts.height as f64) / (trace * 1e3),
                     process_ms,
                     peak_mib,
@@ -490,10 +589,13 @@ pub fn run(opts: &BenchOptions, mut progress: impl FnMut(&Row)) -> Result<Vec<Ro
 /// The table header, aligned with [`format_row`].
 pub fn header() -> String {
     format!(
-        "{:>7} {:<14} {:<38} {:>8} {:>8} {:>8} {:>8} {:>7} {:>9} {:>8} {:>9} {:>9} {:>6}",
+        "{:<6} {:>7} {:<14} {:<38} {:>7} {:>7} {:>7} {:>8} {:>8} {:>8} {:>7} {:>9} {:>8} {:>9} {:>9} {:>6}",
+        "family",
         "cyl",
         "kernel",
         "aovs",
+        "parse",
+        "prep",
         "build",
         "trace",
         "write",
@@ -511,10 +613,13 @@ pub fn header() -> String {
 pub fn format_row(r: &Row) -> String {
     let opt = |x: Option<f64>, p: usize| x.map_or("-".to_string(), |v| format!("{v:.p$}"));
     format!(
-        "{:>7} {:<14} {:<38} {:>8.1} {:>8.1} {:>8.1} {:>8.1} {:>7.1} {:>9} {:>8} {:>9.1e} {:>9.1e} {:>6}",
+        "{:<6} {:>7} {:<14} {:<38} {:>7.1} {:>7.1} {:>7.1} {:>8.1} {:>8.1} {:>8.1} {:>7.1} {:>9} {:>8} {:>9.1e} {:>9.1e} {:>6}",
+        r.family,
         r.cylinders,
         r.kernel,
         r.aovs,
+        r.parse_ms,
+        r.prepare_ms,
         r.build_ms,
         r.trace_ms,
         r.write_ms,
@@ -531,15 +636,18 @@ pub fn format_row(r: &Row) -> String {
 /// The rows as CSV.
 pub fn csv(rows: &[Row]) -> String {
     let mut s = String::from(
-        "cylinders,kernel,aovs,build_ms,trace_ms,write_ms,total_ms,mrays_per_s,process_ms,peak_mib,err_median,err_max,mismatches\n",
+        "family,cylinders,kernel,aovs,parse_ms,prepare_ms,build_ms,trace_ms,write_ms,total_ms,mrays_per_s,process_ms,peak_mib,err_median,err_max,mismatches\n",
     );
     let opt = |x: Option<f64>| x.map_or(String::new(), |v| format!("{v}"));
     for r in rows {
         s += &format!(
-            "{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
+            r.family,
             r.cylinders,
             r.kernel,
             r.aovs,
+            r.parse_ms,
+            r.prepare_ms,
             r.build_ms,
             r.trace_ms,
             r.write_ms,
@@ -555,14 +663,18 @@ pub fn csv(rows: &[Row]) -> String {
     s
 }
 
+/// `scripts/bench_mitsuba.py`, written into the bench's scratch folder when it runs.
+pub const BENCH_SCRIPT: &str = include_str!("../../scripts/bench_mitsuba.py");
+
 /// Where and how far to run Mitsuba in the same benchmark.
 #[derive(Clone, Debug)]
 pub struct MitsubaBench {
     /// The reference venv's python (with mitsuba 3.9.1).
     pub python: PathBuf,
-    /// `scripts/bench_mitsuba.py`.
-    pub script: PathBuf,
-    /// Largest count for `scalar_rgb` (slow: ~75 s at 1 000 cylinders, SPEC §5).
+    /// The timing script, `scripts/bench_mitsuba.py`, compiled in ([`BENCH_SCRIPT`]) so an
+    /// installed binary needs no source tree.
+    pub script: &'static str,
+    /// Largest count for `scalar_rgb` (slow: ~75 s at 1 000 cylinders on 2 cores).
     pub scalar_max: usize,
     /// Largest count for `llvm_ad_rgb`.
     pub llvm_max: usize,
@@ -571,6 +683,8 @@ pub struct MitsubaBench {
 /// Mitsuba's times on one generated scene, seconds.
 #[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct MitsubaRow {
+    #[serde(default)]
+    pub family: String,
     #[serde(default)]
     pub cylinders: usize,
     pub variant: String,
@@ -596,9 +710,11 @@ pub fn time_mitsuba(
         &xml,
         crate::output::mitsuba::to_xml(scene, "cylaov bench random scene"),
     )?;
+    let script = dir.join("bench_mitsuba.py");
+    std::fs::write(&script, m.script)?;
     let start = Instant::now();
     let o = Command::new(&m.python)
-        .arg(&m.script)
+        .arg(&script)
         .arg(&xml)
         .arg(dir.join("mitsuba.exr"))
         .arg(variant)
@@ -626,7 +742,7 @@ pub fn time_mitsuba(
     Ok(row)
 }
 
-/// Run Mitsuba on the bench scenes, printing each row with the ratios of SPEC §7 against
+/// Run Mitsuba on the bench scenes, printing each row with three ratios against
 /// cylaov's stable-f64 depth+normal row of the same count: (a) whole process vs whole
 /// process, (b) Mitsuba's warm `render()` vs cylaov's whole process, (c) Mitsuba's warm
 /// `render()` vs cylaov's in-memory build + trace.
@@ -639,7 +755,8 @@ pub fn run_mitsuba(
     let dir = std::env::temp_dir().join(format!("cylaov-bench-mi-{}", std::process::id()));
     std::fs::create_dir_all(&dir)?;
     progress(&format!(
-        "{:>7} {:<12} {:>8} {:>8} {:>9} {:>9} {:>9} {:>10} {:>10} {:>10}",
+        "{:<6} {:>7} {:<12} {:>8} {:>8} {:>9} {:>9} {:>9} {:>10} {:>10} {:>10}",
+        "family",
         "cyl",
         "variant",
         "load s",
@@ -652,21 +769,30 @@ pub fn run_mitsuba(
         "(c) trace"
     ));
     let mut out = Vec::new();
-    for &n in &opts.counts {
+    for (&family, &n) in opts
+        .families
+        .iter()
+        .flat_map(|f| opts.counts.iter().map(move |n| (f, n)))
+    {
         let ours = rows.iter().find(|r| {
-            r.cylinders == n && r.kernel == kernel_name(KERNELS[0]) && r.is_depth_normal()
+            r.family == family.name()
+                && r.cylinders == n
+                && r.kernel == kernel_name(KERNELS[0])
+                && r.is_depth_normal()
         });
-        let scene = random_scene(n, opts.seed, opts.width, opts.height);
+        let scene = family.scene(n, opts.seed, opts.width, opts.height);
         for (variant, max) in [("llvm_ad_rgb", m.llvm_max), ("scalar_rgb", m.scalar_max)] {
             if n > max {
                 continue;
             }
-            let r = time_mitsuba(m, &scene, variant, &dir)?;
+            let mut r = time_mitsuba(m, &scene, variant, &dir)?;
+            r.family = family.name().to_string();
             let ratio = |num: f64, den: Option<f64>| {
                 den.map_or("-".to_string(), |d| format!("{:.1}x", num * 1e3 / d))
             };
             progress(&format!(
-                "{:>7} {:<12} {:>8.3} {:>8.3} {:>9.3} {:>9.3} {:>9.3} {:>10} {:>10} {:>10}",
+                "{:<6} {:>7} {:<12} {:>8.3} {:>8.3} {:>9.3} {:>9.3} {:>9.3} {:>10} {:>10} {:>10}",
+                family.name(),
                 n,
                 variant,
                 r.load_s,

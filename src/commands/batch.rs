@@ -5,6 +5,9 @@ use crate::dataset::batch::{self, BatchOptions, ProgressMode, Shard, Summary};
 use anyhow::Result;
 use std::path::PathBuf;
 
+/// The depth PNG scale nerfstudio assumes (its `depth_unit_scale_factor` default 1e-3).
+pub const NERFSTUDIO_DEPTH_SCALE: f64 = 1000.0;
+
 /// Everything `batch` needs from the command line.
 #[derive(Clone, Debug)]
 pub struct BatchArgs {
@@ -14,6 +17,8 @@ pub struct BatchArgs {
     pub shards: Option<u32>,
     pub options: BatchOptions,
     pub progress: ProgressMode,
+    /// Bounds of `--verify-fraction`'s check.
+    pub tolerances: crate::verify::compare::Tolerances,
 }
 
 /// Run the batch; the summary says what happened (failed views are not an `Err`).
@@ -21,7 +26,17 @@ pub fn run(args: &BatchArgs) -> Result<Summary> {
     crate::output::io::check_output_dir("--out", &args.out)?;
     let shard = batch::resolve_shard(args.shard, args.shards, &|k| std::env::var(k).ok())
         .map_err(anyhow::Error::msg)?;
-    let verifier = verifier(args.options.verify_fraction)?;
+    let verifier = verifier(args)?;
+    if args.options.png && args.options.depth_scale != NERFSTUDIO_DEPTH_SCALE {
+        crate::output::io::warn(&format!(
+            "warning: --depth-scale {}: nerfstudio reads depth PNGs at {NERFSTUDIO_DEPTH_SCALE} \
+             per unit unless told otherwise: train with its parser option \
+             depth_unit_scale_factor = {} (index.json and transforms.json record it, but \
+             nerfstudio does not read it from there)",
+            args.options.depth_scale,
+            1.0 / args.options.depth_scale
+        ));
+    }
     batch::run(
         &args.input,
         &args.out,
@@ -33,15 +48,18 @@ pub fn run(args: &BatchArgs) -> Result<Summary> {
 }
 
 /// The Mitsuba verifier for `--verify-fraction`, if asked for and the reference venv exists
-/// (without it verification is skipped with a notice: the issue's "when the reference venv
-/// is present").
-fn verifier(fraction: f64) -> Result<Option<crate::verify::reference::MitsubaVerifier>> {
-    if fraction <= 0.0 {
+/// (without it verification is skipped with a notice saying how to make the venv).
+fn verifier(args: &BatchArgs) -> Result<Option<crate::verify::reference::MitsubaVerifier>> {
+    if args.options.verify_fraction <= 0.0 {
         return Ok(None);
     }
-    let found = crate::verify::reference::MitsubaVerifier::find();
+    let found = crate::verify::reference::MitsubaVerifier::find(
+        args.tolerances,
+        args.options.precision,
+        args.options.formula,
+    );
     if let Err(why) = &found {
-        eprintln!("--verify-fraction: skipped: {why}");
+        crate::output::io::warn(&format!("--verify-fraction: skipped: {why}"));
     }
     Ok(found.ok())
 }

@@ -44,7 +44,12 @@ pub fn run(
     let outputs: Vec<(&str, &Path)> = outputs.iter().map(|(f, p)| (*f, p.as_path())).collect();
     check_outputs(&outputs, &[])?;
     say(&format!(
-        "cylaov bench: {}x{}, seed {}, accel {:?}, min of {} runs, {} threads; times in ms, err = relative distance error vs stable-f64",
+        "cylaov bench: {} family, {}x{}, seed {}, accel {:?}, min of {} runs, {} threads; times in ms (parse: the scene JSON; prep: kernel forms; build: tiles or BVH), err = relative distance error vs stable-f64",
+        opts.families
+            .iter()
+            .map(|f| f.name())
+            .collect::<Vec<_>>()
+            .join(" and "),
         opts.width,
         opts.height,
         opts.seed,
@@ -97,11 +102,12 @@ pub fn run(
         if !mi_rows.is_empty() {
             let mpath = path.with_extension("mitsuba.csv");
             let mut text = String::from(
-                "cylinders,variant,import_s,load_s,render1_s,write_s,render2_s,process_s\n",
+                "family,cylinders,variant,import_s,load_s,render1_s,write_s,render2_s,process_s\n",
             );
             for r in &mi_rows {
                 text += &format!(
-                    "{},{},{},{},{},{},{},{}\n",
+                    "{},{},{},{},{},{},{},{},{}\n",
+                    r.family,
                     r.cylinders,
                     r.variant,
                     r.import_s,

@@ -1,10 +1,12 @@
 //! `cylaov compare`: two AOV EXRs → report (table or JSON), optional heatmap, pass/fail.
+//! With `--scene`, A must be a render of that scene (cylaov's or Mitsuba's, with `shape_id`,
+//! `distance` and `normal`), and grazing pixels get their float32 conditioning bound.
 
 use crate::output::aov::AovImage;
 use crate::output::io::{check_memory, check_outputs};
 use crate::output::preview::write_png;
-use crate::verify::compare::{Report, Tolerances, compare, heatmap};
-use anyhow::{Context, Result};
+use crate::verify::compare::{Conditioning, Report, Tolerances, compare_with, heatmap};
+use anyhow::{Context, Result, bail};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 
@@ -13,6 +15,10 @@ use std::path::{Path, PathBuf};
 pub struct CompareArgs {
     pub a: PathBuf,
     pub b: PathBuf,
+    /// The scene A was rendered from: enables the per-pixel float32 conditioning bounds.
+    pub scene: Option<PathBuf>,
+    /// The float32 ulps of ray error the conditioning bound allows (with `scene`).
+    pub conditioning_ulps: f64,
     pub heatmap: Option<PathBuf>,
     pub json: bool,
     pub tolerances: Tolerances,
@@ -57,10 +63,32 @@ pub fn memory_needed(a: (u64, u64), b: (u64, u64)) -> u64 {
     4 * (a.0 * a.1 + b.0 * b.1) + 16 * a.0.max(b.0)
 }
 
+/// The tolerance line of a text report.
+pub fn tolerance_line(t: &Tolerances) -> String {
+    format!(
+        "tolerances: silhouette mismatches <= {:.2e}, seam mismatches <= {:.2e}, rel distance <= {:.1e}, rel depth <= {:.1e}, normal <= {} deg",
+        t.max_mismatch_fraction, t.max_seam_fraction, t.rel_distance, t.rel_depth, t.normal_deg
+    )
+}
+
+/// `PASS`, or `FAIL:` and one indented line per broken tolerance.
+pub fn verdict_lines(failures: &[String]) -> String {
+    if failures.is_empty() {
+        return "PASS".into();
+    }
+    let mut s = String::from("FAIL:");
+    for f in failures {
+        s += &format!("\n  {f}");
+    }
+    s
+}
+
 /// Read both images, compare, write the heatmap if asked, and format the result.
 pub fn run(args: &CompareArgs) -> Result<CompareOutcome> {
     if let Some(path) = &args.heatmap {
-        check_outputs(&[("--heatmap", path)], &[&args.a, &args.b])?;
+        let mut inputs = vec![args.a.as_path(), args.b.as_path()];
+        inputs.extend(args.scene.as_deref());
+        check_outputs(&[("--heatmap", path)], &inputs)?;
     }
     let (sa, sb) = (header_size(&args.a)?, header_size(&args.b)?);
     check_memory(
@@ -69,10 +97,27 @@ pub fn run(args: &CompareArgs) -> Result<CompareOutcome> {
     )?;
     let a = AovImage::read_exr(&args.a)?;
     let b = AovImage::read_exr(&args.b)?;
-    let report = compare(&a, &b)
+    let cond = match &args.scene {
+        None => None,
+        Some(path) => {
+            let scene = crate::scene::load(path)
+                .map_err(|e| anyhow::anyhow!("--scene {}: {e}", path.display()))?;
+            match Conditioning::with_ulps(&scene, &a, args.conditioning_ulps) {
+                Some(c) => Some(c),
+                None => bail!(
+                    "--scene: {} must be that scene's render with shape_id, distance and normal, at its size",
+                    args.a.display()
+                ),
+            }
+        }
+    };
+    let report = compare_with(&a, &b, cond.as_ref())
         .with_context(|| format!("comparing {} with {}", args.a.display(), args.b.display()))?;
     if let Some(path) = &args.heatmap {
-        write_png(&annotate(heatmap(&a, &b, &report, &args.tolerances)), path)?;
+        write_png(
+            &annotate(heatmap(&a, &b, &report, &args.tolerances, cond.as_ref())),
+            path,
+        )?;
     }
     let failures = report.failures(&args.tolerances);
     let passed = failures.is_empty();
@@ -87,25 +132,16 @@ pub fn run(args: &CompareArgs) -> Result<CompareOutcome> {
         };
         serde_json::to_string_pretty(&out)?
     } else {
-        let t = &args.tolerances;
         let mut s = format!(
-            "A: {}\nB: {}\n{report}\n",
+            "A: {}\nB: {}\n{report}\n{}\n",
             args.a.display(),
-            args.b.display()
+            args.b.display(),
+            tolerance_line(&args.tolerances),
         );
-        s += &format!(
-            "tolerances: mismatches <= {:.2e} (silhouettes only), rel distance <= {:.1e}, rel depth <= {:.1e}, normal <= {} deg\n",
-            t.max_mismatch_fraction, t.rel_distance, t.rel_depth, t.normal_deg
-        );
-        if passed {
-            s += "PASS";
-        } else {
-            s += "FAIL:";
-            for f in &failures {
-                s += &format!("\n  {f}");
-            }
+        for line in report.explained_lines(&args.tolerances) {
+            s += &format!("accepted: {line}\n");
         }
-        s
+        s + &verdict_lines(&failures)
     };
     Ok(CompareOutcome {
         text,

@@ -1,6 +1,6 @@
 //! `cylaov generate`: procedural scene files and their manifest.
 //!
-//! Layout: `OUT/scenes/NNNNNN.json` (complete SPEC §2 scene files), `OUT/manifest.jsonl`
+//! Layout: `OUT/scenes/NNNNNN.json` (complete scene files), `OUT/manifest.jsonl`
 //! (`{"name": ..., "scene": "scenes/NNNNNN.json"}` per line) and `OUT/generate.json` (the
 //! resolved options, itself a valid `--config`). Every file is written atomically; the
 //! manifest last, so a manifest on disk always names scene files that exist.

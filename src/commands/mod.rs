@@ -8,3 +8,4 @@ pub mod export_mitsuba;
 pub mod generate;
 pub mod render;
 pub mod stress;
+pub mod verify;

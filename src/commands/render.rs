@@ -24,6 +24,8 @@ pub struct RenderArgs {
     pub options: RenderOptions,
     pub preview: Option<PathBuf>,
     pub compression: Compression,
+    /// `--camera K`: the camera of a several-camera scene (0 = the first).
+    pub camera: usize,
 }
 
 /// Bytes a render of `width × height` with `aovs` holds at its peak: one plane per channel
@@ -70,7 +72,11 @@ pub fn run(args: &RenderArgs) -> Result<String> {
     let mut outputs = vec![("-o", args.out.as_path()), ("-o", cam_path.as_path())];
     outputs.extend(previews.iter().map(|p| ("--preview", p.as_path())));
     check_outputs(&outputs, &[&args.scene])?;
-    let scene = scene::load(&args.scene).with_context(|| format!("{}", args.scene.display()))?;
+    let mut scene =
+        scene::load(&args.scene).with_context(|| format!("{}", args.scene.display()))?;
+    scene
+        .select_camera(args.camera)
+        .with_context(|| format!("--camera {}: {}", args.camera, args.scene.display()))?;
     let aovs = args.aovs.clone().unwrap_or_else(|| scene.aovs.clone());
     let opts = RenderOptions {
         aovs: aovs.clone(),

@@ -1,7 +1,7 @@
-//! AOV images in memory and as OpenEXR files (SPEC §4).
+//! AOV images in memory and as OpenEXR files.
 //!
 //! Channel names are the contract: `distance`, `depth`, `normal.X/Y/Z`, `position.X/Y/Z`
-//! (float32) and `shape_id` (u32). Row 0 is the top row. A missed pixel is 0 everywhere.
+//! (float32), `shape_id` and `part` (u32). Row 0 is the top row. A missed pixel is 0 everywhere.
 
 use crate::output::io::{Staged, stage};
 use crate::scene::Aov;
@@ -69,6 +69,7 @@ pub fn channel_names(aov: Aov) -> &'static [&'static str] {
         Aov::Normal => &["normal.X", "normal.Y", "normal.Z"],
         Aov::Position => &["position.X", "position.Y", "position.Z"],
         Aov::ShapeId => &["shape_id"],
+        Aov::Part => &["part"],
     }
 }
 
@@ -171,7 +172,7 @@ impl AovImage {
 
     /// Stream an uncompressed single-part scanline OpenEXR straight from the planes (the
     /// `exr` crate copies every sample through its own layout, which costs more than the
-    /// render at 1080p; SPEC §6). Layout: magic and version, the header attributes, the
+    /// render at 1080p). Layout: magic and version, the header attributes, the
     /// offset table (one u64 per line), then per line its `y`, byte count, and each
     /// channel's row in channel-name order. Every row is already contiguous in its plane,
     /// so a line is written as slices, with no per-sample work on little-endian machines.

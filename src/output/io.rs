@@ -425,7 +425,7 @@ struct CameraMeta {
     fov_axis: &'static str,
     near_clip: f64,
     far_clip: f64,
-    /// Intrinsics in pixels, row-major.
+    /// Intrinsics in pixels, row-major, pixel centres at `i + 0.5`.
     #[serde(rename = "K")]
     k: [[f64; 3]; 3],
     principal_point_note: &'static str,
@@ -433,6 +433,12 @@ struct CameraMeta {
     fl_y: f64,
     cx: f64,
     cy: f64,
+    /// The same intrinsics with pixel centres at integers.
+    #[serde(rename = "K_opencv")]
+    k_opencv: [[f64; 3]; 3],
+    principal_point_note_opencv: &'static str,
+    cx_opencv: f64,
+    cy_opencv: f64,
     camera_to_world_opencv: [[f64; 4]; 4],
     world_to_camera_opencv: [[f64; 4]; 4],
     camera_to_world_opengl: [[f64; 4]; 4],
@@ -461,6 +467,10 @@ pub fn aov_meaning(aov: Aov) -> (&'static str, &'static str) {
             "u32 id of the hit cylinder (scene 'id', default 1-based index)",
             "0",
         ),
+        Aov::Part => (
+            "u32 part of the hit cylinder: 1 side seen from outside, 2 side seen from inside, 3 bottom cap (at p0), 4 top cap (at p1)",
+            "0",
+        ),
     }
 }
 
@@ -468,6 +478,7 @@ pub fn aov_meaning(aov: Aov) -> (&'static str, &'static str) {
 pub fn camera_json(cam: &Camera, aovs: &[Aov]) -> String {
     let (fx, fy) = cam.focal_px();
     let k = cam.k_matrix();
+    let k_cv = cam.k_matrix_opencv();
     let cv = cam.world_from_camera_opencv();
     let gl = cam.world_from_camera_opengl();
     let meta = CameraMeta {
@@ -478,11 +489,15 @@ pub fn camera_json(cam: &Camera, aovs: &[Aov]) -> String {
         near_clip: cam.spec.near_clip,
         far_clip: cam.spec.far_clip,
         k,
-        principal_point_note: "cx = W/2, cy = H/2: pixel (i, j) has its centre at (i + 0.5, j + 0.5)",
+        principal_point_note: "K, cx, cy: cx = W/2, cy = H/2, pixel (i, j) has its centre at (i + 0.5, j + 0.5): nerfstudio, Mitsuba",
         fl_x: fx,
         fl_y: fy,
         cx: k[0][2],
         cy: k[1][2],
+        k_opencv: k_cv,
+        principal_point_note_opencv: "K_opencv, cx_opencv, cy_opencv: cx = W/2 - 0.5, cy = H/2 - 0.5, pixel (i, j) has its centre at (i, j): OpenCV, Open3D, COLMAP",
+        cx_opencv: k_cv[0][2],
+        cy_opencv: k_cv[1][2],
         camera_to_world_opencv: rows(cv),
         world_to_camera_opencv: rows(cv.inverse()),
         camera_to_world_opengl: rows(gl),
@@ -502,6 +517,49 @@ pub fn camera_json(cam: &Camera, aovs: &[Aov]) -> String {
             .collect(),
     };
     let mut s = serde_json::to_string_pretty(&meta).unwrap_or_default();
+    s.push('\n');
+    s
+}
+
+/// Open3D's `PinholeCameraParameters` file (`NAME.open3d.json`), which
+/// `o3d.io.read_pinhole_camera_parameters` loads as it is: the intrinsic matrix with the
+/// integer-centre principal point (`W/2 - 0.5`) and the extrinsic world-to-camera in OpenCV
+/// axes (x right, y down, z forward), both column-major as Open3D (Eigen) stores them.
+pub fn open3d_json(cam: &Camera) -> String {
+    #[derive(Serialize)]
+    struct Intrinsic {
+        width: u32,
+        height: u32,
+        intrinsic_matrix: [f64; 9],
+    }
+    #[derive(Serialize)]
+    struct Params {
+        class_name: &'static str,
+        version_major: u32,
+        version_minor: u32,
+        intrinsic: Intrinsic,
+        extrinsic: [f64; 16],
+    }
+    let k = cam.k_matrix_opencv();
+    let mut k_cols = [0.0; 9];
+    for (c, col) in k_cols.chunks_exact_mut(3).enumerate() {
+        for (r, x) in col.iter_mut().enumerate() {
+            *x = k[r][c];
+        }
+    }
+    let params = Params {
+        class_name: "PinholeCameraParameters",
+        version_major: 1,
+        version_minor: 0,
+        intrinsic: Intrinsic {
+            width: cam.width(),
+            height: cam.height(),
+            intrinsic_matrix: k_cols,
+        },
+        // glam matrices are column-major already.
+        extrinsic: cam.world_from_camera_opencv().inverse().to_cols_array(),
+    };
+    let mut s = serde_json::to_string_pretty(&params).unwrap_or_default();
     s.push('\n');
     s
 }

@@ -1,8 +1,15 @@
 //! Rendering: one ray per pixel through the BVH and a cylinder kernel, in parallel bands
 //! of rows, filling only the requested AOVs. A render is a pure function of scene + options.
+//!
+//! Primary rays go tile by tile (16×16 pixels). A tile finds its cylinders one of two
+//! ways: from its screen-tile list ([`Tiles`], binned before the trace), or, when the
+//! lists would be crowded, by walking the BVH with the tile's view cone, nearest node
+//! first, and stopping once every pixel's best hit is nearer than the next node
+//! ([`ConeWalk`]): the cost then follows what is visible, not what is listed. Either
+//! way each candidate is rasterised over just the pixels its projection can cover.
 
-use crate::accel::bvh::Bvh;
-use crate::accel::tiles::{Candidate, TILE, Tiles};
+use crate::accel::bvh::{Bvh, Cone, ConeWalk};
+use crate::accel::tiles::{self, Candidate, TILE, Tiles};
 use crate::geometry::packet::{self, LANES, NO_HIT, Packet, PacketFormula};
 use crate::geometry::wide::{Lanes, Simd, Wide};
 use crate::geometry::{BasicHit, Formula, Literal, Prepared, Real, Stable, Surface};
@@ -23,7 +30,7 @@ pub enum Precision {
 /// Kernel formulation (see `geometry::cylinder`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
 pub enum FormulaKind {
-    /// SPEC §1 as written: textbook roots, axis-point normal quadratic.
+    /// The textbook formulas as written: textbook roots, axis-point normal quadratic.
     Literal,
     /// Lagrange discriminant, citardauq roots, projected normal, gap-free rims.
     #[default]
@@ -33,9 +40,13 @@ pub enum FormulaKind {
 /// How primary rays find their candidate cylinders.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
 pub enum Accel {
-    /// Screen tiles of projected cylinder boxes, nearest first (primary rays only).
+    /// Screen tiles of projected cylinder boxes, nearest first (primary rays only); when
+    /// the tile lists would be crowded, the BVH walked tile by tile (`frustum`).
     #[default]
     Tiles,
+    /// The BVH walked once per tile with the tile's view cone, nearest first, stopping
+    /// when everything left is behind the tile's hits (primary rays only).
+    Frustum,
     /// The BVH, one traversal per ray (works for any ray; kept to compare).
     Bvh,
 }
@@ -74,10 +85,13 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Render {
     render_timed(scene, opts).0
 }
 
-/// Time spent preparing the scene (kernel form, BVH or tiles) and tracing it.
+/// Time spent preparing the scene: the acceleration structure (`build`: tiles or BVH,
+/// and the projections a cone walk reads), the kernel form of every cylinder (`prepare`),
+/// and tracing it.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Timing {
     pub build: std::time::Duration,
+    pub prepare: std::time::Duration,
     pub trace: std::time::Duration,
 }
 
@@ -100,6 +114,8 @@ pub struct Tracer<T: Real, F: Formula> {
     order: Vec<u32>,
     bvh: Option<Bvh>,
     tiles: Option<Tiles>,
+    /// For walking the BVH tile by tile: each slot's projection.
+    cone_cands: Option<Vec<Candidate>>,
     _formula: std::marker::PhantomData<F>,
 }
 
@@ -126,6 +142,11 @@ fn f32_down(x: f64) -> f32 {
 impl<T: Real, F: Formula> Tracer<T, F> {
     /// Prepare `scene` for its camera, building the structure `accel` needs.
     pub fn new(scene: &Scene, accel: Accel) -> Self {
+        Self::new_timed(scene, accel).0
+    }
+
+    /// [`Tracer::new`], also reporting how long the kernel forms took.
+    fn new_timed(scene: &Scene, accel: Accel) -> (Self, std::time::Duration) {
         let camera = Camera::new(scene.camera);
         let origin = camera.origin;
         let cylinders = &scene.cylinders;
@@ -134,16 +155,22 @@ impl<T: Real, F: Formula> Tracer<T, F> {
             Bvh::build(&bounds, origin)
         };
         let (bvh, mut tiles) = match accel {
-            Accel::Bvh => (Some(bvh()), None),
+            Accel::Bvh | Accel::Frustum => (Some(bvh()), None),
             Accel::Tiles => match Tiles::build(&camera, cylinders) {
                 Some(tiles) => (None, Some(tiles)),
                 None => (Some(bvh()), None),
             },
         };
-        let order = match &mut tiles {
-            Some(tiles) => tiles.assign_slots(cylinders.len()),
-            None => (0..cylinders.len() as u32).collect(),
+        // Slots follow the order the trace meets cylinders in: the tiles' lists, or the
+        // BVH's leaves (a leaf's cylinders then lie together in memory).
+        let order = match (&mut tiles, &bvh) {
+            (Some(tiles), _) => tiles.assign_slots(cylinders.len()),
+            (None, Some(bvh)) => bvh.order().to_vec(),
+            (None, None) => (0..cylinders.len() as u32).collect(),
         };
+        let cone_cands = (bvh.is_some() && accel != Accel::Bvh)
+            .then(|| tiles::project_slots(&camera, cylinders, &order));
+        let t0 = std::time::Instant::now();
         let mut prepared = Vec::with_capacity(order.len());
         huge_pages(&prepared);
         prepared.par_extend(
@@ -151,14 +178,17 @@ impl<T: Real, F: Formula> Tracer<T, F> {
                 .par_iter()
                 .map(|&i| Prepared::new(&cylinders[i as usize], origin, F::CENTRED)),
         );
-        Tracer {
+        let prepare = t0.elapsed();
+        let tracer = Tracer {
             camera,
             prepared,
             order,
             bvh,
             tiles,
+            cone_cands,
             _formula: std::marker::PhantomData,
-        }
+        };
+        (tracer, prepare)
     }
 
     /// The ray parameter range of camera-space z in `[near_clip, far_clip]` along `d`.
@@ -210,8 +240,7 @@ impl<T: Real, F: Formula> Tracer<T, F> {
         match &self.bvh {
             Some(bvh) => {
                 let d32 = Vec3A::new(d.x as f32, d.y as f32, d.z as f32);
-                // With a BVH there are no tiles and slots are scene indices (`order` is
-                // the identity), which is what the BVH's primitives are.
+                // With a BVH there are no tiles and slots are the BVH's positions.
                 debug_assert!(self.tiles.is_none());
                 bvh.traverse(d32, f32_down(tmin), f32_up(tmax), |slot| {
                     self.consider(slot, dt, tmin_t, tmax_t, &mut best)
@@ -235,10 +264,8 @@ impl<T: Real, F: Formula> Tracer<T, F> {
 }
 
 /// Nearest hits for the pixels `xs × ys` (inclusive) of one tile from its candidates,
-/// rasterised nearest first: each candidate visits only the pixels of its row spans,
-/// eight at a time ([`Packet`]), and skips those whose best hit is nearer than its
-/// `t_min`. `offsets` are the image-plane offsets per column (padded to whole tiles)
-/// and per row.
+/// rasterised nearest first (see [`rasterise`]). `offsets` are the image-plane offsets per
+/// column (padded to whole tiles) and per row.
 #[inline(always)]
 fn trace_tile<T: Real, F: PacketFormula, W: Wide<T>>(
     tracer: &Tracer<T, F>,
@@ -248,58 +275,163 @@ fn trace_tile<T: Real, F: PacketFormula, W: Wide<T>>(
     offsets: (&[f64], &[f64]),
     rays: &mut TileRays<T>,
 ) {
-    // Packets are set up lazily: pixels no candidate covers cost nothing.
     rays.ready = 0;
     for c in cands {
-        let prepared = &tracer.prepared[c.slot as usize];
-        for j in c.y0.max(ys.0)..=c.y1.min(ys.1) {
-            let Some((a, b)) = c.row_span(j, xs.0, xs.1) else {
-                continue;
-            };
-            let (a, b) = ((a - xs.0) as usize, (b - xs.0) as usize);
-            for g in a / LANES..=b / LANES {
-                let k = (j - ys.0) as usize * PACKETS_PER_ROW + g;
-                if rays.ready & (1 << k) == 0 {
-                    let x0 = xs.0 as usize + g * LANES;
-                    let cols = &offsets.0[x0..x0 + LANES];
-                    setup(
-                        &tracer.camera,
-                        &mut rays.packets[k],
-                        &mut rays.dirs[k],
-                        cols,
-                        offsets.1[j as usize],
-                    );
-                    // tmax padded as a best hit is (below): a hit the kernel keeps at
-                    // its rounded tmax must not be skipped.
-                    rays.reach[k] = rays.packets[k]
-                        .t
-                        .map(|t| t.to_f64() * (1.0 + 8.0 * T::UNIT_ROUNDOFF));
-                    rays.ready |= 1 << k;
+        rasterise::<T, F, W, false>(tracer, c, xs, ys, offsets, rays);
+    }
+}
+
+/// [`trace_tile`] with the candidates found by walking `bvh` with the tile's view cone,
+/// nearest node first, until every pixel of the tile has a hit nearer than the next node
+/// (or no node is left): occlusion culling. `cands` holds every slot's projection.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn trace_cone<T: Real, F: PacketFormula, W: Wide<T>>(
+    tracer: &Tracer<T, F>,
+    bvh: &Bvh,
+    cands: &[Candidate],
+    xs: (u32, u32),
+    ys: (u32, u32),
+    offsets: (&[f64], &[f64]),
+    rays: &mut TileRays<T>,
+) {
+    rays.ready = 0;
+    let cone = tile_cone(&tracer.camera, xs, ys, offsets);
+    // The packets holding image pixels: every row of the tile, the groups of eight
+    // columns up to the tile's last (lanes past the image's edge are not counted in the
+    // reach: their rays exist, but no pixel needs them).
+    let (tw, rows) = ((xs.1 - xs.0 + 1) as usize, (ys.1 - ys.0 + 1) as usize);
+    let groups = tw.div_ceil(LANES);
+    let row_mask = (1u32 << groups) - 1;
+    let valid = (0..rows).fold(0u32, |m, r| m | row_mask << (r * PACKETS_PER_ROW));
+    rays.lanes = [LANES as u8; PACKETS];
+    for r in 0..rows {
+        rays.lanes[r * PACKETS_PER_ROW + groups - 1] = (tw - (groups - 1) * LANES) as u8;
+    }
+    let mut walk = ConeWalk::new(bvh, cone);
+    let mut reach = f32::INFINITY;
+    while let Some(range) = walk.next_leaf(reach) {
+        for c in &cands[range.start as usize..range.end as usize] {
+            if !c.is_culled() {
+                rasterise::<T, F, W, true>(tracer, c, xs, ys, offsets, rays);
+            }
+        }
+        // Until every pixel has had a candidate, some ray still reaches its tmax.
+        if rays.ready & valid == valid {
+            let mut far = 0.0f64;
+            for k in 0..PACKETS {
+                if valid & (1 << k) != 0 {
+                    far = far.max(rays.far[k]);
                 }
-                // Lanes of the span whose best hit is not nearer than the candidate.
-                let (lo, hi) = (
-                    a.max(g * LANES) - g * LANES,
-                    b.min(g * LANES + LANES - 1) - g * LANES,
+            }
+            reach = f32_up(far);
+        }
+    }
+}
+
+/// The view cone of the pixels `xs × ys`, widened by a pixel on every side (the walk must
+/// not lose a box to rounding; the candidates' own bounds decide which pixels it covers).
+/// A pixel ray is `forward − left·x + up·y` (then normalised), so the rays with column
+/// offset `x >= a` satisfy `v·(−left − a·forward) >= 0`, and so on for the other sides.
+fn tile_cone(cam: &Camera, xs: (u32, u32), ys: (u32, u32), (cols, rows): (&[f64], &[f64])) -> Cone {
+    let step_x = (cols[1] - cols[0]).abs();
+    let step_y = if rows.len() > 1 {
+        (rows[1] - rows[0]).abs()
+    } else {
+        2.0 * cam.tan_half_y
+    };
+    let (x0, x1) = (cols[xs.0 as usize], cols[xs.1 as usize]);
+    let (y0, y1) = (rows[ys.0 as usize], rows[ys.1 as usize]);
+    let (a, b) = (x0.min(x1) - step_x, x0.max(x1) + step_x);
+    let (c, d) = (y0.min(y1) - step_y, y0.max(y1) + step_y);
+    let (f, l, u) = (cam.forward, cam.left, cam.true_up);
+    let v = |p: DVec3| Vec3A::new(p.x as f32, p.y as f32, p.z as f32);
+    Cone {
+        planes: [-l - f * a, l + f * b, u - f * c, -u + f * d].map(v),
+        forward: v(f),
+    }
+}
+
+/// Test candidate `c` against the pixels of tile `xs × ys` it can cover: it visits only
+/// its row spans, eight pixels at a time ([`Packet`]), and skips pixels whose best hit is
+/// nearer than its `t_min`. Packets are set up on first use. With `CONE`, each touched
+/// packet's farthest reach is kept up to date (the cone walk's stopping rule reads it).
+#[inline(always)]
+fn rasterise<T: Real, F: PacketFormula, W: Wide<T>, const CONE: bool>(
+    tracer: &Tracer<T, F>,
+    c: &Candidate,
+    xs: (u32, u32),
+    ys: (u32, u32),
+    offsets: (&[f64], &[f64]),
+    rays: &mut TileRays<T>,
+) {
+    if CONE && (c.x1 < xs.0 || c.x0 > xs.1 || c.y1 < ys.0 || c.y0 > ys.1) {
+        return;
+    }
+    let prepared = &tracer.prepared[c.slot as usize];
+    for j in c.y0.max(ys.0)..=c.y1.min(ys.1) {
+        let Some((a, b)) = c.row_span(j, xs.0, xs.1) else {
+            continue;
+        };
+        let (a, b) = ((a - xs.0) as usize, (b - xs.0) as usize);
+        for g in a / LANES..=b / LANES {
+            let k = (j - ys.0) as usize * PACKETS_PER_ROW + g;
+            if rays.ready & (1 << k) == 0 {
+                let x0 = xs.0 as usize + g * LANES;
+                let cols = &offsets.0[x0..x0 + LANES];
+                setup(
+                    &tracer.camera,
+                    &mut rays.packets[k],
+                    &mut rays.dirs[k],
+                    cols,
+                    offsets.1[j as usize],
                 );
-                let span = ((1u32 << (hi + 1)) - (1 << lo)) as u8;
-                let mask = span & W::le_bits(c.t_min, &rays.reach[k]);
-                if mask == 0 {
-                    continue;
+                // tmax padded as a best hit is (below): a hit the kernel keeps at
+                // its rounded tmax must not be skipped.
+                rays.reach[k] = rays.packets[k]
+                    .t
+                    .map(|t| t.to_f64() * (1.0 + 8.0 * T::UNIT_ROUNDOFF));
+                rays.ready |= 1 << k;
+                if CONE {
+                    rays.far[k] = farthest(&rays.reach[k], rays.lanes[k]);
                 }
-                let pk = &mut rays.packets[k];
-                let changed = F::intersect_packet::<T, W>(prepared, (c.index, c.slot), pk, mask);
-                if changed != 0 {
-                    for l in 0..LANES {
-                        // Padded by 8ε of the kernel: a candidate whose t rounds just
-                        // below this hit's must still be tested (ties decide by index).
-                        if changed & (1 << l) != 0 {
-                            rays.reach[k][l] = pk.t[l].to_f64() * (1.0 + 8.0 * T::UNIT_ROUNDOFF);
-                        }
+            }
+            // Lanes of the span whose best hit is not nearer than the candidate.
+            let (lo, hi) = (
+                a.max(g * LANES) - g * LANES,
+                b.min(g * LANES + LANES - 1) - g * LANES,
+            );
+            let span = ((1u32 << (hi + 1)) - (1 << lo)) as u8;
+            let mask = span & W::le_bits(c.t_min, &rays.reach[k]);
+            if mask == 0 {
+                continue;
+            }
+            let pk = &mut rays.packets[k];
+            let changed = F::intersect_packet::<T, W>(prepared, (c.index, c.slot), pk, mask);
+            if changed != 0 {
+                for l in 0..LANES {
+                    // Padded by 8ε of the kernel: a candidate whose t rounds just
+                    // below this hit's must still be tested (ties decide by index).
+                    if changed & (1 << l) != 0 {
+                        rays.reach[k][l] = pk.t[l].to_f64() * (1.0 + 8.0 * T::UNIT_ROUNDOFF);
                     }
+                }
+                if CONE {
+                    rays.far[k] = farthest(&rays.reach[k], rays.lanes[k]);
                 }
             }
         }
     }
+}
+
+/// The largest of the first `n` reaches.
+#[inline(always)]
+fn farthest(reach: &[f64; LANES], n: u8) -> f64 {
+    let mut m = 0.0f64;
+    for &r in &reach[..n as usize] {
+        m = m.max(r);
+    }
+    m
 }
 
 /// Eight rays through columns `cols` of the row at offset `y`: [`Camera::dir_and_length`]
@@ -352,6 +484,9 @@ pub(crate) struct TileRays<T: Real> {
     reach: [[f64; LANES]; PACKETS],
     /// A bit per packet: set up (and its hits valid).
     ready: u32,
+    /// Cone walks only: per packet, the lanes holding image pixels and their largest reach.
+    lanes: [u8; PACKETS],
+    far: [f64; PACKETS],
 }
 
 impl<T: Real> TileRays<T> {
@@ -361,6 +496,8 @@ impl<T: Real> TileRays<T> {
             dirs: [[[0.0; LANES]; 3]; PACKETS],
             reach: [[0.0; LANES]; PACKETS],
             ready: 0,
+            lanes: [LANES as u8; PACKETS],
+            far: [0.0; PACKETS],
         })
     }
 
@@ -423,16 +560,18 @@ struct Planes<P> {
     position: Option<[P; 3]>,
 }
 
-/// One band's slices of every requested plane (`shape_id` as u32).
+/// One band's slices of every requested plane (`shape_id` and `part` as u32).
 struct Band<'a> {
     f: Planes<&'a mut [f32]>,
     id: Option<&'a mut [u32]>,
+    part: Option<&'a mut [u32]>,
 }
 
 /// Cut each requested plane into bands of `len` samples.
 fn bands<'a>(
     f: &'a mut Planes<Vec<f32>>,
     id: &'a mut Option<Vec<u32>>,
+    part: &'a mut Option<Vec<u32>>,
     len: usize,
     count: usize,
 ) -> Vec<Band<'a>> {
@@ -465,6 +604,7 @@ fn bands<'a>(
         cut(p2, len, count).into_iter(),
     ];
     let mut ids = cut(id.as_mut(), len, count).into_iter();
+    let mut parts = cut(part.as_mut(), len, count).into_iter();
     let three =
         |it: &mut [std::vec::IntoIter<Option<&'a mut [f32]>>; 3]| -> Option<[&'a mut [f32]; 3]> {
             match (
@@ -485,6 +625,7 @@ fn bands<'a>(
                 position: three(&mut p),
             },
             id: ids.next().flatten(),
+            part: parts.next().flatten(),
         })
         .collect()
 }
@@ -528,6 +669,22 @@ fn shade<T: Real, F: Formula>(
     if let Some(s) = band.id.as_deref_mut() {
         s[k] = fr.ids[ph.index as usize];
     }
+    if let Some(s) = band.part.as_deref_mut() {
+        s[k] = part_code(fr.tracer, d, &ph);
+    }
+}
+
+/// The `part` AOV of a hit: 1 side from outside, 2 side from inside, 3 bottom cap, 4 top
+/// cap. The side's facing is the sign of `normal · d`, as the Mitsuba reference decides it
+/// (the outward normal points away from the camera on the wall's inner face).
+#[inline(always)]
+fn part_code<T: Real, F: Formula>(tracer: &Tracer<T, F>, d: DVec3, ph: &PixelHit<T>) -> u32 {
+    match ph.hit.surface {
+        Surface::Side if tracer.normal(d, ph).dot(d) > 0.0 => 2,
+        Surface::Side => 1,
+        Surface::Bottom => 3,
+        Surface::Top => 4,
+    }
 }
 
 /// Trace and shade band `b` (one row of tiles), returning its hit count.
@@ -543,17 +700,26 @@ fn render_band<T: Real, F: PacketFormula, W: Wide<T>>(
     let row0 = b * band_rows;
     let rows = band_rows.min(h - row0);
     let mut hits = 0;
-    match &tracer.tiles {
-        Some(tiles) => {
+    let offsets = (fr.cols_off, fr.rows_off);
+    match (&tracer.tiles, &tracer.bvh, &tracer.cone_cands) {
+        (Some(_), _, _) | (None, Some(_), Some(_)) => {
             let mut rays = TileRays::<T>::boxed();
             let ys = (row0 as u32, (row0 + rows - 1) as u32);
-            for tx in 0..tiles.tiles_x {
-                let cands = tiles.tile(tx, b as u32);
-                if cands.is_empty() {
-                    continue; // every AOV of a miss is 0 already
-                }
+            for tx in 0..(w as u32).div_ceil(TILE) {
                 let xs = (tx * TILE, ((tx + 1) * TILE).min(w as u32) - 1);
-                trace_tile::<T, F, W>(tracer, cands, xs, ys, (fr.cols_off, fr.rows_off), &mut rays);
+                match (&tracer.tiles, &tracer.bvh, &tracer.cone_cands) {
+                    (Some(tiles), _, _) => {
+                        let cands = tiles.tile(tx, b as u32);
+                        if cands.is_empty() {
+                            continue; // every AOV of a miss is 0 already
+                        }
+                        trace_tile::<T, F, W>(tracer, cands, xs, ys, offsets, &mut rays);
+                    }
+                    (None, Some(bvh), Some(cands)) => {
+                        trace_cone::<T, F, W>(tracer, bvh, cands, xs, ys, offsets, &mut rays);
+                    }
+                    _ => unreachable!("matched above"),
+                }
                 let tw = (xs.1 - xs.0 + 1) as usize;
                 for k in (0..PACKETS).filter(|&k| rays.ready & (1 << k) != 0) {
                     let x0 = (k % PACKETS_PER_ROW) * LANES;
@@ -567,7 +733,7 @@ fn render_band<T: Real, F: PacketFormula, W: Wide<T>>(
                 }
             }
         }
-        None => {
+        _ => {
             for k in 0..rows * w {
                 let (i, j) = (k % w, row0 + k / w);
                 let (d, len) = cam.dir_and_length(fr.cols_off[i], fr.rows_off[j]);
@@ -618,8 +784,8 @@ fn render_simd<T: Simd, F: PacketFormula>(
     simd: bool,
 ) -> (Render, Timing) {
     let start = std::time::Instant::now();
-    let tracer = Tracer::<T, F>::new(scene, opts.accel);
-    let build = start.elapsed();
+    let (tracer, prepare) = Tracer::<T, F>::new_timed(scene, opts.accel);
+    let build = start.elapsed() - prepare;
     let cam = &tracer.camera;
     let (w, h) = (cam.width() as usize, cam.height() as usize);
     let n = w * h;
@@ -632,6 +798,7 @@ fn render_simd<T: Simd, F: PacketFormula>(
         position: want(Aov::Position).then(|| [plane(), plane(), plane()]),
     };
     let mut id = want(Aov::ShapeId).then(|| zeroed::<u32>(n));
+    let mut part = want(Aov::Part).then(|| zeroed::<u32>(n));
     let band_rows = TILE as usize;
     let count = h.div_ceil(band_rows);
     let ids: Vec<u32> = scene.cylinders.iter().map(|c| c.id).collect();
@@ -645,7 +812,7 @@ fn render_simd<T: Simd, F: PacketFormula>(
         rows_off: &rows_off,
     };
     let band_fn = band_renderer::<T, F>(simd);
-    let hits: usize = bands(&mut planes, &mut id, band_rows * w, count)
+    let hits: usize = bands(&mut planes, &mut id, &mut part, band_rows * w, count)
         .into_par_iter()
         .enumerate()
         .map(|(b, mut band)| band_fn(&frame, b, &mut band))
@@ -677,9 +844,11 @@ fn render_simd<T: Simd, F: PacketFormula>(
         push(c, v.map(ChannelData::F32));
     }
     push("shape_id", id.map(ChannelData::U32));
+    push("part", part.map(ChannelData::U32));
     let timing = Timing {
         build,
-        trace: start.elapsed() - build,
+        prepare,
+        trace: start.elapsed() - build - prepare,
     };
     let image = AovImage {
         width: w,
@@ -694,11 +863,15 @@ mod tests {
     use super::*;
 
     /// The AVX2 band renderer and the portable one give the same bits, on every committed
-    /// scene (grazing, inside, far, huge, axis-parallel views among them) and a crowd.
+    /// scene (grazing, inside, far, huge, axis-parallel views among them) and a crowd,
+    /// through the screen tiles and through the cone walk of the BVH.
     #[test]
     fn avx2_and_portable_paths_agree() {
         let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes");
-        let mut scenes = vec![crate::bench::random_scene(700, 5, 211, 117)];
+        let mut scenes = vec![
+            crate::bench::random_scene(700, 5, 211, 117),
+            crate::bench::dense_scene(3000, 5, 211, 117),
+        ];
         for sub in [dir.clone(), dir.join("stress")] {
             for e in std::fs::read_dir(sub).unwrap() {
                 let path = e.unwrap().path();
@@ -711,9 +884,15 @@ mod tests {
             }
         }
         assert!(scenes.len() > 10);
-        let o = RenderOptions::new(Aov::ALL.to_vec());
         let mut hits = 0;
-        for sc in &scenes {
+        for (sc, accel) in scenes
+            .iter()
+            .flat_map(|sc| [(sc, Accel::Tiles), (sc, Accel::Frustum)])
+        {
+            let o = RenderOptions {
+                accel,
+                ..RenderOptions::new(Aov::ALL.to_vec())
+            };
             let (a, b) = (
                 render_simd::<f32, Stable>(sc, &o, true).0,
                 render_simd::<f32, Stable>(sc, &o, false).0,
@@ -734,6 +913,6 @@ mod tests {
             }
             hits += a.hits;
         }
-        assert!(hits > 10_000, "the scenes hit something ({hits})");
+        assert!(hits > 20_000, "the scenes hit something ({hits})");
     }
 }

@@ -1,4 +1,9 @@
-//! Scene files (SPEC §2): the serde schema, defaults, and validation into a [`Scene`].
+//! Scene files (the README's "Scene format"): the serde schema, defaults, and validation
+//! into a [`Scene`].
+//!
+//! A scene file has exactly one of `"camera": {…}` (one view) and `"cameras": [{…}, …]`
+//! (several views of the same cylinders, in order: camera 0, 1, …); giving both or neither
+//! is an error.
 //!
 //! Serde types live here only; everything past [`Scene`] is plain validated data. Every
 //! rejection names the field and the value: `cylinders[3].radius: must be > 0, got -1`.
@@ -13,7 +18,7 @@ use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::path::Path;
 
-/// Largest coordinate, radius or height accepted: f32 squares overflow near 1.8e19 (SPEC §7).
+/// Largest coordinate, radius or height accepted: f32 squares overflow near 1.8e19.
 pub const MAX_COORD: f64 = 1e12;
 /// Largest image side accepted.
 pub const MAX_SIDE: u32 = 16384;
@@ -21,7 +26,7 @@ pub const MAX_SIDE: u32 = 16384;
 /// buffers; 16384 × 16384 would be 9.7 GB.
 pub const MAX_PIXELS: u64 = 1 << 26;
 
-/// One AOV (SPEC §4).
+/// One AOV (the README's AOV table says what each stores).
 #[derive(
     Clone,
     Copy,
@@ -48,15 +53,20 @@ pub enum Aov {
     /// u32 id of the hit cylinder (0 = miss).
     #[value(name = "shape_id")]
     ShapeId,
+    /// u32 part of the hit cylinder: 0 miss, 1 side seen from outside, 2 side seen from
+    /// inside (the wall's inner face, e.g. through an open end), 3 bottom cap (at `p0`),
+    /// 4 top cap (at `p1`). With `shape_id` it is the pixel identity verification uses.
+    Part,
 }
 
 impl Aov {
-    pub const ALL: [Aov; 5] = [
+    pub const ALL: [Aov; 6] = [
         Aov::Distance,
         Aov::Depth,
         Aov::Normal,
         Aov::Position,
         Aov::ShapeId,
+        Aov::Part,
     ];
 
     pub fn name(self) -> &'static str {
@@ -66,7 +76,13 @@ impl Aov {
             Aov::Normal => "normal",
             Aov::Position => "position",
             Aov::ShapeId => "shape_id",
+            Aov::Part => "part",
         }
+    }
+
+    /// Whether the AOV is stored as u32 samples (ids), not float32.
+    pub fn is_u32(self) -> bool {
+        matches!(self, Aov::ShapeId | Aov::Part)
     }
 
     pub fn parse(s: &str) -> Option<Aov> {
@@ -80,7 +96,7 @@ impl fmt::Display for Aov {
     }
 }
 
-/// The default AOV set (SPEC §2).
+/// The default AOV set, when neither the scene nor the command line names one.
 pub fn default_aovs() -> Vec<Aov> {
     vec![Aov::Depth, Aov::Normal]
 }
@@ -88,7 +104,10 @@ pub fn default_aovs() -> Vec<Aov> {
 /// A validated scene.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Scene {
+    /// The camera a render uses: camera 0 when loaded, another after [`Scene::select_camera`].
     pub camera: CameraSpec,
+    /// Every camera of the file, in file order (one for a `"camera"` file).
+    pub cameras: Vec<CameraSpec>,
     pub cylinders: Vec<Cylinder>,
     /// Requested AOVs, in file order, without repeats.
     pub aovs: Vec<Aov>,
@@ -190,12 +209,22 @@ pub struct CylinderFile {
     pub id: Option<u32>,
 }
 
-/// A whole scene file (SPEC §2).
+/// A whole scene file: exactly one of `camera` and `cameras` is given.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SceneFile {
-    #[serde(deserialize_with = "strict::object")]
-    pub camera: CameraFile,
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "strict::opt_object"
+    )]
+    pub camera: Option<CameraFile>,
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "strict::opt_objects"
+    )]
+    pub cameras: Option<Vec<CameraFile>>,
     #[serde(deserialize_with = "strict::objects")]
     pub cylinders: Vec<CylinderFile>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -325,19 +354,14 @@ impl SceneFile {
     /// The file form of a validated scene (cylinders as `p0`/`p1`, every field explicit),
     /// for writing generated scenes.
     pub fn from_scene(scene: &Scene) -> SceneFile {
-        let c = &scene.camera;
+        let files: Vec<CameraFile> = scene.cameras.iter().map(CameraFile::from_spec).collect();
+        let (camera, cameras) = match &files[..] {
+            [one] => (Some(one.clone()), None),
+            _ => (None, Some(files)),
+        };
         SceneFile {
-            camera: CameraFile {
-                origin: c.origin.to_array(),
-                target: c.target.to_array(),
-                up: c.up.to_array(),
-                fov_deg: c.fov_deg,
-                fov_axis: c.fov_axis,
-                width: c.width,
-                height: c.height,
-                near_clip: c.near_clip,
-                far_clip: c.far_clip,
-            },
+            camera,
+            cameras,
             cylinders: scene
                 .cylinders
                 .iter()
@@ -356,7 +380,29 @@ impl SceneFile {
 
     /// Check every field and build the validated scene.
     pub fn validate(&self) -> Result<Scene, SceneError> {
-        let camera = self.camera.validate()?;
+        let cameras = match (&self.camera, &self.cameras) {
+            (Some(c), None) => vec![c.validate("camera")?],
+            (None, Some(list)) if list.is_empty() => {
+                return Err(err("cameras", "must list at least one camera, got []"));
+            }
+            (None, Some(list)) => list
+                .iter()
+                .enumerate()
+                .map(|(k, c)| c.validate(&format!("cameras[{k}]")))
+                .collect::<Result<Vec<_>, _>>()?,
+            (Some(_), Some(_)) => {
+                return Err(err(
+                    "",
+                    "give exactly one of \"camera\" and \"cameras\", got both",
+                ));
+            }
+            (None, None) => {
+                return Err(err(
+                    "",
+                    "missing the camera: give \"camera\": {...} or \"cameras\": [{...}, ...]",
+                ));
+            }
+        };
         let cylinders = self
             .cylinders
             .iter()
@@ -379,29 +425,63 @@ impl SceneFile {
             }
         };
         Ok(Scene {
-            camera,
+            camera: cameras[0],
+            cameras,
             cylinders,
             aovs,
         })
     }
 }
 
+impl Scene {
+    /// Make camera `k` (0-based, file order) the one a render uses.
+    pub fn select_camera(&mut self, k: usize) -> Result<(), SceneError> {
+        let n = self.cameras.len();
+        self.camera = *self.cameras.get(k).ok_or_else(|| {
+            err(
+                "",
+                format!(
+                    "the scene has {n} camera(s), numbered 0..={}, got {k}",
+                    n - 1
+                ),
+            )
+        })?;
+        Ok(())
+    }
+}
+
 impl CameraFile {
-    fn validate(&self) -> Result<CameraSpec, SceneError> {
-        let origin = check_vec("camera.origin", self.origin)?;
-        let target = check_vec("camera.target", self.target)?;
-        let up = check_vec("camera.up", self.up)?;
+    /// The file form of a validated camera, every field explicit.
+    pub fn from_spec(c: &CameraSpec) -> CameraFile {
+        CameraFile {
+            origin: c.origin.to_array(),
+            target: c.target.to_array(),
+            up: c.up.to_array(),
+            fov_deg: c.fov_deg,
+            fov_axis: c.fov_axis,
+            width: c.width,
+            height: c.height,
+            near_clip: c.near_clip,
+            far_clip: c.far_clip,
+        }
+    }
+
+    /// Check every field; `at` is the camera's field path (`camera` or `cameras[K]`).
+    fn validate(&self, at: &str) -> Result<CameraSpec, SceneError> {
+        let origin = check_vec(&format!("{at}.origin"), self.origin)?;
+        let target = check_vec(&format!("{at}.target"), self.target)?;
+        let up = check_vec(&format!("{at}.up"), self.up)?;
         let fov = self.fov_deg;
         if !(fov.is_finite() && fov > 0.0 && fov < 180.0) {
             return Err(err(
-                "camera.fov_deg",
+                format!("{at}.fov_deg"),
                 format!("must be in (0, 180), got {}", num(fov)),
             ));
         }
         for (name, v) in [("width", self.width), ("height", self.height)] {
             if v == 0 || v > MAX_SIDE {
                 return Err(err(
-                    format!("camera.{name}"),
+                    format!("{at}.{name}"),
                     format!("must be in 1..={MAX_SIDE}, got {v}"),
                 ));
             }
@@ -409,7 +489,7 @@ impl CameraFile {
         let pixels = self.width as u64 * self.height as u64;
         if pixels > MAX_PIXELS {
             return Err(err(
-                "camera.height",
+                format!("{at}.height"),
                 format!(
                     "width × height must be <= {MAX_PIXELS} pixels (8192 × 8192), got {} × {} = {pixels}",
                     self.width, self.height
@@ -419,13 +499,13 @@ impl CameraFile {
         let (near, far) = (self.near_clip, self.far_clip);
         if !(near.is_finite() && near > 0.0) {
             return Err(err(
-                "camera.near_clip",
+                format!("{at}.near_clip"),
                 format!("must be > 0, got {}", num(near)),
             ));
         }
         if !(far.is_finite() && far > near) {
             return Err(err(
-                "camera.far_clip",
+                format!("{at}.far_clip"),
                 format!(
                     "must be finite and > near_clip ({}), got {}",
                     num(near),
@@ -436,13 +516,13 @@ impl CameraFile {
         let forward = target - origin;
         if forward.length() == 0.0 {
             return Err(err(
-                "camera.target",
-                format!("must differ from camera.origin, got {:?}", self.target),
+                format!("{at}.target"),
+                format!("must differ from {at}.origin, got {:?}", self.target),
             ));
         }
         if up.length() == 0.0 {
             return Err(err(
-                "camera.up",
+                format!("{at}.up"),
                 format!("must be non-zero, got {:?}", self.up),
             ));
         }
@@ -450,7 +530,7 @@ impl CameraFile {
         let sin = up.normalize().cross(forward.normalize()).length();
         if sin < 1e-9 {
             return Err(err(
-                "camera.up",
+                format!("{at}.up"),
                 format!(
                     "must not be parallel to the view direction (target - origin), got {:?}",
                     self.up

@@ -1,84 +1,373 @@
-//! `batch --verify-fraction`: a view checked against Mitsuba 3.
+//! A view checked against Mitsuba 3: the one code path of `cylaov verify`,
+//! `batch --verify-fraction` and the reference tests.
 //!
-//! For each selected view: the scene goes through `mitsuba::to_xml`, the reference venv's
-//! Python runs `scripts/mitsuba_reference.py XML SCENE.json OUT.exr`, and `compare` judges
-//! our EXR against the reference with the tolerances of the reference tests
-//! (`Tolerances::default()`, SPEC §7 "Comparing two images").
+//! 1. cylaov renders the view in memory with every AOV the check needs ([`check_render`]:
+//!    all of them, `shape_id` and `part` included), whatever the dataset stores.
+//! 2. Mitsuba renders the reference ([`Mitsuba::render`]): the scene goes through
+//!    `output::mitsuba::to_xml`, and the reference script, compiled into this binary
+//!    ([`SCRIPT`]), runs in the pinned venv's Python (mitsuba 3.9.1, `scalar_rgb`).
+//! 3. [`check_against`] compares them with the rule of [`crate::verify::compare`]: identity
+//!    by (cylinder, part), the flat [`Tolerances`], and per-pixel float32 conditioning
+//!    bounds from the scene.
 //!
-//! The venv and the script are looked up under `$CYLAOV_ROOT`, else the source tree this
-//! binary was built from; without them verification is skipped with a notice (the issue:
-//! "when the reference venv is present").
+//! In a batch, [`MitsubaVerifier`] also checks that the dataset's EXR holds exactly the
+//! samples of that render (so the file is what was verified), and keeps the verdict in
+//! `NAME.verify.json` beside it, keyed to the view's render stamp (`NAME.render.json`), the
+//! tolerances and the script: a resumed batch does not run Mitsuba again for a view
+//! already verified.
+//!
+//! **The venv** is the first of: `$CYLAOV_VENV`; `.venv` in the source tree this binary
+//! was built from (where `scripts/setup-venv` puts it); `~/.local/share/cylaov/venv`
+//! (`CYLAOV_VENV=~/.local/share/cylaov/venv scripts/setup-venv` makes it for an installed
+//! binary).
 
 use crate::dataset::batch::{Verdict, Verifier, ViewSource};
 use crate::output::aov::AovImage;
-use crate::scene::Scene;
-use crate::verify::compare::{Tolerances, compare};
+use crate::output::io::atomic_write_bytes;
+use crate::render::{FormulaKind, Precision, RenderOptions, render};
+use crate::scene::{Aov, Scene};
+use crate::verify::compare::{Conditioning, Report, Tolerances, compare_with};
 use anyhow::{Context, Result, bail};
+use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-/// The Mitsuba reference, found on disk.
+/// The reference script (`scripts/mitsuba_reference.py`), carried by the binary.
+pub const SCRIPT: &str = include_str!("../../scripts/mitsuba_reference.py");
+
+/// The one line a user without the venv sees.
+pub const NO_VENV_HINT: &str = "make it with `scripts/setup-venv` in the cylaov source tree (CYLAOV_VENV=DIR picks another place)";
+
+/// The Mitsuba reference renderer: the venv's Python.
+#[derive(Clone, Debug)]
+pub struct Mitsuba {
+    pub python: PathBuf,
+}
+
+impl Mitsuba {
+    /// The venv's Python, or one line saying where it was looked for and how to make it.
+    pub fn find() -> Result<Mitsuba, String> {
+        let candidates: Vec<PathBuf> = match std::env::var_os("CYLAOV_VENV") {
+            Some(v) => vec![PathBuf::from(v)],
+            None => {
+                let mut c = vec![PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(".venv")];
+                if let Some(home) = std::env::var_os("HOME") {
+                    c.push(PathBuf::from(home).join(".local/share/cylaov/venv"));
+                }
+                c
+            }
+        };
+        for venv in &candidates {
+            let python = venv.join("bin/python");
+            if python.exists() {
+                return Ok(Mitsuba { python });
+            }
+        }
+        let looked: Vec<String> = candidates.iter().map(|p| p.display().to_string()).collect();
+        Err(format!(
+            "no Mitsuba venv (looked in {}): {NO_VENV_HINT}",
+            looked.join(", ")
+        ))
+    }
+
+    /// Render `scene`'s reference AOVs in `work` (a private folder) and read them back.
+    /// `source_name` goes into the XML's header comment.
+    pub fn render(&self, scene: &Scene, source_name: &str, work: &Path) -> Result<AovImage> {
+        let xml = work.join("scene.xml");
+        let camera = work.join("camera.json");
+        let script = work.join("mitsuba_reference.py");
+        let out = work.join("reference.exr");
+        let write = |p: &Path, bytes: &[u8]| {
+            std::fs::write(p, bytes).with_context(|| format!("writing {}", p.display()))
+        };
+        // Only the camera being checked becomes a sensor: the script renders sensor 0.
+        let one_camera = Scene {
+            cameras: vec![scene.camera],
+            ..scene.clone()
+        };
+        write(
+            &xml,
+            crate::output::mitsuba::to_xml(&one_camera, source_name).as_bytes(),
+        )?;
+        write(&camera, camera_file(scene).as_bytes())?;
+        write(&script, SCRIPT.as_bytes())?;
+        let run = Command::new(&self.python)
+            .arg(&script)
+            .arg(&xml)
+            .arg(&camera)
+            .arg(&out)
+            .output()
+            .with_context(|| format!("running {}", self.python.display()))?;
+        if !run.status.success() {
+            bail!(
+                "the Mitsuba reference script failed: {}",
+                String::from_utf8_lossy(&run.stderr).trim()
+            );
+        }
+        AovImage::read_exr(&out)
+    }
+}
+
+/// The script's camera input: `{"camera": {...}}` of the validated camera, so a scene with
+/// several cameras or defaults left out still gives the script every field.
+fn camera_file(scene: &Scene) -> String {
+    let c = &scene.camera;
+    serde_json::json!({
+        "camera": {
+            "origin": c.origin.to_array(),
+            "target": c.target.to_array(),
+            "up": c.up.to_array(),
+            "fov_deg": c.fov_deg,
+            "fov_axis": c.fov_axis.name(),
+            "width": c.width,
+            "height": c.height,
+            "near_clip": c.near_clip,
+            "far_clip": c.far_clip,
+        }
+    })
+    .to_string()
+}
+
+/// cylaov's render for a check: every AOV (identity and the channels conditioning needs).
+pub fn check_render(scene: &Scene, precision: Precision, formula: FormulaKind) -> AovImage {
+    let opts = RenderOptions {
+        precision,
+        formula,
+        ..RenderOptions::new(Aov::ALL.to_vec())
+    };
+    render(scene, &opts).image
+}
+
+/// The outcome of one view's check.
+#[derive(Clone, Debug)]
+pub struct ViewCheck {
+    pub report: Report,
+    pub tolerances: Tolerances,
+    /// The broken tolerances (the FAIL lines of `cylaov compare`); empty: it passed.
+    pub failures: Vec<String>,
+    /// What the float32 conditioning rule accepted above the flat bounds.
+    pub accepted: Vec<String>,
+}
+
+impl ViewCheck {
+    pub fn passed(&self) -> bool {
+        self.failures.is_empty()
+    }
+
+    /// `PASS` or `FAIL:` with one indented line per broken tolerance, as `compare` prints.
+    pub fn verdict_text(&self) -> String {
+        crate::commands::compare::verdict_lines(&self.failures)
+    }
+
+    /// The report, tolerances, accepted lines and verdict, as `compare` prints them.
+    pub fn text(&self) -> String {
+        let mut s = format!(
+            "{}\n{}\n",
+            self.report,
+            crate::commands::compare::tolerance_line(&self.tolerances)
+        );
+        for line in &self.accepted {
+            s += &format!("accepted: {line}\n");
+        }
+        s + &self.verdict_text()
+    }
+}
+
+/// Compare `ours` (a [`check_render`] of `scene`) with `reference`: identity by cylinder
+/// and part, per-pixel float32 conditioning bounds from `scene`, then `tol`.
+pub fn check_against(
+    scene: &Scene,
+    ours: &AovImage,
+    reference: &AovImage,
+    tol: &Tolerances,
+) -> Result<ViewCheck> {
+    let cond = Conditioning::new(scene, ours);
+    if cond.is_none() {
+        bail!("cylaov's render lacks shape_id, distance or normal: cannot condition the check");
+    }
+    let report = compare_with(ours, reference, cond.as_ref())?;
+    Ok(ViewCheck {
+        failures: report.failures(tol),
+        accepted: report.explained_lines(tol),
+        tolerances: *tol,
+        report,
+    })
+}
+
+/// Render `scene` with cylaov and with Mitsuba (in `work`) and check them.
+pub fn verify_scene(
+    mitsuba: &Mitsuba,
+    scene: &Scene,
+    source_name: &str,
+    precision: Precision,
+    formula: FormulaKind,
+    tol: &Tolerances,
+    work: &Path,
+) -> Result<(ViewCheck, AovImage, AovImage)> {
+    let ours = check_render(scene, precision, formula);
+    let reference = mitsuba.render(scene, source_name, work)?;
+    let check = check_against(scene, &ours, &reference, tol)?;
+    Ok((check, ours, reference))
+}
+
+/// One line for a log: counts of both mismatch kinds and the largest errors.
+pub fn summary_line(r: &Report) -> String {
+    let max = |m: &Option<crate::verify::compare::Metric>| m.as_ref().map_or(0.0, |m| m.all.max);
+    format!(
+        "silhouette {} px, seam {} px, rel distance max {:.2e}, rel depth max {:.2e}, normal max {:.3}°",
+        r.mismatches,
+        r.seams,
+        max(&r.rel_distance),
+        max(&r.rel_depth),
+        max(&r.normal_deg)
+    )
+}
+
+/// What `NAME.verify.json` holds: the verdict and what it is valid for.
+#[derive(Serialize, Deserialize, PartialEq, Debug)]
+struct CachedVerdict {
+    /// The view's render stamp (`NAME.render.json`), verbatim.
+    stamp: String,
+    tolerances: [f64; 5],
+    /// FNV-1a of the reference script.
+    script: String,
+    passed: bool,
+    silhouette_px: usize,
+    seam_px: usize,
+    summary: String,
+    /// The text of a failed check (the FAIL lines included); empty when it passed.
+    report: String,
+}
+
+fn fnv1a(bytes: &[u8]) -> String {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for &b in bytes {
+        h = (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3);
+    }
+    format!("{h:016x}")
+}
+
+fn tolerance_key(t: &Tolerances) -> [f64; 5] {
+    [
+        t.max_mismatch_fraction,
+        t.max_seam_fraction,
+        t.rel_distance,
+        t.rel_depth,
+        t.normal_deg,
+    ]
+}
+
+/// `batch --verify-fraction`'s verifier.
 pub struct MitsubaVerifier {
-    python: PathBuf,
-    script: PathBuf,
-    tolerances: Tolerances,
+    pub mitsuba: Mitsuba,
+    pub tolerances: Tolerances,
+    /// The batch's kernel: the check re-renders the view exactly as the batch did.
+    pub precision: Precision,
+    pub formula: FormulaKind,
 }
 
 impl MitsubaVerifier {
-    /// The venv's Python and the reference script, or why they are not usable.
-    pub fn find() -> Result<MitsubaVerifier, String> {
-        let root = std::env::var_os("CYLAOV_ROOT")
-            .map(PathBuf::from)
-            .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")));
-        let python = std::env::var_os("CYLAOV_VENV")
-            .map(PathBuf::from)
-            .unwrap_or_else(|| root.join(".venv"))
-            .join("bin/python");
-        let script = root.join("scripts/mitsuba_reference.py");
-        for p in [&python, &script] {
-            if !p.exists() {
-                return Err(format!(
-                    "{} not found (set CYLAOV_ROOT to the cylaov source tree; make the venv \
-                     with scripts/setup-venv)",
-                    p.display()
-                ));
-            }
-        }
+    /// The verifier with the venv found by [`Mitsuba::find`].
+    pub fn find(
+        tolerances: Tolerances,
+        precision: Precision,
+        formula: FormulaKind,
+    ) -> Result<MitsubaVerifier, String> {
         Ok(MitsubaVerifier {
-            python,
-            script,
-            tolerances: Tolerances::default(),
+            mitsuba: Mitsuba::find()?,
+            tolerances,
+            precision,
+            formula,
         })
     }
 }
 
+/// `DIR/NAME.exr` → `DIR/NAME.SUFFIX`.
+fn beside(exr: &Path, suffix: &str) -> PathBuf {
+    let stem = exr.file_stem().unwrap_or_default().to_string_lossy();
+    exr.with_file_name(format!("{stem}.{suffix}"))
+}
+
+/// The channels of `file` that differ from the same channels of `fresh`.
+fn differing_channels(file: &AovImage, fresh: &AovImage) -> Vec<String> {
+    if (file.width, file.height) != (fresh.width, fresh.height) {
+        return vec!["(image size)".into()];
+    }
+    file.channels
+        .iter()
+        .filter(|c| fresh.channel(&c.name) != Some(&c.data))
+        .map(|c| c.name.clone())
+        .collect()
+}
+
 impl Verifier for MitsubaVerifier {
     fn check(&self, view: &ViewSource, scene: &Scene, exr: &Path, work: &Path) -> Result<Verdict> {
-        let xml_path = work.join("scene.xml");
-        let reference = work.join("reference.exr");
-        let xml = crate::output::mitsuba::to_xml(scene, &view.path.display().to_string());
-        std::fs::write(&xml_path, xml)
-            .with_context(|| format!("writing {}", xml_path.display()))?;
-        let out = Command::new(&self.python)
-            .arg(&self.script)
-            .arg(&xml_path)
-            .arg(&view.path)
-            .arg(&reference)
-            .output()
-            .with_context(|| format!("running {}", self.python.display()))?;
-        if !out.status.success() {
-            bail!(
-                "{} failed: {}",
-                self.script.display(),
-                String::from_utf8_lossy(&out.stderr).trim()
-            );
+        let stamp = std::fs::read_to_string(beside(exr, "render.json")).unwrap_or_default();
+        let cache_path = beside(exr, "verify.json");
+        let key = (tolerance_key(&self.tolerances), fnv1a(SCRIPT.as_bytes()));
+        if !stamp.is_empty()
+            && let Ok(text) = std::fs::read_to_string(&cache_path)
+            && let Ok(c) = serde_json::from_str::<CachedVerdict>(&text)
+            && c.stamp == stamp
+            && (c.tolerances, c.script.clone()) == key
+        {
+            return Ok(Verdict {
+                passes: c.passed,
+                report: if c.passed { c.summary } else { c.report },
+            });
         }
-        let ours = AovImage::read_exr(exr)?;
-        let theirs = AovImage::read_exr(&reference)?;
-        let report = compare(&ours, &theirs)?;
+        let ours = check_render(scene, self.precision, self.formula);
+        let file = AovImage::read_exr(exr)?;
+        let differ = differing_channels(&file, &ours);
+        if !differ.is_empty() {
+            // Not cached: a file that does not match its render is re-rendered on resume.
+            return Ok(Verdict {
+                passes: false,
+                report: format!(
+                    "{} differs from a fresh render of its scene in {}",
+                    exr.display(),
+                    differ.join(" ")
+                ),
+            });
+        }
+        let reference = self
+            .mitsuba
+            .render(scene, &view.path.display().to_string(), work)?;
+        let check = check_against(scene, &ours, &reference, &self.tolerances)?;
+        let summary = summary_line(&check.report);
+        // One line per verified view (seam and silhouette counts); a failure adds the FAIL
+        // lines of `compare`. The bar, if any, redraws on the next view.
+        let mut line = format!("verify {}: {summary}; {}", view.name, check.verdict_text());
+        if std::io::IsTerminal::is_terminal(&std::io::stderr()) {
+            line.insert_str(0, "\r\x1b[2K");
+        }
+        crate::output::io::warn(&line);
+        let cached = CachedVerdict {
+            stamp,
+            tolerances: key.0,
+            script: key.1,
+            passed: check.passed(),
+            silhouette_px: check.report.mismatches,
+            seam_px: check.report.seams,
+            summary: summary.clone(),
+            report: if check.passed() {
+                String::new()
+            } else {
+                check.text()
+            },
+        };
+        if !cached.stamp.is_empty() {
+            let json = serde_json::to_string_pretty(&cached)?;
+            atomic_write_bytes(&cache_path, json.as_bytes())
+                .with_context(|| format!("writing {}", cache_path.display()))?;
+        }
         Ok(Verdict {
-            passes: report.passes(&self.tolerances),
-            report: report.to_string(),
+            passes: check.passed(),
+            report: if check.passed() {
+                summary
+            } else {
+                check.text()
+            },
         })
     }
 }

@@ -3,7 +3,9 @@
 //! the nearest count run), one point per kernel: filled = max error, open = median;
 //! (b) build + trace time against cylinder count, one line per kernel, with Mitsuba's warm
 //! (second) render and whole process as extra lines when it was run; dashed lines are whole
-//! processes (cylaov's default kernel and Mitsuba), the numbers the speed targets compare.
+//! processes (cylaov's default kernel and Mitsuba), the numbers the speed targets compare;
+//! (c) the same for the dense scene family, when it was run. Panels (a) and (b) show the
+//! first family run.
 
 use crate::bench::{KERNELS, Kernel, MitsubaRow, Row, kernel_name};
 use crate::output::plot::{self, Axis, BLACK, Grid, Marker, NOTE};
@@ -43,7 +45,16 @@ fn mitsuba_colour(variant: &str) -> Rgb<u8> {
 
 /// Draw the figure from the table's rows (the depth+normal ones are used) and Mitsuba's.
 pub fn plot(rows: &[Row], mitsuba: &[MitsubaRow], kernels: &[Kernel]) -> RgbImage {
-    let dn: Vec<&Row> = rows.iter().filter(|r| r.is_depth_normal()).collect();
+    let first = rows.first().map(|r| r.family.clone()).unwrap_or_default();
+    let dense = "dense";
+    let dn: Vec<&Row> = rows
+        .iter()
+        .filter(|r| r.is_depth_normal() && r.family == first)
+        .collect();
+    let dense_rows: Vec<&Row> = rows
+        .iter()
+        .filter(|r| r.is_depth_normal() && r.family == dense && first != dense)
+        .collect();
     let kernels: Vec<(Kernel, String)> = kernels
         .iter()
         .map(|&k| (k, kernel_name(k)))
@@ -59,7 +70,7 @@ pub fn plot(rows: &[Row], mitsuba: &[MitsubaRow], kernels: &[Kernel]) -> RgbImag
     let legend_rows = if variants.is_empty() { 2 } else { 3 };
     let legend_h = 8 + legend_rows * LEGEND_ROW;
     let grid = Grid { legend_h, ..GRID };
-    let mut img = grid.image(2, 1);
+    let mut img = grid.image(if dense_rows.is_empty() { 2 } else { 3 }, 1);
     legend_row(
         &mut img,
         8,
@@ -82,7 +93,35 @@ pub fn plot(rows: &[Row], mitsuba: &[MitsubaRow], kernels: &[Kernel]) -> RgbImag
     );
 
     pareto(&mut img, &grid, &dn, &kernels);
-    scaling(&mut img, &grid, &dn, mitsuba, &kernels, &variants);
+    let of = |f: &str| -> Vec<MitsubaRow> {
+        // Rows from before families were recorded read as the first family.
+        let f = f.to_string();
+        mitsuba
+            .iter()
+            .filter(|m| m.family == f || (m.family.is_empty() && f == first))
+            .cloned()
+            .collect()
+    };
+    let title = |f: &str| match f {
+        "" => String::new(),
+        f => format!("{}: ", f.to_uppercase()),
+    };
+    let panels = [(&dn, first.as_str(), "(B)"), (&dense_rows, dense, "(C)")];
+    for (k, (rows, family, tag)) in panels.into_iter().enumerate() {
+        if !rows.is_empty() || k == 0 {
+            let title = format!("{tag} {}MS VS CYLINDER COUNT, DEPTH+NORMAL", title(family));
+            scaling(
+                &mut img,
+                &grid,
+                (k + 1) as u32,
+                &title,
+                rows,
+                &of(family),
+                &kernels,
+                &variants,
+            );
+        }
+    }
     img
 }
 
@@ -201,10 +240,14 @@ impl Line {
     }
 }
 
-/// (b) Time against cylinder count, one line per kernel, plus Mitsuba and whole processes.
+/// (b), (c): time against cylinder count, one line per kernel, plus Mitsuba and whole
+/// processes, in panel column `col`.
+#[allow(clippy::too_many_arguments)]
 fn scaling(
     img: &mut RgbImage,
     grid: &Grid,
+    col: u32,
+    title: &str,
     dn: &[&Row],
     mitsuba: &[MitsubaRow],
     kernels: &[(Kernel, String)],
@@ -231,7 +274,7 @@ fn scaling(
     }
     let all = || lines.iter().flat_map(|l| l.pts.iter());
     let p = grid.panel(
-        1,
+        col,
         0,
         Axis::log_fit(all().map(|q| q.0)),
         Axis::log_fit(all().map(|q| q.1)),
@@ -256,7 +299,7 @@ fn scaling(
             plot::marker(img, q, m, *c);
         }
     }
-    p.title(img, "(B) MS VS CYLINDER COUNT, DEPTH+NORMAL");
+    p.title(img, title);
     p.x_label(img, "CYLINDERS");
 }
 
@@ -266,9 +309,12 @@ mod tests {
 
     fn row(n: usize, k: Kernel, aovs: &str, ms: f64, err: f64) -> Row {
         Row {
+            family: "sparse".into(),
             cylinders: n,
             kernel: kernel_name(k),
             aovs: aovs.into(),
+            parse_ms: ms / 20.0,
+            prepare_ms: ms / 20.0,
             build_ms: ms / 10.0,
             trace_ms: ms,
             write_ms: 1.0,
@@ -296,6 +342,7 @@ mod tests {
             rows.push(row(n, KERNELS[3], "depth", 1.0, 1e-3));
         }
         let mi = MitsubaRow {
+            family: "sparse".into(),
             cylinders: 100,
             variant: "llvm_ad_rgb".into(),
             import_s: 0.1,

@@ -1,0 +1,272 @@
+//! `cylaov verify`: the cross-renderer check for any scene, folder or manifest. Each
+//! selected view is rendered by cylaov (in memory) and by Mitsuba 3 and compared by
+//! [`crate::verify::reference::verify_scene`], the code path of `batch --verify-fraction`
+//! and the reference tests. Prints a per-view table and a summary (or JSON); the exit
+//! status is 1 if any view fails a tolerance, else 2 if any could not be checked, else 0.
+
+use crate::dataset::batch::{ViewSource, list_views, selected_for_verify};
+use crate::output::preview::write_png;
+use crate::render::{FormulaKind, Precision};
+use crate::verify::compare::{Conditioning, Report, Tolerances, heatmap};
+use crate::verify::reference::{Mitsuba, ViewCheck, summary_line, verify_scene};
+use anyhow::Result;
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+
+/// Everything `verify` needs from the command line.
+#[derive(Clone, Debug)]
+pub struct VerifyArgs {
+    /// A scene file, a folder of them, or a `.jsonl` manifest.
+    pub input: PathBuf,
+    /// Fraction of the views to check (chosen from `seed` and the view names).
+    pub fraction: f64,
+    pub seed: u64,
+    /// Folder for `NAME.heatmap.png` of every checked view.
+    pub heatmap: Option<PathBuf>,
+    pub json: bool,
+    pub tolerances: Tolerances,
+    pub precision: Precision,
+    pub formula: FormulaKind,
+}
+
+/// How one view came out.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Status {
+    Pass,
+    Fail,
+    /// The check could not be made (bad scene, Mitsuba failed, no venv).
+    Unchecked,
+}
+
+/// One view's row.
+#[derive(Clone, Debug, Serialize)]
+pub struct ViewResult {
+    pub name: String,
+    pub scene: String,
+    pub status: Status,
+    /// The broken tolerances (FAIL lines), or why it could not be checked.
+    pub failures: Vec<String>,
+    /// What the float32 conditioning rule accepted above the flat bounds.
+    pub accepted: Vec<String>,
+    pub report: Option<Report>,
+}
+
+/// The outcome: text to print and the exit status.
+pub struct VerifyOutcome {
+    pub text: String,
+    pub code: u8,
+    pub views: Vec<ViewResult>,
+}
+
+#[derive(Serialize)]
+struct JsonOut<'a> {
+    input: String,
+    tolerances: Tolerances,
+    checked: usize,
+    passed: usize,
+    failed: usize,
+    unchecked: usize,
+    views: &'a [ViewResult],
+}
+
+/// The views of `input`: every camera of one scene file, or what `batch` would render.
+fn views(input: &Path) -> Result<Vec<ViewSource>> {
+    let is_scene = input.is_file() && input.extension().is_some_and(|e| e == "json");
+    let scenes = if is_scene {
+        let name = input
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "scene".into());
+        vec![ViewSource::scene(name, input.to_path_buf())]
+    } else {
+        list_views(input, None)?
+    };
+    // A scene that does not load counts as one view: its check reports why.
+    Ok(scenes
+        .iter()
+        .flat_map(|s| {
+            let cameras = crate::scene::load(&s.path).map_or(1, |sc| sc.cameras.len());
+            s.cameras(cameras)
+        })
+        .collect())
+}
+
+/// A private scratch folder for one view's Mitsuba files.
+fn work_dir(k: usize) -> Result<PathBuf> {
+    let dir = std::env::temp_dir().join(format!("cylaov-verify-{}-{k}", std::process::id()));
+    if dir.exists() {
+        std::fs::remove_dir_all(&dir)?;
+    }
+    std::fs::create_dir_all(&dir)?;
+    Ok(dir)
+}
+
+fn check_one(
+    args: &VerifyArgs,
+    mitsuba: &Mitsuba,
+    view: &ViewSource,
+    k: usize,
+) -> Result<(ViewCheck, Option<PathBuf>)> {
+    let mut scene = crate::scene::load(&view.path)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", view.path.display()))?;
+    scene
+        .select_camera(view.camera)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", view.path.display()))?;
+    let work = work_dir(k)?;
+    let result = verify_scene(
+        mitsuba,
+        &scene,
+        &view.path.display().to_string(),
+        args.precision,
+        args.formula,
+        &args.tolerances,
+        &work,
+    );
+    let _ = std::fs::remove_dir_all(&work);
+    let (check, ours, reference) = result?;
+    let mut heatmap_path = None;
+    if let Some(dir) = &args.heatmap {
+        let path = view.dir(dir).join(format!("{}.heatmap.png", view.name));
+        if let Some(parent) = path.parent() {
+            std::fs::create_dir_all(parent)?;
+        }
+        let cond = Conditioning::new(&scene, &ours);
+        let img = heatmap(
+            &ours,
+            &reference,
+            &check.report,
+            &args.tolerances,
+            cond.as_ref(),
+        );
+        write_png(&img, &path)?;
+        heatmap_path = Some(path);
+    }
+    Ok((check, heatmap_path))
+}
+
+/// Check every selected view of `args.input`.
+pub fn run(args: &VerifyArgs) -> Result<VerifyOutcome> {
+    if !(0.0..=1.0).contains(&args.fraction) || args.fraction.is_nan() {
+        anyhow::bail!("--fraction: must be in [0, 1], got {}", args.fraction);
+    }
+    let all = views(&args.input)?;
+    let selected: Vec<&ViewSource> = all
+        .iter()
+        .filter(|v| selected_for_verify(args.seed, &v.name, args.fraction))
+        .collect();
+    let mitsuba = Mitsuba::find();
+    let mut results = Vec::with_capacity(selected.len());
+    for (k, view) in selected.iter().enumerate() {
+        let outcome = match &mitsuba {
+            Err(why) => Err(anyhow::anyhow!("{why}")),
+            Ok(m) => check_one(args, m, view, k),
+        };
+        let r = match outcome {
+            Ok((check, _)) => ViewResult {
+                name: view.name.clone(),
+                scene: view.path.display().to_string(),
+                status: if check.passed() {
+                    Status::Pass
+                } else {
+                    Status::Fail
+                },
+                failures: check.failures.clone(),
+                accepted: check.accepted.clone(),
+                report: Some(check.report),
+            },
+            Err(e) => ViewResult {
+                name: view.name.clone(),
+                scene: view.path.display().to_string(),
+                status: Status::Unchecked,
+                failures: vec![format!("{e:#}")],
+                accepted: Vec::new(),
+                report: None,
+            },
+        };
+        if !args.json {
+            crate::output::io::warn(&format!("[{}/{}] {}", k + 1, selected.len(), row(&r)));
+        }
+        results.push(r);
+    }
+    let count = |s: Status| results.iter().filter(|r| r.status == s).count();
+    let (passed, failed, unchecked) = (
+        count(Status::Pass),
+        count(Status::Fail),
+        count(Status::Unchecked),
+    );
+    let code = if failed > 0 {
+        1
+    } else if unchecked > 0 {
+        2
+    } else {
+        0
+    };
+    let text = if args.json {
+        serde_json::to_string_pretty(&JsonOut {
+            input: args.input.display().to_string(),
+            tolerances: args.tolerances,
+            checked: results.len(),
+            passed,
+            failed,
+            unchecked,
+            views: &results,
+        })?
+    } else {
+        table(args, &all, &results, (passed, failed, unchecked), &mitsuba)
+    };
+    Ok(VerifyOutcome {
+        text,
+        code,
+        views: results,
+    })
+}
+
+/// One table row: name, verdict, mismatch counts, largest errors.
+fn row(r: &ViewResult) -> String {
+    let verdict = match r.status {
+        Status::Pass => "PASS",
+        Status::Fail => "FAIL",
+        Status::Unchecked => "UNCHECKED",
+    };
+    match &r.report {
+        Some(rep) => format!("{:<24} {verdict:<9} {}", r.name, summary_line(rep)),
+        None => format!("{:<24} {verdict:<9} {}", r.name, r.failures.join("; ")),
+    }
+}
+
+fn table(
+    args: &VerifyArgs,
+    all: &[ViewSource],
+    results: &[ViewResult],
+    (passed, failed, unchecked): (usize, usize, usize),
+    mitsuba: &Result<Mitsuba, String>,
+) -> String {
+    let mut s = format!("{:<24} {:<9} result\n", "view", "verdict");
+    for r in results {
+        s += &row(r);
+        s.push('\n');
+    }
+    for r in results.iter().filter(|r| r.status == Status::Fail) {
+        s += &format!("{} FAIL:\n", r.name);
+        for f in &r.failures {
+            s += &format!("  {f}\n");
+        }
+    }
+    for r in results {
+        for a in &r.accepted {
+            s += &format!("{} accepted: {a}\n", r.name);
+        }
+    }
+    s += &crate::commands::compare::tolerance_line(&args.tolerances);
+    s.push('\n');
+    if let Err(why) = mitsuba {
+        s += &format!("verify: {why}\n");
+    }
+    s += &format!(
+        "verify: {} of {} views checked: {passed} passed, {failed} failed, {unchecked} could not be checked",
+        results.len(),
+        all.len()
+    );
+    s
+}
