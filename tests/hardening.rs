@@ -122,6 +122,18 @@ fn outputs_that_are_not_regular_files_are_refused() {
     if o.status.code() != Some(1) || !stderr(&o).contains("s.depth.png") {
         failures.push(format!("render --preview: {:?} {}", o.status, stderr(&o)));
     }
+    // Output folders (batch --out, verify --heatmap): a FIFO or a link to a device is not one.
+    for target in [&fifo, &to_null] {
+        for (args, want) in [
+            (vec!["batch", s(&scene), "--out", s(target)], 1),
+            (vec!["verify", s(&scene), "--heatmap", s(target)], 2),
+        ] {
+            let o = cylaov(&args);
+            if o.status.code() != Some(want) || !stderr(&o).contains("not a folder") {
+                failures.push(format!("{args:?}: {:?} {}", o.status, stderr(&o)));
+            }
+        }
+    }
     assert!(
         is_fifo(&fifo) && is_fifo(&pv.join("s.depth.png")),
         "a FIFO was replaced"
