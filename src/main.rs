@@ -23,9 +23,9 @@ struct Cli {
 
 /// The one exit-status rule of every command (also in the README).
 const EXIT_STATUS: &str = "Exit status, every command: 0 = done; 1 = input rejected (a bad scene, \
-a refused output, a full disk) or a check failed (compare's tolerances, a batch view); \
-2 = usage error (unknown option, bad value) or a check that could not be made (compare: a \
-missing or unreadable image). A closed stdout (`| head`) is not an error.";
+a refused output, a full disk) or a check failed (compare's or verify's tolerances, a batch \
+view); 2 = usage error (unknown option, bad value) or a check that could not be made \
+(compare: a missing or unreadable image; verify: a view it could not check). A closed stdout (`| head`) is not an error.";
 
 #[derive(Subcommand)]
 enum Command {
