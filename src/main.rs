@@ -24,9 +24,9 @@ struct Cli {
 
 /// The one exit-status rule of every command (also in the README).
 const EXIT_STATUS: &str = "Exit status, every command: 0 = done; 1 = input rejected (a bad scene, \
-a refused output, a full disk) or a check failed (compare's tolerances, a batch view); \
-2 = usage error (unknown option, bad value) or a check that could not be made (compare: a \
-missing or unreadable image). A closed stdout (`| head`) is not an error.";
+a refused output, a full disk) or a check failed (compare's or verify's tolerances, a batch \
+view); 2 = usage error (unknown option, bad value) or a check that could not be made \
+(compare: a missing or unreadable image; verify: a view it could not check). A closed stdout (`| head`) is not an error.";
 
 #[derive(Subcommand)]
 enum Command {
@@ -165,7 +165,7 @@ struct BatchCli {
     shard: Option<Shard>,
     /// Shard count N, the index coming from JOB_COMPLETION_INDEX (Kubernetes Indexed Job)
     /// or SLURM_ARRAY_TASK_ID - SLURM_ARRAY_TASK_MIN.
-    #[arg(long, value_name = "N")]
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..))]
     shards: Option<u32>,
     /// 16-bit depth PNG value per world unit (1000: millimetres for metres; nerfstudio
     /// assumes 1000 unless given its `depth_unit_scale_factor` option).
@@ -270,6 +270,9 @@ struct StressCli {
     /// Write a log-log PNG of error against the difficulty parameter.
     #[arg(long, value_name = "OUT.png")]
     plot: Option<PathBuf>,
+    /// Print the table as Markdown, as in the README (the same bytes on every run).
+    #[arg(long)]
+    markdown: bool,
 }
 
 #[derive(Args)]
@@ -632,6 +635,7 @@ fn stress(a: StressCli) -> anyhow::Result<ExitCode> {
         rays: a.rays,
         csv: a.csv,
         plot: a.plot,
+        markdown: a.markdown,
     };
     say(&commands::stress::run(&args)?)?;
     Ok(ExitCode::SUCCESS)

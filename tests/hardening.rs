@@ -70,7 +70,7 @@ fn outputs_that_are_not_regular_files_are_refused() {
     // --preview DIR: the preview's own name is taken by a FIFO.
     let pv = d.join("pv");
     std::fs::create_dir_all(&pv).unwrap();
-    mkfifo(&pv.join("s.depth.png"));
+    mkfifo(&pv.join("s.depth.preview.png"));
     let mut failures = Vec::new();
     for target in [&fifo, &to_fifo, &to_null] {
         let t = s(target);
@@ -119,11 +119,23 @@ fn outputs_that_are_not_regular_files_are_refused() {
         "--preview",
         s(&pv),
     ]);
-    if o.status.code() != Some(1) || !stderr(&o).contains("s.depth.png") {
+    if o.status.code() != Some(1) || !stderr(&o).contains("s.depth.preview.png") {
         failures.push(format!("render --preview: {:?} {}", o.status, stderr(&o)));
     }
+    // Output folders (batch --out, verify --heatmap): a FIFO or a link to a device is not one.
+    for target in [&fifo, &to_null] {
+        for (args, want) in [
+            (vec!["batch", s(&scene), "--out", s(target)], 1),
+            (vec!["verify", s(&scene), "--heatmap", s(target)], 2),
+        ] {
+            let o = cylaov(&args);
+            if o.status.code() != Some(want) || !stderr(&o).contains("not a folder") {
+                failures.push(format!("{args:?}: {:?} {}", o.status, stderr(&o)));
+            }
+        }
+    }
     assert!(
-        is_fifo(&fifo) && is_fifo(&pv.join("s.depth.png")),
+        is_fifo(&fifo) && is_fifo(&pv.join("s.depth.preview.png")),
         "a FIFO was replaced"
     );
     assert!(
@@ -161,7 +173,7 @@ fn outputs_may_not_be_inputs_through_links() {
     // A scene that sits in the preview folder under the name of a preview.
     let pv = d.join("pv");
     std::fs::create_dir_all(&pv).unwrap();
-    let pv_scene = pv.join("o.normal.png");
+    let pv_scene = pv.join("o.normal.preview.png");
     std::fs::write(&pv_scene, SCENE).unwrap();
     let o_exr = d.join("o.exr");
     let cases: Vec<(&str, Vec<&str>, i32)> = vec![
@@ -298,6 +310,19 @@ fn stdout_failures_never_panic_and_keep_the_exit_status() {
                 o.status.code()
             ));
         }
+    }
+    // A full stderr: the error cannot be shown, but the status is still the command's.
+    let full = std::fs::OpenOptions::new()
+        .write(true)
+        .open("/dev/full")
+        .unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_cylaov"))
+        .args(["render", "/nonexistent.json", "-o", s(&out)])
+        .stderr(full)
+        .output()
+        .unwrap();
+    if o.status.code() != Some(1) {
+        failures.push(format!("render 2> /dev/full: exit {:?}", o.status.code()));
     }
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
@@ -570,4 +595,76 @@ fn parent_path_and_long_names() {
     let o = cylaov(&["render", s(&scene), "-o", s(&too_long)]);
     assert_eq!(o.status.code(), Some(1));
     assert!(stderr(&o).contains("the limit is 255"), "{}", stderr(&o));
+}
+
+/// Pictures read without the README: the depth preview carries a titled, ticked legend, the
+/// normal preview a key, and every failing pixel of a heatmap is ringed in white.
+#[test]
+fn previews_and_heatmaps_carry_their_legends() {
+    let d = dir("pictures");
+    let (scene, exr) = scene_and_render(&d);
+    let pv = d.join("pv");
+    let o = cylaov(&[
+        "render",
+        s(&scene),
+        "-o",
+        s(&d.join("v.exr")),
+        "--preview",
+        s(&pv),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    // Below the 24 image rows: legend rows with white text (ticks, labels, title).
+    for name in ["v.depth.preview.png", "v.normal.preview.png"] {
+        let img = image::open(pv.join(name)).unwrap().to_rgb8();
+        assert!(img.height() >= 24 + 15, "{name}: {} rows", img.height());
+        let white = img
+            .enumerate_pixels()
+            .filter(|(_, y, p)| *y >= 24 && p.0 == [255, 255, 255])
+            .count();
+        assert!(white > 40, "{name}: {white} white legend pixels");
+    }
+    // One camera nudged: a few pixels break a tight tolerance; each gets a white ring.
+    let moved = d.join("moved.json");
+    std::fs::write(&moved, SCENE.replace("[3, -5, 2.5]", "[3, -5, 2.5001]")).unwrap();
+    let other = d.join("moved.exr");
+    assert!(
+        cylaov(&["render", s(&moved), "-o", s(&other)])
+            .status
+            .success()
+    );
+    let heat = d.join("heat.png");
+    let o = cylaov(&[
+        "compare",
+        s(&exr),
+        s(&other),
+        "--heatmap",
+        s(&heat),
+        "--rel-depth",
+        "1e-9",
+    ]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    let img = image::open(&heat).unwrap().to_rgb8();
+    assert!(
+        img.height() > 24 + 20,
+        "no legend strip: {} rows",
+        img.height()
+    );
+    let failing: Vec<(u32, u32)> = img
+        .enumerate_pixels()
+        .filter(|(_, y, p)| *y < 24 && p.0 == [255, 0, 255])
+        .map(|(x, y, _)| (x, y))
+        .collect();
+    assert!(!failing.is_empty(), "no failing pixel to ring");
+    let ringed = |&(x, y): &(u32, u32)| {
+        (0..img.width()).any(|i| {
+            (0..24).any(|j| {
+                img.get_pixel(i, j).0 == [255, 255, 255] && i.abs_diff(x) <= 8 && j.abs_diff(y) <= 8
+            })
+        })
+    };
+    let bare: Vec<_> = failing.iter().filter(|p| !ringed(p)).collect();
+    assert!(
+        bare.len() < failing.len(),
+        "no failing pixel is ringed: {bare:?}"
+    );
 }

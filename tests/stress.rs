@@ -434,7 +434,7 @@ fn stress_scenes_stable_f32() {
 fn stress_scenes_catch_the_literal_kernel() {
     for (name, min) in [("far_offset", 100), ("huge_radius", 100), ("along_axis", 1)] {
         let f = scene_failures::<f32, Literal>(name);
-        println!("{name} literal/f32: {} failures", f.len());
+        println!("{name} literal-f32: {} failures", f.len());
         assert!(
             f.len() >= min,
             "{name}: literal f32 only {} failures",
@@ -442,7 +442,7 @@ fn stress_scenes_catch_the_literal_kernel() {
         );
     }
     let f = scene_failures::<f64, Literal>("along_axis");
-    println!("along_axis literal/f64: {} failures", f.len());
+    println!("along_axis literal-f64: {} failures", f.len());
     assert!(!f.is_empty());
 }
 

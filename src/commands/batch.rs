@@ -23,18 +23,19 @@ pub struct BatchArgs {
 
 /// Run the batch; the summary says what happened (failed views are not an `Err`).
 pub fn run(args: &BatchArgs) -> Result<Summary> {
+    crate::output::io::check_output_dir("--out", &args.out)?;
     let shard = batch::resolve_shard(args.shard, args.shards, &|k| std::env::var(k).ok())
         .map_err(anyhow::Error::msg)?;
     let verifier = verifier(args)?;
     if args.options.png && args.options.depth_scale != NERFSTUDIO_DEPTH_SCALE {
-        eprintln!(
+        crate::output::io::warn(&format!(
             "warning: --depth-scale {}: nerfstudio reads depth PNGs at {NERFSTUDIO_DEPTH_SCALE} \
              per unit unless told otherwise: train with its parser option \
              depth_unit_scale_factor = {} (index.json and transforms.json record it, but \
              nerfstudio does not read it from there)",
             args.options.depth_scale,
             1.0 / args.options.depth_scale
-        );
+        ));
     }
     batch::run(
         &args.input,
@@ -58,7 +59,7 @@ fn verifier(args: &BatchArgs) -> Result<Option<crate::verify::reference::Mitsuba
         args.options.formula,
     );
     if let Err(why) = &found {
-        eprintln!("--verify-fraction: skipped: {why}");
+        crate::output::io::warn(&format!("--verify-fraction: skipped: {why}"));
     }
     Ok(found.ok())
 }

@@ -86,7 +86,9 @@ pub fn verdict_lines(failures: &[String]) -> String {
 /// Read both images, compare, write the heatmap if asked, and format the result.
 pub fn run(args: &CompareArgs) -> Result<CompareOutcome> {
     if let Some(path) = &args.heatmap {
-        check_outputs(&[("--heatmap", path)], &[&args.a, &args.b])?;
+        let mut inputs = vec![args.a.as_path(), args.b.as_path()];
+        inputs.extend(args.scene.as_deref());
+        check_outputs(&[("--heatmap", path)], &inputs)?;
     }
     let (sa, sb) = (header_size(&args.a)?, header_size(&args.b)?);
     check_memory(
@@ -113,7 +115,7 @@ pub fn run(args: &CompareArgs) -> Result<CompareOutcome> {
         .with_context(|| format!("comparing {} with {}", args.a.display(), args.b.display()))?;
     if let Some(path) = &args.heatmap {
         write_png(
-            &heatmap(&a, &b, &report, &args.tolerances, cond.as_ref()),
+            &annotate(heatmap(&a, &b, &report, &args.tolerances, cond.as_ref())),
             path,
         )?;
     }
@@ -146,4 +148,80 @@ pub fn run(args: &CompareArgs) -> Result<CompareOutcome> {
         passed,
         report,
     })
+}
+
+/// The heatmap made readable on its own: every failing pixel (red: a mismatch off a
+/// silhouette; magenta: an error above its tolerance) ringed in white, since one such pixel
+/// is invisible at a glance, and a legend strip of every colour under the image.
+fn annotate(heat: image::RgbImage) -> image::RgbImage {
+    use crate::output::plot;
+    use crate::verify::compare::error_colour;
+    use image::Rgb;
+    const RED: Rgb<u8> = Rgb([255, 0, 0]);
+    const MAGENTA: Rgb<u8> = Rgb([255, 0, 255]);
+    let (w, h) = heat.dimensions();
+    let scale = (w / 160).clamp(1, 4);
+    let row = (8 * scale) as i64;
+    let mut out = image::RgbImage::new(w, h + 2 + 4 * row as u32);
+    image::imageops::replace(&mut out, &heat, 0, 0);
+    let failing: Vec<(i64, i64)> = heat
+        .enumerate_pixels()
+        .filter(|(_, _, p)| **p == RED || **p == MAGENTA)
+        .map(|(x, y, _)| (x as i64, y as i64))
+        .collect();
+    // Rings only where they can be told apart: beyond a few thousand the failing area is
+    // itself visible.
+    if failing.len() <= 4000 {
+        let r = 3 + scale as i64;
+        for &(x, y) in &failing {
+            for d in -r..=r {
+                for (px, py) in [
+                    (x + d, y - r),
+                    (x + d, y + r),
+                    (x - r, y + d),
+                    (x + r, y + d),
+                ] {
+                    if py < h as i64 && px >= 0 && py >= 0 && px < w as i64 {
+                        let under = *heat.get_pixel(px as u32, py as u32);
+                        if under != RED && under != MAGENTA {
+                            out.put_pixel(px as u32, py as u32, plot::WHITE);
+                        }
+                    }
+                }
+            }
+        }
+    }
+    let mut y = h as i64 + 3;
+    let mut x = 1i64;
+    let s = scale as i64;
+    let entry = |out: &mut image::RgbImage, x: &mut i64, y: i64, c: Rgb<u8>, label: &str| {
+        plot::fill(out, *x, y, 5 * scale, 5 * scale, c);
+        if c == plot::WHITE {
+            plot::fill(out, *x + s, y + s, 3 * scale, 3 * scale, plot::BLACK);
+        }
+        *x += 6 * s;
+        plot::text(out, *x, y, scale, label, plot::WHITE);
+        *x += plot::text_width(label, scale) + 3 * s;
+    };
+    entry(&mut out, &mut x, y, Rgb([28, 28, 28]), "BOTH MISS");
+    entry(&mut out, &mut x, y, Rgb([255, 140, 0]), "EDGE MISMATCH");
+    y += row;
+    x = 1;
+    entry(&mut out, &mut x, y, RED, "MISMATCH (FAIL)");
+    entry(&mut out, &mut x, y, MAGENTA, "OVER TOL (FAIL)");
+    y += row;
+    x = 1;
+    entry(&mut out, &mut x, y, plot::WHITE, "RING: FAILING PIXEL");
+    y += row;
+    // The error ramp, in units of the tolerance, log scale 1e-4 .. 1.
+    let label = "ERR/TOL 1E-4";
+    plot::text(&mut out, 1, y, scale, label, plot::WHITE);
+    let x0 = 1 + plot::text_width(label, scale) + 2 * s;
+    let x1 = (w as i64 - plot::text_width("1", scale) - 3 * s).max(x0 + 10);
+    for px in x0..x1 {
+        let e = 10f64.powf(-4.0 + 4.0 * (px - x0) as f64 / (x1 - x0 - 1).max(1) as f64);
+        plot::fill(&mut out, px, y, 1, 5 * scale, error_colour(e));
+    }
+    plot::text(&mut out, x1 + 2 * s, y, scale, "1", plot::WHITE);
+    out
 }

@@ -248,7 +248,7 @@ pub fn stage_previews(
 ) -> Result<Vec<Staged>> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     let mut out = Vec::new();
-    if let Some(p) = preview::normal_rgb(img) {
+    if let Some(p) = preview::normal_preview(img) {
         out.push(preview::stage_png(
             &p,
             &dir.join(format!("{name}.normal.preview.png")),

@@ -18,6 +18,9 @@ pub struct StressArgs {
     pub rays: usize,
     pub csv: Option<PathBuf>,
     pub plot: Option<PathBuf>,
+    /// Print the README's Markdown table instead of the text table (no timing: the same
+    /// bytes on every run).
+    pub markdown: bool,
 }
 
 /// Run the suite; returns the table text.
@@ -48,19 +51,25 @@ pub fn run(args: &StressArgs) -> Result<String> {
         .iter()
         .flat_map(|&f| stress::run_family(f, args.rays, &TABLE_ORDER))
         .collect();
-    let mut out = String::new();
-    out.push_str(TABLE_HEADER);
-    out.push('\n');
-    for s in stress::summarise(&records) {
-        out.push_str(&format!("{s}\n"));
-    }
-    out.push_str(&format!(
-        "{} rays x {} kernels in {:.2} s; err/eps is |dt|/(eps t) with eps the kernel's unit roundoff; \
-         stats over rays outside the tangency band where both hit",
-        records.len() / TABLE_ORDER.len(),
-        TABLE_ORDER.len(),
-        start.elapsed().as_secs_f64()
-    ));
+    let summaries = stress::summarise(&records);
+    let out = if args.markdown {
+        let mut md = stress::markdown_table(&summaries);
+        md.pop(); // the caller ends the line
+        md
+    } else {
+        let mut out = format!("{TABLE_HEADER}\n");
+        for s in &summaries {
+            out.push_str(&format!("{s}\n"));
+        }
+        out.push_str(&format!(
+            "{} rays x {} kernels in {:.2} s; err/eps is |dt|/(eps t) with eps the kernel's unit roundoff; \
+             stats over rays outside the tangency band where both hit",
+            records.len() / TABLE_ORDER.len(),
+            TABLE_ORDER.len(),
+            start.elapsed().as_secs_f64()
+        ));
+        out
+    };
     if let Some(path) = &args.csv {
         let mut text = String::from(CSV_HEADER);
         text.push('\n');

@@ -128,6 +128,7 @@ fn check_one(
     let mut heatmap_path = None;
     if let Some(dir) = &args.heatmap {
         let path = view.dir(dir).join(format!("{}.heatmap.png", view.name));
+        crate::output::io::check_output("--heatmap", &path, &[&view.path])?;
         if let Some(parent) = path.parent() {
             std::fs::create_dir_all(parent)?;
         }
@@ -149,6 +150,9 @@ fn check_one(
 pub fn run(args: &VerifyArgs) -> Result<VerifyOutcome> {
     if !(0.0..=1.0).contains(&args.fraction) || args.fraction.is_nan() {
         anyhow::bail!("--fraction: must be in [0, 1], got {}", args.fraction);
+    }
+    if let Some(dir) = &args.heatmap {
+        crate::output::io::check_output_dir("--heatmap", dir)?;
     }
     let all = views(&args.input)?;
     let selected: Vec<&ViewSource> = all
@@ -185,7 +189,7 @@ pub fn run(args: &VerifyArgs) -> Result<VerifyOutcome> {
             },
         };
         if !args.json {
-            eprintln!("[{}/{}] {}", k + 1, selected.len(), row(&r));
+            crate::output::io::warn(&format!("[{}/{}] {}", k + 1, selected.len(), row(&r)));
         }
         results.push(r);
     }

@@ -1,5 +1,6 @@
-//! PNG previews a person can look at: normals as RGB, depth through a colour map with a
-//! legend bar labelled with its range. Also the 16-bit depth PNG of datasets.
+//! PNG previews a person can read without the README: normals as RGB with a key of the axis
+//! colours, depth through a colour map with a titled legend bar (quantity, unit, ticks).
+//! Also the data PNGs of datasets (normals without a key, 16-bit depth).
 
 use crate::output::aov::AovImage;
 use crate::output::io::{Staged, stage};
@@ -41,8 +42,34 @@ fn colormap(u: f32) -> [u8; 3] {
     [0, 1, 2].map(|c| (P[k][c] + (P[k + 1][c] - P[k][c]) * f).round() as u8)
 }
 
+/// Legend text scale for an image `w` pixels wide: 3×5 glyphs at 1 px up to 320 px wide,
+/// larger on larger images.
+fn legend_scale(w: u32) -> u32 {
+    (w / 160).clamp(1, 4)
+}
+
+/// A tick label: three significant digits, plain where that is short.
+fn tick_label(x: f32) -> String {
+    let a = x.abs();
+    if a == 0.0 || (0.01..10000.0).contains(&a) {
+        let decimals = if a >= 100.0 {
+            0
+        } else if a >= 10.0 {
+            1
+        } else if a >= 1.0 {
+            2
+        } else {
+            3
+        };
+        format!("{x:.decimals$}")
+    } else {
+        format!("{x:.2e}")
+    }
+}
+
 /// Depth (or any float channel) through the colour map, near = dark, with a legend strip
-/// under the image: the ramp and the min and max values. Misses (0) are black.
+/// under the image: the ramp with five labelled ticks (min, quarters, max of the hits) and
+/// a title naming the quantity, its unit and the miss colour. Misses (0) are black.
 pub fn depth_colormap(img: &AovImage, channel: &str) -> Option<RgbImage> {
     let v = img.f32_channel(channel)?;
     let hits = v.iter().copied().filter(|x| *x > 0.0 && x.is_finite());
@@ -51,9 +78,13 @@ pub fn depth_colormap(img: &AovImage, channel: &str) -> Option<RgbImage> {
     });
     let span = if hi > lo { hi - lo } else { 1.0 };
     let (w, h) = (img.width as u32, img.height as u32);
-    let scale = (w / 160).clamp(1, 4);
-    let legend = 10 * scale + 4;
-    let mut out = RgbImage::new(w, h + legend);
+    let scale = legend_scale(w);
+    // Ramp (3), tick marks (2), labels (5), title (5), in glyph rows, plus gaps.
+    let (ramp_y, ramp_h) = (h + 2, 3 * scale);
+    let tick_y = ramp_y + ramp_h;
+    let label_y = tick_y + 2 * scale + 2;
+    let title_y = label_y + 5 * scale + 3 * scale;
+    let mut out = RgbImage::new(w, title_y + 5 * scale + 3);
     for j in 0..h {
         for i in 0..w {
             let x = v[(j * w + i) as usize];
@@ -64,17 +95,67 @@ pub fn depth_colormap(img: &AovImage, channel: &str) -> Option<RgbImage> {
     }
     for i in 0..w {
         let c = colormap(i as f32 / (w.max(2) - 1) as f32);
-        for j in h + 2..h + 2 + 3 * scale {
+        for j in ramp_y..ramp_y + ramp_h {
             out.put_pixel(i, j, Rgb(c));
         }
     }
+    let quantity = if channel == "depth" {
+        "DEPTH Z"
+    } else {
+        channel
+    };
+    let title = format!("{quantity} (WORLD UNITS), BLACK = MISS");
+    plot::text(&mut out, 1, title_y as i64, scale, &title, plot::WHITE);
     if lo.is_finite() {
-        let y = h + 3 * scale + 3;
-        let (a, b) = (format!("{lo:.4e}"), format!("{hi:.4e}"));
-        plot::text(&mut out, 1, y as i64, scale, &a, plot::WHITE);
-        let bx = (w as i64 - plot::text_width(&b, scale) - 1).max(0);
-        plot::text(&mut out, bx, y as i64, scale, &b, plot::WHITE);
+        for q in 0..5 {
+            let f = q as f32 / 4.0;
+            let x = (f * (w.max(2) - 1) as f32).round() as i64;
+            plot::fill(
+                &mut out,
+                x - (scale as i64 / 2),
+                tick_y as i64,
+                scale,
+                2 * scale,
+                plot::WHITE,
+            );
+            let label = tick_label(lo + f * (hi - lo));
+            let tw = plot::text_width(&label, scale);
+            let lx = (x - tw / 2).clamp(0, (w as i64 - tw).max(0));
+            plot::text(&mut out, lx, label_y as i64, scale, &label, plot::WHITE);
+        }
     }
+    Some(out)
+}
+
+/// The normal colours with a key under them: what colour each world axis direction
+/// gets (`n * 0.5 + 0.5` as RGB) and that black is a miss. For people; datasets store
+/// [`normal_rgb`] without the key.
+pub fn normal_preview(img: &AovImage) -> Option<RgbImage> {
+    let rgb = normal_rgb(img)?;
+    let (w, h) = rgb.dimensions();
+    let scale = legend_scale(w);
+    let row = 5 * scale + 3 * scale;
+    let mut out = RgbImage::new(w, h + 2 + 2 * row + 2);
+    image::imageops::replace(&mut out, &rgb, 0, 0);
+    let to8 = |v: f32| ((v * 0.5 + 0.5) * 255.0).round() as u8;
+    let mut x = 1i64;
+    let y = (h + 3) as i64;
+    for (label, n) in [
+        ("+X", [1.0, 0.0, 0.0]),
+        ("-X", [-1.0, 0.0, 0.0]),
+        ("+Y", [0.0, 1.0, 0.0]),
+        ("-Y", [0.0, -1.0, 0.0]),
+        ("+Z", [0.0, 0.0, 1.0]),
+        ("-Z", [0.0, 0.0, -1.0]),
+    ] {
+        let c = Rgb(n.map(to8));
+        plot::fill(&mut out, x, y, 5 * scale, 5 * scale, c);
+        x += 6 * scale as i64;
+        plot::text(&mut out, x, y, scale, label, plot::WHITE);
+        x += plot::text_width(label, scale) + 3 * scale as i64;
+    }
+    let key = "NORMAL RGB = (N+1)/2, BLACK = MISS";
+    plot::text(&mut out, 1, y + row as i64, scale, key, plot::WHITE);
     Some(out)
 }
 

@@ -936,7 +936,7 @@ impl fmt::Display for Report {
 
 /// Colour for an error `e` in units of its tolerance: log scale from 1e-4 (dark blue)
 /// through 1e-2 (green) to 1 (yellow); above the tolerance, magenta.
-fn error_colour(e: f64) -> Rgb<u8> {
+pub fn error_colour(e: f64) -> Rgb<u8> {
     if e > 1.0 {
         return Rgb([255, 0, 255]);
     }

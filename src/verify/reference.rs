@@ -342,7 +342,7 @@ impl Verifier for MitsubaVerifier {
         if std::io::IsTerminal::is_terminal(&std::io::stderr()) {
             line.insert_str(0, "\r\x1b[2K");
         }
-        eprintln!("{line}");
+        crate::output::io::warn(&line);
         let cached = CachedVerdict {
             stamp,
             tolerances: key.0,

@@ -846,6 +846,40 @@ impl fmt::Display for Summary {
     }
 }
 
+/// The summaries as the README's Markdown table (header, alignment row, one row per
+/// family and kernel); `cylaov stress --markdown` prints it and a test keeps the README
+/// equal to it.
+pub fn markdown_table(summaries: &[Summary]) -> String {
+    let mut out = String::from(
+        "| family | kernel | rays | NaN/inf | wrong hit/miss | band | dist err/ε median | p99 | max | max ulps | κ at max | max err/max(1,κ) | viol | normal p99 (rad) | normal max (rad) | max angle/(ε·max(1,t/r)) | viol | max \\|\\|n\\|−1\\| |\n\
+         |---|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|\n",
+    );
+    for s in summaries {
+        let cells = [
+            s.family.name().to_string(),
+            s.kernel.to_string(),
+            s.rays.to_string(),
+            s.nonfinite.to_string(),
+            s.wrong.to_string(),
+            s.band.to_string(),
+            g(s.t_median),
+            g(s.t_p99),
+            g(s.t_max),
+            g(s.ulps_max),
+            g(s.kappa_at_max),
+            g(s.t_ratio_max),
+            s.viol_t.to_string(),
+            g(s.n_p99),
+            g(s.n_max),
+            g(s.n_units_max),
+            s.viol_n.to_string(),
+            g(s.len_max),
+        ];
+        out.push_str(&format!("| {} |\n", cells.join(" | ")));
+    }
+    out
+}
+
 /// CSV header for per-ray records.
 pub const CSV_HEADER: &str = "family,param,kernel,caps,oracle_hit,kernel_hit,band_hit,band_branch,t_oracle,t_kernel,err_t_eps,err_ulps,kappa_t,err_n_rad,err_n_units,kappa_n,len_err,wrong,viol_t,viol_n,origin_x,origin_y,origin_z,dir_x,dir_y,dir_z";
 

@@ -199,6 +199,19 @@ fn pareto(img: &mut RgbImage, grid: &Grid, dn: &[&Row], kernels: &[(Kernel, Stri
         plot::marker(img, p.pos(x, err(r.err_median)), Marker::Open, *c);
         plot::marker(img, p.pos(x, err(r.err_max)), Marker::Square, *c);
     }
+    if pts.len() < 2 {
+        // One kernel (--quick): it is the reference, so there is no error to compare.
+        let lines = [
+            "ONE KERNEL ONLY: ERRORS ARE MEASURED",
+            "AGAINST STABLE-F64, SO THERE IS NOTHING",
+            "TO COMPARE. RUN WITHOUT --QUICK FOR",
+            "EVERY KERNEL.",
+        ];
+        let y0 = p.y + p.h as i64 / 2 + 14;
+        for (i, l) in lines.iter().enumerate() {
+            plot::text(img, p.x + 10, y0 + 12 * i as i64, 2, l, NOTE);
+        }
+    }
     // Under the tick labels, left; the axis name is on the right.
     plot::text(img, p.x, p.y + p.h as i64 + 20, 2, ERR_FLOOR_NOTE, NOTE);
     p.title(

@@ -12,7 +12,7 @@ use image::{Rgb, RgbImage};
 /// Three panels a row, one row a family, under a one-line legend.
 const GRID: Grid = Grid {
     panel: (360, 190),
-    margin: [56, 22, 14, 26],
+    margin: [56, 22, 14, 36],
     legend_h: 26,
 };
 
@@ -130,4 +130,19 @@ fn panel(
         }
     }
     p.title(img, &format!("{}: {}", fam.name().to_uppercase(), title));
+    p.x_label(img, x_name(fam));
+}
+
+/// The difficulty parameter on each family's x axis, short enough for a panel (the CSV's
+/// `param` column; `Family::param_name` says it in full).
+fn x_name(fam: Family) -> &'static str {
+    match fam {
+        Family::Grazing => "X: GAP FROM TANGENCY (P-R)/R",
+        Family::NearAxis => "X: RAY-AXIS ANGLE (RAD)",
+        Family::Far => "X: DISTANCE IN RADII",
+        Family::Scale => "X: RADIUS (CAMERA AT 5 RADII)",
+        Family::Inside => "X: CAMERA-SURFACE GAP (RHO-R)/R",
+        Family::Rims => "X: AIM OFFSET FROM RIM, RADII",
+        Family::Input => "X: COORDINATE MAGNITUDE",
+    }
 }

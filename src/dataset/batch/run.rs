@@ -258,13 +258,13 @@ impl ShardWork<'_> {
                 match rendered {
                     Ok(cost) => {
                         if cost.depth_zeroed > 0 {
-                            eprintln!(
+                            crate::output::io::warn(&format!(
                                 "{}: depth PNG: {} hit pixels beyond 16 bits at --depth-scale {} \
                                  stored as 0",
                                 view.id(),
                                 cost.depth_zeroed,
                                 self.opts.depth_scale
-                            );
+                            ));
                         }
                         Outcome::Done(cost)
                     }
