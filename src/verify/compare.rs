@@ -323,6 +323,8 @@ pub struct Report {
     pub seams_on_boundary: usize,
     /// Seam mismatches over all pixels (what `max_seam_fraction` bounds).
     pub seam_fraction: f64,
+    /// Up to 10 seam mismatches on a part boundary, `[x, y]`.
+    pub seam_examples: Vec<[usize; 2]>,
     /// Mismatches of either kind away from any boundary (always a failure).
     pub mismatches_interior: usize,
     /// Up to 10 interior mismatches, `[x, y]`.
@@ -748,6 +750,11 @@ pub fn compare_with(a: &AovImage, b: &AovImage, cond: Option<&Conditioning>) -> 
         seams,
         seams_on_boundary: on_seam,
         seam_fraction: seams as f64 / n as f64,
+        seam_examples: (0..n)
+            .filter(|&k| c.classes[k] == Class::Seam)
+            .take(10)
+            .map(|k| [k % w, k / w])
+            .collect(),
         mismatches_interior: interior.len(),
         interior_examples: interior.iter().take(10).map(|&k| [k % w, k / w]).collect(),
         rel_distance: e.rel_distance,
