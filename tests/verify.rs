@@ -402,3 +402,29 @@ fn a_real_seam_mismatch_is_a_rim_tie() {
         assert!(off_rim < delta, "[{x}, {y}]: {off_rim:e} from the rim");
     }
 }
+
+/// `part` on views whose answer is known: from inside an open tube every hit is the wall's
+/// inner face (2); a capped cylinder seen from above and the side shows its side (1) and
+/// top cap (4) only; the reference agrees pixel for pixel on both.
+#[test]
+fn part_is_what_the_camera_sees() {
+    for (stem, expected) in [("tube_inside", vec![2]), ("single", vec![1, 4])] {
+        let (scene, reference) = load(stem);
+        let img = ours(&scene);
+        let parts = img.u32_channel("part").expect("parts");
+        let mut seen: Vec<u32> = parts.iter().copied().filter(|&p| p != 0).collect();
+        seen.sort_unstable();
+        seen.dedup();
+        assert_eq!(seen, expected, "{stem}");
+        let theirs = match reference.channel("part") {
+            Some(ChannelData::F32(v)) => v.clone(),
+            other => panic!("{stem}: reference part is {other:?}"),
+        };
+        let differ = parts
+            .iter()
+            .zip(&theirs)
+            .filter(|(a, b)| **a as f32 != **b)
+            .count();
+        assert_eq!(differ, 0, "{stem}");
+    }
+}
