@@ -1,10 +1,11 @@
 #!/usr/bin/env python3
 """Render the Mitsuba 3 reference AOVs of a cylaov scene.
 
-Usage: mitsuba_reference.py SCENE.xml SCENE.json OUT.exr
+Usage: mitsuba_reference.py SCENE.xml SCENE.json OUT.exr [SENSOR]
 
 SCENE.xml comes from `cylaov export-mitsuba SCENE.json`; SCENE.json gives the camera for
-the depth conversion. Renders with the `scalar_rgb` variant of mitsuba 3.9.1 (there the
+the depth conversion. SENSOR (default 0) picks the camera of a scene with several
+(`"cameras"`): the export writes one sensor per camera, in file order. Renders with the `scalar_rgb` variant of mitsuba 3.9.1 (there the
 cylinder quadratic is solved in float64, and the render is deterministic) and writes OUT.exr
 (float32, lossless PIZ) with cylaov's channel names:
 
@@ -119,23 +120,33 @@ def shape_lut(scene):
 
 
 def main(argv):
-    if len(argv) != 4:
-        fail("usage: mitsuba_reference.py SCENE.xml SCENE.json OUT.exr")
-    xml_path, json_path, out_path = argv[1:]
+    if len(argv) not in (4, 5):
+        fail("usage: mitsuba_reference.py SCENE.xml SCENE.json OUT.exr [SENSOR]")
+    xml_path, json_path, out_path = argv[1:4]
+    try:
+        sensor = int(argv[4]) if len(argv) == 5 else 0
+    except ValueError:
+        fail(f"SENSOR: expected a camera index (0, 1, ...), got {argv[4]!r}")
     try:
         with open(json_path) as f:
-            cam = json.load(f)["camera"]
-    except (OSError, ValueError, KeyError) as e:
+            doc = json.load(f)
+        cams = doc["cameras"] if "cameras" in doc else [doc["camera"]]
+        if not 0 <= sensor < len(cams):
+            fail(f"SENSOR: {json_path} has {len(cams)} camera(s), got {sensor}")
+        cam = cams[sensor]
+    except (OSError, ValueError, KeyError, TypeError) as e:
         fail(f"{json_path}: cannot read the camera: {e}")
     near = float(cam.get("near_clip", 0.01))
 
     mi.set_variant("scalar_rgb")
     scene = mi.load_file(xml_path)
-    film = scene.sensors()[0].film()
+    if len(scene.sensors()) != len(cams):
+        fail(f"{xml_path}: {len(scene.sensors())} sensors, {json_path} has {len(cams)} cameras")
+    film = scene.sensors()[sensor].film()
     size = tuple(film.size())
     if size != (int(cam["width"]), int(cam["height"])):
         fail(f"{xml_path}: film {size} differs from {json_path} camera size")
-    img = np.array(mi.render(scene), dtype=np.float32)
+    img = np.array(mi.render(scene, sensor=sensor), dtype=np.float32)
     if img.shape[2] != len(MITSUBA_AOVS):
         fail(f"expected {len(MITSUBA_AOVS)} AOV channels {MITSUBA_AOVS}, got {img.shape[2]}")
 

@@ -11,9 +11,15 @@
 # Failed views are listed in OUT/failures.K-of-N.jsonl and make the task exit non-zero.
 #
 # Extra cylaov options go after the two paths, e.g. --aov depth,normal,shape_id.
+#
+# Resources: one CPU and 1 GB per task by default, which any node can give (a request larger
+# than every node, such as 8 CPUs on a 2-core node, leaves the array pending forever without
+# a word). Ask for more on the command line and cylaov uses them:
+#   sbatch --array=0-63 --cpus-per-task=4 --mem=2G scripts/slurm-batch.sh IN OUT
+# scripts/slurm-test runs this script on a real one-node cluster.
 #SBATCH --job-name=cylaov
-#SBATCH --cpus-per-task=8
-#SBATCH --mem=4G
+#SBATCH --cpus-per-task=1
+#SBATCH --mem=1G
 #SBATCH --time=04:00:00
 #SBATCH --output=cylaov-%A_%a.log
 set -euo pipefail

@@ -4,6 +4,7 @@ use clap::{Args, Parser, Subcommand};
 use cylaov::dataset::batch::{BatchOptions, ProgressMode, Schedule, Shard};
 use cylaov::dataset::generate::{Range, Volume};
 use cylaov::output::aov::Compression;
+use cylaov::output::depth_png::OutOfRange;
 use cylaov::render::{Accel, FormulaKind, Precision, RenderOptions};
 use cylaov::scene::Aov;
 use cylaov::verify::compare::Tolerances;
@@ -14,11 +15,17 @@ use std::process::ExitCode;
 /// Compile cylinder scenes into per-pixel AOVs (depth, distance, normal, position,
 /// shape id) as OpenEXR, and verify them against Mitsuba 3.
 #[derive(Parser)]
-#[command(version, about, long_about = None)]
+#[command(version, about, long_about = None, after_help = EXIT_STATUS)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
 }
+
+/// The one exit-status rule of every command (also in the README).
+const EXIT_STATUS: &str = "Exit status, every command: 0 = done; 1 = input rejected (a bad scene, \
+a refused output, a full disk) or a check failed (compare's tolerances, a batch view); \
+2 = usage error (unknown option, bad value) or a check that could not be made (compare: a \
+missing or unreadable image). A closed stdout (`| head`) is not an error.";
 
 #[derive(Subcommand)]
 enum Command {
@@ -34,7 +41,7 @@ enum Command {
     /// kernel alone (one thread, million ray-cylinder tests per second; scalar, portable
     /// packets and AVX2 packets), which shows what f32 buys where the kernel is all the work.
     ///
-    /// Example (about a minute): cylaov bench --counts 1000 --quick --mitsuba
+    /// Example (about 10 seconds): cylaov bench --counts 1000 --quick --mitsuba
     ///
     /// Example (what the screen tiles save over the BVH): cylaov bench --quick --accel bvh
     Bench(BenchCli),
@@ -62,7 +69,8 @@ enum Command {
     ///
     /// Example (a twentieth of a generated dataset): cylaov verify data --fraction 0.05
     Verify(VerifyCli),
-    /// Compare two AOV EXRs pixel by pixel; exit 1 if a tolerance is broken.
+    /// Compare two AOV EXRs pixel by pixel (README, Comparing two renders); exit 1 if a
+    /// tolerance is broken.
     ///
     /// Exit status: 0 when every tolerance holds, 1 when one is broken (the report says
     /// which), 2 when the comparison could not be made (a missing or unreadable file, images
@@ -80,7 +88,7 @@ enum Command {
 #[derive(Args)]
 struct GenerateCli {
     /// Number of views (scenes) to generate.
-    #[arg(long)]
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=commands::generate::MAX_COUNT))]
     count: Option<u64>,
     /// Random seed (default 0).
     #[arg(long)]
@@ -124,6 +132,10 @@ struct GenerateCli {
     /// sphere just fills the view [default: 0.55..0.9].
     #[arg(long, value_parser = Range::parse, allow_hyphen_values = true, value_name = "A..B")]
     distance: Option<Range>,
+    /// Cameras per scene, around the same cylinders (camera 0 is the one a one-camera
+    /// scene gets) [default: 1].
+    #[arg(long, value_name = "V")]
+    views_per_scene: Option<u32>,
 }
 
 #[derive(Args)]
@@ -131,9 +143,10 @@ struct BatchCli {
     /// A folder of scene files (*.json, recursively; through its manifest.jsonl if it has
     /// one) or a .jsonl manifest.
     input: PathBuf,
-    /// Output folder: NAME.exr, NAME.camera.json, NAME.normal.png, NAME.depth.png,
-    /// NAME.render.json (what made them, checked on resume), transforms.json,
-    /// failures.K-of-N.jsonl.
+    /// Output folder: per view NAME.exr, NAME.camera.json, NAME.open3d.json,
+    /// NAME.normal.preview.png, NAME.depth.png, NAME.mask.png, NAME.render.json (what made
+    /// them, checked on resume); index.json (every view), failures.K-of-N.jsonl. A scene with
+    /// several cameras gets a folder SCENE/ with views 00, 01, ... and SCENE/transforms.json.
     #[arg(long)]
     out: PathBuf,
     /// AOVs in each EXR, comma-separated. Default: each scene's `aovs`.
@@ -149,10 +162,15 @@ struct BatchCli {
     /// or SLURM_ARRAY_TASK_ID - SLURM_ARRAY_TASK_MIN.
     #[arg(long, value_name = "N")]
     shards: Option<u32>,
-    /// 16-bit depth PNG value per world unit (1000: millimetres for metres).
+    /// 16-bit depth PNG value per world unit (1000: millimetres for metres; nerfstudio
+    /// assumes 1000 unless given its `depth_unit_scale_factor` option).
     #[arg(long, default_value_t = 1000.0, allow_hyphen_values = true)]
     depth_scale: f64,
-    /// Skip the PNGs (transforms.json then points at the EXRs).
+    /// A view with a hit whose depth × scale does not fit 16 bits: fail it (default; the
+    /// message gives the largest scale that fits), or store those pixels as 0 and count them.
+    #[arg(long, value_enum, default_value_t = OutOfRange::Fail, value_name = "fail|zero")]
+    depth_out_of_range: OutOfRange,
+    /// Skip the PNGs (the indexes then point at the EXRs).
     #[arg(long)]
     no_png: bool,
     /// EXR compression.
@@ -220,18 +238,18 @@ struct BenchCli {
     /// Largest cylinder count rendered with Mitsuba's llvm_ad_rgb.
     #[arg(long, default_value_t = 10000)]
     mitsuba_llvm_max: usize,
-    /// Worker threads (default: all cores).
-    #[arg(long)]
+    /// Worker threads, 1 to 1024 (default: all cores).
+    #[arg(long, value_parser = threads)]
     threads: Option<usize>,
 }
 
 #[derive(Args)]
 struct StressCli {
     /// Run one family only: grazing, near-axis, far, scale, inside, rims, input.
-    #[arg(long)]
+    #[arg(long, value_parser = family)]
     family: Option<String>,
     /// Seeded rays per value of the difficulty parameter.
-    #[arg(long, default_value_t = 64)]
+    #[arg(long, default_value_t = 64, value_parser = at_least_one)]
     rays: usize,
     /// Write one CSV line per ray and kernel (inputs included, to reproduce a ray).
     #[arg(long, value_name = "OUT")]
@@ -351,18 +369,20 @@ fn non_negative(s: &str) -> Result<f64, String> {
 /// Kernel choice shared by every command that traces rays.
 #[derive(Args, Clone, Debug)]
 struct KernelCli {
-    /// Kernel precision: f64 is the default and the accuracy reference; f32 is about as fast
-    /// here (scalar code) and shows what float32 costs (README, Accuracy).
+    /// Kernel precision: f64 is the default and the accuracy reference. f32 runs the kernel
+    /// about 1.8x faster (eight AVX2 lanes instead of four) but a whole render only about
+    /// 1.1x (set-up and writing dominate), and shows what float32 costs (README, Accuracy).
     #[arg(long, value_enum, default_value_t = Precision::F64)]
     precision: Precision,
-    /// Kernel formulation: `stable` (default) or the SPEC §1 formulas as written.
+    /// Kernel formulation: `stable` (default) or the textbook quadratic as written
+    /// (README, Accuracy), kept to show what the stable form fixes.
     #[arg(long, value_enum, default_value_t = FormulaKind::Stable)]
     formula: FormulaKind,
     /// How primary rays find candidates: screen tiles (fast) or the BVH.
     #[arg(long, value_enum, default_value_t = Accel::Tiles)]
     accel: Accel,
-    /// Worker threads (default: all cores).
-    #[arg(long)]
+    /// Worker threads, 1 to 1024 (default: all cores).
+    #[arg(long, value_parser = threads)]
     threads: Option<usize>,
 }
 
@@ -385,195 +405,307 @@ struct RenderCli {
     /// EXR compression.
     #[arg(long, value_enum, default_value_t = Compression::None)]
     compression: Compression,
+    /// Which camera of a `"cameras"` scene to render (0-based, file order).
+    #[arg(long, value_name = "K", default_value_t = 0)]
+    camera: usize,
+}
+
+/// Largest `--threads`: 1024 is more hardware threads than any single node this runs on
+/// has, and the work splits into bands of tiles, so more threads cannot help; each one
+/// reserves a stack, and tens of thousands exhaust the process's limits (50 000 aborted,
+/// 100 000 spent minutes creating threads).
+const MAX_THREADS: usize = 1024;
+
+/// `--threads N`: a whole number in 1..=[`MAX_THREADS`].
+fn threads(s: &str) -> Result<usize, String> {
+    match s.parse::<usize>() {
+        Ok(n) if (1..=MAX_THREADS).contains(&n) => Ok(n),
+        _ => Err(format!(
+            "must be a whole number from 1 to {MAX_THREADS}, got {}",
+            shorten(s)
+        )),
+    }
+}
+
+fn family(s: &str) -> Result<String, String> {
+    use cylaov::verify::stress::Family;
+    match Family::parse(s) {
+        Some(_) => Ok(s.to_string()),
+        None => Err(format!(
+            "unknown family {:?}; expected one of {}",
+            shorten(s),
+            Family::ALL.map(|f| f.name()).join(", ")
+        )),
+    }
+}
+
+fn at_least_one(s: &str) -> Result<usize, String> {
+    match s.parse::<usize>() {
+        Ok(n) if n >= 1 => Ok(n),
+        _ => Err(format!("must be a whole number >= 1, got {}", shorten(s))),
+    }
+}
+
+/// A value as echoed in a message: at most 40 characters.
+fn shorten(s: &str) -> String {
+    cylaov::scene::strict::shorten(s)
 }
 
 fn set_threads(threads: Option<usize>) -> anyhow::Result<()> {
     if let Some(n) = threads {
-        if n == 0 {
-            anyhow::bail!("--threads: must be >= 1, got 0");
-        }
         rayon::ThreadPoolBuilder::new()
             .num_threads(n)
-            .build_global()?;
+            .build_global()
+            .map_err(|e| anyhow::anyhow!("--threads {n}: cannot start the threads: {e}"))?;
     }
     Ok(())
 }
 
-/// Run the command and return its exit code: an `Err` is reported by `main` (exit 1);
-/// `compare` reports its own errors and returns 2 for them, 1 for a broken tolerance.
-fn run(cli: Cli) -> anyhow::Result<ExitCode> {
-    match cli.command {
-        Command::Render(a) => {
-            set_threads(a.kernel.threads)?;
-            let args = commands::render::RenderArgs {
-                scene: a.scene,
-                out: a.out,
-                aovs: (!a.aov.is_empty()).then_some(a.aov),
-                options: RenderOptions {
-                    aovs: Vec::new(),
-                    precision: a.kernel.precision,
-                    formula: a.kernel.formula,
-                    accel: a.kernel.accel,
-                },
-                preview: a.preview,
-                compression: a.compression,
-            };
-            println!("{}", commands::render::run(&args)?);
-        }
-        Command::Generate(a) => {
-            let args = commands::generate::GenerateArgs {
-                out: a.out,
-                config: a.config,
-                flags: cylaov::dataset::generate::ConfigFile {
-                    count: a.count,
-                    seed: a.seed,
-                    cylinders: a.cylinders,
-                    radius: a.radius,
-                    length: a.length,
-                    volume: a.volume,
-                    caps_prob: a.caps_prob,
-                    width: a.width,
-                    height: a.height,
-                    fov: a.fov,
-                    elevation: a.elevation,
-                    distance: a.distance,
-                },
-            };
-            println!("{}", commands::generate::run(&args)?);
-        }
-        Command::Batch(a) => {
-            set_threads(a.kernel.threads)?;
-            let args = commands::batch::BatchArgs {
-                input: a.input,
-                out: a.out,
-                shard: a.shard,
-                shards: a.shards,
-                options: BatchOptions {
-                    aovs: (!a.aov.is_empty()).then_some(a.aov),
-                    precision: a.kernel.precision,
-                    formula: a.kernel.formula,
-                    depth_scale: a.depth_scale,
-                    png: !a.no_png,
-                    compression: a.compression,
-                    schedule: a.schedule,
-                    verify_fraction: a.verify_fraction,
-                    verify_seed: a.verify_seed,
-                },
-                progress: ProgressMode::auto(),
-                tolerances: a.tolerances.get(),
-            };
-            let summary = commands::batch::run(&args)?;
-            println!("{summary}");
-            if summary.counts.failed > 0 {
-                anyhow::bail!(
-                    "{} of {} views failed (see {})",
-                    summary.counts.failed,
-                    summary.in_shard,
-                    summary.failures_path.display()
-                );
-            }
-        }
-        Command::Bench(b) => {
-            set_threads(b.threads)?;
-            let (kernels, aov_sets) = if b.quick {
-                (vec![bench::KERNELS[0]], vec![vec![Aov::Depth, Aov::Normal]])
-            } else {
-                (bench::KERNELS.to_vec(), bench::default_aov_sets())
-            };
-            let opts = bench::BenchOptions {
-                counts: b.counts,
-                width: b.width,
-                height: b.height,
-                aov_sets,
-                kernels,
-                repeats: b.repeats,
-                exe: if b.no_process {
-                    None
-                } else {
-                    Some(std::env::current_exe()?)
-                },
-                seed: b.seed,
-                accel: b.accel,
-            };
-            let mitsuba = b.mitsuba.then(|| bench::MitsubaBench {
-                python: PathBuf::from(".venv/bin/python"),
-                script: PathBuf::from("scripts/bench_mitsuba.py"),
-                scalar_max: b.mitsuba_scalar_max,
-                llvm_max: b.mitsuba_llvm_max,
-            });
-            if let Some(m) = &mitsuba
-                && !(m.python.exists() && m.script.exists())
-            {
-                anyhow::bail!(
-                    "--mitsuba: needs {} and {} (run from the repository root after scripts/setup-venv)",
-                    m.python.display(),
-                    m.script.display()
-                );
-            }
-            commands::bench::run(&opts, mitsuba, b.csv, b.plot)?;
-        }
-        Command::Stress(a) => {
-            let args = commands::stress::StressArgs {
-                family: a.family,
-                rays: a.rays,
-                csv: a.csv,
-                plot: a.plot,
-            };
-            println!("{}", commands::stress::run(&args)?);
-        }
-        Command::ExportMitsuba(a) => {
-            println!("{}", commands::export_mitsuba::run(&a.scene, &a.out)?);
-        }
-        Command::Verify(a) => {
-            let args = commands::verify::VerifyArgs {
-                input: a.input,
-                fraction: a.fraction,
-                seed: a.seed,
-                heatmap: a.heatmap,
-                json: a.json,
-                tolerances: a.tolerances.get(),
-                precision: a.precision,
-                formula: a.formula,
-            };
-            let out = match commands::verify::run(&args) {
-                Ok(out) => out,
-                Err(e) => {
-                    eprintln!("error: {e:#}");
-                    return Ok(ExitCode::from(2));
-                }
-            };
-            println!("{}", out.text);
-            return Ok(ExitCode::from(out.code));
-        }
-        Command::Compare(a) => {
-            let args = commands::compare::CompareArgs {
-                a: a.a,
-                b: a.b,
-                scene: a.scene,
-                conditioning_ulps: a.conditioning_ulps,
-                heatmap: a.heatmap,
-                json: a.json,
-                tolerances: a.tolerances.get(),
-            };
-            let out = match commands::compare::run(&args) {
-                Ok(out) => out,
-                Err(e) => {
-                    eprintln!("error: {e:#}");
-                    return Ok(ExitCode::from(2));
-                }
-            };
-            println!("{}", out.text);
-            return Ok(ExitCode::from(if out.passed { 0 } else { 1 }));
-        }
+/// Print a command's summary line (a closed pipe is not an error; see `io::say`).
+fn say(text: &str) -> anyhow::Result<()> {
+    cylaov::output::io::say(text)?;
+    Ok(())
+}
+
+fn render(a: RenderCli) -> anyhow::Result<ExitCode> {
+    set_threads(a.kernel.threads)?;
+    let args = commands::render::RenderArgs {
+        scene: a.scene,
+        out: a.out,
+        aovs: (!a.aov.is_empty()).then_some(a.aov),
+        options: RenderOptions {
+            aovs: Vec::new(),
+            precision: a.kernel.precision,
+            formula: a.kernel.formula,
+            accel: a.kernel.accel,
+        },
+        preview: a.preview,
+        compression: a.compression,
+        camera: a.camera,
+    };
+    say(&commands::render::run(&args)?)?;
+    Ok(ExitCode::SUCCESS)
+}
+
+fn generate(a: GenerateCli) -> anyhow::Result<ExitCode> {
+    let args = commands::generate::GenerateArgs {
+        out: a.out,
+        config: a.config,
+        flags: cylaov::dataset::generate::ConfigFile {
+            count: a.count,
+            seed: a.seed,
+            cylinders: a.cylinders,
+            radius: a.radius,
+            length: a.length,
+            volume: a.volume,
+            caps_prob: a.caps_prob,
+            width: a.width,
+            height: a.height,
+            fov: a.fov,
+            elevation: a.elevation,
+            distance: a.distance,
+            views_per_scene: a.views_per_scene,
+        },
+    };
+    say(&commands::generate::run(&args)?)?;
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Exit 1 when any view failed (the summary names the failures file).
+fn batch(a: BatchCli) -> anyhow::Result<ExitCode> {
+    set_threads(a.kernel.threads)?;
+    let args = commands::batch::BatchArgs {
+        input: a.input,
+        out: a.out,
+        shard: a.shard,
+        shards: a.shards,
+        options: BatchOptions {
+            aovs: (!a.aov.is_empty()).then_some(a.aov),
+            precision: a.kernel.precision,
+            formula: a.kernel.formula,
+            depth_scale: a.depth_scale,
+            png: !a.no_png,
+            depth_out_of_range: a.depth_out_of_range,
+            compression: a.compression,
+            schedule: a.schedule,
+            verify_fraction: a.verify_fraction,
+            verify_seed: a.verify_seed,
+        },
+        progress: ProgressMode::auto(),
+        tolerances: a.tolerances.get(),
+    };
+    let summary = commands::batch::run(&args)?;
+    say(&summary.to_string())?;
+    if summary.counts.failed > 0 {
+        anyhow::bail!(
+            "{} of {} views failed (see {})",
+            summary.counts.failed,
+            summary.in_shard,
+            summary.failures_path.display()
+        );
     }
     Ok(ExitCode::SUCCESS)
 }
 
+fn bench(b: BenchCli) -> anyhow::Result<ExitCode> {
+    set_threads(b.threads)?;
+    let (kernels, aov_sets) = if b.quick {
+        (vec![bench::KERNELS[0]], vec![vec![Aov::Depth, Aov::Normal]])
+    } else {
+        (bench::KERNELS.to_vec(), bench::default_aov_sets())
+    };
+    let opts = bench::BenchOptions {
+        counts: b.counts,
+        width: b.width,
+        height: b.height,
+        aov_sets,
+        kernels,
+        repeats: b.repeats,
+        exe: if b.no_process {
+            None
+        } else {
+            Some(std::env::current_exe()?)
+        },
+        seed: b.seed,
+        accel: b.accel,
+    };
+    let mitsuba = b.mitsuba.then(|| bench::MitsubaBench {
+        python: PathBuf::from(".venv/bin/python"),
+        script: PathBuf::from("scripts/bench_mitsuba.py"),
+        scalar_max: b.mitsuba_scalar_max,
+        llvm_max: b.mitsuba_llvm_max,
+    });
+    if let Some(m) = &mitsuba
+        && !(m.python.exists() && m.script.exists())
+    {
+        anyhow::bail!(
+            "--mitsuba: needs {} and {} (run from the repository root after scripts/setup-venv)",
+            m.python.display(),
+            m.script.display()
+        );
+    }
+    commands::bench::run(&opts, mitsuba, b.csv, b.plot)?;
+    Ok(ExitCode::SUCCESS)
+}
+
+fn stress(a: StressCli) -> anyhow::Result<ExitCode> {
+    let args = commands::stress::StressArgs {
+        family: a.family,
+        rays: a.rays,
+        csv: a.csv,
+        plot: a.plot,
+    };
+    say(&commands::stress::run(&args)?)?;
+    Ok(ExitCode::SUCCESS)
+}
+
+fn export_mitsuba(a: ExportCli) -> anyhow::Result<ExitCode> {
+    say(&commands::export_mitsuba::run(&a.scene, &a.out)?)?;
+    Ok(ExitCode::SUCCESS)
+}
+
+/// 0 when every tolerance holds, 1 when one is broken, 2 when the comparison could not be
+/// made (its errors, printing the report included, are reported here).
+fn compare(a: CompareCli) -> ExitCode {
+    let args = commands::compare::CompareArgs {
+        a: a.a,
+        b: a.b,
+        scene: a.scene,
+        conditioning_ulps: a.conditioning_ulps,
+        heatmap: a.heatmap,
+        json: a.json,
+        tolerances: a.tolerances.get(),
+    };
+    let outcome = commands::compare::run(&args).and_then(|out| {
+        say(&out.text)?;
+        Ok(out.passed)
+    });
+    match outcome {
+        Ok(true) => ExitCode::SUCCESS,
+        Ok(false) => ExitCode::from(1),
+        Err(e) => {
+            report(&e);
+            ExitCode::from(2)
+        }
+    }
+}
+
+/// 0 when every checked view agrees, 1 when one breaks a tolerance, 2 when a view could
+/// not be checked or the check could not start (reported here).
+fn verify(a: VerifyCli) -> ExitCode {
+    let args = commands::verify::VerifyArgs {
+        input: a.input,
+        fraction: a.fraction,
+        seed: a.seed,
+        heatmap: a.heatmap,
+        json: a.json,
+        tolerances: a.tolerances.get(),
+        precision: a.precision,
+        formula: a.formula,
+    };
+    let outcome = commands::verify::run(&args).and_then(|out| {
+        say(&out.text)?;
+        Ok(out.code)
+    });
+    match outcome {
+        Ok(code) => ExitCode::from(code),
+        Err(e) => {
+            report(&e);
+            ExitCode::from(2)
+        }
+    }
+}
+
+/// Run the command and return its exit code: an `Err` is reported by `main` (exit 1).
+fn run(cli: Cli) -> anyhow::Result<ExitCode> {
+    match cli.command {
+        Command::Render(a) => render(a),
+        Command::Generate(a) => generate(a),
+        Command::Batch(a) => batch(a),
+        Command::Bench(b) => bench(b),
+        Command::Stress(a) => stress(a),
+        Command::ExportMitsuba(a) => export_mitsuba(a),
+        Command::Compare(a) => Ok(compare(a)),
+        Command::Verify(a) => Ok(verify(a)),
+    }
+}
+
+fn report(e: &anyhow::Error) {
+    cylaov::output::io::warn(&format!("error: {e:#}"));
+}
+
+/// The command line with `-1` accepted as a value of every option (it is not a flag), so a
+/// negative number gets the option's own range message instead of "unexpected argument".
+fn command_line() -> clap::Command {
+    use clap::CommandFactory;
+    Cli::command().mut_subcommands(|sc| {
+        sc.mut_args(|arg| {
+            if arg.get_action().takes_values() {
+                arg.allow_negative_numbers(true)
+            } else {
+                arg
+            }
+        })
+    })
+}
+
 fn main() -> ExitCode {
-    match run(Cli::parse()) {
+    use clap::FromArgMatches;
+    // Usage errors exit 2 (clap's own code); `--help` and `--version` exit 0.
+    let cli = match command_line()
+        .try_get_matches()
+        .and_then(|m| Cli::from_arg_matches(&m))
+    {
+        Ok(cli) => cli,
+        Err(e) => {
+            let _ = e.print();
+            return ExitCode::from(if e.use_stderr() { 2 } else { 0 });
+        }
+    };
+    match run(cli) {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            report(&e);
             ExitCode::FAILURE
         }
     }

@@ -24,6 +24,7 @@ pub fn mix64(mut z: u64) -> u64 {
 pub struct SplitMix64(u64);
 
 impl SplitMix64 {
+    /// A stream starting from `seed`.
     pub fn new(seed: u64) -> Self {
         SplitMix64(seed)
     }
@@ -36,6 +37,7 @@ impl SplitMix64 {
         ))
     }
 
+    /// The next 64 random bits.
     pub fn next_u64(&mut self) -> u64 {
         self.0 = self.0.wrapping_add(GOLDEN_GAMMA);
         mix64(self.0)

@@ -1,5 +1,5 @@
 //! `scripts/backproject.py` turns a batch view into world points that lie on the cylinders:
-//! the distance to the nearest finite cylinder surface (side or cap, SPEC §7) is at most
+//! the distance to the nearest finite cylinder surface (side or cap) is at most
 //! 1e-4 of that cylinder's radius. Runs with the reference venv's Python (numpy).
 //! Without the venv it is skipped, saying so; with `CYLAOV_REQUIRE_VENV=1` it fails.
 

@@ -134,7 +134,7 @@ fn same_seed_gives_identical_bytes() {
         ]);
     }
     let (ra, rb) = (tree(&dir.join("ra")), tree(&dir.join("rb")));
-    assert_eq!(ra.len(), 6 * 5 + 2, "{:?}", ra.keys());
+    assert_eq!(ra.len(), 6 * 7 + 2, "{:?}", ra.keys());
     assert_eq!(ra, rb);
     let _ = std::fs::remove_dir_all(&dir);
 }
@@ -172,7 +172,7 @@ fn shards_partition_the_views_and_agree_on_transforms() {
         .cloned()
         .collect();
     assert_eq!(all.len(), 9);
-    let transforms = &full_tree["transforms.json"];
+    let index = &full_tree["index.json"];
     for n in [1u32, 2, 7] {
         let mut union = BTreeSet::new();
         for k in 0..n {
@@ -180,13 +180,13 @@ fn shards_partition_the_views_and_agree_on_transforms() {
             let shard = format!("{k}/{n}");
             batch_ok(&data, &out, &["--shard", &shard]);
             let t = tree(&out);
-            assert_eq!(&t["transforms.json"], transforms, "shard {shard}");
+            assert_eq!(&t["index.json"], index, "shard {shard}");
             assert!(t.contains_key(&format!("failures.{k}-of-{n}.jsonl")));
             for (name, bytes) in &t {
                 if name.ends_with(".exr") {
                     assert!(union.insert(name.clone()), "{name} in two shards (N = {n})");
                 }
-                if name != "transforms.json" && !name.starts_with("failures") {
+                if name != "index.json" && !name.starts_with("failures") {
                     assert_eq!(Some(bytes), full_tree.get(name), "{name} differs");
                 }
             }
@@ -249,8 +249,8 @@ fn a_bad_scene_fails_alone() {
     }
     assert!(!out.join("000002.exr").exists());
     let t: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(out.join("transforms.json")).unwrap()).unwrap();
-    assert_eq!(t["frames"].as_array().unwrap().len(), 4);
+        serde_json::from_slice(&std::fs::read(out.join("index.json")).unwrap()).unwrap();
+    assert_eq!(t["views"].as_array().unwrap().len(), 4);
 
     // A semantic error names the field and the value.
     std::fs::write(&bad, text.replacen("\"radius\": ", "\"radius\": -1.5, \"caps\": true, \"id\": 7 }, { \"p0\": [0,0,0], \"p1\": [0,0,1], \"radius\": ", 1)).unwrap();
@@ -344,7 +344,9 @@ fn resume_after_kill_completes_with_correct_files() {
 
     batch_ok(&data, &reference, &[]);
     let (got, want) = (tree(&out), tree(&reference));
-    assert_eq!(got.len(), 40 * 5 + 2);
+    // Per view: EXR, camera, Open3D camera, normal preview, depth, mask, stamp; then
+    // index.json and the failures file.
+    assert_eq!(got.len(), 40 * 7 + 2);
     assert!(got.keys().all(|k| !k.ends_with(".tmp")));
     assert_eq!(
         got.keys().collect::<Vec<_>>(),
@@ -372,8 +374,8 @@ fn manifest_and_folder_inputs() {
     let out = dir.join("out");
     batch_ok(&manifest, &out, &["--no-png", "--aov", "depth,shape_id"]);
     let t: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(out.join("transforms.json")).unwrap()).unwrap();
-    let paths: Vec<&str> = t["frames"]
+        serde_json::from_slice(&std::fs::read(out.join("index.json")).unwrap()).unwrap();
+    let paths: Vec<&str> = t["views"]
         .as_array()
         .unwrap()
         .iter()
@@ -410,18 +412,22 @@ fn transforms_match_cameras_and_depth_png() {
     let out = dir.join("out");
     batch_ok(&data, &out, &["--depth-scale", "500"]);
     let t: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(out.join("transforms.json")).unwrap()).unwrap();
-    assert_eq!(t["w"], 80);
-    assert_eq!(t["cx"], 40.0);
-    assert_eq!(t["cy"], 30.0);
+        serde_json::from_slice(&std::fs::read(out.join("index.json")).unwrap()).unwrap();
+    let v = &t["views"][1];
+    assert_eq!((&v["scene"], &v["camera"]), (&"000001".into(), &0.into()));
+    assert_eq!(v["w"], 80);
+    assert_eq!(v["cx"], 40.0);
+    assert_eq!(v["cy"], 30.0);
+    assert_eq!(v["mask_path"], "000001.mask.png");
     assert_eq!(t["depth_unit_scale_factor"], 0.002);
     let cam: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("000001.camera.json")).unwrap()).unwrap();
+    assert_eq!(v["transform_matrix"], cam["camera_to_world_opengl"]);
+    assert_eq!(v["fl_x"], cam["fl_x"]);
     assert_eq!(
-        t["frames"][1]["transform_matrix"],
-        cam["camera_to_world_opengl"]
+        (&cam["cx_opencv"], &cam["cy_opencv"]),
+        (&39.5.into(), &29.5.into())
     );
-    assert_eq!(t["fl_x"], cam["fl_x"]);
     // 16-bit depth PNG = round(depth * 500).
     let img = AovImage::read_exr(&out.join("000001.exr")).unwrap();
     let depth = img.f32_channel("depth").unwrap();
@@ -624,7 +630,7 @@ fn empty_input_is_an_error() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains(empty.to_str().unwrap()), "{err}");
     assert!(err.contains("no scene files"), "{err}");
-    assert!(!out.join("transforms.json").exists());
+    assert!(!out.join("index.json").exists());
 
     // An empty manifest.
     let manifest = dir.join("none.jsonl");
@@ -632,7 +638,7 @@ fn empty_input_is_an_error() {
     let o = batch_fails(&manifest, &out);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains(manifest.to_str().unwrap()), "{err}");
-    assert!(!out.join("transforms.json").exists());
+    assert!(!out.join("index.json").exists());
 
     // --out equal to the input: every scene file lies under --out and is excluded.
     let scenes = dir.join("scenes");
@@ -642,7 +648,7 @@ fn empty_input_is_an_error() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains(scenes.to_str().unwrap()), "{err}");
     assert!(err.contains("skipped 2 *.json files under it"), "{err}");
-    assert!(!scenes.join("transforms.json").exists());
+    assert!(!scenes.join("index.json").exists());
     let _ = std::fs::remove_dir_all(&dir);
 }
 /// A re-render that dies after moving some of the new files into place must not leave the
@@ -662,7 +668,7 @@ fn interrupted_rerender_leaves_no_stale_exr() {
         ])
     };
     assert!(batch().status.success());
-    let old_png = std::fs::read(out.join("000001.normal.png")).unwrap();
+    let old_png = std::fs::read(out.join("000001.normal.preview.png")).unwrap();
     // A new camera for view 1, and a normal PNG that cannot be replaced (a folder in its
     // place): the re-render moves its first files, then fails, as if killed there.
     let scene = data.join("scenes/000001.json");
@@ -672,7 +678,7 @@ fn interrupted_rerender_leaves_no_stale_exr() {
         text.replace("\"fov_deg\": 50.0", "\"fov_deg\": 40.0"),
     )
     .unwrap();
-    let png = out.join("000001.normal.png");
+    let png = out.join("000001.normal.preview.png");
     std::fs::remove_file(&png).unwrap();
     std::fs::create_dir_all(png.join("blocker")).unwrap();
     let o = batch();
@@ -744,14 +750,14 @@ fn changed_options_are_rendered_again() {
     let stdout = batch(&[]);
     assert!(stdout.contains("done 0 / skipped 3"), "{stdout}");
 
-    // The reproduction: --depth-scale 10 must rewrite the PNGs, not only transforms.json.
+    // The reproduction: --depth-scale 10 must rewrite the PNGs, not only the index.
     let stdout = batch(&["--depth-scale", "10"]);
     assert!(stdout.contains("done 3 / skipped 0"), "{stdout}");
     for name in ["000000", "000001", "000002"] {
         assert_depth_png_scale(&out, name, 10.0);
     }
     let t: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(out.join("transforms.json")).unwrap()).unwrap();
+        serde_json::from_slice(&std::fs::read(out.join("index.json")).unwrap()).unwrap();
     assert_eq!(t["depth_unit_scale_factor"], 0.1);
     let stdout = batch(&["--depth-scale", "10"]);
     assert!(stdout.contains("done 0 / skipped 3"), "{stdout}");
@@ -799,7 +805,8 @@ fn changed_options_are_rendered_again() {
     let stdout = batch(&["--no-png"]);
     assert!(stdout.contains("done 3 / skipped 0"), "{stdout}");
     assert!(!out.join("000001.depth.png").exists());
-    assert!(!out.join("000001.normal.png").exists());
+    assert!(!out.join("000001.normal.preview.png").exists());
+    assert!(!out.join("000001.mask.png").exists());
     let fresh = dir.join("fresh");
     batch_ok(&data, &fresh, &["--no-png"]);
     assert_eq!(tree(&out), tree(&fresh));

@@ -69,11 +69,11 @@ fn export_writes_loadable_xml_and_rejects_bad_scenes() {
 
     let o = cylaov(&["export-mitsuba", s(&scene), "-o", s(&scene)]);
     assert!(!o.status.success());
-    assert!(String::from_utf8_lossy(&o.stderr).contains("would overwrite the input scene"));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("would overwrite the input"));
 }
 
 /// A scene file whose name has a run of dashes and a trailing dash: its name goes into the
-/// XML header comment, where `--` and a final `-` are not allowed (XML 1.0 §2.5).
+/// XML header comment, where `--` and a final `-` are not allowed (XML 1.0, section 2.5).
 #[test]
 fn export_of_a_dashed_file_name_is_well_formed_xml() {
     let dir = scratch("dashes");

@@ -1,4 +1,4 @@
-//! End-to-end checks of the core renderer against analytic answers (issue 3).
+//! End-to-end checks of the core renderer against analytic answers.
 
 use cylaov::output::aov::AovImage;
 use cylaov::render::{Accel, FormulaKind, Precision, RenderOptions, render};
@@ -133,7 +133,7 @@ fn near_and_far_clip_cut_on_camera_space_z() {
 
 #[test]
 fn image_is_not_mirrored_or_flipped() {
-    // Looking along +y with z up: image right is +x, image top is +z (SPEC §3).
+    // Looking along +y with z up: image right is +x, image top is +z (Mitsuba's look-at frame).
     let json = format!(
         r#"{{ {}, "cylinders": [
             {{"p0": [3,0,2], "p1": [3,0,3], "radius": 0.5, "id": 1}},
@@ -166,14 +166,8 @@ fn image_is_not_mirrored_or_flipped() {
 
 /// Seeded scene of `n` random cylinders seen from outside.
 fn random_scene(n: usize, seed: u64) -> Scene {
-    let mut s = seed;
-    let mut rnd = move || {
-        s = s.wrapping_add(0x9E3779B97F4A7C15);
-        let mut z = s;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58476D1CE4E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D049BB133111EB);
-        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-    };
+    let mut rng = cylaov::rng::SplitMix64::new(seed);
+    let mut rnd = move || rng.unit();
     let cyl: Vec<String> = (0..n)
         .map(|_| {
             let c = [rnd() * 8.0 - 4.0, rnd() * 8.0 - 4.0, rnd() * 8.0 - 4.0];
@@ -218,8 +212,8 @@ fn diff(a: &AovImage, b: &AovImage, sc: &Scene) -> (f64, f64, f64, usize, usize)
             continue;
         }
         n += 1;
-        // Silhouette pixels graze the surface: there `t` is ill-conditioned (issue 5 bounds
-        // them by backward stability, tested in tests/stress.rs); skip them for normals.
+        // Silhouette pixels graze the surface: there `t` is ill-conditioned (the accuracy bar
+        // bounds them by backward stability, tested in tests/stress.rs); skip them for normals.
         let (w, h) = (a.width as i64, a.height as i64);
         let (x, y) = ((k as i64) % w, (k as i64) / w);
         let silhouette = (-1..=1)
@@ -245,7 +239,7 @@ fn literal_and_stable_agree_and_f32_matches_f64_on_ordinary_scenes() {
         let sc = random_scene(60, seed);
         let reference = render(&sc, &opts(Precision::F64, FormulaKind::Stable)).image;
         assert_eq!(reference.non_finite_count(), 0);
-        // f64 literal: same answers to 1e-9 relative distance (issue 3); the literal
+        // f64 literal: same answers to 1e-9 relative distance; the literal
         // normal quadratic has a double root, so its normal is only good to ~sqrt(ε).
         let lit = render(&sc, &opts(Precision::F64, FormulaKind::Literal)).image;
         let (rel, _, _, n, mism) = diff(&lit, &reference, &sc);
@@ -255,14 +249,14 @@ fn literal_and_stable_agree_and_f32_matches_f64_on_ordinary_scenes() {
             "seed {seed}: literal vs stable f64 distance {rel:e}"
         );
         assert!(mism <= n / 1000, "seed {seed}: {mism} id mismatches");
-        // f32 stable: 1e-5 everywhere, silhouettes included (issue 3). The literal f32
+        // f32 stable: 1e-5 everywhere, silhouettes included. The literal f32
         // kernel cancels catastrophically (2e-5 inside, 2e-4 on silhouettes here): that is
         // what it is kept to show, in `cylaov stress` and `cylaov bench`.
         let img = render(&sc, &opts(Precision::F32, FormulaKind::Stable)).image;
         let (rel, _, nrm, _, mism) = diff(&img, &reference, &sc);
         assert!(rel <= 1e-5, "seed {seed}: stable f32 distance {rel:e}");
         assert_eq!(img.non_finite_count(), 0, "stable f32 produced NaN/inf");
-        // Issue 5's bound: 16ε·max(1, distance/r) with f32's ε.
+        // The normal's bound: 16ε·max(1, distance/r) with f32's ε.
         let bound = 16.0 * f32::EPSILON as f64 / 2.0;
         assert!(
             nrm <= bound,

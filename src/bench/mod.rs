@@ -55,18 +55,20 @@ pub fn random_scene(n: usize, seed: u64, width: u32, height: u32) -> Scene {
             }
         })
         .collect();
+    let camera = CameraSpec {
+        origin: DVec3::new(12.0, -16.0, 8.0),
+        target: DVec3::ZERO,
+        up: DVec3::Z,
+        fov_deg: 45.0,
+        fov_axis: FovAxis::X,
+        width,
+        height,
+        near_clip: 0.01,
+        far_clip: 10000.0,
+    };
     Scene {
-        camera: CameraSpec {
-            origin: DVec3::new(12.0, -16.0, 8.0),
-            target: DVec3::ZERO,
-            up: DVec3::Z,
-            fov_deg: 45.0,
-            fov_axis: FovAxis::X,
-            width,
-            height,
-            near_clip: 0.01,
-            far_clip: 10000.0,
-        },
+        camera,
+        cameras: vec![camera],
         cylinders,
         aovs: vec![Aov::Depth, Aov::Normal],
     }
@@ -562,7 +564,7 @@ pub struct MitsubaBench {
     pub python: PathBuf,
     /// `scripts/bench_mitsuba.py`.
     pub script: PathBuf,
-    /// Largest count for `scalar_rgb` (slow: ~75 s at 1 000 cylinders, SPEC §5).
+    /// Largest count for `scalar_rgb` (slow: ~75 s at 1 000 cylinders on 2 cores).
     pub scalar_max: usize,
     /// Largest count for `llvm_ad_rgb`.
     pub llvm_max: usize,
@@ -626,7 +628,7 @@ pub fn time_mitsuba(
     Ok(row)
 }
 
-/// Run Mitsuba on the bench scenes, printing each row with the ratios of SPEC §7 against
+/// Run Mitsuba on the bench scenes, printing each row with three ratios against
 /// cylaov's stable-f64 depth+normal row of the same count: (a) whole process vs whole
 /// process, (b) Mitsuba's warm `render()` vs cylaov's whole process, (c) Mitsuba's warm
 /// `render()` vs cylaov's in-memory build + trace.

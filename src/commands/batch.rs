@@ -5,6 +5,9 @@ use crate::dataset::batch::{self, BatchOptions, ProgressMode, Shard, Summary};
 use anyhow::Result;
 use std::path::PathBuf;
 
+/// The depth PNG scale nerfstudio assumes (its `depth_unit_scale_factor` default 1e-3).
+pub const NERFSTUDIO_DEPTH_SCALE: f64 = 1000.0;
+
 /// Everything `batch` needs from the command line.
 #[derive(Clone, Debug)]
 pub struct BatchArgs {
@@ -23,6 +26,16 @@ pub fn run(args: &BatchArgs) -> Result<Summary> {
     let shard = batch::resolve_shard(args.shard, args.shards, &|k| std::env::var(k).ok())
         .map_err(anyhow::Error::msg)?;
     let verifier = verifier(args)?;
+    if args.options.png && args.options.depth_scale != NERFSTUDIO_DEPTH_SCALE {
+        eprintln!(
+            "warning: --depth-scale {}: nerfstudio reads depth PNGs at {NERFSTUDIO_DEPTH_SCALE} \
+             per unit unless told otherwise: train with its parser option \
+             depth_unit_scale_factor = {} (index.json and transforms.json record it, but \
+             nerfstudio does not read it from there)",
+            args.options.depth_scale,
+            1.0 / args.options.depth_scale
+        );
+    }
     batch::run(
         &args.input,
         &args.out,

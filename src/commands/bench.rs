@@ -1,7 +1,7 @@
 //! `cylaov bench`: print the time-vs-error table, optionally as CSV and as a figure.
 
 use crate::bench::{self, BenchOptions, MitsubaBench, Row};
-use crate::output::io::atomic_write_bytes;
+use crate::output::io::{atomic_write_bytes, check_outputs, say};
 use anyhow::{Context, Result, bail};
 use std::path::{Path, PathBuf};
 
@@ -26,13 +26,24 @@ pub fn run(
     csv: Option<PathBuf>,
     plot: Option<PathBuf>,
 ) -> Result<Vec<Row>> {
+    let mut outputs: Vec<(&str, PathBuf)> = Vec::new();
     if let Some(p) = &csv {
         check_parent(p, "--csv")?;
+        for q in [
+            p.clone(),
+            p.with_extension("kernel.csv"),
+            p.with_extension("mitsuba.csv"),
+        ] {
+            outputs.push(("--csv", q));
+        }
     }
     if let Some(p) = &plot {
         check_parent(p, "--plot")?;
+        outputs.push(("--plot", p.clone()));
     }
-    println!(
+    let outputs: Vec<(&str, &Path)> = outputs.iter().map(|(f, p)| (*f, p.as_path())).collect();
+    check_outputs(&outputs, &[])?;
+    say(&format!(
         "cylaov bench: {}x{}, seed {}, accel {:?}, min of {} runs, {} threads; times in ms, err = relative distance error vs stable-f64",
         opts.width,
         opts.height,
@@ -40,32 +51,49 @@ pub fn run(
         opts.accel,
         opts.repeats,
         rayon::current_num_threads()
-    );
-    println!("{}", bench::header());
-    let rows = bench::run(opts, |r| println!("{}", bench::format_row(r)))?;
-    println!(
-        "\nThe kernel alone, one thread, 1000-cylinder scene (rays across each cylinder, no set-up or shading):"
-    );
-    println!("{:<14} {:<7} {:>12}", "kernel", "form", "Mtests/s");
+    ))?;
+    say(&bench::header())?;
+    // A row that cannot be printed (a full disk behind stdout) stops nothing mid-row: the
+    // first such error is returned once the table is done.
+    let mut print_err: Option<std::io::Error> = None;
+    let mut row_out = |line: &str| {
+        if print_err.is_none() {
+            print_err = say(line).err();
+        }
+    };
+    let rows = bench::run(opts, |r| row_out(&bench::format_row(r)))?;
+    say(
+        "\nThe kernel alone, one thread, 1000-cylinder scene (rays across each cylinder, no set-up or shading):",
+    )?;
+    say(&format!(
+        "{:<14} {:<7} {:>12}",
+        "kernel", "form", "Mtests/s"
+    ))?;
     let kernel_rows = bench::kernel_rows(opts);
     for k in &kernel_rows {
-        println!("{:<14} {:<7} {:>12.1}", k.kernel, k.form, k.mtests_per_s);
+        say(&format!(
+            "{:<14} {:<7} {:>12.1}",
+            k.kernel, k.form, k.mtests_per_s
+        ))?;
     }
     let mut mi_rows = Vec::new();
     if let Some(m) = &mitsuba {
-        println!(
-            "\nMitsuba 3 on the same scenes; ratios = Mitsuba time / cylaov stable-f64 depth+normal time"
-        );
-        mi_rows = bench::run_mitsuba(opts, m, &rows, |line| println!("{line}"))?;
+        say(
+            "\nMitsuba 3 on the same scenes; ratios = Mitsuba time / cylaov stable-f64 depth+normal time",
+        )?;
+        mi_rows = bench::run_mitsuba(opts, m, &rows, |line| row_out(line))?;
+    }
+    if let Some(e) = print_err {
+        return Err(e.into());
     }
     if let Some(path) = csv {
         atomic_write_bytes(&path, bench::csv(&rows).as_bytes())
             .with_context(|| format!("writing {}", path.display()))?;
-        println!("wrote {}", path.display());
+        say(&format!("wrote {}", path.display()))?;
         let kpath = path.with_extension("kernel.csv");
         atomic_write_bytes(&kpath, bench::kernel_csv(&kernel_rows).as_bytes())
             .with_context(|| format!("writing {}", kpath.display()))?;
-        println!("wrote {}", kpath.display());
+        say(&format!("wrote {}", kpath.display()))?;
         if !mi_rows.is_empty() {
             let mpath = path.with_extension("mitsuba.csv");
             let mut text = String::from(
@@ -86,13 +114,13 @@ pub fn run(
             }
             atomic_write_bytes(&mpath, text.as_bytes())
                 .with_context(|| format!("writing {}", mpath.display()))?;
-            println!("wrote {}", mpath.display());
+            say(&format!("wrote {}", mpath.display()))?;
         }
     }
     if let Some(path) = plot {
         let img = plot::plot(&rows, &mi_rows, &opts.kernels);
         crate::output::preview::write_png(&img, &path)?;
-        println!("wrote {}", path.display());
+        say(&format!("wrote {}", path.display()))?;
     }
     Ok(rows)
 }

@@ -1,12 +1,12 @@
 //! `cylaov generate`: procedural scene files and their manifest.
 //!
-//! Layout: `OUT/scenes/NNNNNN.json` (complete SPEC §2 scene files), `OUT/manifest.jsonl`
+//! Layout: `OUT/scenes/NNNNNN.json` (complete scene files), `OUT/manifest.jsonl`
 //! (`{"name": ..., "scene": "scenes/NNNNNN.json"}` per line) and `OUT/generate.json` (the
 //! resolved options, itself a valid `--config`). Every file is written atomically; the
 //! manifest last, so a manifest on disk always names scene files that exist.
 
 use crate::dataset::generate::{ConfigFile, GenerateOptions, to_json, view_name};
-use crate::output::io::atomic_write_bytes;
+use crate::output::io::{NewDirs, atomic_write_bytes, check_output_dir};
 use anyhow::{Context, Result, bail};
 use rayon::prelude::*;
 use serde::Serialize;
@@ -77,8 +77,42 @@ pub fn resolve(args: &GenerateArgs) -> Result<(u64, u64, GenerateOptions)> {
 pub fn run(args: &GenerateArgs) -> Result<String> {
     let (count, seed, options) = resolve(args)?;
     let scenes_dir = args.out.join("scenes");
-    std::fs::create_dir_all(&scenes_dir)
+    check_output_dir("--out", &args.out)?;
+    // A failed run into a new folder removes what it wrote, then the folders it made.
+    let mut dirs = NewDirs::default();
+    dirs.create(&scenes_dir)
         .with_context(|| format!("creating {}", scenes_dir.display()))?;
+    let new_folder = dirs.made_any();
+    let written = write_files(args, count, seed, &options, &scenes_dir);
+    if written.is_err() && new_folder {
+        for i in 0..count {
+            let _ = std::fs::remove_file(scenes_dir.join(format!("{}.json", view_name(i))));
+        }
+        for name in ["generate.json", "manifest.jsonl"] {
+            let _ = std::fs::remove_file(args.out.join(name));
+        }
+    }
+    let manifest_path = written?;
+    dirs.keep();
+    Ok(format!(
+        "{count} scenes (seed {seed}, {} cylinders, {}x{}) in {}; manifest {}",
+        options.cylinders,
+        options.width,
+        options.height,
+        scenes_dir.display(),
+        manifest_path.display()
+    ))
+}
+
+/// Write the scene files, `generate.json` and the manifest (last); returns the manifest's
+/// path.
+fn write_files(
+    args: &GenerateArgs,
+    count: u64,
+    seed: u64,
+    options: &GenerateOptions,
+    scenes_dir: &Path,
+) -> Result<PathBuf> {
     (0..count).into_par_iter().try_for_each(|i| -> Result<()> {
         let file = options.scene(seed, i).map_err(anyhow::Error::msg)?;
         let text = to_json(&file)?;
@@ -99,7 +133,7 @@ pub fn run(args: &GenerateArgs) -> Result<String> {
     let resolved = to_json(&Resolved {
         count,
         seed,
-        options: &options,
+        options,
     })?;
     let config_path = args.out.join("generate.json");
     atomic_write_bytes(&config_path, resolved.as_bytes())
@@ -107,12 +141,5 @@ pub fn run(args: &GenerateArgs) -> Result<String> {
     let manifest_path = args.out.join("manifest.jsonl");
     atomic_write_bytes(&manifest_path, manifest.as_bytes())
         .with_context(|| format!("writing {}", manifest_path.display()))?;
-    Ok(format!(
-        "{count} scenes (seed {seed}, {} cylinders, {}x{}) in {}; manifest {}",
-        options.cylinders,
-        options.width,
-        options.height,
-        scenes_dir.display(),
-        manifest_path.display()
-    ))
+    Ok(manifest_path)
 }

@@ -1,10 +1,10 @@
 //! `cylaov stress`: run the stress families through every kernel, print the table, and
 //! optionally write the per-ray CSV and a log-log plot of error against difficulty.
 
-use crate::output::io::atomic_write_bytes;
+use crate::output::io::{atomic_write_bytes, check_outputs};
 use crate::verify::stress::{self, CSV_HEADER, Family, Kernel, Record, TABLE_HEADER};
 use anyhow::{Context, Result, bail};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 mod plot;
@@ -35,6 +35,14 @@ pub fn run(args: &StressArgs) -> Result<String> {
     if args.rays == 0 {
         bail!("--rays: must be >= 1, got 0");
     }
+    let mut outputs: Vec<(&str, &Path)> = Vec::new();
+    if let Some(p) = &args.csv {
+        outputs.push(("--csv", p));
+    }
+    if let Some(p) = &args.plot {
+        outputs.push(("--plot", p));
+    }
+    check_outputs(&outputs, &[])?;
     let start = Instant::now();
     let records: Vec<Record> = families
         .iter()

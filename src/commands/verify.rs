@@ -70,20 +70,26 @@ struct JsonOut<'a> {
     views: &'a [ViewResult],
 }
 
-/// The views of `input`: one scene file, or what `batch` would render.
+/// The views of `input`: every camera of one scene file, or what `batch` would render.
 fn views(input: &Path) -> Result<Vec<ViewSource>> {
     let is_scene = input.is_file() && input.extension().is_some_and(|e| e == "json");
-    if is_scene {
+    let scenes = if is_scene {
         let name = input
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_else(|| "scene".into());
-        return Ok(vec![ViewSource {
-            name,
-            path: input.to_path_buf(),
-        }]);
-    }
-    list_views(input, None)
+        vec![ViewSource::scene(name, input.to_path_buf())]
+    } else {
+        list_views(input, None)?
+    };
+    // A scene that does not load counts as one view: its check reports why.
+    Ok(scenes
+        .iter()
+        .flat_map(|s| {
+            let cameras = crate::scene::load(&s.path).map_or(1, |sc| sc.cameras.len());
+            s.cameras(cameras)
+        })
+        .collect())
 }
 
 /// A private scratch folder for one view's Mitsuba files.
@@ -102,7 +108,10 @@ fn check_one(
     view: &ViewSource,
     k: usize,
 ) -> Result<(ViewCheck, Option<PathBuf>)> {
-    let scene = crate::scene::load(&view.path)
+    let mut scene = crate::scene::load(&view.path)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", view.path.display()))?;
+    scene
+        .select_camera(view.camera)
         .map_err(|e| anyhow::anyhow!("{}: {e}", view.path.display()))?;
     let work = work_dir(k)?;
     let result = verify_scene(
@@ -118,8 +127,10 @@ fn check_one(
     let (check, ours, reference) = result?;
     let mut heatmap_path = None;
     if let Some(dir) = &args.heatmap {
-        std::fs::create_dir_all(dir)?;
-        let path = dir.join(format!("{}.heatmap.png", view.name));
+        let path = view.dir(dir).join(format!("{}.heatmap.png", view.name));
+        if let Some(parent) = path.parent() {
+            std::fs::create_dir_all(parent)?;
+        }
         let cond = Conditioning::new(&scene, &ours);
         let img = heatmap(
             &ours,

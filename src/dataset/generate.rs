@@ -19,6 +19,12 @@
 //! | `fov` | `50` | horizontal field of view in degrees (`fov_axis` x) |
 //! | `elevation` | `-20..60` | camera elevation above the xy plane, degrees; directions uniform over that band of the sphere |
 //! | `distance` | `0.55..0.9` | camera distance in units of the fit distance (at 1 the bounding sphere of every possible cylinder just fills the smaller fov; the cylinders' midpoints fill far less) |
+//! | `views_per_scene` | `1` | cameras per scene; with more than one the file has `"cameras"` |
+//!
+//! **Several views of one scene.** Camera 0 is drawn exactly as a one-camera scene's (same
+//! stream position), and cameras 1, 2, … are drawn after it from the same stream and the
+//! same distributions, so `views_per_scene = 1` gives the same bytes as before the option
+//! existed, and camera 0 of a V-camera scene is the camera of the one-camera scene.
 
 use crate::rng::SplitMix64;
 use crate::scene::camera::FovAxis;
@@ -122,7 +128,20 @@ pub struct GenerateOptions {
     pub fov: f64,
     pub elevation: Range,
     pub distance: Range,
+    /// Cameras per scene (left out of `generate.json` when 1, so that file keeps its bytes).
+    #[serde(default = "one", skip_serializing_if = "is_one")]
+    pub views_per_scene: u32,
 }
+
+fn one() -> u32 {
+    1
+}
+fn is_one(v: &u32) -> bool {
+    *v == 1
+}
+
+/// Largest `views_per_scene`.
+pub const MAX_VIEWS_PER_SCENE: u32 = 1000;
 
 impl Default for GenerateOptions {
     fn default() -> Self {
@@ -137,6 +156,7 @@ impl Default for GenerateOptions {
             fov: 50.0,
             elevation: Range::new(-20.0, 60.0),
             distance: Range::new(0.55, 0.9),
+            views_per_scene: 1,
         }
     }
 }
@@ -158,6 +178,7 @@ pub struct ConfigFile {
     pub fov: Option<f64>,
     pub elevation: Option<Range>,
     pub distance: Option<Range>,
+    pub views_per_scene: Option<u32>,
 }
 
 /// Half extents `X,Y,Z`, or one number for a cube.
@@ -210,7 +231,16 @@ impl GenerateOptions {
             ($($f:ident),*) => { $( if let Some(v) = c.$f { self.$f = v; } )* };
         }
         take!(
-            cylinders, radius, length, caps_prob, width, height, fov, elevation, distance
+            cylinders,
+            radius,
+            length,
+            caps_prob,
+            width,
+            height,
+            fov,
+            elevation,
+            distance,
+            views_per_scene
         );
         if let Some(v) = c.volume {
             self.volume = v.0;
@@ -270,6 +300,12 @@ impl GenerateOptions {
         if d.min <= 0.0 || d.max > 1e6 {
             return Err(format!("--distance: must be > 0 and <= 1e6, got {d}"));
         }
+        let v = self.views_per_scene;
+        if v == 0 || v > MAX_VIEWS_PER_SCENE {
+            return Err(format!(
+                "--views-per-scene: must be in 1..={MAX_VIEWS_PER_SCENE}, got {v}"
+            ));
+        }
         Ok(())
     }
 
@@ -302,6 +338,31 @@ impl GenerateOptions {
             });
         }
 
+        // Camera 0 first, exactly where a one-camera scene draws its camera.
+        let mut cameras: Vec<CameraFile> = (0..self.views_per_scene)
+            .map(|_| self.camera(&mut rng))
+            .collect();
+        let (camera, cameras) = if cameras.len() == 1 {
+            (cameras.pop(), None)
+        } else {
+            (None, Some(cameras))
+        };
+        let file = SceneFile {
+            camera,
+            cameras,
+            cylinders,
+            aovs: Some(scene::default_aovs()),
+        };
+        file.validate()
+            .map_err(|e| format!("generated view {index} is invalid: {e}"))?;
+        Ok(file)
+    }
+}
+
+impl GenerateOptions {
+    /// Draw one camera from `rng`.
+    fn camera(&self, rng: &mut SplitMix64) -> CameraFile {
+        let volume = DVec3::from_array(self.volume);
         // Place the camera: on a sphere around the scene, far enough that the bounding
         // sphere fits the smaller field of view at distance factor 1, looking at a point
         // near the centre.
@@ -311,7 +372,7 @@ impl GenerateOptions {
         // A sphere of radius R fills a half angle a from distance R / sin(a).
         let sin_small = tan_small / (1.0 + tan_small * tan_small).sqrt();
         let fit = self.bounding_radius() / sin_small;
-        let dist = fit * uniform(&mut rng, self.distance);
+        let dist = fit * uniform(rng, self.distance);
         let (z_lo, z_hi) = (
             self.elevation.min.to_radians().sin(),
             self.elevation.max.to_radians().sin(),
@@ -333,24 +394,17 @@ impl GenerateOptions {
             DVec3::Y
         };
         let far = (2.0 * (dist + self.bounding_radius())).max(10000.0);
-        let file = SceneFile {
-            camera: CameraFile {
-                origin: origin.to_array(),
-                target: target.to_array(),
-                up: up.to_array(),
-                fov_deg: self.fov,
-                fov_axis: FovAxis::X,
-                width: self.width,
-                height: self.height,
-                near_clip: 0.01,
-                far_clip: far,
-            },
-            cylinders,
-            aovs: Some(scene::default_aovs()),
-        };
-        file.validate()
-            .map_err(|e| format!("generated view {index} is invalid: {e}"))?;
-        Ok(file)
+        CameraFile {
+            origin: origin.to_array(),
+            target: target.to_array(),
+            up: up.to_array(),
+            fov_deg: self.fov,
+            fov_axis: FovAxis::X,
+            width: self.width,
+            height: self.height,
+            near_clip: 0.01,
+            far_clip: far,
+        }
     }
 }
 

@@ -1,5 +1,40 @@
-//! Ray–cylinder kernels: the documented formulas of SPEC §1 (`Literal`) and a numerically
+//! Ray–cylinder kernels: the textbook formulas as written (`Literal`) and a numerically
 //! stable form of the same surface (`Stable`), both generic over f32/f64.
+//!
+//! # The surface and the textbook formulas
+//!
+//! A finite cylinder has radius `r`, an axis through `c` (centre of its base disk) with unit
+//! direction `n`, and height `h`: its side is every point `x` with
+//! `|(x−c) − n((x−c)·n)|² = r²` and `0 ≤ (x−c)·n ≤ h`. Caps (optional) are the disks of
+//! radius `r` at `c` (outward normal `−n`) and at `c + h·n` (outward normal `+n`).
+//! For the ray `o + t·d` and `oc = o − c`:
+//!
+//! ```text
+//! A = d·d − (n·d)²          = |d − n(n·d)|²
+//! B = 2 d·oc − 2 (n·d)(n·oc)
+//! C = oc·oc − (n·oc)² − r²  = |oc − n(n·oc)|² − r²
+//! A t² + B t + C = 0
+//! ```
+//!
+//! and the normal at `I = o + t·d` is `(I − T)/r`, where the axis point `T = c + a·n` solves
+//! `a² − 2 n·(I−c) a + |I−c|² − r² = 0`.
+//!
+//! # Their traps, and what [`Stable`] does instead
+//!
+//! - `B² − 4AC` cancels catastrophically for grazing rays and far cameras. With `d⊥`, `oc⊥`
+//!   the parts of `d`, `oc` perpendicular to `n` and `b = B/2 = d⊥·oc⊥`, the Lagrange identity
+//!   `b² − AC = r²|d⊥|² − |d⊥ × oc⊥|²` has no such cancellation.
+//! - `C` cancels for a camera near the surface (use `(|oc⊥| − r)(|oc⊥| + r)`), and the literal
+//!   `oc·oc − (n·oc)²` cancels for a camera far along the axis (use `|oc⊥|²` directly).
+//! - The roots as `q = −(b + sign(b)√disc)`, `t0 = q/A`, `t1 = C/q` subtract nothing
+//!   near-equal, but are not ordered (for `b < 0`, `t0` is the far one), `sign(0)` must be ±1,
+//!   and `q = 0` (camera on the surface, tangent ray) makes `C/q` 0/0: its own branch.
+//! - `A → 0` for rays parallel to the axis: no side hit, caps only.
+//! - The normal quadratic has a double root (`a = n·(I−c)` exactly), so its computed
+//!   discriminant is ±rounding noise: NaN or a tilted normal. Project (`a = n·(I−c)`) and
+//!   normalise `I − T` instead of dividing by `r`.
+//! - f32 far from the world origin loses bits: the f32 kernels work in a frame centred on
+//!   the cylinder (`oc` formed in f64, see [`Prepared`]).
 //!
 //! As in pbrt-v4, a hit is two steps: [`Formula::intersect`] finds the ray parameter and
 //! the surface only (cheap; run for every BVH candidate), [`Formula::normal`] computes the
@@ -12,7 +47,7 @@
 use super::real::Real;
 use glam::DVec3;
 
-/// A validated finite cylinder (SPEC §1): base centre `base`, unit `axis`, `height`, `radius`.
+/// A validated finite cylinder (see the module doc): base centre `base`, unit `axis`, `height`, `radius`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Cylinder {
     pub base: DVec3,
@@ -81,7 +116,7 @@ pub struct Prepared<T: Real> {
     pub oc: T::V3,
     /// `o - c` in the (u, v, n) frame, computed in f64 before rounding to `T`.
     pub oc_local: [T; 3],
-    /// `|oc⊥|² - r²` as `(|oc⊥| - r)(|oc⊥| + r)`, from f64 (SPEC §1: no cancellation near
+    /// `|oc⊥|² - r²` as `(|oc⊥| - r)(|oc⊥| + r)`, from f64 (the module doc's traps: no cancellation near
     /// the surface).
     pub c_side: T,
     pub r: T,
@@ -91,7 +126,7 @@ pub struct Prepared<T: Real> {
 
 impl<T: Real> Prepared<T> {
     /// Prepare `cyl` for rays leaving `origin`. With `centred`, `oc` is formed in f64 and
-    /// rounded once (a frame centred on the cylinder, SPEC §7); without, it is `T(o) - T(c)`
+    /// rounded once (a frame centred on the cylinder); without, it is `T(o) - T(c)`
     /// as the literal formulas would compute it in `T`.
     pub fn new(cyl: &Cylinder, origin: DVec3, centred: bool) -> Self {
         let n = cyl.axis;
@@ -146,7 +181,7 @@ pub trait Formula: Copy + Send + Sync + 'static {
     fn normal<T: Real>(p: &Prepared<T>, d: T::V3, hit: BasicHit<T>) -> T::V3;
 }
 
-/// The documented formulas of SPEC §1, as written: `A`, `B`, `C`, `B² - 4AC`, the textbook
+/// The textbook formulas of the module doc, as written: `A`, `B`, `C`, `B² - 4AC`, the textbook
 /// roots, and the normal from the axis-point quadratic divided by `r`. Caps are separate
 /// disk tests. Nothing is guarded beyond what keeps it from crashing (NaN compares false
 /// and so never hits), so its failures stay visible in the stress table.
@@ -167,7 +202,7 @@ impl Formula for Literal {
                 best = Some(BasicHit { t, surface });
             }
         };
-        // Side: A t² + B t + C = 0 (SPEC §1).
+        // Side: A t² + B t + C = 0.
         let a = T::dot(d, d) - nd * nd;
         let b = two * T::dot(d, oc) - two * nd * noc;
         let c = T::dot(oc, oc) - noc * noc - p.r * p.r;
@@ -212,7 +247,7 @@ impl Formula for Literal {
 }
 
 /// The stable form. In the cylinder's (u, v, n) frame, with `d⊥`, `oc⊥` the parts
-/// perpendicular to the axis (SPEC §1):
+/// perpendicular to the axis (the module doc's traps):
 /// - `A = |d⊥|²`, half-coefficient `b = d⊥·oc⊥`, `C = (|oc⊥| - r)(|oc⊥| + r)` (from f64);
 /// - discriminant by the Lagrange identity `b² - AC = r²A - (d⊥ × oc⊥)²`, factored as
 ///   `(r√A - |X|)(r√A + |X|)` so no large terms cancel;

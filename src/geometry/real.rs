@@ -30,30 +30,47 @@ pub trait Real:
         + Sub<Output = Self::V3>
         + Mul<Self, Output = Self::V3>
         + Neg<Output = Self::V3>;
+    /// 0.
     const ZERO: Self;
+    /// 1.
     const ONE: Self;
+    /// 2.
     const TWO: Self;
+    /// +∞ (an unbounded `tmax`).
     const INFINITY: Self;
     /// Unit roundoff (half the machine epsilon).
     const UNIT_ROUNDOFF: f64;
     /// Name for tables: `f32` or `f64`.
     const NAME: &'static str;
 
+    /// Round an f64 to this precision (identity for f64).
     fn from_f64(x: f64) -> Self;
+    /// Widen to f64 (exact).
     fn to_f64(self) -> f64;
+    /// Correctly rounded square root.
     fn sqrt(self) -> Self;
+    /// Absolute value.
     fn abs(self) -> Self;
-    /// +1 or -1 with the sign of `self`; never 0 (`sign(0) = +1`, SPEC §1).
+    /// +1 or -1 with the sign of `self`; never 0 (`sign(0) = +1`: the stable root needs ±1).
     fn sign(self) -> Self;
+    /// Neither NaN nor ±∞.
     fn is_finite(self) -> bool;
+    /// The smaller of two (IEEE `min`).
     fn min(self, o: Self) -> Self;
+    /// The larger of two (IEEE `max`).
     fn max(self, o: Self) -> Self;
 
+    /// Round an f64 vector to this precision.
     fn v3(v: DVec3) -> Self::V3;
+    /// Widen a vector to f64 (exact).
     fn v3_to_f64(v: Self::V3) -> DVec3;
+    /// A vector from its components.
     fn v3_new(x: Self, y: Self, z: Self) -> Self::V3;
+    /// The components `[x, y, z]`.
     fn v3_parts(v: Self::V3) -> [Self; 3];
+    /// Dot product, in the order `x·x + y·y + z·z` (the SIMD lanes use the same order).
     fn dot(a: Self::V3, b: Self::V3) -> Self;
+    /// Cross product.
     fn cross(a: Self::V3, b: Self::V3) -> Self::V3;
     /// Unit vector along `v`; `v` must be non-zero.
     fn normalize(v: Self::V3) -> Self::V3;

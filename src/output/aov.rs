@@ -1,4 +1,4 @@
-//! AOV images in memory and as OpenEXR files (SPEC §4).
+//! AOV images in memory and as OpenEXR files.
 //!
 //! Channel names are the contract: `distance`, `depth`, `normal.X/Y/Z`, `position.X/Y/Z`
 //! (float32), `shape_id` and `part` (u32). Row 0 is the top row. A missed pixel is 0 everywhere.
@@ -172,7 +172,7 @@ impl AovImage {
 
     /// Stream an uncompressed single-part scanline OpenEXR straight from the planes (the
     /// `exr` crate copies every sample through its own layout, which costs more than the
-    /// render at 1080p; SPEC §6). Layout: magic and version, the header attributes, the
+    /// render at 1080p). Layout: magic and version, the header attributes, the
     /// offset table (one u64 per line), then per line its `y`, byte count, and each
     /// channel's row in channel-name order. Every row is already contiguous in its plane,
     /// so a line is written as slices, with no per-sample work on little-endian machines.

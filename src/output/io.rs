@@ -1,4 +1,9 @@
-//! File output that never leaves a half-written file, and the camera metadata JSON.
+//! File output that never leaves a half-written file, never replaces what it does not own,
+//! and fails before allocating what the machine cannot hold; console output that survives a
+//! closed pipe; and the camera metadata JSON.
+//!
+//! Every command checks its output targets with [`check_outputs`] before it reads or
+//! computes anything, so a refused target costs nothing and leaves nothing behind.
 
 use crate::scene::Aov;
 use crate::scene::camera::{Camera, rows};
@@ -8,7 +13,10 @@ use std::io::{self, Write};
 use std::path::{Path, PathBuf};
 
 /// The temporary name used while `path` is written: `.NAME.HOST.PID.NONCE.tmp` in the same
-/// folder, so the rename is atomic. Hidden and ending in `.tmp` (SPEC §7). Distinct for
+/// folder, so the rename is atomic. Hidden and ending in `.tmp`, the suffix every
+/// work-in-progress file of cylaov carries. `NAME` is shortened (at a character boundary)
+/// when the whole would pass the 255-byte file name limit: any output name the file system
+/// accepts also has a temporary name it accepts. Distinct for
 /// every call: the host (`/proc/sys/kernel/hostname`, else `$HOSTNAME`; shards on different
 /// nodes of a shared filesystem can have equal PIDs), the PID, and a nonce made of a
 /// per-process value (the start time, taken once) and a per-call counter (two threads, or
@@ -39,14 +47,268 @@ pub fn temp_path(path: &Path) -> PathBuf {
         (host, start)
     });
     let call = CALLS.fetch_add(1, Ordering::Relaxed);
-    let name = path
+    let mut name = path
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
-    path.with_file_name(format!(
-        ".{name}.{host}.{}.{start:x}-{call}.tmp",
-        std::process::id()
-    ))
+    let tail = format!(".{host}.{}.{start:x}-{call}.tmp", std::process::id());
+    // One byte for the leading dot; the tail is at most ~60 bytes.
+    let room = NAME_MAX.saturating_sub(1 + tail.len());
+    if name.len() > room {
+        let mut cut = room;
+        while !name.is_char_boundary(cut) {
+            cut -= 1;
+        }
+        name.truncate(cut);
+    }
+    path.with_file_name(format!(".{name}{tail}"))
+}
+
+/// The longest file name (one path component, in bytes) of Linux file systems.
+const NAME_MAX: usize = 255;
+
+/// What a path is, in words, for a refusal message.
+fn kind_name(ft: std::fs::FileType) -> &'static str {
+    use std::os::unix::fs::FileTypeExt;
+    if ft.is_dir() {
+        "a folder"
+    } else if ft.is_char_device() {
+        "a character device"
+    } else if ft.is_block_device() {
+        "a block device"
+    } else if ft.is_fifo() {
+        "a FIFO (named pipe)"
+    } else if ft.is_socket() {
+        "a socket"
+    } else if ft.is_symlink() {
+        "a symbolic link"
+    } else {
+        "a regular file"
+    }
+}
+
+/// The identity of an existing file, through links: (device, inode).
+fn file_id(path: &Path) -> Option<(u64, u64)> {
+    use std::os::unix::fs::MetadataExt;
+    std::fs::metadata(path).ok().map(|m| (m.dev(), m.ino()))
+}
+
+fn refuse(flag: &str, path: &Path, why: String) -> io::Error {
+    io::Error::new(
+        io::ErrorKind::InvalidInput,
+        format!("{flag} {}: {why}", path.display()),
+    )
+}
+
+/// Check one output target before anything is written: it may be missing or a regular file
+/// (through links), but not a device, FIFO, socket or folder: the write goes to a temporary
+/// file that is renamed over the target, which would replace `/dev/null` itself, and sidecar
+/// files would litter the device's folder. Nor may it be any of `inputs` (compared by
+/// device and inode, so hard and symbolic links count). The existing part of its folder path
+/// must be folders. `flag` names the option in the message (`-o`, `--heatmap`, ...).
+pub fn check_output(flag: &str, path: &Path, inputs: &[&Path]) -> io::Result<()> {
+    if path.as_os_str().is_empty() {
+        return Err(refuse(flag, path, "empty path".into()));
+    }
+    if let Some(name) = path.file_name()
+        && name.len() > NAME_MAX
+    {
+        return Err(refuse(
+            flag,
+            path,
+            format!("file name is {} bytes, the limit is {NAME_MAX}", name.len()),
+        ));
+    }
+    match std::fs::symlink_metadata(path) {
+        Ok(link) => {
+            let target = match std::fs::metadata(path) {
+                Ok(m) => m,
+                Err(_) => {
+                    return Err(refuse(
+                        flag,
+                        path,
+                        "is a symbolic link to nothing; refusing to replace it".into(),
+                    ));
+                }
+            };
+            if !target.is_file() {
+                let via = if link.file_type().is_symlink() {
+                    "is a symbolic link to "
+                } else {
+                    "is "
+                };
+                return Err(refuse(
+                    flag,
+                    path,
+                    format!(
+                        "{via}{}, not a regular file; refusing to replace it",
+                        kind_name(target.file_type())
+                    ),
+                ));
+            }
+            let id = file_id(path);
+            for input in inputs {
+                if id.is_some() && file_id(input) == id {
+                    return Err(refuse(
+                        flag,
+                        path,
+                        format!("would overwrite the input {}", input.display()),
+                    ));
+                }
+            }
+        }
+        Err(e) if e.kind() == io::ErrorKind::NotFound || e.raw_os_error() == Some(20) => {
+            check_folders(flag, path)?
+        }
+        Err(e) => return Err(refuse(flag, path, e.to_string())),
+    }
+    Ok(())
+}
+
+/// The nearest existing ancestor of a missing `path` must be a folder (else creating the
+/// folders says only "File exists" or "Not a directory").
+fn check_folders(flag: &str, path: &Path) -> io::Result<()> {
+    for dir in path.ancestors().skip(1) {
+        if dir.as_os_str().is_empty() {
+            return Ok(());
+        }
+        match std::fs::metadata(dir) {
+            Ok(m) if m.is_dir() => return Ok(()),
+            Ok(m) => {
+                return Err(refuse(
+                    flag,
+                    path,
+                    format!(
+                        "{} is {}, not a folder",
+                        dir.display(),
+                        kind_name(m.file_type())
+                    ),
+                ));
+            }
+            // Missing, or below a file (ENOTDIR): look further up.
+            Err(e) if e.kind() == io::ErrorKind::NotFound || e.raw_os_error() == Some(20) => {
+                continue;
+            }
+            Err(e) => return Err(refuse(flag, path, format!("{}: {e}", dir.display()))),
+        }
+    }
+    Ok(())
+}
+
+/// [`check_output`] for every `(flag, path)` of a command; also refuses two outputs that are
+/// one file (the second would silently replace the first).
+pub fn check_outputs(outputs: &[(&str, &Path)], inputs: &[&Path]) -> io::Result<()> {
+    for (i, (flag, path)) in outputs.iter().enumerate() {
+        check_output(flag, path, inputs)?;
+        for (flag2, other) in &outputs[..i] {
+            if same_target(path, other) {
+                return Err(refuse(
+                    flag,
+                    path,
+                    format!("is also the {flag2} output {}", other.display()),
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Two output paths that name one file: equal identities if both exist, else equal after
+/// resolving their folders.
+fn same_target(a: &Path, b: &Path) -> bool {
+    if let (Some(x), Some(y)) = (file_id(a), file_id(b)) {
+        return x == y;
+    }
+    let resolve = |p: &Path| -> Option<PathBuf> {
+        let dir = match p.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d,
+            _ => Path::new("."),
+        };
+        Some(dir.canonicalize().ok()?.join(p.file_name()?))
+    };
+    match (resolve(a), resolve(b)) {
+        (Some(x), Some(y)) => x == y,
+        _ => a == b,
+    }
+}
+
+/// Check that a folder target (`--preview DIR`) is a folder or can be made one.
+pub fn check_output_dir(flag: &str, dir: &Path) -> io::Result<()> {
+    match std::fs::metadata(dir) {
+        Ok(m) if m.is_dir() => Ok(()),
+        Ok(m) => Err(refuse(
+            flag,
+            dir,
+            format!("is {}, not a folder", kind_name(m.file_type())),
+        )),
+        Err(e) if e.kind() == io::ErrorKind::NotFound || e.raw_os_error() == Some(20) => {
+            check_folders(flag, dir)
+        }
+        Err(e) => Err(refuse(flag, dir, e.to_string())),
+    }
+}
+
+/// The folders a command created, removed again (innermost first, where empty) when it is
+/// dropped before [`NewDirs::keep`]: a failed `-o new/sub/x.exr` leaves no `new/`.
+#[derive(Default)]
+#[must_use = "the folders are removed when this is dropped without keep()"]
+pub struct NewDirs {
+    made: Vec<PathBuf>,
+}
+
+impl NewDirs {
+    /// Create `dir` and its missing parents, remembering the ones this call made.
+    pub fn create(&mut self, dir: &Path) -> io::Result<()> {
+        let mut missing: Vec<PathBuf> = Vec::new();
+        for d in dir.ancestors() {
+            if d.as_os_str().is_empty() || d.exists() {
+                break;
+            }
+            missing.push(d.to_path_buf());
+        }
+        std::fs::create_dir_all(dir).map_err(explain)?;
+        self.made.extend(missing.into_iter().rev());
+        Ok(())
+    }
+
+    /// The parent folder of a file target, if it has one.
+    pub fn create_parent(&mut self, file: &Path) -> io::Result<()> {
+        match file.parent() {
+            Some(d) if !d.as_os_str().is_empty() => self.create(d),
+            _ => Ok(()),
+        }
+    }
+
+    /// Whether any folder was made (the target is new: what the command wrote in it is all
+    /// its own).
+    pub fn made_any(&self) -> bool {
+        !self.made.is_empty()
+    }
+
+    /// The command succeeded: keep every folder.
+    pub fn keep(mut self) {
+        self.made.clear();
+    }
+}
+
+impl Drop for NewDirs {
+    fn drop(&mut self) {
+        for d in self.made.iter().rev() {
+            let _ = std::fs::remove_dir(d);
+        }
+    }
+}
+
+/// Add the advice a person needs to an IO error: a full disk says so.
+pub fn explain(e: io::Error) -> io::Error {
+    if e.raw_os_error() == Some(28) || e.kind() == io::ErrorKind::StorageFull {
+        io::Error::new(
+            e.kind(),
+            format!("{e}: the disk is full; free space and run again"),
+        )
+    } else {
+        e
+    }
 }
 
 /// Write `path` through `fill` into a temporary file, then rename it into place. On any
@@ -75,9 +337,12 @@ pub fn stage(path: &Path, fill: impl FnOnce(&mut File) -> io::Result<()>) -> io:
         tmp: temp_path(path),
         path: path.to_path_buf(),
     };
-    let mut f = File::create(&staged.tmp)?;
-    fill(&mut f)?;
-    f.flush()?;
+    let mut f = File::create(&staged.tmp).map_err(explain)?;
+    if let Some(errno) = injected_failure() {
+        return Err(explain(io::Error::from_raw_os_error(errno)));
+    }
+    fill(&mut f).map_err(explain)?;
+    f.flush().map_err(explain)?;
     Ok(staged)
 }
 
@@ -119,12 +384,27 @@ impl Drop for Staged {
     }
 }
 
+/// A write failure injected for tests: `CYLAOV_FAIL_WRITES=ENOSPC` makes every staged write
+/// fail as a full disk would, after its temporary file was created (so the clean-up runs).
+/// Read once; any other value is ignored.
+fn injected_failure() -> Option<i32> {
+    use std::sync::OnceLock;
+    static FAIL: OnceLock<Option<i32>> = OnceLock::new();
+    *FAIL.get_or_init(
+        || match std::env::var("CYLAOV_FAIL_WRITES").ok()?.as_str() {
+            "ENOSPC" => Some(28),
+            _ => None,
+        },
+    )
+}
+
 /// Write bytes atomically.
 pub fn atomic_write_bytes(path: &Path, bytes: &[u8]) -> io::Result<()> {
     atomic_write(path, |f| f.write_all(bytes))
 }
 
-/// Where `render -o OUT.exr` puts the camera metadata: `OUT.camera.json` (SPEC §7).
+/// Where `render -o OUT.exr` puts the camera metadata: `OUT.camera.json` (not `OUT.json`,
+/// which could be the scene itself).
 pub fn camera_json_path(exr: &Path) -> PathBuf {
     exr.with_extension("camera.json")
 }
@@ -145,7 +425,7 @@ struct CameraMeta {
     fov_axis: &'static str,
     near_clip: f64,
     far_clip: f64,
-    /// Intrinsics in pixels, row-major.
+    /// Intrinsics in pixels, row-major, pixel centres at `i + 0.5`.
     #[serde(rename = "K")]
     k: [[f64; 3]; 3],
     principal_point_note: &'static str,
@@ -153,6 +433,12 @@ struct CameraMeta {
     fl_y: f64,
     cx: f64,
     cy: f64,
+    /// The same intrinsics with pixel centres at integers.
+    #[serde(rename = "K_opencv")]
+    k_opencv: [[f64; 3]; 3],
+    principal_point_note_opencv: &'static str,
+    cx_opencv: f64,
+    cy_opencv: f64,
     camera_to_world_opencv: [[f64; 4]; 4],
     world_to_camera_opencv: [[f64; 4]; 4],
     camera_to_world_opengl: [[f64; 4]; 4],
@@ -161,7 +447,7 @@ struct CameraMeta {
     aovs: Vec<AovMeaning>,
 }
 
-/// What an AOV means, for the metadata file (SPEC §4).
+/// What an AOV means, for the metadata file (the README's AOV table).
 pub fn aov_meaning(aov: Aov) -> (&'static str, &'static str) {
     match aov {
         Aov::Distance => (
@@ -192,6 +478,7 @@ pub fn aov_meaning(aov: Aov) -> (&'static str, &'static str) {
 pub fn camera_json(cam: &Camera, aovs: &[Aov]) -> String {
     let (fx, fy) = cam.focal_px();
     let k = cam.k_matrix();
+    let k_cv = cam.k_matrix_opencv();
     let cv = cam.world_from_camera_opencv();
     let gl = cam.world_from_camera_opengl();
     let meta = CameraMeta {
@@ -202,11 +489,15 @@ pub fn camera_json(cam: &Camera, aovs: &[Aov]) -> String {
         near_clip: cam.spec.near_clip,
         far_clip: cam.spec.far_clip,
         k,
-        principal_point_note: "cx = W/2, cy = H/2: pixel (i, j) has its centre at (i + 0.5, j + 0.5)",
+        principal_point_note: "K, cx, cy: cx = W/2, cy = H/2, pixel (i, j) has its centre at (i + 0.5, j + 0.5): nerfstudio, Mitsuba",
         fl_x: fx,
         fl_y: fy,
         cx: k[0][2],
         cy: k[1][2],
+        k_opencv: k_cv,
+        principal_point_note_opencv: "K_opencv, cx_opencv, cy_opencv: cx = W/2 - 0.5, cy = H/2 - 0.5, pixel (i, j) has its centre at (i, j): OpenCV, Open3D, COLMAP",
+        cx_opencv: k_cv[0][2],
+        cy_opencv: k_cv[1][2],
         camera_to_world_opencv: rows(cv),
         world_to_camera_opencv: rows(cv.inverse()),
         camera_to_world_opengl: rows(gl),
@@ -230,10 +521,182 @@ pub fn camera_json(cam: &Camera, aovs: &[Aov]) -> String {
     s
 }
 
+/// Open3D's `PinholeCameraParameters` file (`NAME.open3d.json`), which
+/// `o3d.io.read_pinhole_camera_parameters` loads as it is: the intrinsic matrix with the
+/// integer-centre principal point (`W/2 - 0.5`) and the extrinsic world-to-camera in OpenCV
+/// axes (x right, y down, z forward), both column-major as Open3D (Eigen) stores them.
+pub fn open3d_json(cam: &Camera) -> String {
+    #[derive(Serialize)]
+    struct Intrinsic {
+        width: u32,
+        height: u32,
+        intrinsic_matrix: [f64; 9],
+    }
+    #[derive(Serialize)]
+    struct Params {
+        class_name: &'static str,
+        version_major: u32,
+        version_minor: u32,
+        intrinsic: Intrinsic,
+        extrinsic: [f64; 16],
+    }
+    let k = cam.k_matrix_opencv();
+    let mut k_cols = [0.0; 9];
+    for (c, col) in k_cols.chunks_exact_mut(3).enumerate() {
+        for (r, x) in col.iter_mut().enumerate() {
+            *x = k[r][c];
+        }
+    }
+    let params = Params {
+        class_name: "PinholeCameraParameters",
+        version_major: 1,
+        version_minor: 0,
+        intrinsic: Intrinsic {
+            width: cam.width(),
+            height: cam.height(),
+            intrinsic_matrix: k_cols,
+        },
+        // glam matrices are column-major already.
+        extrinsic: cam.world_from_camera_opencv().inverse().to_cols_array(),
+    };
+    let mut s = serde_json::to_string_pretty(&params).unwrap_or_default();
+    s.push('\n');
+    s
+}
+
 /// Peak resident memory of this process in MiB (Linux `VmHWM`), if the OS tells.
 pub fn peak_rss_mib() -> Option<f64> {
     let status = std::fs::read_to_string("/proc/self/status").ok()?;
     let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
     let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
     Some(kib / 1024.0)
+}
+
+// ---- memory ------------------------------------------------------------------------------
+
+/// Bytes this process can still allocate, as far as the OS tells: the smallest of the
+/// memory available to the machine (`MemAvailable` plus free swap, `/proc/meminfo`), the
+/// address space left under `RLIMIT_AS` (`ulimit -v`, minus the current `VmSize`) and the
+/// cgroup's `memory.max` minus `memory.current` (containers, Slurm, Kubernetes). `None`
+/// when none of them is known.
+pub fn memory_available() -> Option<u64> {
+    let mut best: Option<u64> = None;
+    let mut take = |x: Option<u64>| {
+        if let Some(x) = x {
+            best = Some(best.map_or(x, |b| b.min(x)));
+        }
+    };
+    take(meminfo_available());
+    take(address_space_left());
+    take(cgroup_left());
+    best
+}
+
+/// A `/proc` style `Key:   123 kB` value in bytes.
+fn kib_field(text: &str, key: &str) -> Option<u64> {
+    let line = text.lines().find(|l| l.starts_with(key))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
+}
+
+fn meminfo_available() -> Option<u64> {
+    let m = std::fs::read_to_string("/proc/meminfo").ok()?;
+    Some(kib_field(&m, "MemAvailable:")? + kib_field(&m, "SwapFree:").unwrap_or(0))
+}
+
+#[cfg(target_os = "linux")]
+fn address_space_left() -> Option<u64> {
+    let mut lim = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: getrlimit only writes the struct it is given.
+    if unsafe { libc::getrlimit(libc::RLIMIT_AS, &mut lim) } != 0
+        || lim.rlim_cur == libc::RLIM_INFINITY
+    {
+        return None;
+    }
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let used = kib_field(&status, "VmSize:").unwrap_or(0);
+    #[allow(clippy::unnecessary_cast)] // rlim_t is narrower than u64 on some targets
+    let cur = lim.rlim_cur as u64;
+    Some(cur.saturating_sub(used))
+}
+
+#[cfg(not(target_os = "linux"))]
+fn address_space_left() -> Option<u64> {
+    None
+}
+
+fn cgroup_left() -> Option<u64> {
+    let max = std::fs::read_to_string("/sys/fs/cgroup/memory.max").ok()?;
+    let max: u64 = max.trim().parse().ok()?; // "max" means no limit
+    let cur: u64 = std::fs::read_to_string("/sys/fs/cgroup/memory.current")
+        .ok()?
+        .trim()
+        .parse()
+        .ok()?;
+    Some(max.saturating_sub(cur))
+}
+
+/// Fail with a clear message, before allocating, when `bytes` (what `what` needs) exceeds
+/// [`memory_available`]. Unknown availability passes: the allocator then has the last word.
+pub fn check_memory(what: &str, bytes: u64) -> io::Result<()> {
+    match memory_available() {
+        Some(avail) if bytes > avail => Err(io::Error::new(
+            io::ErrorKind::OutOfMemory,
+            format!(
+                "{what} needs about {} of memory, only {} is available (free memory, ulimit -v and the cgroup limit)",
+                mib(bytes),
+                mib(avail)
+            ),
+        )),
+        _ => Ok(()),
+    }
+}
+
+fn mib(bytes: u64) -> String {
+    format!("{:.0} MiB", bytes as f64 / (1u64 << 20) as f64)
+}
+
+/// How many jobs of `bytes_each` may run at once within half of [`memory_available`], at
+/// least 1 and at most `wanted` (the thread count): the batch renders this many views at a
+/// time, so its peak memory does not grow with the core count. The other half is headroom
+/// for encoders, page cache and the rest of the machine.
+pub fn jobs_in_memory(bytes_each: u64, wanted: usize) -> usize {
+    let wanted = wanted.max(1);
+    match memory_available() {
+        Some(avail) if bytes_each > 0 => ((avail / 2 / bytes_each) as usize).clamp(1, wanted),
+        _ => wanted,
+    }
+}
+
+// ---- console -----------------------------------------------------------------------------
+
+static STDOUT_CLOSED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// Print `text` and a newline on stdout. A closed pipe (the reader left, as `| head` does)
+/// is not an error: this and every later line are dropped quietly, and the command finishes
+/// with its own exit status, like other Unix tools. Any other failure (`> /dev/full`) is
+/// returned, to be reported as an error. `println!` would panic in both cases.
+pub fn say(text: &str) -> io::Result<()> {
+    use std::sync::atomic::Ordering;
+    if STDOUT_CLOSED.load(Ordering::Relaxed) {
+        return Ok(());
+    }
+    let mut out = io::stdout().lock();
+    match writeln!(out, "{text}").and_then(|()| out.flush()) {
+        Err(e) if e.kind() == io::ErrorKind::BrokenPipe => {
+            STDOUT_CLOSED.store(true, Ordering::Relaxed);
+            Ok(())
+        }
+        Err(e) => Err(io::Error::new(e.kind(), format!("writing to stdout: {e}"))),
+        Ok(()) => Ok(()),
+    }
+}
+
+/// Print `text` and a newline on stderr; a failure is ignored (there is nowhere left to
+/// report it), where `eprintln!` would panic.
+pub fn warn(text: &str) {
+    let _ = writeln!(io::stderr().lock(), "{text}");
 }

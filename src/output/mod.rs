@@ -2,6 +2,7 @@
 //! the Mitsuba 3 XML export. The last stage of the pipeline; nothing here traces rays.
 
 pub mod aov;
+pub mod depth_png;
 pub mod io;
 pub mod mitsuba;
 pub mod plot;

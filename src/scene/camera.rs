@@ -1,5 +1,11 @@
-//! The pinhole camera of SPEC §3, matching Mitsuba 3's `perspective` sensor with a
-//! `look_at` transform: frame, field of view per `fov_axis`, pixel-centre rays in f64.
+//! The pinhole camera, matching Mitsuba 3's `perspective` sensor with a `look_at`
+//! transform: frame, field of view per `fov_axis`, pixel-centre rays in f64.
+//!
+//! `forward = normalize(target - origin)`, `left = normalize(up × forward)`,
+//! `true_up = forward × left`; image x grows toward `-left`, image y downward (row 0 is the
+//! top row). One ray per pixel through its centre `(i + 0.5, j + 0.5)`. Intrinsics come in
+//! both pixel conventions: [`Camera::k_matrix`] (centres at `i + 0.5`) and
+//! [`Camera::k_matrix_opencv`] (centres at integers).
 
 use glam::{DMat4, DVec3, DVec4};
 use serde::{Deserialize, Serialize};
@@ -95,7 +101,7 @@ impl Camera {
     }
 
     /// Image-plane offset of column `i` at unit distance, toward `-left`:
-    /// `((i + 0.5) / W · 2 - 1) · tan(fov_x / 2)`, in f64 (SPEC §3).
+    /// `((i + 0.5) / W · 2 - 1) · tan(fov_x / 2)`, in f64.
     #[inline]
     pub fn column_offset(&self, i: u32) -> f64 {
         (((i as f64 + 0.5) / self.spec.width as f64) * 2.0 - 1.0) * self.tan_half_x
@@ -132,7 +138,7 @@ impl Camera {
     }
 
     /// Unit direction of the ray through the centre of pixel (i, j), all in f64:
-    /// `(i + 0.5) / W` and `(j + 0.5) / H` (SPEC §3). Row 0 is the top row.
+    /// `(i + 0.5) / W` and `(j + 0.5) / H`. Row 0 is the top row.
     #[inline]
     pub fn ray_dir(&self, i: u32, j: u32) -> DVec3 {
         self.dir_from_offsets(self.column_offset(i), self.row_offset(j))
@@ -146,11 +152,24 @@ impl Camera {
         )
     }
 
-    /// Intrinsics in pixels, principal point at `(W/2, H/2)` (pixel centres at `i + 0.5`).
+    /// Intrinsics in pixels, principal point at `(W/2, H/2)`: the convention where pixel
+    /// `(i, j)` has its centre at `(i + 0.5, j + 0.5)` (this camera's rays, Mitsuba,
+    /// nerfstudio with its default `pixel_offset = 0.5`).
     pub fn k_matrix(&self) -> [[f64; 3]; 3] {
         let (fx, fy) = self.focal_px();
         let (cx, cy) = (self.spec.width as f64 / 2.0, self.spec.height as f64 / 2.0);
         [[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]
+    }
+
+    /// Intrinsics in pixels, principal point at `(W/2 - 0.5, H/2 - 0.5)`: the convention
+    /// where pixel `(i, j)` has its centre at the integer point `(i, j)` (OpenCV, Open3D,
+    /// COLMAP). The same rays as [`Camera::k_matrix`], with pixel coordinates shifted by
+    /// half a pixel; using `k_matrix` there puts back-projected points half a pixel off.
+    pub fn k_matrix_opencv(&self) -> [[f64; 3]; 3] {
+        let mut k = self.k_matrix();
+        k[0][2] -= 0.5;
+        k[1][2] -= 0.5;
+        k
     }
 
     /// Camera-to-world, OpenCV axes (x right, y down, z forward).

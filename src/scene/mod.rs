@@ -1,9 +1,15 @@
-//! Scene files (SPEC §2): the serde schema, defaults, and validation into a [`Scene`].
+//! Scene files (the README's "Scene format"): the serde schema, defaults, and validation
+//! into a [`Scene`].
+//!
+//! A scene file has exactly one of `"camera": {…}` (one view) and `"cameras": [{…}, …]`
+//! (several views of the same cylinders, in order: camera 0, 1, …); giving both or neither
+//! is an error.
 //!
 //! Serde types live here only; everything past [`Scene`] is plain validated data. Every
 //! rejection names the field and the value: `cylinders[3].radius: must be > 0, got -1`.
 
 pub mod camera;
+pub mod strict;
 
 use crate::geometry::Cylinder;
 use crate::scene::camera::{CameraSpec, FovAxis};
@@ -12,7 +18,7 @@ use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::path::Path;
 
-/// Largest coordinate, radius or height accepted: f32 squares overflow near 1.8e19 (SPEC §7).
+/// Largest coordinate, radius or height accepted: f32 squares overflow near 1.8e19.
 pub const MAX_COORD: f64 = 1e12;
 /// Largest image side accepted.
 pub const MAX_SIDE: u32 = 16384;
@@ -20,7 +26,7 @@ pub const MAX_SIDE: u32 = 16384;
 /// buffers; 16384 × 16384 would be 9.7 GB.
 pub const MAX_PIXELS: u64 = 1 << 26;
 
-/// One AOV (SPEC §4).
+/// One AOV (the README's AOV table says what each stores).
 #[derive(
     Clone,
     Copy,
@@ -90,7 +96,7 @@ impl fmt::Display for Aov {
     }
 }
 
-/// The default AOV set (SPEC §2).
+/// The default AOV set, when neither the scene nor the command line names one.
 pub fn default_aovs() -> Vec<Aov> {
     vec![Aov::Depth, Aov::Normal]
 }
@@ -98,7 +104,10 @@ pub fn default_aovs() -> Vec<Aov> {
 /// A validated scene.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Scene {
+    /// The camera a render uses: camera 0 when loaded, another after [`Scene::select_camera`].
     pub camera: CameraSpec,
+    /// Every camera of the file, in file order (one for a `"camera"` file).
+    pub cameras: Vec<CameraSpec>,
     pub cylinders: Vec<Cylinder>,
     /// Requested AOVs, in file order, without repeats.
     pub aovs: Vec<Aov>,
@@ -136,8 +145,11 @@ fn err(field: impl Into<String>, message: impl Into<String>) -> SceneError {
 #[derive(Clone, Debug, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CameraFile {
+    #[serde(deserialize_with = "strict::vec3")]
     pub origin: [f64; 3],
+    #[serde(deserialize_with = "strict::vec3")]
     pub target: [f64; 3],
+    #[serde(deserialize_with = "strict::vec3")]
     pub up: [f64; 3],
     pub fov_deg: f64,
     #[serde(default)]
@@ -164,13 +176,29 @@ fn default_caps() -> bool {
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CylinderFile {
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        deserialize_with = "strict::opt_vec3",
+        skip_serializing_if = "Option::is_none"
+    )]
     pub p0: Option<[f64; 3]>,
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        deserialize_with = "strict::opt_vec3",
+        skip_serializing_if = "Option::is_none"
+    )]
     pub p1: Option<[f64; 3]>,
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        deserialize_with = "strict::opt_vec3",
+        skip_serializing_if = "Option::is_none"
+    )]
     pub center: Option<[f64; 3]>,
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        deserialize_with = "strict::opt_vec3",
+        skip_serializing_if = "Option::is_none"
+    )]
     pub axis: Option<[f64; 3]>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub height: Option<f64>,
@@ -181,11 +209,23 @@ pub struct CylinderFile {
     pub id: Option<u32>,
 }
 
-/// A whole scene file (SPEC §2).
+/// A whole scene file: exactly one of `camera` and `cameras` is given.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SceneFile {
-    pub camera: CameraFile,
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "strict::opt_object"
+    )]
+    pub camera: Option<CameraFile>,
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "strict::opt_objects"
+    )]
+    pub cameras: Option<Vec<CameraFile>>,
+    #[serde(deserialize_with = "strict::objects")]
     pub cylinders: Vec<CylinderFile>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub aovs: Option<Vec<Aov>>,
@@ -193,23 +233,86 @@ pub struct SceneFile {
 
 // ---- loading and validation ------------------------------------------------------------
 
-/// Read and validate a scene file.
+/// Largest scene file read, in bytes: 512 MiB admits a million cylinders with room to spare
+/// (110 MB of compact JSON; 220 MB as `generate` writes them, measured), and stops
+/// `/dev/zero`-like inputs from growing memory without bound.
+pub const MAX_SCENE_BYTES: u64 = 512 << 20;
+
+/// Read and validate a scene file. It must be a regular file (through links; a FIFO would
+/// block, a device never end) of at most [`MAX_SCENE_BYTES`].
 pub fn load(path: &Path) -> Result<Scene, SceneError> {
-    let text = std::fs::read_to_string(path)
-        .map_err(|e| err("", format!("cannot read {}: {e}", path.display())))?;
+    use std::io::Read;
+    // Messages leave the path out: every caller prefixes it.
+    let cannot = |e: std::io::Error| err("", format!("cannot read: {e}"));
+    let meta = std::fs::metadata(path).map_err(cannot)?;
+    if !meta.is_file() {
+        let kind = if meta.is_dir() {
+            "a folder"
+        } else {
+            "a device, FIFO or socket"
+        };
+        return Err(err("", format!("not a regular file but {kind}")));
+    }
+    let too_big = |n: u64| {
+        err(
+            "",
+            format!(
+                "{n} bytes, more than the {MAX_SCENE_BYTES} bytes (512 MiB) a scene file may have"
+            ),
+        )
+    };
+    if meta.len() > MAX_SCENE_BYTES {
+        return Err(too_big(meta.len()));
+    }
+    // Bounded even when the size was wrong (files in /proc report 0).
+    let mut bytes = Vec::with_capacity(meta.len() as usize);
+    std::fs::File::open(path)
+        .and_then(|f| f.take(MAX_SCENE_BYTES + 1).read_to_end(&mut bytes))
+        .map_err(cannot)?;
+    if bytes.len() as u64 > MAX_SCENE_BYTES {
+        return Err(too_big(bytes.len() as u64));
+    }
+    let text = String::from_utf8(bytes).map_err(|e| {
+        err(
+            "",
+            format!("not UTF-8 text (byte {})", e.utf8_error().valid_up_to()),
+        )
+    })?;
     parse(&text)
 }
 
-/// Parse and validate scene JSON.
+/// Parse and validate scene JSON: one JSON object and nothing after it.
 pub fn parse(text: &str) -> Result<Scene, SceneError> {
-    let de = &mut serde_json::Deserializer::from_str(text);
-    let file: SceneFile = serde_path_to_error::deserialize(de).map_err(|e| {
-        let path = e.path().to_string();
-        let inner = e.into_inner();
-        let field = if path == "." { String::new() } else { path };
-        err(field, format!("invalid JSON: {inner}"))
+    if text.starts_with('\u{feff}') {
+        return Err(err(
+            "",
+            "invalid JSON: the file starts with a UTF-8 byte order mark (EF BB BF), which JSON does not allow; save it without one",
+        ));
+    }
+    let invalid = |field: String, e: serde_json::Error| {
+        err(
+            strict::shorten(&field),
+            strict::shorten(&format!("invalid JSON: {e}")),
+        )
+    };
+    let mut de = serde_json::Deserializer::from_str(text);
+    let file: strict::Object<SceneFile> =
+        serde_path_to_error::deserialize(&mut de).map_err(|e| {
+            let path = e.path().to_string();
+            let field = if path == "." { String::new() } else { path };
+            invalid(field, e.into_inner())
+        })?;
+    de.end().map_err(|e| {
+        err(
+            "",
+            format!(
+                "text after the end of the scene's JSON object at line {} column {} (two scenes in one file?)",
+                e.line(),
+                e.column()
+            ),
+        )
     })?;
-    file.validate()
+    file.0.validate()
 }
 
 /// A number as a person reads it in a message: plain, or in exponent form when plain would
@@ -251,19 +354,14 @@ impl SceneFile {
     /// The file form of a validated scene (cylinders as `p0`/`p1`, every field explicit),
     /// for writing generated scenes.
     pub fn from_scene(scene: &Scene) -> SceneFile {
-        let c = &scene.camera;
+        let files: Vec<CameraFile> = scene.cameras.iter().map(CameraFile::from_spec).collect();
+        let (camera, cameras) = match &files[..] {
+            [one] => (Some(one.clone()), None),
+            _ => (None, Some(files)),
+        };
         SceneFile {
-            camera: CameraFile {
-                origin: c.origin.to_array(),
-                target: c.target.to_array(),
-                up: c.up.to_array(),
-                fov_deg: c.fov_deg,
-                fov_axis: c.fov_axis,
-                width: c.width,
-                height: c.height,
-                near_clip: c.near_clip,
-                far_clip: c.far_clip,
-            },
+            camera,
+            cameras,
             cylinders: scene
                 .cylinders
                 .iter()
@@ -282,7 +380,29 @@ impl SceneFile {
 
     /// Check every field and build the validated scene.
     pub fn validate(&self) -> Result<Scene, SceneError> {
-        let camera = self.camera.validate()?;
+        let cameras = match (&self.camera, &self.cameras) {
+            (Some(c), None) => vec![c.validate("camera")?],
+            (None, Some(list)) if list.is_empty() => {
+                return Err(err("cameras", "must list at least one camera, got []"));
+            }
+            (None, Some(list)) => list
+                .iter()
+                .enumerate()
+                .map(|(k, c)| c.validate(&format!("cameras[{k}]")))
+                .collect::<Result<Vec<_>, _>>()?,
+            (Some(_), Some(_)) => {
+                return Err(err(
+                    "",
+                    "give exactly one of \"camera\" and \"cameras\", got both",
+                ));
+            }
+            (None, None) => {
+                return Err(err(
+                    "",
+                    "missing the camera: give \"camera\": {...} or \"cameras\": [{...}, ...]",
+                ));
+            }
+        };
         let cylinders = self
             .cylinders
             .iter()
@@ -305,29 +425,63 @@ impl SceneFile {
             }
         };
         Ok(Scene {
-            camera,
+            camera: cameras[0],
+            cameras,
             cylinders,
             aovs,
         })
     }
 }
 
+impl Scene {
+    /// Make camera `k` (0-based, file order) the one a render uses.
+    pub fn select_camera(&mut self, k: usize) -> Result<(), SceneError> {
+        let n = self.cameras.len();
+        self.camera = *self.cameras.get(k).ok_or_else(|| {
+            err(
+                "",
+                format!(
+                    "the scene has {n} camera(s), numbered 0..={}, got {k}",
+                    n - 1
+                ),
+            )
+        })?;
+        Ok(())
+    }
+}
+
 impl CameraFile {
-    fn validate(&self) -> Result<CameraSpec, SceneError> {
-        let origin = check_vec("camera.origin", self.origin)?;
-        let target = check_vec("camera.target", self.target)?;
-        let up = check_vec("camera.up", self.up)?;
+    /// The file form of a validated camera, every field explicit.
+    pub fn from_spec(c: &CameraSpec) -> CameraFile {
+        CameraFile {
+            origin: c.origin.to_array(),
+            target: c.target.to_array(),
+            up: c.up.to_array(),
+            fov_deg: c.fov_deg,
+            fov_axis: c.fov_axis,
+            width: c.width,
+            height: c.height,
+            near_clip: c.near_clip,
+            far_clip: c.far_clip,
+        }
+    }
+
+    /// Check every field; `at` is the camera's field path (`camera` or `cameras[K]`).
+    fn validate(&self, at: &str) -> Result<CameraSpec, SceneError> {
+        let origin = check_vec(&format!("{at}.origin"), self.origin)?;
+        let target = check_vec(&format!("{at}.target"), self.target)?;
+        let up = check_vec(&format!("{at}.up"), self.up)?;
         let fov = self.fov_deg;
         if !(fov.is_finite() && fov > 0.0 && fov < 180.0) {
             return Err(err(
-                "camera.fov_deg",
+                format!("{at}.fov_deg"),
                 format!("must be in (0, 180), got {}", num(fov)),
             ));
         }
         for (name, v) in [("width", self.width), ("height", self.height)] {
             if v == 0 || v > MAX_SIDE {
                 return Err(err(
-                    format!("camera.{name}"),
+                    format!("{at}.{name}"),
                     format!("must be in 1..={MAX_SIDE}, got {v}"),
                 ));
             }
@@ -335,7 +489,7 @@ impl CameraFile {
         let pixels = self.width as u64 * self.height as u64;
         if pixels > MAX_PIXELS {
             return Err(err(
-                "camera.height",
+                format!("{at}.height"),
                 format!(
                     "width × height must be <= {MAX_PIXELS} pixels (8192 × 8192), got {} × {} = {pixels}",
                     self.width, self.height
@@ -345,13 +499,13 @@ impl CameraFile {
         let (near, far) = (self.near_clip, self.far_clip);
         if !(near.is_finite() && near > 0.0) {
             return Err(err(
-                "camera.near_clip",
+                format!("{at}.near_clip"),
                 format!("must be > 0, got {}", num(near)),
             ));
         }
         if !(far.is_finite() && far > near) {
             return Err(err(
-                "camera.far_clip",
+                format!("{at}.far_clip"),
                 format!(
                     "must be finite and > near_clip ({}), got {}",
                     num(near),
@@ -362,13 +516,13 @@ impl CameraFile {
         let forward = target - origin;
         if forward.length() == 0.0 {
             return Err(err(
-                "camera.target",
-                format!("must differ from camera.origin, got {:?}", self.target),
+                format!("{at}.target"),
+                format!("must differ from {at}.origin, got {:?}", self.target),
             ));
         }
         if up.length() == 0.0 {
             return Err(err(
-                "camera.up",
+                format!("{at}.up"),
                 format!("must be non-zero, got {:?}", self.up),
             ));
         }
@@ -376,7 +530,7 @@ impl CameraFile {
         let sin = up.normalize().cross(forward.normalize()).length();
         if sin < 1e-9 {
             return Err(err(
-                "camera.up",
+                format!("{at}.up"),
                 format!(
                     "must not be parallel to the view direction (target - origin), got {:?}",
                     self.up

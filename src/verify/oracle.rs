@@ -13,7 +13,7 @@
 //! The unit tests check the arithmetic (√2² = 2, (1/3)·3 = 1, … to < 1e-30) and the oracle
 //! against exact answers, including a ray 1.8e-12 relative from tangency.
 //!
-//! The geometry is SPEC §1's, solved with the cancellation-free forms (Lagrange
+//! The geometry is that of [`crate::geometry::cylinder`]'s module doc, solved with the cancellation-free forms (Lagrange
 //! discriminant, citardauq roots, `C = (ρ − r)(ρ + r)`) but organised differently from the
 //! `Stable` kernel on purpose: every candidate (two side roots that lie between the cap
 //! planes, two cap-disk hits) is tested on its own and the nearest in `[tmin, tmax]` wins, so
@@ -28,7 +28,9 @@ use std::ops::{Add, Div, Mul, Neg, Sub};
 /// An unevaluated sum `hi + lo` with `|lo| ≤ ulp(hi)/2`: ~106 significant bits.
 #[derive(Clone, Copy, Debug, Default, PartialEq, PartialOrd)]
 pub struct DD {
+    /// The leading f64 (the sum rounded to nearest).
     pub hi: f64,
+    /// The rounding error of `hi`.
     pub lo: f64,
 }
 
@@ -55,9 +57,12 @@ fn two_prod(a: f64, b: f64) -> (f64, f64) {
 }
 
 impl DD {
+    /// Zero.
     pub const ZERO: DD = DD { hi: 0.0, lo: 0.0 };
+    /// One.
     pub const ONE: DD = DD { hi: 1.0, lo: 0.0 };
 
+    /// An f64 value, exactly.
     pub fn new(x: f64) -> DD {
         DD { hi: x, lo: 0.0 }
     }
@@ -67,6 +72,7 @@ impl DD {
         self.hi + self.lo
     }
 
+    /// Absolute value.
     pub fn abs(self) -> DD {
         if self.hi < 0.0 { -self } else { self }
     }
@@ -76,6 +82,7 @@ impl DD {
         DD::new(1f64.copysign(self.hi))
     }
 
+    /// Whether the value is exactly zero.
     pub fn is_zero(self) -> bool {
         self.hi == 0.0
     }
@@ -166,16 +173,21 @@ impl Div for DD {
 /// A 3-vector of double-doubles.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct DV3 {
+    /// x component.
     pub x: DD,
+    /// y component.
     pub y: DD,
+    /// z component.
     pub z: DD,
 }
 
 impl DV3 {
+    /// A vector from its components.
     pub fn new(x: DD, y: DD, z: DD) -> DV3 {
         DV3 { x, y, z }
     }
 
+    /// An f64 vector, exactly.
     pub fn from_f64(v: DVec3) -> DV3 {
         DV3::new(v.x.into(), v.y.into(), v.z.into())
     }
@@ -189,14 +201,17 @@ impl DV3 {
         DV3::new(c(a.x, b.x), c(a.y, b.y), c(a.z, b.z))
     }
 
+    /// Round each component to the nearest f64.
     pub fn to_f64(self) -> DVec3 {
         DVec3::new(self.x.to_f64(), self.y.to_f64(), self.z.to_f64())
     }
 
+    /// Dot product.
     pub fn dot(self, b: DV3) -> DD {
         self.x * b.x + self.y * b.y + self.z * b.z
     }
 
+    /// Cross product.
     pub fn cross(self, b: DV3) -> DV3 {
         DV3::new(
             self.y * b.z - self.z * b.y,
@@ -205,14 +220,17 @@ impl DV3 {
         )
     }
 
+    /// Euclidean length.
     pub fn length(self) -> DD {
         self.dot(self).sqrt()
     }
 
+    /// Scaled by `s`.
     pub fn scale(self, s: DD) -> DV3 {
         DV3::new(self.x * s, self.y * s, self.z * s)
     }
 
+    /// Unit vector along `self`.
     pub fn normalize(self) -> DV3 {
         self.scale(DD::ONE / self.length())
     }
@@ -249,11 +267,17 @@ impl Sub for DV3 {
 /// (normalised inside, so a non-unit axis is its direction), radius and height.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Problem {
+    /// Ray origin minus the cylinder's base centre.
     pub oc: DV3,
+    /// Ray direction.
     pub d: DV3,
+    /// Axis direction from base to top.
     pub axis: DV3,
+    /// Radius.
     pub r: DD,
+    /// Height.
     pub h: DD,
+    /// Closed (two cap disks) or an open tube.
     pub caps: bool,
 }
 
@@ -298,6 +322,7 @@ impl Problem {
 pub struct Hit {
     /// Ray parameter (a distance when `|d| = 1`).
     pub t: DD,
+    /// Which part of the cylinder was hit.
     pub surface: Surface,
     /// Unit outward normal.
     pub normal: DV3,
@@ -400,6 +425,7 @@ pub fn angle(a: DVec3, b: DVec3) -> f64 {
 /// The oracle's answer with its sensitivity, for kernels of unit roundoff `eps`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Analysis {
+    /// The nearest hit, or `None` for a miss.
     pub hit: Option<Hit>,
     /// κ of `t`: the largest `|Δt| / (ε |t|)` over input perturbations of relative size ε
     /// (see [`analyse`]); `inf` when an ε perturbation changes the surface or hit/miss.
@@ -465,7 +491,8 @@ fn scales(p: &Problem) -> [f64; NIN] {
 /// The oracle's answer, κ of `t` and of the normal, and whether the ray is in the tangency
 /// band, for a kernel of unit roundoff `eps`.
 ///
-/// κ follows SPEC §7 with a normwise relative perturbation model: `oc` may move by
+/// κ is the condition number of the exact answer: the largest relative change of `t` (or of
+/// the normal angle) when the inputs are perturbed by `ε` relative, in a normwise model: `oc` may move by
 /// `ε|oc|`, `d` by `ε|d|`, the axis by `ε` (a tilt), `r` by `εr`, `h` by `εh`. We take the
 /// larger of (a) the linearised worst case, from a finite-difference gradient (11 oracle
 /// calls; for a vector input the worst perturbation is along its gradient block), and (b)

@@ -80,9 +80,14 @@ impl Mitsuba {
         let write = |p: &Path, bytes: &[u8]| {
             std::fs::write(p, bytes).with_context(|| format!("writing {}", p.display()))
         };
+        // Only the camera being checked becomes a sensor: the script renders sensor 0.
+        let one_camera = Scene {
+            cameras: vec![scene.camera],
+            ..scene.clone()
+        };
         write(
             &xml,
-            crate::output::mitsuba::to_xml(scene, source_name).as_bytes(),
+            crate::output::mitsuba::to_xml(&one_camera, source_name).as_bytes(),
         )?;
         write(&camera, camera_file(scene).as_bytes())?;
         write(&script, SCRIPT.as_bytes())?;

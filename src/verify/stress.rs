@@ -4,7 +4,7 @@
 //!
 //! **What the oracle is fed.** A kernel's inputs are the f64 ray origin, the cylinder in f64,
 //! and the ray direction *in the kernel's precision*: the f32 pipeline rounds the f64 camera
-//! direction to f32 before the kernel sees it (SPEC §3). The oracle gets exactly those
+//! direction to f32 before the kernel sees it (the f64 pipeline never rounds it). The oracle gets exactly those
 //! inputs — the f64 origin and cylinder, and the direction after that rounding — so the
 //! error we report is the kernel's own forward error, comparable with its backward-stability
 //! bound `4ε·max(1, κ)`. Everything the kernel does after receiving its inputs (forming `oc`
@@ -17,9 +17,10 @@
 //! hit/miss, and rays whose branch (surface, or root) changes are not held to the bounds;
 //! both are counted in the `band` column.
 //!
-//! **Bounds** (SPEC §7, issue 5), for rays outside the band where both oracle and kernel hit:
-//! distance `|Δt|/t ≤ 4ε·max(1, κ_t)`; normal angle `≤ max(16ε·max(1, t/r), 4ε·κ_n)` (the
-//! issue's bound, widened by κ_n only where the normal itself is ill-conditioned: a grazing
+//! **Bounds** (the accuracy bar: backward stability, `error ≤ 4ε·max(1, κ)`, which is the
+//! 4-ulp bound on well-conditioned rays, κ ≤ 2), for rays outside the band where both oracle
+//! and kernel hit: distance `|Δt|/t ≤ 4ε·max(1, κ_t)`; normal angle
+//! `≤ max(16ε·max(1, t/r), 4ε·κ_n)` (the normal's own bound, widened by κ_n only where the normal itself is ill-conditioned: a grazing
 //! hit's normal turns by `Δp/√(r² − p²)` for a sideways move `Δp`).
 
 use crate::geometry::cylinder::orthonormal_basis;
@@ -35,16 +36,24 @@ use std::fmt;
 /// A stress family; each sweeps one difficulty parameter.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Family {
+    /// Rays passing near the side's silhouette (`param`: distance from tangency, in radii).
     Grazing,
+    /// Rays at a small angle to the axis (`param`: that angle, radians).
     NearAxis,
+    /// A unit cylinder far from the origin and the camera (`param`: the distance, in radii).
     Far,
+    /// Everything scaled (`param`: the radius).
     Scale,
+    /// Cameras just inside or outside the wall (`param`: distance from it, in radii).
     Inside,
+    /// Rays aimed near the cap/side seam (`param`: distance from the rim, in radii).
     Rims,
+    /// Cylinders given in either file form and read through scene validation.
     Input,
 }
 
 impl Family {
+    /// Every family, in table order.
     pub const ALL: [Family; 7] = [
         Family::Grazing,
         Family::NearAxis,
@@ -55,6 +64,7 @@ impl Family {
         Family::Input,
     ];
 
+    /// The name used on the command line and in tables.
     pub fn name(self) -> &'static str {
         match self {
             Family::Grazing => "grazing",
@@ -67,6 +77,7 @@ impl Family {
         }
     }
 
+    /// The family of a command-line name.
     pub fn parse(s: &str) -> Option<Family> {
         Family::ALL.into_iter().find(|f| f.name() == s)
     }
@@ -117,14 +128,19 @@ pub enum RawCylinder {
 /// One stress ray.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Case {
+    /// The family the ray belongs to.
     pub family: Family,
     /// The difficulty parameter this ray belongs to.
     pub param: f64,
+    /// The cylinder, as the renderer gets it after validation.
     pub cyl: Cylinder,
+    /// The cylinder as written in the file, for the oracle.
     pub raw: RawCylinder,
+    /// Ray origin (f64).
     pub origin: DVec3,
     /// Unit direction in f64 (before any rounding to the kernel's precision).
     pub dir: DVec3,
+    /// Smallest accepted `t` (the near clip of a camera ray, else 0).
     pub tmin: f64,
 }
 
@@ -220,6 +236,7 @@ fn simple(family: Family, param: f64, frame: &Frame, cyl: Cylinder, o: DVec3, d:
 
 /// One ray of `family` at difficulty `param`; `i` picks the sub-case.
 fn make_case(family: Family, param: f64, i: usize, rng: &mut SplitMix64) -> Option<Case> {
+    // Every family draws the base first, so the stream of each case is fixed by `i` alone.
     let base = DVec3::new(
         rng.range(-10.0, 10.0),
         rng.range(-10.0, 10.0),
@@ -227,166 +244,210 @@ fn make_case(family: Family, param: f64, i: usize, rng: &mut SplitMix64) -> Opti
     );
     let caps = i.is_multiple_of(2);
     match family {
-        Family::Grazing => {
-            // Camera 3–7 radii from the axis; the ray's distance from the axis is
-            // p = r(1 ± param), tilted up to ±0.2 rad so it stays between the caps.
-            let f = Frame::random(rng, base);
-            let (r, h) = (1.0, 4.0);
-            let rho0 = rng.range(3.0, 7.0);
-            let phi0 = rng.range(0.0, std::f64::consts::TAU);
-            let p = if (i / 2).is_multiple_of(2) {
-                r * (1.0 - param)
-            } else {
-                r * (1.0 + param)
-            };
-            let side = if (i / 4).is_multiple_of(2) { 1.0 } else { -1.0 };
-            let beta = side * (p / rho0).asin();
-            let dir2 = phi0 + std::f64::consts::PI + beta;
-            let tilt = rng.range(-0.2, 0.2);
-            let o = DVec3::new(rho0 * phi0.cos(), rho0 * phi0.sin(), rng.range(1.5, 2.5));
-            let d = DVec3::new(tilt.cos() * dir2.cos(), tilt.cos() * dir2.sin(), tilt.sin());
-            Some(simple(family, param, &f, f.cylinder(r, h, caps), o, d))
-        }
-        Family::NearAxis => {
-            let f = Frame::random(rng, base);
-            let az = rng.range(0.0, std::f64::consts::TAU);
-            let tilt = |toward: f64| {
-                DVec3::new(
-                    param.sin() * toward.cos(),
-                    param.sin() * toward.sin(),
-                    param.cos(),
-                )
-            };
-            match i % 3 {
-                0 => {
-                    // From below, through the bottom cap (a cap hit; open tubes: a miss or
-                    // the inner wall far away).
-                    let (rr, a) = (
-                        0.8 * rng.unit().sqrt(),
-                        rng.range(0.0, std::f64::consts::TAU),
-                    );
-                    let o = DVec3::new(rr * a.cos(), rr * a.sin(), -rng.range(3.0, 4.0));
-                    Some(simple(
-                        family,
-                        param,
-                        &f,
-                        f.cylinder(1.0, 2.0, caps),
-                        o,
-                        tilt(az),
-                    ))
-                }
-                1 => {
-                    // Inside a tube tall enough that the side is hit at t ≈ 1/θ.
-                    let h = 20.0 / param;
-                    let (rr, a) = (
-                        0.9 * rng.unit().sqrt(),
-                        rng.range(0.0, std::f64::consts::TAU),
-                    );
-                    let o = DVec3::new(rr * a.cos(), rr * a.sin(), 0.05 * h);
-                    Some(simple(
-                        family,
-                        param,
-                        &f,
-                        f.cylinder(1.0, h, caps),
-                        o,
-                        tilt(az),
-                    ))
-                }
-                _ => {
-                    // Outside (1.5 radii), converging on the axis: side hit at t ≈ 0.5/θ.
-                    let h = 20.0 / param;
-                    let o = DVec3::new(1.5 * az.cos(), 1.5 * az.sin(), 0.05 * h);
-                    let toward = az + std::f64::consts::PI + rng.range(-0.3, 0.3);
-                    Some(simple(
-                        family,
-                        param,
-                        &f,
-                        f.cylinder(1.0, h, caps),
-                        o,
-                        tilt(toward),
-                    ))
-                }
-            }
-        }
-        Family::Far | Family::Scale => {
-            // Far: a unit cylinder `param` radii from the world origin and from the camera.
-            // Scale: radius `param`, everything else proportional.
-            let (r, base, dist) = if family == Family::Far {
-                (1.0, rng.sphere() * param, param)
-            } else {
-                (param, base * param * 0.3, 5.0 * param)
-            };
-            let f = Frame::random(rng, base);
-            let h = 2.0 * r;
-            let cam = f.base + rng.sphere() * dist;
-            let a = rng.range(0.0, std::f64::consts::TAU);
-            let rr = 1.3 * r * rng.unit().sqrt();
-            let target = f.point(DVec3::new(
-                rr * a.cos(),
-                rr * a.sin(),
-                rng.range(-0.3, 2.3) * r,
-            ));
-            Some(Case {
-                family,
-                param,
-                cyl: f.cylinder(r, h, caps),
-                raw: RawCylinder::Validated,
-                origin: cam,
-                dir: (target - cam).normalize(),
-                tmin: 0.0,
-            })
-        }
-        Family::Inside => {
-            // Camera at rho = r(1 - param) (inside) or r(1 + param) (just outside), random
-            // direction.
-            let f = Frame::random(rng, base);
-            let rho = if (i / 2).is_multiple_of(2) {
-                1.0 - param
-            } else {
-                1.0 + param
-            };
-            let a = rng.range(0.0, std::f64::consts::TAU);
-            let o = DVec3::new(rho * a.cos(), rho * a.sin(), 2.0);
-            let d = rng.sphere();
-            Some(simple(family, param, &f, f.cylinder(1.0, 4.0, caps), o, d))
-        }
-        Family::Rims => {
-            // Aim at a point `param` radii from the seam (along the axis or radially, either
-            // side), from a camera 2–5 units away where the rim is visible.
-            let f = Frame::random(rng, base);
-            let (r, h) = (1.0, 2.0);
-            let a = rng.range(0.0, std::f64::consts::TAU);
-            let radial = DVec3::new(a.cos(), a.sin(), 0.0);
-            let (z, cap_n) = if i % 4 < 2 {
-                (0.0, DVec3::NEG_Z)
-            } else {
-                (h, DVec3::Z)
-            };
-            let offset = match (i / 4) % 4 {
-                0 => DVec3::Z,
-                1 => DVec3::NEG_Z,
-                2 => radial,
-                _ => -radial,
-            } * param;
-            let target = radial * r + DVec3::new(0.0, 0.0, z) + offset;
-            let w = loop {
-                let w = rng.sphere();
-                if w.dot(radial) > 0.1 || w.dot(cap_n) > 0.1 {
-                    break w;
-                }
-            };
-            let o = target + w * rng.range(2.0, 5.0);
+        Family::Grazing => grazing_case(param, i, base, caps, rng),
+        Family::NearAxis => near_axis_case(param, i, base, caps, rng),
+        Family::Far | Family::Scale => far_or_scale_case(family, param, base, caps, rng),
+        Family::Inside => inside_case(param, i, base, caps, rng),
+        Family::Rims => rims_case(param, i, base, caps, rng),
+        Family::Input => input_case(param, i, rng, caps),
+    }
+}
+
+/// Grazing: rays passing `param` radii inside or outside the side's silhouette.
+fn grazing_case(
+    param: f64,
+    i: usize,
+    base: DVec3,
+    caps: bool,
+    rng: &mut SplitMix64,
+) -> Option<Case> {
+    let family = Family::Grazing;
+    // Camera 3–7 radii from the axis; the ray's distance from the axis is
+    // p = r(1 ± param), tilted up to ±0.2 rad so it stays between the caps.
+    let f = Frame::random(rng, base);
+    let (r, h) = (1.0, 4.0);
+    let rho0 = rng.range(3.0, 7.0);
+    let phi0 = rng.range(0.0, std::f64::consts::TAU);
+    let p = if (i / 2).is_multiple_of(2) {
+        r * (1.0 - param)
+    } else {
+        r * (1.0 + param)
+    };
+    let side = if (i / 4).is_multiple_of(2) { 1.0 } else { -1.0 };
+    let beta = side * (p / rho0).asin();
+    let dir2 = phi0 + std::f64::consts::PI + beta;
+    let tilt = rng.range(-0.2, 0.2);
+    let o = DVec3::new(rho0 * phi0.cos(), rho0 * phi0.sin(), rng.range(1.5, 2.5));
+    let d = DVec3::new(tilt.cos() * dir2.cos(), tilt.cos() * dir2.sin(), tilt.sin());
+    Some(simple(family, param, &f, f.cylinder(r, h, caps), o, d))
+}
+
+/// Near-axis: rays at angle `param` to the axis, through a cap, inside a tall tube, or
+/// converging on the axis from outside.
+fn near_axis_case(
+    param: f64,
+    i: usize,
+    base: DVec3,
+    caps: bool,
+    rng: &mut SplitMix64,
+) -> Option<Case> {
+    let family = Family::NearAxis;
+    let f = Frame::random(rng, base);
+    let az = rng.range(0.0, std::f64::consts::TAU);
+    let tilt = |toward: f64| {
+        DVec3::new(
+            param.sin() * toward.cos(),
+            param.sin() * toward.sin(),
+            param.cos(),
+        )
+    };
+    match i % 3 {
+        0 => {
+            // From below, through the bottom cap (a cap hit; open tubes: a miss or
+            // the inner wall far away).
+            let (rr, a) = (
+                0.8 * rng.unit().sqrt(),
+                rng.range(0.0, std::f64::consts::TAU),
+            );
+            let o = DVec3::new(rr * a.cos(), rr * a.sin(), -rng.range(3.0, 4.0));
             Some(simple(
                 family,
                 param,
                 &f,
-                f.cylinder(r, h, caps),
+                f.cylinder(1.0, 2.0, caps),
                 o,
-                target - o,
+                tilt(az),
             ))
         }
-        Family::Input => input_case(param, i, rng, caps),
+        1 => {
+            // Inside a tube tall enough that the side is hit at t ≈ 1/θ.
+            let h = 20.0 / param;
+            let (rr, a) = (
+                0.9 * rng.unit().sqrt(),
+                rng.range(0.0, std::f64::consts::TAU),
+            );
+            let o = DVec3::new(rr * a.cos(), rr * a.sin(), 0.05 * h);
+            Some(simple(
+                family,
+                param,
+                &f,
+                f.cylinder(1.0, h, caps),
+                o,
+                tilt(az),
+            ))
+        }
+        _ => {
+            // Outside (1.5 radii), converging on the axis: side hit at t ≈ 0.5/θ.
+            let h = 20.0 / param;
+            let o = DVec3::new(1.5 * az.cos(), 1.5 * az.sin(), 0.05 * h);
+            let toward = az + std::f64::consts::PI + rng.range(-0.3, 0.3);
+            Some(simple(
+                family,
+                param,
+                &f,
+                f.cylinder(1.0, h, caps),
+                o,
+                tilt(toward),
+            ))
+        }
     }
+}
+
+/// Far and scale: the camera `param` radii away, or everything scaled by `param`.
+fn far_or_scale_case(
+    family: Family,
+    param: f64,
+    base: DVec3,
+    caps: bool,
+    rng: &mut SplitMix64,
+) -> Option<Case> {
+    // Far: a unit cylinder `param` radii from the world origin and from the camera.
+    // Scale: radius `param`, everything else proportional.
+    let (r, base, dist) = if family == Family::Far {
+        (1.0, rng.sphere() * param, param)
+    } else {
+        (param, base * param * 0.3, 5.0 * param)
+    };
+    let f = Frame::random(rng, base);
+    let h = 2.0 * r;
+    let cam = f.base + rng.sphere() * dist;
+    let a = rng.range(0.0, std::f64::consts::TAU);
+    let rr = 1.3 * r * rng.unit().sqrt();
+    let target = f.point(DVec3::new(
+        rr * a.cos(),
+        rr * a.sin(),
+        rng.range(-0.3, 2.3) * r,
+    ));
+    Some(Case {
+        family,
+        param,
+        cyl: f.cylinder(r, h, caps),
+        raw: RawCylinder::Validated,
+        origin: cam,
+        dir: (target - cam).normalize(),
+        tmin: 0.0,
+    })
+}
+
+/// Inside: the camera `param` radii inside or outside the wall.
+fn inside_case(
+    param: f64,
+    i: usize,
+    base: DVec3,
+    caps: bool,
+    rng: &mut SplitMix64,
+) -> Option<Case> {
+    let family = Family::Inside;
+    // Camera at rho = r(1 - param) (inside) or r(1 + param) (just outside), random
+    // direction.
+    let f = Frame::random(rng, base);
+    let rho = if (i / 2).is_multiple_of(2) {
+        1.0 - param
+    } else {
+        1.0 + param
+    };
+    let a = rng.range(0.0, std::f64::consts::TAU);
+    let o = DVec3::new(rho * a.cos(), rho * a.sin(), 2.0);
+    let d = rng.sphere();
+    Some(simple(family, param, &f, f.cylinder(1.0, 4.0, caps), o, d))
+}
+
+/// Rims: aimed `param` radii from the cap/side seam.
+fn rims_case(param: f64, i: usize, base: DVec3, caps: bool, rng: &mut SplitMix64) -> Option<Case> {
+    let family = Family::Rims;
+    // Aim at a point `param` radii from the seam (along the axis or radially, either
+    // side), from a camera 2–5 units away where the rim is visible.
+    let f = Frame::random(rng, base);
+    let (r, h) = (1.0, 2.0);
+    let a = rng.range(0.0, std::f64::consts::TAU);
+    let radial = DVec3::new(a.cos(), a.sin(), 0.0);
+    let (z, cap_n) = if i % 4 < 2 {
+        (0.0, DVec3::NEG_Z)
+    } else {
+        (h, DVec3::Z)
+    };
+    let offset = match (i / 4) % 4 {
+        0 => DVec3::Z,
+        1 => DVec3::NEG_Z,
+        2 => radial,
+        _ => -radial,
+    } * param;
+    let target = radial * r + DVec3::new(0.0, 0.0, z) + offset;
+    let w = loop {
+        let w = rng.sphere();
+        if w.dot(radial) > 0.1 || w.dot(cap_n) > 0.1 {
+            break w;
+        }
+    };
+    let o = target + w * rng.range(2.0, 5.0);
+    Some(simple(
+        family,
+        param,
+        &f,
+        f.cylinder(r, h, caps),
+        o,
+        target - o,
+    ))
 }
 
 /// Input family: the cylinder goes through scene validation (as a user's file would), the
@@ -467,13 +528,18 @@ fn js(v: DVec3) -> String {
 /// One of the four kernels.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Kernel {
+    /// The textbook formulas in f32.
     LiteralF32,
+    /// The textbook formulas in f64.
     LiteralF64,
+    /// The stable kernel in f32.
     StableF32,
+    /// The stable kernel in f64.
     StableF64,
 }
 
 impl Kernel {
+    /// Every kernel, in table order.
     pub const ALL: [Kernel; 4] = [
         Kernel::LiteralF32,
         Kernel::LiteralF64,
@@ -481,6 +547,7 @@ impl Kernel {
         Kernel::StableF64,
     ];
 
+    /// The name printed in tables and CSV files.
     pub fn name(self) -> &'static str {
         match self {
             Kernel::LiteralF32 => "literal/f32",
@@ -490,6 +557,7 @@ impl Kernel {
         }
     }
 
+    /// Whether the kernel computes in f32.
     pub fn is_f32(self) -> bool {
         matches!(self, Kernel::LiteralF32 | Kernel::StableF32)
     }
@@ -525,8 +593,11 @@ impl Kernel {
 /// A kernel's answer, widened to f64.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct KernelHit {
+    /// Ray parameter (a distance: the direction is a unit vector).
     pub t: f64,
+    /// Which part of the cylinder was hit.
     pub surface: Surface,
+    /// World-space unit outward normal.
     pub normal: DVec3,
 }
 
@@ -546,10 +617,15 @@ fn run<T: Real, F: Formula>(c: &Case) -> Option<KernelHit> {
 /// One ray through one kernel, measured.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Record {
+    /// The ray.
     pub case: Case,
+    /// The kernel that traced it.
     pub kernel: Kernel,
+    /// The oracle's answer.
     pub oracle: Option<oracle::Hit>,
+    /// The kernel's answer.
     pub got: Option<KernelHit>,
+    /// κ and the tangency band of the ray.
     pub analysis: Analysis,
     /// `t` or the normal is NaN/inf.
     pub nonfinite: bool,
@@ -654,16 +730,23 @@ pub fn run_family(family: Family, rays: usize, kernels: &[Kernel]) -> Vec<Record
 /// One row of the stress table: a family × kernel.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Summary {
+    /// The family.
     pub family: Family,
+    /// The kernel.
     pub kernel: Kernel,
+    /// Rays traced.
     pub rays: usize,
+    /// Rays whose `t` or normal was NaN or infinite.
     pub nonfinite: usize,
+    /// Rays with the wrong hit or miss, outside the tangency band.
     pub wrong: usize,
     /// Rays in the tangency band (hit/miss or branch undetermined at this precision).
     pub band: usize,
     /// Distance error `|Δt|/(ε t)` over rays out of the band where both hit.
     pub t_median: f64,
+    /// p99 of the distance error.
     pub t_p99: f64,
+    /// Largest distance error.
     pub t_max: f64,
     /// Largest distance error in ulps of the kernel's precision.
     pub ulps_max: f64,
@@ -673,13 +756,17 @@ pub struct Summary {
     pub kappa_max: f64,
     /// Largest `err_t / max(1, κ_t)` (the bound is 4).
     pub t_ratio_max: f64,
+    /// Rays over the distance bound.
     pub viol_t: usize,
     /// Normal angle error (radians), p99 and max.
     pub n_p99: f64,
+    /// Largest normal angle error (radians).
     pub n_max: f64,
     /// Largest `angle / (ε·max(1, t/r))` (the issue's bound is 16).
     pub n_units_max: f64,
+    /// Rays over the normal bound.
     pub viol_n: usize,
+    /// Largest deviation of the normal's length from 1.
     pub len_max: f64,
 }
 

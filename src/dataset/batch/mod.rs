@@ -1,0 +1,51 @@
+//! Batches of views (`cylaov batch`): the view list, sharding, resumable rendering through
+//! one rayon pool, and the dataset index `transforms.json`.
+//!
+//! Per view `NAME` the output folder gets `NAME.exr`, `NAME.camera.json`,
+//! `NAME.normal.png` (8-bit), `NAME.depth.png` (16-bit, planar depth × `depth_scale`) and
+//! `NAME.render.json`, the stamp of what made the files ([`render_stamp`]: a hash of the
+//! scene and every option that changes output bytes).
+//!
+//! **Crash invariant**: every file is first written whole under
+//! `OUT/.partial/K-of-N/` (names ending in `.tmp`) and then renamed into place. The EXR is
+//! the view's "done" marker: an existing `NAME.exr` is removed before the first rename and
+//! the new one is renamed last, so an EXR on disk means its siblings come from the same
+//! render. A kill at any moment leaves only whole files in `OUT`; the partial folder of a
+//! shard is cleared when that shard starts. A view counts as done when its EXR header has
+//! the expected size, channels and compression and the chunk at the largest offset of its
+//! offset table ends exactly at the end of the file ([`exr_is_complete`]: a truncated file
+//! fails; the pixels are not read), its PNGs end with an `IEND` chunk, and its camera JSON
+//! and render stamp are byte for byte the ones this run would write (so a changed scene,
+//! AOV list, `--precision`, `--formula`, `--compression`, `--no-png` or, with PNGs,
+//! `--depth-scale` renders the view again). A view rendered with `--no-png` loses PNGs an
+//! earlier run left, so the folder is what a fresh run would write.
+//!
+//! **Determinism invariant**: the view list, the shard of each view (`index % N`) and
+//! `transforms.json` are pure functions of the input files and the options, so every shard
+//! computes the same list and writes the same `transforms.json` bytes.
+//!
+//! The pieces, in the order a run uses them: `views` (the view list), `shard` (which views
+//! this process renders), `options`, `resume` (output paths, render stamp, completeness
+//! checks), `write` (one view rendered and moved into place), `verify` (the reference check
+//! interface), `transforms` (`transforms.json`), `progress`, and `run` (the loop tying them
+//! together).
+
+mod options;
+mod progress;
+mod resume;
+mod run;
+mod shard;
+mod transforms;
+mod verify;
+mod views;
+mod write;
+
+pub use options::{BatchOptions, Schedule};
+pub use progress::{Counts, Progress, ProgressMode};
+pub use resume::{ViewFiles, expected_channels, exr_is_complete, render_stamp, view_is_complete};
+pub use run::{Failure, Outcome, Summary, run};
+pub use shard::{Shard, resolve_shard};
+pub use transforms::{FrameCamera, transforms_json};
+pub use verify::{Verdict, Verifier, selected_for_verify};
+pub use views::{ViewSource, list_views};
+pub use write::{ViewCost, render_view};

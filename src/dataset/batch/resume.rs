@@ -1,0 +1,296 @@
+//! Resume: the output paths of a view, the render stamp that says what made them, and the
+//! cheap checks that tell a complete view from a partial or stale one.
+
+use super::options::BatchOptions;
+use crate::output::aov::{Compression, channel_names};
+use crate::output::io::{camera_json, open3d_json};
+use crate::scene::camera::Camera;
+use crate::scene::{Aov, Scene};
+use exr::meta::MetaData;
+use exr::meta::attribute::SampleType;
+use serde::Serialize;
+use std::fs::File;
+use std::io::{Cursor, Read, Seek, SeekFrom};
+use std::path::{Path, PathBuf};
+
+/// The output paths of view `name` in `dir` (the names of `crate::dataset::names`).
+pub struct ViewFiles {
+    pub exr: PathBuf,
+    pub camera: PathBuf,
+    /// Open3D `PinholeCameraParameters`.
+    pub open3d: PathBuf,
+    /// The 8-bit normal picture (`NAME.normal.preview.png`).
+    pub normal_png: PathBuf,
+    /// 16-bit planar depth × scale: data.
+    pub depth_png: PathBuf,
+    /// 8-bit hit mask.
+    pub mask_png: PathBuf,
+    /// The [`render_stamp`].
+    pub stamp: PathBuf,
+    /// Where versions before 0.2 put the normal picture; removed when the view is rendered.
+    pub legacy_normal_png: PathBuf,
+}
+
+impl ViewFiles {
+    pub fn new(dir: &Path, name: &str) -> ViewFiles {
+        ViewFiles {
+            exr: dir.join(format!("{name}.exr")),
+            camera: dir.join(format!("{name}.camera.json")),
+            open3d: dir.join(format!("{name}.open3d.json")),
+            normal_png: dir.join(format!("{name}.normal.preview.png")),
+            depth_png: dir.join(format!("{name}.depth.png")),
+            mask_png: dir.join(format!("{name}.mask.png")),
+            stamp: dir.join(format!("{name}.render.json")),
+            legacy_normal_png: dir.join(format!("{name}.normal.png")),
+        }
+    }
+}
+
+/// EXR channels of `aovs`, sorted as the file stores them, with their sample types.
+pub fn expected_channels(aovs: &[Aov]) -> Vec<(&'static str, SampleType)> {
+    let mut v: Vec<_> = aovs
+        .iter()
+        .flat_map(|&a| {
+            let ty = if a.is_u32() {
+                SampleType::U32
+            } else {
+                SampleType::F32
+            };
+            channel_names(a).iter().map(move |&c| (c, ty))
+        })
+        .collect();
+    v.sort_by(|a, b| a.0.cmp(b.0));
+    v
+}
+
+/// Cheap completeness check of an EXR written by us: the header has the expected size,
+/// channels and compression, every offset of the offset table lies inside the file, and the
+/// chunk at the largest offset ends (by the byte count in its 8-byte chunk header) exactly
+/// at the end of the file. A truncated file fails; a file damaged inside, with its length
+/// unchanged, passes (the pixels are not read: that is what the atomic renames are for).
+/// Reads the header, the offset table and 8 bytes.
+pub fn exr_is_complete(
+    path: &Path,
+    width: usize,
+    height: usize,
+    channels: &[(&str, SampleType)],
+    compression: Compression,
+) -> Result<(), String> {
+    let mut f = File::open(path).map_err(|e| e.to_string())?;
+    let len = f.metadata().map_err(|e| e.to_string())?.len();
+    // Header + offset table: a few hundred bytes + 8 per chunk (16384 rows: 128 KiB).
+    let mut prefix = Vec::new();
+    (&mut f)
+        .take(len.min(1 << 20))
+        .read_to_end(&mut prefix)
+        .map_err(|e| e.to_string())?;
+    let mut cur = Cursor::new(&prefix[..]);
+    let meta = MetaData::read_from_buffered(&mut cur, false).map_err(|e| e.to_string())?;
+    let [header] = &meta.headers[..] else {
+        return Err("expected one layer".into());
+    };
+    if header.layer_size.0 != width || header.layer_size.1 != height {
+        return Err(format!(
+            "size {}x{}, expected {width}x{height}",
+            header.layer_size.0, header.layer_size.1
+        ));
+    }
+    let got: Vec<(String, SampleType)> = header
+        .channels
+        .list
+        .iter()
+        .map(|c| (c.name.to_string(), c.sample_type))
+        .collect();
+    let same = got.len() == channels.len()
+        && got
+            .iter()
+            .zip(channels)
+            .all(|(g, e)| g.0 == e.0 && g.1 == e.1);
+    if !same {
+        return Err(format!("channels {got:?}, expected {channels:?}"));
+    }
+    let want = compression.to_exr();
+    if header.compression != want {
+        return Err(format!(
+            "compression {:?}, expected {want:?}",
+            header.compression
+        ));
+    }
+    // The offset table follows the header directly.
+    let table_start = cur.position() as usize;
+    let table_end = table_start + header.chunk_count * 8;
+    let table = prefix
+        .get(table_start..table_end)
+        .ok_or("file ends inside the offset table")?;
+    let offsets: Vec<u64> = table
+        .chunks_exact(8)
+        .map(|b| u64::from_le_bytes(b.try_into().unwrap_or_default()))
+        .collect();
+    let last = offsets.iter().copied().max().ok_or("no chunks")?;
+    if offsets.iter().any(|&o| o < table_end as u64 || o + 8 > len) {
+        return Err("chunk offset outside the file".into());
+    }
+    // A scanline chunk: i32 y, i32 byte count, the bytes.
+    let mut head = [0u8; 8];
+    f.seek(SeekFrom::Start(last)).map_err(|e| e.to_string())?;
+    f.read_exact(&mut head).map_err(|e| e.to_string())?;
+    let size = i32::from_le_bytes([head[4], head[5], head[6], head[7]]);
+    if size < 0 || last + 8 + size as u64 != len {
+        return Err(format!(
+            "last chunk ends at {}, file has {len} bytes",
+            last + 8 + size.max(0) as u64
+        ));
+    }
+    Ok(())
+}
+
+/// Whether the file exists and ends with `tail` (a PNG's IEND chunk).
+fn file_ends_with(path: &Path, tail: &[u8]) -> bool {
+    let read = || -> std::io::Result<bool> {
+        let mut f = File::open(path)?;
+        let len = f.metadata()?.len();
+        if len < tail.len() as u64 {
+            return Ok(false);
+        }
+        f.seek(SeekFrom::Start(len - tail.len() as u64))?;
+        let mut buf = vec![0; tail.len()];
+        f.read_exact(&mut buf)?;
+        Ok(buf == tail)
+    };
+    read().unwrap_or(false)
+}
+
+/// FNV-1a, 64 bits: a fixed, dependency-free hash for stamps and the verify choice.
+pub(super) struct Fnv1a(pub(super) u64);
+
+impl Fnv1a {
+    pub(super) fn new() -> Fnv1a {
+        Fnv1a(0xcbf2_9ce4_8422_2325)
+    }
+    pub(super) fn bytes(&mut self, bytes: &[u8]) -> &mut Fnv1a {
+        for &b in bytes {
+            self.0 = (self.0 ^ b as u64).wrapping_mul(0x0000_0100_0000_01b3);
+        }
+        self
+    }
+    fn f64s(&mut self, xs: &[f64]) -> &mut Fnv1a {
+        xs.iter().for_each(|x| {
+            self.bytes(&x.to_bits().to_le_bytes());
+        });
+        self
+    }
+}
+
+/// A hash of everything in `scene` that reaches the output files (every field of the
+/// validated camera and cylinders, exact bits; the AOV list is in the stamp itself).
+fn scene_hash(scene: &Scene) -> u64 {
+    let mut h = Fnv1a::new();
+    let c = &scene.camera;
+    h.f64s(&c.origin.to_array())
+        .f64s(&c.target.to_array())
+        .f64s(&c.up.to_array())
+        .f64s(&[c.fov_deg, c.near_clip, c.far_clip])
+        .bytes(c.fov_axis.name().as_bytes())
+        .bytes(&c.width.to_le_bytes())
+        .bytes(&c.height.to_le_bytes());
+    for y in &scene.cylinders {
+        h.f64s(&y.base.to_array())
+            .f64s(&y.axis.to_array())
+            .f64s(&[y.height, y.radius])
+            .bytes(&[y.caps as u8])
+            .bytes(&y.id.to_le_bytes());
+    }
+    h.0
+}
+
+/// What made a view's files: `NAME.render.json`.
+#[derive(Serialize)]
+struct RenderStamp {
+    /// The cylaov that rendered the view: a new release may change output bits, so its
+    /// views render again on resume.
+    cylaov: &'static str,
+    /// [`scene_hash`], hex.
+    scene_fnv1a64: String,
+    /// AOVs in the EXR.
+    aovs: Vec<&'static str>,
+    precision: String,
+    formula: String,
+    compression: String,
+    png: bool,
+    /// PNG depth value per world unit; only with PNGs (otherwise it changes nothing).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    depth_scale: Option<f64>,
+    /// What the depth PNG does with depths beyond 16 bits; only with PNGs.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    depth_out_of_range: Option<String>,
+}
+
+/// The `NAME.render.json` this run writes for `scene`: the scene's hash and every option
+/// that changes the view's output bytes. Resume compares it byte for byte, so a view made
+/// with other options (or from another scene under the same name) is rendered again.
+pub fn render_stamp(scene: &Scene, opts: &BatchOptions) -> String {
+    fn name(v: impl clap::ValueEnum) -> String {
+        v.to_possible_value()
+            .map(|p| p.get_name().to_string())
+            .unwrap_or_default()
+    }
+    let stamp = RenderStamp {
+        cylaov: env!("CARGO_PKG_VERSION"),
+        scene_fnv1a64: format!("{:016x}", scene_hash(scene)),
+        aovs: opts.exr_aovs(scene).iter().map(|a| a.name()).collect(),
+        precision: name(opts.precision),
+        formula: name(opts.formula),
+        compression: name(opts.compression),
+        png: opts.png,
+        depth_scale: opts.png.then_some(opts.depth_scale),
+        depth_out_of_range: opts.png.then(|| name(opts.depth_out_of_range)),
+    };
+    let mut s = serde_json::to_string_pretty(&stamp).unwrap_or_default();
+    s.push('\n');
+    s
+}
+
+/// Whether view `name` of `scene` is already complete in `dir`.
+pub fn view_is_complete(dir: &Path, name: &str, scene: &Scene, opts: &BatchOptions) -> bool {
+    let files = ViewFiles::new(dir, name);
+    const PNG_END: &[u8] = b"\0\0\0\0IEND\xae\x42\x60\x82";
+    // The camera file and the stamp must be the ones this run would write: a changed scene
+    // (e.g. regenerated under the same names), AOV list or output option renders the view
+    // again.
+    let cam = Camera::new(scene.camera);
+    let camera = camera_json(&cam, &opts.exr_aovs(scene));
+    let same = |path: &Path, want: &str| std::fs::read(path).is_ok_and(|b| b == want.as_bytes());
+    let others = same(&files.camera, &camera)
+        && same(&files.open3d, &open3d_json(&cam))
+        && same(&files.stamp, &render_stamp(scene, opts))
+        && (!opts.png
+            || [&files.normal_png, &files.depth_png, &files.mask_png]
+                .iter()
+                .all(|p| file_ends_with(p, PNG_END)));
+    others
+        && exr_is_complete(
+            &files.exr,
+            scene.camera.width as usize,
+            scene.camera.height as usize,
+            &expected_channels(&opts.exr_aovs(scene)),
+            opts.compression,
+        )
+        .is_ok()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stamp_names_the_version_and_options() {
+        let scene = crate::bench::random_scene(3, 1, 8, 8);
+        let stamp = render_stamp(&scene, &BatchOptions::default());
+        let v: serde_json::Value = serde_json::from_str(&stamp).unwrap();
+        assert_eq!(v["cylaov"], env!("CARGO_PKG_VERSION"));
+        assert_eq!(v["precision"], "f64");
+        let mut other = scene.clone();
+        other.cylinders[1].radius *= 1.0 + f64::EPSILON;
+        assert_ne!(render_stamp(&other, &BatchOptions::default()), stamp);
+    }
+}

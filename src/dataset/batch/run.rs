@@ -1,0 +1,399 @@
+//! The run loop: read every scene's cameras (a scene with several becomes several views),
+//! render this shard's views through one rayon pool (resuming what is complete, verifying
+//! the selected ones), then write the failures file, `OUT/index.json` and each
+//! several-camera scene's `OUT/<scene>/transforms.json`.
+
+use super::options::{BatchOptions, Schedule};
+use super::progress::{Counts, Progress, ProgressMode};
+use super::resume::{ViewFiles, view_is_complete};
+use super::shard::Shard;
+use super::transforms::{FrameCamera, index_json, transforms_json};
+use super::verify::{Verifier, selected_for_verify};
+use super::views::{ViewSource, list_views};
+use super::write::{ViewCost, render_view};
+use crate::output::io::atomic_write_bytes;
+use crate::scene::camera::Camera;
+use crate::scene::{self, Scene};
+use anyhow::{Context, Result};
+use rayon::prelude::*;
+use serde::Serialize;
+use std::fmt;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::time::{Duration, Instant};
+
+/// What happened to one view.
+#[derive(Clone, Debug)]
+pub enum Outcome {
+    Done(ViewCost),
+    Skipped,
+    Failed(String),
+}
+
+/// One line of `failures.K-of-N.jsonl`.
+#[derive(Clone, Debug, Serialize)]
+pub struct Failure {
+    pub name: String,
+    pub scene: String,
+    pub error: String,
+}
+
+/// The result of a run.
+#[derive(Clone, Debug)]
+pub struct Summary {
+    pub shard: Shard,
+    /// Views in the whole input and in this shard.
+    pub total: usize,
+    pub in_shard: usize,
+    pub counts: Counts,
+    pub failures: Vec<Failure>,
+    pub elapsed: Duration,
+    /// Sums over the views rendered in this run.
+    pub trace: Duration,
+    pub write: Duration,
+    pub failures_path: PathBuf,
+    /// Views checked against the verifier in this run (all agreed unless counted failed).
+    pub verified: usize,
+    /// Views rendered now whose depth PNG stores some hits as 0, and how many hits in all
+    /// (`--depth-out-of-range zero`).
+    pub depth_zeroed_views: usize,
+    pub depth_zeroed: usize,
+}
+
+impl fmt::Display for Summary {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let c = &self.counts;
+        let secs = self.elapsed.as_secs_f64();
+        write!(
+            f,
+            "shard {}: done {} / skipped {} / failed {} of {} views ({} in the input) in {secs:.2} s",
+            self.shard, c.done, c.skipped, c.failed, self.in_shard, self.total
+        )?;
+        if c.done > 0 {
+            let per = |d: Duration| d.as_secs_f64() * 1e3 / c.done as f64;
+            write!(
+                f,
+                "; {:.2} views/s; per view: trace {:.2} ms, write {:.2} ms",
+                c.done as f64 / secs,
+                per(self.trace),
+                per(self.write)
+            )?;
+        }
+        if self.verified > 0 {
+            write!(
+                f,
+                "; {} views verified against the reference",
+                self.verified
+            )?;
+        }
+        if self.depth_zeroed > 0 {
+            write!(
+                f,
+                "; depth PNG: {} hit pixels beyond 16 bits stored as 0 in {} views",
+                self.depth_zeroed, self.depth_zeroed_views
+            )?;
+        }
+        if c.failed > 0 {
+            write!(f, "; failures in {}", self.failures_path.display())?;
+        }
+        Ok(())
+    }
+}
+
+/// Render `shard` of the views of `input` into `out`; see the module docs. With a
+/// `verifier`, the views [`selected_for_verify`] (rendered now or earlier) are checked, and
+/// one that disagrees counts as failed. Per-view problems are counted in the summary; only
+/// whole-batch problems are errors.
+pub fn run(
+    input: &Path,
+    out: &Path,
+    shard: Shard,
+    opts: &BatchOptions,
+    progress: ProgressMode,
+    verifier: Option<&dyn Verifier>,
+) -> Result<Summary> {
+    let start = Instant::now();
+    opts.validate().map_err(anyhow::Error::msg)?;
+    let scenes = list_views(input, Some(out))?;
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let (views, cameras) = expand_views(&scenes);
+    let partial = clear_partial(out, shard)?;
+
+    let mine: Vec<usize> = (0..views.len()).filter(|&i| shard.contains(i)).collect();
+    let work = ShardWork {
+        views: &views,
+        cameras: &cameras,
+        out,
+        partial: &partial,
+        opts,
+        verifier,
+        progress: Progress::new(progress, format!("batch {shard}"), mine.len()),
+        verified: AtomicUsize::new(0),
+    };
+    let outcomes: Vec<Outcome> = match opts.schedule {
+        Schedule::Views => mine.par_iter().map(|&i| work.view(i)).collect(),
+        Schedule::Pixels => mine.iter().map(|&i| work.view(i)).collect(),
+    };
+    work.progress.finish();
+
+    let mut summary = summarize(shard, &views, &mine, &outcomes, out);
+    summary.verified = work.verified.into_inner();
+    write_failures(&summary)?;
+    let input_dir = if input.is_dir() {
+        input
+    } else {
+        input.parent().unwrap_or(Path::new(""))
+    };
+    write_index(out, input_dir, &views, &cameras, opts)?;
+
+    std::fs::remove_dir_all(&partial).with_context(|| format!("removing {}", partial.display()))?;
+    // Other shards may still be using `.partial`; it goes when the last one leaves.
+    let _ = std::fs::remove_dir(out.join(".partial"));
+    summary.elapsed = start.elapsed();
+    Ok(summary)
+}
+
+/// Read a view's scene, the error naming its file.
+fn load(view: &ViewSource) -> Result<Scene, String> {
+    scene::load(&view.path).map_err(|e| format!("{}: {e}", view.path.display()))
+}
+
+/// Every view of the listed scenes (one per camera) and what the index needs of its camera,
+/// or why its scene does not load (such a scene is one failing view).
+/// Every shard reads every scene (the index lists every valid view) but keeps only what the
+/// index needs: memory is O(views), not O(views x cylinders). The views of this shard are
+/// read again, one at a time, when rendered. The list is a pure function of the input.
+fn expand_views(scenes: &[ViewSource]) -> (Vec<ViewSource>, Vec<Result<FrameCamera, String>>) {
+    let read: Vec<Result<Vec<FrameCamera>, String>> = scenes
+        .par_iter()
+        .map(|v| {
+            load(v).map(|s| {
+                s.cameras
+                    .iter()
+                    .map(|&c| FrameCamera::new(&Camera::new(c)))
+                    .collect()
+            })
+        })
+        .collect();
+    let mut views = Vec::new();
+    let mut cameras = Vec::new();
+    for (scene, cams) in scenes.iter().zip(read) {
+        match cams {
+            Ok(cams) => {
+                views.extend(scene.cameras(cams.len()));
+                cameras.extend(cams.into_iter().map(Ok));
+            }
+            Err(e) => {
+                views.push(scene.clone());
+                cameras.push(Err(e));
+            }
+        }
+    }
+    (views, cameras)
+}
+
+/// Clear and recreate this shard's work-in-progress folder `OUT/.partial/K-of-N`.
+fn clear_partial(out: &Path, shard: Shard) -> Result<PathBuf> {
+    let partial = out.join(".partial").join(shard.to_string());
+    if partial.exists() {
+        std::fs::remove_dir_all(&partial)
+            .with_context(|| format!("clearing {}", partial.display()))?;
+    }
+    std::fs::create_dir_all(&partial).with_context(|| format!("creating {}", partial.display()))?;
+    Ok(partial)
+}
+
+/// Everything the views of one shard share while they are rendered.
+struct ShardWork<'a> {
+    views: &'a [ViewSource],
+    cameras: &'a [Result<FrameCamera, String>],
+    out: &'a Path,
+    partial: &'a Path,
+    opts: &'a BatchOptions,
+    verifier: Option<&'a dyn Verifier>,
+    progress: Progress,
+    /// Views checked by the verifier so far.
+    verified: AtomicUsize,
+}
+
+impl ShardWork<'_> {
+    /// Skip, render or fail view `i`, then verify it if it is selected.
+    fn view(&self, i: usize) -> Outcome {
+        let view = &self.views[i];
+        let scene = match &self.cameras[i] {
+            Err(e) => Err(e.clone()),
+            Ok(_) => load(view).and_then(|mut s| {
+                s.select_camera(view.camera)
+                    .map_err(|e| format!("{}: {e}", view.path.display()))?;
+                Ok(s)
+            }),
+        };
+        let dir = view.dir(self.out);
+        let mut outcome = match &scene {
+            Err(e) => Outcome::Failed(e.clone()),
+            Ok(scene) if view_is_complete(&dir, &view.name, scene, self.opts) => Outcome::Skipped,
+            Ok(scene) => {
+                // Temporary files are named by the view's position: names repeat across the
+                // folders of several-camera scenes.
+                let tmp_stem = format!("{i:06}");
+                let rendered = std::fs::create_dir_all(&dir)
+                    .with_context(|| format!("creating {}", dir.display()))
+                    .and_then(|()| {
+                        render_view(&dir, self.partial, &view.name, &tmp_stem, scene, self.opts)
+                    });
+                match rendered {
+                    Ok(cost) => {
+                        if cost.depth_zeroed > 0 {
+                            eprintln!(
+                                "{}: depth PNG: {} hit pixels beyond 16 bits at --depth-scale {} \
+                                 stored as 0",
+                                view.id(),
+                                cost.depth_zeroed,
+                                self.opts.depth_scale
+                            );
+                        }
+                        Outcome::Done(cost)
+                    }
+                    Err(e) => Outcome::Failed(format!("{}: {e:#}", view.path.display())),
+                }
+            }
+        };
+        if let (Some(v), Ok(scene)) = (self.verifier, &scene)
+            && !matches!(outcome, Outcome::Failed(_))
+            && selected_for_verify(self.opts.verify_seed, &view.id(), self.opts.verify_fraction)
+            && let Err(why) = self.verify(v, view, scene)
+        {
+            outcome = Outcome::Failed(why);
+        }
+        self.progress.record(&outcome);
+        outcome
+    }
+
+    /// Check the view's finished EXR with `verifier` in a private folder under the partial
+    /// one; the error is the failure line.
+    fn verify(
+        &self,
+        verifier: &dyn Verifier,
+        view: &ViewSource,
+        scene: &Scene,
+    ) -> Result<(), String> {
+        let exr = ViewFiles::new(&view.dir(self.out), &view.name).exr;
+        let work = self
+            .partial
+            .join(format!("{}.verify.tmp", view.id().replace('/', ".")));
+        let checked = std::fs::create_dir_all(&work)
+            .map_err(anyhow::Error::from)
+            .and_then(|()| verifier.check(view, scene, &exr, &work));
+        let _ = std::fs::remove_dir_all(&work);
+        self.verified.fetch_add(1, Ordering::Relaxed);
+        match checked {
+            Ok(verdict) if verdict.passes => Ok(()),
+            Ok(verdict) => Err(format!(
+                "{}: disagrees with the reference: {}",
+                view.path.display(),
+                verdict.report
+            )),
+            Err(e) => Err(format!(
+                "{}: verification could not run: {e:#}",
+                view.path.display()
+            )),
+        }
+    }
+}
+
+/// Count the outcomes of this shard's views (`mine`, indices into `views`) and collect the
+/// failures.
+fn summarize(
+    shard: Shard,
+    views: &[ViewSource],
+    mine: &[usize],
+    outcomes: &[Outcome],
+    out: &Path,
+) -> Summary {
+    let mut summary = Summary {
+        shard,
+        total: views.len(),
+        in_shard: mine.len(),
+        counts: Counts::default(),
+        failures: Vec::new(),
+        elapsed: Duration::ZERO,
+        trace: Duration::ZERO,
+        write: Duration::ZERO,
+        failures_path: out.join(format!("failures.{shard}.jsonl")),
+        verified: 0,
+        depth_zeroed_views: 0,
+        depth_zeroed: 0,
+    };
+    for (&i, o) in mine.iter().zip(outcomes) {
+        match o {
+            Outcome::Done(cost) => {
+                summary.counts.done += 1;
+                summary.trace += cost.trace;
+                summary.write += cost.write;
+                if cost.depth_zeroed > 0 {
+                    summary.depth_zeroed_views += 1;
+                    summary.depth_zeroed += cost.depth_zeroed;
+                }
+            }
+            Outcome::Skipped => summary.counts.skipped += 1,
+            Outcome::Failed(e) => {
+                summary.counts.failed += 1;
+                summary.failures.push(Failure {
+                    name: views[i].id(),
+                    scene: views[i].path.display().to_string(),
+                    error: e.clone(),
+                });
+            }
+        }
+    }
+    summary
+}
+
+/// Write `failures.K-of-N.jsonl`, one [`Failure`] per line (empty when none failed).
+fn write_failures(summary: &Summary) -> Result<()> {
+    let mut lines = String::new();
+    for f in &summary.failures {
+        lines.push_str(&serde_json::to_string(f)?);
+        lines.push('\n');
+    }
+    atomic_write_bytes(&summary.failures_path, lines.as_bytes())
+        .with_context(|| format!("writing {}", summary.failures_path.display()))
+}
+
+/// Write `OUT/index.json` (every view whose scene loads) and the `transforms.json` of each
+/// several-camera scene in its folder; remove the `OUT/transforms.json` of older versions,
+/// which listed unrelated scenes as one (a resumed old dataset must not keep it).
+fn write_index(
+    out: &Path,
+    input_dir: &Path,
+    views: &[ViewSource],
+    cameras: &[Result<FrameCamera, String>],
+    opts: &BatchOptions,
+) -> Result<()> {
+    let valid: Vec<(&ViewSource, FrameCamera)> = views
+        .iter()
+        .zip(cameras)
+        .filter_map(|(v, c)| c.as_ref().ok().map(|c| (v, *c)))
+        .collect();
+    let index = out.join("index.json");
+    atomic_write_bytes(&index, index_json(&valid, input_dir, opts).as_bytes())
+        .with_context(|| format!("writing {}", index.display()))?;
+    for scene in valid.chunk_by(|a, b| a.0.folder == b.0.folder && a.0.path == b.0.path) {
+        let Some(folder) = &scene[0].0.folder else {
+            continue;
+        };
+        let frames: Vec<(&str, FrameCamera)> =
+            scene.iter().map(|(v, c)| (v.name.as_str(), *c)).collect();
+        let dir = out.join(folder);
+        std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+        let path = dir.join("transforms.json");
+        atomic_write_bytes(&path, transforms_json(&frames, opts).as_bytes())
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    let old = out.join("transforms.json");
+    if old.symlink_metadata().is_ok_and(|m| m.is_file()) {
+        std::fs::remove_file(&old)
+            .with_context(|| format!("removing the old {}", old.display()))?;
+    }
+    Ok(())
+}

@@ -1,0 +1,195 @@
+//! The dataset indexes: `OUT/index.json`, every view of the batch, and
+//! `OUT/<scene>/transforms.json`, the nerfstudio / instant-ngp file of one several-camera
+//! scene (its views only: nerfstudio reads a `transforms.json` as views of one static scene).
+//!
+//! Both give per view the same frame fields: `file_path` (the normal picture, the EXR without
+//! PNGs: nerfstudio needs an image), `depth_file_path` (16-bit PNG), `mask_path` (hit mask),
+//! `exr_file_path`, `camera_file_path`, `open3d_file_path`, and `transform_matrix`, the
+//! OpenGL camera-to-world (x right, y up, z backward) that nerfstudio reads, row-major.
+//! Intrinsics use nerfstudio's convention, `cx = W/2` (pixel centres at `i + 0.5`, its
+//! default `pixel_offset = 0.5`). nerfstudio takes the depth scale from its parser option
+//! `depth_unit_scale_factor` (default 1e-3), not from the file: the file's value says which
+//! one to pass.
+
+use super::options::BatchOptions;
+use super::views::ViewSource;
+use crate::scene::camera::{Camera, rows};
+use serde::Serialize;
+use std::path::Path;
+
+#[derive(Serialize, PartialEq, Clone, Copy, Debug)]
+struct Intrinsics {
+    w: u32,
+    h: u32,
+    fl_x: f64,
+    fl_y: f64,
+    cx: f64,
+    cy: f64,
+}
+
+#[derive(Serialize)]
+struct Frame {
+    file_path: String,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    depth_file_path: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    mask_path: Option<String>,
+    exr_file_path: String,
+    camera_file_path: String,
+    open3d_file_path: String,
+    transform_matrix: [[f64; 4]; 4],
+    #[serde(flatten, skip_serializing_if = "Option::is_none")]
+    intrinsics: Option<Intrinsics>,
+}
+
+#[derive(Serialize)]
+struct Transforms {
+    camera_model: &'static str,
+    #[serde(flatten, skip_serializing_if = "Option::is_none")]
+    intrinsics: Option<Intrinsics>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    depth_unit_scale_factor: Option<f64>,
+    principal_point_note: &'static str,
+    frames: Vec<Frame>,
+}
+
+/// One view of `index.json`: where it came from, then its frame fields.
+#[derive(Serialize)]
+struct IndexView {
+    /// The scene's name, and its file relative to the input folder (or the manifest's).
+    scene: String,
+    scene_file: String,
+    /// The camera of the scene (0-based, file order).
+    camera: usize,
+    #[serde(flatten)]
+    frame: Frame,
+}
+
+#[derive(Serialize)]
+struct Index {
+    camera_model: &'static str,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    depth_unit_scale_factor: Option<f64>,
+    principal_point_note: &'static str,
+    layout_note: &'static str,
+    views: Vec<IndexView>,
+}
+
+const PRINCIPAL_POINT_NOTE: &str = "cx = W/2, cy = H/2: pixel (i, j) has its centre at (i + 0.5, j + 0.5); transform_matrix is camera-to-world with OpenGL axes (x right, y up, z backward)";
+
+/// What the indexes need of a view's camera.
+#[derive(Clone, Copy, Debug)]
+pub struct FrameCamera {
+    intrinsics: Intrinsics,
+    /// OpenGL camera-to-world, row-major.
+    transform_matrix: [[f64; 4]; 4],
+}
+
+impl FrameCamera {
+    pub fn new(cam: &Camera) -> FrameCamera {
+        FrameCamera {
+            intrinsics: intrinsics(cam),
+            transform_matrix: rows(cam.world_from_camera_opengl()),
+        }
+    }
+}
+
+fn intrinsics(cam: &Camera) -> Intrinsics {
+    let (fl_x, fl_y) = cam.focal_px();
+    let (w, h) = (cam.width(), cam.height());
+    Intrinsics {
+        w,
+        h,
+        fl_x,
+        fl_y,
+        cx: w as f64 / 2.0,
+        cy: h as f64 / 2.0,
+    }
+}
+
+/// The frame of view `name`, its paths prefixed by `prefix` (`""` or `"scene/"`).
+fn frame(
+    prefix: &str,
+    name: &str,
+    cam: &FrameCamera,
+    own_intrinsics: bool,
+    opts: &BatchOptions,
+) -> Frame {
+    let p = |suffix: &str| format!("{prefix}{name}.{suffix}");
+    Frame {
+        file_path: if opts.png {
+            p("normal.preview.png")
+        } else {
+            p("exr")
+        },
+        depth_file_path: opts.png.then(|| p("depth.png")),
+        mask_path: opts.png.then(|| p("mask.png")),
+        exr_file_path: p("exr"),
+        camera_file_path: p("camera.json"),
+        open3d_file_path: p("open3d.json"),
+        transform_matrix: cam.transform_matrix,
+        intrinsics: own_intrinsics.then_some(cam.intrinsics),
+    }
+}
+
+/// The nerfstudio / instant-ngp `transforms.json` of the views of one scene, in camera
+/// order, paths relative to the scene's folder. Shared intrinsics go at the top level; if
+/// views differ, every frame carries its own.
+pub fn transforms_json(views: &[(&str, FrameCamera)], opts: &BatchOptions) -> String {
+    let shared = views
+        .first()
+        .map(|(_, c)| c.intrinsics)
+        .filter(|first| views.iter().all(|(_, c)| c.intrinsics == *first));
+    let frames = views
+        .iter()
+        .map(|(name, cam)| frame("", name, cam, shared.is_none(), opts))
+        .collect();
+    let t = Transforms {
+        camera_model: "OPENCV",
+        intrinsics: shared,
+        depth_unit_scale_factor: opts.png.then(|| 1.0 / opts.depth_scale),
+        principal_point_note: PRINCIPAL_POINT_NOTE,
+        frames,
+    };
+    let mut s = serde_json::to_string_pretty(&t).unwrap_or_default();
+    s.push('\n');
+    s
+}
+
+/// `OUT/index.json`: every valid view of the batch in view-list order, each with its scene,
+/// camera and frame fields (own intrinsics), paths relative to `OUT`.
+/// `input_dir` is the folder scene paths are shown relative to (the input folder, or the
+/// manifest's), so the bytes do not depend on where the input lies.
+pub fn index_json(
+    views: &[(&ViewSource, FrameCamera)],
+    input_dir: &Path,
+    opts: &BatchOptions,
+) -> String {
+    let views = views
+        .iter()
+        .map(|(v, cam)| {
+            let prefix = v.folder.as_ref().map_or(String::new(), |f| format!("{f}/"));
+            IndexView {
+                scene: v.scene.clone(),
+                scene_file: v
+                    .path
+                    .strip_prefix(input_dir)
+                    .unwrap_or(&v.path)
+                    .display()
+                    .to_string(),
+                camera: v.camera,
+                frame: frame(&prefix, &v.name, cam, true, opts),
+            }
+        })
+        .collect();
+    let index = Index {
+        camera_model: "OPENCV",
+        depth_unit_scale_factor: opts.png.then(|| 1.0 / opts.depth_scale),
+        principal_point_note: PRINCIPAL_POINT_NOTE,
+        layout_note: "views of different scenes are unrelated: each several-camera scene has its own SCENE/transforms.json for nerfstudio (ns-train ... --data OUT/SCENE); a one-camera scene's files are OUT/SCENE.*",
+        views,
+    };
+    let mut s = serde_json::to_string_pretty(&index).unwrap_or_default();
+    s.push('\n');
+    s
+}

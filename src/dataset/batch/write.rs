@@ -1,0 +1,164 @@
+//! Rendering one view: trace, write every file under the shard's partial folder, then
+//! rename into place with the EXR last.
+
+use super::options::BatchOptions;
+use super::resume::{ViewFiles, render_stamp};
+use crate::output::aov::channel_names;
+use crate::output::depth_png;
+use crate::output::io::{camera_json, open3d_json};
+use crate::output::preview;
+use crate::render::{RenderOptions, render};
+use crate::scene::camera::Camera;
+use crate::scene::{Aov, Scene};
+use anyhow::{Context, Result, anyhow};
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+/// Time spent on one rendered view, and what its depth PNG could not hold.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct ViewCost {
+    /// BVH build + tracing into the in-memory AOV image.
+    pub trace: Duration,
+    /// PNG encoding, EXR encoding, camera JSON, all writes and renames.
+    pub write: Duration,
+    /// Hit pixels stored as 0 in the depth PNG (`--depth-out-of-range zero`).
+    pub depth_zeroed: usize,
+}
+
+/// Write a file under `.partial/` through a buffer. No fsync: a rename after a complete
+/// write is what makes a kill at any moment safe; fsync would only add power-loss
+/// durability, at ~3 ms per file here (several files per view), and the resume check reads
+/// every output back (a file emptied by a power cut fails it and is rendered again).
+fn write_unsynced(
+    path: &Path,
+    fill: impl FnOnce(&mut BufWriter<File>) -> Result<()>,
+) -> Result<()> {
+    let mut w =
+        BufWriter::new(File::create(path).with_context(|| format!("creating {}", path.display()))?);
+    fill(&mut w)
+        .and_then(|()| Ok(w.flush()?))
+        .with_context(|| format!("writing {}", path.display()))
+}
+
+/// Render one view into `partial` (temporary names `TMP_STEM.*.tmp`) and move its files
+/// into `dir` as `NAME.*`, the EXR last. A depth PNG that cannot hold the view's depths
+/// (under [`OutOfRange::Fail`](depth_png::OutOfRange::Fail)) fails the view before
+/// anything is moved.
+pub fn render_view(
+    dir: &Path,
+    partial: &Path,
+    name: &str,
+    tmp_stem: &str,
+    scene: &Scene,
+    opts: &BatchOptions,
+) -> Result<ViewCost> {
+    let exr_aovs = opts.exr_aovs(scene);
+    let mut aovs = exr_aovs.clone();
+    if opts.png {
+        for a in [Aov::Depth, Aov::Normal] {
+            if !aovs.contains(&a) {
+                aovs.push(a);
+            }
+        }
+    }
+    let t0 = Instant::now();
+    let mut image = render(
+        scene,
+        &RenderOptions {
+            precision: opts.precision,
+            formula: opts.formula,
+            ..RenderOptions::new(aovs.clone())
+        },
+    )
+    .image;
+    let trace = t0.elapsed();
+
+    let t1 = Instant::now();
+    let tmp = |suffix: &str| partial.join(format!("{tmp_stem}.{suffix}.tmp"));
+    let done = ViewFiles::new(dir, name);
+    let mut moves = Vec::new();
+    let mut depth_zeroed = 0;
+    // The depth PNG first: a view whose depths do not fit fails before any write.
+    let depth = if opts.png {
+        let d = depth_png::encode(&image, opts.depth_scale, opts.depth_out_of_range)
+            .context("no depth AOV")?
+            .map_err(|e| anyhow!(e))?;
+        depth_zeroed = d.zeroed;
+        Some(d.png)
+    } else {
+        None
+    };
+    let cam = Camera::new(scene.camera);
+    for (suffix, text, to) in [
+        ("camera.json", camera_json(&cam, &exr_aovs), &done.camera),
+        ("open3d.json", open3d_json(&cam), &done.open3d),
+        ("render.json", render_stamp(scene, opts), &done.stamp),
+    ] {
+        let path = tmp(suffix);
+        write_unsynced(&path, |w| Ok(w.write_all(text.as_bytes())?))?;
+        moves.push((path, to));
+    }
+    if let Some(depth) = depth {
+        let normal = preview::normal_rgb(&image).context("no normal AOV")?;
+        let mask = depth_png::mask(&image).context("no depth AOV")?;
+        let (normal_tmp, depth_tmp, mask_tmp) =
+            (tmp("normal.png"), tmp("depth.png"), tmp("mask.png"));
+        write_unsynced(&normal_tmp, |w| {
+            Ok(normal.write_to(w, image::ImageFormat::Png)?)
+        })?;
+        write_unsynced(&depth_tmp, |w| {
+            Ok(depth.write_to(w, image::ImageFormat::Png)?)
+        })?;
+        write_unsynced(
+            &mask_tmp,
+            |w| Ok(mask.write_to(w, image::ImageFormat::Png)?),
+        )?;
+        moves.push((normal_tmp, &done.normal_png));
+        moves.push((depth_tmp, &done.depth_png));
+        moves.push((mask_tmp, &done.mask_png));
+    }
+    let keep: Vec<&str> = exr_aovs
+        .iter()
+        .flat_map(|&a| channel_names(a).iter().copied())
+        .collect();
+    image.channels.retain(|c| keep.contains(&c.name.as_str()));
+    let exr_tmp = tmp("exr");
+    write_unsynced(&exr_tmp, |w| image.write_exr_to(w, opts.compression))?;
+    moves.push((exr_tmp, &done.exr));
+    // An EXR in place is the view's "done" marker, so an older one goes before any new file
+    // of the view replaces its sibling: a re-render killed between the renames leaves no
+    // EXR (the view is rendered again), never a new camera beside old PNGs and an old EXR.
+    // The EXR goes last: once it is in place, so is everything else of the view.
+    // Without PNGs, those of an earlier run go too (they would not match the stamp), and
+    // the normal picture under its pre-0.2 name always goes.
+    let stale: &[&PathBuf] = if opts.png {
+        &[&done.exr, &done.legacy_normal_png]
+    } else {
+        &[
+            &done.exr,
+            &done.legacy_normal_png,
+            &done.normal_png,
+            &done.depth_png,
+            &done.mask_png,
+        ]
+    };
+    for path in stale {
+        match std::fs::remove_file(path) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                return Err(e).with_context(|| format!("removing the old {}", path.display()));
+            }
+            _ => {}
+        }
+    }
+    for (from, to) in moves {
+        std::fs::rename(&from, to)
+            .with_context(|| format!("moving {} to {}", from.display(), to.display()))?;
+    }
+    Ok(ViewCost {
+        trace,
+        write: t1.elapsed(),
+        depth_zeroed,
+    })
+}

@@ -1,0 +1,573 @@
+//! What cylaov must never destroy and which resources it must bound: output targets that
+//! are devices, FIFOs or inputs; closed or full stdout; the exit-status rule; memory and
+//! thread limits; clean-up after a failure. Runs the real binary.
+
+use std::os::unix::fs::FileTypeExt;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+
+const SCENE: &str = r#"{ "camera": { "origin": [3, -5, 2.5], "target": [0, 0, 0.6], "up": [0, 0, 1],
+    "fov_deg": 40, "width": 32, "height": 24 },
+  "cylinders": [ { "p0": [0, 0, 0], "p1": [0, 0, 1.5], "radius": 0.5 } ],
+  "aovs": ["depth", "normal", "shape_id"] }"#;
+
+/// A fresh folder for one test.
+fn dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("cylaov-hard-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn cylaov(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_cylaov"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn mkfifo(p: &Path) {
+    let st = Command::new("mkfifo").arg(p).status().unwrap();
+    assert!(st.success(), "mkfifo {}", p.display());
+}
+
+fn is_fifo(p: &Path) -> bool {
+    std::fs::symlink_metadata(p)
+        .map(|m| m.file_type().is_fifo())
+        .unwrap_or(false)
+}
+
+/// A scene and its render, for the commands that read images.
+fn scene_and_render(d: &Path) -> (PathBuf, PathBuf) {
+    let scene = d.join("s.json");
+    std::fs::write(&scene, SCENE).unwrap();
+    let exr = d.join("s.exr");
+    let o = cylaov(&["render", s(&scene), "-o", s(&exr)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    (scene, exr)
+}
+
+/// Every command that writes refuses a FIFO, a symlink to a FIFO and a symlink to a
+/// character device as its target, exits 1, and leaves the target as it was.
+#[test]
+fn outputs_that_are_not_regular_files_are_refused() {
+    let d = dir("targets");
+    let (scene, exr) = scene_and_render(&d);
+    let fifo = d.join("fifo");
+    mkfifo(&fifo);
+    let to_fifo = d.join("to-fifo");
+    std::os::unix::fs::symlink(&fifo, &to_fifo).unwrap();
+    let to_null = d.join("to-null");
+    std::os::unix::fs::symlink("/dev/null", &to_null).unwrap();
+    // --preview DIR: the preview's own name is taken by a FIFO.
+    let pv = d.join("pv");
+    std::fs::create_dir_all(&pv).unwrap();
+    mkfifo(&pv.join("s.depth.png"));
+    let mut failures = Vec::new();
+    for target in [&fifo, &to_fifo, &to_null] {
+        let t = s(target);
+        let cases: Vec<(&str, Vec<&str>)> = vec![
+            ("render -o", vec!["render", s(&scene), "-o", t]),
+            (
+                "export-mitsuba -o",
+                vec!["export-mitsuba", s(&scene), "-o", t],
+            ),
+            (
+                "compare --heatmap",
+                vec!["compare", s(&exr), s(&exr), "--heatmap", t],
+            ),
+            (
+                "stress --csv",
+                vec!["stress", "--family", "far", "--rays", "1", "--csv", t],
+            ),
+            (
+                "stress --plot",
+                vec!["stress", "--family", "far", "--rays", "1", "--plot", t],
+            ),
+            (
+                "bench --csv",
+                vec!["bench", "--counts", "1", "--quick", "--csv", t],
+            ),
+            (
+                "bench --plot",
+                vec!["bench", "--counts", "1", "--quick", "--plot", t],
+            ),
+        ];
+        for (what, args) in cases {
+            let o = cylaov(&args);
+            let err = stderr(&o);
+            let code = o.status.code();
+            let want = if what.starts_with("compare") { 2 } else { 1 };
+            if code != Some(want) || !err.contains("not a regular file") {
+                failures.push(format!("{what} {t}: exit {code:?}, stderr {err:?}"));
+            }
+        }
+    }
+    let o = cylaov(&[
+        "render",
+        s(&scene),
+        "-o",
+        s(&d.join("o/s.exr")),
+        "--preview",
+        s(&pv),
+    ]);
+    if o.status.code() != Some(1) || !stderr(&o).contains("s.depth.png") {
+        failures.push(format!("render --preview: {:?} {}", o.status, stderr(&o)));
+    }
+    assert!(
+        is_fifo(&fifo) && is_fifo(&pv.join("s.depth.png")),
+        "a FIFO was replaced"
+    );
+    assert!(
+        std::fs::symlink_metadata(&to_fifo)
+            .unwrap()
+            .file_type()
+            .is_symlink()
+            && std::fs::symlink_metadata(&to_null)
+                .unwrap()
+                .file_type()
+                .is_symlink(),
+        "a link was replaced"
+    );
+    assert!(
+        std::fs::metadata("/dev/null")
+            .unwrap()
+            .file_type()
+            .is_char_device(),
+        "/dev/null is no longer a character device"
+    );
+    assert!(!d.join("o").exists());
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+/// No output may be an input, however it is reached: itself, a hard link, a symlink.
+#[test]
+fn outputs_may_not_be_inputs_through_links() {
+    let d = dir("inputs");
+    let (scene, exr) = scene_and_render(&d);
+    let exr_bytes = std::fs::read(&exr).unwrap();
+    let hard = d.join("hard.exr");
+    std::fs::hard_link(&exr, &hard).unwrap();
+    let soft = d.join("soft.xml");
+    std::os::unix::fs::symlink(&scene, &soft).unwrap();
+    // A scene that sits in the preview folder under the name of a preview.
+    let pv = d.join("pv");
+    std::fs::create_dir_all(&pv).unwrap();
+    let pv_scene = pv.join("o.normal.png");
+    std::fs::write(&pv_scene, SCENE).unwrap();
+    let o_exr = d.join("o.exr");
+    let cases: Vec<(&str, Vec<&str>, i32)> = vec![
+        (
+            "heatmap = A",
+            vec!["compare", s(&exr), s(&hard), "--heatmap", s(&exr)],
+            2,
+        ),
+        (
+            "heatmap = B via hard link",
+            vec!["compare", s(&exr), s(&exr), "--heatmap", s(&hard)],
+            2,
+        ),
+        (
+            "export over scene via symlink",
+            vec!["export-mitsuba", s(&scene), "-o", s(&soft)],
+            1,
+        ),
+        (
+            "preview over scene",
+            vec!["render", s(&pv_scene), "-o", s(&o_exr), "--preview", s(&pv)],
+            1,
+        ),
+    ];
+    let mut failures = Vec::new();
+    for (what, args, want) in cases {
+        let o = cylaov(&args);
+        if o.status.code() != Some(want) || !stderr(&o).contains("would overwrite the input") {
+            failures.push(format!(
+                "{what}: exit {:?}, {}",
+                o.status.code(),
+                stderr(&o)
+            ));
+        }
+    }
+    assert_eq!(std::fs::read(&exr).unwrap(), exr_bytes, "input EXR changed");
+    assert_eq!(std::fs::read_to_string(&scene).unwrap(), SCENE);
+    assert_eq!(std::fs::read_to_string(&pv_scene).unwrap(), SCENE);
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+/// Run with stdout a pipe whose reader has already gone.
+fn closed_stdout(args: &[&str]) -> Output {
+    let (reader, writer) = std::io::pipe().unwrap();
+    drop(reader);
+    Command::new(env!("CARGO_BIN_EXE_cylaov"))
+        .args(args)
+        .stdout(writer)
+        .stderr(Stdio::piped())
+        .output()
+        .unwrap()
+}
+
+fn full_stdout(args: &[&str]) -> Output {
+    let full = std::fs::OpenOptions::new()
+        .write(true)
+        .open("/dev/full")
+        .unwrap();
+    Command::new(env!("CARGO_BIN_EXE_cylaov"))
+        .args(args)
+        .stdout(full)
+        .stderr(Stdio::piped())
+        .output()
+        .unwrap()
+}
+
+/// A closed pipe ends quietly with the command's own status; a full stdout is an error
+/// with a message; neither panics (exit 101).
+#[test]
+fn stdout_failures_never_panic_and_keep_the_exit_status() {
+    let d = dir("stdout");
+    let (scene, exr) = scene_and_render(&d);
+    let other = d.join("other.exr");
+    let moved = d.join("moved.json");
+    std::fs::write(&moved, SCENE.replace("[3, -5, 2.5]", "[3.01, -5, 2.5]")).unwrap();
+    let o = cylaov(&["render", s(&moved), "-o", s(&other)]);
+    assert!(o.status.success());
+    let out = d.join("o.exr");
+    let tight = [
+        "--rel-distance",
+        "0",
+        "--normal-deg",
+        "0",
+        "--rel-depth",
+        "0",
+    ];
+    let mut differ = vec!["compare", s(&exr), s(&other), "--json"];
+    differ.extend(tight);
+    let xml = d.join("x.xml");
+    let cases: Vec<(&str, Vec<&str>, i32, i32)> = vec![
+        // (what, args, exit with a closed pipe, exit with /dev/full)
+        ("render", vec!["render", s(&scene), "-o", s(&out)], 0, 1),
+        (
+            "compare equal",
+            vec!["compare", s(&exr), s(&exr), "--json"],
+            0,
+            2,
+        ),
+        ("compare different", differ, 1, 2),
+        (
+            "compare missing",
+            vec!["compare", s(&exr), "/nonexistent.exr"],
+            2,
+            2,
+        ),
+        (
+            "export",
+            vec!["export-mitsuba", s(&scene), "-o", s(&xml)],
+            0,
+            1,
+        ),
+        ("help", vec!["--help"], 0, 0),
+    ];
+    let mut failures = Vec::new();
+    for (what, args, closed, full) in cases {
+        let o = closed_stdout(&args);
+        let err = stderr(&o);
+        if o.status.code() != Some(closed)
+            || err.contains("panicked")
+            || err.contains("Broken pipe")
+        {
+            failures.push(format!(
+                "{what} | closed: exit {:?}, {err}",
+                o.status.code()
+            ));
+        }
+        let o = full_stdout(&args);
+        let err = stderr(&o);
+        // --help goes through clap, which ignores a failed print.
+        let said = full == 0 || err.contains("No space left") || what == "compare missing";
+        if o.status.code() != Some(full) || err.contains("panicked") || !said {
+            failures.push(format!(
+                "{what} > /dev/full: exit {:?}, {err}",
+                o.status.code()
+            ));
+        }
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+/// One rule for every command: 0 done, 1 input rejected or a check failed, 2 usage error or
+/// a check that could not be made. The README and `--help` state it.
+#[test]
+fn exit_status_rule_holds_for_every_command() {
+    let d = dir("exit");
+    let (scene, exr) = scene_and_render(&d);
+    let bad = d.join("bad.json");
+    std::fs::write(&bad, SCENE.replace("\"radius\": 0.5", "\"radius\": -1")).unwrap();
+    let o = |n: &str| d.join(n).to_str().unwrap().to_string();
+    let (o1, o2, o3) = (o("a.exr"), o("b.xml"), o("g"));
+    let cases: Vec<(Vec<&str>, i32)> = vec![
+        (vec!["render", s(&scene), "-o", &o1], 0),
+        (vec!["render", s(&bad), "-o", &o1], 1),
+        (vec!["render", "/nonexistent.json", "-o", &o1], 1),
+        (vec!["render", s(&scene)], 2),
+        (vec!["render", s(&scene), "-o", &o1, "--threads", "0"], 2),
+        (vec!["render", s(&scene), "-o", &o1, "--threads", "1025"], 2),
+        (vec!["render", s(&scene), "-o", &o1, "--aov", "albedo"], 2),
+        (vec!["export-mitsuba", s(&scene), "-o", &o2], 0),
+        (vec!["export-mitsuba", s(&bad), "-o", &o2], 1),
+        (vec!["compare", s(&exr), s(&exr)], 0),
+        (vec!["compare", s(&exr), "/nonexistent.exr"], 2),
+        (vec!["compare", s(&exr), s(&exr), "--rel-depth", "-1"], 2),
+        (vec!["generate", "--count", "0", "--out", &o3], 2),
+        (vec!["generate", "--count", "2", "--out", &o3], 0),
+        (vec!["stress", "--family", "nope"], 2),
+        (vec!["stress", "--rays", "0"], 2),
+        (vec!["bench", "--threads", "100000"], 2),
+        (vec!["no-such-command"], 2),
+        (vec!["--version"], 0),
+    ];
+    let mut failures = Vec::new();
+    for (args, want) in cases {
+        let r = cylaov(&args);
+        let err = stderr(&r);
+        if r.status.code() != Some(want) || err.contains("panicked") {
+            failures.push(format!(
+                "{args:?}: exit {:?} (want {want}): {err}",
+                r.status.code()
+            ));
+        }
+    }
+    let help = String::from_utf8_lossy(&cylaov(&["--help"]).stdout).into_owned();
+    assert!(
+        help.contains("Exit status") && help.contains("2 = usage error"),
+        "{help}"
+    );
+    let readme =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("README.md")).unwrap();
+    assert!(
+        readme.contains("## Exit status"),
+        "README lacks the exit-status section"
+    );
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+/// `-1` as a value reaches the option's own check; too many threads are refused at once.
+#[test]
+fn negative_values_and_thread_counts_get_clear_messages() {
+    let d = dir("threads");
+    let scene = d.join("s.json");
+    std::fs::write(&scene, SCENE).unwrap();
+    let out = d.join("o.exr");
+    for n in ["-1", "50000", "100000"] {
+        let o = cylaov(&["render", s(&scene), "-o", s(&out), "--threads", n]);
+        let err = stderr(&o);
+        assert_eq!(o.status.code(), Some(2), "--threads {n}: {err}");
+        assert!(
+            err.contains("from 1 to 1024") && err.contains(n),
+            "--threads {n}: {err}"
+        );
+        assert!(!err.contains("unexpected argument"), "{err}");
+    }
+    let o = cylaov(&[
+        "generate",
+        "--count",
+        "1",
+        "--width",
+        "-5",
+        "--out",
+        s(&d.join("g")),
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(stderr(&o).contains("--width") && !stderr(&o).contains("unexpected argument"));
+    // The cap itself works (1024 threads on a 32 x 24 image).
+    let o = cylaov(&["render", s(&scene), "-o", s(&out), "--threads", "1024"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+}
+
+/// Run `cylaov args` with the address space limited to `kib` (ulimit -v).
+fn with_ulimit(kib: u64, args: &[&str]) -> Output {
+    let mut cmd = format!("ulimit -v {kib} && exec '{}'", env!("CARGO_BIN_EXE_cylaov"));
+    for a in args {
+        cmd += &format!(" '{a}'");
+    }
+    Command::new("sh").args(["-c", &cmd]).output().unwrap()
+}
+
+/// A render that cannot fit fails before allocating, with a message, not an abort; the
+/// same size depth-only fits (measured: 16384 x 4096 depth peaks at ~270 MiB resident).
+#[test]
+fn memory_is_checked_before_a_render_and_a_comparison() {
+    let d = dir("memory");
+    let scene = d.join("big.json");
+    std::fs::write(
+        &scene,
+        SCENE.replace(
+            "\"width\": 32, \"height\": 24",
+            "\"width\": 16384, \"height\": 4096",
+        ),
+    )
+    .unwrap();
+    let out = d.join("big.exr");
+    let all = "distance,depth,normal,position,shape_id";
+    let o = with_ulimit(
+        1_500_000,
+        &["render", s(&scene), "-o", s(&out), "--aov", all],
+    );
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("needs about 2304 MiB") && err.contains("available"),
+        "{err}"
+    );
+    assert!(!out.exists());
+    // An EXR whose header claims 16384 x 65533 pixels: refused from the header alone.
+    let fake = d.join("fake.exr");
+    std::fs::write(&fake, exr_header(16384, 65533)).unwrap();
+    let o = with_ulimit(4_000_000, &["compare", s(&fake), s(&fake)]);
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("needs about") && err.contains("comparing"),
+        "{err}"
+    );
+}
+
+/// The header of an uncompressed one-channel float EXR of `w x h`, without its pixels.
+fn exr_header(w: i32, h: i32) -> Vec<u8> {
+    let mut v = Vec::new();
+    v.extend_from_slice(&20000630i32.to_le_bytes());
+    v.extend_from_slice(&2i32.to_le_bytes());
+    let mut attr = |name: &str, ty: &str, value: &[u8]| {
+        for s in [name, ty] {
+            v.extend_from_slice(s.as_bytes());
+            v.push(0);
+        }
+        v.extend_from_slice(&(value.len() as i32).to_le_bytes());
+        v.extend_from_slice(value);
+    };
+    let mut ch = b"depth\0".to_vec();
+    for x in [2i32, 0, 1, 1] {
+        ch.extend_from_slice(&x.to_le_bytes());
+    }
+    ch.push(0);
+    let window: Vec<u8> = [0, 0, w - 1, h - 1]
+        .iter()
+        .flat_map(|x: &i32| x.to_le_bytes())
+        .collect();
+    attr("channels", "chlist", &ch);
+    attr("compression", "compression", &[0]);
+    attr("dataWindow", "box2i", &window);
+    attr("displayWindow", "box2i", &window);
+    attr("lineOrder", "lineOrder", &[0]);
+    attr("pixelAspectRatio", "float", &1f32.to_le_bytes());
+    attr("screenWindowCenter", "v2f", &[0; 8]);
+    attr("screenWindowWidth", "float", &1f32.to_le_bytes());
+    v.push(0);
+    v
+}
+
+/// A failed command removes the folders it made; a full disk says so (injected).
+#[test]
+fn failures_clean_up_and_a_full_disk_says_so() {
+    let d = dir("cleanup");
+    let scene = d.join("s.json");
+    std::fs::write(&scene, SCENE).unwrap();
+    let run_full = |args: &[&str]| {
+        Command::new(env!("CARGO_BIN_EXE_cylaov"))
+            .args(args)
+            .env("CYLAOV_FAIL_WRITES", "ENOSPC")
+            .output()
+            .unwrap()
+    };
+    let new = d.join("new");
+    let cases: Vec<Vec<String>> = vec![
+        vec![
+            "render".into(),
+            s(&scene).into(),
+            "-o".into(),
+            s(&new.join("sub/x.exr")).into(),
+        ],
+        vec![
+            "render".into(),
+            s(&scene).into(),
+            "-o".into(),
+            s(&d.join("y.exr")).into(),
+            "--preview".into(),
+            s(&new.join("pv")).into(),
+        ],
+        vec![
+            "export-mitsuba".into(),
+            s(&scene).into(),
+            "-o".into(),
+            s(&new.join("a/b.xml")).into(),
+        ],
+        vec![
+            "generate".into(),
+            "--count".into(),
+            "3".into(),
+            "--out".into(),
+            s(&new.join("set")).into(),
+        ],
+    ];
+    for args in cases {
+        let args: Vec<&str> = args.iter().map(|a| a.as_str()).collect();
+        let o = run_full(&args);
+        let err = stderr(&o);
+        assert_eq!(o.status.code(), Some(1), "{args:?}: {err}");
+        assert!(err.contains("disk is full"), "{args:?}: {err}");
+        assert!(!new.exists(), "{args:?} left {}", new.display());
+        let left: Vec<_> = std::fs::read_dir(&d)
+            .unwrap()
+            .filter_map(|e| e.ok())
+            .map(|e| e.file_name().to_string_lossy().into_owned())
+            .filter(|n| n != "s.json")
+            .collect();
+        assert!(left.is_empty(), "{args:?} left {left:?}");
+    }
+    // An existing folder stays, and so do files that were there before.
+    let keep = d.join("keep");
+    std::fs::create_dir_all(&keep).unwrap();
+    std::fs::write(keep.join("mine.txt"), "x").unwrap();
+    let o = run_full(&["render", s(&scene), "-o", s(&keep.join("x.exr"))]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(keep.join("mine.txt").exists());
+}
+
+/// A file where a folder should be is named; a long valid output name is accepted (its
+/// temporary name is shortened to fit the 255-byte limit).
+#[test]
+fn parent_path_and_long_names() {
+    let d = dir("names");
+    let scene = d.join("s.json");
+    std::fs::write(&scene, SCENE).unwrap();
+    let o = cylaov(&["render", s(&scene), "-o", s(&d.join("s.json/sub/x.exr"))]);
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(
+        err.contains("s.json is a regular file, not a folder"),
+        "{err}"
+    );
+    // 240 + ".camera.json" = 252 bytes: valid; the temporary name would be ~300.
+    let long = d.join(format!("{}.exr", "n".repeat(240)));
+    let o = cylaov(&["render", s(&scene), "-o", s(&long)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(long.exists() && long.with_extension("camera.json").exists());
+    let tmp: Vec<_> = std::fs::read_dir(&d)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .filter(|e| e.file_name().to_string_lossy().ends_with(".tmp"))
+        .collect();
+    assert!(tmp.is_empty(), "{tmp:?}");
+    // Too long for the file system itself: refused by name, before any work.
+    let too_long = d.join(format!("{}.exr", "n".repeat(252)));
+    let o = cylaov(&["render", s(&scene), "-o", s(&too_long)]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("the limit is 255"), "{}", stderr(&o));
+}
