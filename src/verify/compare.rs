@@ -879,9 +879,14 @@ impl fmt::Display for Report {
                 self.only_in_b.join(" ")
             )?;
         }
+        let same = match self.identity {
+            Identity::ShapeIdPart => "same cylinder and part",
+            Identity::ShapeId => "same cylinder",
+            Identity::HitMiss => "both hit",
+        };
         writeln!(
             f,
-            "hits: A {}, B {}, same cylinder and part {}",
+            "hits: A {}, B {}, {same} {}",
             self.hits_a, self.hits_b, self.same
         )?;
         writeln!(
