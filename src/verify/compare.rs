@@ -44,7 +44,8 @@
 //! radians. Where the ray is so close to tangent that this linear model breaks
 //! (`cos i < √(δ/r)`), the change is at most `√(δ r)`, so `cos i` is clamped there. The
 //! pixel's bound is then the larger of the flat bound and this one, in relative distance
-//! (and depth) `δ / (t cos i)` and in normal angle `δ / (r cos i)`; on ordinary pixels it is
+//! (and depth) `δ / (t cos i)` and in normal angle `δ / (r cos i)` (on the side only: a
+//! cap's normal does not depend on where the ray meets it); on ordinary pixels it is
 //! far below the flat bounds (at `L = 10`, `cos i = 0.5`, `t = 5`: 9.5e-7 against 3e-5), so
 //! it changes nothing there. Pixels whose error is within their conditioning bound but above
 //! the flat bound are *explained*; [`Report::explained_lines`] says how many, the largest
@@ -147,6 +148,9 @@ impl Conditioning {
         let ids = id_labels(img, "shape_id", "conditioning").ok()??;
         let dist = img.f32_channel("distance")?;
         let normal = img.vec3_channel("normal")?;
+        // A cap's normal does not depend on where the ray meets the plane: no normal
+        // allowance there (when the image tells caps apart).
+        let parts = id_labels(img, "part", "conditioning").ok().flatten();
         let cam = Camera::new(scene.camera);
         let (w, h) = (img.width, img.height);
         if (w, h) != (cam.width() as usize, cam.height() as usize) {
@@ -187,7 +191,10 @@ impl Conditioning {
                 // Linear in δ down to cos i = √(δ/r); nearer tangency the change is √(δr).
                 let cos = n.dot(d).abs().max((delta / r).sqrt());
                 rel[k] = delta / (t * cos);
-                normal_deg[k] = (delta / (r * cos)).to_degrees();
+                let on_cap = parts.as_ref().is_some_and(|p| p[k] >= 3);
+                if !on_cap {
+                    normal_deg[k] = (delta / (r * cos)).to_degrees();
+                }
             }
         }
         Some(Conditioning {
