@@ -352,13 +352,14 @@ struct TolerancesCli {
     /// must lie on a part boundary).
     #[arg(long, default_value_t = Tolerances::default().max_seam_fraction, value_parser = non_negative)]
     max_seam_fraction: f64,
-    /// Largest allowed relative distance error.
+    /// Largest allowed relative distance error (where a pixel's float32 conditioning bound
+    /// is larger, at grazing incidence, that bound applies).
     #[arg(long, default_value_t = Tolerances::default().rel_distance, value_parser = non_negative)]
     rel_distance: f64,
-    /// Largest allowed relative depth error.
+    /// Largest allowed relative depth error (or the pixel's float32 bound, if larger).
     #[arg(long, default_value_t = Tolerances::default().rel_depth, value_parser = non_negative)]
     rel_depth: f64,
-    /// Largest allowed normal angle error, degrees.
+    /// Largest allowed normal angle error, degrees (or the pixel's float32 bound, if larger).
     #[arg(long, default_value_t = Tolerances::default().normal_deg, value_parser = non_negative)]
     normal_deg: f64,
 }

@@ -220,3 +220,47 @@ fn compare_exit_codes_json_and_heatmap() {
         "{help}"
     );
 }
+
+/// `compare --scene`: the per-pixel float32 conditioning bound. cylaov's f64 render of
+/// `grazing_steep` against its reference breaks the flat 3e-5 at one grazing pixel (5.9e-5
+/// at cos i = 7e-4): exit 1 without `--scene`, exit 0 with it, and an `accepted:` line
+/// names the pixel and its bound. A render without `shape_id` cannot be conditioned: exit 2.
+#[test]
+fn compare_with_scene_applies_the_float32_conditioning_bound() {
+    let dir = scratch("compare-scene");
+    let scene = root().join("scenes/grazing_steep.json");
+    let reference = root().join("reference/grazing_steep.exr");
+    let ours = dir.join("ours.exr");
+    let o = cylaov(&[
+        "render",
+        s(&scene),
+        "-o",
+        s(&ours),
+        "--aov",
+        "distance,depth,normal,shape_id,part",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = cylaov(&["compare", s(&ours), s(&reference)]);
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert_eq!(o.status.code(), Some(1), "{text}");
+    assert!(
+        text.contains("FAIL:\n  relative distance error max 5.9"),
+        "{text}"
+    );
+    let o = cylaov(&["compare", s(&ours), s(&reference), "--scene", s(&scene)]);
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert_eq!(o.status.code(), Some(0), "{text}");
+    assert!(
+        text.contains("accepted: relative distance: 1 px above 3.000e-5, each within its float32 conditioning bound (largest 5.9"),
+        "{text}"
+    );
+    assert!(text.contains("identity by shape_id and part"), "{text}");
+    let bare = dir.join("bare.exr");
+    let o = cylaov(&["render", s(&scene), "-o", s(&bare), "--aov", "depth"]);
+    assert!(o.status.success());
+    let o = cylaov(&["compare", s(&bare), s(&reference), "--scene", s(&scene)]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        String::from_utf8_lossy(&o.stderr).contains("must be that scene's render with shape_id")
+    );
+}

@@ -1,6 +1,8 @@
 //! Verification: the tools that check the product. [`compare`] is the per-pixel rule that
-//! every check uses; [`reference`](mod@reference) renders a view with Mitsuba 3 and compares; [`oracle`]
-//! is the double-double answer that [`stress`] measures the kernels against.
+//! every check uses (identity by cylinder and part, seams, float32 conditioning bounds);
+//! [`reference`](mod@reference) is the one check against Mitsuba 3 behind `cylaov verify`,
+//! `batch --verify-fraction` and the reference tests; [`oracle`] is the double-double answer
+//! that [`stress`] measures the kernels against.
 
 pub mod compare;
 pub mod oracle;

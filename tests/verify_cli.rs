@@ -1,0 +1,211 @@
+//! `cylaov verify` and `batch --verify-fraction` as a user runs them: exit codes, the
+//! FAIL lines of `compare` in the console and the failures file, identity rendered
+//! alongside a dataset that stores none, and verdicts kept so a resume does not run
+//! Mitsuba again. Skipped (saying so) without the reference venv, unless
+//! `CYLAOV_REQUIRE_VENV=1`.
+
+mod common;
+use common::venv_python;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// `cylaov ARGS` with the venv of `python` (`.../bin/python`).
+fn cylaov(python: &Path, args: &[&str]) -> Output {
+    let venv = python.parent().and_then(Path::parent).expect("venv dir");
+    Command::new(env!("CARGO_BIN_EXE_cylaov"))
+        .args(args)
+        .env("CYLAOV_VENV", venv)
+        .output()
+        .expect("running cylaov")
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(name);
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("scratch dir");
+    dir
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().expect("utf-8 path")
+}
+
+fn text(o: &Output) -> String {
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
+}
+
+#[test]
+fn verify_exit_codes_table_and_json() {
+    let Some(py) = venv_python() else { return };
+    let scene = root().join("scenes/single.json");
+    let dir = scratch("verify-cli");
+    let o = cylaov(&py, &["verify", s(&scene), "--heatmap", s(&dir)]);
+    let out = text(&o);
+    assert_eq!(o.status.code(), Some(0), "{out}");
+    assert!(
+        out.contains("single                   PASS      silhouette 0 px, seam 0 px"),
+        "{out}"
+    );
+    assert!(out.contains("1 of 1 views checked: 1 passed, 0 failed, 0 could not be checked"));
+    assert!(dir.join("single.heatmap.png").is_file());
+
+    // A scene whose Mitsuba reference is unreliable (camera far from the origin, in
+    // scenes/stress/): exit 1 and compare's FAIL line. (A flat bound below Mitsuba's
+    // float32 floor does not fail: every pixel's own float32 bound is larger there.)
+    let far = root().join("scenes/stress/far_offset.json");
+    let o = cylaov(&py, &["verify", s(&far), "--json"]);
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+    assert_eq!(
+        (v["checked"].as_u64(), v["failed"].as_u64()),
+        (Some(1), Some(1))
+    );
+    let f = v["views"][0]["failures"][0]
+        .as_str()
+        .expect("a failure line");
+    assert!(f.starts_with("silhouette mismatch fraction "), "{f}");
+    assert!(f.contains(" > 5.000e-4"), "{f}");
+    assert_eq!(v["views"][0]["report"]["identity"], "shape_id_part");
+    let o = cylaov(&py, &["verify", s(&far)]);
+    assert!(
+        text(&o).contains("far_offset FAIL:\n  silhouette mismatch fraction "),
+        "{}",
+        text(&o)
+    );
+
+    // No venv: every view unchecked, exit 2, one line saying how to make it.
+    let o = Command::new(env!("CARGO_BIN_EXE_cylaov"))
+        .args(["verify", s(&scene)])
+        .env("CYLAOV_VENV", dir.join("no-such-venv"))
+        .output()
+        .expect("running cylaov");
+    let out = text(&o);
+    assert_eq!(o.status.code(), Some(2), "{out}");
+    assert!(out.contains("no Mitsuba venv (looked in "), "{out}");
+    assert!(out.contains("scripts/setup-venv"), "{out}");
+
+    // A bad scene in a folder: that view is unchecked (exit 2), the others still run.
+    let mixed = scratch("verify-cli-mixed");
+    std::fs::copy(&scene, mixed.join("a.json")).expect("copy");
+    std::fs::write(mixed.join("b.json"), "{\"camera\": 1}").expect("bad scene");
+    let o = cylaov(&py, &["verify", s(&mixed)]);
+    let out = text(&o);
+    assert_eq!(o.status.code(), Some(2), "{out}");
+    assert!(
+        out.contains("2 of 2 views checked: 1 passed, 0 failed, 1 could not be checked"),
+        "{out}"
+    );
+}
+
+#[test]
+fn batch_verifies_with_identity_and_keeps_verdicts() {
+    let Some(py) = venv_python() else { return };
+    let dir = scratch("verify-batch");
+    let data = dir.join("data");
+    let render = dir.join("render");
+    // Two views: a generated one and the unreliable far_offset (which fails).
+    let o = cylaov(
+        &py,
+        &[
+            "generate",
+            "--count",
+            "1",
+            "--seed",
+            "5",
+            "--out",
+            s(&data),
+            "--cylinders",
+            "30",
+        ],
+    );
+    assert!(o.status.success(), "{}", text(&o));
+    let views = dir.join("views");
+    std::fs::create_dir_all(&views).expect("views dir");
+    std::fs::copy(data.join("scenes/000000.json"), views.join("gen.json")).expect("copy");
+    std::fs::copy(
+        root().join("scenes/stress/far_offset.json"),
+        views.join("far_offset.json"),
+    )
+    .expect("copy");
+    let data = views;
+    // The dataset stores depth only: the check renders shape_id and part alongside.
+    let batch = |extra: &[&str]| {
+        let mut args = vec![
+            "batch",
+            s(&data),
+            "--out",
+            s(&render),
+            "--aov",
+            "depth",
+            "--no-png",
+            "--verify-fraction",
+            "1",
+        ];
+        args.extend_from_slice(extra);
+        cylaov(&py, &args)
+    };
+    let o = batch(&[]);
+    let out = text(&o);
+    assert!(!o.status.success(), "{out}");
+    assert_eq!(
+        out.matches("\nverify ").count() + usize::from(out.starts_with("verify ")),
+        2,
+        "{out}"
+    );
+    assert!(out.contains("verify gen: silhouette "), "{out}");
+    // The failed view prints compare's FAIL lines, in the console and the failures file.
+    assert!(
+        out.contains("FAIL:\n  silhouette mismatch fraction "),
+        "{out}"
+    );
+    let failures = std::fs::read_to_string(render.join("failures.0-of-1.jsonl")).expect("failures");
+    assert_eq!(failures.lines().count(), 1, "{failures}");
+    let first: serde_json::Value =
+        serde_json::from_str(failures.lines().next().expect("line")).expect("json line");
+    assert_eq!(first["name"], "far_offset");
+    let err = first["error"].as_str().expect("error");
+    assert!(err.contains("disagrees with the reference"), "{err}");
+    assert!(
+        err.contains("FAIL:\n  silhouette mismatch fraction "),
+        "{err}"
+    );
+    assert!(err.contains("silhouette") && err.contains("seam"), "{err}");
+    // The dataset stores depth only; the check rendered shape_id and part alongside.
+    let exr = cylaov::output::aov::AovImage::read_exr(&render.join("gen.exr")).expect("exr");
+    let names: Vec<&str> = exr.channels.iter().map(|c| c.name.as_str()).collect();
+    assert_eq!(names, ["depth"], "the dataset's files are unchanged");
+    let cached: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(render.join("gen.verify.json")).expect("verdict kept"),
+    )
+    .expect("json");
+    assert_eq!(cached["passed"], true);
+
+    // Resume: both views done and their verdicts kept: Mitsuba does not run again, and
+    // the kept failure still fails.
+    let o = batch(&[]);
+    assert!(!o.status.success(), "{}", text(&o));
+    assert!(!text(&o).contains("verify "), "{}", text(&o));
+
+    // Other bounds are another verdict: both checked again, and now they pass.
+    let o = batch(&[
+        "--max-mismatch-fraction",
+        "0.5",
+        "--max-seam-fraction",
+        "0.5",
+    ]);
+    let out = text(&o);
+    assert!(o.status.success(), "{out}");
+    assert!(
+        out.contains("verify gen: ") && out.contains("verify far_offset: "),
+        "{out}"
+    );
+}
