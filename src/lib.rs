@@ -16,32 +16,45 @@
 //! # Code map
 //!
 //! Product, in pipeline order:
-//! - [`scene`]: the scene file schema (serde), defaults, validation with field-naming errors;
-//!   [`scene::camera`]: Mitsuba's look-at pinhole camera, pixel rays in f64, K and pose matrices.
-//! - [`geometry`]: the f32/f64 abstraction and the literal and stable ray–cylinder kernels,
-//!   scalar and in packets of eight lanes.
+//! - [`scene`]: the scene file schema (serde), defaults, validation with field-naming errors,
+//!   one camera or several; [`scene::strict`]: strict JSON reading (objects only, exact
+//!   3-vectors, long values cut in messages); [`scene::camera`]: Mitsuba's look-at pinhole
+//!   camera, pixel rays in f64, K in both pixel conventions, pose matrices.
+//! - [`geometry`]: the f32/f64 abstraction ([`geometry::real`]), the literal and stable
+//!   ray–cylinder kernels ([`geometry::cylinder`]), scalar and in packets of eight lanes, and
+//!   [`geometry::kernel`], the one type that names a kernel (formulation × precision).
 //! - [`accel`]: [`accel::tiles`], screen tiles of projected cylinder bounds (the primary-ray
-//!   fast path), and [`accel::bvh`], a binned-SAH hierarchy for rays of any direction.
+//!   fast path), and [`accel::bvh`], a binned-SAH hierarchy of bounded depth for rays of any
+//!   direction and for tile-by-tile cone walks with occlusion culling.
 //! - [`render`]: parallel bands of tiles, nearest hit, only the requested AOVs.
-//! - [`output`]: [`output::aov`] (the in-memory AOV image, its EXR reading and writing),
-//!   [`output::preview`] (PNG previews, 16-bit depth PNGs), [`output::plot`] (the pixel font
-//!   and axis panels of every figure), [`output::io`] (atomic writes, the camera metadata
-//!   JSON), [`output::mitsuba`] (the scene as Mitsuba 3 XML).
+//! - [`output`]: [`output::aov`] (the in-memory AOV image, its EXR reading and writing,
+//!   self-describing headers, the per-AOV layout), [`output::depth_png`] (the 16-bit depth
+//!   PNG that fails rather than drop far pixels, and the hit mask), [`output::preview`] (PNG
+//!   previews with legends), [`output::plot`] (the pixel font and axis panels of every
+//!   figure), [`output::io`] (atomic writes, output-target and memory checks, console output
+//!   that survives a closed pipe, the camera and Open3D JSON), [`output::mitsuba`] (the scene
+//!   as Mitsuba 3 XML).
 //!
 //! Checking tools:
-//! - [`verify`]: [`verify::compare`] (the per-pixel comparison rule, heatmaps),
-//!   [`verify::reference`](mod@verify::reference) (a view rendered by Mitsuba from the pinned venv and compared),
-//!   [`verify::oracle`] (double-double reference answer, κ and tangency band),
+//! - [`verify`]: [`verify::compare`] (the per-pixel rule: identity by cylinder and part,
+//!   silhouette and seam mismatches, float32 conditioning bounds, heatmaps),
+//!   [`verify::reference`](mod@verify::reference) (the one check against Mitsuba 3 behind
+//!   `cylaov verify`, `batch --verify-fraction` and the reference tests; the script is
+//!   compiled in), [`verify::oracle`] (double-double reference answer, κ and tangency band),
 //!   [`verify::stress`] (the hard ray families of `cylaov stress`).
-//! - [`bench`](mod@bench): run time against error per kernel, AOV set and cylinder count, Mitsuba's
-//!   times on the same scenes.
+//! - [`bench`](mod@bench): run time against error per kernel, AOV set, cylinder count and
+//!   scene family, Mitsuba's times on the same scenes.
 //!
 //! Datasets:
-//! - [`dataset`]: [`dataset::generate`] (seeded procedural scenes) and [`dataset::batch`]
-//!   (view lists, shards, resumable kill-safe rendering, `transforms.json`).
+//! - [`dataset`]: [`dataset::generate`] (seeded procedural scenes, several cameras each if
+//!   asked), [`dataset::batch`] (views of (scene, camera), shards and their locks, resumable
+//!   kill-safe rendering, `index.json` and per-scene `transforms.json`), [`dataset::names`]
+//!   (every file name cylaov writes).
 //! - [`rng`]: SplitMix64, written out so generated data never changes under us.
 //!
-//! Around them: [`commands`], the IO of each subcommand; `main.rs` only parses arguments.
+//! Around them: [`commands`], the IO of each subcommand (`render`, `generate`, `batch`,
+//! `export-mitsuba`, `compare`, `verify`, `stress`, `bench`); `main.rs` only parses
+//! arguments and maps results to exit codes.
 //!
 //! **Invariants**: `geometry`, `accel` and `render` never do IO; a render is a pure function
 //! of scene + options; `output::mitsuba` knows Mitsuba's XML, not how to run it
