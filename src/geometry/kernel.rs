@@ -1,6 +1,6 @@
 //! Which kernel traces the rays: a formulation ([`FormulaKind`]) in a precision
 //! ([`Precision`]). One type for every command that chooses one (render, batch, verify,
-//! bench, stress), one printed name (`stable-f64`, …), and one place, [`Kernel::dispatch`],
+//! bench, stress), one printed name (`stable-f64`, …), and one place, `Kernel::dispatch`,
 //! that turns the run-time choice into the types the generic code is compiled for.
 
 use super::cylinder::{Formula, Literal, Stable};
