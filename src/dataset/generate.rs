@@ -442,25 +442,179 @@ fn orbit(first: &CameraFile, k: u32, count: u32) -> CameraFile {
 }
 
 /// Pretty JSON with every array of plain values on one line (`[1.0, 2.0, 3.0]`): scene files
-/// stay readable with one line per vector. Only for JSON printed by serde_json.
+/// stay readable with one line per vector. Written by serde_json through [`VectorFormatter`],
+/// so what counts as an array is serde's structure, never the text (a string such as
+/// `"x[1,2]"` is written as it is).
 pub fn to_json(value: &impl Serialize) -> serde_json::Result<String> {
-    let pretty = serde_json::to_string_pretty(value)?;
-    let mut out = String::with_capacity(pretty.len());
-    let mut rest = pretty.as_str();
-    while let Some(open) = rest.find('[') {
-        out.push_str(&rest[..=open]);
-        rest = &rest[open + 1..];
-        let close = rest.find(']').unwrap_or(0);
-        let inner = &rest[..close];
-        if close > 0 && !inner.contains(['[', '{', '"']) {
-            let items: Vec<&str> = inner.split(',').map(str::trim).collect();
-            out.push_str(&items.join(", "));
-            rest = &rest[close..];
+    let mut out = Vec::new();
+    value.serialize(&mut serde_json::Serializer::with_formatter(
+        &mut out,
+        VectorFormatter::default(),
+    ))?;
+    out.push(b'\n');
+    String::from_utf8(out).map_err(serde::ser::Error::custom)
+}
+
+/// serde_json's pretty layout (two spaces a level), except that an array whose first element
+/// is a number, bool or null is written on one line, `[a, b, c]` (arrays of strings, such as
+/// `aovs`, keep one line per name, as they always had).
+/// The layout of an array is decided at its first element, before anything of it is written.
+#[derive(Default)]
+pub struct VectorFormatter {
+    /// Open arrays and objects, innermost last.
+    open: Vec<Open>,
+}
+
+enum Open {
+    /// An array: `None` until its first element shows whether it is a line of values,
+    /// `first` while its next element is the first, `pending` between `begin_array_value`
+    /// and the element itself.
+    Array {
+        inline: Option<bool>,
+        first: bool,
+        pending: bool,
+    },
+    /// An object, and whether it has a member yet.
+    Object { members: bool },
+}
+
+impl VectorFormatter {
+    fn indent<W: ?Sized + std::io::Write>(&self, w: &mut W) -> std::io::Result<()> {
+        w.write_all(b"\n")?;
+        for _ in 0..self.open.len() {
+            w.write_all(b"  ")?;
+        }
+        Ok(())
+    }
+
+    /// Before an element of any kind: the separator its array's layout asks for. `one_line`:
+    /// whether an array that starts with this element goes on one line.
+    fn element<W: ?Sized + std::io::Write>(
+        &mut self,
+        w: &mut W,
+        one_line: bool,
+    ) -> std::io::Result<()> {
+        let Some(Open::Array {
+            inline,
+            first,
+            pending,
+        }) = self.open.last_mut()
+        else {
+            return Ok(());
+        };
+        if !std::mem::take(pending) {
+            return Ok(());
+        }
+        let first = std::mem::take(first);
+        let inline = *inline.get_or_insert(one_line);
+        if inline {
+            if !first {
+                w.write_all(b", ")?;
+            }
+            Ok(())
+        } else {
+            if !first {
+                w.write_all(b",")?;
+            }
+            self.indent(w)
         }
     }
-    out.push_str(rest);
-    out.push('\n');
-    Ok(out)
+}
+
+/// Scalars: the element separator, then serde_json's own (compact) text for the value.
+macro_rules! scalar {
+    ($($f:ident($t:ty)),*) => {$(
+        fn $f<W: ?Sized + std::io::Write>(&mut self, w: &mut W, v: $t) -> std::io::Result<()> {
+            self.element(w, true)?;
+            serde_json::ser::CompactFormatter.$f(w, v)
+        }
+    )*};
+}
+
+impl serde_json::ser::Formatter for VectorFormatter {
+    fn write_null<W: ?Sized + std::io::Write>(&mut self, w: &mut W) -> std::io::Result<()> {
+        self.element(w, true)?;
+        w.write_all(b"null")
+    }
+    scalar!(
+        write_bool(bool),
+        write_i8(i8),
+        write_i16(i16),
+        write_i32(i32),
+        write_i64(i64),
+        write_i128(i128),
+        write_u8(u8),
+        write_u16(u16),
+        write_u32(u32),
+        write_u64(u64),
+        write_u128(u128),
+        write_f32(f32),
+        write_f64(f64),
+        write_number_str(&str)
+    );
+    fn begin_string<W: ?Sized + std::io::Write>(&mut self, w: &mut W) -> std::io::Result<()> {
+        self.element(w, false)?;
+        w.write_all(b"\"")
+    }
+    fn begin_array<W: ?Sized + std::io::Write>(&mut self, w: &mut W) -> std::io::Result<()> {
+        self.element(w, false)?;
+        self.open.push(Open::Array {
+            inline: None,
+            first: true,
+            pending: false,
+        });
+        w.write_all(b"[")
+    }
+    fn begin_array_value<W: ?Sized + std::io::Write>(
+        &mut self,
+        _w: &mut W,
+        _first: bool,
+    ) -> std::io::Result<()> {
+        if let Some(Open::Array { pending, .. }) = self.open.last_mut() {
+            *pending = true;
+        }
+        Ok(())
+    }
+    fn end_array_value<W: ?Sized + std::io::Write>(&mut self, _w: &mut W) -> std::io::Result<()> {
+        Ok(())
+    }
+    fn end_array<W: ?Sized + std::io::Write>(&mut self, w: &mut W) -> std::io::Result<()> {
+        if let Some(Open::Array {
+            inline: Some(false),
+            ..
+        }) = self.open.pop()
+        {
+            self.indent(w)?;
+        }
+        w.write_all(b"]")
+    }
+    fn begin_object<W: ?Sized + std::io::Write>(&mut self, w: &mut W) -> std::io::Result<()> {
+        self.element(w, false)?;
+        self.open.push(Open::Object { members: false });
+        w.write_all(b"{")
+    }
+    fn begin_object_key<W: ?Sized + std::io::Write>(
+        &mut self,
+        w: &mut W,
+        first: bool,
+    ) -> std::io::Result<()> {
+        if let Some(Open::Object { members }) = self.open.last_mut() {
+            *members = true;
+        }
+        if !first {
+            w.write_all(b",")?;
+        }
+        self.indent(w)
+    }
+    fn begin_object_value<W: ?Sized + std::io::Write>(&mut self, w: &mut W) -> std::io::Result<()> {
+        w.write_all(b": ")
+    }
+    fn end_object<W: ?Sized + std::io::Write>(&mut self, w: &mut W) -> std::io::Result<()> {
+        if let Some(Open::Object { members: true }) = self.open.pop() {
+            self.indent(w)?;
+        }
+        w.write_all(b"}")
+    }
 }
 
 /// The file name stem of view `index`: six digits, more when needed.
@@ -471,6 +625,24 @@ pub fn view_name(index: u64) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn to_json_puts_number_arrays_on_one_line_and_leaves_strings_alone() {
+        let v = serde_json::json!({
+            "p": [1.5, -2.0, 3e-7],
+            "name": "x[1,2]",
+            "names": ["a[1, 2]", "b"],
+            "nested": [{"q": [0, 1]}, {"q": []}],
+            "empty": {}
+        });
+        let text = to_json(&v).unwrap();
+        assert_eq!(
+            text,
+            "{\n  \"empty\": {},\n  \"name\": \"x[1,2]\",\n  \"names\": [\n    \"a[1, 2]\",\n    \"b\"\n  ],\n  \"nested\": [\n    {\n      \"q\": [0, 1]\n    },\n    {\n      \"q\": []\n    }\n  ],\n  \"p\": [1.5, -2.0, 3e-7]\n}\n"
+        );
+        let back: serde_json::Value = serde_json::from_str(&text).unwrap();
+        assert_eq!(back, v);
+    }
 
     #[test]
     fn ranges_parse_and_reject() {
