@@ -11,11 +11,17 @@ pub const NERFSTUDIO_DEPTH_SCALE: f64 = 1000.0;
 /// Everything `batch` needs from the command line.
 #[derive(Clone, Debug)]
 pub struct BatchArgs {
+    /// A folder of scene files or a `.jsonl` manifest.
     pub input: PathBuf,
+    /// Output folder.
     pub out: PathBuf,
+    /// `--shard K/N`; with neither it nor `shards`: the SLURM array task, else every view.
     pub shard: Option<Shard>,
+    /// `--shards N`, the index coming from the environment (Kubernetes Indexed Job or SLURM).
     pub shards: Option<u32>,
+    /// How each view is rendered and written.
     pub options: BatchOptions,
+    /// How progress is shown on stderr.
     pub progress: ProgressMode,
     /// Bounds of `--verify-fraction`'s check.
     pub tolerances: crate::verify::compare::Tolerances,

@@ -13,14 +13,19 @@ use std::path::{Path, PathBuf};
 /// Everything `compare` needs from the command line.
 #[derive(Clone, Debug)]
 pub struct CompareArgs {
+    /// Image A (usually cylaov's render).
     pub a: PathBuf,
+    /// Image B (usually the Mitsuba reference).
     pub b: PathBuf,
     /// The scene A was rendered from: enables the per-pixel float32 conditioning bounds.
     pub scene: Option<PathBuf>,
     /// The float32 ulps of ray error the conditioning bound allows (with `scene`).
     pub conditioning_ulps: f64,
+    /// `--heatmap`: where to write a PNG showing where the images differ.
     pub heatmap: Option<PathBuf>,
+    /// Print the report as JSON instead of text.
     pub json: bool,
+    /// The pass/fail bounds.
     pub tolerances: Tolerances,
 }
 
@@ -37,8 +42,11 @@ struct JsonOut<'a> {
 
 /// The outcome: the text to print and whether every tolerance held.
 pub struct CompareOutcome {
+    /// The report as text or JSON (`--json`).
     pub text: String,
+    /// Whether every tolerance held.
     pub passed: bool,
+    /// The comparison itself.
     pub report: Report,
 }
 

@@ -18,6 +18,7 @@ pub const MAX_COUNT: u64 = 100_000_000;
 /// The command line.
 #[derive(Clone, Debug, Default)]
 pub struct GenerateArgs {
+    /// Output folder (`--out`).
     pub out: PathBuf,
     /// `--config FILE`.
     pub config: Option<PathBuf>,

@@ -24,17 +24,23 @@ use std::time::Instant;
 /// Everything `render` needs from the command line.
 #[derive(Clone, Debug)]
 pub struct RenderArgs {
+    /// The scene file.
     pub scene: PathBuf,
+    /// Output EXR (`-o`); the sidecar files are named after it.
     pub out: PathBuf,
     /// Overrides the scene's AOVs.
     pub aovs: Option<Vec<Aov>>,
+    /// Kernel and acceleration choice; its `aovs` are replaced by the resolved AOV list.
     pub options: RenderOptions,
+    /// `--preview DIR`: also write the PNG previews into this folder.
     pub preview: Option<PathBuf>,
+    /// EXR compression.
     pub compression: Compression,
     /// `--camera K`: the camera of a several-camera scene (0 = the first).
     pub camera: usize,
     /// `--depth-png`: also write `OUT.depth.png` at this many values per world unit.
     pub depth_png: Option<f64>,
+    /// With `depth_png`, what a hit whose depth × scale does not fit 16 bits does.
     pub depth_out_of_range: OutOfRange,
     /// One layered `OUT.exr`, or `OUT.<aov>.exr` per AOV.
     pub exr_layout: ExrLayout,

@@ -16,7 +16,9 @@ pub struct StressArgs {
     pub family: Option<String>,
     /// Rays per parameter value.
     pub rays: usize,
+    /// `--csv`: write one CSV line per ray and kernel here.
     pub csv: Option<PathBuf>,
+    /// `--plot`: write a log-log PNG of error against difficulty here.
     pub plot: Option<PathBuf>,
     /// Print the README's Markdown table instead of the text table (no timing: the same
     /// bytes on every run).

@@ -20,12 +20,17 @@ pub struct VerifyArgs {
     pub input: PathBuf,
     /// Fraction of the views to check (chosen from `seed` and the view names).
     pub fraction: f64,
+    /// Seed of the `fraction` choice (the same choice as `batch --verify-seed`).
     pub seed: u64,
     /// Folder for `NAME.heatmap.png` of every checked view.
     pub heatmap: Option<PathBuf>,
+    /// Print the results as JSON instead of the table.
     pub json: bool,
+    /// The pass/fail bounds.
     pub tolerances: Tolerances,
+    /// Kernel precision of cylaov's side.
     pub precision: Precision,
+    /// Kernel formulation of cylaov's side.
     pub formula: FormulaKind,
 }
 
@@ -33,7 +38,9 @@ pub struct VerifyArgs {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Status {
+    /// Every tolerance held.
     Pass,
+    /// At least one tolerance was broken.
     Fail,
     /// The check could not be made (bad scene, Mitsuba failed, no venv).
     Unchecked,
@@ -42,20 +49,27 @@ pub enum Status {
 /// One view's row.
 #[derive(Clone, Debug, Serialize)]
 pub struct ViewResult {
+    /// Output stem: the scene's name, or the camera number (`00`, …) of a several-camera scene.
     pub name: String,
+    /// The scene file's path.
     pub scene: String,
+    /// Pass, fail or unchecked.
     pub status: Status,
     /// The broken tolerances (FAIL lines), or why it could not be checked.
     pub failures: Vec<String>,
     /// What the float32 conditioning rule accepted above the flat bounds.
     pub accepted: Vec<String>,
+    /// The comparison, when the view could be checked.
     pub report: Option<Report>,
 }
 
 /// The outcome: text to print and the exit status.
 pub struct VerifyOutcome {
+    /// The table (or JSON) to print.
     pub text: String,
+    /// Exit status: 1 if any view failed, else 2 if any was unchecked, else 0.
     pub code: u8,
+    /// Every checked view, in order.
     pub views: Vec<ViewResult>,
 }
 

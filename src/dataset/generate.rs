@@ -43,11 +43,14 @@ fn uniform(rng: &mut SplitMix64, r: Range) -> f64 {
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(try_from = "RangeRepr", into = "RangeRepr")]
 pub struct Range {
+    /// Lower end, inclusive.
     pub min: f64,
+    /// Upper end, inclusive; >= `min`.
     pub max: f64,
 }
 
 impl Range {
+    /// The interval `[min, max]`, unchecked.
     pub const fn new(min: f64, max: f64) -> Self {
         Range { min, max }
     }
@@ -118,16 +121,25 @@ impl From<Range> for RangeRepr {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct GenerateOptions {
+    /// Cylinders per scene: whole numbers, uniform in the range.
     pub cylinders: Range,
+    /// Cylinder radius, world units, uniform.
     pub radius: Range,
+    /// Cylinder height (`p0`→`p1` distance), world units, uniform.
     pub length: Range,
     /// Half extents of the placement box (centred at the origin).
     pub volume: [f64; 3],
+    /// Probability that a cylinder is closed by caps, in [0, 1].
     pub caps_prob: f64,
+    /// Image width in pixels.
     pub width: u32,
+    /// Image height in pixels.
     pub height: u32,
+    /// Horizontal field of view in degrees (`fov_axis` x).
     pub fov: f64,
+    /// Camera elevation above the xy plane, degrees (directions uniform over that band).
     pub elevation: Range,
+    /// Camera distance in fit distances (1: the sphere bounding all cylinders just fills the view).
     pub distance: Range,
     /// Cameras per scene (left out of `generate.json` when 1, so that file keeps its bytes).
     #[serde(default = "one", skip_serializing_if = "is_one")]
@@ -171,19 +183,33 @@ impl Default for GenerateOptions {
 #[derive(Clone, Debug, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ConfigFile {
+    /// `--count`: number of scenes to write.
     pub count: Option<u64>,
+    /// `--seed`: the random seed (default 0).
     pub seed: Option<u64>,
+    /// `--cylinders`: [`GenerateOptions::cylinders`].
     pub cylinders: Option<Range>,
+    /// `--radius`: [`GenerateOptions::radius`].
     pub radius: Option<Range>,
+    /// `--length`: [`GenerateOptions::length`].
     pub length: Option<Range>,
+    /// `--volume`: [`GenerateOptions::volume`].
     pub volume: Option<Volume>,
+    /// `--caps-prob`: [`GenerateOptions::caps_prob`].
     pub caps_prob: Option<f64>,
+    /// `--width`: [`GenerateOptions::width`].
     pub width: Option<u32>,
+    /// `--height`: [`GenerateOptions::height`].
     pub height: Option<u32>,
+    /// `--fov`: [`GenerateOptions::fov`].
     pub fov: Option<f64>,
+    /// `--elevation`: [`GenerateOptions::elevation`].
     pub elevation: Option<Range>,
+    /// `--distance`: [`GenerateOptions::distance`].
     pub distance: Option<Range>,
+    /// `--views-per-scene`: [`GenerateOptions::views_per_scene`].
     pub views_per_scene: Option<u32>,
+    /// `--orbit`: [`GenerateOptions::orbit`].
     pub orbit: Option<bool>,
 }
 

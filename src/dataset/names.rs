@@ -31,7 +31,9 @@
 /// non-empty text) and what writes it.
 #[derive(Clone, Copy, Debug)]
 pub struct OutputName {
+    /// The file name pattern, e.g. `NAME.camera.json`.
     pub pattern: &'static str,
+    /// The command (and flag) that writes it.
     pub written_by: &'static str,
 }
 

@@ -14,15 +14,21 @@ use serde::{Deserialize, Serialize};
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum FovAxis {
+    /// `fov_deg` spans the image width (the default).
     #[default]
     X,
+    /// `fov_deg` spans the image height.
     Y,
+    /// `fov_deg` spans the image diagonal.
     Diagonal,
+    /// `fov_deg` spans the smaller of width and height.
     Smaller,
+    /// `fov_deg` spans the larger of width and height.
     Larger,
 }
 
 impl FovAxis {
+    /// The name as scene files and Mitsuba spell it (`x`, `y`, `diagonal`, `smaller`, `larger`).
     pub fn name(self) -> &'static str {
         match self {
             FovAxis::X => "x",
@@ -37,21 +43,32 @@ impl FovAxis {
 /// A validated camera (see `scene` for the checks).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CameraSpec {
+    /// Camera centre, world units.
     pub origin: DVec3,
+    /// Point looked at, world units (differs from `origin`).
     pub target: DVec3,
+    /// Up hint, non-zero, not parallel to `target - origin`; need not be unit or orthogonal.
     pub up: DVec3,
+    /// Field of view in degrees, in (0, 180), spanning the extent `fov_axis` names.
     pub fov_deg: f64,
+    /// Which image extent `fov_deg` spans.
     pub fov_axis: FovAxis,
+    /// Image width in pixels.
     pub width: u32,
+    /// Image height in pixels.
     pub height: u32,
+    /// Near clip: smallest camera-space z counted, > 0 (world units).
     pub near_clip: f64,
+    /// Far clip: largest camera-space z counted, > `near_clip` (world units).
     pub far_clip: f64,
 }
 
 /// The camera frame and projection, derived once from a [`CameraSpec`].
 #[derive(Clone, Copy, Debug)]
 pub struct Camera {
+    /// The spec this camera was built from.
     pub spec: CameraSpec,
+    /// Camera centre, world units (`spec.origin`).
     pub origin: DVec3,
     /// Unit view direction, `normalize(target - origin)`.
     pub forward: DVec3,
@@ -59,12 +76,15 @@ pub struct Camera {
     pub left: DVec3,
     /// `forward × left`; image y grows toward `-true_up`.
     pub true_up: DVec3,
-    /// Half extents of the image plane at unit distance: `tan` of the half angles.
+    /// Half width of the image plane at unit distance: `tan` of half the x field of view.
     pub tan_half_x: f64,
+    /// Half height of the image plane at unit distance: `tan_half_x / (width / height)`.
     pub tan_half_y: f64,
 }
 
 impl Camera {
+    /// Build the frame and the half extents from a validated spec (as Mitsuba converts
+    /// every `fov_axis` to an x field of view).
     pub fn new(spec: CameraSpec) -> Self {
         let forward = (spec.target - spec.origin).normalize();
         let left = spec.up.cross(forward).normalize();
@@ -92,10 +112,12 @@ impl Camera {
         }
     }
 
+    /// Image width in pixels.
     pub fn width(&self) -> u32 {
         self.spec.width
     }
 
+    /// Image height in pixels.
     pub fn height(&self) -> u32 {
         self.spec.height
     }

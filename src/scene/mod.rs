@@ -64,6 +64,7 @@ pub enum Aov {
 }
 
 impl Aov {
+    /// Every AOV, in the order outputs list them.
     pub const ALL: [Aov; 7] = [
         Aov::Distance,
         Aov::Depth,
@@ -74,6 +75,7 @@ impl Aov {
         Aov::NormalCamera,
     ];
 
+    /// The AOV's name as scene files and the command line spell it.
     pub fn name(self) -> &'static str {
         match self {
             Aov::Distance => "distance",
@@ -91,6 +93,7 @@ impl Aov {
         matches!(self, Aov::ShapeId | Aov::Part)
     }
 
+    /// The AOV named `s` (as [`Aov::name`] spells it), or `None`.
     pub fn parse(s: &str) -> Option<Aov> {
         Aov::ALL.into_iter().find(|a| a.name() == s)
     }
@@ -114,6 +117,7 @@ pub struct Scene {
     pub camera: CameraSpec,
     /// Every camera of the file, in file order (one for a `"camera"` file).
     pub cameras: Vec<CameraSpec>,
+    /// The cylinders, in file order.
     pub cylinders: Vec<Cylinder>,
     /// Requested AOVs, in file order, without repeats.
     pub aovs: Vec<Aov>,
@@ -122,7 +126,9 @@ pub struct Scene {
 /// A scene that could not be read: the field path (empty for whole-file errors) and why.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SceneError {
+    /// Field path of the offending value, e.g. `cylinders[3].radius`; empty for whole-file errors.
     pub field: String,
+    /// Why the value was rejected, naming the value.
     pub message: String,
 }
 
@@ -151,19 +157,28 @@ fn err(field: impl Into<String>, message: impl Into<String>) -> SceneError {
 #[derive(Clone, Debug, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CameraFile {
+    /// Camera centre, world units.
     #[serde(deserialize_with = "strict::vec3")]
     pub origin: [f64; 3],
+    /// Point looked at, world units; must differ from `origin`.
     #[serde(deserialize_with = "strict::vec3")]
     pub target: [f64; 3],
+    /// Up hint, any non-zero length, not parallel to `target - origin`.
     #[serde(deserialize_with = "strict::vec3")]
     pub up: [f64; 3],
+    /// Field of view in degrees, in (0, 180), spanning the extent `fov_axis` names.
     pub fov_deg: f64,
+    /// Which image extent `fov_deg` spans; default `x`.
     #[serde(default)]
     pub fov_axis: FovAxis,
+    /// Image width in pixels, 1..=[`MAX_SIDE`].
     pub width: u32,
+    /// Image height in pixels, 1..=[`MAX_SIDE`].
     pub height: u32,
+    /// Near clip plane: smallest camera-space z counted, > 0; default 0.01.
     #[serde(default = "default_near")]
     pub near_clip: f64,
+    /// Far clip plane: largest camera-space z counted, > `near_clip`; default 10000.
     #[serde(default = "default_far")]
     pub far_clip: f64,
 }
@@ -182,35 +197,43 @@ fn default_caps() -> bool {
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CylinderFile {
+    /// Centre of the bottom end (world units); given with `p1`.
     #[serde(
         default,
         deserialize_with = "strict::opt_vec3",
         skip_serializing_if = "Option::is_none"
     )]
     pub p0: Option<[f64; 3]>,
+    /// Centre of the top end (world units); given with `p0`.
     #[serde(
         default,
         deserialize_with = "strict::opt_vec3",
         skip_serializing_if = "Option::is_none"
     )]
     pub p1: Option<[f64; 3]>,
+    /// The base (bottom end centre, world units); given with `axis` and `height`.
     #[serde(
         default,
         deserialize_with = "strict::opt_vec3",
         skip_serializing_if = "Option::is_none"
     )]
     pub center: Option<[f64; 3]>,
+    /// Axis direction from the base, any non-zero length (normalised on load).
     #[serde(
         default,
         deserialize_with = "strict::opt_vec3",
         skip_serializing_if = "Option::is_none"
     )]
     pub axis: Option<[f64; 3]>,
+    /// Length along `axis` from the base, world units, > 0.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub height: Option<f64>,
+    /// Radius in world units, > 0.
     pub radius: f64,
+    /// Whether the ends are closed by caps (`false`: an open tube); default `true`.
     #[serde(default = "default_caps")]
     pub caps: bool,
+    /// What `shape_id` stores, > 0 (0 means miss); default the 1-based index in the file.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub id: Option<u32>,
 }
@@ -219,20 +242,24 @@ pub struct CylinderFile {
 #[derive(Clone, Debug, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SceneFile {
+    /// The single view, when the file has one.
     #[serde(
         default,
         skip_serializing_if = "Option::is_none",
         deserialize_with = "strict::opt_object"
     )]
     pub camera: Option<CameraFile>,
+    /// Several views of the same cylinders, camera 0, 1, … in order.
     #[serde(
         default,
         skip_serializing_if = "Option::is_none",
         deserialize_with = "strict::opt_objects"
     )]
     pub cameras: Option<Vec<CameraFile>>,
+    /// The cylinders, in order.
     #[serde(deserialize_with = "strict::objects")]
     pub cylinders: Vec<CylinderFile>,
+    /// Requested AOVs; default `["depth", "normal"]`, repeats dropped on load.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub aovs: Option<Vec<Aov>>,
 }

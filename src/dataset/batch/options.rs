@@ -21,7 +21,9 @@ pub enum Schedule {
 pub struct BatchOptions {
     /// AOVs in each EXR; `None`: each scene's own.
     pub aovs: Option<Vec<Aov>>,
+    /// Kernel precision.
     pub precision: Precision,
+    /// Kernel formulation.
     pub formula: FormulaKind,
     /// Depth PNG value per world unit (1000: millimetres for metre scenes).
     pub depth_scale: f64,
@@ -29,13 +31,16 @@ pub struct BatchOptions {
     pub png: bool,
     /// What the depth PNG does with a hit beyond 16 bits at `depth_scale`.
     pub depth_out_of_range: OutOfRange,
+    /// EXR compression.
     pub compression: Compression,
     /// One layered `NAME.exr`, or `NAME.<aov>.exr` per AOV.
     pub exr_layout: ExrLayout,
+    /// How the pool's threads share the work.
     pub schedule: Schedule,
     /// Fraction of views also checked against an independent reference (Mitsuba), chosen
     /// by [`selected_for_verify`](super::selected_for_verify) from `verify_seed` and the view name.
     pub verify_fraction: f64,
+    /// Seed of the `verify_fraction` choice.
     pub verify_seed: u64,
 }
 
@@ -58,6 +63,8 @@ impl Default for BatchOptions {
 }
 
 impl BatchOptions {
+    /// Check the values the command line cannot range-check: `depth_scale` finite and > 0,
+    /// `verify_fraction` in [0, 1] and 0 unless the EXR is layered; the error names the flag.
     pub fn validate(&self) -> Result<(), String> {
         let s = self.depth_scale;
         if !(s.is_finite() && s > 0.0) {

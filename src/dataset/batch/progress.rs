@@ -12,6 +12,7 @@ pub enum ProgressMode {
     Bar,
     /// One plain line every period (logs, pipes).
     Lines(Duration),
+    /// No progress output.
     Off,
 }
 
@@ -29,8 +30,11 @@ impl ProgressMode {
 /// Counts of one run.
 #[derive(Clone, Debug, Default)]
 pub struct Counts {
+    /// Views rendered and written in this run.
     pub done: usize,
+    /// Views skipped because their outputs were already complete (resume).
     pub skipped: usize,
+    /// Views that failed.
     pub failed: usize,
 }
 
@@ -54,6 +58,7 @@ fn hms(secs: f64) -> String {
 }
 
 impl Progress {
+    /// Progress for `total` views, its lines prefixed with `label`; the clock starts now.
     pub fn new(mode: ProgressMode, label: String, total: usize) -> Progress {
         Progress {
             mode,

@@ -15,7 +15,9 @@ use std::path::{Path, PathBuf};
 
 /// The output paths of view `name` in `dir` (the names of `crate::dataset::names`).
 pub struct ViewFiles {
+    /// The view's EXR (`NAME.exr`; the layered layout).
     pub exr: PathBuf,
+    /// Camera metadata (`NAME.camera.json`).
     pub camera: PathBuf,
     /// Open3D `PinholeCameraParameters`.
     pub open3d: PathBuf,
@@ -34,6 +36,7 @@ pub struct ViewFiles {
 }
 
 impl ViewFiles {
+    /// The output paths of view `name` in folder `dir`.
     pub fn new(dir: &Path, name: &str) -> ViewFiles {
         ViewFiles {
             exr: dir.join(format!("{name}.exr")),

@@ -26,38 +26,52 @@ use std::time::{Duration, Instant};
 /// What happened to one view.
 #[derive(Clone, Debug)]
 pub enum Outcome {
+    /// Rendered and written now, with what it cost.
     Done(ViewCost),
+    /// Its outputs were already complete (resume): nothing done.
     Skipped,
+    /// The view failed: why.
     Failed(String),
 }
 
 /// One line of `failures.K-of-N.jsonl`.
 #[derive(Clone, Debug, Serialize)]
 pub struct Failure {
+    /// The view's id relative to `OUT` (`scene` or `scene/00`).
     pub name: String,
+    /// The scene file's path.
     pub scene: String,
+    /// Why the view failed.
     pub error: String,
 }
 
 /// The result of a run.
 #[derive(Clone, Debug)]
 pub struct Summary {
+    /// The shard this run rendered.
     pub shard: Shard,
-    /// Views in the whole input and in this shard.
+    /// Views in the whole input.
     pub total: usize,
+    /// Views in this shard.
     pub in_shard: usize,
+    /// Done, skipped and failed views.
     pub counts: Counts,
+    /// Every failed view, in view-list order.
     pub failures: Vec<Failure>,
+    /// Wall time of the whole run.
     pub elapsed: Duration,
-    /// Sums over the views rendered in this run.
+    /// Build and trace time, summed over the views rendered in this run.
     pub trace: Duration,
+    /// Encoding and writing time, summed over the views rendered in this run.
     pub write: Duration,
+    /// Where this shard's failures went: `OUT/failures.K-of-N.jsonl`.
     pub failures_path: PathBuf,
     /// Views checked against the verifier in this run (all agreed unless counted failed).
     pub verified: usize,
-    /// Views rendered now whose depth PNG stores some hits as 0, and how many hits in all
+    /// Views rendered now whose depth PNG stores some hits as 0
     /// (`--depth-out-of-range zero`).
     pub depth_zeroed_views: usize,
+    /// Hits stored as 0 in those views, in all.
     pub depth_zeroed: usize,
 }
 

@@ -7,13 +7,17 @@ use std::fmt;
 /// has `i % count == index`: deterministic, balanced, and independent of what exists.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Shard {
+    /// This shard's index, 0-based, < `count`.
     pub index: u32,
+    /// Number of shards, >= 1.
     pub count: u32,
 }
 
 impl Shard {
+    /// The one shard of one: every view.
     pub const ALL: Shard = Shard { index: 0, count: 1 };
 
+    /// Shard `index` of `count`; an error unless `count >= 1` and `index < count`.
     pub fn new(index: u32, count: u32) -> Result<Shard, String> {
         if count == 0 {
             return Err("shard count must be >= 1, got 0".into());
@@ -39,6 +43,7 @@ impl Shard {
         Shard::new(num(k)?, num(n)?)
     }
 
+    /// Whether the view at position `view_index` of the view list is in this shard.
     pub fn contains(&self, view_index: usize) -> bool {
         view_index % self.count as usize == self.index as usize
     }

@@ -94,6 +94,7 @@ pub struct FrameCamera {
 }
 
 impl FrameCamera {
+    /// What the indexes need of `cam`, whose view's EXR holds `aovs`.
     pub fn new(cam: &Camera, aovs: &[Aov]) -> FrameCamera {
         FrameCamera {
             intrinsics: intrinsics(cam),

@@ -11,6 +11,7 @@ use std::path::Path;
 /// The verdict of a [`Verifier`] on one view.
 #[derive(Clone, Debug)]
 pub struct Verdict {
+    /// Whether the view agrees with the reference.
     pub passes: bool,
     /// One line for the log or the failures file (error statistics, mismatches).
     pub report: String,

@@ -228,6 +228,7 @@ pub struct Skipped {
 }
 
 impl Skipped {
+    /// Whether nothing was skipped.
     pub fn is_empty(&self) -> bool {
         *self == Skipped::default()
     }
