@@ -34,22 +34,30 @@ use std::path::Path;
 /// The samples of one channel, row-major, row 0 at the top.
 #[derive(Clone, Debug, PartialEq)]
 pub enum ChannelData {
+    /// float32 samples: every channel but the layered layout's `shape_id` and `part` (and
+    /// all of a Mitsuba reference, ids included).
     F32(Vec<f32>),
+    /// u32 samples (`shape_id`, `part` in the layered layout).
     U32(Vec<u32>),
 }
 
 /// One named channel.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Channel {
+    /// The EXR channel name, e.g. `depth` or `normal.X` (see [`channel_names`]).
     pub name: String,
+    /// The samples: `width × height` of them, row-major, row 0 at the top.
     pub data: ChannelData,
 }
 
 /// A multi-channel image of AOVs.
 #[derive(Clone, Debug, PartialEq)]
 pub struct AovImage {
+    /// Width in pixels.
     pub width: usize,
+    /// Height in pixels.
     pub height: usize,
+    /// The channels, each `width × height` samples; any order (files sort them by name).
     pub channels: Vec<Channel>,
 }
 
@@ -70,6 +78,7 @@ pub enum Compression {
 }
 
 impl Compression {
+    /// The `exr` crate's compression method for this choice.
     pub fn to_exr(self) -> exr::compression::Compression {
         use exr::compression::Compression as C;
         match self {
@@ -100,7 +109,9 @@ pub fn channel_names(aov: Aov) -> &'static [&'static str] {
 pub enum ExrAttr {
     /// A 4×4 float matrix (`m44f`), stored row by row as Imath does.
     M44f(&'static str, [f32; 16]),
+    /// A `string` attribute: name, value.
     Text(String, String),
+    /// A `float` attribute: name, value.
     Float(&'static str, f32),
 }
 
@@ -213,6 +224,7 @@ pub fn per_aov_image(img: &AovImage, aov: Aov) -> Result<AovImage> {
 }
 
 impl AovImage {
+    /// The samples of the channel named `name`, if there is one.
     pub fn channel(&self, name: &str) -> Option<&ChannelData> {
         self.channels
             .iter()
@@ -220,6 +232,7 @@ impl AovImage {
             .map(|c| &c.data)
     }
 
+    /// The samples of the float32 channel named `name`; `None` if absent or u32.
     pub fn f32_channel(&self, name: &str) -> Option<&[f32]> {
         match self.channel(name)? {
             ChannelData::F32(v) => Some(v),
@@ -227,6 +240,7 @@ impl AovImage {
         }
     }
 
+    /// The samples of the u32 channel named `name`; `None` if absent or float32.
     pub fn u32_channel(&self, name: &str) -> Option<&[u32]> {
         match self.channel(name)? {
             ChannelData::U32(v) => Some(v),

@@ -29,6 +29,7 @@ pub enum OutOfRange {
 
 /// A depth PNG and how many hits it could not hold (always 0 under [`OutOfRange::Fail`]).
 pub struct Encoded {
+    /// The image: `round(depth × scale)` per pixel, 0 = no depth (a miss or a zeroed hit).
     pub png: DepthPng,
     /// Hits stored as 0 because `round(depth × scale)` is outside `1..=65535`.
     pub zeroed: usize,

@@ -271,7 +271,7 @@ impl NewDirs {
         Ok(())
     }
 
-    /// The parent folder of a file target, if it has one.
+    /// [`NewDirs::create`] for the parent folder of a file target, if it has one.
     pub fn create_parent(&mut self, file: &Path) -> io::Result<()> {
         match file.parent() {
             Some(d) if !d.as_os_str().is_empty() => self.create(d),

@@ -39,12 +39,16 @@ pub const AOV_LIST: &str = "dd.y:depth,nn:sh_normal,pp:position,ii:shape_index";
 /// Which surface of a cylinder a Mitsuba shape is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Part {
+    /// The open tube between base and top (Mitsuba `cylinder`).
     Side,
+    /// The cap disk at the base, normal `-axis`.
     Bottom,
+    /// The cap disk at `base + height·axis`, normal `+axis`.
     Top,
 }
 
 impl Part {
+    /// The part's word in the shape's XML `id`: `side`, `bottom` or `top`.
     pub fn name(self) -> &'static str {
         match self {
             Part::Side => "side",
@@ -57,7 +61,9 @@ impl Part {
 /// One Mitsuba shape of the export: which cylinder (0-based file index) and which part.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct ExportedShape {
+    /// Index of the cylinder in the scene file (0-based), not its `shape_id`.
     pub cylinder: usize,
+    /// Which surface of that cylinder.
     pub part: Part,
 }
 

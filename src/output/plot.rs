@@ -7,9 +7,13 @@
 
 use image::{Rgb, RgbImage};
 
+/// Frames, ticks and text.
 pub const BLACK: Rgb<u8> = Rgb([0, 0, 0]);
+/// Figure background (and text on dark images).
 pub const WHITE: Rgb<u8> = Rgb([255, 255, 255]);
+/// The dotted grid lines at the ticks of a panel.
 pub const GRID: Rgb<u8> = Rgb([200, 200, 200]);
+/// Secondary text: axis names and notes under a panel.
 pub const NOTE: Rgb<u8> = Rgb([90, 90, 90]);
 /// Bound lines (the dashed "must stay under" line of a panel).
 pub const BOUND: Rgb<u8> = Rgb([0, 150, 0]);
@@ -34,6 +38,7 @@ pub fn put(img: &mut RgbImage, x: i64, y: i64, c: Rgb<u8>) {
     }
 }
 
+/// A filled `w`×`h` rectangle with its top-left pixel at (x, y).
 pub fn fill(img: &mut RgbImage, x: i64, y: i64, w: u32, h: u32, c: Rgb<u8>) {
     for j in y..y + h as i64 {
         for i in x..x + w as i64 {
@@ -103,11 +108,13 @@ pub fn thick_line(
 /// Point markers, 5×5 around the point.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Marker {
+    /// A filled square.
     Square,
     /// An outline: a second value at the same point (e.g. the median beside the max).
     Open,
 }
 
+/// A marker of kind `m` centred on pixel (x, y).
 pub fn marker(img: &mut RgbImage, (x, y): (i64, i64), m: Marker, c: Rgb<u8>) {
     match m {
         Marker::Square => fill(img, x - 2, y - 2, 5, 5, c),
@@ -210,9 +217,13 @@ pub fn legend_entry(img: &mut RgbImage, x: i64, y: i64, c: Rgb<u8>, label: &str)
 /// value itself on a linear one. Ticks every `step` units from the first whole unit.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Axis {
+    /// Low end of the range, axis units (left or bottom of the panel).
     pub lo: f64,
+    /// High end of the range, axis units (right or top of the panel).
     pub hi: f64,
+    /// Logarithmic (axis units are decades) rather than linear.
     pub log: bool,
+    /// Distance between ticks, axis units.
     pub step: f64,
 }
 
@@ -256,6 +267,7 @@ impl Axis {
         }
     }
 
+    /// The same axis with a tick every `step` axis units.
     pub fn with_step(self, step: f64) -> Axis {
         Axis { step, ..self }
     }
@@ -304,6 +316,7 @@ pub struct Grid {
 }
 
 impl Grid {
+    /// Size of one cell in pixels: the panel plus its margins.
     pub fn cell(&self) -> (u32, u32) {
         let [l, t, r, b] = self.margin;
         (l + self.panel.0 + r, t + self.panel.1 + b)
@@ -333,11 +346,17 @@ impl Grid {
 /// then data with [`Panel::pos`] (data values) or [`Panel::at`] (axis units).
 #[derive(Clone, Copy, Debug)]
 pub struct Panel {
+    /// Left column of the plot area, pixels.
     pub x: i64,
+    /// Top row of the plot area, pixels.
     pub y: i64,
+    /// Width of the plot area (frame included), pixels.
     pub w: u32,
+    /// Height of the plot area (frame included), pixels.
     pub h: u32,
+    /// Horizontal axis.
     pub xa: Axis,
+    /// Vertical axis (its `lo` at the bottom).
     pub ya: Axis,
 }
 

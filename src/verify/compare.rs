@@ -126,11 +126,15 @@ pub const CONDITIONING_ULPS: f64 = 4.0;
 /// scene and one image's own hits. 0 where that image misses.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Conditioning {
+    /// Image width in pixels.
     pub width: usize,
+    /// Image height in pixels.
     pub height: usize,
-    /// Relative distance (and depth) error float32 inputs can explain.
+    /// Relative distance (and depth) error float32 inputs can explain, per pixel,
+    /// row-major, row 0 at the top.
     pub rel: Vec<f64>,
-    /// Normal angle error, degrees.
+    /// Normal angle error float32 inputs can explain, degrees, per pixel, row-major (0 on
+    /// caps when the image has `part`).
     pub normal_deg: Vec<f64>,
 }
 
@@ -213,8 +217,11 @@ impl Conditioning {
 pub struct Stat {
     /// Pixels measured (finite samples in both images).
     pub count: usize,
+    /// Median (nearest rank; 0 when `count` is 0).
     pub median: f64,
+    /// 99th percentile (nearest rank; 0 when `count` is 0).
     pub p99: f64,
+    /// Largest value (0 when `count` is 0).
     pub max: f64,
     /// `[x, y]` of the largest error (row 0 at the top).
     pub worst_pixel: Option<[usize; 2]>,
@@ -250,6 +257,7 @@ impl Stat {
 /// [`Conditioning`], the split into pixels its per-pixel bound explains and the rest.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Metric {
+    /// Statistics over every measured pixel, explained or not.
     pub all: Stat,
     /// The pixels whose error exceeds their conditioning bound: the flat bound applies to
     /// these (`None` without conditioning: then it applies to `all`).
@@ -304,9 +312,13 @@ impl Metric {
 /// `Display` for a person.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Report {
+    /// Image width in pixels (both images have the same size).
     pub width: usize,
+    /// Image height in pixels.
     pub height: usize,
+    /// `width × height`: the denominator of the mismatch fractions.
     pub pixels: usize,
+    /// How pixel identity was decided (what "same" means below).
     pub identity: Identity,
     /// Whether per-pixel float32 conditioning bounds were applied.
     pub conditioned: bool,
@@ -318,18 +330,27 @@ pub struct Report {
     pub type_clashes: Vec<String>,
     /// Channels only one image has (not compared).
     pub only_in_a: Vec<String>,
+    /// Channels only B has (not compared).
     pub only_in_b: Vec<String>,
+    /// Pixels where A hits (non-zero `shape_id`, or hit by `distance`/`depth` > 0 under
+    /// [`Identity::HitMiss`]).
     pub hits_a: usize,
+    /// Pixels where B hits, by the same rule.
     pub hits_b: usize,
-    /// Pixels where both hit the same part of the same cylinder (the statistics' population).
+    /// Pixels where both hit the same part of the same cylinder (the same cylinder, or just
+    /// both hit, under a coarser [`Identity`]): the statistics' population.
     pub same: usize,
     /// Pixels of different cylinders or hit vs miss.
     pub mismatches: usize,
+    /// Those of `mismatches` next to a cylinder boundary in either image (the kind
+    /// that may be allowed).
     pub mismatches_on_silhouette: usize,
     /// Silhouette mismatches over all pixels (what `max_mismatch_fraction` bounds).
     pub mismatch_fraction: f64,
     /// Pixels of the same cylinder but another part.
     pub seams: usize,
+    /// Those of `seams` next to a (cylinder, part) boundary in either image (the
+    /// kind that may be allowed).
     pub seams_on_boundary: usize,
     /// Seam mismatches over all pixels (what `max_seam_fraction` bounds).
     pub seam_fraction: f64,
@@ -339,16 +360,22 @@ pub struct Report {
     pub mismatches_interior: usize,
     /// Up to 10 interior mismatches, `[x, y]`.
     pub interior_examples: Vec<[usize; 2]>,
+    /// Relative distance error `|a - b| / max(|a|, |b|)` (needs `distance` in both).
     pub rel_distance: Option<Metric>,
+    /// Relative planar-depth error, same formula (needs `depth` in both).
     pub rel_depth: Option<Metric>,
+    /// Normal angle error in degrees (needs `normal` in both).
     pub normal_deg: Option<Metric>,
     /// `|Δposition|` in world units.
     pub position_abs: Option<Stat>,
     /// `|Δposition| / distance` (needs `distance` in both).
     pub position_rel: Option<Stat>,
-    /// Non-finite samples in the compared float channels.
+    /// Non-finite samples in A's compared float channels (any is a failure).
     pub non_finite_a: usize,
+    /// Non-finite samples in B's compared float channels (any is a failure).
     pub non_finite_b: usize,
+    /// What the comparison could not do or check (missing identity channels, type clashes,
+    /// no error channel), one sentence each.
     pub notes: Vec<String>,
 }
 

@@ -42,6 +42,7 @@ pub const NO_VENV_HINT: &str = "make it with `scripts/setup-venv` in the cylaov 
 /// The Mitsuba reference renderer: the venv's Python.
 #[derive(Clone, Debug)]
 pub struct Mitsuba {
+    /// The Python interpreter with Mitsuba installed (`VENV/bin/python`).
     pub python: PathBuf,
 }
 
@@ -142,7 +143,9 @@ pub fn check_render(scene: &Scene, precision: Precision, formula: FormulaKind) -
 /// The outcome of one view's check.
 #[derive(Clone, Debug)]
 pub struct ViewCheck {
+    /// The comparison of cylaov's render (A) with Mitsuba's (B).
     pub report: Report,
+    /// The bounds the report was judged by.
     pub tolerances: Tolerances,
     /// The broken tolerances (the FAIL lines of `cylaov compare`); empty: it passed.
     pub failures: Vec<String>,
@@ -151,6 +154,7 @@ pub struct ViewCheck {
 }
 
 impl ViewCheck {
+    /// Whether every tolerance holds (no failures).
     pub fn passed(&self) -> bool {
         self.failures.is_empty()
     }
@@ -260,10 +264,14 @@ fn tolerance_key(t: &Tolerances) -> [f64; 5] {
 
 /// `batch --verify-fraction`'s verifier.
 pub struct MitsubaVerifier {
+    /// The reference renderer.
     pub mitsuba: Mitsuba,
+    /// The bounds each view is judged by (also part of the cached verdict's key).
     pub tolerances: Tolerances,
-    /// The batch's kernel: the check re-renders the view exactly as the batch did.
+    /// The batch's precision; with `formula` it names the batch's kernel, so the check
+    /// re-renders the view exactly as the batch did.
     pub precision: Precision,
+    /// The batch's ray–cylinder formulation (literal or stable), the kernel's other half.
     pub formula: FormulaKind,
 }
 
