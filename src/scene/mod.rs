@@ -4,10 +4,12 @@
 //! rejection names the field and the value: `cylinders[3].radius: must be > 0, got -1`.
 
 pub mod camera;
+mod fast_json;
 
 use crate::geometry::Cylinder;
 use crate::scene::camera::{CameraSpec, FovAxis};
 use glam::DVec3;
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::path::Path;
@@ -191,6 +193,9 @@ pub fn load(path: &Path) -> Result<Scene, SceneError> {
 
 /// Parse and validate scene JSON.
 pub fn parse(text: &str) -> Result<Scene, SceneError> {
+    if let Some(file) = fast_json::scene_file(text) {
+        return file.validate();
+    }
     let de = &mut serde_json::Deserializer::from_str(text);
     let file: SceneFile = serde_path_to_error::deserialize(de).map_err(|e| {
         let path = e.path().to_string();
@@ -272,12 +277,22 @@ impl SceneFile {
     /// Check every field and build the validated scene.
     pub fn validate(&self) -> Result<Scene, SceneError> {
         let camera = self.camera.validate()?;
-        let cylinders = self
+        // In parallel; on an error, again in order, to report the first one.
+        let cylinders = match self
             .cylinders
-            .iter()
+            .par_iter()
             .enumerate()
             .map(|(i, c)| c.validate(i))
-            .collect::<Result<Vec<_>, _>>()?;
+            .collect::<Result<Vec<_>, _>>()
+        {
+            Ok(list) => list,
+            Err(_) => self
+                .cylinders
+                .iter()
+                .enumerate()
+                .map(|(i, c)| c.validate(i))
+                .collect::<Result<Vec<_>, _>>()?,
+        };
         let aovs = match &self.aovs {
             None => default_aovs(),
             Some(list) if list.is_empty() => {
