@@ -123,21 +123,14 @@ impl Cursor<'_> {
         if b.get(i) == Some(&b'-') {
             i += 1;
         }
-        #[inline(always)]
-        fn digits(b: &[u8], i: &mut usize) -> usize {
-            let n = b[*i..].iter().take_while(|c| c.is_ascii_digit()).count();
-            *i += n;
-            n
-        }
-        let digits = |i: &mut usize| digits(b, i);
-        let int = digits(&mut i);
+        let int = digits(b, &mut i);
         // No leading zeros (JSON), at least one digit.
         if int == 0 || (int > 1 && b[i - int] == b'0') {
             return None;
         }
         if b.get(i) == Some(&b'.') {
             i += 1;
-            if digits(&mut i) == 0 {
+            if digits(b, &mut i) == 0 {
                 return None;
             }
         }
@@ -146,7 +139,7 @@ impl Cursor<'_> {
             if matches!(b.get(i), Some(b'+' | b'-')) {
                 i += 1;
             }
-            if digits(&mut i) == 0 {
+            if digits(b, &mut i) == 0 {
                 return None;
             }
         }
@@ -174,10 +167,8 @@ impl Cursor<'_> {
     fn uint(&mut self) -> Option<u32> {
         self.ws();
         let start = self.i;
-        let n = self.b[start..]
-            .iter()
-            .take_while(|c| c.is_ascii_digit())
-            .count();
+        let mut end = start;
+        let n = digits(self.b, &mut end);
         if n == 0 || (n > 1 && self.b[start] == b'0') {
             return None;
         }
@@ -266,6 +257,26 @@ impl Cursor<'_> {
     }
 }
 
+/// Advance `i` past ASCII digits; how many.
+#[inline(always)]
+fn digits(b: &[u8], i: &mut usize) -> usize {
+    let start = *i;
+    while *i < b.len() && b[*i].is_ascii_digit() {
+        *i += 1;
+    }
+    *i - start
+}
+
+/// The position after `}` at `k` and any whitespace.
+#[inline(always)]
+fn after_brace(b: &[u8], k: usize) -> usize {
+    let mut j = k + 1;
+    while j < b.len() && matches!(b[j], b' ' | b'\n' | b'\r' | b'\t') {
+        j += 1;
+    }
+    j
+}
+
 /// The cylinder array starting at `start`, and the position after it. The array is cut
 /// into runs of objects at `}` bytes followed by `,` (no cylinder object holds a `}` but
 /// its last; if a key string did, that run fails to parse and so does the whole file), and
@@ -278,44 +289,45 @@ fn cylinder_list(text: &str, start: usize) -> Option<(Vec<CylinderFile>, usize)>
     if b.get(p.i) == Some(&b']') {
         return Some((Vec::new(), p.i + 1));
     }
-    // The array's end: the first `]` after a `}` (arrays inside objects close before their
-    // object does; the array's own `]` is the first to follow a `}` and whitespace).
-    let body = p.i;
-    let mut end = None;
-    let mut k = body;
-    while let Some(off) = b[k..].iter().position(|&c| c == b'}') {
-        let mut j = k + off + 1;
-        while matches!(b.get(j), Some(b' ' | b'\n' | b'\r' | b'\t')) {
-            j += 1;
-        }
-        if b.get(j) == Some(&b']') {
-            end = Some(j);
-            break;
-        }
-        k = j;
-    }
-    let end = end?;
-    // Runs about 64 KiB long, each cut at a `,` that follows a `}`.
+    // Runs about 64 KiB long, each cut at a `,` that follows a `}`: from a point 64 KiB
+    // on, the next `}` ends a cylinder. The array ends at a `}` that a `]` follows; the
+    // last run is searched for it from its start. (A jump past the array's end into a
+    // later key could cut at the wrong place: that run then fails, and so serde_json
+    // reads the file.)
     const RUN: usize = 1 << 16;
+    let body = p.i;
     let mut runs = Vec::new();
     let (mut from, mut k) = (body, body + RUN);
-    while k < end {
-        let Some(off) = b[k..end].iter().position(|&c| c == b'}') else {
-            break;
+    let end = loop {
+        let next = b.get(k..).and_then(|r| r.iter().position(|&c| c == b'}'));
+        let Some(off) = next else {
+            // The rest is one run: find the array's end in it.
+            let mut k = from;
+            loop {
+                let off = b[k..].iter().position(|&c| c == b'}')?;
+                let j = after_brace(b, k + off);
+                if b.get(j) == Some(&b']') {
+                    runs.push((from, j));
+                    break;
+                }
+                k = j;
+            }
+            break runs.last()?.1;
         };
-        let mut j = k + off + 1;
-        while matches!(b.get(j), Some(b' ' | b'\n' | b'\r' | b'\t')) {
-            j += 1;
+        let j = after_brace(b, k + off);
+        match b.get(j) {
+            Some(b',') => {
+                runs.push((from, j));
+                from = j + 1;
+                k = from + RUN;
+            }
+            Some(b']') => {
+                runs.push((from, j));
+                break j;
+            }
+            _ => k = j,
         }
-        if j < end && b[j] == b',' {
-            runs.push((from, j));
-            from = j + 1;
-            k = from + RUN;
-        } else {
-            k = j;
-        }
-    }
-    runs.push((from, end));
+    };
     let runs: Vec<Option<Vec<CylinderFile>>> = runs
         .into_par_iter()
         .map(|(from, to)| {
