@@ -393,6 +393,24 @@ fn floor_in(a: f64, n: u32) -> i64 {
     t - ((t as f64) > a) as i64
 }
 
+/// [`project`] for one camera, its set-up done once: for projecting cylinders as a
+/// walk meets them, when there are far fewer pixels than cylinders.
+pub struct Projector(View);
+
+impl Projector {
+    pub fn new(cam: &Camera) -> Self {
+        Projector(View::new(cam))
+    }
+
+    /// The candidate of `cyl` (scene index `index`, kept in `slot`); an empty rectangle
+    /// when it is culled ([`Candidate::is_culled`]).
+    #[inline]
+    pub fn project(&self, cyl: &Cylinder, index: u32, slot: u32) -> Candidate {
+        let c = project_in(&self.0, cyl).unwrap_or(CULLED);
+        Candidate { index, slot, ..c }
+    }
+}
+
 /// The projections of `cylinders[order[s]]` in slot `s` (index and slot set), for walking a
 /// hierarchy tile by tile instead of binning: a culled cylinder gets an empty rectangle
 /// ([`Candidate::is_culled`]).
