@@ -174,12 +174,18 @@ impl<T: Real, F: Formula> Tracer<T, F> {
             let bounds: Vec<_> = cylinders.iter().map(|c| c.bounds()).collect();
             Bvh::build(&bounds, origin)
         };
-        let (bvh, mut tiles) = match accel {
-            Accel::Bvh | Accel::Frustum => (Some(bvh()), None),
-            Accel::Tiles => match Tiles::build(&camera, cylinders) {
-                Some(tiles) => (None, Some(tiles)),
-                None => (Some(bvh()), None),
+        let pixels = camera.width() as usize * camera.height() as usize;
+        let ntiles =
+            camera.width().div_ceil(TILE) as usize * camera.height().div_ceil(TILE) as usize;
+        // Far more cylinders than the lists could hold uncrowded: crowded unless nearly
+        // all lie outside the view, so skip projecting them all for the tiles.
+        let hopeless = cylinders.len() > 8 * tiles::CROWDED * ntiles;
+        let (bvh, mut tiles, projected) = match accel {
+            Accel::Tiles if !hopeless => match Tiles::build_or_projections(&camera, cylinders) {
+                Ok(tiles) => (None, Some(tiles), None),
+                Err(projected) => (Some(bvh()), None, Some(projected)),
             },
+            _ => (Some(bvh()), None, None),
         };
         // Slots follow the order the trace meets cylinders in: the tiles' lists, or the
         // BVH's leaves (a leaf's cylinders then lie together in memory).
@@ -188,9 +194,15 @@ impl<T: Real, F: Formula> Tracer<T, F> {
             (None, Some(bvh)) => bvh.order().to_vec(),
             (None, None) => (0..cylinders.len() as u32).collect(),
         };
-        let pixels = camera.width() as usize * camera.height() as usize;
         let cone_cands = (bvh.is_some() && accel != Accel::Bvh).then(|| {
-            if pixels >= cylinders.len() {
+            if let Some(p) = projected {
+                // The tiles' projections, in index order: into slot order.
+                let slots = order.par_iter().enumerate().map(|(s, &i)| Candidate {
+                    slot: s as u32,
+                    ..p[i as usize]
+                });
+                ConeCands::Projected(slots.collect())
+            } else if pixels >= cylinders.len() {
                 ConeCands::Projected(tiles::project_slots(&camera, cylinders, &order))
             } else {
                 let cyls = order.par_iter().map(|&i| cylinders[i as usize]).collect();
