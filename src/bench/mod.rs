@@ -666,7 +666,7 @@ pub struct MitsubaBench {
     pub python: PathBuf,
     /// `scripts/bench_mitsuba.py`.
     pub script: PathBuf,
-    /// Largest count for `scalar_rgb` (slow: ~75 s at 1 000 cylinders, SPEC §5).
+    /// Largest count for `scalar_rgb` (slow: minutes at 1 000 cylinders).
     pub scalar_max: usize,
     /// Largest count for `llvm_ad_rgb`.
     pub llvm_max: usize,
@@ -720,8 +720,10 @@ pub fn time_mitsuba(
     }
     let text = String::from_utf8_lossy(&o.stdout);
     let line = text.lines().last().unwrap_or_default();
+    // Mitsuba's logger may leave a terminal colour reset in front of the JSON.
+    let json = line.find('{').map_or(line, |k| &line[k..]);
     let mut row: MitsubaRow =
-        serde_json::from_str(line).with_context(|| format!("bench_mitsuba.py printed {line:?}"))?;
+        serde_json::from_str(json).with_context(|| format!("bench_mitsuba.py printed {line:?}"))?;
     row.cylinders = scene.cylinders.len();
     // The cold process: everything but the warm second render (none for scalar variants).
     row.process_s = if variant.starts_with("scalar") {
@@ -732,7 +734,7 @@ pub fn time_mitsuba(
     Ok(row)
 }
 
-/// Run Mitsuba on the bench scenes, printing each row with the ratios of SPEC §7 against
+/// Run Mitsuba on the bench scenes, printing each row with the three speed ratios against
 /// cylaov's stable-f64 depth+normal row of the same count: (a) whole process vs whole
 /// process, (b) Mitsuba's warm `render()` vs cylaov's whole process, (c) Mitsuba's warm
 /// `render()` vs cylaov's in-memory build + trace.

@@ -30,7 +30,7 @@ pub enum Precision {
 /// Kernel formulation (see `geometry::cylinder`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
 pub enum FormulaKind {
-    /// SPEC §1 as written: textbook roots, axis-point normal quadratic.
+    /// The textbook formulas as written: textbook roots, axis-point normal quadratic.
     Literal,
     /// Lagrange discriminant, citardauq roots, projected normal, gap-free rims.
     #[default]
