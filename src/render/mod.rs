@@ -130,6 +130,30 @@ enum ConeCands {
 }
 
 impl ConeCands {
+    /// For the slots `order`: the tiles' projections (in index order) when they were
+    /// made, else all projected now, or none yet when there are fewer pixels than
+    /// cylinders.
+    fn new(
+        camera: &Camera,
+        cylinders: &[Cylinder],
+        order: &[u32],
+        projected: Option<Vec<Candidate>>,
+    ) -> Self {
+        let pixels = camera.width() as usize * camera.height() as usize;
+        if let Some(p) = projected {
+            let slots = order.par_iter().enumerate().map(|(s, &i)| Candidate {
+                slot: s as u32,
+                ..p[i as usize]
+            });
+            ConeCands::Projected(slots.collect())
+        } else if pixels >= cylinders.len() {
+            ConeCands::Projected(tiles::project_slots(camera, cylinders, order))
+        } else {
+            let cyls = order.par_iter().map(|&i| cylinders[i as usize]).collect();
+            ConeCands::Lazy(tiles::Projector::new(camera), cyls)
+        }
+    }
+
     #[inline(always)]
     fn get(&self, slot: u32, order: &[u32]) -> Candidate {
         match self {
@@ -171,10 +195,9 @@ impl<T: Real, F: Formula> Tracer<T, F> {
         let origin = camera.origin;
         let cylinders = &scene.cylinders;
         let bvh = || {
-            let bounds: Vec<_> = cylinders.iter().map(|c| c.bounds()).collect();
+            let bounds: Vec<_> = cylinders.par_iter().map(|c| c.bounds()).collect();
             Bvh::build(&bounds, origin)
         };
-        let pixels = camera.width() as usize * camera.height() as usize;
         let ntiles =
             camera.width().div_ceil(TILE) as usize * camera.height().div_ceil(TILE) as usize;
         // Far more cylinders than the lists could hold uncrowded: crowded unless nearly
@@ -194,21 +217,8 @@ impl<T: Real, F: Formula> Tracer<T, F> {
             (None, Some(bvh)) => bvh.order().to_vec(),
             (None, None) => (0..cylinders.len() as u32).collect(),
         };
-        let cone_cands = (bvh.is_some() && accel != Accel::Bvh).then(|| {
-            if let Some(p) = projected {
-                // The tiles' projections, in index order: into slot order.
-                let slots = order.par_iter().enumerate().map(|(s, &i)| Candidate {
-                    slot: s as u32,
-                    ..p[i as usize]
-                });
-                ConeCands::Projected(slots.collect())
-            } else if pixels >= cylinders.len() {
-                ConeCands::Projected(tiles::project_slots(&camera, cylinders, &order))
-            } else {
-                let cyls = order.par_iter().map(|&i| cylinders[i as usize]).collect();
-                ConeCands::Lazy(tiles::Projector::new(&camera), cyls)
-            }
-        });
+        let cone_cands = (bvh.is_some() && accel != Accel::Bvh)
+            .then(|| ConeCands::new(&camera, cylinders, &order, projected));
         let t0 = std::time::Instant::now();
         let mut prepared = Vec::with_capacity(order.len());
         huge_pages(&prepared);
