@@ -19,8 +19,6 @@ use std::ops::Range;
 /// when its boxes cannot be told apart).
 pub const LEAF_SIZE: usize = 4;
 const BINS: usize = 16;
-/// The parts a [`ConeWalk`] tracks a reach for.
-pub const PARTS: usize = 4;
 /// Levels split by SAH; deeper nodes split at the object median.
 pub const SAH_DEPTH: usize = 30;
 /// Entries of the traversal stack: more than any leaf's depth.
@@ -472,10 +470,6 @@ impl Cone {
 pub struct ConeWalk<'a> {
     bvh: &'a Bvh,
     cone: Cone,
-    /// The cones of the block's parts (its quarters), each with its own reach: a node
-    /// whose nearest z lies beyond some part's reach still opens for a part it meets
-    /// whose reach is farther (pixels there lack a hit, or have a far one).
-    parts: [Cone; PARTS],
     /// Pending far children and their nearest z.
     stack: [(u32, f32); MAX_DEPTH],
     sp: usize,
@@ -485,47 +479,24 @@ pub struct ConeWalk<'a> {
 
 impl<'a> ConeWalk<'a> {
     /// Start at the root (an empty scene or a root outside the cone gives no leaf).
-    /// `parts` cover `cone` between them.
     #[inline(always)]
-    pub fn new(bvh: &'a Bvh, cone: Cone, parts: [Cone; PARTS]) -> Self {
+    pub fn new(bvh: &'a Bvh, cone: Cone) -> Self {
         let root = &bvh.nodes[0];
         let open = !bvh.order.is_empty() && cone.meets(root.min, root.max);
         ConeWalk {
             bvh,
             cone,
-            parts,
             stack: [(0, 0.0); MAX_DEPTH],
             sp: 0,
             current: open.then_some(0),
         }
     }
 
-    /// Whether a node whose box is `[min, max]`, nearest z `z`, may hold a hit that
-    /// improves some ray: some part it meets has a reach at or beyond `z`.
-    #[inline(always)]
-    fn opens(&self, min: Vec3A, max: Vec3A, z: f32, reach: &[f32; PARTS]) -> bool {
-        let (lo, hi) = reach
-            .iter()
-            .fold((f32::INFINITY, f32::NEG_INFINITY), |(l, h), &r| {
-                (l.min(r), h.max(r))
-            });
-        if z > hi {
-            return false;
-        }
-        if z <= lo {
-            // Every part is open at z, and the parts cover the cone.
-            return self.cone.meets(min, max);
-        }
-        self.cone.meets(min, max)
-            && (0..PARTS).any(|q| z <= reach[q] && self.parts[q].meets(min, max))
-    }
-
     /// The next leaf's range of positions in [`Bvh::order`], or `None` when no node left
-    /// meets a part of the cone at or before that part's reach.
+    /// meets the cone at or before `reach`.
     #[inline(always)]
-    pub fn next_leaf(&mut self, reach: [f32; PARTS]) -> Option<Range<u32>> {
-        let nodes = &self.bvh.nodes;
-        let cone = &self.cone;
+    pub fn next_leaf(&mut self, reach: f32) -> Option<Range<u32>> {
+        let (nodes, cone) = (&self.bvh.nodes, &self.cone);
         loop {
             let current = match self.current.take() {
                 Some(c) => c,
@@ -535,8 +506,7 @@ impl<'a> ConeWalk<'a> {
                     }
                     self.sp -= 1;
                     let (n, z) = self.stack[self.sp];
-                    let k = &nodes[n as usize];
-                    if self.opens(k.min, k.max, z, &reach) {
+                    if z <= reach {
                         break n;
                     }
                 },
@@ -549,7 +519,7 @@ impl<'a> ConeWalk<'a> {
             let z = |k: u32| {
                 let n = &nodes[k as usize];
                 let z = cone.z_min(n.min, n.max);
-                self.opens(n.min, n.max, z, &reach).then_some(z)
+                (z <= reach && cone.meets(n.min, n.max)).then_some(z)
             };
             match (z(l), z(r)) {
                 (Some(a), Some(b)) => {

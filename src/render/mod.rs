@@ -8,7 +8,7 @@
 //! ([`ConeWalk`]): the cost then follows what is visible, not what is listed. Either
 //! way each candidate is rasterised over just the pixels its projection can cover.
 
-use crate::accel::bvh::{Bvh, Cone, ConeWalk, PARTS};
+use crate::accel::bvh::{Bvh, Cone, ConeWalk};
 use crate::accel::tiles::{self, Candidate, TILE, Tiles};
 use crate::geometry::packet::{self, LANES, NO_HIT, Packet, PacketFormula};
 use crate::geometry::wide::{Lanes, Simd, Wide};
@@ -360,37 +360,14 @@ fn trace_cone<T: Real, F: PacketFormula, W: Wide<T>>(
     // reach: their rays exist, but no pixel needs them).
     let (tw, rows) = ((xs.1 - xs.0 + 1) as usize, (ys.1 - ys.0 + 1) as usize);
     let groups = tw.div_ceil(LANES);
+    let row_mask = (1u32 << groups) - 1;
+    let valid = (0..rows).fold(0u32, |m, r| m | row_mask << (r * PACKETS_PER_ROW));
     rays.lanes = [LANES as u8; PACKETS];
     for r in 0..rows {
         rays.lanes[r * PACKETS_PER_ROW + groups - 1] = (tw - (groups - 1) * LANES) as u8;
     }
-    // The quarters: column group g (eight columns) by half h (eight rows). A quarter
-    // outside the image has no packets and never opens a node.
-    let half = TILE / 2;
-    let mut valid = [0u32; PARTS];
-    let parts: [Cone; PARTS] = std::array::from_fn(|q| {
-        let (g, h) = ((q % 2) as u32, (q / 2) as u32);
-        let qx = (
-            xs.0 + g * LANES as u32,
-            (xs.0 + g * LANES as u32 + 7).min(xs.1),
-        );
-        let qy = (ys.0 + h * half, (ys.0 + h * half + half - 1).min(ys.1));
-        if qx.0 > xs.1 || qy.0 > ys.1 {
-            return cone;
-        }
-        for r in (qy.0 - ys.0)..=(qy.1 - ys.0) {
-            valid[q] |= 1 << (r as usize * PACKETS_PER_ROW + g as usize);
-        }
-        tile_cone(&tracer.camera, qx, qy, offsets)
-    });
-    let mut walk = ConeWalk::new(bvh, cone, parts);
-    let mut reach = valid.map(|v| {
-        if v == 0 {
-            f32::NEG_INFINITY
-        } else {
-            f32::INFINITY
-        }
-    });
+    let mut walk = ConeWalk::new(bvh, cone);
+    let mut reach = f32::INFINITY;
     while let Some(range) = walk.next_leaf(reach) {
         for slot in range {
             let c = cands.get(slot, &tracer.order);
@@ -398,18 +375,15 @@ fn trace_cone<T: Real, F: PacketFormula, W: Wide<T>>(
                 rasterise::<T, F, W, true>(tracer, &c, xs, ys, offsets, rays);
             }
         }
-        // Until every pixel of a quarter has had a candidate, some ray there still
-        // reaches its tmax.
-        for q in 0..PARTS {
-            if valid[q] != 0 && rays.ready & valid[q] == valid[q] {
-                let mut far = 0.0f64;
-                for k in 0..PACKETS {
-                    if valid[q] & (1 << k) != 0 {
-                        far = far.max(rays.far[k]);
-                    }
+        // Until every pixel has had a candidate, some ray still reaches its tmax.
+        if rays.ready & valid == valid {
+            let mut far = 0.0f64;
+            for k in 0..PACKETS {
+                if valid & (1 << k) != 0 {
+                    far = far.max(rays.far[k]);
                 }
-                reach[q] = f32_up(far);
             }
+            reach = f32_up(far);
         }
     }
 }
