@@ -42,6 +42,9 @@ struct Node {
 pub struct Bvh {
     nodes: Vec<Node>,
     order: Vec<u32>,
+    /// Each position's own box (min, max): a ray tests it before the cylinder, as a leaf's
+    /// box bounds its cylinders loosely in a tangle of tilted ones.
+    boxes: Vec<[Vec3A; 2]>,
 }
 
 /// Round `x - o` to f32 toward -inf (`down`) or +inf and pad by a relative 1e-6, so the box
@@ -100,6 +103,7 @@ impl Bvh {
         Bvh {
             nodes,
             order: items.par_iter().map(|it| it.index).collect(),
+            boxes: items.par_iter().map(|it| [it.min, it.max]).collect(),
         }
     }
 
@@ -363,15 +367,23 @@ impl Bvh {
         if self.order.is_empty() || hit(&self.nodes[0], tmax).is_none() {
             return;
         }
-        let mut stack = [0u32; MAX_DEPTH];
+        // Pending far children and their entry distance.
+        let mut stack = [(0u32, 0f32); MAX_DEPTH];
         let mut sp = 0usize;
         let mut current = 0u32;
         loop {
             let node = &self.nodes[current as usize];
             if node.count > 0 {
-                let start = node.offset as usize;
-                for pos in start as u32..start as u32 + node.count {
-                    if let Some(t) = visit(pos) {
+                let start = node.offset;
+                for pos in start..start + node.count {
+                    let [lo, hi] = self.boxes[pos as usize];
+                    let t1 = lo * inv;
+                    let t2 = hi * inv;
+                    let near = t1.min(t2).max_element().max(tmin);
+                    let far = (t1.max(t2).min_element() * GROW).min(tmax);
+                    if near <= far
+                        && let Some(t) = visit(pos)
+                    {
                         tmax = tmax.min(t);
                     }
                 }
@@ -381,7 +393,7 @@ impl Bvh {
                 let hr = hit(&self.nodes[r as usize], tmax);
                 match (hl, hr) {
                     (Some(a), Some(b)) => {
-                        let (first, second) = if a <= b { (l, r) } else { (r, l) };
+                        let (first, second) = if a <= b { (l, (r, b)) } else { (r, (l, a)) };
                         stack[sp] = second;
                         sp += 1;
                         current = first;
@@ -398,14 +410,15 @@ impl Bvh {
                     (None, None) => {}
                 }
             }
-            // Pop, skipping nodes a closer hit has since made unreachable.
+            // Pop, skipping nodes a closer hit has since made unreachable (the box's far
+            // end was past its entry when pushed; only tmax has moved).
             loop {
                 if sp == 0 {
                     return;
                 }
                 sp -= 1;
-                let n = stack[sp];
-                if hit(&self.nodes[n as usize], tmax).is_some() {
+                let (n, near) = stack[sp];
+                if near <= tmax {
                     current = n;
                     break;
                 }

@@ -393,6 +393,24 @@ fn floor_in(a: f64, n: u32) -> i64 {
     t - ((t as f64) > a) as i64
 }
 
+/// [`project`] for one camera, its set-up done once: for projecting cylinders as a
+/// walk meets them, when there are far fewer pixels than cylinders.
+pub struct Projector(View);
+
+impl Projector {
+    pub fn new(cam: &Camera) -> Self {
+        Projector(View::new(cam))
+    }
+
+    /// The candidate of `cyl` (scene index `index`, kept in `slot`); an empty rectangle
+    /// when it is culled ([`Candidate::is_culled`]).
+    #[inline]
+    pub fn project(&self, cyl: &Cylinder, index: u32, slot: u32) -> Candidate {
+        let c = project_in(&self.0, cyl).unwrap_or(CULLED);
+        Candidate { index, slot, ..c }
+    }
+}
+
 /// The projections of `cylinders[order[s]]` in slot `s` (index and slot set), for walking a
 /// hierarchy tile by tile instead of binning: a culled cylinder gets an empty rectangle
 /// ([`Candidate::is_culled`]).
@@ -417,6 +435,15 @@ impl Tiles {
     /// [`CROWDED`] candidates per tile (a dense scene, or many cylinders reaching past the
     /// camera): `render` then walks the BVH tile by tile.
     pub fn build(cam: &Camera, cylinders: &[Cylinder]) -> Option<Tiles> {
+        Self::build_or_projections(cam, cylinders).ok()
+    }
+
+    /// [`Tiles::build`], or, when crowded, the projections it made (in index order, as
+    /// [`project_slots`] with the identity order makes them), for the cone walk to reuse.
+    pub fn build_or_projections(
+        cam: &Camera,
+        cylinders: &[Cylinder],
+    ) -> Result<Tiles, Vec<Candidate>> {
         let (tiles_x, tiles_y) = (cam.width().div_ceil(TILE), cam.height().div_ceil(TILE));
         assert!(tiles_x <= 1 << 16, "image too wide for tiles");
         let view = View::new(cam);
@@ -444,7 +471,7 @@ impl Tiles {
         if cands.par_iter().map(rect).sum::<usize>() > CROWDED * ntiles
             && cands.par_iter().map(Candidate::tile_entries).sum::<usize>() > CROWDED * ntiles
         {
-            return None;
+            return Err(cands);
         }
         // Each chunk of candidates lists its visits per tile row; then each tile row
         // gathers its visits, sorts them by (t_min, index) and fills its tiles' lists. The
@@ -504,7 +531,7 @@ impl Tiles {
                 (start, list)
             })
             .unzip();
-        Some(Tiles {
+        Ok(Tiles {
             tiles_x,
             tiles_y,
             start: starts.concat(),

@@ -717,8 +717,10 @@ pub fn time_mitsuba(
     }
     let text = String::from_utf8_lossy(&o.stdout);
     let line = text.lines().last().unwrap_or_default();
+    // Mitsuba's logger may leave a terminal colour reset in front of the JSON.
+    let json = line.find('{').map_or(line, |k| &line[k..]);
     let mut row: MitsubaRow =
-        serde_json::from_str(line).with_context(|| format!("bench_mitsuba.py printed {line:?}"))?;
+        serde_json::from_str(json).with_context(|| format!("bench_mitsuba.py printed {line:?}"))?;
     row.cylinders = scene.cylinders.len();
     // The cold process: everything but the warm second render (none for scalar variants).
     row.process_s = if variant.starts_with("scalar") {

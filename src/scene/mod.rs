@@ -9,11 +9,13 @@
 //! rejection names the field and the value: `cylinders[3].radius: must be > 0, got -1`.
 
 pub mod camera;
+mod fast_json;
 pub mod strict;
 
 use crate::geometry::Cylinder;
 use crate::scene::camera::{CameraSpec, FovAxis};
 use glam::DVec3;
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::path::Path;
@@ -322,6 +324,11 @@ pub fn parse(text: &str) -> Result<Scene, SceneError> {
             "invalid JSON: the file starts with a UTF-8 byte order mark (EF BB BF), which JSON does not allow; save it without one",
         ));
     }
+    // Plain files take the fast reader; anything else (and every error) goes through
+    // serde_json, whose messages name the field.
+    if let Some(file) = fast_json::scene_file(text) {
+        return file.validate();
+    }
     let invalid = |field: String, e: serde_json::Error| {
         err(
             strict::shorten(&field),
@@ -436,12 +443,22 @@ impl SceneFile {
                 ));
             }
         };
-        let cylinders = self
+        // In parallel; on an error, again in order, to report the first one.
+        let cylinders = match self
             .cylinders
-            .iter()
+            .par_iter()
             .enumerate()
             .map(|(i, c)| c.validate(i))
-            .collect::<Result<Vec<_>, _>>()?;
+            .collect::<Result<Vec<_>, _>>()
+        {
+            Ok(list) => list,
+            Err(_) => self
+                .cylinders
+                .iter()
+                .enumerate()
+                .map(|(i, c)| c.validate(i))
+                .collect::<Result<Vec<_>, _>>()?,
+        };
         let aovs = match &self.aovs {
             None => default_aovs(),
             Some(list) if list.is_empty() => {
