@@ -34,22 +34,30 @@ impl Drop for ShardLock {
 }
 
 /// `OUT/.partial`, created if needed; an error if it exists and is not a real folder.
+/// The shards of an array start together, so creating it races: a shard that finds it made
+/// by another checks it like one that was there before.
 pub fn partial_root(out: &Path) -> Result<PathBuf> {
     let root = out.join(".partial");
-    match root.symlink_metadata() {
-        Ok(m) if m.file_type().is_symlink() => bail!(
+    if let Err(e) = std::fs::create_dir(&root)
+        && e.kind() != std::io::ErrorKind::AlreadyExists
+    {
+        return Err(e).with_context(|| format!("creating {}", root.display()));
+    }
+    let m = root
+        .symlink_metadata()
+        .with_context(|| format!("reading {}", root.display()))?;
+    if m.file_type().is_symlink() {
+        bail!(
             "{} is a symbolic link: the work-in-progress folder must be a real folder inside \
              --out (it is cleared and written to); remove the link",
             root.display()
-        ),
-        Ok(m) if !m.is_dir() => bail!(
+        );
+    }
+    if !m.is_dir() {
+        bail!(
             "{} exists and is not a folder: remove it (batch keeps its work in progress there)",
             root.display()
-        ),
-        Ok(_) => {}
-        Err(_) => {
-            std::fs::create_dir(&root).with_context(|| format!("creating {}", root.display()))?
-        }
+        );
     }
     Ok(root)
 }
@@ -137,4 +145,34 @@ fn same_file(file: &File, path: &Path) -> bool {
 #[cfg(not(unix))]
 fn same_file(_file: &File, path: &Path) -> bool {
     path.exists()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The shards of an array create `OUT/.partial` at the same moment: every one of them
+    /// gets it (before, all but the first failed with "File exists").
+    #[cfg(unix)]
+    #[test]
+    fn shards_starting_together_all_get_the_partial_root() {
+        let base = std::env::temp_dir().join(format!("cylaov-partial-race-{}", std::process::id()));
+        for round in 0..40 {
+            let out = base.join(round.to_string());
+            std::fs::create_dir_all(&out).unwrap();
+            let results: Vec<bool> = std::thread::scope(|s| {
+                let handles: Vec<_> = (0..4)
+                    .map(|_| s.spawn(|| partial_root(&out).is_ok()))
+                    .collect();
+                handles.into_iter().map(|h| h.join().unwrap()).collect()
+            });
+            assert!(results.iter().all(|&ok| ok), "round {round}: {results:?}");
+        }
+        // A link in its place is still refused.
+        let out = base.join("link");
+        std::fs::create_dir_all(&out).unwrap();
+        std::os::unix::fs::symlink(&base, out.join(".partial")).unwrap();
+        assert!(partial_root(&out).is_err());
+        std::fs::remove_dir_all(&base).unwrap();
+    }
 }

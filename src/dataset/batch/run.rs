@@ -214,7 +214,6 @@ fn expand_views(
     (views, cameras)
 }
 
-/// Clear and recreate this shard's work-in-progress folder `OUT/.partial/K-of-N`.
 /// Lock this shard, then clear and recreate its work-in-progress folder
 /// `OUT/.partial/K-of-N` (see [`super::lock`]: a real folder inside `--out`, never a link).
 fn clear_partial(out: &Path, shard: Shard) -> Result<(PathBuf, ShardLock)> {
