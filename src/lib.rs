@@ -60,6 +60,8 @@
 //! of scene + options; `output::mitsuba` knows Mitsuba's XML, not how to run it
 //! (`verify::reference` does).
 
+#![warn(missing_docs)]
+
 pub mod accel;
 pub mod bench;
 pub mod commands;

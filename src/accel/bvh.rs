@@ -432,7 +432,9 @@ impl Bvh {
 /// camera's forward axis, along which a box's nearest camera-space z is measured.
 #[derive(Clone, Copy, Debug)]
 pub struct Cone {
+    /// Inward normals of the left, right, top and bottom planes.
     pub planes: [Vec3A; 4],
+    /// The camera's unit forward axis.
     pub forward: Vec3A,
 }
 

@@ -34,12 +34,17 @@ pub const CROWDED: usize = 64;
 /// A candidate in a tile: cylinder index, inclusive pixel rectangle, lower bound on `t`.
 #[derive(Clone, Copy, Debug)]
 pub struct Candidate {
+    /// The cylinder's index in the scene.
     pub index: u32,
     /// Where the renderer keeps this cylinder's prepared form (see [`Tiles::assign_slots`]).
     pub slot: u32,
+    /// First pixel column the candidate may cover.
     pub x0: u32,
+    /// First pixel row it may cover.
     pub y0: u32,
+    /// Last pixel column (inclusive).
     pub x1: u32,
+    /// Last pixel row (inclusive).
     pub y1: u32,
     /// No hit on this cylinder has a ray parameter below this.
     pub t_min: f64,
@@ -48,7 +53,9 @@ pub struct Candidate {
     /// `centre + slope·j + 0.5`, i.e. columns in `[centre + slope·j ± half]`. `half` is
     /// infinite when the bound does not apply (the rectangle alone bounds the cylinder).
     pub centre: f64,
+    /// Columns the band's centre moves per row.
     pub slope: f64,
+    /// Half width of the band, in pixels (infinite: no band).
     pub half: f64,
 }
 
@@ -150,7 +157,9 @@ const CULLED: Candidate = Candidate {
 /// `rows[ty][start[ty·(tiles_x + 1) + tx]..start[ty·(tiles_x + 1) + tx + 1]]`.
 #[derive(Clone, Debug)]
 pub struct Tiles {
+    /// Tiles across the image (the last may be partial).
     pub tiles_x: u32,
+    /// Tiles down the image.
     pub tiles_y: u32,
     start: Vec<u32>,
     rows: Vec<Vec<Candidate>>,
@@ -398,6 +407,7 @@ fn floor_in(a: f64, n: u32) -> i64 {
 pub struct Projector(View);
 
 impl Projector {
+    /// The projection set-up of camera `cam`.
     pub fn new(cam: &Camera) -> Self {
         Projector(View::new(cam))
     }

@@ -133,6 +133,7 @@ pub enum Family {
 }
 
 impl Family {
+    /// `sparse` or `dense`, as `--family` spells it.
     pub fn name(self) -> &'static str {
         match self {
             Family::Sparse => "sparse",
@@ -155,6 +156,7 @@ impl Family {
 /// depend on the kernel's precision).
 #[derive(Clone, Debug)]
 pub struct KernelRow {
+    /// The kernel's name, e.g. `stable-f64`.
     pub kernel: String,
     /// `scalar` (one ray at a time, the BVH path; all a formula without a SIMD form has),
     /// `lanes` (packets of eight, portable code) or `avx2` (packets in AVX registers, the
@@ -322,16 +324,22 @@ pub fn kernel_csv(rows: &[KernelRow]) -> String {
 pub struct BenchOptions {
     /// Scene families, each run over every count.
     pub families: Vec<Family>,
+    /// Cylinder counts, each a row group.
     pub counts: Vec<usize>,
+    /// Image width in pixels.
     pub width: u32,
+    /// Image height in pixels.
     pub height: u32,
+    /// AOV sets, each a row.
     pub aov_sets: Vec<Vec<Aov>>,
+    /// Kernels, each a row.
     pub kernels: Vec<Kernel>,
     /// Timed repetitions per row; the minimum is reported (the machine is noisy).
     pub repeats: usize,
     /// Also time whole `cylaov render` processes with this executable (and read their
     /// peak memory).
     pub exe: Option<PathBuf>,
+    /// Seed of the generated scenes.
     pub seed: u64,
     /// How the timed renders find their candidates (the error reference always uses tiles;
     /// both give the same bits).
@@ -352,8 +360,11 @@ pub fn default_aov_sets() -> Vec<Vec<Aov>> {
 pub struct Row {
     /// The scene family's name.
     pub family: String,
+    /// Cylinders in the scene.
     pub cylinders: usize,
+    /// The kernel's name, e.g. `stable-f64`.
     pub kernel: String,
+    /// The AOVs rendered, e.g. `depth+normal`.
     pub aovs: String,
     /// Parsing the scene's JSON text into a validated scene (in process).
     pub parse_ms: f64,
@@ -361,16 +372,21 @@ pub struct Row {
     pub prepare_ms: f64,
     /// The acceleration structure: tiles or BVH (part of the in-memory render).
     pub build_ms: f64,
+    /// Tracing every pixel (in-memory render), ms.
     pub trace_ms: f64,
     /// Encoding the uncompressed EXR and writing it to a file.
     pub write_ms: f64,
+    /// Prepare, build, trace and write, ms (parse not included).
     pub total_ms: f64,
+    /// Million primary rays per second of trace time.
     pub mrays_per_s: f64,
     /// Whole `cylaov render` process (parse, build, trace, write), when measured.
     pub process_ms: Option<f64>,
+    /// Peak resident memory of that process, MiB.
     pub peak_mib: Option<f64>,
     /// Relative distance error against stable f64 where both hit the same cylinder.
     pub err_median: f64,
+    /// Largest relative distance error against stable f64.
     pub err_max: f64,
     /// Pixels where this kernel and stable f64 disagree on hit/miss or cylinder.
     pub mismatches: usize,
@@ -671,14 +687,22 @@ pub struct MitsubaBench {
 #[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct MitsubaRow {
     #[serde(default)]
+    /// The scene family's name.
     pub family: String,
     #[serde(default)]
+    /// Cylinders in the scene.
     pub cylinders: usize,
+    /// Mitsuba variant: `scalar_rgb` or `llvm_ad_rgb`.
     pub variant: String,
+    /// `import mitsuba` and `set_variant`.
     pub import_s: f64,
+    /// `load_file` of the exported XML.
     pub load_s: f64,
+    /// The first `render()` (with the JIT's compilation for llvm).
     pub render1_s: f64,
+    /// Writing the EXR.
     pub write_s: f64,
+    /// A second `render()` of the same scene: the warm time.
     pub render2_s: f64,
     /// The whole cold process (Python start, import, load, first render, write).
     #[serde(default)]

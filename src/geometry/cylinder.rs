@@ -50,10 +50,13 @@ use glam::DVec3;
 /// A validated finite cylinder (see the module doc): base centre `base`, unit `axis`, `height`, `radius`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Cylinder {
+    /// Centre of the bottom disk (`p0`).
     pub base: DVec3,
     /// Unit direction from the base disk to the top disk.
     pub axis: DVec3,
+    /// Distance from the base to the top disk along the axis (> 0).
     pub height: f64,
+    /// Radius (> 0).
     pub radius: f64,
     /// Closed (solid, two cap disks) or an open tube.
     pub caps: bool,
@@ -79,6 +82,7 @@ impl Cylinder {
 /// The surface a hit lies on.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Surface {
+    /// The curved wall.
     Side = 0,
     /// The disk at `base`, outward normal `-axis`.
     Bottom,
@@ -101,7 +105,9 @@ impl Surface {
 /// Result of the cheap intersection step: ray parameter (= distance) and surface.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct BasicHit<T> {
+    /// Ray parameter of the hit (a distance: directions are unit vectors).
     pub t: T,
+    /// Which surface was hit.
     pub surface: Surface,
 }
 
@@ -110,7 +116,9 @@ pub struct BasicHit<T> {
 pub struct Prepared<T: Real> {
     /// Unit axis `n` and an orthonormal pair `u`, `v` perpendicular to it.
     pub n: T::V3,
+    /// First unit vector perpendicular to the axis.
     pub u: T::V3,
+    /// Second one: `u × v = n`.
     pub v: T::V3,
     /// `o - c` in world axes (the literal kernel's input).
     pub oc: T::V3,
@@ -119,8 +127,11 @@ pub struct Prepared<T: Real> {
     /// `|oc⊥|² - r²` as `(|oc⊥| - r)(|oc⊥| + r)`, from f64 (the module doc's traps: no cancellation near
     /// the surface).
     pub c_side: T,
+    /// Radius in `T`.
     pub r: T,
+    /// Height in `T`.
     pub h: T,
+    /// Closed (caps tested) or an open tube.
     pub caps: bool,
 }
 

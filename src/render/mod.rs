@@ -39,9 +39,13 @@ pub enum Accel {
 /// What to render.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RenderOptions {
+    /// AOVs to compute and store; nothing else is computed.
     pub aovs: Vec<Aov>,
+    /// Precision of the kernel.
     pub precision: Precision,
+    /// Formulation of the kernel.
     pub formula: FormulaKind,
+    /// How primary rays find their candidates.
     pub accel: Accel,
 }
 
@@ -60,6 +64,7 @@ impl RenderOptions {
 /// A render's image and counts.
 #[derive(Clone, Debug)]
 pub struct Render {
+    /// The requested AOVs.
     pub image: AovImage,
     /// Pixels that hit a cylinder.
     pub hits: usize,
@@ -75,8 +80,11 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> Render {
 /// and tracing it.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Timing {
+    /// Building the acceleration structure (tiles or BVH).
     pub build: std::time::Duration,
+    /// Preparing every cylinder's kernel form.
     pub prepare: std::time::Duration,
+    /// Tracing every pixel.
     pub trace: std::time::Duration,
 }
 
@@ -94,6 +102,7 @@ pub fn render_timed(scene: &Scene, opts: &RenderOptions) -> (Render, Timing) {
 
 /// The scene prepared for one camera: cylinders in kernel form and the BVH over them.
 pub struct Tracer<T: Real, F: Formula> {
+    /// The camera the rays leave from.
     pub camera: Camera,
     /// Cylinders in kernel form, in slot order: `prepared[s]` is cylinder `order[s]`
     /// (index order for the BVH, the tiles' visiting order for tiles).
@@ -155,7 +164,9 @@ impl ConeCands {
 pub struct PixelHit<T> {
     /// The cylinder's index in the scene, and its slot in the tracer.
     pub index: u32,
+    /// Where the tracer keeps the cylinder's prepared form.
     pub slot: u32,
+    /// Ray parameter and surface of the hit.
     pub hit: BasicHit<T>,
 }
 
