@@ -2,6 +2,7 @@
 //! after kill -9, a bad scene among good ones, and the back-projection example.
 
 mod common;
+use common::{cylaov, ok};
 
 use cylaov::output::aov::AovImage;
 use std::collections::{BTreeMap, BTreeSet};
@@ -9,33 +10,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::time::{Duration, Instant};
 
-const BIN: &str = env!("CARGO_BIN_EXE_cylaov");
-
 fn fresh_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("cylaov-batch-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-fn cylaov(args: &[&str]) -> Output {
-    Command::new(BIN)
-        .args(args)
-        .env_remove("SLURM_ARRAY_TASK_ID")
-        .env_remove("JOB_COMPLETION_INDEX")
-        .output()
-        .unwrap()
-}
-
-fn ok(args: &[&str]) -> String {
-    let out = cylaov(args);
-    assert!(
-        out.status.success(),
-        "cylaov {args:?} failed:\n{}\n{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
+    common::fresh_dir("batch", name)
 }
 
 /// Every file under `dir` (relative path → bytes).
@@ -195,7 +171,7 @@ fn shards_partition_the_views_and_agree_on_transforms() {
     }
     // Kubernetes Indexed Job: the index from the environment.
     let out = dir.join("k8s");
-    let o = Command::new(BIN)
+    let o = Command::new(env!("CARGO_BIN_EXE_cylaov"))
         .args([
             "batch",
             data.to_str().unwrap(),
@@ -275,7 +251,7 @@ fn resume_after_kill_completes_with_correct_files() {
     let reference = dir.join("reference");
     let out = dir.join("out");
     let run = |out: &Path| {
-        Command::new(BIN)
+        Command::new(env!("CARGO_BIN_EXE_cylaov"))
             .args([
                 "batch",
                 data.to_str().unwrap(),

@@ -3,38 +3,16 @@
 //! `OUT/<scene>/transforms.json`, `OUT/index.json`), `render --camera`, the Mitsuba export
 //! of every camera, and the 16-bit depth PNG that fails rather than lose far pixels.
 
+mod common;
+use common::{cylaov, ok};
+
 use cylaov::output::aov::AovImage;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
-const BIN: &str = env!("CARGO_BIN_EXE_cylaov");
 const ROOT: &str = env!("CARGO_MANIFEST_DIR");
 
 fn fresh_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("cylaov-dataset-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-fn cylaov(args: &[&str]) -> Output {
-    Command::new(BIN)
-        .args(args)
-        .env_remove("SLURM_ARRAY_TASK_ID")
-        .env_remove("JOB_COMPLETION_INDEX")
-        .output()
-        .unwrap()
-}
-
-fn ok(args: &[&str]) -> String {
-    let out = cylaov(args);
-    assert!(
-        out.status.success(),
-        "cylaov {args:?} failed:\n{}\n{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
+    common::fresh_dir("dataset", name)
 }
 
 fn fails(args: &[&str]) -> String {

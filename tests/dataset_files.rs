@@ -3,26 +3,15 @@
 //! other's work (a per-shard lock naming the holder), and a folder scan skips cylaov's own
 //! outputs, the `--out` folder, dangling links, linked folders and special files, saying so.
 
+mod common;
+use common::cylaov;
+
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-const BIN: &str = env!("CARGO_BIN_EXE_cylaov");
-
 fn fresh_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("cylaov-files-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-fn cylaov(args: &[&str]) -> Output {
-    Command::new(BIN)
-        .args(args)
-        .env_remove("SLURM_ARRAY_TASK_ID")
-        .env_remove("JOB_COMPLETION_INDEX")
-        .output()
-        .unwrap()
+    common::fresh_dir("files", name)
 }
 
 fn s(p: &Path) -> &str {
@@ -95,7 +84,7 @@ fn a_second_batch_on_the_same_shard_fails_at_once() {
     // Slow enough on one thread that the second starts while the first runs.
     generate(&data, "60", &["--cylinders", "200"]);
     let out = dir.join("out");
-    let mut first = Command::new(BIN)
+    let mut first = Command::new(env!("CARGO_BIN_EXE_cylaov"))
         .args(["batch", s(&data), "--out", s(&out), "--threads", "1"])
         .env_remove("SLURM_ARRAY_TASK_ID")
         .stdout(Stdio::piped())

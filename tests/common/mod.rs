@@ -1,6 +1,8 @@
-//! Helpers shared by the integration tests.
+//! Helpers shared by the integration tests (each test file uses some of them).
+#![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
 
 /// The reference venv's Python (`$CYLAOV_VENV`, else `.venv`, as `scripts/setup-venv`
 /// makes it). `None` (the caller skips, saying so) when it is missing, unless
@@ -21,4 +23,34 @@ pub fn venv_python() -> Option<PathBuf> {
     );
     eprintln!("SKIPPED: no {} (run scripts/setup-venv)", py.display());
     None
+}
+
+/// A new, empty folder `cylaov-SUITE-NAME-PID` in the temp dir.
+pub fn fresh_dir(suite: &str, name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("cylaov-{suite}-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// Run the cylaov binary without the scheduler variables a batch reads its shard from.
+pub fn cylaov(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_cylaov"))
+        .args(args)
+        .env_remove("SLURM_ARRAY_TASK_ID")
+        .env_remove("JOB_COMPLETION_INDEX")
+        .output()
+        .unwrap()
+}
+
+/// [`cylaov`], which must succeed; its stdout.
+pub fn ok(args: &[&str]) -> String {
+    let out = cylaov(args);
+    assert!(
+        out.status.success(),
+        "cylaov {args:?} failed:\n{}\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
 }
