@@ -266,53 +266,11 @@ fn project_in(view: &View, cyl: &Cylinder) -> Option<Candidate> {
     }
     let t_min = (zmin - pad).max(view.near * (1.0 - 1e-12));
     // The rectangle in image-plane units (x/z, y/z).
-    let (mut xmin, mut xmax, mut ymin, mut ymax) = (
-        f64::INFINITY,
-        f64::NEG_INFINITY,
-        f64::INFINITY,
-        f64::NEG_INFINITY,
-    );
-    if zmin >= view.zc {
-        for p in [b, t] {
-            let (i0, i1) = (1.0 / (p.z - ext.z), 1.0 / (p.z + ext.z));
-            let (xl, xh, yl, yh) = (p.x - ext.x, p.x + ext.x, p.y - ext.y, p.y + ext.y);
-            xmin = xmin.min((xl * i0).min(xl * i1));
-            xmax = xmax.max((xh * i0).max(xh * i1));
-            ymin = ymin.min((yl * i0).min(yl * i1));
-            ymax = ymax.max((yh * i0).max(yh * i1));
-        }
+    let (xmin, xmax, ymin, ymax) = if zmin >= view.zc {
+        rect_in_front(b, t, ext)
     } else {
-        // Reaches nearer than the near plane (or NaN): the clipped oriented box.
-        let (u, v) = orthonormal_basis(cyl.axis);
-        let (u, v) = (view.camera(u) * r, view.camera(v) * r);
-        // Bit 2 picks the end, bits 1 and 0 the sign along u and v.
-        let corners: [DVec3; 8] = std::array::from_fn(|k| {
-            let end = if k & 4 == 0 { b } else { t };
-            let su = if k & 2 == 0 { -u } else { u };
-            let sv = if k & 1 == 0 { -v } else { v };
-            end + su + sv
-        });
-        let zc = view.zc;
-        let mut add = |x: f64, y: f64, z: f64| {
-            let iz = 1.0 / z;
-            xmin = xmin.min(x * iz);
-            xmax = xmax.max(x * iz);
-            ymin = ymin.min(y * iz);
-            ymax = ymax.max(y * iz);
-        };
-        for (k, c) in corners.iter().enumerate() {
-            if c.z >= zc {
-                add(c.x, c.y, c.z);
-            }
-            for bit in [1, 2, 4] {
-                let o = &corners[k | bit];
-                if k & bit == 0 && (c.z < zc) != (o.z < zc) {
-                    let s = (zc - c.z) / (o.z - c.z);
-                    add(c.x + s * (o.x - c.x), c.y + s * (o.y - c.y), zc);
-                }
-            }
-        }
-    }
+        rect_of_clipped_box(view, cyl, b, t)
+    };
     // Continuous pixel coordinates: pixel i spans [i, i + 1], centre i + 0.5.
     let (xmin, xmax) = (xmin * view.fx + view.cx, xmax * view.fx + view.cx);
     let (ymin, ymax) = (view.cy - ymax * view.fy, view.cy - ymin * view.fy);
@@ -325,14 +283,104 @@ fn project_in(view: &View, cyl: &Cylinder) -> Option<Candidate> {
             ..EMPTY
         });
     }
-    // The capsule around the projected axis (see the module doc), with 1.5 px of slack:
-    // the band `|n·(p - pa)| <= rad` around the axis line through `pa` along `e`, with
-    // unit normal `n = (-e_y, e_x)/len`. For a pixel centre p = (x + 0.5, j + 0.5) it is
-    // the column interval `x + 0.5 = pa_x + (e_x/e_y)(j + 0.5 - pa_y) ± rad·len/|e_y|`; a
-    // line within 1e-9 of horizontal bounds rows instead (the columns term is then
-    // < 2e-5 px, inside the slack), so it trims `y0..y1` and leaves the columns to the
-    // rectangle. A point-like projection (view along the axis) has no line: the
-    // rectangle bounds it.
+    let (centre, slope, half, rows) = axis_band(view, b, t, r);
+    // Pixel i is covered when its centre i + 0.5 lies in [min, max]; one pixel of slack.
+    let x0 = ceil_in(xmin - 0.5, w) - 1;
+    let x1 = floor_in(xmax - 0.5, w) + 1;
+    let y0 = (ceil_in(ymin - 0.5, h) - 1).max(ceil_in(rows.0, h));
+    let y1 = (floor_in(ymax - 0.5, h) + 1).min(floor_in(rows.1, h));
+    if x1 < 0 || y1 < 0 || x0 > w as i64 - 1 || y0 > h as i64 - 1 || y0 > y1 {
+        return None;
+    }
+    let clamp = |a: i64, n: u32| a.clamp(0, n as i64 - 1) as u32;
+    Some(Candidate {
+        index: 0,
+        slot: 0,
+        x0: clamp(x0, w),
+        y0: clamp(y0, h),
+        x1: clamp(x1, w),
+        y1: clamp(y1, h),
+        t_min,
+        centre,
+        slope,
+        half,
+    })
+}
+
+/// The image-plane rectangle (x/z, y/z bounds) of a cylinder wholly in front of the near
+/// plane: the union of its two end boxes' projections (`x/z` over a box is extreme at its
+/// corners, so 2 reciprocals each).
+fn rect_in_front(b: DVec3, t: DVec3, ext: DVec3) -> (f64, f64, f64, f64) {
+    let (mut xmin, mut xmax, mut ymin, mut ymax) = (
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+    );
+    for p in [b, t] {
+        let (i0, i1) = (1.0 / (p.z - ext.z), 1.0 / (p.z + ext.z));
+        let (xl, xh, yl, yh) = (p.x - ext.x, p.x + ext.x, p.y - ext.y, p.y + ext.y);
+        xmin = xmin.min((xl * i0).min(xl * i1));
+        xmax = xmax.max((xh * i0).max(xh * i1));
+        ymin = ymin.min((yl * i0).min(yl * i1));
+        ymax = ymax.max((yh * i0).max(yh * i1));
+    }
+    (xmin, xmax, ymin, ymax)
+}
+
+/// The image-plane rectangle of a cylinder that reaches nearer than the near plane (or has a
+/// NaN bound): its oriented box (axis × 2r × 2r) clipped at the plane `z = zc`, from the
+/// corners in front and the points where the 12 edges cross the plane.
+fn rect_of_clipped_box(view: &View, cyl: &Cylinder, b: DVec3, t: DVec3) -> (f64, f64, f64, f64) {
+    let r = cyl.radius;
+    let (mut xmin, mut xmax, mut ymin, mut ymax) = (
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+    );
+    let (u, v) = orthonormal_basis(cyl.axis);
+    let (u, v) = (view.camera(u) * r, view.camera(v) * r);
+    // Bit 2 picks the end, bits 1 and 0 the sign along u and v.
+    let corners: [DVec3; 8] = std::array::from_fn(|k| {
+        let end = if k & 4 == 0 { b } else { t };
+        let su = if k & 2 == 0 { -u } else { u };
+        let sv = if k & 1 == 0 { -v } else { v };
+        end + su + sv
+    });
+    let zc = view.zc;
+    let mut add = |x: f64, y: f64, z: f64| {
+        let iz = 1.0 / z;
+        xmin = xmin.min(x * iz);
+        xmax = xmax.max(x * iz);
+        ymin = ymin.min(y * iz);
+        ymax = ymax.max(y * iz);
+    };
+    for (k, c) in corners.iter().enumerate() {
+        if c.z >= zc {
+            add(c.x, c.y, c.z);
+        }
+        for bit in [1, 2, 4] {
+            let o = &corners[k | bit];
+            if k & bit == 0 && (c.z < zc) != (o.z < zc) {
+                let s = (zc - c.z) / (o.z - c.z);
+                add(c.x + s * (o.x - c.x), c.y + s * (o.y - c.y), zc);
+            }
+        }
+    }
+    (xmin, xmax, ymin, ymax)
+}
+
+/// The capsule around the projected axis (see the module doc), with 1.5 px of slack:
+/// `(centre, slope, half, rows)` of [`Candidate`], or `half = ∞` and unbounded `rows` where
+/// the bound does not apply. The band is `|n·(p - pa)| <= rad` around the axis line through
+/// `pa` along `e`, with unit normal `n = (-e_y, e_x)/len`. For a pixel centre
+/// p = (x + 0.5, j + 0.5) it is the column interval
+/// `x + 0.5 = pa_x + (e_x/e_y)(j + 0.5 - pa_y) ± rad·len/|e_y|`; a line within 1e-9 of
+/// horizontal bounds rows instead (the columns term is then < 2e-5 px, inside the slack),
+/// so it trims `y0..y1` and leaves the columns to the rectangle. A point-like projection
+/// (view along the axis) has no line: the rectangle bounds it.
+fn axis_band(view: &View, b: DVec3, t: DVec3, r: f64) -> (f64, f64, f64, (f64, f64)) {
     let (mut centre, mut slope, mut half) = (0.0, 0.0, f64::INFINITY);
     let mut rows = (f64::NEG_INFINITY, f64::INFINITY);
     let z_axis = b.z.min(t.z);
@@ -362,27 +410,7 @@ fn project_in(view: &View, cyl: &Cylinder) -> Option<Candidate> {
             }
         }
     }
-    // Pixel i is covered when its centre i + 0.5 lies in [min, max]; one pixel of slack.
-    let x0 = ceil_in(xmin - 0.5, w) - 1;
-    let x1 = floor_in(xmax - 0.5, w) + 1;
-    let y0 = (ceil_in(ymin - 0.5, h) - 1).max(ceil_in(rows.0, h));
-    let y1 = (floor_in(ymax - 0.5, h) + 1).min(floor_in(rows.1, h));
-    if x1 < 0 || y1 < 0 || x0 > w as i64 - 1 || y0 > h as i64 - 1 || y0 > y1 {
-        return None;
-    }
-    let clamp = |a: i64, n: u32| a.clamp(0, n as i64 - 1) as u32;
-    Some(Candidate {
-        index: 0,
-        slot: 0,
-        x0: clamp(x0, w),
-        y0: clamp(y0, h),
-        x1: clamp(x1, w),
-        y1: clamp(y1, h),
-        t_min,
-        centre,
-        slope,
-        half,
-    })
+    (centre, slope, half, rows)
 }
 
 /// `ceil(a)` for `a` in `[-4, n + 4]`, and a value beyond that range (same side) for
