@@ -6,8 +6,9 @@
 //! `--preview DIR` writes `DIR/OUT.normal.preview.png` and `DIR/OUT.depth.preview.png`
 //! (pictures for people: the names say so).
 
+use crate::output::aov::AovImage;
 use crate::output::aov::{Compression, ExrLayout, exr_attributes, per_aov_image};
-use crate::output::depth_png::{self, OutOfRange};
+use crate::output::depth_png::{self, DepthPng, OutOfRange};
 use crate::output::io::{
     NewDirs, Staged, camera_json, camera_json_path, check_memory, check_output_dir, check_outputs,
     commit_all, open3d_json, stage,
@@ -87,41 +88,63 @@ pub fn memory_needed(
     planes + if previews { pixels * 3 } else { 0 }
 }
 
+/// Every file a render writes, named before any work so that each can be checked.
+struct Outputs {
+    /// The layered EXR, or one EXR per AOV (in `aovs` order).
+    exrs: Vec<PathBuf>,
+    camera: PathBuf,
+    open3d: PathBuf,
+    depth_png: Option<PathBuf>,
+    previews: Vec<PathBuf>,
+}
+
+impl Outputs {
+    fn new(args: &RenderArgs, aovs: &[Aov]) -> Result<Outputs> {
+        let name = stem(&args.out);
+        let previews = match &args.preview {
+            Some(dir) => {
+                check_output_dir("--preview", dir)?;
+                ["normal", "depth", "distance"]
+                    .iter()
+                    .map(|k| dir.join(format!("{name}.{k}.preview.png")))
+                    .collect()
+            }
+            None => Vec::new(),
+        };
+        Ok(Outputs {
+            exrs: match args.exr_layout {
+                ExrLayout::Layers => vec![args.out.clone()],
+                ExrLayout::PerAov => aovs.iter().map(|&a| per_aov_path(&args.out, a)).collect(),
+            },
+            camera: camera_json_path(&args.out),
+            open3d: open3d_json_path(&args.out),
+            depth_png: args.depth_png.map(|_| depth_png_path(&args.out)),
+            previews,
+        })
+    }
+
+    /// None may be the scene or a file that is not a regular file (see `io::check_outputs`).
+    fn check(&self, scene: &Path) -> Result<()> {
+        let mut list: Vec<(&str, &Path)> = self.exrs.iter().map(|p| ("-o", p.as_path())).collect();
+        list.extend([("-o", self.camera.as_path()), ("-o", self.open3d.as_path())]);
+        list.extend(self.depth_png.iter().map(|p| ("--depth-png", p.as_path())));
+        list.extend(self.previews.iter().map(|p| ("--preview", p.as_path())));
+        check_outputs(&list, &[scene])?;
+        Ok(())
+    }
+}
+
 /// Run a render and return the one-line summary.
 pub fn run(args: &RenderArgs) -> Result<String> {
     let start = Instant::now();
-    let cam_path = camera_json_path(&args.out);
-    let o3d_path = open3d_json_path(&args.out);
-    let name = stem(&args.out);
-    let previews: Vec<PathBuf> = match &args.preview {
-        Some(dir) => {
-            check_output_dir("--preview", dir)?;
-            ["normal", "depth", "distance"]
-                .iter()
-                .map(|k| dir.join(format!("{name}.{k}.preview.png")))
-                .collect()
-        }
-        None => Vec::new(),
-    };
     let mut scene =
         scene::load(&args.scene).with_context(|| format!("{}", args.scene.display()))?;
     scene
         .select_camera(args.camera)
         .with_context(|| format!("--camera {}: {}", args.camera, args.scene.display()))?;
     let aovs = args.aovs.clone().unwrap_or_else(|| scene.aovs.clone());
-    // Every file this render can write, checked against the scene before any work.
-    let exrs: Vec<PathBuf> = match args.exr_layout {
-        ExrLayout::Layers => vec![args.out.clone()],
-        ExrLayout::PerAov => aovs.iter().map(|&a| per_aov_path(&args.out, a)).collect(),
-    };
-    let depth_path = depth_png_path(&args.out);
-    let mut outputs: Vec<(&str, &Path)> = exrs.iter().map(|p| ("-o", p.as_path())).collect();
-    outputs.extend([("-o", cam_path.as_path()), ("-o", o3d_path.as_path())]);
-    if args.depth_png.is_some() {
-        outputs.push(("--depth-png", depth_path.as_path()));
-    }
-    outputs.extend(previews.iter().map(|p| ("--preview", p.as_path())));
-    check_outputs(&outputs, &[&args.scene])?;
+    let outputs = Outputs::new(args, &aovs)?;
+    outputs.check(&args.scene)?;
     if let Some(s) = args.depth_png
         && !(s.is_finite() && s > 0.0)
     {
@@ -158,73 +181,13 @@ pub fn run(args: &RenderArgs) -> Result<String> {
     let t0 = Instant::now();
     let mut r = render(&scene, &opts);
     let trace_ms = t0.elapsed().as_secs_f64() * 1e3;
-    let depth = match args.depth_png {
-        Some(scale) => {
-            let d = depth_png::encode(&r.image, scale, args.depth_out_of_range)
-                .context("no depth AOV")?
-                .map_err(anyhow::Error::msg)
-                .with_context(|| format!("{}", args.scene.display()))?;
-            if d.zeroed > 0 {
-                eprintln!(
-                    "{}: depth PNG: {} hit pixels beyond 16 bits at --depth-scale {scale} stored as 0",
-                    args.out.display(),
-                    d.zeroed
-                );
-            }
-            Some(d.png)
-        }
-        None => None,
-    };
+    let depth = depth_png(args, &r.image)?;
     if !aovs.contains(&Aov::Depth) {
         r.image.channels.retain(|c| c.name != "depth");
     }
-    // Every output is staged under a temporary name and renamed into place only when all
-    // were written: a failure leaves none of them (nor the folders it made for them).
     let t1 = Instant::now();
-    let mut dirs = NewDirs::default();
-    dirs.create_parent(&args.out)
-        .with_context(|| format!("-o {}", args.out.display()))?;
-    if let Some(dir) = &args.preview {
-        dirs.create(dir)
-            .with_context(|| format!("--preview {}", dir.display()))?;
-    }
-    let cam = Camera::new(scene.camera);
-    let attrs = exr_attributes(&cam, &aovs);
-    let mut staged = Vec::new();
-    match args.exr_layout {
-        ExrLayout::Layers => {
-            staged.push(
-                r.image
-                    .stage_exr_with(&args.out, args.compression, &attrs)?,
-            );
-        }
-        ExrLayout::PerAov => {
-            for (&a, path) in aovs.iter().zip(&exrs) {
-                let one = per_aov_image(&r.image, a)?;
-                let attrs = exr_attributes(&cam, &[a]);
-                staged.push(one.stage_exr_with(path, args.compression, &attrs)?);
-            }
-        }
-    }
-    let cam_text = camera_json(&cam, &aovs);
-    staged.push(
-        stage(&cam_path, |f| f.write_all(cam_text.as_bytes()))
-            .with_context(|| format!("writing {}", cam_path.display()))?,
-    );
-    let o3d_text = open3d_json(&cam);
-    staged.push(
-        stage(&o3d_path, |f| f.write_all(o3d_text.as_bytes()))
-            .with_context(|| format!("writing {}", o3d_path.display()))?,
-    );
-    if let Some(png) = &depth {
-        staged.push(preview::stage_png(png, &depth_path)?);
-    }
+    write(args, &outputs, &scene, &aovs, &r.image, depth.as_ref())?;
     let write_ms = t1.elapsed().as_secs_f64() * 1e3;
-    if let Some(dir) = &args.preview {
-        staged.extend(stage_previews(&r.image, dir, &name)?);
-    }
-    commit_all(staged).context("putting the outputs in place")?;
-    dirs.keep();
     let (w, h) = (r.image.width, r.image.height);
     let peak =
         crate::output::io::peak_rss_mib().map_or(String::new(), |m| format!(", peak {m:.0} MiB"));
@@ -237,6 +200,78 @@ pub fn run(args: &RenderArgs) -> Result<String> {
         crate::geometry::Kernel::new(opts.formula, opts.precision),
         start.elapsed().as_secs_f64() * 1e3
     ))
+}
+
+/// The 16-bit depth PNG, when asked for: a depth beyond 16 bits fails the render, or is
+/// stored as 0 and counted (`--depth-out-of-range`).
+fn depth_png(args: &RenderArgs, image: &AovImage) -> Result<Option<DepthPng>> {
+    let Some(scale) = args.depth_png else {
+        return Ok(None);
+    };
+    let d = depth_png::encode(image, scale, args.depth_out_of_range)
+        .context("no depth AOV")?
+        .map_err(anyhow::Error::msg)
+        .with_context(|| format!("{}", args.scene.display()))?;
+    if d.zeroed > 0 {
+        crate::output::io::warn(&format!(
+            "{}: depth PNG: {} hit pixels beyond 16 bits at --depth-scale {scale} stored as 0",
+            args.out.display(),
+            d.zeroed
+        ));
+    }
+    Ok(Some(d.png))
+}
+
+/// Stage every output under a temporary name and rename them into place only when all were
+/// written: a failure leaves none of them (nor the folders made for them).
+fn write(
+    args: &RenderArgs,
+    outputs: &Outputs,
+    scene: &scene::Scene,
+    aovs: &[Aov],
+    image: &AovImage,
+    depth: Option<&DepthPng>,
+) -> Result<()> {
+    let mut dirs = NewDirs::default();
+    dirs.create_parent(&args.out)
+        .with_context(|| format!("-o {}", args.out.display()))?;
+    if let Some(dir) = &args.preview {
+        dirs.create(dir)
+            .with_context(|| format!("--preview {}", dir.display()))?;
+    }
+    let cam = Camera::new(scene.camera);
+    let mut staged = Vec::new();
+    match args.exr_layout {
+        ExrLayout::Layers => {
+            let attrs = exr_attributes(&cam, aovs);
+            staged.push(image.stage_exr_with(&args.out, args.compression, &attrs)?);
+        }
+        ExrLayout::PerAov => {
+            for (&a, path) in aovs.iter().zip(&outputs.exrs) {
+                let one = per_aov_image(image, a)?;
+                let attrs = exr_attributes(&cam, &[a]);
+                staged.push(one.stage_exr_with(path, args.compression, &attrs)?);
+            }
+        }
+    }
+    for (path, text) in [
+        (&outputs.camera, camera_json(&cam, aovs)),
+        (&outputs.open3d, open3d_json(&cam)),
+    ] {
+        staged.push(
+            stage(path, |f| f.write_all(text.as_bytes()))
+                .with_context(|| format!("writing {}", path.display()))?,
+        );
+    }
+    if let (Some(png), Some(path)) = (depth, &outputs.depth_png) {
+        staged.push(preview::stage_png(png, path)?);
+    }
+    if let Some(dir) = &args.preview {
+        staged.extend(stage_previews(image, dir, &stem(&args.out))?);
+    }
+    commit_all(staged).context("putting the outputs in place")?;
+    dirs.keep();
+    Ok(())
 }
 
 fn stem(p: &Path) -> String {
