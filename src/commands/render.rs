@@ -7,7 +7,7 @@
 //! (pictures for people: the names say so).
 
 use crate::output::aov::AovImage;
-use crate::output::aov::{Compression, ExrLayout, exr_attributes, per_aov_image};
+use crate::output::aov::{Compression, ExrLayout, exr_attributes, per_aov_image, render_memory};
 use crate::output::depth_png::{self, DepthPng, OutOfRange};
 use crate::output::io::{
     NewDirs, Staged, camera_json, camera_json_path, check_memory, check_output_dir, check_outputs,
@@ -60,32 +60,6 @@ pub fn depth_png_path(exr: &Path) -> PathBuf {
 /// Where `render -o OUT.exr` puts the Open3D camera: `OUT.open3d.json`.
 pub fn open3d_json_path(exr: &Path) -> PathBuf {
     exr.with_extension("open3d.json")
-}
-
-/// Bytes a render of `width × height` with `aovs` holds at its peak: one plane per channel
-/// (4 bytes a sample), twice over when compressed (the `exr` crate encodes from its own
-/// copy; the uncompressed writer streams from the planes), plus the RGB previews (3 bytes a
-/// pixel each, one at a time) when asked. Measured peaks stay within this estimate plus
-/// the process's fixed ~10 MiB.
-pub fn memory_needed(
-    width: u32,
-    height: u32,
-    aovs: &[Aov],
-    compression: Compression,
-    previews: bool,
-) -> u64 {
-    let pixels = width as u64 * height as u64;
-    let channels: u64 = aovs
-        .iter()
-        .map(|&a| crate::output::aov::channel_names(a).len() as u64)
-        .sum();
-    let copies = if compression == Compression::None {
-        1
-    } else {
-        2
-    };
-    let planes = pixels * 4 * channels * copies;
-    planes + if previews { pixels * 3 } else { 0 }
 }
 
 /// Every file a render writes, named before any work so that each can be checked.
@@ -170,7 +144,7 @@ pub fn run(args: &RenderArgs) -> Result<String> {
                 .collect::<Vec<_>>()
                 .join(",")
         ),
-        memory_needed(
+        render_memory(
             scene.camera.width,
             scene.camera.height,
             &opts.aovs,

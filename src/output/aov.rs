@@ -188,6 +188,29 @@ pub fn per_aov_channel_names(aov: Aov) -> &'static [&'static str] {
     }
 }
 
+/// Bytes a render of `width × height` with `aovs` holds at its peak: one plane per channel
+/// (4 bytes a sample), twice over when compressed (the `exr` crate encodes from its own
+/// copy; the uncompressed writer streams from the planes), plus the RGB previews (3 bytes a
+/// pixel each, one at a time) when asked. Measured peaks stay within this estimate plus
+/// the process's fixed ~10 MiB.
+pub fn render_memory(
+    width: u32,
+    height: u32,
+    aovs: &[Aov],
+    compression: Compression,
+    previews: bool,
+) -> u64 {
+    let pixels = width as u64 * height as u64;
+    let channels: u64 = aovs.iter().map(|&a| channel_names(a).len() as u64).sum();
+    let copies = if compression == Compression::None {
+        1
+    } else {
+        2
+    };
+    let planes = pixels * 4 * channels * copies;
+    planes + if previews { pixels * 3 } else { 0 }
+}
+
 /// Largest shape id a float32 `Y` channel holds exactly.
 pub const MAX_FLOAT_ID: u32 = 1 << 24;
 

@@ -11,7 +11,7 @@ use super::shard::Shard;
 use super::transforms::{FrameCamera, index_json, transforms_json};
 use super::verify::{Verifier, selected_for_verify};
 use super::views::{ViewSource, list_views};
-use super::write::{ViewCost, render_view};
+use super::write::{ViewCost, render_view, view_memory};
 use crate::output::io::atomic_write_bytes;
 use crate::scene::camera::Camera;
 use crate::scene::{self, Scene};
@@ -21,6 +21,7 @@ use serde::Serialize;
 use std::fmt;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Condvar, Mutex};
 use std::time::{Duration, Instant};
 
 /// What happened to one view.
@@ -147,6 +148,9 @@ pub fn run(
         verifier,
         progress: Progress::new(progress, format!("batch {shard}"), mine.len()),
         verified: AtomicUsize::new(0),
+        memory: MemoryBudget::new(
+            crate::output::io::memory_available().map_or(u64::MAX, |bytes| bytes / 2),
+        ),
     };
     let outcomes: Vec<Outcome> = match opts.schedule {
         Schedule::Views => mine.par_iter().map(|&i| work.view(i)).collect(),
@@ -241,6 +245,57 @@ struct ShardWork<'a> {
     progress: Progress,
     /// Views checked by the verifier so far.
     verified: AtomicUsize,
+    /// Bounds the memory of the views rendered at once.
+    memory: MemoryBudget,
+}
+
+/// The views in flight, bounded by memory rather than by thread count: a view starts only
+/// when its estimate ([`view_memory`]) fits beside those running within `limit` (half of
+/// what the machine or `ulimit -v` leaves, see `io::memory_available`). Eight 16384×4096
+/// views need 268 MiB each depth-only, 2.4 GiB with every AOV; without the bound each
+/// thread held one, so the peak grew with the core count. One view always runs, however
+/// large (a render checks its own memory before it allocates).
+struct MemoryBudget {
+    limit: u64,
+    in_use: Mutex<u64>,
+    freed: Condvar,
+}
+
+impl MemoryBudget {
+    fn new(limit: u64) -> MemoryBudget {
+        MemoryBudget {
+            limit,
+            in_use: Mutex::new(0),
+            freed: Condvar::new(),
+        }
+    }
+
+    /// Wait until `bytes` fit (or nothing else runs), then hold them until the guard drops.
+    fn acquire(&self, bytes: u64) -> BudgetGuard<'_> {
+        let mut in_use = self.in_use.lock().unwrap_or_else(|e| e.into_inner());
+        while *in_use > 0 && in_use.saturating_add(bytes) > self.limit {
+            in_use = self.freed.wait(in_use).unwrap_or_else(|e| e.into_inner());
+        }
+        *in_use += bytes;
+        BudgetGuard {
+            budget: self,
+            bytes,
+        }
+    }
+}
+
+/// Memory held by a view being rendered; given back when dropped.
+struct BudgetGuard<'a> {
+    budget: &'a MemoryBudget,
+    bytes: u64,
+}
+
+impl Drop for BudgetGuard<'_> {
+    fn drop(&mut self) {
+        let mut in_use = self.budget.in_use.lock().unwrap_or_else(|e| e.into_inner());
+        *in_use -= self.bytes;
+        self.budget.freed.notify_all();
+    }
 }
 
 impl ShardWork<'_> {
@@ -263,6 +318,7 @@ impl ShardWork<'_> {
                 // Temporary files are named by the view's position: names repeat across the
                 // folders of several-camera scenes.
                 let tmp_stem = format!("{i:06}");
+                let _memory = self.memory.acquire(view_memory(scene, self.opts));
                 let rendered = std::fs::create_dir_all(&dir)
                     .with_context(|| format!("creating {}", dir.display()))
                     .and_then(|()| {
@@ -423,4 +479,51 @@ fn write_index(
             .with_context(|| format!("removing the old {}", old.display()))?;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Eight views of 268 MiB (16384×4096 depth-only) on eight threads with 600 MiB to
+    /// spend: never more than two at once, all eight done; a view larger than the whole
+    /// budget still runs, alone.
+    #[test]
+    fn the_memory_budget_bounds_the_views_in_flight() {
+        let each = render_memory_depth_only();
+        assert_eq!(each, 16384 * 4096 * 4);
+        let budget = MemoryBudget::new(600 << 20);
+        let (running, most, done) = (
+            AtomicUsize::new(0),
+            AtomicUsize::new(0),
+            AtomicUsize::new(0),
+        );
+        std::thread::scope(|s| {
+            for _ in 0..8 {
+                s.spawn(|| {
+                    let _held = budget.acquire(each);
+                    let now = running.fetch_add(1, Ordering::SeqCst) + 1;
+                    most.fetch_max(now, Ordering::SeqCst);
+                    std::thread::sleep(Duration::from_millis(100));
+                    running.fetch_sub(1, Ordering::SeqCst);
+                    done.fetch_add(1, Ordering::SeqCst);
+                });
+            }
+        });
+        assert_eq!(done.into_inner(), 8);
+        assert_eq!(most.into_inner(), 2);
+        let small = MemoryBudget::new(1 << 20);
+        drop(small.acquire(each));
+        assert_eq!(*small.in_use.lock().unwrap(), 0);
+    }
+
+    fn render_memory_depth_only() -> u64 {
+        crate::output::aov::render_memory(
+            16384,
+            4096,
+            &[crate::scene::Aov::Depth],
+            crate::output::aov::Compression::None,
+            false,
+        )
+    }
 }

@@ -3,7 +3,7 @@
 
 use super::options::BatchOptions;
 use super::resume::{ViewFiles, render_stamp};
-use crate::output::aov::{ExrLayout, channel_names, exr_attributes, per_aov_image};
+use crate::output::aov::{ExrLayout, channel_names, exr_attributes, per_aov_image, render_memory};
 use crate::output::depth_png;
 use crate::output::io::{camera_json, open3d_json};
 use crate::output::preview;
@@ -42,6 +42,31 @@ fn write_unsynced(
         .with_context(|| format!("writing {}", path.display()))
 }
 
+/// The AOVs a view is traced with: the EXR's, plus depth and normal for the PNGs.
+pub fn traced_aovs(scene: &Scene, opts: &BatchOptions) -> Vec<Aov> {
+    let mut aovs = opts.exr_aovs(scene);
+    if opts.png {
+        for a in [Aov::Depth, Aov::Normal] {
+            if !aovs.contains(&a) {
+                aovs.push(a);
+            }
+        }
+    }
+    aovs
+}
+
+/// Bytes rendering and writing a view holds at its peak (see [`render_memory`]).
+pub fn view_memory(scene: &Scene, opts: &BatchOptions) -> u64 {
+    let c = &scene.camera;
+    render_memory(
+        c.width,
+        c.height,
+        &traced_aovs(scene, opts),
+        opts.compression,
+        opts.png,
+    )
+}
+
 /// Render one view into `partial` (temporary names `TMP_STEM.*.tmp`) and move its files
 /// into `dir` as `NAME.*`, the EXR last. A depth PNG that cannot hold the view's depths
 /// (under [`OutOfRange::Fail`](depth_png::OutOfRange::Fail)) fails the view before
@@ -55,14 +80,7 @@ pub fn render_view(
     opts: &BatchOptions,
 ) -> Result<ViewCost> {
     let exr_aovs = opts.exr_aovs(scene);
-    let mut aovs = exr_aovs.clone();
-    if opts.png {
-        for a in [Aov::Depth, Aov::Normal] {
-            if !aovs.contains(&a) {
-                aovs.push(a);
-            }
-        }
-    }
+    let aovs = traced_aovs(scene, opts);
     let t0 = Instant::now();
     let mut image = render(
         scene,
