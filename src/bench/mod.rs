@@ -63,11 +63,23 @@ pub fn random_scene(n: usize, seed: u64, width: u32, height: u32) -> Scene {
             }
         })
         .collect();
+    bench_scene(DVec3::new(12.0, -16.0, 8.0), 45.0, width, height, cylinders)
+}
+
+/// A bench scene: the camera at `origin` looking at the world origin, up +z, horizontal
+/// field of view `fov_deg`, Mitsuba's default clip range, depth and normal.
+fn bench_scene(
+    origin: DVec3,
+    fov_deg: f64,
+    width: u32,
+    height: u32,
+    cylinders: Vec<Cylinder>,
+) -> Scene {
     let camera = CameraSpec {
-        origin: DVec3::new(12.0, -16.0, 8.0),
+        origin,
         target: DVec3::ZERO,
         up: DVec3::Z,
-        fov_deg: 45.0,
+        fov_deg,
         fov_axis: FovAxis::X,
         width,
         height,
@@ -104,23 +116,7 @@ pub fn dense_scene(n: usize, seed: u64, width: u32, height: u32) -> Scene {
             }
         })
         .collect();
-    let camera = CameraSpec {
-        origin: DVec3::new(26.0, -30.0, 18.0),
-        target: DVec3::ZERO,
-        up: DVec3::Z,
-        fov_deg: 50.0,
-        fov_axis: FovAxis::X,
-        width,
-        height,
-        near_clip: 0.01,
-        far_clip: 10000.0,
-    };
-    Scene {
-        camera,
-        cameras: vec![camera],
-        cylinders,
-        aovs: vec![Aov::Depth, Aov::Normal],
-    }
+    bench_scene(DVec3::new(26.0, -30.0, 18.0), 50.0, width, height, cylinders)
 }
 
 /// A bench scene family (see the module doc).
