@@ -116,7 +116,13 @@ pub fn dense_scene(n: usize, seed: u64, width: u32, height: u32) -> Scene {
             }
         })
         .collect();
-    bench_scene(DVec3::new(26.0, -30.0, 18.0), 50.0, width, height, cylinders)
+    bench_scene(
+        DVec3::new(26.0, -30.0, 18.0),
+        50.0,
+        width,
+        height,
+        cylinders,
+    )
 }
 
 /// A bench scene family (see the module doc).
