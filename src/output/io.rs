@@ -478,6 +478,14 @@ pub fn aov_meaning(aov: Aov) -> (&'static str, &'static str) {
     }
 }
 
+/// Pretty JSON of one of cylaov's own records (camera metadata, stamps, indexes). They are
+/// structs of numbers, strings and lists with string keys, which serde_json always serialises
+/// (it fails only on non-string map keys or a failing custom `Serialize`), so a failure is a
+/// bug in cylaov and is reported as one, never written as an empty file.
+pub fn record_json(value: &impl serde::Serialize) -> String {
+    serde_json::to_string_pretty(value).expect("cylaov's own records always serialise to JSON")
+}
+
 /// The camera metadata JSON for a render: intrinsics, both pose conventions, AOV meanings.
 pub fn camera_json(cam: &Camera, aovs: &[Aov]) -> String {
     let (fx, fy) = cam.focal_px();
@@ -520,7 +528,7 @@ pub fn camera_json(cam: &Camera, aovs: &[Aov]) -> String {
             })
             .collect(),
     };
-    let mut s = serde_json::to_string_pretty(&meta).unwrap_or_default();
+    let mut s = record_json(&meta);
     s.push('\n');
     s
 }
@@ -563,7 +571,7 @@ pub fn open3d_json(cam: &Camera) -> String {
         // glam matrices are column-major already.
         extrinsic: cam.world_from_camera_opencv().inverse().to_cols_array(),
     };
-    let mut s = serde_json::to_string_pretty(&params).unwrap_or_default();
+    let mut s = record_json(&params);
     s.push('\n');
     s
 }

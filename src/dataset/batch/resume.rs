@@ -271,7 +271,7 @@ pub fn render_stamp(scene: &Scene, opts: &BatchOptions) -> String {
         depth_scale: opts.png.then_some(opts.depth_scale),
         depth_out_of_range: opts.png.then(|| name(opts.depth_out_of_range)),
     };
-    let mut s = serde_json::to_string_pretty(&stamp).unwrap_or_default();
+    let mut s = crate::output::io::record_json(&stamp);
     s.push('\n');
     s
 }

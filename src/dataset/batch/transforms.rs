@@ -184,7 +184,7 @@ pub fn transforms_json(views: &[(&str, FrameCamera)], opts: &BatchOptions) -> St
         principal_point_note: PRINCIPAL_POINT_NOTE,
         frames,
     };
-    let mut s = serde_json::to_string_pretty(&t).unwrap_or_default();
+    let mut s = crate::output::io::record_json(&t);
     s.push('\n');
     s
 }
@@ -222,7 +222,7 @@ pub fn index_json(
         layout_note: "views of different scenes are unrelated: each several-camera scene has its own SCENE/transforms.json for nerfstudio (ns-train ... --data OUT/SCENE); a one-camera scene's files are OUT/SCENE.*",
         views,
     };
-    let mut s = serde_json::to_string_pretty(&index).unwrap_or_default();
+    let mut s = crate::output::io::record_json(&index);
     s.push('\n');
     s
 }
