@@ -16,7 +16,7 @@ use crate::accel::tiles;
 use crate::geometry::Kernel;
 use crate::geometry::kernel::KernelFn;
 use crate::geometry::packet::{LANES, Packet, PacketFormula};
-use crate::geometry::wide::Simd;
+use crate::geometry::wide::{Avx2, Simd};
 use crate::geometry::wide::{Lanes, Wide};
 use crate::geometry::{Cylinder, Prepared, Real};
 use crate::output::aov::{AovImage, Compression};
@@ -208,6 +208,7 @@ fn kernel_workload<T: Real>(scene: &Scene) -> Vec<(usize, Packet<T>)> {
 /// hit count too, so the work cannot be optimised away.
 #[inline(always)]
 fn kernel_pass<T: Real, F: PacketFormula, W: Wide<T>>(
+    tok: W::Token,
     prepared: &[Prepared<T>],
     work: &[(usize, Packet<T>)],
     reps: usize,
@@ -223,7 +224,7 @@ fn kernel_pass<T: Real, F: PacketFormula, W: Wide<T>>(
                     hits += F::intersect(p, pk.dir(l), pk.tmin[l], pk.t[l]).is_some() as u64;
                 }
             } else {
-                hits += F::intersect_packet::<T, W>(p, (*i as u32, 0), &mut pk, u8::MAX)
+                hits += F::intersect_packet::<T, W>(tok, p, (*i as u32, 0), &mut pk, u8::MAX)
                     .count_ones() as u64;
             }
         }
@@ -234,11 +235,12 @@ fn kernel_pass<T: Real, F: PacketFormula, W: Wide<T>>(
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 fn kernel_pass_avx2<T: Simd, F: PacketFormula>(
+    tok: Avx2,
     prepared: &[Prepared<T>],
     work: &[(usize, Packet<T>)],
     reps: usize,
 ) -> (f64, u64) {
-    kernel_pass::<T, F, T::Avx>(prepared, work, reps, false)
+    kernel_pass::<T, F, T::Avx>(tok, prepared, work, reps, false)
 }
 
 /// [`KernelRow`]s of kernel `F` in precision `T` on `scene`, one timing each.
@@ -253,20 +255,20 @@ fn kernel_rows_for<T: Simd, F: PacketFormula>(scene: &Scene) -> Vec<KernelRow> {
     // A few hundredths of a second per form: passes enough to dwarf the timer and the
     // first, cold one.
     let reps = (2_000_000 / (work.len() * LANES).max(1)).max(1);
-    let run = |form: &str| match form {
-        "scalar" => kernel_pass::<T, F, Lanes<T>>(&prepared, &work, reps, true).0,
+    let avx2 = Avx2::detect();
+    let run = |form: &str| match (form, avx2) {
+        ("scalar", _) => kernel_pass::<T, F, Lanes<T>>((), &prepared, &work, reps, true).0,
         #[cfg(target_arch = "x86_64")]
-        // SAFETY: "avx2" is listed only when the CPU has it (below).
-        "avx2" => unsafe { kernel_pass_avx2::<T, F>(&prepared, &work, reps).0 },
-        _ => kernel_pass::<T, F, Lanes<T>>(&prepared, &work, reps, false).0,
+        // SAFETY: the token says the CPU has AVX2, which the target feature requires.
+        ("avx2", Some(tok)) => unsafe { kernel_pass_avx2::<T, F>(tok, &prepared, &work, reps).0 },
+        _ => kernel_pass::<T, F, Lanes<T>>((), &prepared, &work, reps, false).0,
     };
     // A formula without a SIMD form runs its packets lane by lane: that is the scalar row.
     let mut forms = vec!["scalar"];
     if F::SIMD {
         forms.push("lanes");
     }
-    #[cfg(target_arch = "x86_64")]
-    if F::SIMD && std::arch::is_x86_feature_detected!("avx2") {
+    if F::SIMD && avx2.is_some() {
         forms.push("avx2");
     }
     let tests = (work.len() * LANES * reps) as f64;

@@ -69,6 +69,7 @@ pub(crate) trait PacketFormula: Formula {
 
     #[inline(always)]
     fn intersect_packet<T: Real, W: Wide<T>>(
+        _tok: W::Token,
         p: &Prepared<T>,
         index: (u32, u32),
         pk: &mut Packet<T>,
@@ -86,12 +87,13 @@ impl PacketFormula for Stable {
 
     #[inline(always)]
     fn intersect_packet<T: Real, W: Wide<T>>(
+        tok: W::Token,
         p: &Prepared<T>,
         index: (u32, u32),
         pk: &mut Packet<T>,
         mask: u8,
     ) -> u8 {
-        stable_lanes::<T, W>(p, index, pk, mask)
+        stable_lanes::<T, W>(tok, p, index, pk, mask)
     }
 }
 
@@ -122,14 +124,15 @@ pub(crate) fn intersect_lanes<T: Real, F: Formula>(
 
 /// `a · d` per lane, summed in the order of glam's `dot` (x, then y, then z).
 #[inline(always)]
-fn dot<T: Real, W: Wide<T>>(a: [T; 3], d: [W; 3]) -> W {
-    W::splat(a[0]) * d[0] + W::splat(a[1]) * d[1] + W::splat(a[2]) * d[2]
+fn dot<T: Real, W: Wide<T>>(tok: W::Token, a: [T; 3], d: [W; 3]) -> W {
+    W::splat(tok, a[0]) * d[0] + W::splat(tok, a[1]) * d[1] + W::splat(tok, a[2]) * d[2]
 }
 
 /// [`Stable::intersect`] on eight lanes at once, step for step (see there for the maths),
 /// in the SIMD form `W`.
 #[inline(always)]
 pub(crate) fn stable_lanes<T: Real, W: Wide<T>>(
+    tok: W::Token,
     p: &Prepared<T>,
     (index, slot): (u32, u32),
     pk: &mut Packet<T>,
@@ -137,10 +140,14 @@ pub(crate) fn stable_lanes<T: Real, W: Wide<T>>(
 ) -> u8 {
     let [ou, ov, on] = p.oc_local;
     let (u, v, n) = (T::v3_parts(p.u), T::v3_parts(p.v), T::v3_parts(p.n));
-    let s = W::splat;
-    let d = [W::load(&pk.d[0]), W::load(&pk.d[1]), W::load(&pk.d[2])];
+    let s = |x: T| W::splat(tok, x);
+    let d = [
+        W::load(tok, &pk.d[0]),
+        W::load(tok, &pk.d[1]),
+        W::load(tok, &pk.d[2]),
+    ];
     let (zero, inf) = (s(T::ZERO), s(T::INFINITY));
-    let (du, dv) = (dot(u, d), dot(v, d));
+    let (du, dv) = (dot(tok, u, d), dot(tok, v, d));
     let a = du * du + dv * dv;
     let x = (du * s(ov) - dv * s(ou)).abs();
     let r2a = s(p.r * p.r) * a;
@@ -152,7 +159,7 @@ pub(crate) fn stable_lanes<T: Real, W: Wide<T>>(
         return 0;
     }
     // Side interval [s0, s1] (Stable::side_interval).
-    let dn = dot(n, d);
+    let dn = dot(tok, n, d);
     let b = du * s(ou) + dv * s(ov);
     let ra = s(p.r) * a.sqrt();
     let disc = (ra - x) * (ra + x);
@@ -169,8 +176,8 @@ pub(crate) fn stable_lanes<T: Real, W: Wide<T>>(
         inf,
         W::select(tangent, zero, W::select(t0.gt(t1), t0, t1)),
     );
-    let side = (parallel & W::all(p.c_side <= T::ZERO)) | (!parallel & !disc.lt(zero));
-    let (tmin, limit) = (W::load(&pk.tmin), W::load(&pk.t));
+    let side = (parallel & W::all(tok, p.c_side <= T::ZERO)) | (!parallel & !disc.lt(zero));
+    let (tmin, limit) = (W::load(tok, &pk.tmin), W::load(tok, &pk.t));
     // The hit per lane, and its surface as bits: on the side, else on the bottom cap.
     let (hit, t, on_side, on_bottom) = if p.caps {
         // Slab between the cap planes (a ray parallel to them: all or nothing).
@@ -179,7 +186,7 @@ pub(crate) fn stable_lanes<T: Real, W: Wide<T>>(
         let up = dn.gt(zero);
         let c0 = W::select(flat, -inf, W::select(up, ta, tb));
         let c1 = W::select(flat, inf, W::select(up, tb, ta));
-        let slab = !flat | W::all(!(on < T::ZERO || on > p.h));
+        let slab = !flat | W::all(tok, !(on < T::ZERO || on > p.h));
         let (side_in, side_out) = (s0.ge(c0), s1.le(c1));
         let (enter, exit) = (W::select(side_in, s0, c0), W::select(side_out, s1, c1));
         let first = enter.ge(tmin) & enter.le(limit);

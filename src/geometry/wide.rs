@@ -1,8 +1,9 @@
 //! Eight lanes of f32 or f64 as one value, so the packet kernel is written once.
 //!
 //! [`Lanes`] is the portable form (arrays and loops, for any CPU). On x86-64, `Avx32`
-//! (one 256-bit register of f32) and `Avx64` (two of f64) use AVX intrinsics; they are
-//! only ever called from code compiled with AVX2 enabled, after a runtime check. Every
+//! (one 256-bit register of f32) and `Avx64` (two of f64) use AVX intrinsics. Their safety
+//! is a fact of the types: every constructor takes an [`Avx2`] token, and only the run-time
+//! feature check ([`Avx2::detect`]) makes one, so no AVX value exists on a CPU without AVX2. Every
 //! operation is the single IEEE operation the scalar kernel performs (add, sub, mul, div,
 //! sqrt, ordered compares, sign-bit logic), so all forms give the same bits.
 
@@ -19,13 +20,18 @@ pub(crate) trait Wide<T>:
     + Div<Output = Self>
     + Neg<Output = Self>
 {
+    /// What building a value takes: nothing for [`Lanes`], an [`Avx2`] token for the AVX
+    /// forms, so AVX values exist only where the CPU was checked.
+    type Token: Copy;
     /// A lane mask, as produced by the comparisons.
     type Mask: Copy
         + BitAnd<Output = Self::Mask>
         + BitOr<Output = Self::Mask>
         + Not<Output = Self::Mask>;
-    fn splat(x: T) -> Self;
-    fn load(a: &[T; LANES]) -> Self;
+    /// Every lane `x`.
+    fn splat(tok: Self::Token, x: T) -> Self;
+    /// The lanes of `a`.
+    fn load(tok: Self::Token, a: &[T; LANES]) -> Self;
     fn store(self, a: &mut [T; LANES]);
     fn sqrt(self) -> Self;
     fn abs(self) -> Self;
@@ -41,10 +47,10 @@ pub(crate) trait Wide<T>:
     /// Bit `l` set where lane `l` of `m` is.
     fn bits(m: Self::Mask) -> u8;
     /// Every lane set to `b`.
-    fn all(b: bool) -> Self::Mask;
+    fn all(tok: Self::Token, b: bool) -> Self::Mask;
     /// Bit `l` set where `x <= a[l]`: f64 lanes, for the bookkeeping that stays in f64
     /// whatever the kernel's precision.
-    fn le_bits(x: f64, a: &[f64; LANES]) -> u8;
+    fn le_bits(tok: Self::Token, x: f64, a: &[f64; LANES]) -> u8;
 }
 
 /// The portable form: an array, one loop per operation.
@@ -106,13 +112,14 @@ impl<T: Real> Lanes<T> {
 }
 
 impl<T: Real> Wide<T> for Lanes<T> {
+    type Token = ();
     type Mask = Bits;
     #[inline(always)]
-    fn splat(x: T) -> Self {
+    fn splat(_: (), x: T) -> Self {
         Lanes([x; LANES])
     }
     #[inline(always)]
-    fn load(a: &[T; LANES]) -> Self {
+    fn load(_: (), a: &[T; LANES]) -> Self {
         Lanes(*a)
     }
     #[inline(always)]
@@ -162,22 +169,49 @@ impl<T: Real> Wide<T> for Lanes<T> {
         m.0
     }
     #[inline(always)]
-    fn all(b: bool) -> Bits {
+    fn all(_: (), b: bool) -> Bits {
         Bits(if b { u8::MAX } else { 0 })
     }
     #[inline(always)]
-    fn le_bits(x: f64, a: &[f64; LANES]) -> u8 {
+    fn le_bits(_: (), x: f64, a: &[f64; LANES]) -> u8 {
         (0..LANES).fold(0, |m, l| m | (((x <= a[l]) as u8) << l))
     }
 }
 
-/// A precision with an AVX lane type. Crate-private, like everything here: building an
-/// AVX value runs AVX instructions, so only `render` and `bench` may, after checking the
-/// CPU; code outside the crate cannot name these types.
+/// Proof that this CPU has AVX2: [`Avx2::detect`] is the only safe way to get one, and
+/// every AVX value is built from one (`Wide::splat`, `load`, `all`, `le_bits` take it), so
+/// the safe methods of `Avx32`/`Avx64`, which execute AVX instructions, can run only where
+/// the check succeeded. Zero-sized: passing it costs nothing.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Avx2(());
+
+impl Avx2 {
+    /// The token, when the CPU running this process has AVX2.
+    pub(crate) fn detect() -> Option<Avx2> {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            return Some(Avx2(()));
+        }
+        None
+    }
+
+    /// The token without the check.
+    ///
+    /// # Safety
+    /// The CPU must have AVX2: call it only from code that runs after [`Avx2::detect`]
+    /// succeeded (for instance a `#[target_feature(enable = "avx2")]` function, whose own
+    /// contract is the same).
+    #[cfg(target_arch = "x86_64")]
+    pub(crate) unsafe fn new_unchecked() -> Avx2 {
+        Avx2(())
+    }
+}
+
+/// A precision with an AVX lane type, built only with an [`Avx2`] token.
 pub(crate) trait Simd: Real {
     /// Eight lanes of this precision in AVX registers.
     #[cfg(target_arch = "x86_64")]
-    type Avx: Wide<Self>;
+    type Avx: Wide<Self, Token = Avx2>;
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -200,7 +234,7 @@ impl Simd for f64 {}
 /// AVX2 and be compiled with it enabled (`render` checks at run time).
 #[cfg(target_arch = "x86_64")]
 mod avx {
-    use super::{LANES, Wide};
+    use super::{Avx2, LANES, Wide};
     use std::arch::x86_64::*;
     use std::ops::{Add, BitAnd, BitOr, Div, Mul, Neg, Not, Sub};
 
@@ -215,8 +249,9 @@ mod avx {
     #[derive(Clone, Copy, Debug)]
     pub struct Mask64([__m256d; 2]);
 
-    // SAFETY (every `unsafe` block below): AVX intrinsics on values in registers; the
-    // caller runs only where the CPU has AVX2 (see the module doc).
+    // SAFETY (every `unsafe` block below without a note of its own): AVX intrinsics on
+    // values in registers. The CPU has AVX2: every value of these types was built from an
+    // `Avx2` token, which only the run-time check (or an unsafe caller vouching for it) makes.
     macro_rules! binops {
         ($t:ident, $m:ident, $w:ident: $($tr:ident $f:ident $intr:ident),*) => {$(
             impl $tr for $t {
@@ -279,6 +314,8 @@ mod avx {
     /// [`Wide::le_bits`] with AVX: two compares and two sign masks.
     #[inline(always)]
     fn le_bits_avx(x: f64, a: &[f64; LANES]) -> u8 {
+        // SAFETY: two unaligned loads of 4 f64 from `a`, which holds exactly 8; AVX2 is
+        // there (the callers hold an `Avx2` token).
         unsafe {
             let x = _mm256_set1_pd(x);
             let lo = _mm256_cmp_pd::<_CMP_LE_OQ>(x, _mm256_loadu_pd(a.as_ptr()));
@@ -307,17 +344,20 @@ mod avx {
     }
 
     impl Wide<f32> for Avx32 {
+        type Token = Avx2;
         type Mask = Mask32;
         #[inline(always)]
-        fn splat(x: f32) -> Self {
+        fn splat(_: Avx2, x: f32) -> Self {
             unsafe { Avx32(_mm256_set1_ps(x)) }
         }
         #[inline(always)]
-        fn load(a: &[f32; LANES]) -> Self {
+        fn load(_: Avx2, a: &[f32; LANES]) -> Self {
+            // SAFETY: an unaligned load of 8 f32 from `a`, which holds exactly 8.
             unsafe { Avx32(_mm256_loadu_ps(a.as_ptr())) }
         }
         #[inline(always)]
         fn store(self, a: &mut [f32; LANES]) {
+            // SAFETY: an unaligned store of 8 f32 into `a`, which holds exactly 8.
             unsafe { _mm256_storeu_ps(a.as_mut_ptr(), self.0) }
         }
         #[inline(always)]
@@ -345,11 +385,11 @@ mod avx {
             unsafe { _mm256_movemask_ps(m.0) as u8 }
         }
         #[inline(always)]
-        fn all(b: bool) -> Mask32 {
+        fn all(_: Avx2, b: bool) -> Mask32 {
             unsafe { Mask32(_mm256_castsi256_ps(_mm256_set1_epi32(-(b as i32)))) }
         }
         #[inline(always)]
-        fn le_bits(x: f64, a: &[f64; LANES]) -> u8 {
+        fn le_bits(_: Avx2, x: f64, a: &[f64; LANES]) -> u8 {
             le_bits_avx(x, a)
         }
     }
@@ -366,13 +406,15 @@ mod avx {
     }
 
     impl Wide<f64> for Avx64 {
+        type Token = Avx2;
         type Mask = Mask64;
         #[inline(always)]
-        fn splat(x: f64) -> Self {
+        fn splat(_: Avx2, x: f64) -> Self {
             unsafe { Avx64([_mm256_set1_pd(x); 2]) }
         }
         #[inline(always)]
-        fn load(a: &[f64; LANES]) -> Self {
+        fn load(_: Avx2, a: &[f64; LANES]) -> Self {
+            // SAFETY: two unaligned loads of 4 f64 from `a`, which holds exactly 8.
             unsafe {
                 Avx64([
                     _mm256_loadu_pd(a.as_ptr()),
@@ -382,6 +424,7 @@ mod avx {
         }
         #[inline(always)]
         fn store(self, a: &mut [f64; LANES]) {
+            // SAFETY: two unaligned stores of 4 f64 into `a`, which holds exactly 8.
             unsafe {
                 _mm256_storeu_pd(a.as_mut_ptr(), self.0[0]);
                 _mm256_storeu_pd(a.as_mut_ptr().add(4), self.0[1]);
@@ -412,11 +455,11 @@ mod avx {
             unsafe { (_mm256_movemask_pd(m.0[0]) | (_mm256_movemask_pd(m.0[1]) << 4)) as u8 }
         }
         #[inline(always)]
-        fn all(b: bool) -> Mask64 {
+        fn all(_: Avx2, b: bool) -> Mask64 {
             unsafe { Mask64([_mm256_castsi256_pd(_mm256_set1_epi64x(-(b as i64))); 2]) }
         }
         #[inline(always)]
-        fn le_bits(x: f64, a: &[f64; LANES]) -> u8 {
+        fn le_bits(_: Avx2, x: f64, a: &[f64; LANES]) -> u8 {
             le_bits_avx(x, a)
         }
     }
