@@ -72,6 +72,20 @@ struct Item {
     index: u32,
 }
 
+impl Item {
+    /// Box `index`, `[lo, hi]` in world coordinates, relative to `origin` and rounded
+    /// outward to f32 (see the module doc).
+    fn new(index: usize, (lo, hi): (DVec3, DVec3), origin: DVec3) -> Item {
+        let (min, max) = (outward(lo, origin, true), outward(hi, origin, false));
+        Item {
+            min,
+            max,
+            centroid: (min + max) * 0.5,
+            index: index as u32,
+        }
+    }
+}
+
 fn area(min: Vec3A, max: Vec3A) -> f32 {
     let e = (max - min).max(Vec3A::ZERO);
     e.x * e.y + e.y * e.z + e.z * e.x
@@ -89,15 +103,7 @@ impl Bvh {
         let mut items: Vec<Item> = bounds
             .par_iter()
             .enumerate()
-            .map(|(i, &(lo, hi))| {
-                let (min, max) = (outward(lo, origin, true), outward(hi, origin, false));
-                Item {
-                    min,
-                    max,
-                    centroid: (min + max) * 0.5,
-                    index: i as u32,
-                }
-            })
+            .map(|(i, &b)| Item::new(i, b, origin))
             .collect();
         let nodes = Self::build_tree(&mut items, 0, (0, sah_depth));
         Bvh {
@@ -649,15 +655,7 @@ mod tests {
             let mut items: Vec<Item> = boxes
                 .iter()
                 .enumerate()
-                .map(|(i, &(lo, hi))| {
-                    let (min, max) = (outward(lo, origin, true), outward(hi, origin, false));
-                    Item {
-                        min,
-                        max,
-                        centroid: (min + max) * 0.5,
-                        index: i as u32,
-                    }
-                })
+                .map(|(i, &b)| Item::new(i, b, origin))
                 .collect();
             let mut nodes = vec![Node {
                 min: Vec3A::ZERO,
