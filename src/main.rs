@@ -236,6 +236,10 @@ struct BenchCli {
     /// Also write the table as CSV (and Mitsuba's rows to OUT.mitsuba.csv).
     #[arg(long, value_name = "OUT.csv")]
     csv: Option<PathBuf>,
+    /// Also keep each generated scene as DIR/FAMILY-N.json (an existing folder), to time or
+    /// profile `cylaov render` on it by hand.
+    #[arg(long, value_name = "DIR")]
+    keep_scenes: Option<PathBuf>,
     /// Also draw the figure: error against time per kernel (Pareto view) and time against
     /// cylinder count, log-log, with Mitsuba's times when `--mitsuba` ran.
     #[arg(long, value_name = "OUT.png")]
@@ -614,6 +618,7 @@ fn bench(b: BenchCli) -> anyhow::Result<ExitCode> {
         },
         seed: b.seed,
         accel: b.accel,
+        keep_scenes: b.keep_scenes,
     };
     let mitsuba = match b.mitsuba {
         false => None,

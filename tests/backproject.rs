@@ -63,8 +63,11 @@ fn read_npy(path: &Path) -> Vec<DVec3> {
 #[test]
 fn backprojected_points_lie_on_the_cylinders() {
     let Some(py) = python() else { return };
-    let dir = std::env::temp_dir().join(format!("cylaov-backproject-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
+    let tmp = tempfile::Builder::new()
+        .prefix("cylaov-backproject-")
+        .tempdir()
+        .unwrap();
+    let dir = tmp.path();
     let data = dir.join("data");
     let run = |args: &[&str]| {
         let o = Command::new(BIN).args(args).output().unwrap();
@@ -160,5 +163,4 @@ fn backprojected_points_lie_on_the_cylinders() {
             assert!(off > 1e-3, "{off}");
         }
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }

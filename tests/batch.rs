@@ -6,11 +6,11 @@ use common::{cylaov, ok};
 
 use cylaov::output::aov::AovImage;
 use std::collections::{BTreeMap, BTreeSet};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Output};
 use std::time::{Duration, Instant};
 
-fn fresh_dir(name: &str) -> PathBuf {
+fn fresh_dir(name: &str) -> tempfile::TempDir {
     common::fresh_dir("batch", name)
 }
 
@@ -74,7 +74,8 @@ const SMALL: &[&str] = &["--width", "64", "--height", "48", "--cylinders", "3..6
 
 #[test]
 fn same_seed_gives_identical_bytes() {
-    let dir = fresh_dir("determinism");
+    let tmp = fresh_dir("determinism");
+    let dir = tmp.path();
     let (a, b, c) = (dir.join("a"), dir.join("b"), dir.join("c"));
     generate(&a, "42", "6", SMALL);
     generate(&b, "42", "6", SMALL);
@@ -112,12 +113,12 @@ fn same_seed_gives_identical_bytes() {
     let (ra, rb) = (tree(&dir.join("ra")), tree(&dir.join("rb")));
     assert_eq!(ra.len(), 6 * 7 + 2, "{:?}", ra.keys());
     assert_eq!(ra, rb);
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn bad_generate_options_name_the_flag() {
-    let dir = fresh_dir("badgen");
+    let tmp = fresh_dir("badgen");
+    let dir = tmp.path();
     let out = cylaov(&[
         "generate",
         "--count",
@@ -131,12 +132,12 @@ fn bad_generate_options_name_the_flag() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("--radius: must be > 0"), "{err}");
     assert!(!dir.join("x").exists(), "nothing is written on bad options");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn shards_partition_the_views_and_agree_on_transforms() {
-    let dir = fresh_dir("shards");
+    let tmp = fresh_dir("shards");
+    let dir = tmp.path();
     let data = dir.join("data");
     generate(&data, "5", "9", SMALL);
     let full = dir.join("full");
@@ -189,12 +190,12 @@ fn shards_partition_the_views_and_agree_on_transforms() {
         .filter(|k| k.ends_with(".exr"))
         .collect();
     assert_eq!(exrs, vec!["000001.exr", "000005.exr"]);
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn a_bad_scene_fails_alone() {
-    let dir = fresh_dir("bad");
+    let tmp = fresh_dir("bad");
+    let dir = tmp.path();
     let data = dir.join("data");
     generate(&data, "9", "5", SMALL);
     // Read through a folder (no manifest): move the scenes up and break the middle one.
@@ -239,12 +240,12 @@ fn a_bad_scene_fails_alone() {
         "{failures}"
     );
     assert!(failures.contains("-1.5"), "{failures}");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn resume_after_kill_completes_with_correct_files() {
-    let dir = fresh_dir("kill");
+    let tmp = fresh_dir("kill");
+    let dir = tmp.path();
     let data = dir.join("data");
     // Slow enough to be caught mid-way on one thread.
     generate(&data, "11", "40", &["--cylinders", "100"]);
@@ -331,12 +332,12 @@ fn resume_after_kill_completes_with_correct_files() {
     for (k, v) in &want {
         assert!(&got[k] == v, "{k} differs from an uninterrupted run");
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn manifest_and_folder_inputs() {
-    let dir = fresh_dir("inputs");
+    let tmp = fresh_dir("inputs");
+    let dir = tmp.path();
     let data = dir.join("data");
     generate(&data, "3", "3", SMALL);
     // A manifest with its own names, in its own order.
@@ -371,13 +372,13 @@ fn manifest_and_folder_inputs() {
     let o = batch_fails(&dir.join("twice"), &dir.join("o2"));
     assert!(String::from_utf8_lossy(&o.stderr).contains("view name \"s\" is used twice"));
     assert!(!dir.join("o2/s.exr").exists());
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// The dataset index matches the per-view camera files and the depth PNG scale.
 #[test]
 fn transforms_match_cameras_and_depth_png() {
-    let dir = fresh_dir("transforms");
+    let tmp = fresh_dir("transforms");
+    let dir = tmp.path();
     let data = dir.join("data");
     generate(
         &data,
@@ -436,7 +437,6 @@ fn transforms_match_cameras_and_depth_png() {
         hits += (want > 0) as usize;
     }
     assert!(hits > 100, "{hits} hits");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// `--verify-fraction` plumbing with a stand-in reference (the Mitsuba one is
@@ -464,7 +464,8 @@ fn verify_fraction_checks_selected_views_and_fails_disagreements() {
             })
         }
     }
-    let dir = fresh_dir("verify");
+    let tmp = fresh_dir("verify");
+    let dir = tmp.path();
     let data = dir.join("data");
     generate(&data, "2", "4", SMALL);
     let out = dir.join("out");
@@ -519,7 +520,6 @@ fn verify_fraction_checks_selected_views_and_fails_disagreements() {
     )
     .unwrap();
     assert_eq!(s.verified, picked);
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// `--verify-fraction 1` against real Mitsuba renders (skipped, saying so, without the
@@ -530,7 +530,8 @@ fn verify_fraction_with_mitsuba_agrees_on_generated_views() {
     if common::venv_python().is_none() {
         return;
     }
-    let dir = fresh_dir("verify-mitsuba");
+    let tmp = fresh_dir("verify-mitsuba");
+    let dir = tmp.path();
     let data = dir.join("data");
     generate(&data, "3", "3", SMALL);
     let out = dir.join("out");
@@ -539,7 +540,6 @@ fn verify_fraction_with_mitsuba_agrees_on_generated_views() {
         text.contains("3 views verified") && text.contains("failed 0"),
         "{text}"
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Every view of a several-camera scene is checked against Mitsuba's render of its own
@@ -550,7 +550,8 @@ fn verify_fraction_checks_every_camera_of_a_scene() {
     if common::venv_python().is_none() {
         return;
     }
-    let dir = fresh_dir("verify-cameras");
+    let tmp = fresh_dir("verify-cameras");
+    let dir = tmp.path();
     let data = dir.join("data");
     generate(
         &data,
@@ -564,13 +565,13 @@ fn verify_fraction_checks_every_camera_of_a_scene() {
         text.contains("done 3 /") && text.contains("3 views verified") && text.contains("failed 0"),
         "{text}"
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// A scene whose camera changed under the same name is rendered again, not skipped.
 #[test]
 fn changed_camera_is_rendered_again() {
-    let dir = fresh_dir("changed");
+    let tmp = fresh_dir("changed");
+    let dir = tmp.path();
     let data = dir.join("data");
     generate(&data, "6", "3", SMALL);
     let out = dir.join("out");
@@ -598,18 +599,24 @@ fn changed_camera_is_rendered_again() {
     .unwrap();
     let stdout = batch_ok(&data, &out, &[]);
     assert!(stdout.contains("done 1 / skipped 2 / failed 0"), "{stdout}");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// Temporary names: hidden, ending in `.tmp`, in the target's folder, and distinct per call
-/// (shards on different nodes can share a PID), with the host in the name.
+/// Temporary names: hidden, ending in `.tmp`, in the target's folder, distinct per call
+/// (shards on different nodes can share a PID), with the host and PID in the name; the
+/// committed file has the mode a plain `File::create` gives, and an uncommitted one is gone
+/// when dropped.
 #[test]
-fn temp_names_are_unique_per_host_and_call() {
-    let target = Path::new("/some/dir/000001.exr");
-    let a = cylaov::output::io::temp_path(target);
-    let b = cylaov::output::io::temp_path(target);
-    assert_ne!(a, b);
-    for p in [&a, &b] {
+fn staged_files_have_unique_temporary_names_and_plain_modes() {
+    use cylaov::output::io::stage;
+    use std::io::Write;
+    use std::os::unix::fs::PermissionsExt;
+    let tmp = fresh_dir("staged");
+    let dir = tmp.path();
+    let target = dir.join("000001.exr");
+    let a = stage(&target, |f| f.write_all(b"a")).unwrap();
+    let b = stage(&target, |f| f.write_all(b"b")).unwrap();
+    assert_ne!(a.temp_path(), b.temp_path());
+    for p in [a.temp_path(), b.temp_path()] {
         assert_eq!(p.parent(), target.parent());
         let name = p.file_name().unwrap().to_string_lossy();
         assert!(name.starts_with(".000001.exr."), "{name}");
@@ -618,7 +625,7 @@ fn temp_names_are_unique_per_host_and_call() {
             name.contains(&format!(".{}.", std::process::id())),
             "{name}"
         );
-        assert!(!name.contains('/'));
+        assert!(p.exists(), "{name}");
     }
     let host = std::fs::read_to_string("/proc/sys/kernel/hostname")
         .ok()
@@ -626,7 +633,12 @@ fn temp_names_are_unique_per_host_and_call() {
         .map(|h| h.trim().to_string())
         .filter(|h| !h.is_empty());
     if let Some(host) = host {
-        let name = a.file_name().unwrap().to_string_lossy().into_owned();
+        let name = a
+            .temp_path()
+            .file_name()
+            .unwrap()
+            .to_string_lossy()
+            .into_owned();
         let safe: String = host
             .chars()
             .filter(|c| c.is_ascii_alphanumeric() || *c == '-' || *c == '.')
@@ -634,11 +646,24 @@ fn temp_names_are_unique_per_host_and_call() {
             .collect();
         assert!(name.contains(&safe), "{name} lacks {safe}");
     }
+    let b_tmp = b.temp_path().to_path_buf();
+    drop(b);
+    assert!(!b_tmp.exists(), "a dropped staged file is removed");
+    a.commit().unwrap();
+    assert_eq!(std::fs::read(&target).unwrap(), b"a");
+    let plain = dir.join("plain");
+    std::fs::File::create(&plain).unwrap();
+    let mode = |p: &Path| std::fs::metadata(p).unwrap().permissions().mode() & 0o777;
+    assert_eq!(mode(&target), mode(&plain));
+    let left: Vec<_> = std::fs::read_dir(dir).unwrap().collect();
+    assert_eq!(left.len(), 2, "only the output and the plain file remain");
 }
+
 /// An input without views is an error that names it; nothing is written.
 #[test]
 fn empty_input_is_an_error() {
-    let dir = fresh_dir("empty");
+    let tmp = fresh_dir("empty");
+    let dir = tmp.path();
     let empty = dir.join("empty");
     std::fs::create_dir_all(&empty).unwrap();
     let out = dir.join("out");
@@ -665,13 +690,13 @@ fn empty_input_is_an_error() {
     assert!(err.contains(scenes.to_str().unwrap()), "{err}");
     assert!(err.contains("skipped 2 *.json files under it"), "{err}");
     assert!(!scenes.join("index.json").exists());
-    let _ = std::fs::remove_dir_all(&dir);
 }
 /// A re-render that dies after moving some of the new files into place must not leave the
 /// old EXR beside them: the next run renders the view again.
 #[test]
 fn interrupted_rerender_leaves_no_stale_exr() {
-    let dir = fresh_dir("stale");
+    let tmp = fresh_dir("stale");
+    let dir = tmp.path();
     let data = dir.join("data");
     generate(&data, "13", "2", SMALL);
     let out = dir.join("out");
@@ -719,7 +744,6 @@ fn interrupted_rerender_leaves_no_stale_exr() {
     let fresh = dir.join("fresh");
     batch_ok(&data, &fresh, &[]);
     assert_eq!(tree(&out), tree(&fresh));
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Every 16-bit depth PNG value of `name` in `out` is round(depth × scale) of its EXR.
@@ -746,7 +770,8 @@ fn assert_depth_png_scale(out: &Path, name: &str, scale: f64) {
 /// options skip them.
 #[test]
 fn changed_options_are_rendered_again() {
-    let dir = fresh_dir("options");
+    let tmp = fresh_dir("options");
+    let dir = tmp.path();
     let data = dir.join("data");
     generate(&data, "12", "3", SMALL);
     let out = dir.join("out");
@@ -829,5 +854,4 @@ fn changed_options_are_rendered_again() {
     // Without PNGs the depth scale changes nothing.
     let stdout = batch(&["--no-png", "--depth-scale", "7"]);
     assert!(stdout.contains("done 0 / skipped 3"), "{stdout}");
-    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -19,21 +19,14 @@ fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
-/// A fresh scratch folder under the target dir (no extra crates).
-fn scratch(name: &str) -> PathBuf {
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(name);
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).expect("scratch dir");
-    dir
-}
-
 fn s(p: &Path) -> &str {
     p.to_str().expect("utf-8 path")
 }
 
 #[test]
 fn export_writes_loadable_xml_and_rejects_bad_scenes() {
-    let dir = scratch("export");
+    let dir_tmp = common::fresh_dir("cli", "export");
+    let dir = dir_tmp.path();
     let out = dir.join("single.xml");
     let scene = root().join("scenes/single.json");
     let o = cylaov(&["export-mitsuba", s(&scene), "-o", s(&out)]);
@@ -60,7 +53,7 @@ fn export_writes_loadable_xml_and_rejects_bad_scenes() {
     );
     assert!(!bad_out.exists());
     // Nothing half-written is left behind either.
-    let leftovers: Vec<_> = std::fs::read_dir(&dir)
+    let leftovers: Vec<_> = std::fs::read_dir(dir)
         .expect("read dir")
         .filter_map(|e| e.ok())
         .filter(|e| e.file_name().to_string_lossy().ends_with(".tmp"))
@@ -76,7 +69,8 @@ fn export_writes_loadable_xml_and_rejects_bad_scenes() {
 /// XML header comment, where `--` and a final `-` are not allowed (XML 1.0, section 2.5).
 #[test]
 fn export_of_a_dashed_file_name_is_well_formed_xml() {
-    let dir = scratch("dashes");
+    let dir_tmp = common::fresh_dir("cli", "dashes");
+    let dir = dir_tmp.path();
     let scene = dir.join("a---b-.json");
     std::fs::copy(root().join("scenes/single.json"), &scene).expect("copy scene");
     let out = dir.join("a---b-.xml");
@@ -116,7 +110,8 @@ fn magenta_pixels(png: &Path) -> usize {
 
 #[test]
 fn compare_exit_codes_json_and_heatmap() {
-    let dir = scratch("compare");
+    let dir_tmp = common::fresh_dir("cli", "compare");
+    let dir = dir_tmp.path();
     let single = root().join("reference/single.exr");
     let heat = dir.join("heat.png");
 
@@ -227,7 +222,8 @@ fn compare_exit_codes_json_and_heatmap() {
 /// names the pixel and its bound. A render without `shape_id` cannot be conditioned: exit 2.
 #[test]
 fn compare_with_scene_applies_the_float32_conditioning_bound() {
-    let dir = scratch("compare-scene");
+    let dir_tmp = common::fresh_dir("cli", "compare-scene");
+    let dir = dir_tmp.path();
     let scene = root().join("scenes/grazing_steep.json");
     let reference = root().join("reference/grazing_steep.exr");
     let ours = dir.join("ours.exr");

@@ -282,12 +282,15 @@ fn only_requested_aovs_are_stored() {
 fn exr_round_trip_keeps_names_types_and_bits() {
     let sc = random_scene(20, 4);
     let img = render(&sc, &opts(Precision::F64, FormulaKind::Stable)).image;
-    let dir = std::env::temp_dir().join(format!("cylaov-core-{}", std::process::id()));
+    let tmp = tempfile::Builder::new()
+        .prefix("cylaov-core-")
+        .tempdir()
+        .unwrap();
+    let dir = tmp.path();
     let path = dir.join("rt.exr");
     img.write_exr(&path, cylaov::output::aov::Compression::Zip)
         .unwrap();
     let back = AovImage::read_exr(&path).unwrap();
-    let _ = std::fs::remove_dir_all(&dir);
     assert_eq!((back.width, back.height), (160, 120));
     for c in &img.channels {
         assert_eq!(back.channel(&c.name), Some(&c.data), "channel {}", c.name);
@@ -298,12 +301,15 @@ fn exr_round_trip_keeps_names_types_and_bits() {
 fn direct_uncompressed_writer_reads_back_bit_exact_with_the_exr_crate() {
     let sc = random_scene(30, 5);
     let img = render(&sc, &opts(Precision::F32, FormulaKind::Stable)).image;
-    let dir = std::env::temp_dir().join(format!("cylaov-raw-{}", std::process::id()));
+    let tmp = tempfile::Builder::new()
+        .prefix("cylaov-raw-")
+        .tempdir()
+        .unwrap();
+    let dir = tmp.path();
     let path = dir.join("raw.exr");
     img.write_exr(&path, cylaov::output::aov::Compression::None)
         .unwrap();
     let back = AovImage::read_exr(&path).unwrap();
-    let _ = std::fs::remove_dir_all(&dir);
     assert_eq!((back.width, back.height), (img.width, img.height));
     assert_eq!(back.channels.len(), img.channels.len());
     for c in &img.channels {

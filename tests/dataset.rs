@@ -7,11 +7,11 @@ mod common;
 use common::{cylaov, ok};
 
 use cylaov::output::aov::AovImage;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 const ROOT: &str = env!("CARGO_MANIFEST_DIR");
 
-fn fresh_dir(name: &str) -> PathBuf {
+fn fresh_dir(name: &str) -> tempfile::TempDir {
     common::fresh_dir("dataset", name)
 }
 
@@ -43,7 +43,8 @@ fn generate(out: &Path, count: &str, views: &str) {
 /// scene is the camera the one-camera scene gets.
 #[test]
 fn one_view_per_scene_keeps_the_bytes_and_camera_0_is_shared() {
-    let dir = fresh_dir("gen");
+    let tmp = fresh_dir("gen");
+    let dir = tmp.path();
     let plain = dir.join("plain");
     let mut args = vec![
         "generate",
@@ -84,13 +85,13 @@ fn one_view_per_scene_keeps_the_bytes_and_camera_0_is_shared() {
         assert_eq!(a["cylinders"], b["cylinders"], "{name}: same cylinders");
     }
     assert_eq!(json(&three.join("generate.json"))["views_per_scene"], 3);
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Scene files take exactly one of "camera" and "cameras".
 #[test]
 fn camera_and_cameras_are_exclusive() {
-    let dir = fresh_dir("exclusive");
+    let tmp = fresh_dir("exclusive");
+    let dir = tmp.path();
     let cam = r#"{"origin": [3, -5, 2], "target": [0, 0, 0], "up": [0, 0, 1], "fov_deg": 40, "width": 32, "height": 24}"#;
     let cyl = r#""cylinders": [{"p0": [0, 0, 0], "p1": [0, 0, 1], "radius": 0.3}]"#;
     for (body, want) in [
@@ -117,7 +118,6 @@ fn camera_and_cameras_are_exclusive() {
         assert!(err.contains(want), "{body}\n{err}");
         assert!(!dir.join("x.exr").exists());
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// The layout: a several-camera scene in `OUT/<scene>/`, views `00`, `01`, … with that
@@ -126,7 +126,8 @@ fn camera_and_cameras_are_exclusive() {
 /// and the Mitsuba export has one sensor per camera.
 #[test]
 fn several_cameras_make_a_folder_per_scene_and_one_index() {
-    let dir = fresh_dir("layout");
+    let tmp = fresh_dir("layout");
+    let dir = tmp.path();
     let multi = dir.join("multi");
     generate(&multi, "2", "3");
     let input = dir.join("input");
@@ -245,7 +246,6 @@ fn several_cameras_make_a_folder_per_scene_and_one_index() {
     let text = ok(&["batch", s(&input), "--out", s(&out)]);
     assert!(text.contains("done 0 / skipped 7"), "{text}");
     assert_eq!(std::fs::read(out.join("index.json")).unwrap(), before);
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// The far camera: 11 099 hits in the EXR would all be beyond 65.535 units at the default
@@ -253,7 +253,8 @@ fn several_cameras_make_a_folder_per_scene_and_one_index() {
 /// nothing; `--depth-out-of-range zero` stores them as 0 and says how many.
 #[test]
 fn far_depth_fails_loudly_or_zeroes_with_a_count() {
-    let dir = fresh_dir("far");
+    let tmp = fresh_dir("far");
+    let dir = tmp.path();
     let input = dir.join("in");
     std::fs::create_dir_all(&input).unwrap();
     std::fs::copy(
@@ -331,14 +332,14 @@ fn far_depth_fails_loudly_or_zeroes_with_a_count() {
         .unwrap()
         .into_luma16();
     assert!(png.pixels().all(|p| p.0[0] == 0));
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// `normal_camera` is the world normal in OpenCV camera axes (the camera JSON's
 /// world_to_camera_opencv rotation), unit length, 0 on a miss.
 #[test]
 fn normal_camera_is_the_world_normal_in_opencv_axes() {
-    let dir = fresh_dir("normal-camera");
+    let tmp = fresh_dir("normal-camera");
+    let dir = tmp.path();
     let exr = dir.join("c.exr");
     let scene = Path::new(ROOT).join("scenes/cluster.json");
     ok(&[
@@ -378,14 +379,14 @@ fn normal_camera_is_the_world_normal_in_opencv_axes() {
         hits > 1000 && worst <= 1.2e-7,
         "{hits} hits, worst {worst:e}"
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Ids above 2^24 cannot be stored exactly as float32: the per-AOV layout refuses them and
 /// writes nothing; the layered file stores them as u32.
 #[test]
 fn per_aov_layout_refuses_ids_a_float_cannot_hold() {
-    let dir = fresh_dir("big-id");
+    let tmp = fresh_dir("big-id");
+    let dir = tmp.path();
     let scene = dir.join("s.json");
     std::fs::write(
         &scene,
@@ -408,7 +409,7 @@ fn per_aov_layout_refuses_ids_a_float_cannot_hold() {
         err.contains("shape_id 16777217 does not fit a float32 channel exactly"),
         "{err}"
     );
-    let left: Vec<_> = std::fs::read_dir(&dir)
+    let left: Vec<_> = std::fs::read_dir(dir)
         .unwrap()
         .map(|e| e.unwrap().file_name())
         .collect();
@@ -427,14 +428,14 @@ fn per_aov_layout_refuses_ids_a_float_cannot_hold() {
     ]);
     let img = AovImage::read_exr(&out).unwrap();
     assert!(img.u32_channel("shape_id").unwrap().contains(&16777217));
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// The per-AOV layout resumes like the layered one, and switching layouts renders again and
 /// leaves only the new layout's EXRs.
 #[test]
 fn per_aov_layout_resumes_and_switches_cleanly() {
-    let dir = fresh_dir("per-aov");
+    let tmp = fresh_dir("per-aov");
+    let dir = tmp.path();
     let data = dir.join("data");
     generate(&data, "2", "2");
     let out = dir.join("out");
@@ -466,13 +467,13 @@ fn per_aov_layout_resumes_and_switches_cleanly() {
     assert!(
         !out.join("000001/01.normal.exr").exists() && !out.join("000001/01.depth.exr").exists()
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// `--orbit`: cameras 1.. circle camera 0's target at its distance and height, 360°/V apart.
 #[test]
 fn orbit_cameras_circle_the_target() {
-    let dir = fresh_dir("orbit");
+    let tmp = fresh_dir("orbit");
+    let dir = tmp.path();
     let out = dir.join("g");
     let mut args = vec!["generate", "--count", "2", "--seed", "5", "--out", s(&out)];
     args.extend_from_slice(SMALL);
@@ -507,5 +508,4 @@ fn orbit_cameras_circle_the_target() {
         assert!((r[0].hypot(r[1]) - r0[0].hypot(r0[1])).abs() < 1e-9);
     }
     assert_eq!(json(&out.join("generate.json"))["orbit"], true);
-    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -47,8 +47,7 @@ fn python() -> Option<PathBuf> {
 fn dataset() -> &'static Path {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
     DIR.get_or_init(|| {
-        let dir = std::env::temp_dir().join(format!("cylaov-consumers-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
+        let dir = common::shared_dir("consumers").to_path_buf();
         let run = |args: &[&str]| {
             let o = Command::new(BIN)
                 .args(args)

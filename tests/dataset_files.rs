@@ -6,11 +6,11 @@
 mod common;
 use common::cylaov;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-fn fresh_dir(name: &str) -> PathBuf {
+fn fresh_dir(name: &str) -> tempfile::TempDir {
     common::fresh_dir("files", name)
 }
 
@@ -45,7 +45,8 @@ fn files(dir: &Path) -> Vec<String> {
 
 #[test]
 fn a_symlinked_partial_folder_is_refused_not_followed() {
-    let dir = fresh_dir("partial");
+    let tmp = fresh_dir("partial");
+    let dir = tmp.path();
     let data = dir.join("data");
     generate(&data, "2", &["--width", "32", "--height", "24"]);
     let victim = dir.join("victim");
@@ -72,14 +73,14 @@ fn a_symlinked_partial_folder_is_refused_not_followed() {
     let o = cylaov(&["batch", s(&data), "--out", s(&out)]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(!out.join(".partial").exists());
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Two batches on the same shard into one --out: the second fails at once, naming the
 /// first's host and pid; the first finishes with every view done.
 #[test]
 fn a_second_batch_on_the_same_shard_fails_at_once() {
-    let dir = fresh_dir("lock");
+    let tmp = fresh_dir("lock");
+    let dir = tmp.path();
     let data = dir.join("data");
     // Slow enough on one thread that the second starts while the first runs.
     generate(&data, "60", &["--cylinders", "200"]);
@@ -127,14 +128,14 @@ fn a_second_batch_on_the_same_shard_fails_at_once() {
         !out.join(".partial").exists(),
         "lock and partial folder removed"
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// A folder holding an earlier batch's outputs, a dangling link, a linked folder and a FIFO
 /// named like a scene: only the scenes are read, and the skipped entries are reported.
 #[test]
 fn folder_scans_skip_outputs_links_and_special_files_and_say_so() {
-    let dir = fresh_dir("scan");
+    let tmp = fresh_dir("scan");
+    let dir = tmp.path();
     let data = dir.join("data");
     generate(&data, "3", &["--width", "32", "--height", "24"]);
     let input = data.join("scenes");
@@ -164,5 +165,4 @@ fn folder_scans_skip_outputs_links_and_special_files_and_say_so() {
         "{err}"
     );
     assert!(err.contains("1 special files"), "{err}");
-    let _ = std::fs::remove_dir_all(&dir);
 }

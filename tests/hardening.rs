@@ -11,12 +11,12 @@ const SCENE: &str = r#"{ "camera": { "origin": [3, -5, 2.5], "target": [0, 0, 0.
   "cylinders": [ { "p0": [0, 0, 0], "p1": [0, 0, 1.5], "radius": 0.5 } ],
   "aovs": ["depth", "normal", "shape_id"] }"#;
 
-/// A fresh folder for one test.
-fn dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("cylaov-hard-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+/// A fresh folder for one test, removed when the guard drops.
+fn dir(name: &str) -> tempfile::TempDir {
+    tempfile::Builder::new()
+        .prefix(&format!("cylaov-hard-{name}-"))
+        .tempdir()
+        .unwrap()
 }
 
 fn cylaov(args: &[&str]) -> Output {
@@ -59,8 +59,9 @@ fn scene_and_render(d: &Path) -> (PathBuf, PathBuf) {
 /// character device as its target, exits 1, and leaves the target as it was.
 #[test]
 fn outputs_that_are_not_regular_files_are_refused() {
-    let d = dir("targets");
-    let (scene, exr) = scene_and_render(&d);
+    let tmp = dir("targets");
+    let d = tmp.path();
+    let (scene, exr) = scene_and_render(d);
     let fifo = d.join("fifo");
     mkfifo(&fifo);
     let to_fifo = d.join("to-fifo");
@@ -122,11 +123,43 @@ fn outputs_that_are_not_regular_files_are_refused() {
     if o.status.code() != Some(1) || !stderr(&o).contains("s.depth.preview.png") {
         failures.push(format!("render --preview: {:?} {}", o.status, stderr(&o)));
     }
-    // Output folders (batch --out, verify --heatmap): a FIFO or a link to a device is not one.
+    // bench --keep-scenes DIR: a kept scene's own name is taken by a FIFO.
+    mkfifo(&pv.join("dense-1.json"));
+    let o = cylaov(&[
+        "bench",
+        "--counts",
+        "1",
+        "--quick",
+        "--family",
+        "dense",
+        "--keep-scenes",
+        s(&pv),
+    ]);
+    if o.status.code() != Some(1) || !stderr(&o).contains("dense-1.json") {
+        failures.push(format!(
+            "bench --keep-scenes: {:?} {}",
+            o.status,
+            stderr(&o)
+        ));
+    }
+    assert!(is_fifo(&pv.join("dense-1.json")), "a FIFO was replaced");
+    // Output folders (batch --out, verify --heatmap, bench --keep-scenes): a FIFO or a link
+    // to a device is not one.
     for target in [&fifo, &to_null] {
         for (args, want) in [
             (vec!["batch", s(&scene), "--out", s(target)], 1),
             (vec!["verify", s(&scene), "--heatmap", s(target)], 2),
+            (
+                vec![
+                    "bench",
+                    "--counts",
+                    "1",
+                    "--quick",
+                    "--keep-scenes",
+                    s(target),
+                ],
+                1,
+            ),
         ] {
             let o = cylaov(&args);
             if o.status.code() != Some(want) || !stderr(&o).contains("not a folder") {
@@ -163,8 +196,9 @@ fn outputs_that_are_not_regular_files_are_refused() {
 /// No output may be an input, however it is reached: itself, a hard link, a symlink.
 #[test]
 fn outputs_may_not_be_inputs_through_links() {
-    let d = dir("inputs");
-    let (scene, exr) = scene_and_render(&d);
+    let tmp = dir("inputs");
+    let d = tmp.path();
+    let (scene, exr) = scene_and_render(d);
     let exr_bytes = std::fs::read(&exr).unwrap();
     let hard = d.join("hard.exr");
     std::fs::hard_link(&exr, &hard).unwrap();
@@ -244,8 +278,9 @@ fn full_stdout(args: &[&str]) -> Output {
 /// with a message; neither panics (exit 101).
 #[test]
 fn stdout_failures_never_panic_and_keep_the_exit_status() {
-    let d = dir("stdout");
-    let (scene, exr) = scene_and_render(&d);
+    let tmp = dir("stdout");
+    let d = tmp.path();
+    let (scene, exr) = scene_and_render(d);
     let other = d.join("other.exr");
     let moved = d.join("moved.json");
     std::fs::write(&moved, SCENE.replace("[3, -5, 2.5]", "[3.01, -5, 2.5]")).unwrap();
@@ -331,8 +366,9 @@ fn stdout_failures_never_panic_and_keep_the_exit_status() {
 /// a check that could not be made. The README and `--help` state it.
 #[test]
 fn exit_status_rule_holds_for_every_command() {
-    let d = dir("exit");
-    let (scene, exr) = scene_and_render(&d);
+    let tmp = dir("exit");
+    let d = tmp.path();
+    let (scene, exr) = scene_and_render(d);
     let bad = d.join("bad.json");
     std::fs::write(&bad, SCENE.replace("\"radius\": 0.5", "\"radius\": -1")).unwrap();
     let o = |n: &str| d.join(n).to_str().unwrap().to_string();
@@ -386,7 +422,8 @@ fn exit_status_rule_holds_for_every_command() {
 /// `-1` as a value reaches the option's own check; too many threads are refused at once.
 #[test]
 fn negative_values_and_thread_counts_get_clear_messages() {
-    let d = dir("threads");
+    let tmp = dir("threads");
+    let d = tmp.path();
     let scene = d.join("s.json");
     std::fs::write(&scene, SCENE).unwrap();
     let out = d.join("o.exr");
@@ -429,7 +466,8 @@ fn with_ulimit(kib: u64, args: &[&str]) -> Output {
 /// same size depth-only fits (measured: 16384 x 4096 depth peaks at ~270 MiB resident).
 #[test]
 fn memory_is_checked_before_a_render_and_a_comparison() {
-    let d = dir("memory");
+    let tmp = dir("memory");
+    let d = tmp.path();
     let scene = d.join("big.json");
     std::fs::write(
         &scene,
@@ -501,7 +539,8 @@ fn exr_header(w: i32, h: i32) -> Vec<u8> {
 /// A failed command removes the folders it made; a full disk says so (injected).
 #[test]
 fn failures_clean_up_and_a_full_disk_says_so() {
-    let d = dir("cleanup");
+    let tmp = dir("cleanup");
+    let d = tmp.path();
     let scene = d.join("s.json");
     std::fs::write(&scene, SCENE).unwrap();
     let run_full = |args: &[&str]| {
@@ -548,7 +587,7 @@ fn failures_clean_up_and_a_full_disk_says_so() {
         assert_eq!(o.status.code(), Some(1), "{args:?}: {err}");
         assert!(err.contains("disk is full"), "{args:?}: {err}");
         assert!(!new.exists(), "{args:?} left {}", new.display());
-        let left: Vec<_> = std::fs::read_dir(&d)
+        let left: Vec<_> = std::fs::read_dir(d)
             .unwrap()
             .filter_map(|e| e.ok())
             .map(|e| e.file_name().to_string_lossy().into_owned())
@@ -569,7 +608,8 @@ fn failures_clean_up_and_a_full_disk_says_so() {
 /// temporary name is shortened to fit the 255-byte limit).
 #[test]
 fn parent_path_and_long_names() {
-    let d = dir("names");
+    let tmp = dir("names");
+    let d = tmp.path();
     let scene = d.join("s.json");
     std::fs::write(&scene, SCENE).unwrap();
     let o = cylaov(&["render", s(&scene), "-o", s(&d.join("s.json/sub/x.exr"))]);
@@ -584,7 +624,7 @@ fn parent_path_and_long_names() {
     let o = cylaov(&["render", s(&scene), "-o", s(&long)]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(long.exists() && long.with_extension("camera.json").exists());
-    let tmp: Vec<_> = std::fs::read_dir(&d)
+    let tmp: Vec<_> = std::fs::read_dir(d)
         .unwrap()
         .filter_map(|e| e.ok())
         .filter(|e| e.file_name().to_string_lossy().ends_with(".tmp"))
@@ -601,8 +641,9 @@ fn parent_path_and_long_names() {
 /// normal preview a key, and every failing pixel of a heatmap is ringed in white.
 #[test]
 fn previews_and_heatmaps_carry_their_legends() {
-    let d = dir("pictures");
-    let (scene, exr) = scene_and_render(&d);
+    let tmp = dir("pictures");
+    let d = tmp.path();
+    let (scene, exr) = scene_and_render(d);
     let pv = d.join("pv");
     let o = cylaov(&[
         "render",

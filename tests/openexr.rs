@@ -16,7 +16,11 @@ fn openexr_reads_every_channel_of_our_uncompressed_files() {
     let sc =
         scene::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/single.json")).unwrap();
     let img = render(&sc, &RenderOptions::new(Aov::ALL.to_vec())).image;
-    let dir = std::env::temp_dir().join(format!("cylaov-openexr-{}", std::process::id()));
+    let tmp = tempfile::Builder::new()
+        .prefix("cylaov-openexr-")
+        .tempdir()
+        .unwrap();
+    let dir = tmp.path();
     let path = dir.join("all.exr");
     img.write_exr(&path, cylaov::output::aov::Compression::None)
         .unwrap();
@@ -34,7 +38,6 @@ for i, n in enumerate(names):
         .args(["-c", script, path.to_str().unwrap()])
         .output()
         .unwrap();
-    let _ = std::fs::remove_dir_all(&dir);
     assert!(
         out.status.success(),
         "{}",

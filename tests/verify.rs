@@ -221,11 +221,10 @@ fn check_catches_a_cap_dropped_from_the_export() {
     for c in dropped.cylinders.iter_mut().filter(|c| c.id == id) {
         c.caps = false;
     }
-    let work = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("verify-dropped-cap");
-    let _ = std::fs::remove_dir_all(&work);
-    std::fs::create_dir_all(&work).expect("scratch");
+    let work_tmp = common::fresh_dir("verify", "dropped-cap");
+    let work = work_tmp.path();
     let reference = Mitsuba { python }
-        .render(&dropped, "mixed_caps without a cap", &work)
+        .render(&dropped, "mixed_caps without a cap", work)
         .unwrap_or_else(|e| panic!("{e:#}"));
     let checked = check(&scene, &img, &reference);
     assert!(!checked.passed());

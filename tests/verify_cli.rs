@@ -24,13 +24,6 @@ fn cylaov(python: &Path, args: &[&str]) -> Output {
         .expect("running cylaov")
 }
 
-fn scratch(name: &str) -> PathBuf {
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(name);
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).expect("scratch dir");
-    dir
-}
-
 fn s(p: &Path) -> &str {
     p.to_str().expect("utf-8 path")
 }
@@ -47,8 +40,9 @@ fn text(o: &Output) -> String {
 fn verify_exit_codes_table_and_json() {
     let Some(py) = venv_python() else { return };
     let scene = root().join("scenes/single.json");
-    let dir = scratch("verify-cli");
-    let o = cylaov(&py, &["verify", s(&scene), "--heatmap", s(&dir)]);
+    let dir_tmp = common::fresh_dir("verify", "verify-cli");
+    let dir = dir_tmp.path();
+    let o = cylaov(&py, &["verify", s(&scene), "--heatmap", s(dir)]);
     let out = text(&o);
     assert_eq!(o.status.code(), Some(0), "{out}");
     assert!(
@@ -94,10 +88,11 @@ fn verify_exit_codes_table_and_json() {
     assert!(out.contains("scripts/setup-venv"), "{out}");
 
     // A bad scene in a folder: that view is unchecked (exit 2), the others still run.
-    let mixed = scratch("verify-cli-mixed");
+    let mixed_tmp = common::fresh_dir("verify", "verify-cli-mixed");
+    let mixed = mixed_tmp.path();
     std::fs::copy(&scene, mixed.join("a.json")).expect("copy");
     std::fs::write(mixed.join("b.json"), "{\"camera\": 1}").expect("bad scene");
-    let o = cylaov(&py, &["verify", s(&mixed)]);
+    let o = cylaov(&py, &["verify", s(mixed)]);
     let out = text(&o);
     assert_eq!(o.status.code(), Some(2), "{out}");
     assert!(
@@ -109,7 +104,8 @@ fn verify_exit_codes_table_and_json() {
 #[test]
 fn batch_verifies_with_identity_and_keeps_verdicts() {
     let Some(py) = venv_python() else { return };
-    let dir = scratch("verify-batch");
+    let dir_tmp = common::fresh_dir("verify", "verify-batch");
+    let dir = dir_tmp.path();
     let data = dir.join("data");
     let render = dir.join("render");
     // Two views: a generated one and the unreliable far_offset (which fails).

@@ -20,6 +20,7 @@ use crate::geometry::wide::{Avx2, Simd};
 use crate::geometry::wide::{Lanes, Wide};
 use crate::geometry::{Cylinder, Prepared, Real};
 use crate::output::aov::{AovImage, Compression};
+use crate::output::io::atomic_write_bytes;
 use crate::render::{Accel, RenderOptions, render, render_timed};
 use crate::rng::SplitMix64;
 use crate::scene::camera::Camera;
@@ -156,7 +157,7 @@ impl Family {
 /// cylinders, with no ray set-up, tiles, shading or output around it. It isolates what
 /// f32 buys (the render as a whole also pays for memory and per-pixel work that do not
 /// depend on the kernel's precision).
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Serialize)]
 pub struct KernelRow {
     /// The kernel's name, e.g. `stable-f64`.
     pub kernel: String,
@@ -314,15 +315,6 @@ pub fn kernel_rows(opts: &BenchOptions) -> Vec<KernelRow> {
     best
 }
 
-/// The kernel-alone rows as CSV.
-pub fn kernel_csv(rows: &[KernelRow]) -> String {
-    let mut text = String::from("kernel,form,mtests_per_s\n");
-    for k in rows {
-        text += &format!("{},{},{}\n", k.kernel, k.form, k.mtests_per_s);
-    }
-    text
-}
-
 /// What `bench` runs.
 #[derive(Clone, Debug)]
 pub struct BenchOptions {
@@ -348,6 +340,9 @@ pub struct BenchOptions {
     /// How the timed renders find their candidates (the error reference always uses tiles;
     /// both give the same bits).
     pub accel: Accel,
+    /// Also keep each generated scene as `DIR/FAMILY-N.json`, to time or profile a render
+    /// of it by hand.
+    pub keep_scenes: Option<PathBuf>,
 }
 
 /// The AOV sets of the table: depth only, depth + normal, all.
@@ -494,8 +489,9 @@ fn time_process(
 
 /// Run the benchmark, calling `progress` with each finished row.
 pub fn run(opts: &BenchOptions, mut progress: impl FnMut(&Row)) -> Result<Vec<Row>> {
-    let dir = std::env::temp_dir().join(format!("cylaov-bench-{}", std::process::id()));
-    std::fs::create_dir_all(&dir)?;
+    // Scratch files (scene JSON, EXRs), removed when `scratch` drops, also on an error.
+    let scratch = tempfile::Builder::new().prefix("cylaov-bench-").tempdir()?;
+    let dir = scratch.path();
     let mut rows = Vec::new();
     for (&family, &n) in opts
         .families
@@ -507,6 +503,11 @@ pub fn run(opts: &BenchOptions, mut progress: impl FnMut(&Row)) -> Result<Vec<Ro
         let text = serde_json::to_string(&SceneFile::from_scene(&scene))?;
         if opts.exe.is_some() {
             std::fs::write(&scene_path, &text)?;
+        }
+        if let Some(keep) = &opts.keep_scenes {
+            let path = keep.join(format!("{}-{n}.json", family.name()));
+            atomic_write_bytes(&path, text.as_bytes())
+                .with_context(|| format!("writing {}", path.display()))?;
         }
         let mut parse = f64::INFINITY;
         for _ in 0..opts.repeats.max(1) {
@@ -589,7 +590,6 @@ pub fn run(opts: &BenchOptions, mut progress: impl FnMut(&Row)) -> Result<Vec<Ro
             }
         }
     }
-    let _ = std::fs::remove_dir_all(&dir);
     Ok(rows)
 }
 
@@ -638,36 +638,6 @@ pub fn format_row(r: &Row) -> String {
         r.err_max,
         r.mismatches
     )
-}
-
-/// The rows as CSV.
-pub fn csv(rows: &[Row]) -> String {
-    let mut s = String::from(
-        "family,cylinders,kernel,aovs,parse_ms,prepare_ms,build_ms,trace_ms,write_ms,total_ms,mrays_per_s,process_ms,peak_mib,err_median,err_max,mismatches\n",
-    );
-    let opt = |x: Option<f64>| x.map_or(String::new(), |v| format!("{v}"));
-    for r in rows {
-        s += &format!(
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
-            r.family,
-            r.cylinders,
-            r.kernel,
-            r.aovs,
-            r.parse_ms,
-            r.prepare_ms,
-            r.build_ms,
-            r.trace_ms,
-            r.write_ms,
-            r.total_ms,
-            r.mrays_per_s,
-            opt(r.process_ms),
-            opt(r.peak_mib),
-            r.err_median,
-            r.err_max,
-            r.mismatches
-        );
-    }
-    s
 }
 
 /// `scripts/bench_mitsuba.py`, written into the bench's scratch folder when it runs.
@@ -769,8 +739,10 @@ pub fn run_mitsuba(
     rows: &[Row],
     mut progress: impl FnMut(&str),
 ) -> Result<Vec<MitsubaRow>> {
-    let dir = std::env::temp_dir().join(format!("cylaov-bench-mi-{}", std::process::id()));
-    std::fs::create_dir_all(&dir)?;
+    let scratch = tempfile::Builder::new()
+        .prefix("cylaov-bench-mi-")
+        .tempdir()?;
+    let dir = scratch.path();
     progress(&format!(
         "{:<6} {:>7} {:<12} {:>8} {:>8} {:>9} {:>9} {:>9} {:>10} {:>10} {:>10}",
         "family",
@@ -802,7 +774,7 @@ pub fn run_mitsuba(
             if n > max {
                 continue;
             }
-            let mut r = time_mitsuba(m, &scene, variant, &dir)?;
+            let mut r = time_mitsuba(m, &scene, variant, dir)?;
             r.family = family.name().to_string();
             let ratio = |num: f64, den: Option<f64>| {
                 den.map_or("-".to_string(), |d| format!("{:.1}x", num * 1e3 / d))
@@ -824,6 +796,5 @@ pub fn run_mitsuba(
             out.push(r);
         }
     }
-    let _ = std::fs::remove_dir_all(&dir);
     Ok(out)
 }

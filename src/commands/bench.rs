@@ -1,7 +1,7 @@
 //! `cylaov bench`: print the time-vs-error table, optionally as CSV and as a figure.
 
 use crate::bench::{self, BenchOptions, MitsubaBench, Row};
-use crate::output::io::{atomic_write_bytes, check_outputs, say};
+use crate::output::io::{atomic_write_bytes, check_outputs, csv_bytes, say};
 use anyhow::{Context, Result, bail};
 use std::path::{Path, PathBuf};
 
@@ -35,6 +35,16 @@ pub fn run(
             p.with_extension("mitsuba.csv"),
         ] {
             outputs.push(("--csv", q));
+        }
+    }
+    if let Some(dir) = &opts.keep_scenes {
+        if !dir.is_dir() {
+            bail!("--keep-scenes: {} is not a folder", dir.display());
+        }
+        for f in &opts.families {
+            for n in &opts.counts {
+                outputs.push(("--keep-scenes", dir.join(format!("{}-{n}.json", f.name()))));
+            }
         }
     }
     if let Some(p) = &plot {
@@ -92,33 +102,16 @@ pub fn run(
         return Err(e.into());
     }
     if let Some(path) = csv {
-        atomic_write_bytes(&path, bench::csv(&rows).as_bytes())
+        atomic_write_bytes(&path, &csv_bytes(&rows)?)
             .with_context(|| format!("writing {}", path.display()))?;
         say(&format!("wrote {}", path.display()))?;
         let kpath = path.with_extension("kernel.csv");
-        atomic_write_bytes(&kpath, bench::kernel_csv(&kernel_rows).as_bytes())
+        atomic_write_bytes(&kpath, &csv_bytes(&kernel_rows)?)
             .with_context(|| format!("writing {}", kpath.display()))?;
         say(&format!("wrote {}", kpath.display()))?;
         if !mi_rows.is_empty() {
             let mpath = path.with_extension("mitsuba.csv");
-            let mut text = String::from(
-                "family,cylinders,variant,import_s,load_s,render1_s,write_s,render2_s,process_s\n",
-            );
-            for r in &mi_rows {
-                text += &format!(
-                    "{},{},{},{},{},{},{},{},{}\n",
-                    r.family,
-                    r.cylinders,
-                    r.variant,
-                    r.import_s,
-                    r.load_s,
-                    r.render1_s,
-                    r.write_s,
-                    r.render2_s,
-                    r.process_s
-                );
-            }
-            atomic_write_bytes(&mpath, text.as_bytes())
+            atomic_write_bytes(&mpath, &csv_bytes(&mi_rows)?)
                 .with_context(|| format!("writing {}", mpath.display()))?;
             say(&format!("wrote {}", mpath.display()))?;
         }

@@ -1,8 +1,8 @@
 //! `cylaov stress`: run the stress families through every kernel, print the table, and
 //! optionally write the per-ray CSV and a log-log plot of error against difficulty.
 
-use crate::output::io::{atomic_write_bytes, check_outputs};
-use crate::verify::stress::{self, CSV_HEADER, Family, Record, TABLE_HEADER, TABLE_ORDER};
+use crate::output::io::{atomic_write_bytes, check_outputs, csv_bytes};
+use crate::verify::stress::{self, Family, Record, TABLE_HEADER, TABLE_ORDER};
 use anyhow::{Context, Result, bail};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -73,14 +73,8 @@ pub fn run(args: &StressArgs) -> Result<String> {
         out
     };
     if let Some(path) = &args.csv {
-        let mut text = String::from(CSV_HEADER);
-        text.push('\n');
-        for r in &records {
-            text.push_str(&r.csv());
-            text.push('\n');
-        }
-        atomic_write_bytes(path, text.as_bytes())
-            .with_context(|| format!("writing {}", path.display()))?;
+        let text = csv_bytes(records.iter().map(Record::csv_row))?;
+        atomic_write_bytes(path, &text).with_context(|| format!("writing {}", path.display()))?;
     }
     if let Some(path) = &args.plot {
         crate::output::preview::write_png(&plot::plot(&records, &families), path)?;

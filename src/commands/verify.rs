@@ -106,14 +106,12 @@ fn views(input: &Path) -> Result<Vec<ViewSource>> {
         .collect())
 }
 
-/// A private scratch folder for one view's Mitsuba files.
-fn work_dir(k: usize) -> Result<PathBuf> {
-    let dir = std::env::temp_dir().join(format!("cylaov-verify-{}-{k}", std::process::id()));
-    if dir.exists() {
-        std::fs::remove_dir_all(&dir)?;
-    }
-    std::fs::create_dir_all(&dir)?;
-    Ok(dir)
+/// A private scratch folder for one view's Mitsuba files, removed when dropped (also when
+/// the check fails).
+fn work_dir(k: usize) -> Result<tempfile::TempDir> {
+    Ok(tempfile::Builder::new()
+        .prefix(&format!("cylaov-verify-{k}-"))
+        .tempdir()?)
 }
 
 fn check_one(
@@ -135,9 +133,9 @@ fn check_one(
         args.precision,
         args.formula,
         &args.tolerances,
-        &work,
+        work.path(),
     );
-    let _ = std::fs::remove_dir_all(&work);
+    drop(work);
     let (check, ours, reference) = result?;
     let mut heatmap_path = None;
     if let Some(dir) = &args.heatmap {

@@ -18,6 +18,13 @@
 //! | `cylaov:cx`, `cylaov:cy` | float | principal point, pixel centres at `i + 0.5` (W/2, H/2: nerfstudio, Mitsuba) |
 //! | `cylaov:cx_opencv`, `cylaov:cy_opencv` | float | principal point, pixel centres at integers (W/2 − 0.5: OpenCV, Open3D, COLMAP) |
 //!
+//! **Two writers.** Compressed files go through the `exr` crate. Uncompressed files (the
+//! default) are streamed by hand from the planes ([`AovImage::write_uncompressed`]): the
+//! crate copies every sample through its own layout, which at 1080p cost more than the
+//! render, while the uncompressed scanline format is a header, an offset table and rows
+//! that already lie contiguous in the planes. The tests read these files back bit for bit
+//! with the `exr` crate, OpenEXR's own Python binding and OpenCV.
+//!
 //! **Per-AOV layout** (`--exr-layout per-aov`, [`per_aov_image`]): one file per AOV with
 //! the channel names OpenCV and imageio understand: `depth`, `distance`, `shape_id` and `part` as
 //! `Y` (all float32; ids are exact up to 2^24 and larger ones are refused), `normal` and

@@ -12,48 +12,38 @@ use std::fs::File;
 use std::io::{self, Write};
 use std::path::{Path, PathBuf};
 
-/// The temporary name used while `path` is written: `.NAME.HOST.PID.NONCE.tmp` in the same
-/// folder, so the rename is atomic. Hidden and ending in `.tmp`, the suffix every
-/// work-in-progress file of cylaov carries. `NAME` is shortened (at a character boundary)
-/// when the whole would pass the 255-byte file name limit: any output name the file system
-/// accepts also has a temporary name it accepts. Distinct for
-/// every call: the host (`/proc/sys/kernel/hostname`, else `$HOSTNAME`; shards on different
-/// nodes of a shared filesystem can have equal PIDs), the PID, and a nonce made of a
-/// per-process value (the start time, taken once) and a per-call counter (two threads, or
-/// two writes of one path, never share a name).
-pub fn temp_path(path: &Path) -> PathBuf {
+/// The start of the temporary name used while `path` is written: `.NAME.HOST.PID.`, to
+/// which [`stage`] adds random characters and `.tmp`, in the same folder so the rename is
+/// atomic. Hidden and ending in `.tmp`, the suffix every work-in-progress file of cylaov
+/// carries; the host (`/proc/sys/kernel/hostname`, else `$HOSTNAME`) and PID say who left a
+/// file behind (shards on different nodes of a shared filesystem can have equal PIDs).
+/// `NAME` is shortened (at a character boundary) when the whole would pass the 255-byte
+/// file name limit: any output name the file system accepts also has a temporary name it
+/// accepts.
+pub fn temp_prefix(path: &Path) -> String {
     use std::sync::OnceLock;
-    use std::sync::atomic::{AtomicU64, Ordering};
-    static PROCESS: OnceLock<(String, u64)> = OnceLock::new();
-    static CALLS: AtomicU64 = AtomicU64::new(0);
-    let (host, start) = PROCESS.get_or_init(|| {
+    static HOST: OnceLock<String> = OnceLock::new();
+    let host = HOST.get_or_init(|| {
         let host = std::fs::read_to_string("/proc/sys/kernel/hostname")
             .ok()
             .or_else(|| std::env::var("HOSTNAME").ok())
             .unwrap_or_default();
         // File-name safe and short: a long name must still fit NAME_MAX with the rest.
-        let mut host: String = host
+        let host: String = host
             .trim()
             .chars()
             .filter(|c| c.is_ascii_alphanumeric() || *c == '-' || *c == '.')
             .take(16)
             .collect();
-        if host.is_empty() {
-            host.push_str("host");
-        }
-        let start = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.as_nanos() as u64);
-        (host, start)
+        if host.is_empty() { "host".into() } else { host }
     });
-    let call = CALLS.fetch_add(1, Ordering::Relaxed);
     let mut name = path
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
-    let tail = format!(".{host}.{}.{start:x}-{call}.tmp", std::process::id());
-    // One byte for the leading dot; the tail is at most ~60 bytes.
-    let room = NAME_MAX.saturating_sub(1 + tail.len());
+    let tail = format!(".{host}.{}.", std::process::id());
+    // One byte for the leading dot, the random part and `.tmp`; the tail is at most ~30 bytes.
+    let room = NAME_MAX.saturating_sub(1 + tail.len() + TEMP_RANDOM + ".tmp".len());
     if name.len() > room {
         let mut cut = room;
         while !name.is_char_boundary(cut) {
@@ -61,8 +51,12 @@ pub fn temp_path(path: &Path) -> PathBuf {
         }
         name.truncate(cut);
     }
-    path.with_file_name(format!(".{name}{tail}"))
+    format!(".{name}{tail}")
 }
+
+/// Random characters in a temporary name; with exclusive creation (`O_EXCL`, retried by
+/// `tempfile` on a clash) two threads, two processes or two nodes never share one.
+const TEMP_RANDOM: usize = 8;
 
 /// The longest file name (one path component, in bytes) of Linux file systems.
 const NAME_MAX: usize = 255;
@@ -321,36 +315,52 @@ pub fn atomic_write(path: &Path, fill: impl FnOnce(&mut File) -> io::Result<()>)
 
 /// A file written under its temporary name and not yet renamed into place: a command that
 /// writes several files stages them all, then commits them, so a failure half-way leaves
-/// none of them behind. Dropped uncommitted, the temporary file is removed.
+/// none of them behind. Dropped uncommitted, the temporary file is removed (`tempfile`'s
+/// `NamedTempFile`, which also created it exclusively).
 #[must_use = "a staged file is removed unless committed"]
 pub struct Staged {
-    tmp: PathBuf,
+    file: tempfile::NamedTempFile,
     path: PathBuf,
 }
 
 /// Write `path`'s content through `fill` to its temporary name (see [`Staged`]).
 pub fn stage(path: &Path, fill: impl FnOnce(&mut File) -> io::Result<()>) -> io::Result<Staged> {
-    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir)?;
-    }
-    let staged = Staged {
-        tmp: temp_path(path),
-        path: path.to_path_buf(),
+    let dir = match path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        Some(dir) => {
+            std::fs::create_dir_all(dir)?;
+            dir
+        }
+        None => Path::new("."),
     };
-    let mut f = File::create(&staged.tmp).map_err(explain)?;
+    let mut file = tempfile::Builder::new()
+        .prefix(&temp_prefix(path))
+        .suffix(".tmp")
+        .rand_bytes(TEMP_RANDOM)
+        // The mode `File::create` gives (0666 less the umask), not tempfile's private 0600:
+        // the renamed file is the user's output.
+        .permissions(std::os::unix::fs::PermissionsExt::from_mode(0o666))
+        .tempfile_in(dir)
+        .map_err(explain)?;
     if let Some(errno) = injected_failure() {
         return Err(explain(io::Error::from_raw_os_error(errno)));
     }
-    fill(&mut f).map_err(explain)?;
-    f.flush().map_err(explain)?;
-    Ok(staged)
+    fill(file.as_file_mut()).map_err(explain)?;
+    file.as_file_mut().flush().map_err(explain)?;
+    Ok(Staged {
+        file,
+        path: path.to_path_buf(),
+    })
 }
 
 impl Staged {
+    /// Where the content waits until [`Staged::commit`].
+    pub fn temp_path(&self) -> &Path {
+        self.file.path()
+    }
+
     /// Rename the file into place.
     pub fn commit(self) -> io::Result<()> {
-        std::fs::rename(&self.tmp, &self.path)?;
-        std::mem::forget(self);
+        self.file.persist(&self.path).map_err(|e| e.error)?;
         Ok(())
     }
 }
@@ -378,12 +388,6 @@ pub fn commit_all(staged: Vec<Staged>) -> io::Result<()> {
     Ok(())
 }
 
-impl Drop for Staged {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_file(&self.tmp);
-    }
-}
-
 /// A write failure injected for tests: `CYLAOV_FAIL_WRITES=ENOSPC` makes every staged write
 /// fail as a full disk would, after its temporary file was created (so the clean-up runs).
 /// Read once; any other value is ignored.
@@ -396,6 +400,16 @@ fn injected_failure() -> Option<i32> {
             _ => None,
         },
     )
+}
+
+/// Rows as CSV (the `csv` crate): the header from the row type's serde field names, so a
+/// column's name and its value cannot drift apart; nothing at all for no rows.
+pub fn csv_bytes<T: Serialize>(rows: impl IntoIterator<Item = T>) -> io::Result<Vec<u8>> {
+    let mut w = csv::Writer::from_writer(Vec::new());
+    for r in rows {
+        w.serialize(r).map_err(io::Error::other)?;
+    }
+    w.into_inner().map_err(|e| io::Error::other(e.to_string()))
 }
 
 /// Write bytes atomically.
@@ -711,4 +725,36 @@ pub fn say(text: &str) -> io::Result<()> {
 /// report it), where `eprintln!` would panic.
 pub fn warn(text: &str) {
     let _ = writeln!(io::stderr().lock(), "{text}");
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The header comes from the field names; an absent value is an empty field; a text
+    /// with a comma or a quote is quoted, so a kernel or family name can never shift columns.
+    #[test]
+    fn csv_rows_take_their_header_from_the_fields() {
+        #[derive(Serialize)]
+        struct Row {
+            name: &'static str,
+            ms: f64,
+            peak: Option<f64>,
+        }
+        let rows = [
+            Row {
+                name: "a",
+                ms: 1.5,
+                peak: None,
+            },
+            Row {
+                name: "b,\"c\"",
+                ms: 1.2e-7,
+                peak: Some(39.0),
+            },
+        ];
+        let text = String::from_utf8(csv_bytes(&rows).unwrap()).unwrap();
+        assert_eq!(text, "name,ms,peak\na,1.5,\n\"b,\"\"c\"\"\",1.2e-7,39.0\n");
+        assert!(csv_bytes(Vec::<Row>::new()).unwrap().is_empty());
+    }
 }

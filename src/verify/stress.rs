@@ -32,6 +32,7 @@ use crate::rng::SplitMix64;
 use crate::scene;
 use crate::verify::oracle::{self, Analysis, DD, DV3, Problem};
 use glam::DVec3;
+use serde::Serialize;
 use std::fmt;
 
 // ---- families ----------------------------------------------------------------------------
@@ -880,41 +881,94 @@ pub fn markdown_table(summaries: &[Summary]) -> String {
     out
 }
 
-/// CSV header for per-ray records.
-pub const CSV_HEADER: &str = "family,param,kernel,caps,oracle_hit,kernel_hit,band_hit,band_branch,t_oracle,t_kernel,err_t_eps,err_ulps,kappa_t,err_n_rad,err_n_units,kappa_n,len_err,wrong,viol_t,viol_n,origin_x,origin_y,origin_z,dir_x,dir_y,dir_z";
+/// One CSV row of `stress --csv`: a ray through one kernel, with the inputs to reproduce
+/// it. Errors and parameters are written as `{:e}` (`7.55e2`: a column of magnitudes reads
+/// at a glance), ray inputs as the shortest text that reads back to the same bits (`{:?}`).
+#[derive(Serialize)]
+pub struct CsvRow {
+    family: &'static str,
+    #[serde(serialize_with = "sci")]
+    param: f64,
+    kernel: String,
+    caps: bool,
+    oracle_hit: bool,
+    kernel_hit: bool,
+    band_hit: bool,
+    band_branch: bool,
+    #[serde(serialize_with = "sci")]
+    t_oracle: f64,
+    #[serde(serialize_with = "sci")]
+    t_kernel: f64,
+    #[serde(serialize_with = "sci")]
+    err_t_eps: f64,
+    #[serde(serialize_with = "sci")]
+    err_ulps: f64,
+    #[serde(serialize_with = "sci")]
+    kappa_t: f64,
+    #[serde(serialize_with = "sci")]
+    err_n_rad: f64,
+    #[serde(serialize_with = "sci")]
+    err_n_units: f64,
+    #[serde(serialize_with = "sci")]
+    kappa_n: f64,
+    #[serde(serialize_with = "sci")]
+    len_err: f64,
+    wrong: bool,
+    viol_t: bool,
+    viol_n: bool,
+    #[serde(serialize_with = "exact")]
+    origin_x: f64,
+    #[serde(serialize_with = "exact")]
+    origin_y: f64,
+    #[serde(serialize_with = "exact")]
+    origin_z: f64,
+    #[serde(serialize_with = "exact")]
+    dir_x: f64,
+    #[serde(serialize_with = "exact")]
+    dir_y: f64,
+    #[serde(serialize_with = "exact")]
+    dir_z: f64,
+}
+
+fn sci<S: serde::Serializer>(x: &f64, s: S) -> Result<S::Ok, S::Error> {
+    s.collect_str(&format_args!("{x:e}"))
+}
+
+fn exact<S: serde::Serializer>(x: &f64, s: S) -> Result<S::Ok, S::Error> {
+    s.collect_str(&format_args!("{x:?}"))
+}
 
 impl Record {
-    /// One CSV line (see [`CSV_HEADER`]), with the inputs to reproduce the ray.
-    pub fn csv(&self) -> String {
+    /// This record as a row of `stress --csv`.
+    pub fn csv_row(&self) -> CsvRow {
         let c = &self.case;
-        format!(
-            "{},{:e},{},{},{},{},{},{},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{},{},{},{:?},{:?},{:?},{:?},{:?},{:?}",
-            c.family.name(),
-            c.param,
-            self.kernel,
-            c.cyl.caps,
-            self.oracle.is_some(),
-            self.got.is_some(),
-            self.analysis.band_hit,
-            self.analysis.band_branch,
-            self.oracle.map_or(f64::NAN, |h| h.t.to_f64()),
-            self.got.map_or(f64::NAN, |h| h.t),
-            self.err_t,
-            self.err_ulps,
-            self.analysis.kappa_t,
-            self.err_n,
-            self.err_n_units,
-            self.analysis.kappa_n,
-            self.len_err,
-            self.wrong,
-            self.viol_t,
-            self.viol_n,
-            c.origin.x,
-            c.origin.y,
-            c.origin.z,
-            c.dir.x,
-            c.dir.y,
-            c.dir.z,
-        )
+        CsvRow {
+            family: c.family.name(),
+            param: c.param,
+            kernel: self.kernel.to_string(),
+            caps: c.cyl.caps,
+            oracle_hit: self.oracle.is_some(),
+            kernel_hit: self.got.is_some(),
+            band_hit: self.analysis.band_hit,
+            band_branch: self.analysis.band_branch,
+            t_oracle: self.oracle.map_or(f64::NAN, |h| h.t.to_f64()),
+            t_kernel: self.got.map_or(f64::NAN, |h| h.t),
+            err_t_eps: self.err_t,
+            err_ulps: self.err_ulps,
+            kappa_t: self.analysis.kappa_t,
+            err_n_rad: self.err_n,
+            err_n_units: self.err_n_units,
+            kappa_n: self.analysis.kappa_n,
+            len_err: self.len_err,
+            wrong: self.wrong,
+            viol_t: self.viol_t,
+            viol_n: self.viol_n,
+            origin_x: c.origin.x,
+            origin_y: c.origin.y,
+            origin_z: c.origin.z,
+            dir_x: c.dir.x,
+            dir_y: c.dir.y,
+            dir_z: c.dir.z,
+        }
     }
 }

@@ -3,6 +3,7 @@
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
+use std::sync::OnceLock;
 
 /// The reference venv's Python (`$CYLAOV_VENV`, else `.venv`, as `scripts/setup-venv`
 /// makes it). `None` (the caller skips, saying so) when it is missing, unless
@@ -25,12 +26,26 @@ pub fn venv_python() -> Option<PathBuf> {
     None
 }
 
-/// A new, empty folder `cylaov-SUITE-NAME-PID` in the temp dir.
-pub fn fresh_dir(suite: &str, name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("cylaov-{suite}-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+/// A new, empty folder `cylaov-SUITE-NAME-RANDOM` in the temp dir, removed when the
+/// returned guard drops (also when the test fails).
+pub fn fresh_dir(suite: &str, name: &str) -> tempfile::TempDir {
+    tempfile::Builder::new()
+        .prefix(&format!("cylaov-{suite}-{name}-"))
+        .tempdir()
+        .unwrap()
+}
+
+/// A folder shared by the tests of one test binary, in Cargo's scratch space for
+/// integration tests (`target/tmp`), emptied when the binary first asks for it: a static
+/// `TempDir` would never be dropped, and this leaves at most one folder per suite.
+pub fn shared_dir(suite: &str) -> &'static Path {
+    static DIR: OnceLock<PathBuf> = OnceLock::new();
+    DIR.get_or_init(|| {
+        let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("cylaov-{suite}"));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        dir
+    })
 }
 
 /// Run the cylaov binary without the scheduler variables a batch reads its shard from.

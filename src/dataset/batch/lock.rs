@@ -156,7 +156,11 @@ mod tests {
     #[cfg(unix)]
     #[test]
     fn shards_starting_together_all_get_the_partial_root() {
-        let base = std::env::temp_dir().join(format!("cylaov-partial-race-{}", std::process::id()));
+        let scratch = tempfile::Builder::new()
+            .prefix("cylaov-partial-race-")
+            .tempdir()
+            .unwrap();
+        let base = scratch.path();
         for round in 0..40 {
             let out = base.join(round.to_string());
             std::fs::create_dir_all(&out).unwrap();
@@ -171,8 +175,7 @@ mod tests {
         // A link in its place is still refused.
         let out = base.join("link");
         std::fs::create_dir_all(&out).unwrap();
-        std::os::unix::fs::symlink(&base, out.join(".partial")).unwrap();
+        std::os::unix::fs::symlink(base, out.join(".partial")).unwrap();
         assert!(partial_root(&out).is_err());
-        std::fs::remove_dir_all(&base).unwrap();
     }
 }

@@ -1,4 +1,10 @@
 //! Progress on stderr: a redrawn bar on a terminal, plain periodic lines in logs.
+//!
+//! Written by hand, not with a progress-bar crate (`indicatif`): what is needed is one line
+//! redrawn with `\r` and, in Slurm or Kubernetes logs, one plain line every period, both
+//! fed from the worker threads through one mutex. That is the ~150 lines below; a crate
+//! would bring a terminal-handling stack and its own redraw thread for it, and would still
+//! need the plain-line mode written here.
 
 use super::run::Outcome;
 use std::io::{IsTerminal, Write};
