@@ -3,7 +3,9 @@
 
 use super::options::BatchOptions;
 use super::resume::{ViewFiles, render_stamp};
-use crate::output::aov::{ExrLayout, channel_names, exr_attributes, per_aov_image, render_memory};
+use crate::output::aov::{
+    AovImage, ExrLayout, channel_names, exr_attributes, per_aov_image, render_memory,
+};
 use crate::output::depth_png;
 use crate::output::io::{camera_json, open3d_json};
 use crate::output::preview;
@@ -80,14 +82,13 @@ pub fn render_view(
     opts: &BatchOptions,
 ) -> Result<ViewCost> {
     let exr_aovs = opts.exr_aovs(scene);
-    let aovs = traced_aovs(scene, opts);
     let t0 = Instant::now();
     let mut image = render(
         scene,
         &RenderOptions {
             precision: opts.precision,
             formula: opts.formula,
-            ..RenderOptions::new(aovs.clone())
+            ..RenderOptions::new(traced_aovs(scene, opts))
         },
     )
     .image;
@@ -96,101 +97,140 @@ pub fn render_view(
     let t1 = Instant::now();
     let tmp = |suffix: &str| partial.join(format!("{tmp_stem}.{suffix}.tmp"));
     let done = ViewFiles::new(dir, name);
-    let mut moves = Vec::new();
-    let mut depth_zeroed = 0;
     // The depth PNG first: a view whose depths do not fit fails before any write.
     let depth = if opts.png {
         let d = depth_png::encode(&image, opts.depth_scale, opts.depth_out_of_range)
             .context("no depth AOV")?
             .map_err(|e| anyhow!(e))?;
-        depth_zeroed = d.zeroed;
-        Some(d.png)
+        Some(d)
     } else {
         None
     };
     let cam = Camera::new(scene.camera);
+    let mut moves = Vec::new();
     for (suffix, text, to) in [
-        ("camera.json", camera_json(&cam, &exr_aovs), &done.camera),
-        ("open3d.json", open3d_json(&cam), &done.open3d),
-        ("render.json", render_stamp(scene, opts), &done.stamp),
+        (
+            "camera.json",
+            camera_json(&cam, &exr_aovs),
+            done.camera.clone(),
+        ),
+        ("open3d.json", open3d_json(&cam), done.open3d.clone()),
+        ("render.json", render_stamp(scene, opts), done.stamp.clone()),
     ] {
         let path = tmp(suffix);
         write_unsynced(&path, |w| Ok(w.write_all(text.as_bytes())?))?;
         moves.push((path, to));
     }
+    let depth_zeroed = depth.as_ref().map_or(0, |d| d.zeroed);
     if let Some(depth) = depth {
-        let normal = preview::normal_rgb(&image).context("no normal AOV")?;
-        let mask = depth_png::mask(&image).context("no depth AOV")?;
-        let (normal_tmp, depth_tmp, mask_tmp) =
-            (tmp("normal.png"), tmp("depth.png"), tmp("mask.png"));
-        write_unsynced(&normal_tmp, |w| {
-            Ok(normal.write_to(w, image::ImageFormat::Png)?)
-        })?;
-        write_unsynced(&depth_tmp, |w| {
-            Ok(depth.write_to(w, image::ImageFormat::Png)?)
-        })?;
-        write_unsynced(
-            &mask_tmp,
-            |w| Ok(mask.write_to(w, image::ImageFormat::Png)?),
-        )?;
-        moves.push((normal_tmp, &done.normal_png));
-        moves.push((depth_tmp, &done.depth_png));
-        moves.push((mask_tmp, &done.mask_png));
+        moves.extend(write_pictures(&image, depth.png, &tmp, &done)?);
     }
     let keep: Vec<&str> = exr_aovs
         .iter()
         .flat_map(|&a| channel_names(a).iter().copied())
         .collect();
     image.channels.retain(|c| keep.contains(&c.name.as_str()));
-    let per_aov_paths: Vec<PathBuf> = Aov::ALL.iter().map(|&a| done.per_aov(a)).collect();
+    moves.extend(write_exrs(&image, &cam, &exr_aovs, opts, &tmp, &done)?);
+    put_in_place(&done, moves, opts.png)?;
+    Ok(ViewCost {
+        trace,
+        write: t1.elapsed(),
+        depth_zeroed,
+    })
+}
+
+/// A file written under `.partial/` and where it goes.
+type Move = (PathBuf, PathBuf);
+
+/// The normal picture, the depth PNG and the mask, under their temporary names.
+fn write_pictures(
+    image: &AovImage,
+    depth: depth_png::DepthPng,
+    tmp: &dyn Fn(&str) -> PathBuf,
+    done: &ViewFiles,
+) -> Result<Vec<Move>> {
+    let normal = preview::normal_rgb(image).context("no normal AOV")?;
+    let mask = depth_png::mask(image).context("no depth AOV")?;
+    let (normal_tmp, depth_tmp, mask_tmp) = (tmp("normal.png"), tmp("depth.png"), tmp("mask.png"));
+    write_unsynced(&normal_tmp, |w| {
+        Ok(normal.write_to(w, image::ImageFormat::Png)?)
+    })?;
+    write_unsynced(&depth_tmp, |w| {
+        Ok(depth.write_to(w, image::ImageFormat::Png)?)
+    })?;
+    write_unsynced(
+        &mask_tmp,
+        |w| Ok(mask.write_to(w, image::ImageFormat::Png)?),
+    )?;
+    Ok(vec![
+        (normal_tmp, done.normal_png.clone()),
+        (depth_tmp, done.depth_png.clone()),
+        (mask_tmp, done.mask_png.clone()),
+    ])
+}
+
+/// The EXR (layered) or one EXR per AOV, under their temporary names.
+fn write_exrs(
+    image: &AovImage,
+    cam: &Camera,
+    exr_aovs: &[Aov],
+    opts: &BatchOptions,
+    tmp: &dyn Fn(&str) -> PathBuf,
+    done: &ViewFiles,
+) -> Result<Vec<Move>> {
     match opts.exr_layout {
         ExrLayout::Layers => {
-            let attrs = exr_attributes(&cam, &exr_aovs);
+            let attrs = exr_attributes(cam, exr_aovs);
             let exr_tmp = tmp("exr");
             write_unsynced(&exr_tmp, |w| {
                 image.write_exr_with(w, opts.compression, &attrs)
             })?;
-            moves.push((exr_tmp, &done.exr));
+            Ok(vec![(exr_tmp, done.exr.clone())])
         }
-        ExrLayout::PerAov => {
-            for &a in &exr_aovs {
-                let one = per_aov_image(&image, a)?;
-                let attrs = exr_attributes(&cam, &[a]);
+        ExrLayout::PerAov => exr_aovs
+            .iter()
+            .map(|&a| {
+                let one = per_aov_image(image, a)?;
+                let attrs = exr_attributes(cam, &[a]);
                 let path = tmp(&format!("{}.exr", a.name()));
                 write_unsynced(&path, |w| one.write_exr_with(w, opts.compression, &attrs))?;
-                let k = Aov::ALL.iter().position(|&x| x == a).unwrap_or(0);
-                moves.push((path, &per_aov_paths[k]));
-            }
-        }
+                Ok((path, done.per_aov(a)))
+            })
+            .collect(),
     }
-    // An EXR in place is the view's "done" marker, so an older one goes before any new file
-    // of the view replaces its sibling: a re-render killed between the renames leaves no
-    // EXR (the view is rendered again), never a new camera beside old PNGs and an old EXR.
-    // The EXR goes last: once it is in place, so is everything else of the view.
-    // Without PNGs, those of an earlier run go too (they would not match the stamp), and
-    // the normal picture under its pre-0.2 name always goes.
-    // Every EXR of either layout is a "done" marker: all go first.
-    let mut stale: Vec<&PathBuf> = vec![&done.exr];
-    stale.extend(&per_aov_paths);
-    stale.push(&done.legacy_normal_png);
-    if !opts.png {
-        stale.extend([&done.normal_png, &done.depth_png, &done.mask_png]);
+}
+
+/// Remove what the new files would contradict, then rename them into place, the EXR last.
+///
+/// An EXR in place is the view's "done" marker, so an older one goes before any new file
+/// of the view replaces its sibling: a re-render killed between the renames leaves no
+/// EXR (the view is rendered again), never a new camera beside old PNGs and an old EXR.
+/// Every EXR of either layout is a "done" marker: all go first. Without PNGs, those of an
+/// earlier run go too (they would not match the stamp), and the normal picture under its
+/// pre-0.2 name always goes.
+fn put_in_place(done: &ViewFiles, moves: Vec<Move>, png: bool) -> Result<()> {
+    let mut stale: Vec<PathBuf> = vec![done.exr.clone()];
+    stale.extend(Aov::ALL.iter().map(|&a| done.per_aov(a)));
+    stale.push(done.legacy_normal_png.clone());
+    if !png {
+        stale.extend([
+            done.normal_png.clone(),
+            done.depth_png.clone(),
+            done.mask_png.clone(),
+        ]);
     }
     for path in stale {
-        match std::fs::remove_file(path) {
+        match std::fs::remove_file(&path) {
             Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
                 return Err(e).with_context(|| format!("removing the old {}", path.display()));
             }
             _ => {}
         }
     }
+    // The EXRs were written last, so they are moved last.
     for (from, to) in moves {
-        std::fs::rename(&from, to)
+        std::fs::rename(&from, &to)
             .with_context(|| format!("moving {} to {}", from.display(), to.display()))?;
     }
-    Ok(ViewCost {
-        trace,
-        write: t1.elapsed(),
-        depth_zeroed,
-    })
+    Ok(())
 }
