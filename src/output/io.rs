@@ -20,7 +20,7 @@ use std::path::{Path, PathBuf};
 /// `NAME` is shortened (at a character boundary) when the whole would pass the 255-byte
 /// file name limit: any output name the file system accepts also has a temporary name it
 /// accepts.
-pub fn temp_prefix(path: &Path) -> String {
+fn temp_prefix(path: &Path) -> String {
     use std::sync::OnceLock;
     static HOST: OnceLock<String> = OnceLock::new();
     let host = HOST.get_or_init(|| {
