@@ -42,7 +42,7 @@ enum Command {
     /// kernel alone (one thread, million ray-cylinder tests per second; scalar, portable
     /// packets and AVX2 packets), which shows what f32 buys where the kernel is all the work.
     ///
-    /// Example (about 10 seconds): cylaov bench --counts 1000 --quick --mitsuba
+    /// Example (about 10 seconds): cylaov bench --counts 1000 --quick --mitsuba --open3d
     ///
     /// Example (what the screen tiles save over the BVH): cylaov bench --quick --accel bvh
     Bench(BenchCli),
@@ -233,7 +233,8 @@ struct BenchCli {
     /// tiles save (both give the same image, bit for bit).
     #[arg(long, value_enum, default_value_t = Accel::Tiles)]
     accel: Accel,
-    /// Also write the table as CSV (and Mitsuba's rows to OUT.mitsuba.csv).
+    /// Also write the table as CSV (the kernel-alone rows to OUT.kernel.csv, Mitsuba's and
+    /// Open3D's to OUT.anchors.csv).
     #[arg(long, value_name = "OUT.csv")]
     csv: Option<PathBuf>,
     /// Also keep each generated scene as DIR/FAMILY-N.json (an existing folder), to time or
@@ -241,7 +242,7 @@ struct BenchCli {
     #[arg(long, value_name = "DIR")]
     keep_scenes: Option<PathBuf>,
     /// Also draw the figure: error against time per kernel (Pareto view) and time against
-    /// cylinder count, log-log, with Mitsuba's times when `--mitsuba` ran.
+    /// cylinder count, log-log, with Mitsuba's and Open3D's times when they ran.
     #[arg(long, value_name = "OUT.png")]
     plot: Option<PathBuf>,
     /// Also render the same scenes with Mitsuba 3 (needs the reference venv: run from the
@@ -255,6 +256,14 @@ struct BenchCli {
     /// Largest cylinder count rendered with Mitsuba's llvm_ad_rgb.
     #[arg(long, default_value_t = 10000)]
     mitsuba_llvm_max: usize,
+    /// Also time Open3D's ray caster (Embree) on the same scenes as 16-segment triangle
+    /// meshes (open3d-cpu from the reference venv): what a general triangle ray tracer does
+    /// with the same cylinders.
+    #[arg(long)]
+    open3d: bool,
+    /// Largest cylinder count timed with Open3D.
+    #[arg(long, default_value_t = 100000)]
+    open3d_max: usize,
     /// Worker threads, 1 to 1024 (default: all cores).
     #[arg(long, value_parser = threads)]
     threads: Option<usize>,
@@ -620,18 +629,21 @@ fn bench(b: BenchCli) -> anyhow::Result<ExitCode> {
         accel: b.accel,
         keep_scenes: b.keep_scenes,
     };
-    let mitsuba = match b.mitsuba {
-        false => None,
-        true => Some(bench::MitsubaBench {
+    let anchors = match (b.mitsuba, b.open3d) {
+        (false, false) => None,
+        (mitsuba, open3d) => Some(bench::Anchors {
             python: cylaov::verify::reference::Mitsuba::find()
-                .map_err(|why| anyhow::anyhow!("--mitsuba: {why}"))?
+                .map_err(|why| {
+                    let flag = if mitsuba { "--mitsuba" } else { "--open3d" };
+                    anyhow::anyhow!("{flag}: {why}")
+                })?
                 .python,
-            script: bench::BENCH_SCRIPT,
-            scalar_max: b.mitsuba_scalar_max,
-            llvm_max: b.mitsuba_llvm_max,
+            mitsuba_scalar_max: if mitsuba { b.mitsuba_scalar_max } else { 0 },
+            mitsuba_llvm_max: if mitsuba { b.mitsuba_llvm_max } else { 0 },
+            open3d_max: if open3d { b.open3d_max } else { 0 },
         }),
     };
-    commands::bench::run(&opts, mitsuba, b.csv, b.plot)?;
+    commands::bench::run(&opts, anchors, b.csv, b.plot)?;
     Ok(ExitCode::SUCCESS)
 }
 

@@ -640,86 +640,113 @@ pub fn format_row(r: &Row) -> String {
     )
 }
 
-/// `scripts/bench_mitsuba.py`, written into the bench's scratch folder when it runs.
-pub const BENCH_SCRIPT: &str = include_str!("../../scripts/bench_mitsuba.py");
+/// `scripts/bench_mitsuba.py`, written into the bench's scratch folder when it runs, so an
+/// installed binary needs no source tree.
+pub const MITSUBA_SCRIPT: &str = include_str!("../../scripts/bench_mitsuba.py");
 
-/// Where and how far to run Mitsuba in the same benchmark.
+/// `scripts/bench_open3d.py`, likewise.
+pub const OPEN3D_SCRIPT: &str = include_str!("../../scripts/bench_open3d.py");
+
+/// Other renderers timed on the same scenes in the same run, and how far: Mitsuba 3 (the
+/// renderer cylaov is verified against) and Open3D's Embree ray caster on 16-segment
+/// meshes (what a general triangle ray tracer does with the same cylinders). A largest
+/// count of 0 leaves that renderer out.
 #[derive(Clone, Debug)]
-pub struct MitsubaBench {
-    /// The reference venv's python (with mitsuba 3.9.1).
+pub struct Anchors {
+    /// The reference venv's python (mitsuba 3.9.1, open3d-cpu, numpy).
     pub python: PathBuf,
-    /// The timing script, `scripts/bench_mitsuba.py`, compiled in ([`BENCH_SCRIPT`]) so an
-    /// installed binary needs no source tree.
-    pub script: &'static str,
-    /// Largest count for `scalar_rgb` (slow: ~75 s at 1 000 cylinders on 2 cores).
-    pub scalar_max: usize,
-    /// Largest count for `llvm_ad_rgb`.
-    pub llvm_max: usize,
+    /// Largest count for Mitsuba's `scalar_rgb` (slow: ~75 s at 1 000 cylinders on 2 cores).
+    pub mitsuba_scalar_max: usize,
+    /// Largest count for Mitsuba's `llvm_ad_rgb`.
+    pub mitsuba_llvm_max: usize,
+    /// Largest count for Open3D.
+    pub open3d_max: usize,
 }
 
-/// Mitsuba's times on one generated scene, seconds.
+/// One anchor renderer's times on one generated scene, seconds.
 #[derive(Clone, Debug, Serialize, serde::Deserialize)]
-pub struct MitsubaRow {
+pub struct AnchorRow {
     #[serde(default)]
     /// The scene family's name.
     pub family: String,
     #[serde(default)]
     /// Cylinders in the scene.
     pub cylinders: usize,
-    /// Mitsuba variant: `scalar_rgb` or `llvm_ad_rgb`.
+    /// Mitsuba's variant (`scalar_rgb`, `llvm_ad_rgb`) or `open3d_embree`.
     pub variant: String,
-    /// `import mitsuba` and `set_variant`.
+    /// `import mitsuba` and `set_variant`, or `import open3d`.
     pub import_s: f64,
-    /// `load_file` of the exported XML.
+    /// Mitsuba's `load_file` of the exported XML; Open3D: reading the scene JSON, making the
+    /// meshes and adding them.
     pub load_s: f64,
-    /// The first `render()` (with the JIT's compilation for llvm).
+    /// The first `render()` (with the JIT's compilation for llvm) or `cast_rays` (with
+    /// Embree's BVH build).
     pub render1_s: f64,
-    /// Writing the EXR.
+    /// Writing the image (EXR; Open3D: the distances as `.npy`).
     pub write_s: f64,
-    /// A second `render()` of the same scene: the warm time.
+    /// A second `render()` or `cast_rays` of the same scene: the warm time.
     pub render2_s: f64,
     /// The whole cold process (Python start, import, load, first render, write).
     #[serde(default)]
     pub process_s: f64,
+    /// Pixels whose ray hit something (Open3D only): a check that the anchor traced the
+    /// same scene through the same camera (its facets move silhouettes by a fraction of a
+    /// percent of the hits).
+    #[serde(default)]
+    pub hits: Option<u64>,
 }
 
-/// Render `scene` with Mitsuba `variant` through `bench_mitsuba.py`.
-pub fn time_mitsuba(
-    m: &MitsubaBench,
-    scene: &Scene,
-    variant: &str,
-    dir: &Path,
-) -> Result<MitsubaRow> {
-    let xml = dir.join(format!("mitsuba-{}.xml", scene.cylinders.len()));
-    std::fs::write(
-        &xml,
-        crate::output::mitsuba::to_xml(scene, "cylaov bench random scene"),
-    )?;
-    let script = dir.join("bench_mitsuba.py");
-    std::fs::write(&script, m.script)?;
+/// The anchor variants, each with the largest count it runs at.
+fn anchor_variants(a: &Anchors) -> [(&'static str, usize); 3] {
+    [
+        ("llvm_ad_rgb", a.mitsuba_llvm_max),
+        ("scalar_rgb", a.mitsuba_scalar_max),
+        (OPEN3D, a.open3d_max),
+    ]
+}
+
+/// The variant name of the Open3D anchor.
+pub const OPEN3D: &str = "open3d_embree";
+
+/// Time `variant` (see [`anchor_variants`]) on `scene` through its script.
+pub fn time_anchor(a: &Anchors, scene: &Scene, variant: &str, dir: &Path) -> Result<AnchorRow> {
+    let n = scene.cylinders.len();
+    let mut cmd = Command::new(&a.python);
+    if variant == OPEN3D {
+        let json = dir.join(format!("open3d-{n}.json"));
+        std::fs::write(&json, serde_json::to_string(&SceneFile::from_scene(scene))?)?;
+        let script = dir.join("bench_open3d.py");
+        std::fs::write(&script, OPEN3D_SCRIPT)?;
+        cmd.arg(&script).arg(&json).arg(dir.join("open3d.npy"));
+    } else {
+        let xml = dir.join(format!("mitsuba-{n}.xml"));
+        std::fs::write(
+            &xml,
+            crate::output::mitsuba::to_xml(scene, "cylaov bench random scene"),
+        )?;
+        let script = dir.join("bench_mitsuba.py");
+        std::fs::write(&script, MITSUBA_SCRIPT)?;
+        cmd.arg(&script)
+            .arg(&xml)
+            .arg(dir.join("mitsuba.exr"))
+            .arg(variant)
+            .args(variant.starts_with("scalar").then_some("--once"));
+    }
     let start = Instant::now();
-    let o = Command::new(&m.python)
-        .arg(&script)
-        .arg(&xml)
-        .arg(dir.join("mitsuba.exr"))
-        .arg(variant)
-        .args(variant.starts_with("scalar").then_some("--once"))
+    let o = cmd
         .output()
-        .with_context(|| format!("running {}", m.python.display()))?;
+        .with_context(|| format!("running {}", a.python.display()))?;
     let wall = start.elapsed().as_secs_f64();
     if !o.status.success() {
-        bail!(
-            "mitsuba {variant} failed: {}",
-            String::from_utf8_lossy(&o.stderr)
-        );
+        bail!("{variant} failed: {}", String::from_utf8_lossy(&o.stderr));
     }
     let text = String::from_utf8_lossy(&o.stdout);
     let line = text.lines().last().unwrap_or_default();
     // Mitsuba's logger may leave a terminal colour reset in front of the JSON.
     let json = line.find('{').map_or(line, |k| &line[k..]);
-    let mut row: MitsubaRow =
-        serde_json::from_str(json).with_context(|| format!("bench_mitsuba.py printed {line:?}"))?;
-    row.cylinders = scene.cylinders.len();
+    let mut row: AnchorRow = serde_json::from_str(json)
+        .with_context(|| format!("the {variant} script printed {line:?}"))?;
+    row.cylinders = n;
     // The cold process: everything but the warm second render (none for scalar variants).
     row.process_s = if variant.starts_with("scalar") {
         wall
@@ -729,22 +756,22 @@ pub fn time_mitsuba(
     Ok(row)
 }
 
-/// Run Mitsuba on the bench scenes, printing each row with three ratios against
+/// Run the anchors on the bench scenes, printing each row with three ratios against
 /// cylaov's stable-f64 depth+normal row of the same count: (a) whole process vs whole
-/// process, (b) Mitsuba's warm `render()` vs cylaov's whole process, (c) Mitsuba's warm
-/// `render()` vs cylaov's in-memory build + trace.
-pub fn run_mitsuba(
+/// process, (b) the anchor's warm render vs cylaov's whole process, (c) the anchor's warm
+/// render vs cylaov's in-memory build + trace.
+pub fn run_anchors(
     opts: &BenchOptions,
-    m: &MitsubaBench,
+    a: &Anchors,
     rows: &[Row],
     mut progress: impl FnMut(&str),
-) -> Result<Vec<MitsubaRow>> {
+) -> Result<Vec<AnchorRow>> {
     let scratch = tempfile::Builder::new()
         .prefix("cylaov-bench-mi-")
         .tempdir()?;
     let dir = scratch.path();
     progress(&format!(
-        "{:<6} {:>7} {:<12} {:>8} {:>8} {:>9} {:>9} {:>9} {:>10} {:>10} {:>10}",
+        "{:<6} {:>7} {:<13} {:>8} {:>8} {:>9} {:>9} {:>9} {:>10} {:>10} {:>10}",
         "family",
         "cyl",
         "variant",
@@ -770,17 +797,17 @@ pub fn run_mitsuba(
                 && r.is_depth_normal()
         });
         let scene = family.scene(n, opts.seed, opts.width, opts.height);
-        for (variant, max) in [("llvm_ad_rgb", m.llvm_max), ("scalar_rgb", m.scalar_max)] {
+        for (variant, max) in anchor_variants(a) {
             if n > max {
                 continue;
             }
-            let mut r = time_mitsuba(m, &scene, variant, dir)?;
+            let mut r = time_anchor(a, &scene, variant, dir)?;
             r.family = family.name().to_string();
             let ratio = |num: f64, den: Option<f64>| {
                 den.map_or("-".to_string(), |d| format!("{:.1}x", num * 1e3 / d))
             };
             progress(&format!(
-                "{:<6} {:>7} {:<12} {:>8.3} {:>8.3} {:>9.3} {:>9.3} {:>9.3} {:>10} {:>10} {:>10}",
+                "{:<6} {:>7} {:<13} {:>8.3} {:>8.3} {:>9.3} {:>9.3} {:>9.3} {:>10} {:>10} {:>10}",
                 family.name(),
                 n,
                 variant,

@@ -1,6 +1,6 @@
 //! `cylaov bench`: print the time-vs-error table, optionally as CSV and as a figure.
 
-use crate::bench::{self, BenchOptions, MitsubaBench, Row};
+use crate::bench::{self, Anchors, BenchOptions, Row};
 use crate::output::io::{atomic_write_bytes, check_outputs, csv_bytes, say};
 use anyhow::{Context, Result, bail};
 use std::path::{Path, PathBuf};
@@ -17,12 +17,12 @@ fn check_parent(path: &Path, flag: &str) -> Result<()> {
     }
 }
 
-/// Run the table, printing rows as they finish; then Mitsuba's, if asked; write CSV if
-/// asked (`OUT.csv`, the kernel-alone rows to `OUT.kernel.csv`, Mitsuba's to
-/// `OUT.mitsuba.csv`) and the figure if asked.
+/// Run the table, printing rows as they finish; then the anchors' (Mitsuba, Open3D), if
+/// asked; write CSV if asked (`OUT.csv`, the kernel-alone rows to `OUT.kernel.csv`, the
+/// anchors' to `OUT.anchors.csv`) and the figure if asked.
 pub fn run(
     opts: &BenchOptions,
-    mitsuba: Option<MitsubaBench>,
+    anchors: Option<Anchors>,
     csv: Option<PathBuf>,
     plot: Option<PathBuf>,
 ) -> Result<Vec<Row>> {
@@ -32,7 +32,7 @@ pub fn run(
         for q in [
             p.clone(),
             p.with_extension("kernel.csv"),
-            p.with_extension("mitsuba.csv"),
+            p.with_extension("anchors.csv"),
         ] {
             outputs.push(("--csv", q));
         }
@@ -92,11 +92,11 @@ pub fn run(
         ))?;
     }
     let mut mi_rows = Vec::new();
-    if let Some(m) = &mitsuba {
+    if let Some(a) = &anchors {
         say(
-            "\nMitsuba 3 on the same scenes; ratios = Mitsuba time / cylaov stable-f64 depth+normal time",
+            "\nMitsuba 3 and Open3D (Embree, 16-segment meshes) on the same scenes; ratios = their time / cylaov stable-f64 depth+normal time",
         )?;
-        mi_rows = bench::run_mitsuba(opts, m, &rows, |line| row_out(line))?;
+        mi_rows = bench::run_anchors(opts, a, &rows, |line| row_out(line))?;
     }
     if let Some(e) = print_err {
         return Err(e.into());
@@ -110,7 +110,7 @@ pub fn run(
             .with_context(|| format!("writing {}", kpath.display()))?;
         say(&format!("wrote {}", kpath.display()))?;
         if !mi_rows.is_empty() {
-            let mpath = path.with_extension("mitsuba.csv");
+            let mpath = path.with_extension("anchors.csv");
             atomic_write_bytes(&mpath, &csv_bytes(&mi_rows)?)
                 .with_context(|| format!("writing {}", mpath.display()))?;
             say(&format!("wrote {}", mpath.display()))?;

@@ -7,7 +7,7 @@
 //! (c) the same for the dense scene family, when it was run. Panels (a) and (b) show the
 //! first family run.
 
-use crate::bench::{MitsubaRow, Row};
+use crate::bench::{AnchorRow, Row};
 use crate::geometry::{FormulaKind, Kernel, Precision};
 use crate::output::plot::{self, Axis, BLACK, Grid, Marker, NOTE};
 use image::{Rgb, RgbImage};
@@ -36,17 +36,28 @@ fn colour(k: Kernel) -> Rgb<u8> {
     )
 }
 
-/// Mitsuba variants get their own colours (not a kernel's).
-fn mitsuba_colour(variant: &str) -> Rgb<u8> {
+/// Anchor renderers get their own colours (not a kernel's).
+fn anchor_colour(variant: &str) -> Rgb<u8> {
     if variant.starts_with("llvm") {
         Rgb([150, 60, 170])
+    } else if variant == crate::bench::OPEN3D {
+        Rgb([200, 130, 0])
     } else {
         Rgb([110, 110, 110])
     }
 }
 
+/// An anchor's legend label: `MITSUBA LLVM_AD_RGB`, `OPEN3D EMBREE (16-SEGMENT MESHES)`.
+fn anchor_label(variant: &str) -> String {
+    if variant == crate::bench::OPEN3D {
+        "OPEN3D EMBREE (16-SEGMENT MESHES)".into()
+    } else {
+        format!("MITSUBA {}", variant.to_uppercase())
+    }
+}
+
 /// Draw the figure from the table's rows (the depth+normal ones are used) and Mitsuba's.
-pub fn plot(rows: &[Row], mitsuba: &[MitsubaRow], kernels: &[Kernel]) -> RgbImage {
+pub fn plot(rows: &[Row], mitsuba: &[AnchorRow], kernels: &[Kernel]) -> RgbImage {
     let first = rows.first().map(|r| r.family.clone()).unwrap_or_default();
     let dense = "dense";
     let dn: Vec<&Row> = rows
@@ -81,21 +92,19 @@ pub fn plot(rows: &[Row], mitsuba: &[MitsubaRow], kernels: &[Kernel]) -> RgbImag
     legend_row(
         &mut img,
         8 + LEGEND_ROW as i64,
-        variants
-            .iter()
-            .map(|v| (mitsuba_colour(v), format!("MITSUBA {}", v.to_uppercase()))),
+        variants.iter().map(|v| (anchor_colour(v), anchor_label(v))),
     );
     plot::text(
         &mut img,
         10,
         8 + (legend_rows - 1) as i64 * LEGEND_ROW as i64,
         2,
-        "(A) FILLED: MAX, OPEN: MEDIAN   (B) SOLID: BUILD+TRACE (MITSUBA: WARM RENDER), DASHED: WHOLE PROCESS",
+        "(A) FILLED: MAX, OPEN: MEDIAN   (B) SOLID: BUILD+TRACE (MITSUBA, OPEN3D: WARM RENDER), DASHED: WHOLE PROCESS",
         NOTE,
     );
 
     pareto(&mut img, &grid, &dn, &kernels);
-    let of = |f: &str| -> Vec<MitsubaRow> {
+    let of = |f: &str| -> Vec<AnchorRow> {
         // Rows from before families were recorded read as the first family.
         let f = f.to_string();
         mitsuba
@@ -251,7 +260,7 @@ fn scaling(
     col: u32,
     title: &str,
     dn: &[&Row],
-    mitsuba: &[MitsubaRow],
+    mitsuba: &[AnchorRow],
     kernels: &[(Kernel, String)],
     variants: &[&str],
 ) {
@@ -268,7 +277,7 @@ fn scaling(
         lines.push(Line::new(pts, colour(Kernel::ALL[0]), true));
     }
     for v in variants {
-        let c = mitsuba_colour(v);
+        let c = anchor_colour(v);
         let warm = of_variant(v.to_string()).map(|m| (m.cylinders as f64, m.render2_s * 1e3));
         lines.push(Line::new(warm, c, false));
         let process = of_variant(v.to_string()).map(|m| (m.cylinders as f64, m.process_s * 1e3));
@@ -335,7 +344,7 @@ mod tests {
     }
 
     #[test]
-    fn draws_kernels_and_mitsuba_and_survives_empty_input() {
+    fn draws_kernels_and_anchors_and_survives_empty_input() {
         let mut rows = Vec::new();
         for n in [1, 100, 1000] {
             rows.push(row(n, Kernel::ALL[0], "depth+normal", n as f64, 0.0));
@@ -343,7 +352,7 @@ mod tests {
             // Other AOV sets are not drawn.
             rows.push(row(n, Kernel::ALL[3], "depth", 1.0, 1e-3));
         }
-        let mi = MitsubaRow {
+        let mi = AnchorRow {
             family: "sparse".into(),
             cylinders: 100,
             variant: "llvm_ad_rgb".into(),
@@ -353,13 +362,25 @@ mod tests {
             write_s: 0.1,
             render2_s: 0.3,
             process_s: 1.0,
+            hits: None,
         };
         let img = plot(
             &rows,
             &[
                 mi.clone(),
-                MitsubaRow {
+                AnchorRow {
                     cylinders: 1000,
+                    ..mi.clone()
+                },
+                AnchorRow {
+                    variant: crate::bench::OPEN3D.into(),
+                    render2_s: 0.05,
+                    ..mi.clone()
+                },
+                AnchorRow {
+                    variant: crate::bench::OPEN3D.into(),
+                    cylinders: 1000,
+                    render2_s: 0.1,
                     ..mi
                 },
             ],
@@ -368,7 +389,8 @@ mod tests {
         assert!(count(&img, colour(Kernel::ALL[0])) > 100);
         assert!(count(&img, colour(Kernel::ALL[1])) > 100);
         assert_eq!(count(&img, colour(Kernel::ALL[3])), 0);
-        assert!(count(&img, mitsuba_colour("llvm_ad_rgb")) > 100);
+        assert!(count(&img, anchor_colour("llvm_ad_rgb")) > 100);
+        assert!(count(&img, anchor_colour(crate::bench::OPEN3D)) > 100);
 
         let empty = plot(&[], &[], &Kernel::ALL);
         assert_eq!(count(&empty, colour(Kernel::ALL[0])), 0);
