@@ -43,7 +43,7 @@
 //!   compiled in), [`verify::oracle`] (double-double reference answer, κ and tangency band),
 //!   [`verify::stress`] (the hard ray families of `cylaov stress`).
 //! - [`bench`](mod@bench): run time against error per kernel, AOV set, cylinder count and
-//!   scene family, Mitsuba's times on the same scenes.
+//!   scene family, with Mitsuba's and Open3D's times on the same scenes ([`bench::Anchors`]).
 //!
 //! Datasets:
 //! - [`dataset`]: [`dataset::generate`] (seeded procedural scenes, several cameras each if
