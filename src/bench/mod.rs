@@ -708,7 +708,7 @@ fn anchor_variants(a: &Anchors) -> [(&'static str, usize); 3] {
 /// The variant name of the Open3D anchor.
 pub const OPEN3D: &str = "open3d_embree";
 
-/// Time `variant` (see [`anchor_variants`]) on `scene` through its script.
+/// Time `variant` (`llvm_ad_rgb`, `scalar_rgb` or [`OPEN3D`]) on `scene` through its script.
 pub fn time_anchor(a: &Anchors, scene: &Scene, variant: &str, dir: &Path) -> Result<AnchorRow> {
     let n = scene.cylinders.len();
     let mut cmd = Command::new(&a.python);
