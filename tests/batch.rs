@@ -421,21 +421,7 @@ fn transforms_match_cameras_and_depth_png() {
         (&39.5.into(), &29.5.into())
     );
     // 16-bit depth PNG = round(depth * 500).
-    let img = AovImage::read_exr(&out.join("000001.exr")).unwrap();
-    let depth = img.f32_channel("depth").unwrap();
-    let png = image::open(out.join("000001.depth.png"))
-        .unwrap()
-        .into_luma16();
-    let mut hits = 0;
-    for (k, p) in png.pixels().enumerate() {
-        let want = if depth[k] > 0.0 {
-            (depth[k] as f64 * 500.0).round() as u16
-        } else {
-            0
-        };
-        assert_eq!(p.0[0], want, "pixel {k}");
-        hits += (want > 0) as usize;
-    }
+    let hits = assert_depth_png_scale(&out, "000001", 500.0);
     assert!(hits > 100, "{hits} hits");
 }
 
@@ -746,8 +732,9 @@ fn interrupted_rerender_leaves_no_stale_exr() {
     assert_eq!(tree(&out), tree(&fresh));
 }
 
-/// Every 16-bit depth PNG value of `name` in `out` is round(depth × scale) of its EXR.
-fn assert_depth_png_scale(out: &Path, name: &str, scale: f64) {
+/// Every 16-bit depth PNG value of `name` in `out` is round(depth × scale) of its EXR;
+/// returns the pixels with a depth.
+fn assert_depth_png_scale(out: &Path, name: &str, scale: f64) -> usize {
     let img = AovImage::read_exr(&out.join(format!("{name}.exr"))).unwrap();
     let depth = img.f32_channel("depth").unwrap();
     let png = image::open(out.join(format!("{name}.depth.png")))
@@ -764,6 +751,7 @@ fn assert_depth_png_scale(out: &Path, name: &str, scale: f64) {
         hits += (want > 0) as usize;
     }
     assert!(hits > 50, "{name}: {hits} hits");
+    hits
 }
 
 /// A rerun with an option that changes the output bytes renders the views again; the same

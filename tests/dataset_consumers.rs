@@ -16,7 +16,6 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::OnceLock;
 
-const BIN: &str = env!("CARGO_BIN_EXE_cylaov");
 const ROOT: &str = env!("CARGO_MANIFEST_DIR");
 /// The batch's `--depth-scale` (the default) and the README blocks' scale.
 const SCALE: f64 = 1000.0;
@@ -43,22 +42,32 @@ fn python() -> Option<PathBuf> {
     Some(py)
 }
 
+/// The shared dataset's scenes rendered again into a sibling folder `name` with the same
+/// AOVs and `extra` options.
+fn rebatch(name: &str, extra: &[&str]) -> PathBuf {
+    let dir = dataset().parent().unwrap();
+    let out = dir.join(name);
+    let data = dir.join("data");
+    let mut args = vec![
+        "batch",
+        data.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--aov",
+        "depth,normal,position,shape_id",
+    ];
+    args.extend(extra);
+    common::ok(&args);
+    out
+}
+
 /// One dataset for every test: 2 scenes × 3 cameras, with positions for the checks.
 fn dataset() -> &'static Path {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
     DIR.get_or_init(|| {
         let dir = common::shared_dir("consumers").to_path_buf();
         let run = |args: &[&str]| {
-            let o = Command::new(BIN)
-                .args(args)
-                .env_remove("SLURM_ARRAY_TASK_ID")
-                .output()
-                .unwrap();
-            assert!(
-                o.status.success(),
-                "{args:?}: {}",
-                String::from_utf8_lossy(&o.stderr)
-            );
+            common::ok(args);
         };
         let data = dir.join("data");
         let render = dir.join("render");
@@ -306,23 +315,7 @@ fn nerfstudio_reading_puts_every_view_of_a_scene_on_its_cylinders() {
 fn openexr_header_says_what_the_file_holds() {
     let Some(py) = python() else { return };
     let dir = dataset();
-    let zip = dir.parent().unwrap().join("zip");
-    let o = Command::new(BIN)
-        .args([
-            "batch",
-            dir.parent().unwrap().join("data").to_str().unwrap(),
-            "--out",
-        ])
-        .arg(&zip)
-        .args([
-            "--aov",
-            "depth,normal,position,shape_id",
-            "--compression",
-            "zip",
-        ])
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let zip = rebatch("zip", &["--compression", "zip"]);
     for exr in [dir.join("000001/02.exr"), zip.join("000001/02.exr")] {
         let out = Command::new(&py)
             .arg("-c")
@@ -397,23 +390,7 @@ print("hits", len(i))
 fn opencv_reads_per_aov_exrs_bitwise_equal_to_the_layered_file() {
     let Some(py) = python() else { return };
     let dir = dataset();
-    let per = dir.parent().unwrap().join("per-aov");
-    let o = Command::new(BIN)
-        .args([
-            "batch",
-            dir.parent().unwrap().join("data").to_str().unwrap(),
-            "--out",
-        ])
-        .arg(&per)
-        .args([
-            "--aov",
-            "depth,normal,position,shape_id",
-            "--exr-layout",
-            "per-aov",
-        ])
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let per = rebatch("per-aov", &["--exr-layout", "per-aov"]);
     let index: serde_json::Value =
         serde_json::from_slice(&std::fs::read(per.join("index.json")).unwrap()).unwrap();
     assert_eq!(
