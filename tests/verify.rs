@@ -8,13 +8,13 @@
 mod common;
 use common::venv_python;
 
-use cylaov::geometry::Surface;
+use cylaov::geometry::{Cylinder, Surface};
 use cylaov::geometry::{FormulaKind, Precision};
 use cylaov::output::aov::{AovImage, ChannelData};
 use cylaov::scene::camera::Camera;
 use cylaov::scene::{self, Scene};
 use cylaov::verify::compare::{CONDITIONING_ULPS, Tolerances, compare};
-use cylaov::verify::oracle::{DD, Problem, intersect};
+use cylaov::verify::oracle::{DD, Hit, Problem, intersect};
 use cylaov::verify::reference::{Mitsuba, ViewCheck, check_against, check_render};
 use glam::DVec3;
 use std::path::PathBuf;
@@ -33,6 +33,31 @@ fn load(stem: &str) -> (Scene, AovImage) {
 
 fn ours(scene: &Scene) -> AovImage {
     check_render(scene, Precision::F64, FormulaKind::Stable)
+}
+
+/// The cylinder `id` (the one cylaov hit at pixel (x, y)), the pixel's ray direction, and
+/// the double-double oracle's hit of that ray with that cylinder.
+fn oracle_at<'a>(
+    scene: &'a Scene,
+    cam: &Camera,
+    id: u32,
+    x: usize,
+    y: usize,
+) -> (&'a Cylinder, DVec3, Hit) {
+    let cyl = scene
+        .cylinders
+        .iter()
+        .find(|c| c.id == id)
+        .expect("hit cylinder");
+    let (d, len) = cam.dir_and_length(cam.column_offset(x as u32), cam.row_offset(y as u32));
+    let (tmin, tmax) = cam.clip_range(len);
+    let hit = intersect(
+        &Problem::new(cyl, cam.origin, d),
+        DD::new(tmin),
+        DD::new(tmax),
+    )
+    .expect("the oracle hits it too");
+    (cyl, d, hit)
 }
 
 fn check(scene: &Scene, a: &AovImage, b: &AovImage) -> ViewCheck {
@@ -115,19 +140,7 @@ fn accepted_grazing_pixels_are_mitsubas_float32_error() {
     );
     for &(e, [x, y], bound) in m.explained.iter().take(n) {
         let k = y * w + x;
-        let cyl = scene
-            .cylinders
-            .iter()
-            .find(|c| c.id == ids[k])
-            .expect("hit cylinder");
-        let (d, len) = cam.dir_and_length(cam.column_offset(x as u32), cam.row_offset(y as u32));
-        let (tmin, tmax) = cam.clip_range(len);
-        let hit = intersect(
-            &Problem::new(cyl, cam.origin, d),
-            DD::new(tmin),
-            DD::new(tmax),
-        )
-        .expect("the oracle hits it too");
+        let (_, d, hit) = oracle_at(&scene, &cam, ids[k], x, y);
         let t = hit.t.to_f64();
         let ours_err = (f64::from(d_ours[k]) - t).abs() / t;
         let mitsuba_err = (f64::from(d_ref[k]) - t).abs() / t;
@@ -365,19 +378,7 @@ fn a_real_seam_mismatch_is_a_rim_tie() {
     let dist = img.f32_channel("distance").expect("distance");
     for &[x, y] in &checked.report.seam_examples {
         let k = y * img.width + x;
-        let cyl = scene
-            .cylinders
-            .iter()
-            .find(|c| c.id == ids[k])
-            .expect("hit cylinder");
-        let (d, len) = cam.dir_and_length(cam.column_offset(x as u32), cam.row_offset(y as u32));
-        let (tmin, tmax) = cam.clip_range(len);
-        let hit = intersect(
-            &Problem::new(cyl, cam.origin, d),
-            DD::new(tmin),
-            DD::new(tmax),
-        )
-        .expect("the oracle hits it too");
+        let (cyl, d, hit) = oracle_at(&scene, &cam, ids[k], x, y);
         let t = hit.t.to_f64();
         let oracle_part = match hit.surface {
             Surface::Side if hit.normal.to_f64().dot(d) > 0.0 => 2,
