@@ -28,23 +28,23 @@ pub const MAX_DEPTH: usize = 64;
 const PARALLEL_MIN: usize = 8192;
 
 #[derive(Clone, Copy, Debug, PartialEq)]
-struct Node {
-    min: Vec3A,
-    max: Vec3A,
+pub(super) struct Node {
+    pub(super) min: Vec3A,
+    pub(super) max: Vec3A,
     /// Leaf: first index into `order`. Interior: index of the left child (right = +1).
-    offset: u32,
+    pub(super) offset: u32,
     /// Primitives in a leaf; 0 for an interior node.
-    count: u32,
+    pub(super) count: u32,
 }
 
 /// The hierarchy: nodes (root first) and the primitive order its leaves index.
 #[derive(Clone, Debug)]
 pub struct Bvh {
-    nodes: Vec<Node>,
+    pub(super) nodes: Vec<Node>,
     order: Vec<u32>,
     /// Each position's own box (min, max): a ray tests it before the cylinder, as a leaf's
     /// box bounds its cylinders loosely in a tangle of tilted ones.
-    boxes: Vec<[Vec3A; 2]>,
+    pub(super) boxes: Vec<[Vec3A; 2]>,
 }
 
 /// Round `x - o` to f32 toward -inf (`down`) or +inf and pad by a relative 1e-6, so the box

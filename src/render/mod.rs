@@ -10,9 +10,10 @@
 
 use crate::accel::bvh::{Bvh, Cone, ConeWalk};
 use crate::accel::tiles::{self, Candidate, TILE, Tiles};
+use crate::accel::wide_bvh::{Stack, WideBvh};
 use crate::geometry::kernel::KernelFn;
 use crate::geometry::packet::{self, LANES, NO_HIT, Packet, PacketFormula};
-use crate::geometry::wide::{Avx2, Lanes, Simd, Wide};
+use crate::geometry::wide::{Avx2, Lanes, Simd, Slabs8, Wide};
 use crate::geometry::{BasicHit, Cylinder, Formula, Kernel, Prepared, Real, Surface};
 use crate::geometry::{FormulaKind, Precision};
 use crate::output::aov::{AovImage, Channel, ChannelData};
@@ -109,6 +110,8 @@ pub struct Tracer<T: Real, F: Formula> {
     prepared: Vec<Prepared<T>>,
     order: Vec<u32>,
     bvh: Option<Bvh>,
+    /// The BVH collapsed to eight-wide nodes, for one traversal per ray.
+    wide: Option<WideBvh>,
     tiles: Option<Tiles>,
     /// For walking the BVH tile by tile: each slot's projection.
     cone_cands: Option<ConeCands>,
@@ -225,6 +228,7 @@ impl<T: Real, F: Formula> Tracer<T, F> {
         };
         let cone_cands = (bvh.is_some() && !per_ray)
             .then(|| ConeCands::new(&camera, cylinders, &order, projected));
+        let wide = bvh.as_ref().filter(|_| per_ray).map(WideBvh::new);
         let t0 = std::time::Instant::now();
         let mut prepared = Vec::with_capacity(order.len());
         huge_pages(&prepared);
@@ -239,6 +243,7 @@ impl<T: Real, F: Formula> Tracer<T, F> {
             prepared,
             order,
             bvh,
+            wide,
             tiles,
             cone_cands,
             _formula: std::marker::PhantomData,
@@ -289,22 +294,42 @@ impl<T: Real, F: Formula> Tracer<T, F> {
     /// [`Camera::dir_and_length`] and [`Camera::clip_range`], the same bits as the tiles'.
     #[inline]
     pub fn trace_within(&self, d: DVec3, tmin: f64, tmax: f64) -> Option<PixelHit<T>> {
+        self.trace_with((), &mut Stack::default(), d, tmin, tmax)
+    }
+
+    /// [`Tracer::trace_within`] with the box test `slabs` (portable or AVX2: the same
+    /// answer) and a traversal stack the caller reuses from ray to ray.
+    #[inline(always)]
+    fn trace_with<S: Slabs8>(
+        &self,
+        slabs: S,
+        stack: &mut Stack,
+        d: DVec3,
+        tmin: f64,
+        tmax: f64,
+    ) -> Option<PixelHit<T>> {
         let (tmin_t, tmax_t) = (T::from_f64(tmin), T::from_f64(tmax));
         let dt = T::v3(d);
         let mut best = None;
-        match &self.bvh {
-            Some(bvh) => {
-                let d32 = Vec3A::new(d.x as f32, d.y as f32, d.z as f32);
-                // With a BVH there are no tiles and slots are the BVH's positions.
+        let d32 = Vec3A::new(d.x as f32, d.y as f32, d.z as f32);
+        // Visit a slot (with a BVH, slots are its positions); a closer hit returns the
+        // new pruning bound, rounded up so a tie is still visited.
+        let mut visit = |slot| {
+            self.consider(slot, dt, tmin_t, tmax_t, &mut best)
+                .then(|| f32_up(best.map_or(tmax, |b| b.hit.t.to_f64())))
+        };
+        match (&self.wide, &self.bvh) {
+            (Some(wide), _) => {
                 debug_assert!(self.tiles.is_none());
-                bvh.traverse(d32, f32_down(tmin), f32_up(tmax), |slot| {
-                    self.consider(slot, dt, tmin_t, tmax_t, &mut best)
-                        .then(|| f32_up(best.map_or(tmax, |b| b.hit.t.to_f64())))
-                });
+                wide.traverse(slabs, stack, d32, f32_down(tmin), f32_up(tmax), visit);
             }
-            None => {
+            (None, Some(bvh)) => {
+                debug_assert!(self.tiles.is_none());
+                bvh.traverse(d32, f32_down(tmin), f32_up(tmax), visit);
+            }
+            (None, None) => {
                 for slot in 0..self.prepared.len() as u32 {
-                    self.consider(slot, dt, tmin_t, tmax_t, &mut best);
+                    visit(slot);
                 }
             }
         }
@@ -794,11 +819,12 @@ fn render_band<T: Real, F: PacketFormula, W: Wide<T>>(
             }
         }
         _ => {
+            let mut stack = Stack::default();
             for k in 0..rows * w {
                 let (i, j) = (k % w, row0 + k / w);
                 let (d, len) = cam.dir_and_length(fr.cols_off[i], fr.rows_off[j]);
                 let (tmin, tmax) = cam.clip_range(len);
-                if let Some(hit) = tracer.trace_within(d, tmin, tmax) {
+                if let Some(hit) = tracer.trace_with(tok, &mut stack, d, tmin, tmax) {
                     shade(fr, band, k, d, hit);
                     hits += 1;
                 }
