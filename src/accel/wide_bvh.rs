@@ -1,12 +1,12 @@
 //! The eight-wide BVH that rays of any direction traverse one at a time.
 //!
 //! Collapsed from the binary tree of [`Bvh`]: each wide node takes up to eight of the
-//! binary tree's nodes below it, opening the one of largest surface area first (as
-//! Embree collapses its binary builds), and opens leaves down to their cylinders, so a
+//! binary tree's nodes below it, opening the one of largest surface area first (the
+//! rule of Embree's wide builders), and opens leaves down to their cylinders, so a
 //! lane holds either a subtree or one cylinder's own box. A node stores its eight boxes
 //! as six rows of eight f32 (min x, y, z, max x, y, z), so one ray meets all eight in a
-//! handful of vector operations ([`Slabs8`]: AVX registers with an [`Avx2`] token, the
-//! same operations lane by lane without one).
+//! handful of vector operations (in AVX registers when the run-time check found AVX2,
+//! else the same operations lane by lane: the same lanes either way).
 //!
 //! Traversal is ordered: the lanes a ray meets go on the stack sorted by entry distance,
 //! nearest on top, and an entry whose distance is beyond the best hit found since it was
@@ -17,8 +17,6 @@
 //! f32 and padded (see [`bvh`](super::bvh)), and the exit distance is widened by pbrt's
 //! `1 + 2γ₃`, so the test stays conservative: a cylinder whose exact box the ray meets
 //! within `[tmin, tmax]` is visited.
-//!
-//! [`Avx2`]: crate::geometry::wide::Avx2
 
 use super::bvh::{Bvh, MAX_DEPTH};
 use crate::geometry::wide::{SlabRay, Slabs8};
@@ -74,7 +72,7 @@ pub struct WideBvh {
     depth: usize,
 }
 
-/// The traversal stack of a [`WideBvh`]: pending lanes as [`key`]s. Kept by the caller
+/// The traversal stack of a [`WideBvh`]: pending lanes as `key`s. Kept by the caller
 /// and reused from ray to ray (4 KiB: clearing one per ray would cost more than many a
 /// ray's traversal).
 pub struct Stack(Box<[u64; STACK]>);
@@ -124,28 +122,28 @@ impl WideBvh {
     fn collapse(&mut self, bvh: &Bvh, b: u32, depth: usize) -> u32 {
         self.depth = self.depth.max(depth);
         let nodes = &bvh.nodes;
-        // Lanes a binary node takes when opened: its two children, or its cylinders.
-        let opened = |k: u32| {
-            let n = &nodes[k as usize];
-            if n.count > 0 { n.count as usize } else { 2 }
-        };
+        // Per lane: what it holds and, for a binary node, its surface area (+inf for `b`,
+        // so it is opened first) and the lanes it takes when opened (its two children or
+        // its cylinders).
         let mut slots = [Slot::Node(b); WIDTH];
+        let mut keys = [(f32::INFINITY, 0usize); WIDTH];
+        let weigh = |k: u32| {
+            let n = &nodes[k as usize];
+            let e = (n.max - n.min).max(Vec3A::ZERO);
+            let lanes = if n.count > 0 { n.count as usize } else { 2 };
+            (e.x * e.y + e.y * e.z + e.z * e.x, lanes)
+        };
+        keys[0].1 = weigh(b).1;
         let mut len = 1;
-        // Open the largest-area binary node that still fits, until none does (`b` itself
-        // always does: two children, or at most eight cylinders).
+        // Open the largest binary node that still fits, until none does (`b` itself always
+        // does: two children, or at most eight cylinders).
         loop {
             let mut best: Option<(usize, f32)> = None;
-            for (i, s) in slots[..len].iter().enumerate() {
-                if let Slot::Node(k) = *s {
-                    let n = &nodes[k as usize];
-                    let fits = len - 1 + opened(k) <= WIDTH;
-                    let e = (n.max - n.min).max(Vec3A::ZERO);
-                    let area = e.x * e.y + e.y * e.z + e.z * e.x;
-                    // `b` first, whatever its area; then the largest.
-                    let key = if k == b { f32::INFINITY } else { area };
-                    if fits && best.is_none_or(|(_, a)| key > a) {
-                        best = Some((i, key));
-                    }
+            for i in 0..len {
+                let (area, lanes) = keys[i];
+                let open = matches!(slots[i], Slot::Node(_)) && len - 1 + lanes <= WIDTH;
+                if open && best.is_none_or(|(_, a)| area > a) {
+                    best = Some((i, area));
                 }
             }
             let Some((i, _)) = best else { break };
@@ -153,15 +151,16 @@ impl WideBvh {
                 unreachable!("only nodes are opened")
             };
             let n = nodes[k as usize];
-            let (first, rest): (Slot, Vec<Slot>) = if n.count > 0 {
-                let prims = n.offset..n.offset + n.count;
-                (Slot::Prim(n.offset), prims.skip(1).map(Slot::Prim).collect())
+            if n.count > 0 {
+                slots[i] = Slot::Prim(n.offset);
+                for p in n.offset + 1..n.offset + n.count {
+                    slots[len] = Slot::Prim(p);
+                    len += 1;
+                }
             } else {
-                (Slot::Node(n.offset), vec![Slot::Node(n.offset + 1)])
-            };
-            slots[i] = first;
-            for s in rest {
-                slots[len] = s;
+                let (l, r) = (n.offset, n.offset + 1);
+                (slots[i], keys[i]) = (Slot::Node(l), weigh(l));
+                (slots[len], keys[len]) = (Slot::Node(r), weigh(r));
                 len += 1;
             }
         }
@@ -301,7 +300,7 @@ mod tests {
     use crate::rng::SplitMix64;
     use glam::DVec3;
 
-    /// What a traversal visits along `d` from `o` (positions, sorted), with no pruning.
+    /// What a traversal visits along `d` (positions, sorted), with no pruning.
     fn wide_visits<S: Slabs8>(w: &WideBvh, s: S, d: Vec3A, tmin: f32, tmax: f32) -> Vec<u32> {
         let mut found = vec![];
         w.traverse(s, &mut Stack::default(), d, tmin, tmax, |p| {
@@ -338,6 +337,29 @@ mod tests {
             .collect()
     }
 
+    /// The positions of the boxes a brute-force f64 slab test finds along `d` from
+    /// `origin` within `range`, clearly (not at a touching corner: every traversal must
+    /// report these).
+    fn clearly_met(
+        bvh: &Bvh,
+        boxes: &[(DVec3, DVec3)],
+        origin: DVec3,
+        d: DVec3,
+        (tmin, tmax): (f64, f64),
+    ) -> Vec<u32> {
+        let mut met = vec![];
+        for (pos, &i) in bvh.order().iter().enumerate() {
+            let (lo, hi) = boxes[i as usize];
+            let (t1, t2) = ((lo - origin) / d, (hi - origin) / d);
+            let near = t1.min(t2).max_element().max(tmin);
+            let far = t1.max(t2).min_element().min(tmax);
+            if near < far * (1.0 - 1e-9) {
+                met.push(pos as u32);
+            }
+        }
+        met
+    }
+
     /// Every box a brute-force f64 slab test finds clearly (not at a touching corner), the
     /// wide traversal visits, portable and AVX2 alike; and it visits exactly what the
     /// binary tree's traversal visits (the same f32 test on the same leaf boxes), for rays
@@ -350,26 +372,32 @@ mod tests {
         let mut rays = 0;
         // From outside the cloud, and from the centres of two boxes (inside a few).
         let centre = |(lo, hi): (DVec3, DVec3)| (lo + hi) * 0.5;
-        for origin in [DVec3::new(26.0, -30.0, 18.0), centre(boxes[0]), centre(boxes[1])] {
+        for origin in [
+            DVec3::new(26.0, -30.0, 18.0),
+            centre(boxes[0]),
+            centre(boxes[1]),
+        ] {
             let bvh = Bvh::build(&boxes, origin);
             let wide = WideBvh::new(&bvh);
             for k in 0..1500 {
                 let d = rng.unit_vector();
-                let (tmin, tmax) = if k % 3 == 0 { (0.5, 12.0) } else { (0.0, f32::INFINITY) };
+                let (tmin, tmax) = if k % 3 == 0 {
+                    (0.5, 12.0)
+                } else {
+                    (0.0, f32::INFINITY)
+                };
                 let d32 = d.as_vec3().into();
                 let w = wide_visits(&wide, (), d32, tmin, tmax);
                 assert_eq!(w, binary_visits(&bvh, d32, tmin, tmax), "d = {d:?}");
                 if let Some(tok) = Avx2::detect() {
-                    assert_eq!(w, wide_visits(&wide, tok, d32, tmin, tmax), "AVX2, d = {d:?}");
+                    assert_eq!(
+                        w,
+                        wide_visits(&wide, tok, d32, tmin, tmax),
+                        "AVX2, d = {d:?}"
+                    );
                 }
-                for (i, &(lo, hi)) in boxes.iter().enumerate() {
-                    let (t1, t2) = ((lo - origin) / d, (hi - origin) / d);
-                    let near = t1.min(t2).max_element().max(tmin as f64);
-                    let far = t1.max(t2).min_element().min(tmax as f64);
-                    if near < far * (1.0 - 1e-9) {
-                        let pos = bvh.order().iter().position(|&j| j == i as u32).unwrap();
-                        assert!(w.binary_search(&(pos as u32)).is_ok(), "box {i}, d = {d:?}");
-                    }
+                for pos in clearly_met(&bvh, &boxes, origin, d, (tmin as f64, tmax as f64)) {
+                    assert!(w.binary_search(&pos).is_ok(), "position {pos}, d = {d:?}");
                 }
                 rays += 1;
             }
@@ -401,19 +429,16 @@ mod tests {
                 (near <= far * GROW).then_some(near)
             };
             let brute = (0..boxes.len() as u32).filter_map(entry).reduce(f32::min);
-            let nearest = |go: &mut dyn FnMut(&mut dyn FnMut(u32) -> Option<f32>)| {
-                let mut best: Option<f32> = None;
-                go(&mut |p| {
-                    let t = entry(p)?;
-                    (best.is_none_or(|b| t < b)).then(|| {
-                        best = Some(t);
-                        t
-                    })
-                });
-                best
+            // Each visit reports a hit at the box's entry when it is the nearest so far.
+            let (mut w, mut b) = (None::<f32>, None::<f32>);
+            let closer = |best: &mut Option<f32>, p: u32| {
+                let t = entry(p)?;
+                best.is_none_or(|b| t < b).then(|| *best.insert(t))
             };
-            let w = nearest(&mut |v| wide.traverse((), &mut Stack::default(), d32, 0.0, f32::INFINITY, v));
-            let b = nearest(&mut |v| bvh.traverse(d32, 0.0, f32::INFINITY, v));
+            wide.traverse((), &mut Stack::default(), d32, 0.0, f32::INFINITY, |p| {
+                closer(&mut w, p)
+            });
+            bvh.traverse(d32, 0.0, f32::INFINITY, |p| closer(&mut b, p));
             assert_eq!(w, brute, "d = {d:?}");
             assert_eq!(b, brute, "d = {d:?}");
             hits += w.is_some() as usize;
@@ -437,11 +462,27 @@ mod tests {
         let bvh = Bvh::build(&boxes, DVec3::ZERO);
         let wide = WideBvh::new(&bvh);
         assert!(bvh.depth() > 30, "binary depth {}", bvh.depth());
-        assert!(wide.depth() <= bvh.depth(), "wide {} binary {}", wide.depth(), bvh.depth());
-        for d in [Vec3A::X, -Vec3A::X, Vec3A::new(1.0, 1e-7, 0.0).normalize()] {
-            let w = wide_visits(&wide, (), d, 0.0, f32::INFINITY);
-            assert_eq!(w, binary_visits(&bvh, d, 0.0, f32::INFINITY));
-            assert!(w.len() > 220, "{} boxes along {d}", w.len());
+        assert!(
+            wide.depth() <= bvh.depth(),
+            "wide {} binary {}",
+            wide.depth(),
+            bvh.depth()
+        );
+        // Along ±x every box of that side lies on the ray; tilted by 1e-7 the ray leaves
+        // the boxes' |y| <= 1 near x = 1e7, past 165 of them.
+        for (d, least) in [
+            (DVec3::X, 220),
+            (-DVec3::X, 220),
+            (DVec3::new(1.0, 1e-7, 0.0), 160),
+        ] {
+            let d = d.normalize();
+            let d32: Vec3A = d.as_vec3().into();
+            let w = wide_visits(&wide, (), d32, 0.0, f32::INFINITY);
+            assert_eq!(w, binary_visits(&bvh, d32, 0.0, f32::INFINITY));
+            assert!(w.len() > least, "{} boxes along {d}", w.len());
+            for pos in clearly_met(&bvh, &boxes, DVec3::ZERO, d, (0.0, f64::INFINITY)) {
+                assert!(w.binary_search(&pos).is_ok(), "position {pos}, d = {d:?}");
+            }
         }
     }
 

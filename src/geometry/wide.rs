@@ -232,7 +232,13 @@ impl SlabRay {
     #[inline(always)]
     pub(crate) fn new(d: [f32; 3], tmin: f32, grow: f32) -> SlabRay {
         // A zero component would make 0·inf = NaN on a face plane; clamp to a huge slope.
-        let inv = d.map(|x| 1.0 / if x.abs() < 1e-30 { 1e-30f32.copysign(x) } else { x });
+        let inv = d.map(|x| {
+            1.0 / if x.abs() < 1e-30 {
+                1e-30f32.copysign(x)
+            } else {
+                x
+            }
+        });
         // A ray going towards -x enters a box by its max x face, and so on.
         let neg = inv.map(|x| (x < 0.0) as usize);
         SlabRay {
@@ -266,7 +272,10 @@ impl Slabs8 for () {
             let t = |row: usize, a: usize| planes[row][l] * ray.inv[a];
             let (n, f) = (ray.near_row, ray.far_row);
             let enter = max(max(t(n[0], 0), t(n[1], 1)), max(t(n[2], 2), ray.tmin));
-            let leave = min(min(min(t(f[0], 0), t(f[1], 1)), t(f[2], 2)) * ray.grow, tmax);
+            let leave = min(
+                min(min(t(f[0], 0), t(f[1], 1)), t(f[2], 2)) * ray.grow,
+                tmax,
+            );
             near[l] = enter;
             bits |= ((enter <= leave) as u8) << l;
         }
