@@ -258,7 +258,9 @@ impl Bvh {
             return Some((node, n / 2));
         }
         let scale = BINS as f32 / extent[axis];
-        let bin_of = |c: Vec3A| (((c[axis] - cmin[axis]) * scale) as usize).min(BINS - 1);
+        // `to_array()[axis]` rather than `c[axis]`: glam's index is a match per call.
+        let low = cmin.to_array()[axis];
+        let bin_of = |c: Vec3A| (((c.to_array()[axis] - low) * scale) as usize).min(BINS - 1);
         let mut bins = [(
             0usize,
             Vec3A::splat(f32::INFINITY),
