@@ -329,9 +329,10 @@ impl<T: Real, F: Formula> Tracer<T, F> {
         let tmax = best.map_or(tmax, |b: PixelHit<T>| b.hit.t.to_f64());
         let d32 = Vec3A::new(d.x as f32, d.y as f32, d.z as f32);
         // Visit a slot (with a BVH, slots are its positions); a closer hit returns the
-        // new pruning bound, rounded up so a tie is still visited.
+        // new pruning bound, rounded up so a tie is still visited. The hint is tested
+        // already: again it would give the same hit, not nearer than itself, or none.
         let mut visit = |slot| {
-            self.consider(slot, dt, tmin_t, tmax_t, &mut best)
+            (hint != Some(slot) && self.consider(slot, dt, tmin_t, tmax_t, &mut best))
                 .then(|| f32_up(best.map_or(tmax, |b| b.hit.t.to_f64())))
         };
         match (&self.wide, &self.bvh) {
