@@ -1,4 +1,6 @@
 //! A compact bounding-volume hierarchy over cylinder boxes: binned SAH build, f32 boxes.
+//! The cone walk reads it as it is; per-ray traversal reads its eight-wide collapse
+//! ([`WideBvh`](super::wide_bvh::WideBvh)) except in views of very few pixels.
 //!
 //! Boxes are stored relative to the ray origin of the render (the camera), rounded outward
 //! and padded, so the f32 slab test stays conservative even for scenes far from the world

@@ -7,6 +7,11 @@
 //! first, and stopping once every pixel's best hit is nearer than the next node
 //! ([`ConeWalk`]): the cost then follows what is visible, not what is listed. Either
 //! way each candidate is rasterised over just the pixels its projection can cover.
+//!
+//! One traversal per ray (`--accel bvh`, and views of far fewer pixels than cylinders)
+//! goes through the eight-wide tree ([`WideBvh`]; the binary one when there are fewer
+//! than a quarter as many pixels as cylinders, too few rays to repay collapsing it),
+//! after testing the cylinder the previous pixel hit, whose hit bounds the traversal.
 
 use crate::accel::bvh::{Bvh, Cone, ConeWalk};
 use crate::accel::tiles::{self, Candidate, TILE, Tiles};
@@ -33,7 +38,8 @@ pub enum Accel {
     /// The BVH walked once per tile with the tile's view cone, nearest first, stopping
     /// when everything left is behind the tile's hits (primary rays only).
     Frustum,
-    /// The BVH, one traversal per ray (works for any ray; kept to compare).
+    /// The BVH, one traversal per ray through its eight-wide form (works for any ray;
+    /// kept to compare).
     Bvh,
 }
 
