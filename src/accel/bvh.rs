@@ -1,4 +1,6 @@
 //! A compact bounding-volume hierarchy over cylinder boxes: binned SAH build, f32 boxes.
+//! The cone walk reads it as it is; per-ray traversal reads its eight-wide collapse
+//! ([`WideBvh`](super::wide_bvh::WideBvh)) except in views of very few pixels.
 //!
 //! Boxes are stored relative to the ray origin of the render (the camera), rounded outward
 //! and padded, so the f32 slab test stays conservative even for scenes far from the world
@@ -28,23 +30,23 @@ pub const MAX_DEPTH: usize = 64;
 const PARALLEL_MIN: usize = 8192;
 
 #[derive(Clone, Copy, Debug, PartialEq)]
-struct Node {
-    min: Vec3A,
-    max: Vec3A,
+pub(super) struct Node {
+    pub(super) min: Vec3A,
+    pub(super) max: Vec3A,
     /// Leaf: first index into `order`. Interior: index of the left child (right = +1).
-    offset: u32,
+    pub(super) offset: u32,
     /// Primitives in a leaf; 0 for an interior node.
-    count: u32,
+    pub(super) count: u32,
 }
 
 /// The hierarchy: nodes (root first) and the primitive order its leaves index.
 #[derive(Clone, Debug)]
 pub struct Bvh {
-    nodes: Vec<Node>,
+    pub(super) nodes: Vec<Node>,
     order: Vec<u32>,
     /// Each position's own box (min, max): a ray tests it before the cylinder, as a leaf's
     /// box bounds its cylinders loosely in a tangle of tilted ones.
-    boxes: Vec<[Vec3A; 2]>,
+    pub(super) boxes: Vec<[Vec3A; 2]>,
 }
 
 /// Round `x - o` to f32 toward -inf (`down`) or +inf and pad by a relative 1e-6, so the box
@@ -258,7 +260,9 @@ impl Bvh {
             return Some((node, n / 2));
         }
         let scale = BINS as f32 / extent[axis];
-        let bin_of = |c: Vec3A| (((c[axis] - cmin[axis]) * scale) as usize).min(BINS - 1);
+        // `to_array()[axis]` rather than `c[axis]`: glam's index is a match per call.
+        let low = cmin.to_array()[axis];
+        let bin_of = |c: Vec3A| (((c.to_array()[axis] - low) * scale) as usize).min(BINS - 1);
         let mut bins = [(
             0usize,
             Vec3A::splat(f32::INFINITY),

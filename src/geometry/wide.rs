@@ -21,8 +21,9 @@ pub(crate) trait Wide<T>:
     + Neg<Output = Self>
 {
     /// What building a value takes: nothing for [`Lanes`], an [`Avx2`] token for the AVX
-    /// forms, so AVX values exist only where the CPU was checked.
-    type Token: Copy;
+    /// forms, so AVX values exist only where the CPU was checked. The token also tests
+    /// eight boxes at once ([`Slabs8`]) in the same registers.
+    type Token: Slabs8;
     /// A lane mask, as produced by the comparisons.
     type Mask: Copy
         + BitAnd<Output = Self::Mask>
@@ -204,6 +205,81 @@ impl Avx2 {
     #[cfg(target_arch = "x86_64")]
     pub(crate) unsafe fn new_unchecked() -> Avx2 {
         Avx2(())
+    }
+}
+
+/// One ray as the eight-box slab test reads it: per axis the reciprocal direction and
+/// which rows of a node's planes are the near and the far face (the ray's sign picks them,
+/// so `near <= far` per axis without a min/max, and an empty lane, +inf..-inf, is a miss
+/// whatever the sign). Made only by [`SlabRay::new`], so every row index is below 6.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct SlabRay {
+    /// `1/d` per axis, never 0, infinite or NaN.
+    inv: [f32; 3],
+    /// Per axis, the row of the plane the ray enters by: `axis` (min) or `axis + 3` (max).
+    near_row: [usize; 3],
+    /// Per axis, the row it leaves by.
+    far_row: [usize; 3],
+    /// The segment's start: no entry is reported before it.
+    tmin: f32,
+    /// The factor that widens each exit distance to cover the products' rounding.
+    grow: f32,
+}
+
+impl SlabRay {
+    /// The ray `t·d` from the boxes' origin, entries reported from `tmin` on, exits
+    /// widened by the factor `grow`.
+    #[inline(always)]
+    pub(crate) fn new(d: [f32; 3], tmin: f32, grow: f32) -> SlabRay {
+        // A zero component would make 0·inf = NaN on a face plane; clamp to a huge slope.
+        let inv = d.map(|x| {
+            1.0 / if x.abs() < 1e-30 {
+                1e-30f32.copysign(x)
+            } else {
+                x
+            }
+        });
+        // A ray going towards -x enters a box by its max x face, and so on.
+        let neg = inv.map(|x| (x < 0.0) as usize);
+        SlabRay {
+            inv,
+            near_row: [3 * neg[0], 1 + 3 * neg[1], 2 + 3 * neg[2]],
+            far_row: [3 - 3 * neg[0], 4 - 3 * neg[1], 5 - 3 * neg[2]],
+            tmin,
+            grow,
+        }
+    }
+}
+
+/// The slab test of eight boxes against one ray at once, portable (`()`) or in AVX
+/// registers ([`Avx2`]). Both perform the same IEEE operations per lane (products,
+/// ordered max and min, one product by `grow`), so they report the same lanes and
+/// entry distances.
+pub(crate) trait Slabs8: Copy {
+    /// For boxes `planes` (rows min x, y, z, max x, y, z; lane `l` is box `l`): bit `l`
+    /// set where the ray meets box `l` within `[ray.tmin, tmax]`, and in `near[l]` its
+    /// entry distance `max(tmin, near face · inv over the axes)`.
+    fn slabs8(self, planes: &[[f32; 8]; 6], ray: &SlabRay, tmax: f32, near: &mut [f32; 8]) -> u8;
+}
+
+impl Slabs8 for () {
+    #[inline(always)]
+    fn slabs8(self, planes: &[[f32; 8]; 6], ray: &SlabRay, tmax: f32, near: &mut [f32; 8]) -> u8 {
+        let max = |a: f32, b: f32| if a > b { a } else { b };
+        let min = |a: f32, b: f32| if a < b { a } else { b };
+        let mut bits = 0u8;
+        for l in 0..8 {
+            let t = |row: usize, a: usize| planes[row][l] * ray.inv[a];
+            let (n, f) = (ray.near_row, ray.far_row);
+            let enter = max(max(t(n[0], 0), t(n[1], 1)), max(t(n[2], 2), ray.tmin));
+            let leave = min(
+                min(min(t(f[0], 0), t(f[1], 1)), t(f[2], 2)) * ray.grow,
+                tmax,
+            );
+            near[l] = enter;
+            bits |= ((enter <= leave) as u8) << l;
+        }
+        bits
     }
 }
 
@@ -461,6 +537,49 @@ mod avx {
         #[inline(always)]
         fn le_bits(_: Avx2, x: f64, a: &[f64; LANES]) -> u8 {
             le_bits_avx(x, a)
+        }
+    }
+
+    impl super::Slabs8 for Avx2 {
+        #[inline(always)]
+        fn slabs8(
+            self,
+            planes: &[[f32; 8]; 6],
+            ray: &super::SlabRay,
+            tmax: f32,
+            near: &mut [f32; 8],
+        ) -> u8 {
+            // SAFETY: the token proves AVX2; each load reads one row of 8 f32 of `planes`
+            // (a row index of a `SlabRay` is below 6), the store writes the 8 f32 of `near`
+            // (all unaligned forms). No closure calls an intrinsic: they must inline into
+            // the AVX2 code this is inlined into.
+            unsafe {
+                let (n, f) = (ray.near_row, ray.far_row);
+                let (ix, iy, iz) = (
+                    _mm256_set1_ps(ray.inv[0]),
+                    _mm256_set1_ps(ray.inv[1]),
+                    _mm256_set1_ps(ray.inv[2]),
+                );
+                // Rows below 6 (`SlabRay::new` makes every index), so in bounds.
+                let row = |r: usize| planes.get_unchecked(r).as_ptr();
+                let nx = _mm256_mul_ps(_mm256_loadu_ps(row(n[0])), ix);
+                let ny = _mm256_mul_ps(_mm256_loadu_ps(row(n[1])), iy);
+                let nz = _mm256_mul_ps(_mm256_loadu_ps(row(n[2])), iz);
+                let fx = _mm256_mul_ps(_mm256_loadu_ps(row(f[0])), ix);
+                let fy = _mm256_mul_ps(_mm256_loadu_ps(row(f[1])), iy);
+                let fz = _mm256_mul_ps(_mm256_loadu_ps(row(f[2])), iz);
+                let enter = _mm256_max_ps(
+                    _mm256_max_ps(nx, ny),
+                    _mm256_max_ps(nz, _mm256_set1_ps(ray.tmin)),
+                );
+                let leave = _mm256_min_ps(_mm256_min_ps(fx, fy), fz);
+                let leave = _mm256_min_ps(
+                    _mm256_mul_ps(leave, _mm256_set1_ps(ray.grow)),
+                    _mm256_set1_ps(tmax),
+                );
+                _mm256_storeu_ps(near.as_mut_ptr(), enter);
+                _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(enter, leave)) as u8
+            }
         }
     }
 }

@@ -1,0 +1,500 @@
+//! The eight-wide BVH that rays of any direction traverse one at a time.
+//!
+//! Collapsed from the binary tree of [`Bvh`]: each wide node takes up to eight of the
+//! binary tree's nodes below it, opening the one of largest surface area first (the
+//! rule of Embree's wide builders), and opens leaves down to their cylinders, so a
+//! lane holds either a subtree or one cylinder's own box. A node stores its eight boxes
+//! as six rows of eight f32 (min x, y, z, max x, y, z), so one ray meets all eight in a
+//! handful of vector operations (in AVX registers when the run-time check found AVX2,
+//! else the same operations lane by lane: the same lanes either way).
+//!
+//! Traversal is ordered: the lanes a ray meets go on the stack sorted by entry distance,
+//! nearest on top, and an entry whose distance is beyond the best hit found since it was
+//! pushed is dropped when popped, so cylinders are tested nearest box first and whole
+//! subtrees behind the hit are never opened.
+//!
+//! The boxes are the binary tree's: relative to the render's origin, rounded outward to
+//! f32 and padded (see [`bvh`](super::bvh)), and the exit distance is widened by pbrt's
+//! `1 + 2γ₃`, so the test stays conservative: a cylinder whose exact box the ray meets
+//! within `[tmin, tmax]` is visited.
+
+use super::bvh::{Bvh, MAX_DEPTH};
+use crate::geometry::wide::{SlabRay, Slabs8};
+use glam::Vec3A;
+
+/// Lanes of a node.
+pub const WIDTH: usize = 8;
+/// A binary leaf holds at most `2 · LEAF_SIZE` cylinders (the build's SAH leaf rule), so
+/// one wide node can always open it down to its cylinders.
+const _: () = assert!(2 * super::bvh::LEAF_SIZE <= WIDTH);
+/// A lane's child with this bit set is a cylinder (its position in [`Bvh::order`]),
+/// else a node index. Positions and node indices stay below 2³¹ for any scene that fits
+/// in memory (a node takes 224 bytes, a cylinder more than 64).
+const PRIM: u32 = 1 << 31;
+/// Entries of the traversal stack. A node at wide depth `k` is popped with at most `7k`
+/// entries below it (each ancestor pushed at most eight lanes, one of them on the path)
+/// and pushes at most eight, so `7·D + 8` entries suffice for a tree of depth `D`. Each
+/// wide level descends at least one binary level and the binary tree's leaves lie less
+/// than [`MAX_DEPTH`] levels down, so `D < MAX_DEPTH` and `8 · MAX_DEPTH` is enough.
+pub const STACK: usize = 8 * MAX_DEPTH;
+
+/// pbrt's 1 + 2γ₃: the f32 slab test's exit distance widened by its rounding.
+const GROW: f32 = 1.0 + 2.0 * 3.0 * f32::EPSILON;
+
+/// Eight child boxes and what they hold. An empty lane's box is `+inf..-inf`: every ray
+/// enters it at +inf or later than it leaves, so it is never met.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[repr(C, align(32))]
+struct Node8 {
+    /// Rows min x, min y, min z, max x, max y, max z; lane `l` is child `l`'s box.
+    planes: [[f32; WIDTH]; 6],
+    /// Per lane: a node index, or [`PRIM`] | a position in [`Bvh::order`].
+    child: [u32; WIDTH],
+}
+
+const EMPTY: Node8 = Node8 {
+    planes: [
+        [f32::INFINITY; WIDTH],
+        [f32::INFINITY; WIDTH],
+        [f32::INFINITY; WIDTH],
+        [f32::NEG_INFINITY; WIDTH],
+        [f32::NEG_INFINITY; WIDTH],
+        [f32::NEG_INFINITY; WIDTH],
+    ],
+    child: [0; WIDTH],
+};
+
+/// The wide tree over a [`Bvh`]'s boxes: root first, positions as in [`Bvh::order`].
+#[derive(Clone, Debug)]
+pub struct WideBvh {
+    nodes: Vec<Node8>,
+    /// Wide levels below the root of the deepest node.
+    depth: usize,
+}
+
+/// The traversal stack of a [`WideBvh`]: pending lanes as `key`s. Kept by the caller
+/// and reused from ray to ray (4 KiB: clearing one per ray would cost more than many a
+/// ray's traversal).
+pub struct Stack(Box<[u64; STACK]>);
+
+impl Default for Stack {
+    fn default() -> Self {
+        Stack(Box::new([0; STACK]))
+    }
+}
+
+/// A lane as one integer: its entry distance's bits above its child. Entry distances are
+/// never negative or NaN (at least `tmin >= 0`, and the slab maximum turns a -0 into
+/// `tmin`'s +0), and the bits of such floats order as the floats do, so keys compare as
+/// (entry, child) pairs in one integer comparison.
+#[inline(always)]
+fn key(child: u32, enter: f32) -> u64 {
+    ((enter.to_bits() as u64) << 32) | child as u64
+}
+
+/// What a wide node's lane takes from the binary tree while the node is being filled.
+#[derive(Clone, Copy)]
+enum Slot {
+    /// A binary node, opened later into a wide node of its own.
+    Node(u32),
+    /// One cylinder, by position.
+    Prim(u32),
+}
+
+impl WideBvh {
+    /// Collapse `bvh` into eight-wide nodes.
+    pub fn new(bvh: &Bvh) -> WideBvh {
+        let mut wide = WideBvh {
+            nodes: Vec::new(),
+            depth: 0,
+        };
+        if !bvh.order().is_empty() {
+            wide.nodes.reserve(bvh.node_count() / 3 + 1);
+            wide.collapse(bvh, 0, 0);
+        }
+        // The stack bound above: the binary build guarantees it; a failure is a bug here.
+        assert!(wide.depth < MAX_DEPTH, "wide depth {}", wide.depth);
+        wide
+    }
+
+    /// Make the wide node of binary node `b` (at wide depth `depth`) and its subtrees;
+    /// returns its index.
+    fn collapse(&mut self, bvh: &Bvh, b: u32, depth: usize) -> u32 {
+        self.depth = self.depth.max(depth);
+        let nodes = &bvh.nodes;
+        // Per lane: what it holds and, for a binary node, its surface area (+inf for `b`,
+        // so it is opened first) and the lanes it takes when opened (its two children or
+        // its cylinders).
+        let mut slots = [Slot::Node(b); WIDTH];
+        let mut keys = [(f32::INFINITY, 0usize); WIDTH];
+        let weigh = |k: u32| {
+            let n = &nodes[k as usize];
+            let e = (n.max - n.min).max(Vec3A::ZERO);
+            let lanes = if n.count > 0 { n.count as usize } else { 2 };
+            (e.x * e.y + e.y * e.z + e.z * e.x, lanes)
+        };
+        keys[0].1 = weigh(b).1;
+        let mut len = 1;
+        // Open the largest binary node that still fits, until none does (`b` itself always
+        // does: two children, or at most eight cylinders).
+        loop {
+            let mut best: Option<(usize, f32)> = None;
+            for i in 0..len {
+                let (area, lanes) = keys[i];
+                let open = matches!(slots[i], Slot::Node(_)) && len - 1 + lanes <= WIDTH;
+                if open && best.is_none_or(|(_, a)| area > a) {
+                    best = Some((i, area));
+                }
+            }
+            let Some((i, _)) = best else { break };
+            let Slot::Node(k) = slots[i] else {
+                unreachable!("only nodes are opened")
+            };
+            let n = nodes[k as usize];
+            if n.count > 0 {
+                slots[i] = Slot::Prim(n.offset);
+                for p in n.offset + 1..n.offset + n.count {
+                    slots[len] = Slot::Prim(p);
+                    len += 1;
+                }
+            } else {
+                let (l, r) = (n.offset, n.offset + 1);
+                (slots[i], keys[i]) = (Slot::Node(l), weigh(l));
+                (slots[len], keys[len]) = (Slot::Node(r), weigh(r));
+                len += 1;
+            }
+        }
+        let at = self.nodes.len();
+        self.nodes.push(EMPTY);
+        let mut node = EMPTY;
+        for (l, s) in slots[..len].iter().enumerate() {
+            let (min, max, child) = match *s {
+                Slot::Node(k) => {
+                    let n = &nodes[k as usize];
+                    (n.min, n.max, self.collapse(bvh, k, depth + 1))
+                }
+                Slot::Prim(p) => {
+                    let [min, max] = bvh.boxes[p as usize];
+                    (min, max, PRIM | p)
+                }
+            };
+            for a in 0..3 {
+                node.planes[a][l] = min[a];
+                node.planes[a + 3][l] = max[a];
+            }
+            node.child[l] = child;
+        }
+        self.nodes[at] = node;
+        at as u32
+    }
+
+    /// Wide levels below the root of the deepest node.
+    pub fn depth(&self) -> usize {
+        self.depth
+    }
+
+    /// Number of nodes (for statistics).
+    pub fn node_count(&self) -> usize {
+        self.nodes.len()
+    }
+
+    /// Visit the cylinders whose boxes the ray `t·d` (origin at the build origin) meets
+    /// within `[tmin, tmax]`, nearest box first, as [`Bvh::traverse`] does: `visit(position)`
+    /// gets the position in [`Bvh::order`] and returns a new, smaller `tmax` when it found
+    /// a closer hit. `slabs` is `()` or an AVX2 token: the same lanes either way.
+    #[inline(always)]
+    pub(crate) fn traverse<S: Slabs8>(
+        &self,
+        slabs: S,
+        stack: &mut Stack,
+        d: Vec3A,
+        tmin: f32,
+        mut tmax: f32,
+        mut visit: impl FnMut(u32) -> Option<f32>,
+    ) {
+        if self.nodes.is_empty() {
+            return;
+        }
+        let ray = SlabRay::new(d.to_array(), tmin, GROW);
+        let st = &mut *stack.0;
+        let mut sp = 0;
+        let mut current = 0u32;
+        // Keys above this have an entry beyond tmax (see `key`; tmax >= 0 when the ray
+        // can meet anything).
+        let mut beyond = key(u32::MAX, tmax.max(0.0));
+        'nodes: loop {
+            let node = &self.nodes[current as usize];
+            let mut enter = [0f32; WIDTH];
+            let mut met = slabs.slabs8(&node.planes, &ray, tmax, &mut enter);
+            // The lane to take next, if any: the only one met, the nearer of two (the
+            // other pushed), or the nearest of more, all pushed sorted so the nearest is on
+            // top (ties by child: the same order on every path).
+            let mut next = None;
+            if met != 0 {
+                let a = met.trailing_zeros() as usize & 7;
+                met &= met - 1;
+                let ka = key(node.child[a], enter[a]);
+                if met == 0 {
+                    next = Some(ka);
+                } else {
+                    let b = met.trailing_zeros() as usize & 7;
+                    met &= met - 1;
+                    let kb = key(node.child[b], enter[b]);
+                    let (near, far) = (ka.min(kb), ka.max(kb));
+                    st[sp] = far;
+                    sp += 1;
+                    if met == 0 {
+                        next = Some(near);
+                    } else {
+                        let base = sp - 1;
+                        st[sp] = near;
+                        sp += 1;
+                        while met != 0 {
+                            let l = met.trailing_zeros() as usize & 7;
+                            met &= met - 1;
+                            let e = key(node.child[l], enter[l]);
+                            let mut k = sp;
+                            while k > base && st[k - 1] < e {
+                                st[k] = st[k - 1];
+                                k -= 1;
+                            }
+                            st[k] = e;
+                            sp += 1;
+                        }
+                    }
+                }
+            }
+            // Take `next`, else pop, until a node to open: cylinders are visited on the
+            // way, entries whose box starts beyond the best hit dropped (pushed when their
+            // box reached past the best hit then; only tmax has moved).
+            loop {
+                let child = match next.take() {
+                    // Just met within the current tmax.
+                    Some(k) => k as u32,
+                    None if sp == 0 => return,
+                    None => {
+                        sp -= 1;
+                        if st[sp] > beyond {
+                            continue;
+                        }
+                        st[sp] as u32
+                    }
+                };
+                if child & PRIM == 0 {
+                    current = child;
+                    continue 'nodes;
+                }
+                if let Some(t) = visit(child & !PRIM) {
+                    tmax = tmax.min(t);
+                    beyond = key(u32::MAX, tmax.max(0.0));
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::wide::Avx2;
+    use crate::rng::SplitMix64;
+    use glam::DVec3;
+
+    /// What a traversal visits along `d` (positions, sorted), with no pruning.
+    fn wide_visits<S: Slabs8>(w: &WideBvh, s: S, d: Vec3A, tmin: f32, tmax: f32) -> Vec<u32> {
+        let mut found = vec![];
+        w.traverse(s, &mut Stack::default(), d, tmin, tmax, |p| {
+            found.push(p);
+            None
+        });
+        found.sort();
+        found
+    }
+
+    fn binary_visits(b: &Bvh, d: Vec3A, tmin: f32, tmax: f32) -> Vec<u32> {
+        let mut found = vec![];
+        b.traverse(d, tmin, tmax, |p| {
+            found.push(p);
+            None
+        });
+        found.sort();
+        found
+    }
+
+    /// The exact boxes of cylinders shaped as the dense bench family's (lengths 0.3–3,
+    /// radii 0.05–0.6, any direction) in a 20-unit cube: a tangle of overlapping boxes.
+    fn tangle(n: usize, seed: u64) -> Vec<(DVec3, DVec3)> {
+        let mut rng = SplitMix64::new(seed);
+        (0..n)
+            .map(|_| {
+                let p = DVec3::new(rng.unit(), rng.unit(), rng.unit()) * 20.0 - 10.0;
+                let a = rng.unit_vector();
+                let q = p + a * rng.range(0.3, 3.0);
+                let r = rng.range(0.05, 0.6);
+                let ext = r * (DVec3::ONE - a * a).max(DVec3::ZERO).sqrt();
+                (p.min(q) - ext, p.max(q) + ext)
+            })
+            .collect()
+    }
+
+    /// The positions of the boxes a brute-force f64 slab test finds along `d` from
+    /// `origin` within `range`, clearly (not at a touching corner: every traversal must
+    /// report these).
+    fn clearly_met(
+        bvh: &Bvh,
+        boxes: &[(DVec3, DVec3)],
+        origin: DVec3,
+        d: DVec3,
+        (tmin, tmax): (f64, f64),
+    ) -> Vec<u32> {
+        let mut met = vec![];
+        for (pos, &i) in bvh.order().iter().enumerate() {
+            let (lo, hi) = boxes[i as usize];
+            let (t1, t2) = ((lo - origin) / d, (hi - origin) / d);
+            let near = t1.min(t2).max_element().max(tmin);
+            let far = t1.max(t2).min_element().min(tmax);
+            if near < far * (1.0 - 1e-9) {
+                met.push(pos as u32);
+            }
+        }
+        met
+    }
+
+    /// Every box a brute-force f64 slab test finds clearly (not at a touching corner), the
+    /// wide traversal visits, portable and AVX2 alike; and it visits exactly what the
+    /// binary tree's traversal visits (the same f32 test on the same leaf boxes), for rays
+    /// from outside the cloud and from inside it (many start inside boxes), with and
+    /// without a segment limit.
+    #[test]
+    fn wide_traversal_finds_what_brute_force_and_the_binary_tree_do() {
+        let boxes = tangle(3000, 5);
+        let mut rng = SplitMix64::new(77);
+        let mut rays = 0;
+        // From outside the cloud, and from the centres of two boxes (inside a few).
+        let centre = |(lo, hi): (DVec3, DVec3)| (lo + hi) * 0.5;
+        for origin in [
+            DVec3::new(26.0, -30.0, 18.0),
+            centre(boxes[0]),
+            centre(boxes[1]),
+        ] {
+            let bvh = Bvh::build(&boxes, origin);
+            let wide = WideBvh::new(&bvh);
+            for k in 0..1500 {
+                let d = rng.unit_vector();
+                let (tmin, tmax) = if k % 3 == 0 {
+                    (0.5, 12.0)
+                } else {
+                    (0.0, f32::INFINITY)
+                };
+                let d32 = d.as_vec3().into();
+                let w = wide_visits(&wide, (), d32, tmin, tmax);
+                assert_eq!(w, binary_visits(&bvh, d32, tmin, tmax), "d = {d:?}");
+                if let Some(tok) = Avx2::detect() {
+                    assert_eq!(
+                        w,
+                        wide_visits(&wide, tok, d32, tmin, tmax),
+                        "AVX2, d = {d:?}"
+                    );
+                }
+                for pos in clearly_met(&bvh, &boxes, origin, d, (tmin as f64, tmax as f64)) {
+                    assert!(w.binary_search(&pos).is_ok(), "position {pos}, d = {d:?}");
+                }
+                rays += 1;
+            }
+        }
+        assert_eq!(rays, 4500);
+    }
+
+    /// With pruning (each visit reports a hit at the box's entry), the nearest box the
+    /// wide traversal settles on is the binary tree's and brute force's.
+    #[test]
+    fn pruned_traversal_keeps_the_nearest() {
+        let boxes = tangle(2000, 8);
+        let origin = DVec3::new(20.0, 4.0, -9.0);
+        let bvh = Bvh::build(&boxes, origin);
+        let wide = WideBvh::new(&bvh);
+        let mut rng = SplitMix64::new(3);
+        let mut hits = 0;
+        for _ in 0..2000 {
+            // Towards the cloud, so most rays meet boxes.
+            let aim = DVec3::new(rng.unit(), rng.unit(), rng.unit()) * 16.0 - 8.0;
+            let d = (aim - origin).normalize();
+            let d32: Vec3A = d.as_vec3().into();
+            // Nearest box entry by brute force, in the same f32 arithmetic.
+            let entry = |p: u32| {
+                let [lo, hi] = bvh.boxes[p as usize];
+                let inv = Vec3A::ONE / d32;
+                let (t1, t2) = (lo * inv, hi * inv);
+                let (near, far) = (t1.min(t2).max_element().max(0.0), t1.max(t2).min_element());
+                (near <= far * GROW).then_some(near)
+            };
+            let brute = (0..boxes.len() as u32).filter_map(entry).reduce(f32::min);
+            // Each visit reports a hit at the box's entry when it is the nearest so far.
+            let (mut w, mut b) = (None::<f32>, None::<f32>);
+            let closer = |best: &mut Option<f32>, p: u32| {
+                let t = entry(p)?;
+                best.is_none_or(|b| t < b).then(|| *best.insert(t))
+            };
+            wide.traverse((), &mut Stack::default(), d32, 0.0, f32::INFINITY, |p| {
+                closer(&mut w, p)
+            });
+            bvh.traverse(d32, 0.0, f32::INFINITY, |p| closer(&mut b, p));
+            assert_eq!(w, brute, "d = {d:?}");
+            assert_eq!(b, brute, "d = {d:?}");
+            hits += w.is_some() as usize;
+        }
+        assert!(hits > 1000, "{hits} of 2000 rays meet a box");
+    }
+
+    /// The skewed scene of the binary tree's depth-cap test (boxes at ±2^k along x):
+    /// the wide tree stays within its stack and finds every box along ±x.
+    #[test]
+    fn skewed_scene_stays_within_the_wide_stack() {
+        let boxes: Vec<(DVec3, DVec3)> = (-120..=80)
+            .flat_map(|k| {
+                [1.0, -1.0].map(|s| {
+                    let x = s * 2f64.powi(k);
+                    let e = DVec3::new(0.25 * x.abs(), 1.0, 1.0);
+                    (DVec3::new(x, 0.0, 0.0) - e, DVec3::new(x, 0.0, 0.0) + e)
+                })
+            })
+            .collect();
+        let bvh = Bvh::build(&boxes, DVec3::ZERO);
+        let wide = WideBvh::new(&bvh);
+        assert!(bvh.depth() > 30, "binary depth {}", bvh.depth());
+        assert!(
+            wide.depth() <= bvh.depth(),
+            "wide {} binary {}",
+            wide.depth(),
+            bvh.depth()
+        );
+        // Along ±x every box of that side lies on the ray; tilted by 1e-7 the ray leaves
+        // the boxes' |y| <= 1 near x = 1e7, past 165 of them.
+        for (d, least) in [
+            (DVec3::X, 220),
+            (-DVec3::X, 220),
+            (DVec3::new(1.0, 1e-7, 0.0), 160),
+        ] {
+            let d = d.normalize();
+            let d32: Vec3A = d.as_vec3().into();
+            let w = wide_visits(&wide, (), d32, 0.0, f32::INFINITY);
+            assert_eq!(w, binary_visits(&bvh, d32, 0.0, f32::INFINITY));
+            assert!(w.len() > least, "{} boxes along {d}", w.len());
+            for pos in clearly_met(&bvh, &boxes, DVec3::ZERO, d, (0.0, f64::INFINITY)) {
+                assert!(w.binary_search(&pos).is_ok(), "position {pos}, d = {d:?}");
+            }
+        }
+    }
+
+    /// Empty and one-box scenes: nothing visited, and the one box visited once.
+    #[test]
+    fn tiny_scenes() {
+        let none = WideBvh::new(&Bvh::build(&[], DVec3::ZERO));
+        assert!(wide_visits(&none, (), Vec3A::X, 0.0, f32::INFINITY).is_empty());
+        let one = [(DVec3::new(2.0, -1.0, -1.0), DVec3::new(3.0, 1.0, 1.0))];
+        let w = WideBvh::new(&Bvh::build(&one, DVec3::ZERO));
+        assert_eq!(wide_visits(&w, (), Vec3A::X, 0.0, f32::INFINITY), vec![0]);
+        assert!(wide_visits(&w, (), -Vec3A::X, 0.0, f32::INFINITY).is_empty());
+        assert!(wide_visits(&w, (), Vec3A::X, 0.0, 1.5).is_empty());
+    }
+}
