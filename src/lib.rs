@@ -5,7 +5,7 @@
 //! One way, one stage per folder:
 //!
 //! ```text
-//! scene JSON ─parse, validate─▶ scene::Scene ─accelerate─▶ accel::{Tiles, Bvh}
+//! scene JSON ─parse, validate─▶ scene::Scene ─accelerate─▶ accel::{Tiles, Bvh, WideBvh}
 //!            ─trace (geometry kernels)─▶ output::aov::AovImage ─write─▶ EXR, PNG, JSON
 //! ```
 //!
@@ -24,8 +24,10 @@
 //!   ray–cylinder kernels ([`geometry::cylinder`]), scalar and in packets of eight lanes, and
 //!   [`geometry::kernel`], the one type that names a kernel (formulation × precision).
 //! - [`accel`]: [`accel::tiles`], screen tiles of projected cylinder bounds (the primary-ray
-//!   fast path), and [`accel::bvh`], a binned-SAH hierarchy of bounded depth for rays of any
-//!   direction and for tile-by-tile cone walks with occlusion culling.
+//!   fast path), [`accel::bvh`], a binned-SAH hierarchy of bounded depth (the tile-by-tile
+//!   cone walks with occlusion culling walk it), and [`accel::wide_bvh`], that tree collapsed
+//!   to eight-wide nodes for one traversal per ray: a ray tests eight boxes at once (AVX2 or
+//!   lane by lane, the same lanes), nearest first, on a bounded stack.
 //! - [`render`]: parallel bands of tiles, nearest hit, only the requested AOVs.
 //! - [`output`]: [`output::aov`] (the in-memory AOV image, its EXR reading and writing,
 //!   self-describing headers, the per-AOV layout), [`output::depth_png`] (the 16-bit depth
