@@ -365,11 +365,36 @@ fn num(x: f64) -> String {
     }
 }
 
-fn check_vec(field: &str, v: [f64; 3]) -> Result<DVec3, SceneError> {
+/// A field path, formatted only when an error names it (validating a cylinder would
+/// otherwise format three paths per cylinder: most of the time validation took).
+trait FieldPath {
+    fn path(&self) -> String;
+}
+
+impl FieldPath for String {
+    fn path(&self) -> String {
+        self.clone()
+    }
+}
+
+/// `cylinders[index].name`.
+#[derive(Clone, Copy)]
+struct CylinderField {
+    index: usize,
+    name: &'static str,
+}
+
+impl FieldPath for CylinderField {
+    fn path(&self) -> String {
+        format!("cylinders[{}].{}", self.index, self.name)
+    }
+}
+
+fn check_vec(field: impl FieldPath, v: [f64; 3]) -> Result<DVec3, SceneError> {
     for (k, x) in v.iter().enumerate() {
         if !x.is_finite() || x.abs() > MAX_COORD {
             return Err(err(
-                format!("{field}[{k}]"),
+                format!("{}[{k}]", field.path()),
                 format!(
                     "must be finite with magnitude <= {MAX_COORD:e}, got {}",
                     num(*x)
@@ -380,10 +405,10 @@ fn check_vec(field: &str, v: [f64; 3]) -> Result<DVec3, SceneError> {
     Ok(DVec3::from_array(v))
 }
 
-fn check_positive(field: &str, x: f64) -> Result<f64, SceneError> {
+fn check_positive(field: impl FieldPath, x: f64) -> Result<f64, SceneError> {
     if !x.is_finite() || x <= 0.0 || x > MAX_COORD {
         return Err(err(
-            field,
+            field.path(),
             format!("must be > 0 and <= {MAX_COORD:e}, got {}", num(x)),
         ));
     }
@@ -518,9 +543,9 @@ impl CameraFile {
 
     /// Check every field; `at` is the camera's field path (`camera` or `cameras[K]`).
     fn validate(&self, at: &str) -> Result<CameraSpec, SceneError> {
-        let origin = check_vec(&format!("{at}.origin"), self.origin)?;
-        let target = check_vec(&format!("{at}.target"), self.target)?;
-        let up = check_vec(&format!("{at}.up"), self.up)?;
+        let origin = check_vec(format!("{at}.origin"), self.origin)?;
+        let target = check_vec(format!("{at}.target"), self.target)?;
+        let up = check_vec(format!("{at}.up"), self.up)?;
         let fov = self.fov_deg;
         if !(fov.is_finite() && fov > 0.0 && fov < 180.0) {
             return Err(err(
@@ -603,15 +628,15 @@ impl CameraFile {
 
 impl CylinderFile {
     fn validate(&self, index: usize) -> Result<Cylinder, SceneError> {
-        let f = |name: &str| format!("cylinders[{index}].{name}");
-        let radius = check_positive(&f("radius"), self.radius)?;
+        let f = |name: &'static str| CylinderField { index, name };
+        let radius = check_positive(f("radius"), self.radius)?;
         let (base, axis, height) = match (self.p0, self.p1, self.center, self.axis, self.height) {
             (Some(p0), Some(p1), None, None, None) => {
-                let (p0, p1) = (check_vec(&f("p0"), p0)?, check_vec(&f("p1"), p1)?);
+                let (p0, p1) = (check_vec(f("p0"), p0)?, check_vec(f("p1"), p1)?);
                 let h = (p1 - p0).length();
                 if h == 0.0 {
                     return Err(err(
-                        f("p1"),
+                        f("p1").path(),
                         format!(
                             "must differ from p0 by a length > 0, got {:?}",
                             self.p1.unwrap_or_default()
@@ -621,13 +646,13 @@ impl CylinderFile {
                 (p0, (p1 - p0) / h, h)
             }
             (None, None, Some(c), Some(a), Some(h)) => {
-                let c = check_vec(&f("center"), c)?;
-                let a = check_vec(&f("axis"), a)?;
-                let h = check_positive(&f("height"), h)?;
+                let c = check_vec(f("center"), c)?;
+                let a = check_vec(f("axis"), a)?;
+                let h = check_positive(f("height"), h)?;
                 let len = a.length();
                 if len == 0.0 || !len.is_finite() {
                     return Err(err(
-                        f("axis"),
+                        f("axis").path(),
                         format!("must be non-zero, got {:?}", a.to_array()),
                     ));
                 }
@@ -643,14 +668,16 @@ impl CylinderFile {
         let top = base + axis * height;
         if top.abs().max_element() > MAX_COORD {
             return Err(err(
-                f("height"),
+                f("height").path(),
                 format!("puts the top at {:?}, beyond {MAX_COORD:e}", top.to_array()),
             ));
         }
         let id = match self.id {
-            Some(0) => return Err(err(f("id"), "must be > 0 (0 means miss), got 0")),
+            Some(0) => return Err(err(f("id").path(), "must be > 0 (0 means miss), got 0")),
             Some(id) => id,
-            None => u32::try_from(index + 1).map_err(|_| err(f("id"), "too many cylinders"))?,
+            None => {
+                u32::try_from(index + 1).map_err(|_| err(f("id").path(), "too many cylinders"))?
+            }
         };
         Ok(Cylinder {
             base,
