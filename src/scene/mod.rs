@@ -307,27 +307,36 @@ pub fn load(path: &Path) -> Result<Scene, SceneError> {
     if bytes.len() as u64 > MAX_SCENE_BYTES {
         return Err(too_big(bytes.len() as u64));
     }
+    // The fast reader takes bytes (what it accepts is valid UTF-8); the rest is checked.
+    if let Some(file) = fast_json::scene_file(&bytes) {
+        return file.validate();
+    }
     let text = String::from_utf8(bytes).map_err(|e| {
         err(
             "",
             format!("not UTF-8 text (byte {})", e.utf8_error().valid_up_to()),
         )
     })?;
-    parse(&text)
+    parse_serde(&text)
 }
 
 /// Parse and validate scene JSON: one JSON object and nothing after it.
 pub fn parse(text: &str) -> Result<Scene, SceneError> {
+    // Plain files take the fast reader; anything else (and every error) goes through
+    // serde_json, whose messages name the field.
+    if let Some(file) = fast_json::scene_file(text.as_bytes()) {
+        return file.validate();
+    }
+    parse_serde(text)
+}
+
+/// [`parse`] through `serde_json` alone.
+fn parse_serde(text: &str) -> Result<Scene, SceneError> {
     if text.starts_with('\u{feff}') {
         return Err(err(
             "",
             "invalid JSON: the file starts with a UTF-8 byte order mark (EF BB BF), which JSON does not allow; save it without one",
         ));
-    }
-    // Plain files take the fast reader; anything else (and every error) goes through
-    // serde_json, whose messages name the field.
-    if let Some(file) = fast_json::scene_file(text) {
-        return file.validate();
     }
     let invalid = |field: String, e: serde_json::Error| {
         err(
@@ -445,67 +454,88 @@ impl SceneFile {
 
     /// Check every field and build the validated scene.
     pub fn validate(&self) -> Result<Scene, SceneError> {
-        let cameras = match (&self.camera, &self.cameras) {
-            (Some(c), None) => vec![c.validate("camera")?],
-            (None, Some(list)) if list.is_empty() => {
-                return Err(err("cameras", "must list at least one camera, got []"));
-            }
-            (None, Some(list)) => list
-                .iter()
-                .enumerate()
-                .map(|(k, c)| c.validate(&format!("cameras[{k}]")))
-                .collect::<Result<Vec<_>, _>>()?,
-            (Some(_), Some(_)) => {
-                return Err(err(
-                    "",
-                    "give exactly one of \"camera\" and \"cameras\", got both",
-                ));
-            }
-            (None, None) => {
-                return Err(err(
-                    "",
-                    "missing the camera: give \"camera\": {...} or \"cameras\": [{...}, ...]",
-                ));
-            }
-        };
-        // In parallel; on an error, again in order, to report the first one.
-        let cylinders = match self
-            .cylinders
-            .par_iter()
-            .enumerate()
-            .map(|(i, c)| c.validate(i))
-            .collect::<Result<Vec<_>, _>>()
-        {
-            Ok(list) => list,
-            Err(_) => self
+        validate_scene(&self.camera, &self.cameras, &self.aovs, || {
+            // In parallel; on an error, again in order, to report the first one.
+            match self
                 .cylinders
-                .iter()
+                .par_iter()
                 .enumerate()
                 .map(|(i, c)| c.validate(i))
-                .collect::<Result<Vec<_>, _>>()?,
-        };
-        let aovs = match &self.aovs {
-            None => default_aovs(),
-            Some(list) if list.is_empty() => {
-                return Err(err("aovs", "must list at least one AOV, got []"));
+                .collect::<Result<Vec<_>, _>>()
+            {
+                Ok(list) => Ok(list),
+                Err(_) => self
+                    .cylinders
+                    .iter()
+                    .enumerate()
+                    .map(|(i, c)| c.validate(i))
+                    .collect(),
             }
-            Some(list) => {
-                let mut out: Vec<Aov> = Vec::new();
-                for a in list {
-                    if !out.contains(a) {
-                        out.push(*a);
-                    }
-                }
-                out
-            }
-        };
-        Ok(Scene {
-            camera: cameras[0],
-            cameras,
-            cylinders,
-            aovs,
         })
     }
+}
+
+impl fast_json::FastScene {
+    /// Check the cameras and AOVs (the cylinders were checked as they were read).
+    fn validate(self) -> Result<Scene, SceneError> {
+        let cylinders = self.cylinders;
+        validate_scene(&self.camera, &self.cameras, &self.aovs, || cylinders)
+    }
+}
+
+/// Check the cameras, then the cylinders (`cylinders` validates them), then the AOVs, and
+/// build the validated scene: the first error in that order is the one reported.
+fn validate_scene(
+    camera: &Option<CameraFile>,
+    cameras: &Option<Vec<CameraFile>>,
+    aovs: &Option<Vec<Aov>>,
+    cylinders: impl FnOnce() -> Result<Vec<Cylinder>, SceneError>,
+) -> Result<Scene, SceneError> {
+    let cameras = match (camera, cameras) {
+        (Some(c), None) => vec![c.validate("camera")?],
+        (None, Some(list)) if list.is_empty() => {
+            return Err(err("cameras", "must list at least one camera, got []"));
+        }
+        (None, Some(list)) => list
+            .iter()
+            .enumerate()
+            .map(|(k, c)| c.validate(&format!("cameras[{k}]")))
+            .collect::<Result<Vec<_>, _>>()?,
+        (Some(_), Some(_)) => {
+            return Err(err(
+                "",
+                "give exactly one of \"camera\" and \"cameras\", got both",
+            ));
+        }
+        (None, None) => {
+            return Err(err(
+                "",
+                "missing the camera: give \"camera\": {...} or \"cameras\": [{...}, ...]",
+            ));
+        }
+    };
+    let cylinders = cylinders()?;
+    let aovs = match aovs {
+        None => default_aovs(),
+        Some(list) if list.is_empty() => {
+            return Err(err("aovs", "must list at least one AOV, got []"));
+        }
+        Some(list) => {
+            let mut out: Vec<Aov> = Vec::new();
+            for a in list {
+                if !out.contains(a) {
+                    out.push(*a);
+                }
+            }
+            out
+        }
+    };
+    Ok(Scene {
+        camera: cameras[0],
+        cameras,
+        cylinders,
+        aovs,
+    })
 }
 
 impl Scene {
