@@ -160,11 +160,44 @@ impl<'a> Cursor<'a> {
         Some(name)
     }
 
+    /// `"name":` for one of a cylinder's keys (the name then written without escapes),
+    /// returning the name; `None` for any other key, which the caller rejects anyway.
+    /// Faster than [`Cursor::key`]: one comparison against the key the first letter names.
+    #[inline(always)]
+    fn cylinder_key(&mut self) -> Option<&'static [u8]> {
+        self.expect(b'"')?;
+        let rest = self.b.get(self.i..)?;
+        let key: &'static [u8] = match rest.first()? {
+            b'p' if rest.starts_with(b"p0\"") => b"p0",
+            b'p' if rest.starts_with(b"p1\"") => b"p1",
+            b'r' if rest.starts_with(b"radius\"") => b"radius",
+            b'c' if rest.starts_with(b"caps\"") => b"caps",
+            b'c' if rest.starts_with(b"center\"") => b"center",
+            b'a' if rest.starts_with(b"axis\"") => b"axis",
+            b'h' if rest.starts_with(b"height\"") => b"height",
+            b'i' if rest.starts_with(b"id\"") => b"id",
+            _ => return None,
+        };
+        self.i += key.len() + 1;
+        self.expect(b':')?;
+        self.ws();
+        Some(key)
+    }
+
     /// Digits from `self.i` on, gathered into `acc` (wrapping: the caller counts them).
     /// How many there were.
     #[inline(always)]
     fn digits(&mut self, acc: &mut u64) -> usize {
         let start = self.i;
+        // Eight at a time while there are eight (a fraction's digits mostly).
+        while let Some(&chunk) = self.b.get(self.i..).and_then(|r| r.first_chunk::<8>()) {
+            let v = u64::from_le_bytes(chunk);
+            if !eight_digits(v) {
+                break;
+            }
+            *acc = acc.wrapping_mul(100_000_000).wrapping_add(parse_eight(v));
+            self.i += 8;
+        }
         while let Some(&c) = self.b.get(self.i) {
             let d = c.wrapping_sub(b'0');
             if d > 9 {
@@ -291,7 +324,7 @@ impl<'a> Cursor<'a> {
         };
         let (mut seen, mut radius) = (0u32, None);
         loop {
-            let key = self.key()?;
+            let key = self.cylinder_key()?;
             let bit = match key {
                 b"p0" => {
                     c.p0 = Some(self.vec3()?);
@@ -340,6 +373,28 @@ impl<'a> Cursor<'a> {
         c.radius = radius?;
         Some(c)
     }
+}
+
+/// Whether the eight bytes of `v` (little-endian) are all ASCII digits: a byte below `0`
+/// wraps when `0` is subtracted, one above `9` carries into its top bit when 0x46 is added.
+#[inline(always)]
+fn eight_digits(v: u64) -> bool {
+    let below = v.wrapping_sub(0x3030_3030_3030_3030);
+    let above = v.wrapping_add(0x4646_4646_4646_4646);
+    (below | above) & 0x8080_8080_8080_8080 == 0
+}
+
+/// The value of eight ASCII digits, the first in the lowest byte: pairs, then fours, then
+/// all eight are combined by multiplications whose partial products do not overlap (the
+/// method Rust's own float parser uses).
+#[inline(always)]
+fn parse_eight(v: u64) -> u64 {
+    const MASK: u64 = 0x0000_00FF_0000_00FF;
+    const MUL1: u64 = 0x000F_4240_0000_0064; // 100 + (1 000 000 << 32)
+    const MUL2: u64 = 0x0000_2710_0000_0001; // 1 + (10 000 << 32)
+    let v = v - 0x3030_3030_3030_3030;
+    let v = v * 10 + (v >> 8); // each byte pair: 10 × first + second
+    ((v & MASK).wrapping_mul(MUL1) + ((v >> 16) & MASK).wrapping_mul(MUL2)) >> 32
 }
 
 /// The position after `}` at `k` and any whitespace.
@@ -745,6 +800,26 @@ mod tests {
             fast_path > 100_000,
             "{fast_path} numbers within the fast path"
         );
+    }
+
+    /// Eight bytes are digits exactly when each is one (every byte value at every place),
+    /// and their value is the decimal one.
+    #[test]
+    fn eight_digits_at_a_time() {
+        for base in [*b"00000000", *b"99999999", *b"31415926"] {
+            for at in 0..8 {
+                for c in 0..=255u8 {
+                    let mut b = base;
+                    b[at] = c;
+                    let v = u64::from_le_bytes(b);
+                    assert_eq!(eight_digits(v), c.is_ascii_digit(), "{b:?}");
+                    if c.is_ascii_digit() {
+                        let want: u64 = std::str::from_utf8(&b).unwrap().parse().unwrap();
+                        assert_eq!(parse_eight(v), want, "{b:?}");
+                    }
+                }
+            }
+        }
     }
 
     /// What the fast reader does not handle it leaves to serde_json: the same files fail,
