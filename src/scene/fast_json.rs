@@ -426,7 +426,9 @@ fn read_run(b: &[u8], from: usize, to: usize) -> Option<Run> {
         i: from,
     };
     let mut run = Run {
-        cylinders: Vec::new(),
+        // No cylinder is written in fewer than about 100 bytes as `generate` writes them
+        // (compact JSON, short numbers: still over 60), so this seldom grows.
+        cylinders: Vec::with_capacity((to - from) / 64 + 1),
         count: 0,
         invalid: None,
     };
@@ -519,20 +521,32 @@ fn cylinder_list(b: &[u8], start: usize) -> Option<(Result<Vec<Cylinder>, SceneE
         }
         before += r.count;
     }
+    // Ids are u32; a file within the size limit cannot hold 2^32 cylinders, but if it
+    // did, the serde_json path reports it.
+    u32::try_from(before).ok()?;
+    // Gathered in parallel straight into the scene's list: cylinder `g` of the file is
+    // cylinder `g - first[r]` of run `r`, the last run starting at or before `g`.
+    let first: Vec<usize> = runs
+        .iter()
+        .scan(0, |n, r| {
+            let at = *n;
+            *n += r.count;
+            Some(at)
+        })
+        .collect();
     let mut list = Vec::with_capacity(before);
-    for r in runs {
-        let first = list.len();
-        list.extend_from_slice(&r.cylinders);
-        for (k, y) in list[first..].iter_mut().enumerate() {
+    crate::render::huge_pages(&list);
+    (0..before)
+        .into_par_iter()
+        .map(|g| {
+            let r = first.partition_point(|&f| f <= g) - 1;
+            let mut y = runs[r].cylinders[g - first[r]];
             if y.id == 0 {
-                y.id = match u32::try_from(first + k + 1) {
-                    Ok(id) => id,
-                    // Unreachable within the file-size limit; the serde_json path says it.
-                    Err(_) => return None,
-                };
+                y.id = g as u32 + 1;
             }
-        }
-    }
+            y
+        })
+        .collect_into_vec(&mut list);
     Some((Ok(list), end + 1))
 }
 

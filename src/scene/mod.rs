@@ -301,6 +301,7 @@ pub fn load(path: &Path) -> Result<Scene, SceneError> {
     }
     // Bounded even when the size was wrong (files in /proc report 0).
     let mut bytes = Vec::with_capacity(meta.len() as usize);
+    crate::render::huge_pages(&bytes);
     std::fs::File::open(path)
         .and_then(|f| f.take(MAX_SCENE_BYTES + 1).read_to_end(&mut bytes))
         .map_err(cannot)?;
