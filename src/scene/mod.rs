@@ -8,6 +8,7 @@
 //! Serde types live here only; everything past [`Scene`] is plain validated data. Every
 //! rejection names the field and the value: `cylinders[3].radius: must be > 0, got -1`.
 
+mod bytes;
 pub mod camera;
 mod fast_json;
 pub mod strict;
@@ -276,7 +277,6 @@ pub const MAX_SCENE_BYTES: u64 = 512 << 20;
 /// Read and validate a scene file. It must be a regular file (through links; a FIFO would
 /// block, a device never end) of at most [`MAX_SCENE_BYTES`].
 pub fn load(path: &Path) -> Result<Scene, SceneError> {
-    use std::io::Read;
     // Messages leave the path out: every caller prefixes it.
     let cannot = |e: std::io::Error| err("", format!("cannot read: {e}"));
     let meta = std::fs::metadata(path).map_err(cannot)?;
@@ -299,26 +299,20 @@ pub fn load(path: &Path) -> Result<Scene, SceneError> {
     if meta.len() > MAX_SCENE_BYTES {
         return Err(too_big(meta.len()));
     }
-    // Bounded even when the size was wrong (files in /proc report 0).
-    let mut bytes = Vec::with_capacity(meta.len() as usize);
-    crate::render::huge_pages(&bytes);
-    std::fs::File::open(path)
-        .and_then(|f| f.take(MAX_SCENE_BYTES + 1).read_to_end(&mut bytes))
+    let file = std::fs::File::open(path)
+        .and_then(|f| bytes::FileBytes::new(f, meta.len(), MAX_SCENE_BYTES))
         .map_err(cannot)?;
+    let bytes = file.bytes();
     if bytes.len() as u64 > MAX_SCENE_BYTES {
         return Err(too_big(bytes.len() as u64));
     }
     // The fast reader takes bytes (what it accepts is valid UTF-8); the rest is checked.
-    if let Some(file) = fast_json::scene_file(&bytes) {
+    if let Some(file) = fast_json::scene_file(bytes) {
         return file.validate();
     }
-    let text = String::from_utf8(bytes).map_err(|e| {
-        err(
-            "",
-            format!("not UTF-8 text (byte {})", e.utf8_error().valid_up_to()),
-        )
-    })?;
-    parse_serde(&text)
+    let text = std::str::from_utf8(bytes)
+        .map_err(|e| err("", format!("not UTF-8 text (byte {})", e.valid_up_to())))?;
+    parse_serde(text)
 }
 
 /// Parse and validate scene JSON: one JSON object and nothing after it.
