@@ -407,54 +407,40 @@ fn after_brace(b: &[u8], k: usize) -> usize {
     j
 }
 
-/// One run of the cylinder list, read and validated.
-struct Run {
-    /// The valid cylinders, up to the first invalid one; a cylinder without an `id` has
-    /// id 0 here (which no valid explicit id is), for [`cylinder_list`] to number.
-    cylinders: Vec<Cylinder>,
-    /// How many cylinders the run holds.
-    count: usize,
-    /// The run's first invalid cylinder: its place in the run, and its file form.
-    invalid: Option<(usize, CylinderFile)>,
+/// What became of one run of the cylinder list.
+enum Run {
+    /// Every cylinder read and valid.
+    Valid,
+    /// Every cylinder read; why the first invalid one is.
+    Invalid(SceneError),
 }
 
-/// Read the cylinders of `b[from..to]` (objects separated by commas); `None` on anything
-/// this reader does not handle.
-fn read_run(b: &[u8], from: usize, to: usize) -> Option<Run> {
+/// Read the cylinders of `b[from..to]` (objects separated by commas) into `out`, validated,
+/// `first` being the file index of the first: `None` on anything this reader does not
+/// handle, or when the run does not hold exactly `out.len()` cylinders.
+fn read_run(b: &[u8], from: usize, to: usize, first: usize, out: &mut [Cylinder]) -> Option<Run> {
     let mut p = Cursor {
         b: &b[..to],
         i: from,
     };
-    let mut run = Run {
-        // No cylinder is written in fewer than about 100 bytes as `generate` writes them
-        // (compact JSON, short numbers: still over 60), so this seldom grows.
-        cylinders: Vec::with_capacity((to - from) / 64 + 1),
-        count: 0,
-        invalid: None,
-    };
+    let mut run = Run::Valid;
+    let mut slots = out.iter_mut().enumerate();
     loop {
         let c = p.cylinder()?;
-        if run.invalid.is_none() {
-            // The index only names a field in an error (re-made with the file-wide index
-            // below) and numbers a cylinder without an id (renumbered below).
-            match c.validate(run.count) {
-                Ok(mut y) => {
-                    if c.id.is_none() {
-                        y.id = 0;
-                    }
-                    run.cylinders.push(y);
-                }
-                Err(_) => run.invalid = Some((run.count, c)),
+        let (k, slot) = slots.next()?;
+        if let Run::Valid = run {
+            match c.validate(first + k) {
+                Ok(y) => *slot = y,
+                Err(e) => run = Run::Invalid(e),
             }
         }
-        run.count += 1;
         match p.next() {
             Some(b',') => continue,
             None => break,
             Some(_) => return None,
         }
     }
-    Some(run)
+    slots.next().is_none().then_some(run)
 }
 
 /// The cylinder array starting at `start`, validated, and the position after it. The
@@ -507,48 +493,51 @@ fn cylinder_list(b: &[u8], start: usize) -> Option<(Result<Vec<Cylinder>, SceneE
             _ => k = j,
         }
     };
-    let runs: Vec<Option<Run>> = runs
-        .into_par_iter()
-        .map(|(from, to)| read_run(b, from, to))
+    // Every cylinder holds one `{` (one in a key string fails the read): so many are
+    // counted in each run, the scene's list is made that long, and each run validates
+    // its cylinders straight into its part of it, in parallel.
+    let counts: Vec<usize> = runs
+        .par_iter()
+        .map(|&(from, to)| b[from..to].iter().filter(|&&c| c == b'{').count())
         .collect();
-    let runs: Vec<Run> = runs.into_iter().collect::<Option<_>>()?;
-    // The first invalid cylinder, named by its index in the file.
-    let mut before = 0;
-    for r in &runs {
-        if let Some((k, c)) = &r.invalid {
-            let e = c.validate(before + k).err()?;
-            return Some((Err(e), end + 1));
-        }
-        before += r.count;
-    }
+    let total: usize = counts.iter().sum();
     // Ids are u32; a file within the size limit cannot hold 2^32 cylinders, but if it
     // did, the serde_json path reports it.
-    u32::try_from(before).ok()?;
-    // Gathered in parallel straight into the scene's list: cylinder `g` of the file is
-    // cylinder `g - first[r]` of run `r`, the last run starting at or before `g`.
-    let first: Vec<usize> = runs
-        .iter()
-        .scan(0, |n, r| {
-            let at = *n;
-            *n += r.count;
-            Some(at)
-        })
-        .collect();
-    let mut list = Vec::with_capacity(before);
+    u32::try_from(total).ok()?;
+    let mut list = Vec::with_capacity(total);
     crate::render::huge_pages(&list);
-    (0..before)
+    list.par_extend(rayon::iter::repeat_n(UNREAD, total));
+    let mut parts = Vec::with_capacity(runs.len());
+    let (mut rest, mut first) = (list.as_mut_slice(), 0);
+    for (&run, &n) in runs.iter().zip(&counts) {
+        let (part, tail) = rest.split_at_mut(n);
+        parts.push((run, first, part));
+        (rest, first) = (tail, first + n);
+    }
+    let read: Vec<Option<Run>> = parts
         .into_par_iter()
-        .map(|g| {
-            let r = first.partition_point(|&f| f <= g) - 1;
-            let mut y = runs[r].cylinders[g - first[r]];
-            if y.id == 0 {
-                y.id = g as u32 + 1;
-            }
-            y
-        })
-        .collect_into_vec(&mut list);
-    Some((Ok(list), end + 1))
+        .map(|((from, to), first, part)| read_run(b, from, to, first, part))
+        .collect();
+    // Every run must read; then the first invalid cylinder, in file order, is the error.
+    let mut invalid = None;
+    for r in read {
+        if let (Run::Invalid(e), None) = (r?, &invalid) {
+            invalid = Some(e);
+        }
+    }
+    Some((invalid.map_or(Ok(list), Err), end + 1))
 }
+
+/// What a slot of the list holds until its cylinder is read (each slot is overwritten, or
+/// the list dropped).
+const UNREAD: Cylinder = Cylinder {
+    base: glam::DVec3::ZERO,
+    axis: glam::DVec3::Z,
+    height: 0.0,
+    radius: 0.0,
+    caps: false,
+    id: 0,
+};
 
 /// The end of the JSON value starting at `i` (after whitespace): objects and arrays by
 /// bracket depth, strings with their escapes, anything else up to a delimiter. Only cuts
