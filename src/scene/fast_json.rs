@@ -841,9 +841,20 @@ mod tests {
         }
     }
 
-    /// Braces are counted wherever they are, next to any byte value.
+    /// Braces are counted wherever they are: every byte value at every place of a
+    /// chunk and of the tail, among braces or other bytes, and random mixes.
     #[test]
     fn braces_are_counted_exactly() {
+        for fill in [b'{', b'x', 0x7b ^ 0x80, 0xff] {
+            for at in 0..19 {
+                for c in 0..=255u8 {
+                    let mut b = [fill; 19];
+                    b[at] = c;
+                    let want = b.iter().filter(|&&c| c == b'{').count();
+                    assert_eq!(count_braces(&b), want, "{b:?}");
+                }
+            }
+        }
         let mut rng = crate::rng::SplitMix64::new(5);
         for len in 0..200 {
             let b: Vec<u8> = (0..len)
