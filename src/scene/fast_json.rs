@@ -198,6 +198,14 @@ impl<'a> Cursor<'a> {
             *acc = acc.wrapping_mul(100_000_000).wrapping_add(parse_eight(v));
             self.i += 8;
         }
+        self.i - start + self.short_digits(acc)
+    }
+
+    /// [`Cursor::digits`] one at a time, for the short runs (an integer part, the last
+    /// digits of a fraction).
+    #[inline(always)]
+    fn short_digits(&mut self, acc: &mut u64) -> usize {
+        let start = self.i;
         while let Some(&c) = self.b.get(self.i) {
             let d = c.wrapping_sub(b'0');
             if d > 9 {
@@ -218,7 +226,8 @@ impl<'a> Cursor<'a> {
         let neg = b.get(start) == Some(&b'-');
         self.i += neg as usize;
         let mut m = 0u64;
-        let int = self.digits(&mut m);
+        // Integer parts are mostly a digit or two: one at a time.
+        let int = self.short_digits(&mut m);
         // No leading zeros (JSON), at least one digit.
         if int == 0 || (int > 1 && b[self.i - int] == b'0') {
             return None;
@@ -237,7 +246,7 @@ impl<'a> Cursor<'a> {
             let eneg = b.get(self.i) == Some(&b'-');
             self.i += matches!(b.get(self.i), Some(b'+' | b'-')) as usize;
             let mut e = 0u64;
-            let n = self.digits(&mut e);
+            let n = self.short_digits(&mut e);
             if n == 0 {
                 return None;
             }
@@ -287,7 +296,7 @@ impl<'a> Cursor<'a> {
         self.ws();
         let start = self.i;
         let mut v = 0u64;
-        let n = self.digits(&mut v);
+        let n = self.short_digits(&mut v);
         if n == 0 || (n > 1 && self.b[start] == b'0') || n > 10 {
             return None;
         }
