@@ -20,9 +20,13 @@
 //! Numbers: digits are gathered into an integer as they are scanned; when it has at most
 //! 19 digits, is at most 2^53 and the power of ten is at most 10^22 in size, both are exact
 //! f64s and one multiplication or division rounds the exact quotient correctly (Clinger's
-//! fast path, the one Rust's own `str::parse` tries first). Every other number goes through
-//! `str::parse::<f64>`, which is correctly rounded, as `serde_json`'s `float_roundtrip`
-//! parsing is: both give the same bits for every number. The camera and the AOV list are
+//! fast path, the one Rust's own `str::parse` tries first). Longer fractions of at most 19
+//! digits (the 17 of a shortest round-trip form, as `generate` writes) take `m / 10^k` in
+//! f64 as a guess and settle it with an exact 128-bit comparison against the midpoints to
+//! its neighbours ([`nearest`]). Every other number goes through `str::parse::<f64>`,
+//! which is correctly rounded, as `serde_json`'s `float_roundtrip` parsing is: all give
+//! the same bits for every number (tested on hard cases, exact midpoints and a million
+//! random numbers). The camera and the AOV list are
 //! small and go through `serde_json` as they are.
 
 use super::strict::Object;
@@ -272,6 +276,12 @@ impl<'a> Cursor<'a> {
             };
             return Some(if neg { -v } else { v });
         }
+        if int + frac <= 19
+            && (-22..=0).contains(&e)
+            && let Some(v) = nearest(m, (-e) as usize)
+        {
+            return Some(if neg { -v } else { v });
+        }
         // ASCII from `start` to `self.i`.
         let x: f64 = std::str::from_utf8(&b[start..self.i]).ok()?.parse().ok()?;
         x.is_finite().then_some(x)
@@ -382,6 +392,65 @@ impl<'a> Cursor<'a> {
         c.radius = radius?;
         Some(c)
     }
+}
+
+/// The f64 nearest to `m / 10^k` (ties to even), for the 17-digit numbers that are too
+/// long for Clinger's path (what `generate` writes), or `None` when the exact test below
+/// would not fit 128 bits (`str::parse` then decides).
+///
+/// `m as f64 / 10^k` rounds twice, so it is within about one ulp of the answer: that
+/// candidate and its neighbours are tested exactly. A positive double `c = M·2^E`
+/// (2^52 <= M < 2^53) is the nearest to `v` when `v` lies between the midpoints to its
+/// neighbours, `(2M+1)·2^(E-1)` above and `(2M-1)·2^(E-1)` below (`(4M-1)·2^(E-2)` when
+/// `M = 2^52`, whose lower neighbour is half as far), and on a midpoint when `M` is even.
+/// Each comparison of `v = m / 10^k` with `X·2^F` (F < 0) is one of integers,
+/// `m·2^-F` against `X·10^k`, both below 2^128 for `k <= 22`, checked.
+fn nearest(m: u64, k: usize) -> Option<f64> {
+    use std::cmp::Ordering;
+    if m == 0 {
+        return Some(0.0);
+    }
+    let ten_k = 10u128.pow(k as u32);
+    // How `v` compares with `x·2^f`.
+    let cmp = |x: u128, f: i32| -> Option<Ordering> {
+        if f >= 0 {
+            let right = x.checked_mul(ten_k)?.checked_shl(f as u32)?;
+            let right_back = right.checked_shr(f as u32)?;
+            (right_back == x * ten_k).then(|| (m as u128).cmp(&right))
+        } else {
+            let s = (-f) as u32;
+            if s >= 128 || (m as u128).leading_zeros() < s {
+                return None;
+            }
+            Some(((m as u128) << s).cmp(&x.checked_mul(ten_k)?))
+        }
+    };
+    let mut c = m as f64 / POW10[k];
+    for _ in 0..4 {
+        if !c.is_normal() {
+            return None;
+        }
+        let bits = c.to_bits();
+        let big_m = (bits & ((1 << 52) - 1)) | (1 << 52);
+        let e = ((bits >> 52) & 0x7ff) as i32 - 1075;
+        let even = big_m.is_multiple_of(2);
+        let up = cmp(2 * big_m as u128 + 1, e - 1)?;
+        if up == Ordering::Greater || (up == Ordering::Equal && !even) {
+            c = c.next_up();
+            continue;
+        }
+        let down = if big_m == 1 << 52 {
+            cmp(4 * big_m as u128 - 1, e - 2)?
+        } else {
+            cmp(2 * big_m as u128 - 1, e - 1)?
+        };
+        if down == Ordering::Less || (down == Ordering::Equal && !even) {
+            c = c.next_down();
+            continue;
+        }
+        return Some(c);
+    }
+    None
 }
 
 /// Whether the eight bytes of `v` (little-endian) are all ASCII digits: a byte below `0`
@@ -718,7 +787,7 @@ mod tests {
         }
     }
 
-    const HARD: [&str; 26] = [
+    const HARD: [&str; 33] = [
         "0",
         "-0",
         "1",
@@ -728,7 +797,14 @@ mod tests {
         "1e-400",
         "1.7976931348623157e308",
         "9007199254740993",
+        "9007199254740995",
         "9007199254740992",
+        "4503599627370496.5",
+        "4503599627370497.5",
+        "0.1000000000000000055511151231257827",
+        "0.10000000000000001",
+        "12345678901234567e-22",
+        "1.2345678901234567e-5",
         "9007199254740991.5",
         "0.30000000000000004",
         "123456789012345678901234567890",
@@ -828,6 +904,45 @@ mod tests {
             fast_path > 100_000,
             "{fast_path} numbers within the fast path"
         );
+
+        // What `generate` writes: shortest forms of doubles of every size near 1.
+        let mut exact_test = 0;
+        for _ in 0..300_000 {
+            let r = rng.next_u64();
+            let x = f64::from_bits(r >> 12 | (((r % 40) + 1003) << 52));
+            let n = format!("{x}");
+            let digits = n.bytes().filter(u8::is_ascii_digit).count();
+            exact_test += (digits > 16) as u32;
+            check(&n);
+            check(&format!("-{x:e}"));
+        }
+        assert!(exact_test > 100_000, "{exact_test} of 17 digits or more");
+        // Midpoints between neighbouring doubles, exactly, and a last digit either side:
+        // (2M + 1)·2^(E-1) for E = 0, -1, -2 has 17 to 19 digits, 1 - E of them after
+        // the point.
+        for _ in 0..100_000 {
+            let big_m = (1u64 << 52) | (rng.next_u64() >> 12);
+            let big_m = if rng.next_u64().is_multiple_of(8) {
+                1 << 52
+            } else {
+                big_m
+            };
+            for after in 1..=3u32 {
+                let tie = (2 * big_m as u128 + 1) * 5u128.pow(after);
+                for t in [tie - 1, tie, tie + 1] {
+                    let d = t.to_string();
+                    let (head, tail) = d.split_at(d.len() - after as usize);
+                    check(&format!("{head}.{tail}"));
+                }
+                // The lower midpoint of a power of two: (4M - 1)·2^(E-2).
+                if big_m == 1 << 52 {
+                    let tie = (4 * big_m as u128 - 1) * 5u128.pow(after + 1);
+                    let d = tie.to_string();
+                    let (head, tail) = d.split_at(d.len() - after as usize - 1);
+                    check(&format!("{head}.{tail}"));
+                }
+            }
+        }
     }
 
     /// Eight bytes are digits exactly when each is one (every byte value at every place),
