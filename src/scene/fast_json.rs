@@ -26,8 +26,8 @@
 //! its neighbours ([`nearest`]). Every other number goes through `str::parse::<f64>`,
 //! which is correctly rounded, as `serde_json`'s `float_roundtrip` parsing is: all give
 //! the same bits for every number (tested on hard cases, exact midpoints and a million
-//! random numbers). The camera and the AOV list are
-//! small and go through `serde_json` as they are.
+//! random numbers). The camera and the AOV list are small and go through `serde_json` as
+//! they are.
 
 use super::strict::Object;
 use super::{CameraFile, CylinderFile, SceneError};
