@@ -645,7 +645,7 @@ fn zeroed<X: Copy + Default>(n: usize) -> Vec<X> {
 /// A 1080p plane is 8 MB: faulting it in 4 KiB pages took about a third of a render's
 /// time. Only the 2 MiB-aligned interior can be marked; the hint changes no byte, and a
 /// kernel without transparent huge pages ignores it.
-fn huge_pages<X>(v: &Vec<X>) {
+pub(crate) fn huge_pages<X>(v: &Vec<X>) {
     #[cfg(target_os = "linux")]
     {
         const HUGE: usize = 2 << 20;

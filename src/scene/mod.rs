@@ -8,6 +8,7 @@
 //! Serde types live here only; everything past [`Scene`] is plain validated data. Every
 //! rejection names the field and the value: `cylinders[3].radius: must be > 0, got -1`.
 
+mod bytes;
 pub mod camera;
 mod fast_json;
 pub mod strict;
@@ -276,7 +277,6 @@ pub const MAX_SCENE_BYTES: u64 = 512 << 20;
 /// Read and validate a scene file. It must be a regular file (through links; a FIFO would
 /// block, a device never end) of at most [`MAX_SCENE_BYTES`].
 pub fn load(path: &Path) -> Result<Scene, SceneError> {
-    use std::io::Read;
     // Messages leave the path out: every caller prefixes it.
     let cannot = |e: std::io::Error| err("", format!("cannot read: {e}"));
     let meta = std::fs::metadata(path).map_err(cannot)?;
@@ -299,35 +299,39 @@ pub fn load(path: &Path) -> Result<Scene, SceneError> {
     if meta.len() > MAX_SCENE_BYTES {
         return Err(too_big(meta.len()));
     }
-    // Bounded even when the size was wrong (files in /proc report 0).
-    let mut bytes = Vec::with_capacity(meta.len() as usize);
-    std::fs::File::open(path)
-        .and_then(|f| f.take(MAX_SCENE_BYTES + 1).read_to_end(&mut bytes))
+    let file = std::fs::File::open(path)
+        .and_then(|f| bytes::FileBytes::new(f, meta.len(), MAX_SCENE_BYTES))
         .map_err(cannot)?;
+    let bytes = file.bytes();
     if bytes.len() as u64 > MAX_SCENE_BYTES {
         return Err(too_big(bytes.len() as u64));
     }
-    let text = String::from_utf8(bytes).map_err(|e| {
-        err(
-            "",
-            format!("not UTF-8 text (byte {})", e.utf8_error().valid_up_to()),
-        )
-    })?;
-    parse(&text)
+    // The fast reader takes bytes (what it accepts is valid UTF-8); the rest is checked.
+    if let Some(file) = fast_json::scene_file(bytes) {
+        return file.validate();
+    }
+    let text = std::str::from_utf8(bytes)
+        .map_err(|e| err("", format!("not UTF-8 text (byte {})", e.valid_up_to())))?;
+    parse_serde(text)
 }
 
 /// Parse and validate scene JSON: one JSON object and nothing after it.
 pub fn parse(text: &str) -> Result<Scene, SceneError> {
+    // Plain files take the fast reader; anything else (and every error) goes through
+    // serde_json, whose messages name the field.
+    if let Some(file) = fast_json::scene_file(text.as_bytes()) {
+        return file.validate();
+    }
+    parse_serde(text)
+}
+
+/// [`parse`] through `serde_json` alone.
+fn parse_serde(text: &str) -> Result<Scene, SceneError> {
     if text.starts_with('\u{feff}') {
         return Err(err(
             "",
             "invalid JSON: the file starts with a UTF-8 byte order mark (EF BB BF), which JSON does not allow; save it without one",
         ));
-    }
-    // Plain files take the fast reader; anything else (and every error) goes through
-    // serde_json, whose messages name the field.
-    if let Some(file) = fast_json::scene_file(text) {
-        return file.validate();
     }
     let invalid = |field: String, e: serde_json::Error| {
         err(
@@ -365,11 +369,36 @@ fn num(x: f64) -> String {
     }
 }
 
-fn check_vec(field: &str, v: [f64; 3]) -> Result<DVec3, SceneError> {
+/// A field path, formatted only when an error names it (validating a cylinder would
+/// otherwise format three paths per cylinder: most of the time validation took).
+trait FieldPath {
+    fn path(&self) -> String;
+}
+
+impl FieldPath for String {
+    fn path(&self) -> String {
+        self.clone()
+    }
+}
+
+/// `cylinders[index].name`.
+#[derive(Clone, Copy)]
+struct CylinderField {
+    index: usize,
+    name: &'static str,
+}
+
+impl FieldPath for CylinderField {
+    fn path(&self) -> String {
+        format!("cylinders[{}].{}", self.index, self.name)
+    }
+}
+
+fn check_vec(field: impl FieldPath, v: [f64; 3]) -> Result<DVec3, SceneError> {
     for (k, x) in v.iter().enumerate() {
         if !x.is_finite() || x.abs() > MAX_COORD {
             return Err(err(
-                format!("{field}[{k}]"),
+                format!("{}[{k}]", field.path()),
                 format!(
                     "must be finite with magnitude <= {MAX_COORD:e}, got {}",
                     num(*x)
@@ -380,10 +409,10 @@ fn check_vec(field: &str, v: [f64; 3]) -> Result<DVec3, SceneError> {
     Ok(DVec3::from_array(v))
 }
 
-fn check_positive(field: &str, x: f64) -> Result<f64, SceneError> {
+fn check_positive(field: impl FieldPath, x: f64) -> Result<f64, SceneError> {
     if !x.is_finite() || x <= 0.0 || x > MAX_COORD {
         return Err(err(
-            field,
+            field.path(),
             format!("must be > 0 and <= {MAX_COORD:e}, got {}", num(x)),
         ));
     }
@@ -420,67 +449,88 @@ impl SceneFile {
 
     /// Check every field and build the validated scene.
     pub fn validate(&self) -> Result<Scene, SceneError> {
-        let cameras = match (&self.camera, &self.cameras) {
-            (Some(c), None) => vec![c.validate("camera")?],
-            (None, Some(list)) if list.is_empty() => {
-                return Err(err("cameras", "must list at least one camera, got []"));
-            }
-            (None, Some(list)) => list
-                .iter()
-                .enumerate()
-                .map(|(k, c)| c.validate(&format!("cameras[{k}]")))
-                .collect::<Result<Vec<_>, _>>()?,
-            (Some(_), Some(_)) => {
-                return Err(err(
-                    "",
-                    "give exactly one of \"camera\" and \"cameras\", got both",
-                ));
-            }
-            (None, None) => {
-                return Err(err(
-                    "",
-                    "missing the camera: give \"camera\": {...} or \"cameras\": [{...}, ...]",
-                ));
-            }
-        };
-        // In parallel; on an error, again in order, to report the first one.
-        let cylinders = match self
-            .cylinders
-            .par_iter()
-            .enumerate()
-            .map(|(i, c)| c.validate(i))
-            .collect::<Result<Vec<_>, _>>()
-        {
-            Ok(list) => list,
-            Err(_) => self
+        validate_scene(&self.camera, &self.cameras, &self.aovs, || {
+            // In parallel; on an error, again in order, to report the first one.
+            match self
                 .cylinders
-                .iter()
+                .par_iter()
                 .enumerate()
                 .map(|(i, c)| c.validate(i))
-                .collect::<Result<Vec<_>, _>>()?,
-        };
-        let aovs = match &self.aovs {
-            None => default_aovs(),
-            Some(list) if list.is_empty() => {
-                return Err(err("aovs", "must list at least one AOV, got []"));
+                .collect::<Result<Vec<_>, _>>()
+            {
+                Ok(list) => Ok(list),
+                Err(_) => self
+                    .cylinders
+                    .iter()
+                    .enumerate()
+                    .map(|(i, c)| c.validate(i))
+                    .collect(),
             }
-            Some(list) => {
-                let mut out: Vec<Aov> = Vec::new();
-                for a in list {
-                    if !out.contains(a) {
-                        out.push(*a);
-                    }
-                }
-                out
-            }
-        };
-        Ok(Scene {
-            camera: cameras[0],
-            cameras,
-            cylinders,
-            aovs,
         })
     }
+}
+
+impl fast_json::FastScene {
+    /// Check the cameras and AOVs (the cylinders were checked as they were read).
+    fn validate(self) -> Result<Scene, SceneError> {
+        let cylinders = self.cylinders;
+        validate_scene(&self.camera, &self.cameras, &self.aovs, || cylinders)
+    }
+}
+
+/// Check the cameras, then the cylinders (`cylinders` validates them), then the AOVs, and
+/// build the validated scene: the first error in that order is the one reported.
+fn validate_scene(
+    camera: &Option<CameraFile>,
+    cameras: &Option<Vec<CameraFile>>,
+    aovs: &Option<Vec<Aov>>,
+    cylinders: impl FnOnce() -> Result<Vec<Cylinder>, SceneError>,
+) -> Result<Scene, SceneError> {
+    let cameras = match (camera, cameras) {
+        (Some(c), None) => vec![c.validate("camera")?],
+        (None, Some(list)) if list.is_empty() => {
+            return Err(err("cameras", "must list at least one camera, got []"));
+        }
+        (None, Some(list)) => list
+            .iter()
+            .enumerate()
+            .map(|(k, c)| c.validate(&format!("cameras[{k}]")))
+            .collect::<Result<Vec<_>, _>>()?,
+        (Some(_), Some(_)) => {
+            return Err(err(
+                "",
+                "give exactly one of \"camera\" and \"cameras\", got both",
+            ));
+        }
+        (None, None) => {
+            return Err(err(
+                "",
+                "missing the camera: give \"camera\": {...} or \"cameras\": [{...}, ...]",
+            ));
+        }
+    };
+    let cylinders = cylinders()?;
+    let aovs = match aovs {
+        None => default_aovs(),
+        Some(list) if list.is_empty() => {
+            return Err(err("aovs", "must list at least one AOV, got []"));
+        }
+        Some(list) => {
+            let mut out: Vec<Aov> = Vec::new();
+            for a in list {
+                if !out.contains(a) {
+                    out.push(*a);
+                }
+            }
+            out
+        }
+    };
+    Ok(Scene {
+        camera: cameras[0],
+        cameras,
+        cylinders,
+        aovs,
+    })
 }
 
 impl Scene {
@@ -518,9 +568,9 @@ impl CameraFile {
 
     /// Check every field; `at` is the camera's field path (`camera` or `cameras[K]`).
     fn validate(&self, at: &str) -> Result<CameraSpec, SceneError> {
-        let origin = check_vec(&format!("{at}.origin"), self.origin)?;
-        let target = check_vec(&format!("{at}.target"), self.target)?;
-        let up = check_vec(&format!("{at}.up"), self.up)?;
+        let origin = check_vec(format!("{at}.origin"), self.origin)?;
+        let target = check_vec(format!("{at}.target"), self.target)?;
+        let up = check_vec(format!("{at}.up"), self.up)?;
         let fov = self.fov_deg;
         if !(fov.is_finite() && fov > 0.0 && fov < 180.0) {
             return Err(err(
@@ -603,15 +653,15 @@ impl CameraFile {
 
 impl CylinderFile {
     fn validate(&self, index: usize) -> Result<Cylinder, SceneError> {
-        let f = |name: &str| format!("cylinders[{index}].{name}");
-        let radius = check_positive(&f("radius"), self.radius)?;
+        let f = |name: &'static str| CylinderField { index, name };
+        let radius = check_positive(f("radius"), self.radius)?;
         let (base, axis, height) = match (self.p0, self.p1, self.center, self.axis, self.height) {
             (Some(p0), Some(p1), None, None, None) => {
-                let (p0, p1) = (check_vec(&f("p0"), p0)?, check_vec(&f("p1"), p1)?);
+                let (p0, p1) = (check_vec(f("p0"), p0)?, check_vec(f("p1"), p1)?);
                 let h = (p1 - p0).length();
                 if h == 0.0 {
                     return Err(err(
-                        f("p1"),
+                        f("p1").path(),
                         format!(
                             "must differ from p0 by a length > 0, got {:?}",
                             self.p1.unwrap_or_default()
@@ -621,13 +671,13 @@ impl CylinderFile {
                 (p0, (p1 - p0) / h, h)
             }
             (None, None, Some(c), Some(a), Some(h)) => {
-                let c = check_vec(&f("center"), c)?;
-                let a = check_vec(&f("axis"), a)?;
-                let h = check_positive(&f("height"), h)?;
+                let c = check_vec(f("center"), c)?;
+                let a = check_vec(f("axis"), a)?;
+                let h = check_positive(f("height"), h)?;
                 let len = a.length();
                 if len == 0.0 || !len.is_finite() {
                     return Err(err(
-                        f("axis"),
+                        f("axis").path(),
                         format!("must be non-zero, got {:?}", a.to_array()),
                     ));
                 }
@@ -643,14 +693,16 @@ impl CylinderFile {
         let top = base + axis * height;
         if top.abs().max_element() > MAX_COORD {
             return Err(err(
-                f("height"),
+                f("height").path(),
                 format!("puts the top at {:?}, beyond {MAX_COORD:e}", top.to_array()),
             ));
         }
         let id = match self.id {
-            Some(0) => return Err(err(f("id"), "must be > 0 (0 means miss), got 0")),
+            Some(0) => return Err(err(f("id").path(), "must be > 0 (0 means miss), got 0")),
             Some(id) => id,
-            None => u32::try_from(index + 1).map_err(|_| err(f("id"), "too many cylinders"))?,
+            None => {
+                u32::try_from(index + 1).map_err(|_| err(f("id").path(), "too many cylinders"))?
+            }
         };
         Ok(Cylinder {
             base,
