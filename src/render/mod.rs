@@ -247,7 +247,7 @@ impl<T: Real, F: Formula> Tracer<T, F> {
         let bvh = bvh.filter(|_| wide.is_none());
         let t0 = std::time::Instant::now();
         let mut prepared = Vec::with_capacity(order.len());
-        huge_pages(&prepared);
+        crate::mem::huge_pages(&prepared);
         prepared.par_extend(
             order
                 .par_iter()
@@ -637,29 +637,8 @@ impl<T: Real> TileRays<T> {
 /// A zeroed output plane of `n` samples, in huge pages where the system has them.
 fn zeroed<X: Copy + Default>(n: usize) -> Vec<X> {
     let v = vec![X::default(); n];
-    huge_pages(&v);
+    crate::mem::huge_pages(&v);
     v
-}
-
-/// Ask Linux to back the untouched memory of `v` (its whole capacity) with 2 MiB pages.
-/// A 1080p plane is 8 MB: faulting it in 4 KiB pages took about a third of a render's
-/// time. Only the 2 MiB-aligned interior can be marked; the hint changes no byte, and a
-/// kernel without transparent huge pages ignores it.
-pub(crate) fn huge_pages<X>(v: &Vec<X>) {
-    #[cfg(target_os = "linux")]
-    {
-        const HUGE: usize = 2 << 20;
-        let begin = v.as_ptr() as usize;
-        let end = begin + v.capacity() * size_of::<X>();
-        let (lo, hi) = (begin.next_multiple_of(HUGE), end / HUGE * HUGE);
-        if hi > lo {
-            // SAFETY: [lo, hi) lies inside `v`'s allocation; MADV_HUGEPAGE only changes
-            // how the kernel backs those pages, never their contents.
-            unsafe { libc::madvise(lo as *mut libc::c_void, hi - lo, libc::MADV_HUGEPAGE) };
-        }
-    }
-    #[cfg(not(target_os = "linux"))]
-    let _ = v;
 }
 
 /// Output planes of the requested AOVs; `None` for the rest.

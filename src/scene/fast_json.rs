@@ -583,7 +583,7 @@ fn cylinder_list(b: &[u8], start: usize) -> Option<(Result<Vec<Cylinder>, SceneE
     // did, the serde_json path reports it.
     u32::try_from(total).ok()?;
     let mut list = Vec::with_capacity(total);
-    crate::render::huge_pages(&list);
+    crate::mem::huge_pages(&list);
     list.par_extend(rayon::iter::repeat_n(UNREAD, total));
     let mut parts = Vec::with_capacity(runs.len());
     let (mut rest, mut first) = (list.as_mut_slice(), 0);

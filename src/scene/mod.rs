@@ -8,7 +8,6 @@
 //! Serde types live here only; everything past [`Scene`] is plain validated data. Every
 //! rejection names the field and the value: `cylinders[3].radius: must be > 0, got -1`.
 
-mod bytes;
 pub mod camera;
 mod fast_json;
 pub mod strict;
@@ -299,10 +298,18 @@ pub fn load(path: &Path) -> Result<Scene, SceneError> {
     if meta.len() > MAX_SCENE_BYTES {
         return Err(too_big(meta.len()));
     }
-    let file = std::fs::File::open(path)
-        .and_then(|f| bytes::FileBytes::new(f, meta.len(), MAX_SCENE_BYTES))
+    // Read, not mapped: a mapping would turn a file truncated by another process during
+    // the parse into a SIGBUS, and the bytes under a `&[u8]` could change. Bounded even
+    // when the size was wrong (files in /proc report 0).
+    let mut bytes = Vec::with_capacity(meta.len() as usize);
+    crate::mem::huge_pages(&bytes);
+    std::fs::File::open(path)
+        .and_then(|f| {
+            use std::io::Read;
+            f.take(MAX_SCENE_BYTES + 1).read_to_end(&mut bytes)
+        })
         .map_err(cannot)?;
-    let bytes = file.bytes();
+    let bytes = bytes.as_slice();
     if bytes.len() as u64 > MAX_SCENE_BYTES {
         return Err(too_big(bytes.len() as u64));
     }
