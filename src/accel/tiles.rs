@@ -482,6 +482,16 @@ impl Tiles {
         cam: &Camera,
         cylinders: &[Cylinder],
     ) -> Result<Tiles, Vec<Candidate>> {
+        Self::build_within(cam, cylinders, CROWDED)
+    }
+
+    /// [`Tiles::build_or_projections`] with the crowding limit `crowded` candidates a tile
+    /// on average (`usize::MAX`: never crowded).
+    pub fn build_within(
+        cam: &Camera,
+        cylinders: &[Cylinder],
+        crowded: usize,
+    ) -> Result<Tiles, Vec<Candidate>> {
         let (tiles_x, tiles_y) = (cam.width().div_ceil(TILE), cam.height().div_ceil(TILE));
         assert!(tiles_x <= 1 << 16, "image too wide for tiles");
         let view = View::new(cam);
@@ -506,8 +516,9 @@ impl Tiles {
             }
             false => 0,
         };
-        if cands.par_iter().map(rect).sum::<usize>() > CROWDED * ntiles
-            && cands.par_iter().map(Candidate::tile_entries).sum::<usize>() > CROWDED * ntiles
+        let limit = crowded.saturating_mul(ntiles);
+        if cands.par_iter().map(rect).sum::<usize>() > limit
+            && cands.par_iter().map(Candidate::tile_entries).sum::<usize>() > limit
         {
             return Err(cands);
         }
@@ -546,7 +557,13 @@ impl Tiles {
                 for v in &visits {
                     row.extend_from_slice(&v[ty]);
                 }
-                row.sort_unstable_by_key(|v| (v.key, v.pos));
+                // (key, pos) is unique, so any sort gives the one order; a long row (a
+                // tiny view's single row of tiles) sorts on every thread.
+                if row.len() > 1 << 14 {
+                    row.par_sort_unstable_by_key(|v| (v.key, v.pos));
+                } else {
+                    row.sort_unstable_by_key(|v| (v.key, v.pos));
+                }
                 let mut start = vec![0u32; nx + 1];
                 for v in &row {
                     for tx in v.tx0..=v.tx1 {

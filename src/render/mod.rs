@@ -6,10 +6,12 @@
 //! lists would be crowded, by walking the BVH with the tile's view cone, nearest node
 //! first, and stopping once every pixel's best hit is nearer than the next node
 //! ([`ConeWalk`]): the cost then follows what is visible, not what is listed. Either
-//! way each candidate is rasterised over just the pixels its projection can cover.
+//! way each candidate is rasterised over just the pixels its projection can cover. A tiny
+//! view (under one pixel per 16 cylinders) takes the lists however crowded: its few tiles
+//! cost less to list than any BVH costs to build.
 //!
-//! One traversal per ray (`--accel bvh`, and views of far fewer pixels than cylinders)
-//! goes through the eight-wide tree ([`WideBvh`]; the binary one when there are fewer
+//! One traversal per ray (`--accel bvh`, and a tiny view whose lists would pass their
+//! memory bound) goes through the eight-wide tree ([`WideBvh`]; the binary one when there are fewer
 //! than a quarter as many pixels as cylinders, too few rays to repay collapsing it),
 //! after testing the cylinder the previous pixel hit, whose hit bounds the traversal.
 
@@ -31,8 +33,8 @@ use rayon::prelude::*;
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
 pub enum Accel {
     /// Screen tiles of projected cylinder boxes, nearest first (primary rays only); when
-    /// the tile lists would be crowded, the BVH walked tile by tile (`frustum`); with far
-    /// fewer pixels than cylinders, one BVH traversal per pixel (`bvh`).
+    /// the tile lists would be crowded, the BVH walked tile by tile (`frustum`), unless the
+    /// view is tiny (under one pixel per 16 cylinders): then the lists however crowded.
     #[default]
     Tiles,
     /// The BVH walked once per tile with the tile's view cone, nearest first, stopping
@@ -190,6 +192,14 @@ fn f32_down(x: f64) -> f32 {
     if (f as f64) > x { f.next_down() } else { f }
 }
 
+/// A tiny view's tile lists may hold this many entries per cylinder in all (each entry a
+/// cylinder listed in one tile): past it, one BVH traversal per pixel instead. Measured
+/// with callgrind, 16×16 view of dense 100 000 (one tile, 100 000 entries): the whole
+/// process 454 M instructions through the lists against 488 M through a BVH (whose build
+/// alone is 180 M), and 47 against 63 ms: the lists' sort runs on both cores, the build's
+/// top levels on one.
+const TINY_VIEW_ENTRIES: usize = 16;
+
 impl<T: Real, F: Formula> Tracer<T, F> {
     /// Prepare `scene` for its camera, building the structure `accel` needs.
     pub fn new(scene: &Scene, accel: Accel) -> Self {
@@ -210,14 +220,26 @@ impl<T: Real, F: Formula> Tracer<T, F> {
         // Far more cylinders than the lists could hold uncrowded: crowded unless nearly
         // all lie outside the view, so skip projecting them all for the tiles.
         let hopeless = cylinders.len() > 8 * tiles::CROWDED * ntiles;
-        // Far fewer pixels than cylinders (a 16×16 view of 100 000): one traversal per
-        // pixel is cheaper than any per-tile structure (measured with callgrind on that
-        // view: 923 M instructions for the whole process against 1 068 M for the cone
-        // walk, which visits most of the cloud behind its background pixels).
+        // Far fewer pixels than cylinders (a 16×16 view of 100 000): a per-tile structure
+        // built from a BVH (the cone walk) costs more than the few rays it serves.
         let pixels = camera.width() as usize * camera.height() as usize;
-        let per_ray =
-            accel == Accel::Bvh || (accel == Accel::Tiles && pixels * 16 < cylinders.len());
+        let tiny = pixels * 16 < cylinders.len();
+        let per_ray = accel == Accel::Bvh || (accel == Accel::Tiles && tiny);
         let (bvh, mut tiles, projected) = match accel {
+            // A tiny view: one list per tile of every cylinder it meets, however long,
+            // nearest first: with so few pixels the lists cost less than any BVH build
+            // (a 16×16 view of dense 100 000: see `TINY_VIEW_ENTRIES`). Bounded in
+            // memory; past the bound, one traversal per pixel.
+            Accel::Tiles if tiny => {
+                match Tiles::build_within(
+                    &camera,
+                    cylinders,
+                    TINY_VIEW_ENTRIES * cylinders.len() / ntiles,
+                ) {
+                    Ok(tiles) => (None, Some(tiles), None),
+                    Err(_) => (Some(bvh()), None, None),
+                }
+            }
             _ if per_ray => (Some(bvh()), None, None),
             Accel::Tiles if !hopeless => match Tiles::build_or_projections(&camera, cylinders) {
                 Ok(tiles) => (None, Some(tiles), None),
@@ -1060,7 +1082,8 @@ mod tests {
     }
 
     /// The cone walk gives the per-ray BVH's bits, whether it projects every cylinder
-    /// first or (fewer pixels than cylinders) each as it meets it, at 1 and 2 threads.
+    /// first or (fewer pixels than cylinders) each as it meets it, at 1 and 2 threads; so
+    /// do the tiles, crowded lists and all, on a tiny view.
     #[test]
     fn cone_walk_matches_the_per_ray_bvh() {
         let scenes = [
@@ -1070,6 +1093,9 @@ mod tests {
             // Fewer than a quarter as many pixels as cylinders: the per-ray path keeps the
             // binary tree.
             crate::bench::dense_scene(3000, 6, 24, 16),
+            // A tiny view (under one pixel per 16 cylinders): the tiles take every
+            // cylinder in their lists, however crowded.
+            crate::bench::dense_scene(3000, 6, 8, 6),
         ];
         let mut hits = 0;
         for sc in &scenes {
@@ -1085,14 +1111,16 @@ mod tests {
                 pool.install(|| render(sc, &o))
             };
             let reference = with(Accel::Bvh, 1);
-            for threads in [1, 2] {
-                let r = with(Accel::Frustum, threads);
+            for (accel, threads) in [(Accel::Frustum, 1), (Accel::Frustum, 2), (Accel::Tiles, 2)] {
+                let r = with(accel, threads);
                 assert_eq!(r.hits, reference.hits);
-                assert!(r.image == reference.image, "{threads} threads");
+                assert!(r.image == reference.image, "{accel:?}, {threads} threads");
             }
             hits += reference.hits;
         }
-        assert!(hits > 5_000, "{hits} of 15 684 pixels hit");
+        assert!(hits > 5_000, "{hits} of 15 732 pixels hit");
+        let tiny = Tracer::<f64, Stable>::new(&scenes[4], Accel::Tiles);
+        assert!(tiny.tiles.is_some() && tiny.bvh.is_none() && tiny.wide.is_none());
     }
 
     /// Rays of any direction from the camera find the same nearest hit (cylinder, ray
