@@ -549,7 +549,7 @@ impl<'a> ConeWalk<'a> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
     /// Every box a brute-force f64 slab test finds along each direction (clearly, not at
@@ -597,13 +597,10 @@ mod tests {
         assert_finds_what_brute_force_does(&bvh, &boxes, &dirs);
     }
 
-    /// Boxes at ±2^k along x (k from -120 to 80): binned SAH peels off the few boxes
-    /// outside the first bin per level, so without the cap the tree is 99 levels deep, past
-    /// the 64-entry traversal stack. With it the depth stays bounded and traversal still
-    /// finds every box.
-    #[test]
-    fn skewed_scene_stays_within_the_stack() {
-        let boxes: Vec<(DVec3, DVec3)> = (-120..=80)
+    /// Boxes at ±2^k along x (k from -120 to 80), a quarter as wide as they are far out:
+    /// the scene binned SAH builds too deep (also used by the wide tree's tests).
+    pub(crate) fn skewed_boxes() -> Vec<(DVec3, DVec3)> {
+        (-120..=80)
             .flat_map(|k| {
                 [1.0, -1.0].map(|s| {
                     let x = s * 2f64.powi(k);
@@ -611,7 +608,16 @@ mod tests {
                     (DVec3::new(x, 0.0, 0.0) - e, DVec3::new(x, 0.0, 0.0) + e)
                 })
             })
-            .collect();
+            .collect()
+    }
+
+    /// Boxes at ±2^k along x (k from -120 to 80): binned SAH peels off the few boxes
+    /// outside the first bin per level, so without the cap the tree is 99 levels deep, past
+    /// the 64-entry traversal stack. With it the depth stays bounded and traversal still
+    /// finds every box.
+    #[test]
+    fn skewed_scene_stays_within_the_stack() {
+        let boxes = skewed_boxes();
         let uncapped = Bvh::build_capped(&boxes, DVec3::ZERO, usize::MAX).depth();
         assert!(
             uncapped > MAX_DEPTH,
