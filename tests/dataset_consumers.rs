@@ -133,6 +133,24 @@ fn run_python(py: &Path, code: &str, tail: &str) {
     );
 }
 
+/// Run the README block `name` on the shared dataset, then `check` (Python statements on
+/// its variables), and return the N x 3 array the Python expression `array` gives, through
+/// a float64 `.npy` file.
+fn block_array(py: &Path, name: &str, check: &str, array: &str) -> Vec<DVec3> {
+    let dir = dataset();
+    let npy = dir.join(format!("{name}.npy"));
+    run_python(
+        py,
+        &snippet(name, dir),
+        &format!(
+            "import numpy as np\n{check}\n\
+             np.save(r\"{}\", np.ascontiguousarray({array}, dtype=np.float64))",
+            npy.display()
+        ),
+    );
+    read_npy(&npy)
+}
+
 /// An N x 3 little-endian float64 `.npy`.
 fn read_npy(path: &Path) -> Vec<DVec3> {
     let bytes = std::fs::read(path).unwrap();
@@ -187,16 +205,8 @@ fn max_error(got: &[DVec3], want: &[DVec3]) -> f64 {
 fn numpy_block_gives_the_exact_hit_points() {
     let Some(py) = python() else { return };
     let dir = dataset();
-    let npy = dir.join("numpy.npy");
-    run_python(
-        &py,
-        &snippet("numpy", dir),
-        &format!(
-            "np.save(r\"{}\", np.ascontiguousarray(points))",
-            npy.display()
-        ),
-    );
-    let err = max_error(&read_npy(&npy), &hits(&dir.join("000000/00.exr")));
+    let points = block_array(&py, "numpy", "", "points");
+    let err = max_error(&points, &hits(&dir.join("000000/00.exr")));
     // float32 depth against float32 position of the same ray: coordinates up to ~10 have
     // float32 steps of ~1e-6; measured 5.0e-7.
     assert!(err < 5e-6, "{err:e}");
@@ -207,17 +217,9 @@ fn numpy_block_gives_the_exact_hit_points() {
 fn open3d_reads_the_camera_and_depth_png_within_the_16_bit_rounding() {
     let Some(py) = python() else { return };
     let dir = dataset();
-    let npy = dir.join("open3d.npy");
-    run_python(
-        &py,
-        &snippet("open3d", dir),
-        &format!(
-            "import numpy as np\nnp.save(r\"{}\", np.asarray(pcd.points, dtype=np.float64))",
-            npy.display()
-        ),
-    );
+    let points = block_array(&py, "open3d", "", "pcd.points");
     let bound = png_bound(&dir.join("000000/00.camera.json"));
-    let err = max_error(&read_npy(&npy), &hits(&dir.join("000000/00.exr")));
+    let err = max_error(&points, &hits(&dir.join("000000/00.exr")));
     eprintln!("Open3D: largest distance to the exact hit {err:.2e} (bound {bound:.2e})");
     assert!(err <= bound, "{err:e} > {bound:e}");
     // The bound is tight enough to see a half-pixel principal point error (cx = W/2 in
@@ -229,19 +231,14 @@ fn open3d_reads_the_camera_and_depth_png_within_the_16_bit_rounding() {
 fn opencv_reads_the_depth_png_and_mask_as_written() {
     let Some(py) = python() else { return };
     let dir = dataset();
-    let npy = dir.join("opencv.npy");
-    run_python(
+    let got = block_array(
         &py,
-        &snippet("opencv", dir),
-        &format!(
-            "import numpy as np\nassert depth_mm.dtype == np.uint16, depth_mm.dtype\n\
-             np.save(r\"{}\", np.stack([depth_mm.ravel(), mask.ravel(), np.zeros(mask.size)], 1).astype(np.float64))",
-            npy.display()
-        ),
+        "opencv",
+        "assert depth_mm.dtype == np.uint16, depth_mm.dtype",
+        "np.stack([depth_mm.ravel(), mask.ravel(), np.zeros(mask.size)], 1)",
     );
     let img = AovImage::read_exr(&dir.join("000000/00.exr")).unwrap();
     let depth = img.f32_channel("depth").unwrap();
-    let got = read_npy(&npy);
     assert_eq!(got.len(), depth.len());
     for (k, (g, &z)) in got.iter().zip(depth).enumerate() {
         let want = (z as f64 * SCALE).round();
@@ -267,16 +264,7 @@ fn distance_to_surface(c: &Cylinder, p: DVec3) -> f64 {
 fn nerfstudio_reading_puts_every_view_of_a_scene_on_its_cylinders() {
     let Some(py) = python() else { return };
     let dir = dataset();
-    let npy = dir.join("nerfstudio.npy");
-    run_python(
-        &py,
-        &snippet("nerfstudio", dir),
-        &format!(
-            "np.save(r\"{}\", np.ascontiguousarray(np.concatenate(world)))",
-            npy.display()
-        ),
-    );
-    let points = read_npy(&npy);
+    let points = block_array(&py, "nerfstudio", "", "np.concatenate(world)");
     let scene_file = std::fs::read_dir(dir.parent().unwrap().join("data/scenes"))
         .unwrap()
         .map(|e| e.unwrap().path())
