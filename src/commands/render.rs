@@ -7,14 +7,16 @@
 //! (pictures for people: the names say so).
 
 use crate::output::aov::AovImage;
-use crate::output::aov::{Compression, ExrLayout, exr_attributes, per_aov_image, render_memory};
+use crate::output::aov::{
+    Compression, ExrBands, ExrLayout, exr_attributes, per_aov_image, render_memory,
+};
 use crate::output::depth_png::{self, DepthPng, OutOfRange};
 use crate::output::io::{
     NewDirs, Staged, camera_json, camera_json_path, check_memory, check_output_dir, check_outputs,
     commit_all, open3d_json, stage,
 };
 use crate::output::preview;
-use crate::render::{RenderOptions, render};
+use crate::render::{RenderOptions, render, render_bands};
 use crate::scene::camera::Camera;
 use crate::scene::{self, Aov};
 use anyhow::{Context, Result, bail};
@@ -152,28 +154,111 @@ pub fn run(args: &RenderArgs) -> Result<String> {
             args.preview.is_some() || args.depth_png.is_some(),
         ),
     )?;
+    let dirs = make_dirs(args)?;
+    let cam = Camera::new(scene.camera);
     let t0 = Instant::now();
-    let mut r = render(&scene, &opts);
+    // The common case (one uncompressed EXR, no pictures) is written band by band while
+    // the render runs, since nothing needs the whole image (see `render::render_bands`).
+    let streamed = args.exr_layout == ExrLayout::Layers
+        && args.compression == Compression::None
+        && args.depth_png.is_none()
+        && args.preview.is_none();
+    let (hits, mut image, exr) = if streamed {
+        let staged = stage(&args.out, |_| Ok(()))
+            .with_context(|| format!("writing {}", args.out.display()))?;
+        let attrs = exr_attributes(&cam, &aovs);
+        let exr = ExrBands::new(staged.file(), scene.camera.height as usize, &attrs);
+        let (hits, _) = render_bands(&scene, &opts, &|y0, band| exr.write_band(y0, band))
+            .and_then(|r| exr.finish().map(|()| r))
+            .map_err(crate::output::io::explain)
+            .with_context(|| format!("writing {}", args.out.display()))?;
+        (hits, None, Some(staged))
+    } else {
+        let r = render(&scene, &opts);
+        (r.hits, Some(r.image), None)
+    };
     let trace_ms = t0.elapsed().as_secs_f64() * 1e3;
-    let depth = depth_png(args, &r.image)?;
-    if !aovs.contains(&Aov::Depth) {
-        r.image.channels.retain(|c| c.name != "depth");
+    let depth = match &image {
+        Some(image) => depth_png(args, image)?,
+        None => None,
+    };
+    if let Some(image) = image.as_mut()
+        && !aovs.contains(&Aov::Depth)
+    {
+        image.channels.retain(|c| c.name != "depth");
     }
     let t1 = Instant::now();
-    write(args, &outputs, &scene, &aovs, &r.image, depth.as_ref())?;
+    let exrs = match (exr, &image) {
+        (Some(staged), _) => vec![staged],
+        (None, Some(image)) => stage_exrs(args, &outputs, &cam, &aovs, image)?,
+        (None, None) => unreachable!("an image unless streamed"),
+    };
+    write(
+        args,
+        &outputs,
+        &cam,
+        &aovs,
+        exrs,
+        image.as_ref(),
+        depth.as_ref(),
+    )?;
+    dirs.keep();
     let write_ms = t1.elapsed().as_secs_f64() * 1e3;
-    let (w, h) = (r.image.width, r.image.height);
+    let (w, h) = (cam.width() as usize, cam.height() as usize);
     let peak =
         crate::output::io::peak_rss_mib().map_or(String::new(), |m| format!(", peak {m:.0} MiB"));
+    // Streamed, the EXR was written during the trace: say so rather than time it twice.
+    let trace = if streamed {
+        format!("trace and EXR {trace_ms:.1} ms, other files {write_ms:.1} ms")
+    } else {
+        format!("trace {trace_ms:.1} ms, write {write_ms:.1} ms")
+    };
     Ok(format!(
-        "{}: {w}x{h}, {} cylinders, {} hits ({:.1}%), {}, trace {trace_ms:.1} ms, write {write_ms:.1} ms, total {:.1} ms{peak}",
+        "{}: {w}x{h}, {} cylinders, {hits} hits ({:.1}%), {}, {trace}, total {:.1} ms{peak}",
         args.out.display(),
         scene.cylinders.len(),
-        r.hits,
-        100.0 * r.hits as f64 / (w * h) as f64,
+        100.0 * hits as f64 / (w * h) as f64,
         crate::geometry::Kernel::new(opts.formula, opts.precision),
         start.elapsed().as_secs_f64() * 1e3
     ))
+}
+
+/// The output's parent folder and the preview folder, made now and removed again unless
+/// the render succeeds.
+fn make_dirs(args: &RenderArgs) -> Result<NewDirs> {
+    let mut dirs = NewDirs::default();
+    dirs.create_parent(&args.out)
+        .with_context(|| format!("-o {}", args.out.display()))?;
+    if let Some(dir) = &args.preview {
+        dirs.create(dir)
+            .with_context(|| format!("--preview {}", dir.display()))?;
+    }
+    Ok(dirs)
+}
+
+/// The EXR (layered) or EXRs (one per AOV) of a whole image, staged.
+fn stage_exrs(
+    args: &RenderArgs,
+    outputs: &Outputs,
+    cam: &Camera,
+    aovs: &[Aov],
+    image: &AovImage,
+) -> Result<Vec<Staged>> {
+    let mut staged = Vec::new();
+    match args.exr_layout {
+        ExrLayout::Layers => {
+            let attrs = exr_attributes(cam, aovs);
+            staged.push(image.stage_exr_with(&args.out, args.compression, &attrs)?);
+        }
+        ExrLayout::PerAov => {
+            for (&a, path) in aovs.iter().zip(&outputs.exrs) {
+                let one = per_aov_image(image, a)?;
+                let attrs = exr_attributes(cam, &[a]);
+                staged.push(one.stage_exr_with(path, args.compression, &attrs)?);
+            }
+        }
+    }
+    Ok(staged)
 }
 
 /// The 16-bit depth PNG, when asked for: a depth beyond 16 bits fails the render, or is
@@ -196,41 +281,20 @@ fn depth_png(args: &RenderArgs, image: &AovImage) -> Result<Option<DepthPng>> {
     Ok(Some(d.png))
 }
 
-/// Stage every output under a temporary name and rename them into place only when all were
-/// written: a failure leaves none of them (nor the folders made for them).
+/// Stage the other outputs beside the staged EXRs, then rename them all into place only
+/// when every one was written: a failure leaves none of them.
 fn write(
     args: &RenderArgs,
     outputs: &Outputs,
-    scene: &scene::Scene,
+    cam: &Camera,
     aovs: &[Aov],
-    image: &AovImage,
+    mut staged: Vec<Staged>,
+    image: Option<&AovImage>,
     depth: Option<&DepthPng>,
 ) -> Result<()> {
-    let mut dirs = NewDirs::default();
-    dirs.create_parent(&args.out)
-        .with_context(|| format!("-o {}", args.out.display()))?;
-    if let Some(dir) = &args.preview {
-        dirs.create(dir)
-            .with_context(|| format!("--preview {}", dir.display()))?;
-    }
-    let cam = Camera::new(scene.camera);
-    let mut staged = Vec::new();
-    match args.exr_layout {
-        ExrLayout::Layers => {
-            let attrs = exr_attributes(&cam, aovs);
-            staged.push(image.stage_exr_with(&args.out, args.compression, &attrs)?);
-        }
-        ExrLayout::PerAov => {
-            for (&a, path) in aovs.iter().zip(&outputs.exrs) {
-                let one = per_aov_image(image, a)?;
-                let attrs = exr_attributes(&cam, &[a]);
-                staged.push(one.stage_exr_with(path, args.compression, &attrs)?);
-            }
-        }
-    }
     for (path, text) in [
-        (&outputs.camera, camera_json(&cam, aovs)),
-        (&outputs.open3d, open3d_json(&cam)),
+        (&outputs.camera, camera_json(cam, aovs)),
+        (&outputs.open3d, open3d_json(cam)),
     ] {
         staged.push(
             stage(path, |f| f.write_all(text.as_bytes()))
@@ -240,11 +304,10 @@ fn write(
     if let (Some(png), Some(path)) = (depth, &outputs.depth_png) {
         staged.push(preview::stage_png(png, path)?);
     }
-    if let Some(dir) = &args.preview {
+    if let (Some(dir), Some(image)) = (&args.preview, image) {
         staged.extend(stage_previews(image, dir, &stem(&args.out))?);
     }
     commit_all(staged).context("putting the outputs in place")?;
-    dirs.keep();
     Ok(())
 }
 

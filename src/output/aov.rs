@@ -413,82 +413,11 @@ impl AovImage {
         out: &mut W,
         attrs: &[ExrAttr],
     ) -> std::io::Result<()> {
-        let mut order: Vec<&Channel> = self.channels.iter().collect();
-        order.sort_by(|a, b| a.name.as_bytes().cmp(b.name.as_bytes()));
-        let (w, h) = (self.width, self.height);
-        let mut head = Vec::with_capacity(512);
-        head.extend_from_slice(&20000630i32.to_le_bytes());
-        head.extend_from_slice(&2i32.to_le_bytes());
-        let mut attr = |name: &str, ty: &str, value: &[u8]| {
-            for s in [name, ty] {
-                head.extend_from_slice(s.as_bytes());
-                head.push(0);
-            }
-            head.extend_from_slice(&(value.len() as i32).to_le_bytes());
-            head.extend_from_slice(value);
-        };
-        let mut chlist = Vec::new();
-        for c in &order {
-            chlist.extend_from_slice(c.name.as_bytes());
-            chlist.push(0);
-            let pixel_type: i32 = match c.data {
-                ChannelData::U32(_) => 0,
-                ChannelData::F32(_) => 2,
-            };
-            chlist.extend_from_slice(&pixel_type.to_le_bytes());
-            chlist.extend_from_slice(&[0, 0, 0, 0]); // pLinear, reserved
-            chlist.extend_from_slice(&1i32.to_le_bytes()); // x sampling
-            chlist.extend_from_slice(&1i32.to_le_bytes()); // y sampling
-        }
-        chlist.push(0);
-        let window: Vec<u8> = [0i32, 0, w as i32 - 1, h as i32 - 1]
-            .iter()
-            .flat_map(|v| v.to_le_bytes())
-            .collect();
-        attr("channels", "chlist", &chlist);
-        attr("compression", "compression", &[0]);
-        attr("dataWindow", "box2i", &window);
-        attr("displayWindow", "box2i", &window);
-        attr("lineOrder", "lineOrder", &[0]);
-        attr("pixelAspectRatio", "float", &1f32.to_le_bytes());
-        attr("screenWindowCenter", "v2f", &[0u8; 8]);
-        attr("screenWindowWidth", "float", &1f32.to_le_bytes());
-        for a in attrs {
-            match a {
-                ExrAttr::M44f(name, m) => {
-                    let bytes: Vec<u8> = m.iter().flat_map(|x| x.to_le_bytes()).collect();
-                    attr(name, "m44f", &bytes);
-                }
-                ExrAttr::Text(name, s) => attr(name, "string", s.as_bytes()),
-                ExrAttr::Float(name, x) => attr(name, "float", &x.to_le_bytes()),
-            }
-        }
-        head.push(0);
-        let line_bytes = w * 4 * order.len();
-        let data_start = head.len() + 8 * h;
-        for y in 0..h {
-            head.extend_from_slice(&((data_start + y * (8 + line_bytes)) as u64).to_le_bytes());
-        }
-        out.write_all(&head)?;
-        let mut scratch: Vec<u8> = Vec::new();
-        for y in 0..h {
-            out.write_all(&(y as i32).to_le_bytes())?;
-            out.write_all(&(line_bytes as i32).to_le_bytes())?;
-            for c in &order {
-                let row = y * w..(y + 1) * w;
-                let bytes: &[u8] = match &c.data {
-                    ChannelData::F32(v) => bytemuck::cast_slice(&v[row]),
-                    ChannelData::U32(v) => bytemuck::cast_slice(&v[row]),
-                };
-                if cfg!(target_endian = "little") {
-                    out.write_all(bytes)?;
-                } else {
-                    // Samples are stored little-endian: swap each 4-byte word.
-                    scratch.clear();
-                    scratch.extend(bytes.chunks_exact(4).flat_map(|q| [q[3], q[2], q[1], q[0]]));
-                    out.write_all(&scratch)?;
-                }
-            }
+        let layout = Uncompressed::new(self, self.height, attrs);
+        out.write_all(&layout.head)?;
+        let mut scratch = Vec::new();
+        for y in 0..self.height {
+            layout.write_line(out, self, y, y, &mut scratch)?;
         }
         Ok(())
     }
@@ -525,5 +454,235 @@ impl AovImage {
             height: size.1,
             channels,
         })
+    }
+}
+
+/// The layout of an uncompressed single-part scanline OpenEXR: magic and version, the
+/// header attributes, the offset table (one u64 per line), then per line its `y`, byte
+/// count, and each channel's row in channel-name order. Every line has the same size, so
+/// where each line lies is known before any is written (what lets bands be written in any
+/// order, see [`ExrBands`]).
+struct Uncompressed {
+    /// Everything before the first line: magic, attributes, offset table.
+    head: Vec<u8>,
+    /// Channel positions in the image, in file (name) order.
+    order: Vec<usize>,
+    /// Bytes of one line after its `y` and byte count.
+    line_bytes: usize,
+}
+
+impl Uncompressed {
+    /// The layout of an image `height` rows tall with the channels (names, types, width)
+    /// of `img`, which may be a band of it.
+    fn new(img: &AovImage, height: usize, attrs: &[ExrAttr]) -> Uncompressed {
+        let mut order: Vec<usize> = (0..img.channels.len()).collect();
+        order.sort_by(|&a, &b| {
+            let name = |k: usize| img.channels[k].name.as_bytes();
+            name(a).cmp(name(b))
+        });
+        let w = img.width;
+        let mut head = Vec::with_capacity(512);
+        head.extend_from_slice(&20000630i32.to_le_bytes());
+        head.extend_from_slice(&2i32.to_le_bytes());
+        let mut attr = |name: &str, ty: &str, value: &[u8]| {
+            for s in [name, ty] {
+                head.extend_from_slice(s.as_bytes());
+                head.push(0);
+            }
+            head.extend_from_slice(&(value.len() as i32).to_le_bytes());
+            head.extend_from_slice(value);
+        };
+        let mut chlist = Vec::new();
+        for &k in &order {
+            let c = &img.channels[k];
+            chlist.extend_from_slice(c.name.as_bytes());
+            chlist.push(0);
+            let pixel_type: i32 = match c.data {
+                ChannelData::U32(_) => 0,
+                ChannelData::F32(_) => 2,
+            };
+            chlist.extend_from_slice(&pixel_type.to_le_bytes());
+            chlist.extend_from_slice(&[0, 0, 0, 0]); // pLinear, reserved
+            chlist.extend_from_slice(&1i32.to_le_bytes()); // x sampling
+            chlist.extend_from_slice(&1i32.to_le_bytes()); // y sampling
+        }
+        chlist.push(0);
+        let window: Vec<u8> = [0i32, 0, w as i32 - 1, height as i32 - 1]
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
+        attr("channels", "chlist", &chlist);
+        attr("compression", "compression", &[0]);
+        attr("dataWindow", "box2i", &window);
+        attr("displayWindow", "box2i", &window);
+        attr("lineOrder", "lineOrder", &[0]);
+        attr("pixelAspectRatio", "float", &1f32.to_le_bytes());
+        attr("screenWindowCenter", "v2f", &[0u8; 8]);
+        attr("screenWindowWidth", "float", &1f32.to_le_bytes());
+        for a in attrs {
+            match a {
+                ExrAttr::M44f(name, m) => {
+                    let bytes: Vec<u8> = m.iter().flat_map(|x| x.to_le_bytes()).collect();
+                    attr(name, "m44f", &bytes);
+                }
+                ExrAttr::Text(name, s) => attr(name, "string", s.as_bytes()),
+                ExrAttr::Float(name, x) => attr(name, "float", &x.to_le_bytes()),
+            }
+        }
+        head.push(0);
+        let line_bytes = w * 4 * order.len();
+        let data_start = head.len() + 8 * height;
+        for y in 0..height {
+            head.extend_from_slice(&((data_start + y * (8 + line_bytes)) as u64).to_le_bytes());
+        }
+        Uncompressed {
+            head,
+            order,
+            line_bytes,
+        }
+    }
+
+    /// Where line `y` starts in the file.
+    fn line_offset(&self, y: usize) -> u64 {
+        (self.head.len() + y * (8 + self.line_bytes)) as u64
+    }
+
+    /// Write row `row` of `img` as the file's line `y`. Every row is already contiguous in
+    /// its plane, so on little-endian machines a line is written as slices.
+    fn write_line<W: std::io::Write>(
+        &self,
+        out: &mut W,
+        img: &AovImage,
+        row: usize,
+        y: usize,
+        scratch: &mut Vec<u8>,
+    ) -> std::io::Result<()> {
+        let w = img.width;
+        out.write_all(&(y as i32).to_le_bytes())?;
+        out.write_all(&(self.line_bytes as i32).to_le_bytes())?;
+        for &k in &self.order {
+            let samples = row * w..(row + 1) * w;
+            let bytes: &[u8] = match &img.channels[k].data {
+                ChannelData::F32(v) => bytemuck::cast_slice(&v[samples]),
+                ChannelData::U32(v) => bytemuck::cast_slice(&v[samples]),
+            };
+            if cfg!(target_endian = "little") {
+                out.write_all(bytes)?;
+            } else {
+                // Samples are stored little-endian: swap each 4-byte word.
+                scratch.clear();
+                scratch.extend(bytes.chunks_exact(4).flat_map(|q| [q[3], q[2], q[1], q[0]]));
+                out.write_all(scratch)?;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// An uncompressed OpenEXR written band by band, in any order and from any thread, while
+/// the rest of the image is still being traced (see [`crate::render::render_bands`]): each
+/// band's lines go straight to their place in the file (positional writes), the header
+/// last, once the first band has shown the channels. The file is the same bytes
+/// [`AovImage::write_uncompressed_with`] writes for the whole image (tested).
+pub struct ExrBands<'f> {
+    file: &'f std::fs::File,
+    height: usize,
+    attrs: &'f [ExrAttr],
+    layout: std::sync::OnceLock<Uncompressed>,
+}
+
+impl<'f> ExrBands<'f> {
+    /// A writer of an image `height` rows tall into `file` (empty, e.g. staged), with the
+    /// extra header attributes `attrs`.
+    pub fn new(file: &'f std::fs::File, height: usize, attrs: &'f [ExrAttr]) -> Self {
+        ExrBands {
+            file,
+            height,
+            attrs,
+            layout: std::sync::OnceLock::new(),
+        }
+    }
+
+    /// Write `band`, the image's rows from `y0`.
+    pub fn write_band(&self, y0: usize, band: &AovImage) -> std::io::Result<()> {
+        use std::os::unix::fs::FileExt;
+        let layout = self
+            .layout
+            .get_or_init(|| Uncompressed::new(band, self.height, self.attrs));
+        let mut bytes = Vec::with_capacity(band.height * (8 + layout.line_bytes));
+        let mut scratch = Vec::new();
+        for row in 0..band.height {
+            layout.write_line(&mut bytes, band, row, y0 + row, &mut scratch)?;
+        }
+        self.file.write_all_at(&bytes, layout.line_offset(y0))
+    }
+
+    /// Write the header and offset table: after every band.
+    pub fn finish(self) -> std::io::Result<()> {
+        use std::os::unix::fs::FileExt;
+        match self.layout.get() {
+            Some(layout) => self.file.write_all_at(&layout.head, 0),
+            None => Err(std::io::Error::other("no band was written")),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Written band by band in scrambled order through positional writes, the file is the
+    /// bytes of the whole image's streamed write (mixed f32 and u32 channels, names out of
+    /// order, a last band of one row), and the `exr` crate reads it back.
+    #[test]
+    fn band_writes_make_the_whole_file() {
+        let (w, h) = (37, 33);
+        let ramp = |k: f32| (0..w * h).map(|i| i as f32 * k - 5.0).collect::<Vec<f32>>();
+        let channel = |name: &str, data| Channel {
+            name: name.into(),
+            data,
+        };
+        let img = AovImage {
+            width: w,
+            height: h,
+            channels: vec![
+                channel("normal.Z", ChannelData::F32(ramp(0.25))),
+                channel("depth", ChannelData::F32(ramp(1.5))),
+                channel("shape_id", ChannelData::U32((0..(w * h) as u32).collect())),
+            ],
+        };
+        let attrs = [ExrAttr::Text("cylaov:units".into(), "m".into())];
+        let mut whole = Vec::new();
+        img.write_uncompressed_with(&mut whole, &attrs).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("bands.exr");
+        let file = std::fs::File::create(&path).unwrap();
+        let bands = ExrBands::new(&file, h, &attrs);
+        for y0 in [32, 16, 0] {
+            let rows = y0..(y0 + 16).min(h);
+            let samples = rows.start * w..rows.end * w;
+            let band = AovImage {
+                width: w,
+                height: rows.len(),
+                channels: img
+                    .channels
+                    .iter()
+                    .map(|c| Channel {
+                        name: c.name.clone(),
+                        data: match &c.data {
+                            ChannelData::F32(v) => ChannelData::F32(v[samples.clone()].to_vec()),
+                            ChannelData::U32(v) => ChannelData::U32(v[samples.clone()].to_vec()),
+                        },
+                    })
+                    .collect(),
+            };
+            bands.write_band(y0, &band).unwrap();
+        }
+        bands.finish().unwrap();
+        drop(file);
+        assert!(std::fs::read(&path).unwrap() == whole, "the same bytes");
+        let back = AovImage::read_exr(&path).unwrap();
+        assert_eq!(back.f32_channel("depth"), img.f32_channel("depth"));
+        assert_eq!(back.u32_channel("shape_id"), img.u32_channel("shape_id"));
     }
 }

@@ -358,6 +358,11 @@ impl Staged {
         self.file.path()
     }
 
+    /// The temporary file, for a writer that fills it in place (positional writes).
+    pub fn file(&self) -> &File {
+        self.file.as_file()
+    }
+
     /// Rename the file into place.
     pub fn commit(self) -> io::Result<()> {
         self.file.persist(&self.path).map_err(|e| e.error)?;

@@ -671,6 +671,13 @@ struct Planes<P> {
     position: Option<[P; 3]>,
 }
 
+/// The requested planes of an image or a band (`shape_id` and `part` as u32).
+struct Samples {
+    f: Planes<Vec<f32>>,
+    id: Option<Vec<u32>>,
+    part: Option<Vec<u32>>,
+}
+
 /// One band's slices of every requested plane (`shape_id` and `part` as u32).
 struct Band<'a> {
     f: Planes<&'a mut [f32]>,
@@ -679,13 +686,8 @@ struct Band<'a> {
 }
 
 /// Cut each requested plane into bands of `len` samples.
-fn bands<'a>(
-    f: &'a mut Planes<Vec<f32>>,
-    id: &'a mut Option<Vec<u32>>,
-    part: &'a mut Option<Vec<u32>>,
-    len: usize,
-    count: usize,
-) -> Vec<Band<'a>> {
+fn bands<'a>(samples: &'a mut Samples, len: usize, count: usize) -> Vec<Band<'a>> {
+    let Samples { f, id, part } = samples;
     fn cut<X>(v: Option<&mut Vec<X>>, len: usize, count: usize) -> Vec<Option<&mut [X]>> {
         match v {
             Some(v) => v.chunks_mut(len).map(Some).collect(),
@@ -917,48 +919,48 @@ fn render_with<T: Simd, F: PacketFormula>(scene: &Scene, opts: &RenderOptions) -
     render_simd::<T, F>(scene, opts, true)
 }
 
-/// [`render_with`], with the AVX2 path allowed or not (the test of their agreement).
-fn render_simd<T: Simd, F: PacketFormula>(
-    scene: &Scene,
-    opts: &RenderOptions,
-    simd: bool,
-) -> (Render, Timing) {
-    let start = std::time::Instant::now();
-    let (tracer, prepare) = Tracer::<T, F>::new_timed(scene, opts.accel);
-    let build = start.elapsed() - prepare;
-    let cam = &tracer.camera;
-    let (w, h) = (cam.width() as usize, cam.height() as usize);
-    let n = w * h;
+/// The output planes of `n` samples for the requested AOVs, zeroed (a miss is 0
+/// everywhere); in huge pages when `huge` (a whole image, not a band).
+fn output_planes(opts: &RenderOptions, n: usize, huge: bool) -> Samples {
     let want = |a: Aov| opts.aovs.contains(&a);
-    let plane = || zeroed::<f32>(n);
-    let mut planes = Planes {
+    let plane = || {
+        if huge {
+            zeroed::<f32>(n)
+        } else {
+            vec![0f32; n]
+        }
+    };
+    let ids = || {
+        if huge {
+            zeroed::<u32>(n)
+        } else {
+            vec![0u32; n]
+        }
+    };
+    let planes = Planes {
         distance: want(Aov::Distance).then(plane),
         depth: want(Aov::Depth).then(plane),
         // Camera-frame normals are the world normals rotated: both need these planes.
         normal: (want(Aov::Normal) || want(Aov::NormalCamera)).then(|| [plane(), plane(), plane()]),
         position: want(Aov::Position).then(|| [plane(), plane(), plane()]),
     };
-    let mut id = want(Aov::ShapeId).then(|| zeroed::<u32>(n));
-    let mut part = want(Aov::Part).then(|| zeroed::<u32>(n));
-    let band_rows = TILE as usize;
-    let count = h.div_ceil(band_rows);
-    let ids: Vec<u32> = scene.cylinders.iter().map(|c| c.id).collect();
-    let padded = w.div_ceil(TILE as usize) * TILE as usize;
-    let cols_off: Vec<f64> = (0..padded as u32).map(|i| cam.column_offset(i)).collect();
-    let rows_off: Vec<f64> = (0..h as u32).map(|j| cam.row_offset(j)).collect();
-    let inputs = BandInputs {
-        tracer: &tracer,
-        ids: &ids,
-        cols_off: &cols_off,
-        rows_off: &rows_off,
-    };
-    let band_fn = band_renderer::<T, F>(simd);
-    let hits: usize = bands(&mut planes, &mut id, &mut part, band_rows * w, count)
-        .into_par_iter()
-        .enumerate()
-        .map(|(b, mut band)| band_fn(&inputs, b, &mut band))
-        .sum();
+    Samples {
+        f: planes,
+        id: want(Aov::ShapeId).then(ids),
+        part: want(Aov::Part).then(ids),
+    }
+}
 
+/// The channels of filled planes, in the order every image of a render has them (a whole
+/// image and each of its bands alike): the requested AOVs, `normal_camera` rotated from
+/// the world normals here.
+fn channels_of(opts: &RenderOptions, cam: &Camera, samples: Samples) -> Vec<Channel> {
+    let Samples {
+        f: mut planes,
+        id,
+        part,
+    } = samples;
+    let want = |a: Aov| opts.aovs.contains(&a);
     let mut channels = Vec::new();
     let mut push = |name: &str, data: Option<ChannelData>| {
         if let Some(data) = data {
@@ -999,23 +1001,205 @@ fn render_simd<T: Simd, F: PacketFormula>(
     {
         push(c, v.map(ChannelData::F32));
     }
-    let timing = Timing {
-        build,
-        prepare,
-        trace: start.elapsed() - build - prepare,
-    };
+    channels
+}
+
+/// What every band of one render reads, kept while the bands are traced.
+struct Setup<T: Real, F: Formula> {
+    tracer: Tracer<T, F>,
+    ids: Vec<u32>,
+    cols_off: Vec<f64>,
+    rows_off: Vec<f64>,
+    build: std::time::Duration,
+    prepare: std::time::Duration,
+}
+
+impl<T: Real, F: Formula> Setup<T, F> {
+    fn new(scene: &Scene, opts: &RenderOptions) -> Self {
+        let start = std::time::Instant::now();
+        let (tracer, prepare) = Tracer::<T, F>::new_timed(scene, opts.accel);
+        let build = start.elapsed() - prepare;
+        let cam = &tracer.camera;
+        let (w, h) = (cam.width() as usize, cam.height() as usize);
+        let padded = w.div_ceil(TILE as usize) * TILE as usize;
+        let cols_off = (0..padded as u32).map(|i| cam.column_offset(i)).collect();
+        let rows_off = (0..h as u32).map(|j| cam.row_offset(j)).collect();
+        Setup {
+            ids: scene.cylinders.iter().map(|c| c.id).collect(),
+            tracer,
+            cols_off,
+            rows_off,
+            build,
+            prepare,
+        }
+    }
+
+    fn inputs(&self) -> BandInputs<'_, T, F> {
+        BandInputs {
+            tracer: &self.tracer,
+            ids: &self.ids,
+            cols_off: &self.cols_off,
+            rows_off: &self.rows_off,
+        }
+    }
+
+    fn timing(&self, start: std::time::Instant) -> Timing {
+        Timing {
+            build: self.build,
+            prepare: self.prepare,
+            trace: start.elapsed() - self.build - self.prepare,
+        }
+    }
+}
+
+/// [`render_with`], with the AVX2 path allowed or not (the test of their agreement).
+fn render_simd<T: Simd, F: PacketFormula>(
+    scene: &Scene,
+    opts: &RenderOptions,
+    simd: bool,
+) -> (Render, Timing) {
+    let start = std::time::Instant::now();
+    let setup = Setup::<T, F>::new(scene, opts);
+    let cam = &setup.tracer.camera;
+    let (w, h) = (cam.width() as usize, cam.height() as usize);
+    let band_rows = TILE as usize;
+    let mut samples = output_planes(opts, w * h, true);
+    let inputs = setup.inputs();
+    let band_fn = band_renderer::<T, F>(simd);
+    let hits: usize = bands(&mut samples, band_rows * w, h.div_ceil(band_rows))
+        .into_par_iter()
+        .enumerate()
+        .map(|(b, mut band)| band_fn(&inputs, b, &mut band))
+        .sum();
+    let channels = channels_of(opts, cam, samples);
     let image = AovImage {
         width: w,
         height: h,
         channels,
     };
-    (Render { image, hits }, timing)
+    (Render { image, hits }, setup.timing(start))
+}
+
+/// Where [`render_bands`] hands each band: its first row and the band as an image of its
+/// rows (every channel a whole render has, in the same order).
+pub type BandSink<'a> = dyn Fn(usize, &AovImage) -> std::io::Result<()> + Sync + 'a;
+
+/// [`render_timed`], handing each band of 16 rows to `sink` as soon as it is traced
+/// instead of keeping the whole image; returns the hit count. A band's samples are the
+/// bits the whole render has at those rows. Bands arrive in any order, on any thread; the
+/// first error stops the render and is returned.
+///
+/// Why: on a virtual machine whose host reclaims freed memory (a balloon), the first write
+/// to a fresh page costs about a millisecond per MiB, so the planes of a 1080p depth +
+/// normal render (33 MB) cost more than tracing them (dense 1 000); a band's buffers are
+/// small and reused by the allocator, and writing each band out while others trace
+/// spreads the file's own page-cache work over every core.
+pub fn render_bands(
+    scene: &Scene,
+    opts: &RenderOptions,
+    sink: &BandSink,
+) -> std::io::Result<(usize, Timing)> {
+    struct Run<'a, 'b>(&'a Scene, &'a RenderOptions, &'a BandSink<'b>);
+    impl KernelFn for Run<'_, '_> {
+        type Output = std::io::Result<(usize, Timing)>;
+        fn call<T: Simd, F: PacketFormula>(self) -> Self::Output {
+            bands_simd::<T, F>(self.0, self.1, self.2)
+        }
+    }
+    Kernel::new(opts.formula, opts.precision).dispatch(Run(scene, opts, sink))
+}
+
+fn bands_simd<T: Simd, F: PacketFormula>(
+    scene: &Scene,
+    opts: &RenderOptions,
+    sink: &BandSink,
+) -> std::io::Result<(usize, Timing)> {
+    let start = std::time::Instant::now();
+    let setup = Setup::<T, F>::new(scene, opts);
+    let cam = &setup.tracer.camera;
+    let (w, h) = (cam.width() as usize, cam.height() as usize);
+    let band_rows = TILE as usize;
+    let inputs = setup.inputs();
+    let band_fn = band_renderer::<T, F>(true);
+    let hits = (0..h.div_ceil(band_rows))
+        .into_par_iter()
+        .map(|b| {
+            let rows = band_rows.min(h - b * band_rows);
+            let mut samples = output_planes(opts, rows * w, false);
+            let mut band = bands(&mut samples, rows * w, 1);
+            let hits = band_fn(&inputs, b, &mut band[0]);
+            drop(band);
+            let image = AovImage {
+                width: w,
+                height: rows,
+                channels: channels_of(opts, cam, samples),
+            };
+            sink(b * band_rows, &image).map(|()| hits)
+        })
+        .try_reduce(|| 0, |a, b| Ok(a + b))?;
+    Ok((hits, setup.timing(start)))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::geometry::Stable;
+
+    /// Rendered band by band, every AOV is the whole render's bits at the band's rows (an
+    /// odd size: a last band of 97 mod 16 = 1 row, partial tiles), through each structure;
+    /// the bands cover the image once; an error from the sink ends the render with it.
+    #[test]
+    fn bands_are_the_whole_render() {
+        let mut sc = crate::bench::dense_scene(2000, 5, 211, 117);
+        (sc.camera.width, sc.camera.height) = (173, 97);
+        for accel in [Accel::Tiles, Accel::Frustum, Accel::Bvh] {
+            let o = RenderOptions {
+                accel,
+                ..RenderOptions::new(Aov::ALL.to_vec())
+            };
+            let whole = render(&sc, &o);
+            let seen = std::sync::Mutex::new(vec![0u32; 97]);
+            let (hits, _) = render_bands(&sc, &o, &|y0, band| {
+                assert_eq!(band.width, 173);
+                let names: Vec<_> = band.channels.iter().map(|c| &c.name).collect();
+                let want: Vec<_> = whole.image.channels.iter().map(|c| &c.name).collect();
+                assert_eq!(names, want, "same channels, same order");
+                let rows = y0 * 173..(y0 + band.height) * 173;
+                for (c, w) in band.channels.iter().zip(&whole.image.channels) {
+                    let same = match (&c.data, &w.data) {
+                        (ChannelData::F32(a), ChannelData::F32(b)) => a
+                            .iter()
+                            .map(|x| x.to_bits())
+                            .eq(b[rows.clone()].iter().map(|x| x.to_bits())),
+                        (ChannelData::U32(a), ChannelData::U32(b)) => a[..] == b[rows.clone()],
+                        _ => false,
+                    };
+                    assert!(
+                        same,
+                        "{accel:?}: {} differs in the band at row {y0}",
+                        c.name
+                    );
+                }
+                for n in &mut seen.lock().unwrap()[y0..y0 + band.height] {
+                    *n += 1;
+                }
+                Ok(())
+            })
+            .unwrap();
+            assert_eq!(hits, whole.hits);
+            assert!(hits > 1000, "{hits} hits");
+            assert!(seen.into_inner().unwrap().iter().all(|&n| n == 1));
+        }
+        let o = RenderOptions::new(vec![Aov::Depth]);
+        let err = render_bands(&sc, &o, &|y0, _| {
+            if y0 == 48 {
+                Err(std::io::Error::other("disk full at 48"))
+            } else {
+                Ok(())
+            }
+        });
+        assert_eq!(err.unwrap_err().to_string(), "disk full at 48");
+    }
 
     /// The AVX2 band renderer and the portable one give the same bits, on every committed
     /// scene (grazing, inside, far, huge, axis-parallel views among them) and a crowd,
