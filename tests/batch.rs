@@ -113,6 +113,15 @@ fn same_seed_gives_identical_bytes() {
     let (ra, rb) = (tree(&dir.join("ra")), tree(&dir.join("rb")));
     assert_eq!(ra.len(), 6 * 7 + 2, "{:?}", ra.keys());
     assert_eq!(ra, rb);
+    // Without PNGs each EXR is written band by band during the trace: the same bytes as
+    // the whole-image write of the run with PNGs.
+    batch_ok(&a, &dir.join("rn"), &["--no-png"]);
+    let rn = tree(&dir.join("rn"));
+    let exrs: Vec<_> = ra.keys().filter(|k| k.ends_with(".exr")).collect();
+    assert_eq!(exrs.len(), 6);
+    for k in exrs {
+        assert!(rn.get(k) == ra.get(k), "{k} differs without PNGs");
+    }
 }
 
 #[test]

@@ -4,12 +4,13 @@
 use super::options::BatchOptions;
 use super::resume::{ViewFiles, render_stamp};
 use crate::output::aov::{
-    AovImage, ExrLayout, channel_names, exr_attributes, per_aov_image, render_memory,
+    AovImage, Compression, ExrBands, ExrLayout, channel_names, exr_attributes, per_aov_image,
+    render_memory,
 };
 use crate::output::depth_png;
 use crate::output::io::{camera_json, open3d_json};
 use crate::output::preview;
-use crate::render::{RenderOptions, render};
+use crate::render::{RenderOptions, render, render_bands};
 use crate::scene::camera::Camera;
 use crate::scene::{Aov, Scene};
 use anyhow::{Context, Result, anyhow};
@@ -21,9 +22,10 @@ use std::time::{Duration, Instant};
 /// Time spent on one rendered view, and what its depth PNG could not hold.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct ViewCost {
-    /// BVH build + tracing into the in-memory AOV image.
+    /// BVH build + tracing into the in-memory AOV image; with one uncompressed EXR and
+    /// no PNGs, the EXR too (written band by band during the trace).
     pub trace: Duration,
-    /// PNG encoding, EXR encoding, camera JSON, all writes and renames.
+    /// PNG encoding, EXR encoding (unless streamed), camera JSON, all writes and renames.
     pub write: Duration,
     /// Hit pixels stored as 0 in the depth PNG (`--depth-out-of-range zero`).
     pub depth_zeroed: usize,
@@ -82,21 +84,41 @@ pub fn render_view(
     opts: &BatchOptions,
 ) -> Result<ViewCost> {
     let exr_aovs = opts.exr_aovs(scene);
+    let tmp = |suffix: &str| partial.join(format!("{tmp_stem}.{suffix}.tmp"));
+    let done = ViewFiles::new(dir, name);
+    let cam = Camera::new(scene.camera);
+    let render_opts = RenderOptions {
+        precision: opts.precision,
+        formula: opts.formula,
+        ..RenderOptions::new(traced_aovs(scene, opts))
+    };
     let t0 = Instant::now();
-    let mut image = render(
-        scene,
-        &RenderOptions {
-            precision: opts.precision,
-            formula: opts.formula,
-            ..RenderOptions::new(traced_aovs(scene, opts))
-        },
-    )
-    .image;
+    // One uncompressed EXR and no pictures: written band by band while the view is
+    // traced (see `render::render_bands`); `trace` then includes the EXR.
+    if !opts.png && opts.exr_layout == ExrLayout::Layers && opts.compression == Compression::None {
+        let exr_tmp = tmp("exr");
+        let file =
+            File::create(&exr_tmp).with_context(|| format!("creating {}", exr_tmp.display()))?;
+        let attrs = exr_attributes(&cam, &exr_aovs);
+        let exr = ExrBands::new(&file, scene.camera.height as usize, &attrs);
+        render_bands(scene, &render_opts, &|y0, band| exr.write_band(y0, band))
+            .and_then(|_| exr.finish())
+            .with_context(|| format!("writing {}", exr_tmp.display()))?;
+        let trace = t0.elapsed();
+        let t1 = Instant::now();
+        let mut moves = write_texts(scene, opts, &cam, &exr_aovs, &tmp, &done)?;
+        moves.push((exr_tmp, done.exr.clone()));
+        put_in_place(&done, moves, opts.png)?;
+        return Ok(ViewCost {
+            trace,
+            write: t1.elapsed(),
+            depth_zeroed: 0,
+        });
+    }
+    let mut image = render(scene, &render_opts).image;
     let trace = t0.elapsed();
 
     let t1 = Instant::now();
-    let tmp = |suffix: &str| partial.join(format!("{tmp_stem}.{suffix}.tmp"));
-    let done = ViewFiles::new(dir, name);
     // The depth PNG first: a view whose depths do not fit fails before any write.
     let depth = if opts.png {
         let d = depth_png::encode(&image, opts.depth_scale, opts.depth_out_of_range)
@@ -106,21 +128,7 @@ pub fn render_view(
     } else {
         None
     };
-    let cam = Camera::new(scene.camera);
-    let mut moves = Vec::new();
-    for (suffix, text, to) in [
-        (
-            "camera.json",
-            camera_json(&cam, &exr_aovs),
-            done.camera.clone(),
-        ),
-        ("open3d.json", open3d_json(&cam), done.open3d.clone()),
-        ("render.json", render_stamp(scene, opts), done.stamp.clone()),
-    ] {
-        let path = tmp(suffix);
-        write_unsynced(&path, |w| Ok(w.write_all(text.as_bytes())?))?;
-        moves.push((path, to));
-    }
+    let mut moves = write_texts(scene, opts, &cam, &exr_aovs, &tmp, &done)?;
     let depth_zeroed = depth.as_ref().map_or(0, |d| d.zeroed);
     if let Some(depth) = depth {
         moves.extend(write_pictures(&image, depth.png, &tmp, &done)?);
@@ -170,6 +178,32 @@ fn write_pictures(
 }
 
 /// The EXR (layered) or one EXR per AOV, under their temporary names.
+/// The view's camera JSON, Open3D camera and render stamp, under their temporary names.
+fn write_texts(
+    scene: &Scene,
+    opts: &BatchOptions,
+    cam: &Camera,
+    exr_aovs: &[Aov],
+    tmp: &dyn Fn(&str) -> PathBuf,
+    done: &ViewFiles,
+) -> Result<Vec<Move>> {
+    let mut moves = Vec::new();
+    for (suffix, text, to) in [
+        (
+            "camera.json",
+            camera_json(cam, exr_aovs),
+            done.camera.clone(),
+        ),
+        ("open3d.json", open3d_json(cam), done.open3d.clone()),
+        ("render.json", render_stamp(scene, opts), done.stamp.clone()),
+    ] {
+        let path = tmp(suffix);
+        write_unsynced(&path, |w| Ok(w.write_all(text.as_bytes())?))?;
+        moves.push((path, to));
+    }
+    Ok(moves)
+}
+
 fn write_exrs(
     image: &AovImage,
     cam: &Camera,
