@@ -28,9 +28,12 @@
 //!   cone walks with occlusion culling walk it), and [`accel::wide_bvh`], that tree collapsed
 //!   to eight-wide nodes for one traversal per ray: a ray tests eight boxes at once (AVX2 or
 //!   lane by lane, the same lanes), nearest first, on a bounded stack.
-//! - [`render`]: parallel bands of tiles, nearest hit, only the requested AOVs.
+//! - [`render`]: parallel bands of tiles, nearest hit, only the requested AOVs; the whole
+//!   image ([`render::render`]) or each band handed on as soon as it is traced
+//!   ([`render::render_bands`]: `cylaov render` and `batch` write an uncompressed EXR that
+//!   way, during the trace, without holding the image).
 //! - [`output`]: [`output::aov`] (the in-memory AOV image, its EXR reading and writing,
-//!   self-describing headers, the per-AOV layout), [`output::depth_png`] (the 16-bit depth
+//!   band by band too ([`output::aov::ExrBands`]), self-describing headers, the per-AOV layout), [`output::depth_png`] (the 16-bit depth
 //!   PNG that fails rather than drop far pixels, and the hit mask), [`output::preview`] (PNG
 //!   previews with legends), [`output::plot`] (the pixel font and axis panels of every
 //!   figure), [`output::io`] (atomic writes, output-target and memory checks, console output
@@ -60,8 +63,8 @@
 //! `export-mitsuba`, `compare`, `verify`, `stress`, `bench`); `main.rs` only parses
 //! arguments and maps results to exit codes.
 //!
-//! **Invariants**: `geometry`, `accel` and `render` never do IO; a render is a pure function
-//! of scene + options; `output::mitsuba` knows Mitsuba's XML, not how to run it
+//! **Invariants**: `geometry`, `accel` and `render` never do IO (`render_bands` hands its
+//! bands to the caller's sink); a render is a pure function of scene + options; `output::mitsuba` knows Mitsuba's XML, not how to run it
 //! (`verify::reference` does).
 
 #![warn(missing_docs)]

@@ -22,8 +22,11 @@
 //! default) are streamed by hand from the planes ([`AovImage::write_uncompressed`]): the
 //! crate copies every sample through its own layout, which at 1080p cost more than the
 //! render, while the uncompressed scanline format is a header, an offset table and rows
-//! that already lie contiguous in the planes. The tests read these files back bit for bit
-//! with the `exr` crate, OpenEXR's own Python binding and OpenCV.
+//! that already lie contiguous in the planes. Since every line has the same size, where
+//! each line goes is known before any is written: [`ExrBands`] writes an image band by band,
+//! in any order, while the render is still tracing the rest (what `cylaov render` and
+//! `batch` do for one uncompressed EXR), the same bytes. The tests read these files back
+//! bit for bit with the `exr` crate, OpenEXR's own Python binding and OpenCV.
 //!
 //! **Per-AOV layout** (`--exr-layout per-aov`, [`per_aov_image`]): one file per AOV with
 //! the channel names OpenCV and imageio understand: `depth`, `distance`, `shape_id` and `part` as

@@ -1,5 +1,8 @@
 //! Rendering: one ray per pixel through the BVH and a cylinder kernel, in parallel bands
 //! of rows, filling only the requested AOVs. A render is a pure function of scene + options.
+//! The image comes whole ([`render`]) or band by band ([`render_bands`]: each band of 16
+//! rows handed to the caller's sink as soon as it is traced, the same bits), so that a
+//! writer puts each band in its file while the others trace, and no whole image is held.
 //!
 //! Primary rays go tile by tile (16×16 pixels). A tile finds its cylinders one of two
 //! ways: from its screen-tile list ([`Tiles`], binned before the trace), or, when the
