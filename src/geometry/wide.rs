@@ -253,8 +253,11 @@ impl SlabRay {
 
 /// The slab test of eight boxes against one ray at once, portable (`()`) or in AVX
 /// registers ([`Avx2`]), with the children to descend into packed for a traversal stack.
-/// Both perform the same IEEE operations per lane (products, ordered max and min, one
-/// product by `grow`), so they report the same lanes and pack the same children.
+/// Both perform the same IEEE operations per lane (products, ordered max and min, a
+/// product of each exit by `grow`), so they report the same lanes and pack the same
+/// children. Each exit is widened before the minimum over the axes, not after: rounding
+/// is monotonic, so `min(a, b) · grow` rounds to `min(a · grow, b · grow)`, the same bits,
+/// and the minima no longer wait for a product (the next node waits for this test).
 pub(crate) trait Slabs8: Copy {
     /// For boxes `planes` (rows min x, y, z, max x, y, z; lane `l` is box `l`): `met`, bit
     /// `l` set where the ray meets box `l` within `[ray.tmin, tmax]` (entry
@@ -316,10 +319,8 @@ impl Slabs8 for () {
             let t = |row: usize, a: usize| planes[row][l] * ray.inv[a];
             let (n, f) = (ray.near_row, ray.far_row);
             let enter = max(max(t(n[0], 0), t(n[1], 1)), max(t(n[2], 2), ray.tmin));
-            let leave = min(
-                min(min(t(f[0], 0), t(f[1], 1)), t(f[2], 2)) * ray.grow,
-                tmax,
-            );
+            let g = |row: usize, a: usize| t(row, a) * ray.grow;
+            let leave = min(min(g(f[0], 0), g(f[1], 1)), min(g(f[2], 2), tmax));
             met | ((enter <= leave) as u8) << l
         });
         let tops = (0..8).fold(0u8, |m, l| m | (((child[l] >> 31) as u8) << l));
@@ -622,10 +623,15 @@ mod avx {
                     _mm256_max_ps(nx, ny),
                     _mm256_max_ps(nz, _mm256_set1_ps(ray.tmin)),
                 );
-                let leave = _mm256_min_ps(_mm256_min_ps(fx, fy), fz);
+                let grow = _mm256_set1_ps(ray.grow);
+                let (fx, fy, fz) = (
+                    _mm256_mul_ps(fx, grow),
+                    _mm256_mul_ps(fy, grow),
+                    _mm256_mul_ps(fz, grow),
+                );
                 let leave = _mm256_min_ps(
-                    _mm256_mul_ps(leave, _mm256_set1_ps(ray.grow)),
-                    _mm256_set1_ps(tmax),
+                    _mm256_min_ps(fx, fy),
+                    _mm256_min_ps(fz, _mm256_set1_ps(tmax)),
                 );
                 let met = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(enter, leave)) as u8;
                 let kids = _mm256_loadu_si256(child.as_ptr() as *const __m256i);
