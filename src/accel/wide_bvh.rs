@@ -545,6 +545,57 @@ mod tests {
         }
     }
 
+    /// Each node's box test, portable and AVX2: the same lanes met and the same children
+    /// packed, in lane order; and the lanes are ordered far to near from the origin.
+    #[test]
+    fn box_tests_agree_and_lanes_run_far_to_near() {
+        let boxes = tangle(3000, 9);
+        let origin = DVec3::new(26.0, -30.0, 18.0);
+        let wide = WideBvh::new(&Bvh::build(&boxes, origin));
+        let mut rng = SplitMix64::new(4);
+        let (mut met, mut packed) = (0, 0);
+        for node in &wide.nodes {
+            // Box distance from the origin, per filled lane: never increasing.
+            let gaps: Vec<f32> = (0..WIDTH)
+                .filter(|&l| node.planes[0][l] <= node.planes[3][l])
+                .map(|l| {
+                    let lo = Vec3A::from_array(std::array::from_fn(|a| node.planes[a][l]));
+                    let hi = Vec3A::from_array(std::array::from_fn(|a| node.planes[a + 3][l]));
+                    (lo.max(Vec3A::ZERO) - hi.min(Vec3A::ZERO)).length_squared()
+                })
+                .collect();
+            assert!(gaps.windows(2).all(|g| g[0] >= g[1]), "{gaps:?}");
+            let Some(tok) = Avx2::detect() else { continue };
+            for _ in 0..20 {
+                // Towards the cloud, so that many lanes are met.
+                let aim = DVec3::new(rng.unit(), rng.unit(), rng.unit()) * 20.0 - 10.0;
+                let d: Vec3A = (aim - origin).normalize().as_vec3().into();
+                let ray = SlabRay::new(d.to_array(), 0.0, GROW);
+                let tmax = if rng.unit() < 0.5 {
+                    f32::INFINITY
+                } else {
+                    40.0
+                };
+                let (mut a, mut b) = ([0; WIDTH], [0; WIDTH]);
+                let p = ().slabs8(&node.planes, &node.child, &ray, tmax, &mut a);
+                let v = tok.slabs8(&node.planes, &node.child, &ray, tmax, &mut b);
+                let n = p.packed.count_ones() as usize;
+                assert_eq!((p, &a[..n]), (v, &b[..n]), "d = {d:?}");
+                let lanes = (0..WIDTH).filter(|&l| p.packed & (1 << l) != 0);
+                assert!(lanes.zip(&a[..n]).all(|(l, &c)| node.child[l] == c));
+                assert_eq!(p.packed & !p.met, 0);
+                (met, packed) = (met + p.met.count_ones(), packed + n as u32);
+            }
+        }
+        // Measured: 774 lanes met, 484 of them subtrees (the rest cylinders).
+        if Avx2::detect().is_some() {
+            assert!(
+                met > packed && packed > 300,
+                "{met} lanes met, {packed} packed"
+            );
+        }
+    }
+
     /// Empty and one-box scenes: nothing visited, and the one box visited once.
     #[test]
     fn tiny_scenes() {
