@@ -176,20 +176,23 @@ impl WideBvh {
         // Lanes from far to near: by the distance from the origin (where every ray starts)
         // to the box, a lower bound on any ray's entry, then to its centre (boxes around
         // the origin); the traversal takes the highest met lane first.
-        let slots = &mut slots[..len];
-        slots.sort_by(|a, b| {
-            let reach = |s: &Slot| {
-                let (min, max) = boxed(s);
-                let gap = min.max(Vec3A::ZERO) - max.min(Vec3A::ZERO);
-                (gap.length_squared(), ((min + max) * 0.5).length_squared())
-            };
-            let ((ga, ca), (gb, cb)) = (reach(a), reach(b));
-            gb.total_cmp(&ga).then(cb.total_cmp(&ca))
-        });
-        let mut node = EMPTY;
-        for (l, s) in slots.iter().enumerate() {
+        let mut lanes: [(f32, f32, Slot); WIDTH] = [(0.0, 0.0, Slot::Node(b)); WIDTH];
+        for (lane, s) in lanes.iter_mut().zip(&slots[..len]) {
             let (min, max) = boxed(s);
-            let child = match *s {
+            let gap = min.max(Vec3A::ZERO) - max.min(Vec3A::ZERO);
+            *lane = (
+                gap.length_squared(),
+                ((min + max) * 0.5).length_squared(),
+                *s,
+            );
+        }
+        let lanes = &mut lanes[..len];
+        lanes.sort_unstable_by(|a, b| b.0.total_cmp(&a.0).then(b.1.total_cmp(&a.1)));
+        let slots = lanes.iter().map(|&(_, _, s)| s);
+        let mut node = EMPTY;
+        for (l, s) in slots.enumerate() {
+            let (min, max) = boxed(&s);
+            let child = match s {
                 Slot::Node(k) => self.collapse(bvh, k, depth + 1),
                 Slot::Prim(p) => PRIM | p,
             };
