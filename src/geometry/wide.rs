@@ -252,34 +252,84 @@ impl SlabRay {
 }
 
 /// The slab test of eight boxes against one ray at once, portable (`()`) or in AVX
-/// registers ([`Avx2`]). Both perform the same IEEE operations per lane (products,
-/// ordered max and min, one product by `grow`), so they report the same lanes and
-/// entry distances.
+/// registers ([`Avx2`]), with the children to descend into packed for a traversal stack.
+/// Both perform the same IEEE operations per lane (products, ordered max and min, a
+/// product of each exit by `grow`), so they report the same lanes and pack the same
+/// children. Each exit is widened before the minimum over the axes, not after: rounding
+/// is monotonic, so `min(a, b) · grow` rounds to `min(a · grow, b · grow)`, the same bits,
+/// and the minima no longer wait for a product (the next node waits for this test).
 pub(crate) trait Slabs8: Copy {
-    /// For boxes `planes` (rows min x, y, z, max x, y, z; lane `l` is box `l`): bit `l`
-    /// set where the ray meets box `l` within `[ray.tmin, tmax]`, and in `near[l]` its
-    /// entry distance `max(tmin, near face · inv over the axes)`.
-    fn slabs8(self, planes: &[[f32; 8]; 6], ray: &SlabRay, tmax: f32, near: &mut [f32; 8]) -> u8;
+    /// For boxes `planes` (rows min x, y, z, max x, y, z; lane `l` is box `l`): `met`, bit
+    /// `l` set where the ray meets box `l` within `[ray.tmin, tmax]` (entry
+    /// `max(tmin, near face · inv over the axes)` at most the widened exit), and `packed`,
+    /// the met lanes whose `child` has its top bit clear. Their children are written to
+    /// the first `packed.count_ones()` entries of `out`, in lane order; the other entries
+    /// of `out` are written with no meaning.
+    fn slabs8(
+        self,
+        planes: &[[f32; 8]; 6],
+        child: &[u32; 8],
+        ray: &SlabRay,
+        tmax: f32,
+        out: &mut [u32; 8],
+    ) -> Met8;
 }
+
+/// What [`Slabs8::slabs8`] found: lane masks.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct Met8 {
+    /// Lanes whose box the ray meets.
+    pub met: u8,
+    /// Met lanes whose child went to `out`.
+    pub packed: u8,
+}
+
+/// Per lane mask, its set lanes in order, one byte each (the rest 0): the shuffle that
+/// packs the lanes of a mask to the front.
+const PACK: [u64; 256] = {
+    let mut t = [0u64; 256];
+    let mut m = 0;
+    while m < 256 {
+        let (mut k, mut l) = (0, 0);
+        while l < 8 {
+            if (m >> l) & 1 != 0 {
+                t[m] |= (l as u64) << (8 * k);
+                k += 1;
+            }
+            l += 1;
+        }
+        m += 1;
+    }
+    t
+};
 
 impl Slabs8 for () {
     #[inline(always)]
-    fn slabs8(self, planes: &[[f32; 8]; 6], ray: &SlabRay, tmax: f32, near: &mut [f32; 8]) -> u8 {
+    fn slabs8(
+        self,
+        planes: &[[f32; 8]; 6],
+        child: &[u32; 8],
+        ray: &SlabRay,
+        tmax: f32,
+        out: &mut [u32; 8],
+    ) -> Met8 {
         let max = |a: f32, b: f32| if a > b { a } else { b };
         let min = |a: f32, b: f32| if a < b { a } else { b };
-        let mut bits = 0u8;
-        for l in 0..8 {
+        let met = (0..8).fold(0u8, |met, l| {
             let t = |row: usize, a: usize| planes[row][l] * ray.inv[a];
             let (n, f) = (ray.near_row, ray.far_row);
             let enter = max(max(t(n[0], 0), t(n[1], 1)), max(t(n[2], 2), ray.tmin));
-            let leave = min(
-                min(min(t(f[0], 0), t(f[1], 1)), t(f[2], 2)) * ray.grow,
-                tmax,
-            );
-            near[l] = enter;
-            bits |= ((enter <= leave) as u8) << l;
+            let g = |row: usize, a: usize| t(row, a) * ray.grow;
+            let leave = min(min(g(f[0], 0), g(f[1], 1)), min(g(f[2], 2), tmax));
+            met | ((enter <= leave) as u8) << l
+        });
+        let tops = (0..8).fold(0u8, |m, l| m | (((child[l] >> 31) as u8) << l));
+        let packed = met & !tops;
+        let order = PACK[packed as usize].to_le_bytes();
+        for (o, l) in out.iter_mut().zip(order) {
+            *o = child[l as usize];
         }
-        bits
+        Met8 { met, packed }
     }
 }
 
@@ -545,14 +595,15 @@ mod avx {
         fn slabs8(
             self,
             planes: &[[f32; 8]; 6],
+            child: &[u32; 8],
             ray: &super::SlabRay,
             tmax: f32,
-            near: &mut [f32; 8],
-        ) -> u8 {
+            out: &mut [u32; 8],
+        ) -> super::Met8 {
             // SAFETY: the token proves AVX2; each load reads one row of 8 f32 of `planes`
-            // (a row index of a `SlabRay` is below 6), the store writes the 8 f32 of `near`
-            // (all unaligned forms). No closure calls an intrinsic: they must inline into
-            // the AVX2 code this is inlined into.
+            // (a row index of a `SlabRay` is below 6) or the 8 u32 of `child`, the store
+            // writes the 8 u32 of `out` (all unaligned forms). No closure calls an
+            // intrinsic that is not inlined into the AVX2 code this is inlined into.
             unsafe {
                 let (n, f) = (ray.near_row, ray.far_row);
                 let (ix, iy, iz) = (
@@ -572,13 +623,25 @@ mod avx {
                     _mm256_max_ps(nx, ny),
                     _mm256_max_ps(nz, _mm256_set1_ps(ray.tmin)),
                 );
-                let leave = _mm256_min_ps(_mm256_min_ps(fx, fy), fz);
-                let leave = _mm256_min_ps(
-                    _mm256_mul_ps(leave, _mm256_set1_ps(ray.grow)),
-                    _mm256_set1_ps(tmax),
+                let grow = _mm256_set1_ps(ray.grow);
+                let (fx, fy, fz) = (
+                    _mm256_mul_ps(fx, grow),
+                    _mm256_mul_ps(fy, grow),
+                    _mm256_mul_ps(fz, grow),
                 );
-                _mm256_storeu_ps(near.as_mut_ptr(), enter);
-                _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(enter, leave)) as u8
+                let leave = _mm256_min_ps(
+                    _mm256_min_ps(fx, fy),
+                    _mm256_min_ps(fz, _mm256_set1_ps(tmax)),
+                );
+                let met = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(enter, leave)) as u8;
+                let kids = _mm256_loadu_si256(child.as_ptr() as *const __m256i);
+                let tops = _mm256_movemask_ps(_mm256_castsi256_ps(kids)) as u8;
+                let packed = met & !tops;
+                let order = super::PACK[packed as usize] as i64;
+                let order = _mm256_cvtepu8_epi32(_mm_cvtsi64_si128(order));
+                let kids = _mm256_permutevar8x32_epi32(kids, order);
+                _mm256_storeu_si256(out.as_mut_ptr() as *mut __m256i, kids);
+                super::Met8 { met, packed }
             }
         }
     }

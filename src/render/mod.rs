@@ -387,6 +387,49 @@ impl<T: Real, F: Formula> Tracer<T, F> {
         best
     }
 
+    /// [`Tracer::trace_with`] for two rays `(d, tmin, tmax)` with one hint: through the
+    /// wide tree both at once (see [`WideBvh::traverse2`]), else one after the other. The
+    /// same answers as two calls.
+    #[inline(always)]
+    fn trace2_with<S: Slabs8>(
+        &self,
+        slabs: S,
+        stacks: [&mut Stack; 2],
+        hint: Option<u32>,
+        rays: [(DVec3, f64, f64); 2],
+    ) -> [Option<PixelHit<T>>; 2] {
+        let Some(wide) = &self.wide else {
+            let [sa, sb] = stacks;
+            let [(da, mina, maxa), (db, minb, maxb)] = rays;
+            return [
+                self.trace_with(slabs, sa, hint, da, mina, maxa),
+                self.trace_with(slabs, sb, hint, db, minb, maxb),
+            ];
+        };
+        let dt = rays.map(|(d, _, _)| T::v3(d));
+        let lims = rays.map(|(_, tmin, tmax)| (T::from_f64(tmin), T::from_f64(tmax)));
+        let mut best = [None, None];
+        if let Some(h) = hint {
+            for i in 0..2 {
+                self.consider(h, dt[i], lims[i].0, lims[i].1, &mut best[i]);
+            }
+        }
+        let bound = |i: usize, best: &[Option<PixelHit<T>>; 2]| {
+            best[i].map_or(rays[i].2, |b| b.hit.t.to_f64())
+        };
+        let wide_rays = std::array::from_fn(|i| {
+            let d = rays[i].0;
+            let d32 = Vec3A::new(d.x as f32, d.y as f32, d.z as f32);
+            (d32, f32_down(rays[i].1), f32_up(bound(i, &best)))
+        });
+        // As in `trace_with`: the hint is tested already.
+        wide.traverse2(slabs, stacks, wide_rays, |i, slot| {
+            (hint != Some(slot) && self.consider(slot, dt[i], lims[i].0, lims[i].1, &mut best[i]))
+                .then(|| f32_up(bound(i, &best)))
+        });
+        best
+    }
+
     /// World-space unit outward normal of a hit along `d`.
     #[inline(always)]
     pub fn normal(&self, d: DVec3, h: &PixelHit<T>) -> DVec3 {
@@ -851,17 +894,31 @@ fn render_band<T: Real, F: PacketFormula, W: Wide<T>>(
             }
         }
         _ => {
-            let mut stack = Stack::default();
+            // Pixels in pairs, traced together. The hint is the last hit found (through
+            // misses too: the next hit is most likely on the same cylinder or near it).
+            let (mut sa, mut sb) = (Stack::default(), Stack::default());
             let mut last = None;
-            for k in 0..rows * w {
+            let n = rows * w;
+            let ray = |k: usize| {
                 let (i, j) = (k % w, row0 + k / w);
                 let (d, len) = cam.dir_and_length(fr.cols_off[i], fr.rows_off[j]);
                 let (tmin, tmax) = cam.clip_range(len);
-                let hit = tracer.trace_with(tok, &mut stack, last, d, tmin, tmax);
-                last = hit.map(|h| h.slot);
-                if let Some(hit) = hit {
-                    shade(fr, band, k, d, hit);
-                    hits += 1;
+                (d, tmin, tmax)
+            };
+            for k in (0..n).step_by(2) {
+                let rays = [ray(k), ray((k + 1).min(n - 1))];
+                let found = if k + 1 < n {
+                    tracer.trace2_with(tok, [&mut sa, &mut sb], last, rays)
+                } else {
+                    let (d, tmin, tmax) = rays[0];
+                    [tracer.trace_with(tok, &mut sa, last, d, tmin, tmax), None]
+                };
+                for (i, hit) in found.into_iter().enumerate() {
+                    if let Some(hit) = hit {
+                        last = Some(hit.slot);
+                        shade(fr, band, k + i, rays[i].0, hit);
+                        hits += 1;
+                    }
                 }
             }
         }
