@@ -16,7 +16,8 @@
 //! One traversal per ray (`--accel bvh`, and a tiny view whose lists would pass their
 //! memory bound) goes through the eight-wide tree ([`WideBvh`]; the binary one when there are fewer
 //! than a quarter as many pixels as cylinders, too few rays to repay collapsing it),
-//! after testing the cylinder the previous pixel hit, whose hit bounds the traversal.
+//! two pixels at a time, each after testing the cylinder of the last hit, whose hit
+//! bounds its traversal.
 
 use crate::accel::bvh::{Bvh, Cone, ConeWalk};
 use crate::accel::tiles::{self, Candidate, TILE, Tiles};
