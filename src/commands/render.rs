@@ -163,7 +163,7 @@ pub fn run(args: &RenderArgs) -> Result<String> {
         && args.compression == Compression::None
         && args.depth_png.is_none()
         && args.preview.is_none();
-    let (hits, mut image, exr) = if streamed {
+    let (hits, mut traced) = if streamed {
         let staged = stage(&args.out, |_| Ok(()))
             .with_context(|| format!("writing {}", args.out.display()))?;
         let attrs = exr_attributes(&cam, &aovs);
@@ -172,26 +172,28 @@ pub fn run(args: &RenderArgs) -> Result<String> {
             .and_then(|r| exr.finish().map(|()| r))
             .map_err(crate::output::io::explain)
             .with_context(|| format!("writing {}", args.out.display()))?;
-        (hits, None, Some(staged))
+        (hits, Traced::Streamed(staged))
     } else {
         let r = render(&scene, &opts);
-        (r.hits, Some(r.image), None)
+        (r.hits, Traced::Image(r.image))
     };
     let trace_ms = t0.elapsed().as_secs_f64() * 1e3;
-    let depth = match &image {
-        Some(image) => depth_png(args, image)?,
-        None => None,
+    let depth = match &traced {
+        Traced::Image(image) => depth_png(args, image)?,
+        Traced::Streamed(_) => None,
     };
-    if let Some(image) = image.as_mut()
+    if let Traced::Image(image) = &mut traced
         && !aovs.contains(&Aov::Depth)
     {
         image.channels.retain(|c| c.name != "depth");
     }
     let t1 = Instant::now();
-    let exrs = match (exr, &image) {
-        (Some(staged), _) => vec![staged],
-        (None, Some(image)) => stage_exrs(args, &outputs, &cam, &aovs, image)?,
-        (None, None) => unreachable!("an image unless streamed"),
+    let (exrs, image) = match traced {
+        Traced::Streamed(staged) => (vec![staged], None),
+        Traced::Image(image) => (
+            stage_exrs(args, &outputs, &cam, &aovs, &image)?,
+            Some(image),
+        ),
     };
     write(
         args,
@@ -221,6 +223,12 @@ pub fn run(args: &RenderArgs) -> Result<String> {
         crate::geometry::Kernel::new(opts.formula, opts.precision),
         start.elapsed().as_secs_f64() * 1e3
     ))
+}
+
+/// What the trace left: the whole image, or (streamed) the EXR already staged.
+enum Traced {
+    Image(AovImage),
+    Streamed(Staged),
 }
 
 /// The output's parent folder and the preview folder, made now and removed again unless
