@@ -703,7 +703,9 @@ impl<T: Real> TileRays<T> {
     }
 }
 
-/// A zeroed output plane of `n` samples, in huge pages where the system has them.
+/// A zeroed output plane of `n` samples, in huge pages where the system has them (the
+/// hint covers whole 2 MiB pages inside the plane only, so a band's few rows stay in
+/// ordinary pages that the allocator reuses).
 fn zeroed<X: Copy + Default>(n: usize) -> Vec<X> {
     let v = vec![X::default(); n];
     crate::mem::huge_pages(&v);
@@ -981,23 +983,11 @@ fn render_with<T: Simd, F: PacketFormula>(scene: &Scene, opts: &RenderOptions) -
 }
 
 /// The output planes of `n` samples for the requested AOVs, zeroed (a miss is 0
-/// everywhere); in huge pages when `huge` (a whole image, not a band).
-fn output_planes(opts: &RenderOptions, n: usize, huge: bool) -> Samples {
+/// everywhere): a whole image's, or one band's.
+fn output_planes(opts: &RenderOptions, n: usize) -> Samples {
     let want = |a: Aov| opts.aovs.contains(&a);
-    let plane = || {
-        if huge {
-            zeroed::<f32>(n)
-        } else {
-            vec![0f32; n]
-        }
-    };
-    let ids = || {
-        if huge {
-            zeroed::<u32>(n)
-        } else {
-            vec![0u32; n]
-        }
-    };
+    let plane = || zeroed::<f32>(n);
+    let ids = || zeroed::<u32>(n);
     let planes = Planes {
         distance: want(Aov::Distance).then(plane),
         depth: want(Aov::Depth).then(plane),
@@ -1124,7 +1114,7 @@ fn render_simd<T: Simd, F: PacketFormula>(
     let cam = &setup.tracer.camera;
     let (w, h) = (cam.width() as usize, cam.height() as usize);
     let band_rows = TILE as usize;
-    let mut samples = output_planes(opts, w * h, true);
+    let mut samples = output_planes(opts, w * h);
     let inputs = setup.inputs();
     let band_fn = band_renderer::<T, F>(simd);
     let hits: usize = bands(&mut samples, band_rows * w, h.div_ceil(band_rows))
@@ -1186,7 +1176,7 @@ fn bands_simd<T: Simd, F: PacketFormula>(
         .into_par_iter()
         .map(|b| {
             let rows = band_rows.min(h - b * band_rows);
-            let mut samples = output_planes(opts, rows * w, false);
+            let mut samples = output_planes(opts, rows * w);
             let mut band = bands(&mut samples, rows * w, 1);
             let hits = band_fn(&inputs, b, &mut band[0]);
             drop(band);
