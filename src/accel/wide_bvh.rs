@@ -95,6 +95,23 @@ impl Default for Stack {
     }
 }
 
+/// What a traversal does with each cylinder it meets: `visit(ray, position)` tests ray
+/// `ray`'s cylinder at `position` in [`Bvh::order`] and returns a new, smaller `tmax` when
+/// it found a closer hit. A trait rather than a closure so that an implementation marked
+/// `#[inline(always)]` is compiled into the traversal (with its target features): a call
+/// would spill the walk's registers around every cylinder test (any closure does).
+pub(crate) trait Visit {
+    /// Test the cylinder at `position` for ray `ray`; a closer hit's distance, if any.
+    fn visit(&mut self, ray: usize, position: u32) -> Option<f32>;
+}
+
+impl<F: FnMut(usize, u32) -> Option<f32>> Visit for F {
+    #[inline(always)]
+    fn visit(&mut self, ray: usize, position: u32) -> Option<f32> {
+        self(ray, position)
+    }
+}
+
 /// What a wide node's lane takes from the binary tree while the node is being filled.
 #[derive(Clone, Copy)]
 enum Slot {
@@ -234,21 +251,22 @@ impl WideBvh {
             return;
         }
         let mut walk = Walk::new(d, tmin, tmax);
-        while self.step(slabs, &mut walk, &mut stack.0, &mut visit) {}
+        let mut visit = |_, p| visit(p);
+        while self.step(slabs, &mut walk, &mut stack.0, &mut visit, 0) {}
     }
 
     /// [`WideBvh::traverse`] for two rays at once, a node of one and a node of the other
     /// in turn, so the processor works on one while the other waits: a ray's nodes follow
     /// one another (the next one's address is known only when its parent's boxes are
     /// tested), and the latency of that chain, not the work, bounds one ray's traversal.
-    /// `visit(i, position)` is ray `i`'s visit.
+    /// `visit.visit(i, position)` is ray `i`'s visit.
     #[inline(always)]
     pub(crate) fn traverse2<S: Slabs8>(
         &self,
         slabs: S,
         stacks: [&mut Stack; 2],
         rays: [(Vec3A, f32, f32); 2],
-        mut visit: impl FnMut(usize, u32) -> Option<f32>,
+        visit: &mut impl Visit,
     ) {
         if self.nodes.is_empty() {
             return;
@@ -258,26 +276,27 @@ impl WideBvh {
         let (mut a, mut b) = (Walk::new(da, mina, maxa), Walk::new(db, minb, maxb));
         let (mut va, mut vb) = (true, true);
         while va && vb {
-            va = self.step(slabs, &mut a, &mut sa.0, &mut |p| visit(0, p));
-            vb = self.step(slabs, &mut b, &mut sb.0, &mut |p| visit(1, p));
+            va = self.step(slabs, &mut a, &mut sa.0, visit, 0);
+            vb = self.step(slabs, &mut b, &mut sb.0, visit, 1);
         }
         while va {
-            va = self.step(slabs, &mut a, &mut sa.0, &mut |p| visit(0, p));
+            va = self.step(slabs, &mut a, &mut sa.0, visit, 0);
         }
         while vb {
-            vb = self.step(slabs, &mut b, &mut sb.0, &mut |p| visit(1, p));
+            vb = self.step(slabs, &mut b, &mut sb.0, visit, 1);
         }
     }
 
-    /// Open the walk's current node: visit the cylinders it meets, keep the subtrees
-    /// and move to the next node. False when none is left.
+    /// Open the walk's current node: visit the cylinders it meets (as ray `ray`), keep the
+    /// subtrees and move to the next node. False when none is left.
     #[inline(always)]
     fn step<S: Slabs8>(
         &self,
         slabs: S,
         w: &mut Walk,
         st: &mut [u32; STACK],
-        visit: &mut impl FnMut(u32) -> Option<f32>,
+        visit: &mut impl Visit,
+        ray: usize,
     ) -> bool {
         let node = &self.nodes[w.current as usize];
         let sp = w.sp;
@@ -290,7 +309,7 @@ impl WideBvh {
         while prims != 0 {
             let l = 7 - prims.leading_zeros() as usize;
             prims ^= 1 << l;
-            if let Some(t) = visit(node.child[l] & !PRIM) {
+            if let Some(t) = visit.visit(ray, node.child[l] & !PRIM) {
                 w.tmax = w.tmax.min(t);
             }
         }
@@ -350,10 +369,10 @@ mod tests {
 
     /// [`wide_visits`] of two rays traversed together.
     fn pair_visits<S: Slabs8>(w: &WideBvh, s: S, rays: [(Vec3A, f32, f32); 2]) -> [Vec<u32>; 2] {
-        let mut found = [vec![], vec![]];
+        let mut found: [Vec<u32>; 2] = [vec![], vec![]];
         let mut stacks = [Stack::default(), Stack::default()];
         let [sa, sb] = &mut stacks;
-        w.traverse2(s, [sa, sb], rays, |i, p| {
+        w.traverse2(s, [sa, sb], rays, &mut |i: usize, p| {
             found[i].push(p);
             None
         });
@@ -509,7 +528,9 @@ mod tests {
             let (mut s0, mut s1) = (Stack::default(), Stack::default());
             let bound = brute.map_or(f32::INFINITY, |t| t * 1.01 + 1e-3);
             let rays = [(d32, 0.0, f32::INFINITY), (d32, 0.0, bound)];
-            wide.traverse2((), [&mut s0, &mut s1], rays, |i, p| closer(&mut pair[i], p));
+            wide.traverse2((), [&mut s0, &mut s1], rays, &mut |i: usize, p| {
+                closer(&mut pair[i], p)
+            });
             assert_eq!(pair, [brute, brute], "pair, d = {d:?}");
             hits += w.is_some() as usize;
         }

@@ -179,7 +179,9 @@ impl<T: Real> Wide<T> for Lanes<T> {
     }
 }
 
-/// Proof that this CPU has AVX2: [`Avx2::detect`] is the only safe way to get one, and
+/// Proof that this CPU has AVX2, and the bit-count instructions every AVX2 processor has
+/// (POPCNT, LZCNT, BMI1: the traversal counts and finds lanes with them; without them a
+/// count of a lane mask is a chain of multiplies): [`Avx2::detect`] is the only safe way to get one, and
 /// every AVX value is built from one (`Wide::splat`, `load`, `all`, `le_bits` take it), so
 /// the safe methods of `Avx32`/`Avx64`, which execute AVX instructions, can run only where
 /// the check succeeded. Zero-sized: passing it costs nothing.
@@ -187,10 +189,14 @@ impl<T: Real> Wide<T> for Lanes<T> {
 pub(crate) struct Avx2(());
 
 impl Avx2 {
-    /// The token, when the CPU running this process has AVX2.
+    /// The token, when the CPU running this process has AVX2, POPCNT, LZCNT and BMI1.
     pub(crate) fn detect() -> Option<Avx2> {
         #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") {
+        if std::arch::is_x86_feature_detected!("avx2")
+            && std::arch::is_x86_feature_detected!("popcnt")
+            && std::arch::is_x86_feature_detected!("lzcnt")
+            && std::arch::is_x86_feature_detected!("bmi1")
+        {
             return Some(Avx2(()));
         }
         None
@@ -208,27 +214,37 @@ impl Avx2 {
     }
 }
 
-/// One ray as the eight-box slab test reads it: per axis the reciprocal direction and
-/// which rows of a node's planes are the near and the far face (the ray's sign picks them,
-/// so `near <= far` per axis without a min/max, and an empty lane, +inf..-inf, is a miss
-/// whatever the sign). Made only by [`SlabRay::new`], so every row index is below 6.
+/// One ray as the eight-box slab test reads it: per axis the reciprocal direction, for
+/// entries, and the same widened by the exit factor, for exits, and which rows of a node's
+/// planes are the near and the far face (the ray's sign picks them, so `near <= far` per
+/// axis without a min/max, and an empty lane, +inf..-inf, is a miss whatever the sign).
+/// Made only by [`SlabRay::new`], so every row starts at most 40 f32 into the planes.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct SlabRay {
     /// `1/d` per axis, never 0, infinite or NaN.
     inv: [f32; 3],
-    /// Per axis, the row of the plane the ray enters by: `axis` (min) or `axis + 3` (max).
+    /// `inv · grow` per axis: an exit is `plane · inv_far`, one product from the plane (the
+    /// next node waits for this test, so a second product would lengthen every step).
+    inv_far: [f32; 3],
+    /// Per axis, where the row of the plane the ray enters by, `axis` (min) or `axis + 3`
+    /// (max), starts in a node's planes read as one array of f32 (8 per row; an offset
+    /// rather than a row index: x86 scales it in the load's address for free).
     near_row: [usize; 3],
-    /// Per axis, the row it leaves by.
+    /// Per axis, where the row it leaves by starts.
     far_row: [usize; 3],
     /// The segment's start: no entry is reported before it.
     tmin: f32,
-    /// The factor that widens each exit distance to cover the products' rounding.
-    grow: f32,
 }
 
 impl SlabRay {
     /// The ray `t·d` from the boxes' origin, entries reported from `tmin` on, exits
     /// widened by the factor `grow`.
+    ///
+    /// An exit `plane · (inv · grow)` takes three roundings of relative size at most
+    /// u = 2⁻²⁴ (the reciprocal, its product by `grow`, the product by the plane), as
+    /// `(plane · inv) · grow` does; so with pbrt's `grow = 1 + 2γ₃` the computed exit of a
+    /// box ahead is at least its exact exit, and its computed entry (two roundings) at most
+    /// `(1 + u)²` times its exact entry: a box the exact ray meets is still met.
     #[inline(always)]
     pub(crate) fn new(d: [f32; 3], tmin: f32, grow: f32) -> SlabRay {
         // A zero component would make 0·inf = NaN on a face plane; clamp to a huge slope.
@@ -243,21 +259,18 @@ impl SlabRay {
         let neg = inv.map(|x| (x < 0.0) as usize);
         SlabRay {
             inv,
-            near_row: [3 * neg[0], 1 + 3 * neg[1], 2 + 3 * neg[2]],
-            far_row: [3 - 3 * neg[0], 4 - 3 * neg[1], 5 - 3 * neg[2]],
+            inv_far: inv.map(|x| x * grow),
+            near_row: [3 * neg[0], 1 + 3 * neg[1], 2 + 3 * neg[2]].map(|r| 8 * r),
+            far_row: [3 - 3 * neg[0], 4 - 3 * neg[1], 5 - 3 * neg[2]].map(|r| 8 * r),
             tmin,
-            grow,
         }
     }
 }
 
 /// The slab test of eight boxes against one ray at once, portable (`()`) or in AVX
 /// registers ([`Avx2`]), with the children to descend into packed for a traversal stack.
-/// Both perform the same IEEE operations per lane (products, ordered max and min, a
-/// product of each exit by `grow`), so they report the same lanes and pack the same
-/// children. Each exit is widened before the minimum over the axes, not after: rounding
-/// is monotonic, so `min(a, b) · grow` rounds to `min(a · grow, b · grow)`, the same bits,
-/// and the minima no longer wait for a product (the next node waits for this test).
+/// Both perform the same IEEE operations per lane (products by `inv` and `inv_far`,
+/// ordered max and min), so they report the same lanes and pack the same children.
 pub(crate) trait Slabs8: Copy {
     /// For boxes `planes` (rows min x, y, z, max x, y, z; lane `l` is box `l`): `met`, bit
     /// `l` set where the ray meets box `l` within `[ray.tmin, tmax]` (entry
@@ -315,11 +328,12 @@ impl Slabs8 for () {
     ) -> Met8 {
         let max = |a: f32, b: f32| if a > b { a } else { b };
         let min = |a: f32, b: f32| if a < b { a } else { b };
+        let planes = planes.as_flattened();
         let met = (0..8).fold(0u8, |met, l| {
-            let t = |row: usize, a: usize| planes[row][l] * ray.inv[a];
+            let t = |row: usize, a: usize| planes[row + l] * ray.inv[a];
             let (n, f) = (ray.near_row, ray.far_row);
             let enter = max(max(t(n[0], 0), t(n[1], 1)), max(t(n[2], 2), ray.tmin));
-            let g = |row: usize, a: usize| t(row, a) * ray.grow;
+            let g = |row: usize, a: usize| planes[row + l] * ray.inv_far[a];
             let leave = min(min(g(f[0], 0), g(f[1], 1)), min(g(f[2], 2), tmax));
             met | ((enter <= leave) as u8) << l
         });
@@ -601,7 +615,7 @@ mod avx {
             out: &mut [u32; 8],
         ) -> super::Met8 {
             // SAFETY: the token proves AVX2; each load reads one row of 8 f32 of `planes`
-            // (a row index of a `SlabRay` is below 6) or the 8 u32 of `child`, the store
+            // (a row of a `SlabRay` starts at most 40 f32 in, of 48) or the 8 u32 of `child`, the store
             // writes the 8 u32 of `out` (all unaligned forms). No closure calls an
             // intrinsic that is not inlined into the AVX2 code this is inlined into.
             unsafe {
@@ -611,23 +625,22 @@ mod avx {
                     _mm256_set1_ps(ray.inv[1]),
                     _mm256_set1_ps(ray.inv[2]),
                 );
-                // Rows below 6 (`SlabRay::new` makes every index), so in bounds.
-                let row = |r: usize| planes.get_unchecked(r).as_ptr();
+                // At most 40 f32 in (`SlabRay::new` makes every offset), so in bounds.
+                let row = |r: usize| planes.as_flattened().as_ptr().add(r);
                 let nx = _mm256_mul_ps(_mm256_loadu_ps(row(n[0])), ix);
                 let ny = _mm256_mul_ps(_mm256_loadu_ps(row(n[1])), iy);
                 let nz = _mm256_mul_ps(_mm256_loadu_ps(row(n[2])), iz);
-                let fx = _mm256_mul_ps(_mm256_loadu_ps(row(f[0])), ix);
-                let fy = _mm256_mul_ps(_mm256_loadu_ps(row(f[1])), iy);
-                let fz = _mm256_mul_ps(_mm256_loadu_ps(row(f[2])), iz);
+                let (gx, gy, gz) = (
+                    _mm256_set1_ps(ray.inv_far[0]),
+                    _mm256_set1_ps(ray.inv_far[1]),
+                    _mm256_set1_ps(ray.inv_far[2]),
+                );
+                let fx = _mm256_mul_ps(_mm256_loadu_ps(row(f[0])), gx);
+                let fy = _mm256_mul_ps(_mm256_loadu_ps(row(f[1])), gy);
+                let fz = _mm256_mul_ps(_mm256_loadu_ps(row(f[2])), gz);
                 let enter = _mm256_max_ps(
                     _mm256_max_ps(nx, ny),
                     _mm256_max_ps(nz, _mm256_set1_ps(ray.tmin)),
-                );
-                let grow = _mm256_set1_ps(ray.grow);
-                let (fx, fy, fz) = (
-                    _mm256_mul_ps(fx, grow),
-                    _mm256_mul_ps(fy, grow),
-                    _mm256_mul_ps(fz, grow),
                 );
                 let leave = _mm256_min_ps(
                     _mm256_min_ps(fx, fy),

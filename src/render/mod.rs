@@ -21,7 +21,7 @@
 
 use crate::accel::bvh::{Bvh, Cone, ConeWalk};
 use crate::accel::tiles::{self, Candidate, TILE, Tiles};
-use crate::accel::wide_bvh::{Stack, WideBvh};
+use crate::accel::wide_bvh::{Stack, Visit, WideBvh};
 use crate::geometry::kernel::KernelFn;
 use crate::geometry::packet::{self, LANES, NO_HIT, Packet, PacketFormula};
 use crate::geometry::wide::{Avx2, Lanes, Simd, Slabs8, Wide};
@@ -407,34 +407,67 @@ impl<T: Real, F: Formula> Tracer<T, F> {
                 self.trace_with(slabs, sb, hint, db, minb, maxb),
             ];
         };
-        let dt = rays.map(|(d, _, _)| T::v3(d));
-        let lims = rays.map(|(_, tmin, tmax)| (T::from_f64(tmin), T::from_f64(tmax)));
-        let mut best = [None, None];
+        let mut pair = PairVisit {
+            tracer: self,
+            hint,
+            dt: rays.map(|(d, _, _)| T::v3(d)),
+            lims: rays.map(|(_, tmin, tmax)| (T::from_f64(tmin), T::from_f64(tmax))),
+            tmax: rays.map(|(_, _, tmax)| tmax),
+            best: [None, None],
+        };
         if let Some(h) = hint {
             for i in 0..2 {
-                self.consider(h, dt[i], lims[i].0, lims[i].1, &mut best[i]);
+                let (tmin, tmax) = pair.lims[i];
+                self.consider(h, pair.dt[i], tmin, tmax, &mut pair.best[i]);
             }
         }
-        let bound = |i: usize, best: &[Option<PixelHit<T>>; 2]| {
-            best[i].map_or(rays[i].2, |b| b.hit.t.to_f64())
-        };
         let wide_rays = std::array::from_fn(|i| {
             let d = rays[i].0;
             let d32 = Vec3A::new(d.x as f32, d.y as f32, d.z as f32);
-            (d32, f32_down(rays[i].1), f32_up(bound(i, &best)))
+            (d32, f32_down(rays[i].1), f32_up(pair.bound(i)))
         });
-        // As in `trace_with`: the hint is tested already.
-        wide.traverse2(slabs, stacks, wide_rays, |i, slot| {
-            (hint != Some(slot) && self.consider(slot, dt[i], lims[i].0, lims[i].1, &mut best[i]))
-                .then(|| f32_up(bound(i, &best)))
-        });
-        best
+        wide.traverse2(slabs, stacks, wide_rays, &mut pair);
+        pair.best
     }
 
     /// World-space unit outward normal of a hit along `d`.
     #[inline(always)]
     pub fn normal(&self, d: DVec3, h: &PixelHit<T>) -> DVec3 {
         T::v3_to_f64(F::normal(&self.prepared[h.slot as usize], T::v3(d), h.hit))
+    }
+}
+
+/// The cylinder tests of two rays walking the wide tree together
+/// ([`Tracer::trace2_with`]): each ray's best hit so far, the hint already tested.
+struct PairVisit<'a, T: Real, F: Formula> {
+    tracer: &'a Tracer<T, F>,
+    hint: Option<u32>,
+    /// Per ray: direction, ray parameter range, and the range's end in f64.
+    dt: [T::V3; 2],
+    lims: [(T, T); 2],
+    tmax: [f64; 2],
+    best: [Option<PixelHit<T>>; 2],
+}
+
+impl<T: Real, F: Formula> PairVisit<'_, T, F> {
+    /// Ray `i`'s pruning bound: its best hit's distance, else the end of its range.
+    #[inline(always)]
+    fn bound(&self, i: usize) -> f64 {
+        self.best[i].map_or(self.tmax[i], |b| b.hit.t.to_f64())
+    }
+}
+
+impl<T: Real, F: Formula> Visit for PairVisit<'_, T, F> {
+    /// As in [`Tracer::trace_with`]: the hint is tested already; a closer hit returns the
+    /// new bound rounded up, so a tie is still visited.
+    #[inline(always)]
+    fn visit(&mut self, i: usize, slot: u32) -> Option<f32> {
+        let (tmin, tmax) = self.lims[i];
+        (self.hint != Some(slot)
+            && self
+                .tracer
+                .consider(slot, self.dt[i], tmin, tmax, &mut self.best[i]))
+        .then(|| f32_up(self.bound(i)))
     }
 }
 
@@ -931,9 +964,10 @@ fn render_band<T: Real, F: PacketFormula, W: Wide<T>>(
 
 /// [`render_band`] compiled for AVX2, with packets in AVX registers (eight f32 lanes fill
 /// one, f64 two). No FMA: the results are the same bits as the portable form. Taking the
-/// [`Avx2`] token means it can only be reached after the CPU was checked.
+/// [`Avx2`] token means it can only be reached after the CPU was checked (for AVX2 and
+/// the bit counts the traversal uses).
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
+#[target_feature(enable = "avx2,popcnt,lzcnt,bmi1")]
 fn render_band_avx2<T: Simd, F: PacketFormula>(
     tok: Avx2,
     fr: &BandInputs<T, F>,
