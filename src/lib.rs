@@ -56,8 +56,9 @@
 //!   kill-safe rendering, `index.json` and per-scene `transforms.json`), [`dataset::names`]
 //!   (every file name cylaov writes).
 //! - [`rng`]: SplitMix64, written out so generated data never changes under us.
-//! - `mem` (crate-private): the 2 MiB-page hint for the large buffers of every stage (output
-//!   planes, prepared cylinders, the scene file's bytes and cylinder list).
+//! - [`mem`]: the 2 MiB-page hint for the large buffers of every stage (output planes,
+//!   prepared cylinders, the scene file's bytes and cylinder list), and the allocator
+//!   policy `main.rs` sets so freed memory is reused, not faulted in afresh.
 //!
 //! Around them: [`commands`], the IO of each subcommand (`render`, `generate`, `batch`,
 //! `export-mitsuba`, `compare`, `verify`, `stress`, `bench`); `main.rs` only parses
@@ -74,7 +75,7 @@ pub mod bench;
 pub mod commands;
 pub mod dataset;
 pub mod geometry;
-mod mem;
+pub mod mem;
 pub mod output;
 pub mod render;
 pub mod rng;

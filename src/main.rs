@@ -751,6 +751,7 @@ fn command_line() -> clap::Command {
 
 fn main() -> ExitCode {
     use clap::FromArgMatches;
+    cylaov::mem::keep_freed_memory();
     // Usage errors exit 2 (clap's own code); `--help` and `--version` exit 0.
     let cli = match command_line()
         .try_get_matches()
