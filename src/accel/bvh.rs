@@ -93,6 +93,62 @@ fn area(min: Vec3A, max: Vec3A) -> f32 {
     e.x * e.y + e.y * e.z + e.z * e.x
 }
 
+/// The box around some items' boxes and the box around their centroids: what a node's
+/// split needs. A node's SAH binning yields both for its two parts (a union of bins), so
+/// each level reads its items twice (bin, partition), not three times.
+#[derive(Clone, Copy)]
+struct Bounds {
+    min: Vec3A,
+    max: Vec3A,
+    cmin: Vec3A,
+    cmax: Vec3A,
+}
+
+impl Bounds {
+    const EMPTY: Bounds = Bounds {
+        min: Vec3A::INFINITY,
+        max: Vec3A::NEG_INFINITY,
+        cmin: Vec3A::INFINITY,
+        cmax: Vec3A::NEG_INFINITY,
+    };
+
+    #[inline(always)]
+    fn add(&mut self, it: &Item) {
+        self.min = self.min.min(it.min);
+        self.max = self.max.max(it.max);
+        self.cmin = self.cmin.min(it.centroid);
+        self.cmax = self.cmax.max(it.centroid);
+    }
+
+    #[inline(always)]
+    fn union(&self, o: &Bounds) -> Bounds {
+        Bounds {
+            min: self.min.min(o.min),
+            max: self.max.max(o.max),
+            cmin: self.cmin.min(o.cmin),
+            cmax: self.cmax.max(o.cmax),
+        }
+    }
+
+    fn of(items: &[Item]) -> Bounds {
+        let mut b = Bounds::EMPTY;
+        for it in items {
+            b.add(it);
+        }
+        b
+    }
+}
+
+/// What a node's SAH binning decided.
+enum Cut {
+    /// Testing every cylinder costs less than any split.
+    Leaf,
+    /// The items are partitioned: this many on the left; the bounds of both parts.
+    At(usize, [Bounds; 2]),
+    /// No bin boundary leaves both sides non-empty.
+    Unusable,
+}
+
 impl Bvh {
     /// Build over world-space boxes, stored relative to `origin`.
     pub fn build(bounds: &[(DVec3, DVec3)], origin: DVec3) -> Bvh {
@@ -107,7 +163,11 @@ impl Bvh {
             .enumerate()
             .map(|(i, &b)| Item::new(i, b, origin))
             .collect();
-        let nodes = Self::build_tree(&mut items, 0, (0, sah_depth));
+        let all = items
+            .par_chunks(4096)
+            .map(Bounds::of)
+            .reduce(|| Bounds::EMPTY, |a, b| a.union(&b));
+        let nodes = Self::build_tree(&mut items, 0, (0, sah_depth), all);
         Bvh {
             nodes,
             order: items.par_iter().map(|it| it.index).collect(),
@@ -115,11 +175,16 @@ impl Bvh {
         }
     }
 
-    /// The subtree over `items` (positions `start..` of the final order), root first.
-    /// Large subtrees split here and build their halves in parallel, then are laid out
-    /// as the sequential build would lay them out: root, left root, right root, the rest
-    /// of the left subtree, the rest of the right.
-    fn build_tree(items: &mut [Item], start: usize, depth: (usize, usize)) -> Vec<Node> {
+    /// The subtree over `items` (positions `start..` of the final order, bounded by
+    /// `bounds`), root first. Large subtrees split here and build their halves in
+    /// parallel, then are laid out as the sequential build would lay them out: root, left
+    /// root, right root, the rest of the left subtree, the rest of the right.
+    fn build_tree(
+        items: &mut [Item],
+        start: usize,
+        depth: (usize, usize),
+        bounds: Bounds,
+    ) -> Vec<Node> {
         let n = items.len();
         let blank = Node {
             min: Vec3A::ZERO,
@@ -129,16 +194,12 @@ impl Bvh {
         };
         let mut nodes = Vec::with_capacity(2 * n.max(1));
         nodes.push(blank);
-        if n <= PARALLEL_MIN {
-            Self::build_node(&mut nodes, 0, items, 0, n, depth);
+        let split = (n > PARALLEL_MIN)
+            .then(|| Self::split(items, &bounds, depth.0, depth.1))
+            .flatten();
+        let Some((mid, [lb, rb])) = split else {
+            Self::build_node(&mut nodes, 0, items, 0, n, depth, bounds);
             // Leaves index the slice; shift them to positions in the whole order.
-            for node in nodes.iter_mut().filter(|k| k.count > 0) {
-                node.offset += start as u32;
-            }
-            return nodes;
-        }
-        let Some((root, mid)) = Self::split(items, depth.0, depth.1) else {
-            Self::build_node(&mut nodes, 0, items, 0, n, depth);
             for node in nodes.iter_mut().filter(|k| k.count > 0) {
                 node.offset += start as u32;
             }
@@ -147,8 +208,8 @@ impl Bvh {
         let (left, right) = items.split_at_mut(mid);
         let next = (depth.0 + 1, depth.1);
         let (l, r) = rayon::join(
-            || Self::build_tree(left, start, next),
-            || Self::build_tree(right, start + mid, next),
+            || Self::build_tree(left, start, next, lb),
+            || Self::build_tree(right, start + mid, next, rb),
         );
         // New index of a node at local index i of the left (right) subtree.
         let (nl, nr) = (l.len() as u32, r.len() as u32);
@@ -159,9 +220,10 @@ impl Bvh {
             ..*k
         };
         nodes[0] = Node {
+            min: bounds.min,
+            max: bounds.max,
             offset: 1,
             count: 0,
-            ..root
         };
         nodes.reserve((nl + nr) as usize);
         nodes.push(moved(&l[0], &at_l));
@@ -179,13 +241,13 @@ impl Bvh {
         start: usize,
         end: usize,
         (depth, sah_depth): (usize, usize),
+        bounds: Bounds,
     ) {
         let slice = &mut items[start..end];
-        let Some((bounds, mid)) = Self::split(slice, depth, sah_depth) else {
-            let (min, max) = Self::bounds(slice);
+        let Some((mid, [lb, rb])) = Self::split(slice, &bounds, depth, sah_depth) else {
             nodes[node] = Node {
-                min,
-                max,
+                min: bounds.min,
+                max: bounds.max,
                 offset: start as u32,
                 count: (end - start) as u32,
             };
@@ -193,51 +255,33 @@ impl Bvh {
         };
         let child = nodes.len();
         nodes[node] = Node {
+            min: bounds.min,
+            max: bounds.max,
             offset: child as u32,
             count: 0,
-            ..bounds
         };
         let blank = nodes[node];
         nodes.push(blank);
         nodes.push(blank);
         let next = (depth + 1, sah_depth);
-        Self::build_node(nodes, child, items, start, start + mid, next);
-        Self::build_node(nodes, child + 1, items, start + mid, end, next);
+        Self::build_node(nodes, child, items, start, start + mid, next, lb);
+        Self::build_node(nodes, child + 1, items, start + mid, end, next, rb);
     }
 
-    /// The box around `slice`'s boxes.
-    fn bounds(slice: &[Item]) -> (Vec3A, Vec3A) {
-        let (mut min, mut max) = (Vec3A::splat(f32::INFINITY), Vec3A::splat(f32::NEG_INFINITY));
-        for it in slice {
-            min = min.min(it.min);
-            max = max.max(it.max);
-        }
-        (min, max)
-    }
-
-    /// Partition `slice` for an interior node: its box (as a node with no children yet)
-    /// and the size of the left part; `None` when it should be a leaf.
-    fn split(slice: &mut [Item], depth: usize, sah_depth: usize) -> Option<(Node, usize)> {
-        let (mut min, mut max) = (Vec3A::splat(f32::INFINITY), Vec3A::splat(f32::NEG_INFINITY));
-        let (mut cmin, mut cmax) = (min, max);
-        for it in slice.iter() {
-            min = min.min(it.min);
-            max = max.max(it.max);
-            cmin = cmin.min(it.centroid);
-            cmax = cmax.max(it.centroid);
-        }
+    /// Partition `slice` (bounded by `bounds`) for an interior node: the size of the left
+    /// part and the bounds of both parts; `None` when it should be a leaf.
+    fn split(
+        slice: &mut [Item],
+        bounds: &Bounds,
+        depth: usize,
+        sah_depth: usize,
+    ) -> Option<(usize, [Bounds; 2])> {
         let n = slice.len();
         if n <= LEAF_SIZE {
             return None;
         }
-        let node = Node {
-            min,
-            max,
-            offset: 0,
-            count: 0,
-        };
         // Binned SAH along the axis of largest centroid extent.
-        let extent = cmax - cmin;
+        let extent = bounds.cmax - bounds.cmin;
         let axis = if extent.x >= extent.y && extent.x >= extent.z {
             0
         } else if extent.y >= extent.z {
@@ -245,9 +289,13 @@ impl Bvh {
         } else {
             2
         };
+        let halves = |slice: &[Item], mid: usize| {
+            let (l, r) = slice.split_at(mid);
+            Some((mid, [Bounds::of(l), Bounds::of(r)]))
+        };
         if extent[axis] <= 0.0 {
             // All centroids coincide: split in the middle of the list.
-            return Some((node, n / 2));
+            return halves(slice, n / 2);
         }
         if depth >= sah_depth {
             // Deep: the object median (ties by index, so the tree does not depend on the
@@ -257,55 +305,64 @@ impl Bvh {
                     .total_cmp(&q.centroid[axis])
                     .then(p.index.cmp(&q.index))
             });
-            return Some((node, n / 2));
+            return halves(slice, n / 2);
         }
-        let scale = BINS as f32 / extent[axis];
-        // `to_array()[axis]` rather than `c[axis]`: glam's index is a match per call.
-        let low = cmin.to_array()[axis];
-        let bin_of = |c: Vec3A| (((c.to_array()[axis] - low) * scale) as usize).min(BINS - 1);
-        let mut bins = [(
-            0usize,
-            Vec3A::splat(f32::INFINITY),
-            Vec3A::splat(f32::NEG_INFINITY),
-        ); BINS];
+        // One copy of the binning per axis, so the centroid's coordinate is a field
+        // read rather than an index chosen at run time (half the cost of a bin).
+        let cut = match axis {
+            0 => Self::sah_cut::<0>(slice, bounds),
+            1 => Self::sah_cut::<1>(slice, bounds),
+            _ => Self::sah_cut::<2>(slice, bounds),
+        };
+        match cut {
+            Cut::Leaf => None,
+            Cut::At(left, parts) => Some((left, parts)),
+            // Defensive: SAH found no cut that keeps both sides non-empty.
+            Cut::Unusable => halves(slice, n / 2),
+        }
+    }
+
+    /// The binned SAH cut of `slice` across `AXIS` (whose centroid extent is positive),
+    /// the slice partitioned at it.
+    fn sah_cut<const AXIS: usize>(slice: &mut [Item], bounds: &Bounds) -> Cut {
+        let n = slice.len();
+        let at = |v: Vec3A| match AXIS {
+            0 => v.x,
+            1 => v.y,
+            _ => v.z,
+        };
+        let low = at(bounds.cmin);
+        let scale = BINS as f32 / (at(bounds.cmax) - low);
+        let bin_of = |c: Vec3A| (((at(c) - low) * scale) as usize).min(BINS - 1);
+        let mut bins = [(0usize, Bounds::EMPTY); BINS];
         for it in slice.iter() {
             let b = &mut bins[bin_of(it.centroid)];
             b.0 += 1;
-            b.1 = b.1.min(it.min);
-            b.2 = b.2.max(it.max);
+            b.1.add(it);
         }
         // Sweep from the right to get suffix areas, then from the left to find the best cut.
-        let mut right_cost = [0f32; BINS];
-        let (mut c, mut lo, mut hi) = (
-            0usize,
-            Vec3A::splat(f32::INFINITY),
-            Vec3A::splat(f32::NEG_INFINITY),
-        );
+        let mut right = [(0f32, Bounds::EMPTY); BINS];
+        let (mut c, mut acc) = (0usize, Bounds::EMPTY);
         for k in (1..BINS).rev() {
             c += bins[k].0;
-            lo = lo.min(bins[k].1);
-            hi = hi.max(bins[k].2);
-            right_cost[k] = c as f32 * area(lo, hi);
+            acc = acc.union(&bins[k].1);
+            right[k] = (c as f32 * area(acc.min, acc.max), acc);
         }
-        let (mut best, mut best_cost) = (0usize, f32::INFINITY);
-        let (mut c, mut lo, mut hi) = (
-            0usize,
-            Vec3A::splat(f32::INFINITY),
-            Vec3A::splat(f32::NEG_INFINITY),
-        );
+        let (mut best, mut best_cost, mut best_left) = (0usize, f32::INFINITY, Bounds::EMPTY);
+        let (mut c, mut acc) = (0usize, Bounds::EMPTY);
         for k in 0..BINS - 1 {
             c += bins[k].0;
-            lo = lo.min(bins[k].1);
-            hi = hi.max(bins[k].2);
-            let cost = c as f32 * area(lo, hi) + right_cost[k + 1];
+            acc = acc.union(&bins[k].1);
+            let cost = c as f32 * area(acc.min, acc.max) + right[k + 1].0;
             if c > 0 && c < n && cost < best_cost {
                 best_cost = cost;
                 best = k;
+                best_left = acc;
             }
         }
         // Leaf when splitting costs more than testing everything (box test ≈ 1/2 a cylinder).
-        if n <= 2 * LEAF_SIZE && best_cost >= (n as f32 - 0.5) * area(min, max) {
-            return None;
+        if n <= 2 * LEAF_SIZE && best_cost >= (n as f32 - 0.5) * area(bounds.min, bounds.max) {
+            return Cut::Leaf;
         }
         let mut left = 0;
         for k in 0..n {
@@ -314,7 +371,10 @@ impl Bvh {
                 left += 1;
             }
         }
-        Some((node, if left == 0 || left == n { n / 2 } else { left }))
+        if left == 0 || left == n {
+            return Cut::Unusable;
+        }
+        Cut::At(left, [best_left, right[best + 1].1])
     }
 
     /// Levels below the root of the deepest leaf.
@@ -674,7 +734,8 @@ pub(crate) mod tests {
                 count: 0,
             }];
             let n = items.len();
-            Bvh::build_node(&mut nodes, 0, &mut items, 0, n, (0, SAH_DEPTH));
+            let all = Bounds::of(&items);
+            Bvh::build_node(&mut nodes, 0, &mut items, 0, n, (0, SAH_DEPTH), all);
             (nodes, items.iter().map(|it| it.index).collect::<Vec<u32>>())
         };
         assert!(seq.0.len() > 10_000);

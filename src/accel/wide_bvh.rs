@@ -32,6 +32,7 @@
 use super::bvh::{Bvh, MAX_DEPTH};
 use crate::geometry::wide::{Met8, SlabRay, Slabs8};
 use glam::Vec3A;
+use rayon::prelude::*;
 
 /// Lanes of a node.
 pub const WIDTH: usize = 8;
@@ -121,26 +122,29 @@ enum Slot {
     Prim(u32),
 }
 
+/// Wide levels whose subtrees collapse in parallel: 8² = 64 tasks, enough for any core
+/// count this runs on, and each below them collapses sequentially into its own list.
+const PARALLEL_LEVELS: usize = 2;
+
+/// A node's lanes as [`WideBvh::lanes`] picks them: what each holds and its box, far to
+/// near, and how many are used.
+type Lanes = ([(Slot, Vec3A, Vec3A); WIDTH], usize);
+
 impl WideBvh {
     /// Collapse `bvh` into eight-wide nodes.
     pub fn new(bvh: &Bvh) -> WideBvh {
-        let mut wide = WideBvh {
-            nodes: Vec::new(),
-            depth: 0,
+        let (nodes, depth) = if bvh.order().is_empty() {
+            (Vec::new(), 0)
+        } else {
+            Self::collapse_parallel(bvh, 0, 0)
         };
-        if !bvh.order().is_empty() {
-            wide.nodes.reserve(bvh.node_count() / 3 + 1);
-            wide.collapse(bvh, 0, 0);
-        }
         // The stack bound above: the binary build guarantees it; a failure is a bug here.
-        assert!(wide.depth < MAX_DEPTH, "wide depth {}", wide.depth);
-        wide
+        assert!(depth < MAX_DEPTH, "wide depth {depth}");
+        WideBvh { nodes, depth }
     }
 
-    /// Make the wide node of binary node `b` (at wide depth `depth`) and its subtrees;
-    /// returns its index.
-    fn collapse(&mut self, bvh: &Bvh, b: u32, depth: usize) -> u32 {
-        self.depth = self.depth.max(depth);
+    /// The lanes of the wide node of binary node `b`.
+    fn lanes(bvh: &Bvh, b: u32) -> Lanes {
         let nodes = &bvh.nodes;
         // Per lane: what it holds and, for a binary node, its surface area (+inf for `b`,
         // so it is opened first) and the lanes it takes when opened (its two children or
@@ -184,43 +188,108 @@ impl WideBvh {
                 len += 1;
             }
         }
-        let at = self.nodes.len();
-        self.nodes.push(EMPTY);
-        let boxed = |s: &Slot| match *s {
+        let boxed = |s: Slot| match s {
             Slot::Node(k) => (nodes[k as usize].min, nodes[k as usize].max),
             Slot::Prim(p) => (bvh.boxes[p as usize][0], bvh.boxes[p as usize][1]),
         };
         // Lanes from far to near: by the distance from the origin (where every ray starts)
         // to the box, a lower bound on any ray's entry, then to its centre (boxes around
         // the origin); the traversal takes the highest met lane first.
-        let mut lanes: [(f32, f32, Slot); WIDTH] = [(0.0, 0.0, Slot::Node(b)); WIDTH];
-        for (lane, s) in lanes.iter_mut().zip(&slots[..len]) {
+        let mut keyed = [(0.0, 0.0, Slot::Node(b)); WIDTH];
+        for (lane, &s) in keyed.iter_mut().zip(&slots[..len]) {
             let (min, max) = boxed(s);
             let gap = min.max(Vec3A::ZERO) - max.min(Vec3A::ZERO);
             *lane = (
                 gap.length_squared(),
                 ((min + max) * 0.5).length_squared(),
-                *s,
+                s,
             );
         }
-        let lanes = &mut lanes[..len];
-        lanes.sort_unstable_by(|a, b| b.0.total_cmp(&a.0).then(b.1.total_cmp(&a.1)));
-        let slots = lanes.iter().map(|&(_, _, s)| s);
+        let keyed = &mut keyed[..len];
+        keyed.sort_unstable_by(|a, b| b.0.total_cmp(&a.0).then(b.1.total_cmp(&a.1)));
+        let mut lanes = [(Slot::Node(b), Vec3A::ZERO, Vec3A::ZERO); WIDTH];
+        for (lane, &(_, _, s)) in lanes.iter_mut().zip(keyed.iter()) {
+            let (min, max) = boxed(s);
+            *lane = (s, min, max);
+        }
+        (lanes, len)
+    }
+
+    /// The wide node of `lanes`, lane `l` holding `child[l]`.
+    fn node(lanes: &Lanes, child: &[u32; WIDTH]) -> Node8 {
         let mut node = EMPTY;
-        for (l, s) in slots.enumerate() {
-            let (min, max) = boxed(&s);
-            let child = match s {
-                Slot::Node(k) => self.collapse(bvh, k, depth + 1),
-                Slot::Prim(p) => PRIM | p,
-            };
+        for (l, &(_, min, max)) in lanes.0[..lanes.1].iter().enumerate() {
             for a in 0..3 {
                 node.planes[a][l] = min[a];
                 node.planes[a + 3][l] = max[a];
             }
-            node.child[l] = child;
+            node.child[l] = child[l];
         }
-        self.nodes[at] = node;
-        at as u32
+        node
+    }
+
+    /// Append the wide node of binary node `b` (at wide depth `depth`) and its subtrees to
+    /// `out`: root first, then each subtree in lane order, indices into `out`. Returns
+    /// the deepest wide depth.
+    fn collapse(out: &mut Vec<Node8>, bvh: &Bvh, b: u32, depth: usize) -> usize {
+        let lanes = Self::lanes(bvh, b);
+        let at = out.len();
+        out.push(EMPTY);
+        let (mut deepest, mut child) = (depth, [0u32; WIDTH]);
+        for (l, &(s, _, _)) in lanes.0[..lanes.1].iter().enumerate() {
+            child[l] = match s {
+                Slot::Node(k) => {
+                    let c = out.len() as u32;
+                    deepest = deepest.max(Self::collapse(out, bvh, k, depth + 1));
+                    c
+                }
+                Slot::Prim(p) => PRIM | p,
+            };
+        }
+        out[at] = Self::node(&lanes, &child);
+        deepest
+    }
+
+    /// [`WideBvh::collapse`] into a list of its own, the subtrees of the top
+    /// [`PARALLEL_LEVELS`] collapsed in parallel and laid out as the sequential collapse
+    /// lays them out, so the tree is the same on any number of threads.
+    fn collapse_parallel(bvh: &Bvh, b: u32, depth: usize) -> (Vec<Node8>, usize) {
+        if depth >= PARALLEL_LEVELS {
+            let mut out = Vec::new();
+            let deepest = Self::collapse(&mut out, bvh, b, depth);
+            return (out, deepest);
+        }
+        let lanes = Self::lanes(bvh, b);
+        let subtrees: Vec<(Vec<Node8>, usize)> = lanes.0[..lanes.1]
+            .par_iter()
+            .map(|&(s, _, _)| match s {
+                Slot::Node(k) => Self::collapse_parallel(bvh, k, depth + 1),
+                Slot::Prim(_) => (Vec::new(), depth),
+            })
+            .collect();
+        let mut out = Vec::with_capacity(1 + subtrees.iter().map(|t| t.0.len()).sum::<usize>());
+        out.push(EMPTY);
+        let (mut deepest, mut child) = (depth, [0u32; WIDTH]);
+        for (l, ((sub, d), &(s, _, _))) in subtrees.into_iter().zip(&lanes.0).enumerate() {
+            deepest = deepest.max(d);
+            child[l] = match s {
+                Slot::Node(_) => {
+                    // The subtree's node indices were into its own list (0, its root,
+                    // is no node's child: it marks an empty lane).
+                    let base = out.len() as u32;
+                    out.extend(sub.into_iter().map(|mut n| {
+                        for c in n.child.iter_mut().filter(|c| **c != 0 && **c & PRIM == 0) {
+                            *c += base;
+                        }
+                        n
+                    }));
+                    base
+                }
+                Slot::Prim(p) => PRIM | p,
+            };
+        }
+        out[0] = Self::node(&lanes, &child);
+        (out, deepest)
     }
 
     /// Wide levels below the root of the deepest node.
@@ -436,6 +505,29 @@ mod tests {
     /// binary tree's traversal visits (the same f32 test on the same leaf boxes), for rays
     /// from outside the cloud and from inside it (many start inside boxes), with and
     /// without a segment limit.
+    /// The parallel collapse lays out the sequential collapse's tree, on any number of
+    /// threads.
+    #[test]
+    fn parallel_collapse_lays_out_the_sequential_tree() {
+        let boxes = tangle(20_000, 5);
+        let bvh = Bvh::build(&boxes, DVec3::new(30.0, -20.0, 12.0));
+        let mut seq = Vec::new();
+        let depth = WideBvh::collapse(&mut seq, &bvh, 0, 0);
+        assert!(
+            depth >= PARALLEL_LEVELS + 2,
+            "depth {depth}: too shallow to test"
+        );
+        for threads in [1, 3] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            let wide = pool.install(|| WideBvh::new(&bvh));
+            assert!(wide.nodes == seq, "{threads} threads: nodes differ");
+            assert_eq!(wide.depth, depth);
+        }
+    }
+
     #[test]
     fn wide_traversal_finds_what_brute_force_and_the_binary_tree_do() {
         let boxes = tangle(3000, 5);
