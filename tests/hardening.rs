@@ -462,8 +462,8 @@ fn with_ulimit(kib: u64, args: &[&str]) -> Output {
     Command::new("sh").args(["-c", &cmd]).output().unwrap()
 }
 
-/// A render that cannot fit fails before allocating, with a message, not an abort; the
-/// same size depth-only fits (measured: 16384 x 4096 depth peaks at ~270 MiB resident).
+/// A render that holds the whole image and cannot fit fails before allocating, with a
+/// message, not an abort (per-AOV EXRs need the whole image: 11 planes of 16384 x 4096).
 #[test]
 fn memory_is_checked_before_a_render_and_a_comparison() {
     let tmp = dir("memory");
@@ -481,7 +481,16 @@ fn memory_is_checked_before_a_render_and_a_comparison() {
     let all = "distance,depth,normal,position,shape_id";
     let o = with_ulimit(
         1_500_000,
-        &["render", s(&scene), "-o", s(&out), "--aov", all],
+        &[
+            "render",
+            s(&scene),
+            "-o",
+            s(&out),
+            "--aov",
+            all,
+            "--exr-layout",
+            "per-aov",
+        ],
     );
     let err = stderr(&o);
     assert_eq!(o.status.code(), Some(1), "{err}");

@@ -8,7 +8,7 @@
 
 use crate::output::aov::AovImage;
 use crate::output::aov::{
-    Compression, ExrBands, ExrLayout, exr_attributes, per_aov_image, render_memory,
+    Compression, ExrBands, ExrLayout, exr_attributes, per_aov_image, render_memory, streams,
 };
 use crate::output::depth_png::{self, DepthPng, OutOfRange};
 use crate::output::io::{
@@ -135,6 +135,7 @@ pub fn run(args: &RenderArgs) -> Result<String> {
         aovs: traced,
         ..args.options.clone()
     };
+    let pictures = args.preview.is_some() || args.depth_png.is_some();
     check_memory(
         &format!(
             "rendering {}x{} with {}",
@@ -147,11 +148,11 @@ pub fn run(args: &RenderArgs) -> Result<String> {
                 .join(",")
         ),
         render_memory(
-            scene.camera.width,
-            scene.camera.height,
+            (scene.camera.width, scene.camera.height),
             &opts.aovs,
+            args.exr_layout,
             args.compression,
-            args.preview.is_some() || args.depth_png.is_some(),
+            pictures,
         ),
     )?;
     let dirs = make_dirs(args)?;
@@ -159,10 +160,7 @@ pub fn run(args: &RenderArgs) -> Result<String> {
     let t0 = Instant::now();
     // The common case (one uncompressed EXR, no pictures) is written band by band while
     // the render runs, since nothing needs the whole image (see `render::render_bands`).
-    let streamed = args.exr_layout == ExrLayout::Layers
-        && args.compression == Compression::None
-        && args.depth_png.is_none()
-        && args.preview.is_none();
+    let streamed = streams(args.exr_layout, args.compression, pictures);
     let (hits, mut traced) = if streamed {
         let staged = stage(&args.out, |_| Ok(()))
             .with_context(|| format!("writing {}", args.out.display()))?;

@@ -198,27 +198,45 @@ pub fn per_aov_channel_names(aov: Aov) -> &'static [&'static str] {
     }
 }
 
-/// Bytes a render of `width × height` with `aovs` holds at its peak: one plane per channel
-/// (4 bytes a sample), twice over when compressed (the `exr` crate encodes from its own
-/// copy; the uncompressed writer streams from the planes), plus the RGB previews (3 bytes a
-/// pixel each, one at a time) when asked. Measured peaks stay within this estimate plus
-/// the process's fixed ~10 MiB.
+/// Whether a render going to `layout` with `compression`, and `pictures` (PNGs) or not,
+/// is written band by band while it is traced (see `render::render_bands`): one
+/// uncompressed layered EXR and no pictures, since nothing then needs the whole image.
+pub fn streams(layout: ExrLayout, compression: Compression, pictures: bool) -> bool {
+    layout == ExrLayout::Layers && compression == Compression::None && !pictures
+}
+
+/// Bytes a render of `width × height` with `aovs` holds at its peak (see [`streams`] for
+/// which renders are written band by band).
+///
+/// - Written band by band: each worker thread holds one band (16 rows) of every channel
+///   and the band's encoded copy.
+/// - Else one plane per channel (4 bytes a sample), twice over when compressed (the `exr`
+///   crate encodes from its own copy; the uncompressed writer streams from the planes),
+///   plus the RGB pictures (3 bytes a pixel each, one at a time) when asked.
+///
+/// Measured peaks stay within this estimate plus the process's fixed ~10 MiB and the
+/// scene's own memory.
 pub fn render_memory(
-    width: u32,
-    height: u32,
+    (width, height): (u32, u32),
     aovs: &[Aov],
+    layout: ExrLayout,
     compression: Compression,
-    previews: bool,
+    pictures: bool,
 ) -> u64 {
-    let pixels = width as u64 * height as u64;
     let channels: u64 = aovs.iter().map(|&a| channel_names(a).len() as u64).sum();
+    if streams(layout, compression, pictures) {
+        let rows = (crate::accel::tiles::TILE as u64).min(height as u64);
+        let threads = rayon::current_num_threads() as u64;
+        return 2 * threads * rows * width as u64 * 4 * channels;
+    }
+    let pixels = width as u64 * height as u64;
     let copies = if compression == Compression::None {
         1
     } else {
         2
     };
     let planes = pixels * 4 * channels * copies;
-    planes + if previews { pixels * 3 } else { 0 }
+    planes + if pictures { pixels * 3 } else { 0 }
 }
 
 /// Largest shape id a float32 `Y` channel holds exactly.
@@ -637,6 +655,35 @@ mod tests {
     /// Written band by band in scrambled order through positional writes, the file is the
     /// bytes of the whole image's streamed write (mixed f32 and u32 channels, names out of
     /// order, a last band of one row), and the `exr` crate reads it back.
+    /// A render written band by band is estimated at its bands (two copies of 16 rows
+    /// per thread); one holding the whole image at its planes, twice when compressed.
+    #[test]
+    fn the_memory_estimate_follows_what_the_render_holds() {
+        let all = [
+            Aov::Distance,
+            Aov::Depth,
+            Aov::Normal,
+            Aov::Position,
+            Aov::ShapeId,
+        ];
+        let size = (16384, 4096);
+        let planes = 16384 * 4096 * 4 * 9;
+        let est = |layout, compression, pictures| {
+            render_memory(size, &all, layout, compression, pictures)
+        };
+        assert_eq!(est(ExrLayout::PerAov, Compression::None, false), planes);
+        assert_eq!(est(ExrLayout::Layers, Compression::Zip, false), 2 * planes);
+        assert_eq!(
+            est(ExrLayout::Layers, Compression::None, true),
+            planes + 16384 * 4096 * 3
+        );
+        let threads = rayon::current_num_threads() as u64;
+        assert_eq!(
+            est(ExrLayout::Layers, Compression::None, false),
+            2 * threads * 16 * 16384 * 4 * 9
+        );
+    }
+
     #[test]
     fn band_writes_make_the_whole_file() {
         let (w, h) = (37, 33);

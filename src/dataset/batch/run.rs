@@ -519,11 +519,11 @@ mod tests {
 
     fn render_memory_depth_only() -> u64 {
         crate::output::aov::render_memory(
-            16384,
-            4096,
+            (16384, 4096),
             &[crate::scene::Aov::Depth],
-            crate::output::aov::Compression::None,
+            crate::output::aov::ExrLayout::Layers,
+            crate::output::aov::Compression::Zip,
             false,
-        )
+        ) / 2
     }
 }

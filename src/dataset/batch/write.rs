@@ -4,8 +4,8 @@
 use super::options::BatchOptions;
 use super::resume::{ViewFiles, render_stamp};
 use crate::output::aov::{
-    AovImage, Compression, ExrBands, ExrLayout, channel_names, exr_attributes, per_aov_image,
-    render_memory,
+    AovImage, ExrBands, ExrLayout, channel_names, exr_attributes, per_aov_image, render_memory,
+    streams,
 };
 use crate::output::depth_png;
 use crate::output::io::{camera_json, open3d_json};
@@ -63,9 +63,9 @@ pub fn traced_aovs(scene: &Scene, opts: &BatchOptions) -> Vec<Aov> {
 pub fn view_memory(scene: &Scene, opts: &BatchOptions) -> u64 {
     let c = &scene.camera;
     render_memory(
-        c.width,
-        c.height,
+        (c.width, c.height),
         &traced_aovs(scene, opts),
+        opts.exr_layout,
         opts.compression,
         opts.png,
     )
@@ -95,7 +95,7 @@ pub fn render_view(
     let t0 = Instant::now();
     // One uncompressed EXR and no pictures: written band by band while the view is
     // traced (see `render::render_bands`); `trace` then includes the EXR.
-    if !opts.png && opts.exr_layout == ExrLayout::Layers && opts.compression == Compression::None {
+    if streams(opts.exr_layout, opts.compression, opts.png) {
         let exr_tmp = tmp("exr");
         let file =
             File::create(&exr_tmp).with_context(|| format!("creating {}", exr_tmp.display()))?;
