@@ -27,7 +27,7 @@
 //!   fast path), [`accel::bvh`], a binned-SAH hierarchy of bounded depth (the tile-by-tile
 //!   cone walks with occlusion culling walk it), and [`accel::wide_bvh`], that tree collapsed
 //!   to eight-wide nodes for one traversal per ray: a ray tests eight boxes at once (AVX2 or
-//!   lane by lane, the same lanes), lanes far to near, two rays in turn, on a bounded stack.
+//!   lane by lane, the same lanes), lanes far to near, four rays in turn, on a bounded stack.
 //! - [`render`]: parallel bands of tiles, nearest hit, only the requested AOVs; the whole
 //!   image ([`render::render`]) or each band handed on as soon as it is traced
 //!   ([`render::render_bands`]: `cylaov render` and `batch` write an uncompressed EXR that

@@ -21,7 +21,7 @@
 
 use crate::accel::bvh::{Bvh, Cone, ConeWalk};
 use crate::accel::tiles::{self, Candidate, TILE, Tiles};
-use crate::accel::wide_bvh::{Stack, Visit, WideBvh};
+use crate::accel::wide_bvh::{IN_TURN, Stack, Visit, WideBvh};
 use crate::geometry::kernel::KernelFn;
 use crate::geometry::packet::{self, LANES, NO_HIT, Packet, PacketFormula};
 use crate::geometry::wide::{Avx2, Lanes, Simd, Slabs8, Wide};
@@ -388,46 +388,44 @@ impl<T: Real, F: Formula> Tracer<T, F> {
         best
     }
 
-    /// [`Tracer::trace_with`] for two rays `(d, tmin, tmax)` with one hint: through the
-    /// wide tree both at once (see [`WideBvh::traverse2`]), else one after the other. The
-    /// same answers as two calls.
+    /// [`Tracer::trace_with`] for [`IN_TURN`] rays `(d, tmin, tmax)` with one hint:
+    /// through the wide tree all at once (see [`WideBvh::traverse_in_turn`]), else one
+    /// after the other. The same answers as one call each.
     #[inline(always)]
-    fn trace2_with<S: Slabs8>(
+    fn trace_in_turn<S: Slabs8>(
         &self,
         slabs: S,
-        stacks: [&mut Stack; 2],
+        stacks: &mut [Stack; IN_TURN],
         hint: Option<u32>,
-        rays: [(DVec3, f64, f64); 2],
-    ) -> [Option<PixelHit<T>>; 2] {
+        rays: [(DVec3, f64, f64); IN_TURN],
+    ) -> [Option<PixelHit<T>>; IN_TURN] {
         let Some(wide) = &self.wide else {
-            let [sa, sb] = stacks;
-            let [(da, mina, maxa), (db, minb, maxb)] = rays;
-            return [
-                self.trace_with(slabs, sa, hint, da, mina, maxa),
-                self.trace_with(slabs, sb, hint, db, minb, maxb),
-            ];
+            return std::array::from_fn(|i| {
+                let (d, tmin, tmax) = rays[i];
+                self.trace_with(slabs, &mut stacks[i], hint, d, tmin, tmax)
+            });
         };
-        let mut pair = PairVisit {
+        let mut group = GroupVisit {
             tracer: self,
             hint,
             dt: rays.map(|(d, _, _)| T::v3(d)),
             lims: rays.map(|(_, tmin, tmax)| (T::from_f64(tmin), T::from_f64(tmax))),
             tmax: rays.map(|(_, _, tmax)| tmax),
-            best: [None, None],
+            best: [None; IN_TURN],
         };
         if let Some(h) = hint {
-            for i in 0..2 {
-                let (tmin, tmax) = pair.lims[i];
-                self.consider(h, pair.dt[i], tmin, tmax, &mut pair.best[i]);
+            for i in 0..IN_TURN {
+                let (tmin, tmax) = group.lims[i];
+                self.consider(h, group.dt[i], tmin, tmax, &mut group.best[i]);
             }
         }
         let wide_rays = std::array::from_fn(|i| {
             let d = rays[i].0;
             let d32 = Vec3A::new(d.x as f32, d.y as f32, d.z as f32);
-            (d32, f32_down(rays[i].1), f32_up(pair.bound(i)))
+            (d32, f32_down(rays[i].1), f32_up(group.bound(i)))
         });
-        wide.traverse2(slabs, stacks, wide_rays, &mut pair);
-        pair.best
+        wide.traverse_in_turn(slabs, stacks, wide_rays, &mut group);
+        group.best
     }
 
     /// World-space unit outward normal of a hit along `d`.
@@ -437,19 +435,19 @@ impl<T: Real, F: Formula> Tracer<T, F> {
     }
 }
 
-/// The cylinder tests of two rays walking the wide tree together
-/// ([`Tracer::trace2_with`]): each ray's best hit so far, the hint already tested.
-struct PairVisit<'a, T: Real, F: Formula> {
+/// The cylinder tests of the rays walking the wide tree together
+/// ([`Tracer::trace_in_turn`]): each ray's best hit so far, the hint already tested.
+struct GroupVisit<'a, T: Real, F: Formula> {
     tracer: &'a Tracer<T, F>,
     hint: Option<u32>,
     /// Per ray: direction, ray parameter range, and the range's end in f64.
-    dt: [T::V3; 2],
-    lims: [(T, T); 2],
-    tmax: [f64; 2],
-    best: [Option<PixelHit<T>>; 2],
+    dt: [T::V3; IN_TURN],
+    lims: [(T, T); IN_TURN],
+    tmax: [f64; IN_TURN],
+    best: [Option<PixelHit<T>>; IN_TURN],
 }
 
-impl<T: Real, F: Formula> PairVisit<'_, T, F> {
+impl<T: Real, F: Formula> GroupVisit<'_, T, F> {
     /// Ray `i`'s pruning bound: its best hit's distance, else the end of its range.
     #[inline(always)]
     fn bound(&self, i: usize) -> f64 {
@@ -457,7 +455,7 @@ impl<T: Real, F: Formula> PairVisit<'_, T, F> {
     }
 }
 
-impl<T: Real, F: Formula> Visit for PairVisit<'_, T, F> {
+impl<T: Real, F: Formula> Visit for GroupVisit<'_, T, F> {
     /// As in [`Tracer::trace_with`]: the hint is tested already; a closer hit returns the
     /// new bound rounded up, so a tie is still visited.
     #[inline(always)]
@@ -930,9 +928,10 @@ fn render_band<T: Real, F: PacketFormula, W: Wide<T>>(
             }
         }
         _ => {
-            // Pixels in pairs, traced together. The hint is the last hit found (through
-            // misses too: the next hit is most likely on the same cylinder or near it).
-            let (mut sa, mut sb) = (Stack::default(), Stack::default());
+            // Pixels in groups of four, traced together; the last few of the band one
+            // by one. The hint is the last hit found (through misses too: the next hit is
+            // most likely on the same cylinder or near it).
+            let mut stacks: [Stack; IN_TURN] = Default::default();
             let mut last = None;
             let n = rows * w;
             let ray = |k: usize| {
@@ -941,20 +940,24 @@ fn render_band<T: Real, F: PacketFormula, W: Wide<T>>(
                 let (tmin, tmax) = cam.clip_range(len);
                 (d, tmin, tmax)
             };
-            for k in (0..n).step_by(2) {
-                let rays = [ray(k), ray((k + 1).min(n - 1))];
-                let found = if k + 1 < n {
-                    tracer.trace2_with(tok, [&mut sa, &mut sb], last, rays)
-                } else {
-                    let (d, tmin, tmax) = rays[0];
-                    [tracer.trace_with(tok, &mut sa, last, d, tmin, tmax), None]
-                };
+            let grouped = n / IN_TURN * IN_TURN;
+            for k in (0..grouped).step_by(IN_TURN) {
+                let rays = std::array::from_fn(|i| ray(k + i));
+                let found = tracer.trace_in_turn(tok, &mut stacks, last, rays);
                 for (i, hit) in found.into_iter().enumerate() {
                     if let Some(hit) = hit {
                         last = Some(hit.slot);
                         shade(fr, band, k + i, rays[i].0, hit);
                         hits += 1;
                     }
+                }
+            }
+            for k in grouped..n {
+                let (d, tmin, tmax) = ray(k);
+                if let Some(hit) = tracer.trace_with(tok, &mut stacks[0], last, d, tmin, tmax) {
+                    last = Some(hit.slot);
+                    shade(fr, band, k, d, hit);
+                    hits += 1;
                 }
             }
         }
