@@ -419,11 +419,12 @@ impl<T: Real, F: Formula> Tracer<T, F> {
                 self.consider(h, group.dt[i], tmin, tmax, &mut group.best[i]);
             }
         }
-        let wide_rays = std::array::from_fn(|i| {
+        let wide_ray = |i: usize| {
             let d = rays[i].0;
             let d32 = Vec3A::new(d.x as f32, d.y as f32, d.z as f32);
             (d32, f32_down(rays[i].1), f32_up(group.bound(i)))
-        });
+        };
+        let wide_rays = [wide_ray(0), wide_ray(1), wide_ray(2), wide_ray(3)];
         wide.traverse_in_turn(slabs, stacks, wide_rays, &mut group);
         group.best
     }
@@ -833,6 +834,18 @@ struct BandInputs<'a, T: Real, F: Formula> {
     rows_off: &'a [f64],
 }
 
+impl<T: Real, F: Formula> BandInputs<'_, T, F> {
+    /// Pixel `(x, y)`'s ray: unit direction and ray parameter range, the same bits as the
+    /// tiles' (see [`Camera::dir_and_length`] and [`Camera::clip_range`]).
+    #[inline(always)]
+    fn pixel_ray(&self, x: usize, y: usize) -> (DVec3, f64, f64) {
+        let cam = &self.tracer.camera;
+        let (d, len) = cam.dir_and_length(self.cols_off[x], self.rows_off[y]);
+        let (tmin, tmax) = cam.clip_range(len);
+        (d, tmin, tmax)
+    }
+}
+
 /// Write the requested AOVs of a hit along `d` into sample `k` of `band`.
 #[inline(always)]
 fn shade<T: Real, F: Formula>(
@@ -934,15 +947,12 @@ fn render_band<T: Real, F: PacketFormula, W: Wide<T>>(
             let mut stacks: [Stack; IN_TURN] = Default::default();
             let mut last = None;
             let n = rows * w;
-            let ray = |k: usize| {
-                let (i, j) = (k % w, row0 + k / w);
-                let (d, len) = cam.dir_and_length(fr.cols_off[i], fr.rows_off[j]);
-                let (tmin, tmax) = cam.clip_range(len);
-                (d, tmin, tmax)
-            };
+            let ray = |k: usize| fr.pixel_ray(k % w, row0 + k / w);
             let grouped = n / IN_TURN * IN_TURN;
             for k in (0..grouped).step_by(IN_TURN) {
-                let rays = std::array::from_fn(|i| ray(k + i));
+                // Written out: `array::from_fn` left the ray's set-up out of line, a call
+                // per pixel compiled without AVX.
+                let rays = [ray(k), ray(k + 1), ray(k + 2), ray(k + 3)];
                 let found = tracer.trace_in_turn(tok, &mut stacks, last, rays);
                 for (i, hit) in found.into_iter().enumerate() {
                     if let Some(hit) = hit {
