@@ -19,7 +19,7 @@
 //!
 //! One ray's nodes follow one another (the next address is known only when the boxes of
 //! its parent are tested), so that chain's latency, not the work, bounds a traversal:
-//! [`WideBvh::traverse_in_turn`] walks [`IN_TURN`] rays in turn, the processor working
+//! `WideBvh::traverse_in_turn` walks [`IN_TURN`] rays in turn, the processor working
 //! on the others while one waits, which a mispredicted branch, flushing them all, would
 //! undo. Measured on 1920×1080 primary rays into 100 000 cylinders: alone, this walk is
 //! about 20% slower than the sorted one (its chain is longer); two in turn, about 10-15%
@@ -53,7 +53,7 @@ const PRIM: u32 = 1 << 31;
 /// level and the binary tree's leaves lie less than [`MAX_DEPTH`] levels down, so
 /// `D < MAX_DEPTH` and `8 · MAX_DEPTH` is enough.
 pub const STACK: usize = 8 * MAX_DEPTH;
-/// Rays [`WideBvh::traverse_in_turn`] walks together.
+/// Rays the per-ray walk takes in turn (`WideBvh::traverse_in_turn`).
 pub const IN_TURN: usize = 4;
 
 /// pbrt's 1 + 2γ₃: the f32 slab test's exit distance widened by its rounding.
