@@ -7,8 +7,8 @@
 //! `CYLAOV_REQUIRE_VENV=1` they fail instead.
 
 mod common;
+use common::{distance_to_surface, read_npy};
 
-use cylaov::geometry::Cylinder;
 use cylaov::output::aov::AovImage;
 use cylaov::scene;
 use glam::DVec3;
@@ -151,25 +151,6 @@ fn block_array(py: &Path, name: &str, check: &str, array: &str) -> Vec<DVec3> {
     read_npy(&npy)
 }
 
-/// An N x 3 little-endian float64 `.npy`.
-fn read_npy(path: &Path) -> Vec<DVec3> {
-    let bytes = std::fs::read(path).unwrap();
-    assert_eq!(&bytes[..6], b"\x93NUMPY");
-    let header_len = u16::from_le_bytes([bytes[8], bytes[9]]) as usize;
-    let header = std::str::from_utf8(&bytes[10..10 + header_len]).unwrap();
-    assert!(
-        header.contains("'descr': '<f8'") && header.contains("False"),
-        "{header}"
-    );
-    bytes[10 + header_len..]
-        .chunks_exact(24)
-        .map(|c| {
-            let f = |k: usize| f64::from_le_bytes(c[8 * k..8 * k + 8].try_into().unwrap());
-            DVec3::new(f(0), f(1), f(2))
-        })
-        .collect()
-}
-
 /// The exact hit points (the `position` AOV) of the view's hit pixels, row-major.
 fn hits(exr: &Path) -> Vec<DVec3> {
     let img = AovImage::read_exr(exr).unwrap();
@@ -244,20 +225,6 @@ fn opencv_reads_the_depth_png_and_mask_as_written() {
         let want = (z as f64 * SCALE).round();
         assert_eq!((g.x, g.y), (want, (z > 0.0) as u8 as f64), "pixel {k}");
     }
-}
-
-/// Distance from `p` to the surface of a finite cylinder (tube and, with caps, the disks).
-fn distance_to_surface(c: &Cylinder, p: DVec3) -> f64 {
-    let v = p - c.base;
-    let a = v.dot(c.axis);
-    let rho = (v - c.axis * a).length();
-    let tube = ((rho - c.radius).powi(2) + (a - a.clamp(0.0, c.height)).powi(2)).sqrt();
-    if !c.caps {
-        return tube;
-    }
-    let outside = (rho - c.radius).max(0.0);
-    let disk = |a0: f64| ((a - a0).powi(2) + outside.powi(2)).sqrt();
-    tube.min(disk(0.0)).min(disk(c.height))
 }
 
 #[test]

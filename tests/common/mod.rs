@@ -69,3 +69,37 @@ pub fn ok(args: &[&str]) -> String {
     );
     String::from_utf8_lossy(&out.stdout).into_owned()
 }
+
+/// Distance from `p` to the surface of a finite cylinder: the tube for axial coordinate
+/// in [0, h], plus the two cap disks when it has caps.
+pub fn distance_to_surface(c: &cylaov::geometry::Cylinder, p: glam::DVec3) -> f64 {
+    let v = p - c.base;
+    let a = v.dot(c.axis);
+    let rho = (v - c.axis * a).length();
+    let tube = ((rho - c.radius).powi(2) + (a - a.clamp(0.0, c.height)).powi(2)).sqrt();
+    if !c.caps {
+        return tube;
+    }
+    let outside = (rho - c.radius).max(0.0);
+    let disk = |a0: f64| ((a - a0).powi(2) + outside.powi(2)).sqrt();
+    tube.min(disk(0.0)).min(disk(c.height))
+}
+
+/// An N x 3 little-endian float64 `.npy` (C order), as numpy's `np.save` writes one.
+pub fn read_npy(path: &Path) -> Vec<glam::DVec3> {
+    let bytes = std::fs::read(path).unwrap();
+    assert_eq!(&bytes[..6], b"\x93NUMPY");
+    let header_len = u16::from_le_bytes([bytes[8], bytes[9]]) as usize;
+    let header = std::str::from_utf8(&bytes[10..10 + header_len]).unwrap();
+    assert!(
+        header.contains("'descr': '<f8'") && header.contains("'fortran_order': False"),
+        "{header}"
+    );
+    bytes[10 + header_len..]
+        .chunks_exact(24)
+        .map(|c| {
+            let f = |k: usize| f64::from_le_bytes(c[8 * k..8 * k + 8].try_into().unwrap());
+            glam::DVec3::new(f(0), f(1), f(2))
+        })
+        .collect()
+}
