@@ -14,10 +14,10 @@
 //! cost less to list than any BVH costs to build.
 //!
 //! One traversal per ray (`--accel bvh`, and a tiny view whose lists would pass their
-//! memory bound) goes through the eight-wide tree ([`WideBvh`]; the binary one when there are fewer
-//! than a quarter as many pixels as cylinders, too few rays to repay collapsing it),
-//! two pixels at a time, each after testing the cylinder of the last hit, whose hit
-//! bounds its traversal.
+//! memory bound) goes through the eight-wide tree ([`WideBvh`]; the binary one when there
+//! are fewer than a quarter as many pixels as cylinders, too few rays to repay collapsing
+//! it), [`IN_TURN`] pixels at a time, each after testing the cylinder of the last hit,
+//! whose hit bounds its traversal.
 
 use crate::accel::bvh::{Bvh, Cone, ConeWalk};
 use crate::accel::tiles::{self, Candidate, TILE, Tiles};
