@@ -205,9 +205,10 @@ impl Avx2 {
     /// The token without the check.
     ///
     /// # Safety
-    /// The CPU must have AVX2: call it only from code that runs after [`Avx2::detect`]
-    /// succeeded (for instance a `#[target_feature(enable = "avx2")]` function, whose own
-    /// contract is the same).
+    /// The CPU must have what [`Avx2::detect`] checks (AVX2, POPCNT, LZCNT, BMI1): call it
+    /// only from code that runs after `detect` succeeded (for instance a
+    /// `#[target_feature(enable = "avx2,popcnt,lzcnt,bmi1")]` function, whose own contract
+    /// is the same).
     #[cfg(target_arch = "x86_64")]
     pub(crate) unsafe fn new_unchecked() -> Avx2 {
         Avx2(())

@@ -998,7 +998,8 @@ fn band_renderer<T: Simd, F: PacketFormula>(
     if simd && Avx2::detect().is_some() {
         return |fr, b, band| {
             // SAFETY: this closure is returned only after `Avx2::detect` succeeded, so the
-            // CPU has AVX2, which both the token and the target feature require.
+            // CPU has AVX2, POPCNT, LZCNT and BMI1, which both the token and the target
+            // features require.
             unsafe { render_band_avx2(Avx2::new_unchecked(), fr, b, band) }
         };
     }
