@@ -88,7 +88,7 @@ impl Item {
     }
 }
 
-fn area(min: Vec3A, max: Vec3A) -> f32 {
+pub(super) fn area(min: Vec3A, max: Vec3A) -> f32 {
     let e = (max - min).max(Vec3A::ZERO);
     e.x * e.y + e.y * e.z + e.z * e.x
 }

@@ -258,14 +258,50 @@ impl SlabRay {
         });
         // A ray going towards -x enters a box by its max x face, and so on.
         let neg = inv.map(|x| (x < 0.0) as usize);
+        let (near_row, far_row) = rows_of(neg[0] | neg[1] << 1 | neg[2] << 2);
         SlabRay {
             inv,
             inv_far: inv.map(|x| x * grow),
-            near_row: [3 * neg[0], 1 + 3 * neg[1], 2 + 3 * neg[2]].map(|r| 8 * r),
-            far_row: [3 - 3 * neg[0], 4 - 3 * neg[1], 5 - 3 * neg[2]].map(|r| 8 * r),
+            near_row,
+            far_row,
             tmin,
         }
     }
+
+    /// The ray's octant: bit `a` set where it goes towards −axis `a`.
+    #[inline(always)]
+    pub(crate) fn octant(&self) -> usize {
+        (0..3).fold(0, |o, a| o | ((self.near_row[a] >= 24) as usize) << a)
+    }
+
+    /// The near and far rows, fixed at compile time for a ray of octant `OCT` (so a walk
+    /// that knows its rays' octant reads no offsets), read from the ray for [`ANY_OCTANT`].
+    #[inline(always)]
+    fn rows<const OCT: usize>(&self) -> ([usize; 3], [usize; 3]) {
+        debug_assert!(OCT == ANY_OCTANT || OCT == self.octant());
+        if OCT < ANY_OCTANT {
+            rows_of(OCT)
+        } else {
+            (self.near_row, self.far_row)
+        }
+    }
+}
+
+/// Not an octant: a slab test for `OCT = ANY_OCTANT` reads the rows from its ray.
+pub(crate) const ANY_OCTANT: usize = 8;
+
+/// Where the near and far rows start (in f32, at most 40) for a ray of `octant`.
+#[inline(always)]
+const fn rows_of(octant: usize) -> ([usize; 3], [usize; 3]) {
+    let neg = [octant & 1, octant >> 1 & 1, octant >> 2 & 1];
+    (
+        [8 * 3 * neg[0], 8 * (1 + 3 * neg[1]), 8 * (2 + 3 * neg[2])],
+        [
+            8 * (3 - 3 * neg[0]),
+            8 * (4 - 3 * neg[1]),
+            8 * (5 - 3 * neg[2]),
+        ],
+    )
 }
 
 /// The slab test of eight boxes against one ray at once, portable (`()`) or in AVX
@@ -278,8 +314,8 @@ pub(crate) trait Slabs8: Copy {
     /// `max(tmin, near face · inv over the axes)` at most the widened exit), and `packed`,
     /// the met lanes whose `child` has its top bit clear. Their children are written to
     /// the first `packed.count_ones()` entries of `out`, in lane order; the other entries
-    /// of `out` are written with no meaning.
-    fn slabs8(
+    /// of `out` are written with no meaning. `OCT` is the ray's octant, or [`ANY_OCTANT`].
+    fn slabs8<const OCT: usize>(
         self,
         planes: &[[f32; 8]; 6],
         child: &[u32; 8],
@@ -319,7 +355,7 @@ const PACK: [u64; 256] = {
 
 impl Slabs8 for () {
     #[inline(always)]
-    fn slabs8(
+    fn slabs8<const OCT: usize>(
         self,
         planes: &[[f32; 8]; 6],
         child: &[u32; 8],
@@ -332,7 +368,7 @@ impl Slabs8 for () {
         let planes = planes.as_flattened();
         let met = (0..8).fold(0u8, |met, l| {
             let t = |row: usize, a: usize| planes[row + l] * ray.inv[a];
-            let (n, f) = (ray.near_row, ray.far_row);
+            let (n, f) = ray.rows::<OCT>();
             let enter = max(max(t(n[0], 0), t(n[1], 1)), max(t(n[2], 2), ray.tmin));
             let g = |row: usize, a: usize| planes[row + l] * ray.inv_far[a];
             let leave = min(min(g(f[0], 0), g(f[1], 1)), min(g(f[2], 2), tmax));
@@ -607,7 +643,7 @@ mod avx {
 
     impl super::Slabs8 for Avx2 {
         #[inline(always)]
-        fn slabs8(
+        fn slabs8<const OCT: usize>(
             self,
             planes: &[[f32; 8]; 6],
             child: &[u32; 8],
@@ -620,7 +656,7 @@ mod avx {
             // writes the 8 u32 of `out` (all unaligned forms). No closure calls an
             // intrinsic that is not inlined into the AVX2 code this is inlined into.
             unsafe {
-                let (n, f) = (ray.near_row, ray.far_row);
+                let (n, f) = ray.rows::<OCT>();
                 let (ix, iy, iz) = (
                     _mm256_set1_ps(ray.inv[0]),
                     _mm256_set1_ps(ray.inv[1]),

@@ -260,10 +260,10 @@ impl<T: Real, F: Formula> Tracer<T, F> {
         };
         let cone_cands = (bvh.is_some() && !per_ray)
             .then(|| ConeCands::new(&camera, cylinders, &order, projected));
-        // Collapsing to the wide tree costs about 170 instructions a cylinder and saves
-        // thousands a ray in a dense scene (callgrind, dense 100 000): worth it unless there
-        // are far fewer rays than cylinders (a 16×16 view of 100 000 traverses the binary
-        // tree: 256 rays cannot repay 17 M instructions).
+        // Collapsing to the wide tree costs about 450 instructions a cylinder (its plan and
+        // its nodes) and saves thousands a ray in a dense scene (callgrind, dense 100 000):
+        // worth it unless there are far fewer rays than cylinders (a 16×16 view of 100 000
+        // traverses the binary tree: 256 rays cannot repay 45 M instructions).
         let wide = bvh
             .as_ref()
             .filter(|_| per_ray && pixels * 4 >= cylinders.len())
