@@ -176,12 +176,15 @@ impl Plan {
                 debug_assert!(n.offset as usize > k, "children after their parent");
                 let (l, r) = (&cost[n.offset as usize], &cost[n.offset as usize + 1]);
                 for j in 2..=WIDTH {
+                    // Picked without a branch: which share wins follows no pattern.
+                    let (mut best, mut at) = (f32::INFINITY, 0u8);
                     for kl in 1..j {
                         let c = l[kl - 1] + r[j - kl - 1];
-                        if c < split[j - 1] {
-                            (split[j - 1], left[k][j - 1]) = (c, kl as u8);
-                        }
+                        let better = c < best;
+                        best = std::hint::select_unpredictable(better, c, best);
+                        at = std::hint::select_unpredictable(better, kl as u8, at);
                     }
+                    (split[j - 1], left[k][j - 1]) = (best, at);
                 }
             }
             let one = area(n.min, n.max) + split[WIDTH - 1];
