@@ -313,7 +313,7 @@ impl WideBvh {
     /// lays them out, so the tree is the same on any number of threads.
     fn collapse_parallel(bvh: &Bvh, plan: &Plan, b: u32, depth: usize) -> (Vec<Node8>, usize) {
         if depth >= PARALLEL_LEVELS {
-            // About one wide node for every 4 cylinders (3.9 in a tangle of 100 000):
+            // About one wide node for every 5 cylinders (5.4 in a tangle of 100 000):
             // with a third reserved, the list is not copied to grow (untouched capacity
             // costs no memory).
             let mut out = Vec::with_capacity(Self::cylinders_under(bvh, b) / 3 + 1);
