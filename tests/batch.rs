@@ -6,7 +6,7 @@ use common::{cylaov, ok};
 
 use cylaov::output::aov::AovImage;
 use std::collections::{BTreeMap, BTreeSet};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::time::{Duration, Instant};
 
@@ -32,8 +32,8 @@ fn tree(dir: &Path) -> BTreeMap<String, Vec<u8>> {
     out
 }
 
-/// `cylaov batch INPUT --out OUT EXTRA...`, which must succeed; its stdout.
-fn batch_ok(input: &Path, out: &Path, extra: &[&str]) -> String {
+/// The arguments of `cylaov batch INPUT --out OUT EXTRA...`.
+fn batch_args<'a>(input: &'a Path, out: &'a Path, extra: &[&'a str]) -> Vec<&'a str> {
     let mut args = vec![
         "batch",
         input.to_str().unwrap(),
@@ -41,17 +41,22 @@ fn batch_ok(input: &Path, out: &Path, extra: &[&str]) -> String {
         out.to_str().unwrap(),
     ];
     args.extend_from_slice(extra);
-    ok(&args)
+    args
+}
+
+/// `cylaov batch INPUT --out OUT EXTRA...`, which must succeed; its stdout.
+fn batch_ok(input: &Path, out: &Path, extra: &[&str]) -> String {
+    ok(&batch_args(input, out, extra))
+}
+
+/// `cylaov batch INPUT --out OUT EXTRA...`: its output, whatever its exit status.
+fn run_batch(input: &Path, out: &Path, extra: &[&str]) -> Output {
+    cylaov(&batch_args(input, out, extra))
 }
 
 /// `cylaov batch INPUT --out OUT`, which must fail; its output, to check the reason.
 fn batch_fails(input: &Path, out: &Path) -> Output {
-    let o = cylaov(&[
-        "batch",
-        input.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let o = run_batch(input, out, &[]);
     assert!(!o.status.success(), "batch {} succeeded", input.display());
     o
 }
@@ -68,6 +73,15 @@ fn generate(out: &Path, seed: &str, count: &str, extra: &[&str]) {
     ];
     args.extend_from_slice(extra);
     ok(&args);
+}
+
+/// A fresh folder `name` holding `count` generated scenes (`seed`, `extra` options) in
+/// its `data` folder: the folder (removed when dropped) and that path.
+fn generated(name: &str, seed: &str, count: &str, extra: &[&str]) -> (tempfile::TempDir, PathBuf) {
+    let tmp = fresh_dir(name);
+    let data = tmp.path().join("data");
+    generate(&data, seed, count, extra);
+    (tmp, data)
 }
 
 const SMALL: &[&str] = &["--width", "64", "--height", "48", "--cylinders", "3..6"];
@@ -103,12 +117,7 @@ fn same_seed_gives_identical_bytes() {
 
     // Rendering is deterministic too, bytes included.
     for (src, out) in [(&a, "ra"), (&b, "rb")] {
-        ok(&[
-            "batch",
-            src.to_str().unwrap(),
-            "--out",
-            dir.join(out).to_str().unwrap(),
-        ]);
+        batch_ok(src, &dir.join(out), &[]);
     }
     let (ra, rb) = (tree(&dir.join("ra")), tree(&dir.join("rb")));
     assert_eq!(ra.len(), 6 * 7 + 2, "{:?}", ra.keys());
@@ -145,10 +154,8 @@ fn bad_generate_options_name_the_flag() {
 
 #[test]
 fn shards_partition_the_views_and_agree_on_transforms() {
-    let tmp = fresh_dir("shards");
+    let (tmp, data) = generated("shards", "5", "9", SMALL);
     let dir = tmp.path();
-    let data = dir.join("data");
-    generate(&data, "5", "9", SMALL);
     let full = dir.join("full");
     batch_ok(&data, &full, &[]);
     let full_tree = tree(&full);
@@ -203,10 +210,8 @@ fn shards_partition_the_views_and_agree_on_transforms() {
 
 #[test]
 fn a_bad_scene_fails_alone() {
-    let tmp = fresh_dir("bad");
+    let (tmp, data) = generated("bad", "9", "5", SMALL);
     let dir = tmp.path();
-    let data = dir.join("data");
-    generate(&data, "9", "5", SMALL);
     // Read through a folder (no manifest): move the scenes up and break the middle one.
     let scenes = dir.join("scenes");
     std::fs::rename(data.join("scenes"), &scenes).unwrap();
@@ -214,12 +219,7 @@ fn a_bad_scene_fails_alone() {
     let text = std::fs::read_to_string(&bad).unwrap();
     std::fs::write(&bad, text.replacen("\"radius\": ", "\"_radius\": ", 1)).unwrap();
     let out = dir.join("out");
-    let o = cylaov(&[
-        "batch",
-        scenes.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let o = run_batch(&scenes, &out, &[]);
     assert!(
         !o.status.success(),
         "a failed view makes the exit status non-zero"
@@ -311,12 +311,7 @@ fn resume_after_kill_completes_with_correct_files() {
         );
     }
 
-    let o = cylaov(&[
-        "batch",
-        data.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let o = run_batch(&data, &out, &[]);
     assert!(o.status.success());
     let stdout = String::from_utf8_lossy(&o.stdout);
     assert!(
@@ -345,10 +340,8 @@ fn resume_after_kill_completes_with_correct_files() {
 
 #[test]
 fn manifest_and_folder_inputs() {
-    let tmp = fresh_dir("inputs");
+    let (tmp, data) = generated("inputs", "3", "3", SMALL);
     let dir = tmp.path();
-    let data = dir.join("data");
-    generate(&data, "3", "3", SMALL);
     // A manifest with its own names, in its own order.
     let manifest = dir.join("views.jsonl");
     std::fs::write(
@@ -386,24 +379,15 @@ fn manifest_and_folder_inputs() {
 /// The dataset index matches the per-view camera files and the depth PNG scale.
 #[test]
 fn transforms_match_cameras_and_depth_png() {
-    let tmp = fresh_dir("transforms");
-    let dir = tmp.path();
-    let data = dir.join("data");
-    generate(
-        &data,
+    let (tmp, data) = generated(
+        "transforms",
         "8",
         "2",
         &["--width", "80", "--height", "60", "--cylinders", "20"],
     );
+    let dir = tmp.path();
     let out = dir.join("out");
-    let o = cylaov(&[
-        "batch",
-        data.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--depth-scale",
-        "500",
-    ]);
+    let o = run_batch(&data, &out, &["--depth-scale", "500"]);
     assert!(o.status.success());
     // nerfstudio does not read the scale from the file: the batch says what to pass.
     let err = String::from_utf8_lossy(&o.stderr);
@@ -459,10 +443,8 @@ fn verify_fraction_checks_selected_views_and_fails_disagreements() {
             })
         }
     }
-    let tmp = fresh_dir("verify");
+    let (tmp, data) = generated("verify", "2", "4", SMALL);
     let dir = tmp.path();
-    let data = dir.join("data");
-    generate(&data, "2", "4", SMALL);
     let out = dir.join("out");
     let opts = |fraction| BatchOptions {
         verify_fraction: fraction,
@@ -525,10 +507,8 @@ fn verify_fraction_with_mitsuba_agrees_on_generated_views() {
     if common::venv_python().is_none() {
         return;
     }
-    let tmp = fresh_dir("verify-mitsuba");
+    let (tmp, data) = generated("verify-mitsuba", "3", "3", SMALL);
     let dir = tmp.path();
-    let data = dir.join("data");
-    generate(&data, "3", "3", SMALL);
     let out = dir.join("out");
     let text = batch_ok(&data, &out, &["--verify-fraction", "1"]);
     assert!(
@@ -545,15 +525,13 @@ fn verify_fraction_checks_every_camera_of_a_scene() {
     if common::venv_python().is_none() {
         return;
     }
-    let tmp = fresh_dir("verify-cameras");
-    let dir = tmp.path();
-    let data = dir.join("data");
-    generate(
-        &data,
+    let (tmp, data) = generated(
+        "verify-cameras",
         "4",
         "1",
         &[SMALL, &["--views-per-scene", "3"]].concat(),
     );
+    let dir = tmp.path();
     let out = dir.join("out");
     let text = batch_ok(&data, &out, &["--verify-fraction", "1"]);
     assert!(
@@ -565,10 +543,8 @@ fn verify_fraction_checks_every_camera_of_a_scene() {
 /// A scene whose camera changed under the same name is rendered again, not skipped.
 #[test]
 fn changed_camera_is_rendered_again() {
-    let tmp = fresh_dir("changed");
+    let (tmp, data) = generated("changed", "6", "3", SMALL);
     let dir = tmp.path();
-    let data = dir.join("data");
-    generate(&data, "6", "3", SMALL);
     let out = dir.join("out");
     batch_ok(&data, &out, &[]);
     let scene = data.join("scenes/000001.json");
@@ -690,19 +666,10 @@ fn empty_input_is_an_error() {
 /// old EXR beside them: the next run renders the view again.
 #[test]
 fn interrupted_rerender_leaves_no_stale_exr() {
-    let tmp = fresh_dir("stale");
+    let (tmp, data) = generated("stale", "13", "2", SMALL);
     let dir = tmp.path();
-    let data = dir.join("data");
-    generate(&data, "13", "2", SMALL);
     let out = dir.join("out");
-    let batch = || {
-        cylaov(&[
-            "batch",
-            data.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-        ])
-    };
+    let batch = || run_batch(&data, &out, &[]);
     assert!(batch().status.success());
     let old_png = std::fs::read(out.join("000001.normal.preview.png")).unwrap();
     // A new camera for view 1, and a normal PNG that cannot be replaced (a folder in its
@@ -767,21 +734,10 @@ fn assert_depth_png_scale(out: &Path, name: &str, scale: f64) -> usize {
 /// options skip them.
 #[test]
 fn changed_options_are_rendered_again() {
-    let tmp = fresh_dir("options");
+    let (tmp, data) = generated("options", "12", "3", SMALL);
     let dir = tmp.path();
-    let data = dir.join("data");
-    generate(&data, "12", "3", SMALL);
     let out = dir.join("out");
-    let batch = |extra: &[&str]| {
-        let mut args = vec![
-            "batch",
-            data.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-        ];
-        args.extend_from_slice(extra);
-        ok(&args)
-    };
+    let batch = |extra: &[&str]| batch_ok(&data, &out, extra);
     let stdout = batch(&[]);
     assert!(stdout.contains("done 3 / skipped 0"), "{stdout}");
     assert_depth_png_scale(&out, "000001", 1000.0);
