@@ -141,6 +141,12 @@ struct GenerateCli {
     /// stepped by 360°/V) instead of drawing them at random.
     #[arg(long)]
     orbit: bool,
+    /// Replace a dataset already in --out that has other settings or more scenes: removes
+    /// generate's own files (generate.json, manifest.jsonl, scenes/NNNNNN.json) and nothing
+    /// else. Without it such an --out is refused; the same settings are kept (nothing to
+    /// do) and a larger --count extends the dataset.
+    #[arg(long)]
+    force: bool,
 }
 
 #[derive(Args)]
@@ -560,6 +566,7 @@ fn generate(a: GenerateCli) -> anyhow::Result<ExitCode> {
             views_per_scene: a.views_per_scene,
             orbit: a.orbit.then_some(true),
         },
+        force: a.force,
     };
     say(&commands::generate::run(&args)?)?;
     Ok(ExitCode::SUCCESS)

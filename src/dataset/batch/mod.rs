@@ -48,8 +48,10 @@ mod views;
 mod write;
 
 pub use options::{BatchOptions, Schedule};
-pub use progress::{Counts, Progress, ProgressMode};
-pub use resume::{ViewFiles, expected_channels, exr_is_complete, render_stamp, view_is_complete};
+pub use progress::{Counts, LARGE_OUTPUT, Progress, ProgressMode, SizeEstimate};
+pub use resume::{
+    ViewFiles, expected_channels, exr_is_complete, render_stamp, view_file_names, view_is_complete,
+};
 pub use run::{Failure, Outcome, Summary, run};
 pub use shard::{Shard, resolve_shard};
 pub use transforms::{FrameCamera, transforms_json};

@@ -58,6 +58,30 @@ impl ViewFiles {
     }
 }
 
+/// What follows `NAME.` in the name of a file batch writes for view `NAME` (besides the
+/// per-AOV EXRs `NAME.AOV.exr`), in any layout and with any options, with its verdict
+/// (`--verify-fraction`) and the normal picture's name before 0.2.
+const VIEW_SUFFIXES: &[&str] = &[
+    "exr",
+    "camera.json",
+    "open3d.json",
+    "normal.preview.png",
+    "depth.png",
+    "mask.png",
+    "render.json",
+    "verify.json",
+    "normal.png",
+];
+
+/// Every file name view `name` may have in its folder: what goes when the view does.
+pub fn view_file_names(name: &str) -> Vec<String> {
+    VIEW_SUFFIXES
+        .iter()
+        .map(|s| format!("{name}.{s}"))
+        .chain(Aov::ALL.iter().map(|a| format!("{name}.{}.exr", a.name())))
+        .collect()
+}
+
 /// The per-AOV EXR channels of `aov`, sorted as the file stores them: all float32.
 fn per_aov_channels(aov: Aov) -> Vec<(&'static str, SampleType)> {
     let mut v: Vec<_> = per_aov_channel_names(aov)
@@ -320,6 +344,25 @@ pub fn view_is_complete(dir: &Path, name: &str, scene: &Scene, opts: &BatchOptio
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Every name a view's clean-up removes is one of cylaov's own (`dataset::names`), or
+    /// the normal picture's name before 0.2 that its module docs give.
+    #[test]
+    fn view_file_names_are_cylaov_names() {
+        let patterns: Vec<&str> = crate::dataset::names::OUTPUT_NAMES
+            .iter()
+            .map(|n| n.pattern)
+            .collect();
+        for name in view_file_names("NAME") {
+            let listed = patterns.contains(&name.as_str())
+                || Aov::ALL
+                    .iter()
+                    .any(|a| name == format!("NAME.{}.exr", a.name()))
+                    && patterns.contains(&"NAME.AOV.exr");
+            assert!(listed || name == "NAME.normal.png", "{name}");
+        }
+        assert_eq!(view_file_names("a").len(), VIEW_SUFFIXES.len() + Aov::ALL.len());
+    }
 
     #[test]
     fn stamp_names_the_version_and_options() {

@@ -5,8 +5,8 @@
 
 use super::lock::{ShardLock, lock_shard, partial_root};
 use super::options::{BatchOptions, Schedule};
-use super::progress::{Counts, Progress, ProgressMode};
-use super::resume::{ViewFiles, view_is_complete};
+use super::progress::{Counts, Progress, ProgressMode, SizeEstimate};
+use super::resume::{ViewFiles, view_file_names, view_is_complete};
 use super::shard::Shard;
 use super::transforms::{FrameCamera, index_json, transforms_json};
 use super::verify::{Verifier, selected_for_verify};
@@ -14,10 +14,12 @@ use super::views::{ViewSource, list_views};
 use super::write::{ViewCost, render_view, view_memory};
 use crate::output::io::atomic_write_bytes;
 use crate::scene::camera::Camera;
+use crate::output::aov::ExrLayout;
 use crate::scene::{self, Scene};
 use anyhow::{Context, Result};
 use rayon::prelude::*;
 use serde::Serialize;
+use std::collections::HashSet;
 use std::fmt;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -139,6 +141,10 @@ pub fn run(
     let (partial, lock) = clear_partial(out, shard)?;
 
     let mine: Vec<usize> = (0..views.len()).filter(|&i| shard.contains(i)).collect();
+    if progress != ProgressMode::Off {
+        let estimate = estimate(&mine, &cameras, opts);
+        eprintln!("{}", estimate.message(&format!("batch {shard}"), opts.compression));
+    }
     let work = ShardWork {
         views: &views,
         cameras: &cameras,
@@ -167,6 +173,7 @@ pub fn run(
         input.parent().unwrap_or(Path::new(""))
     };
     write_index(out, input_dir, &views, &cameras, opts)?;
+    remove_stale_views(out, &views, &cameras, &mine)?;
 
     std::fs::remove_dir_all(&partial).with_context(|| format!("removing {}", partial.display()))?;
     drop(lock);
@@ -479,6 +486,121 @@ fn write_index(
             .with_context(|| format!("removing the old {}", old.display()))?;
     }
     Ok(())
+}
+
+/// The size of what the views `mine` write (those whose scene loads).
+fn estimate(
+    mine: &[usize],
+    cameras: &[Result<FrameCamera, String>],
+    opts: &BatchOptions,
+) -> SizeEstimate {
+    let mut e = SizeEstimate::default();
+    for cam in mine.iter().filter_map(|&i| cameras[i].as_ref().ok()) {
+        let aovs: Vec<_> = cam.aovs().collect();
+        let files = match opts.exr_layout {
+            ExrLayout::Layers => 1,
+            ExrLayout::PerAov => aovs.len() as u64,
+        };
+        e.add(cam.size(), &aovs, files, opts.png);
+    }
+    e
+}
+
+/// A view's files belong to its scene: for each scene with a view in this shard whose
+/// file loads, remove the files of views it no longer has. A scene with one camera (flat,
+/// `OUT/NAME.*`) loses the folder `OUT/NAME/` of an earlier several-camera version: the
+/// view files in it (numbered names) and its `transforms.json`, then the folder if that
+/// leaves it empty. A scene with several cameras loses the flat `OUT/NAME.*` files of an
+/// earlier one-camera version, and in `OUT/NAME/` the files of camera numbers it no longer
+/// has (its `transforms.json` was just rewritten). Only the file names a view writes
+/// ([`view_file_names`]) are removed, never a folder's other contents, never a file of
+/// another current view, and a folder that is a link is left alone. Every shard does this
+/// for the scenes it renders; the files removed are no view's in the current list, so
+/// shards running at once do not step on each other.
+fn remove_stale_views(
+    out: &Path,
+    views: &[ViewSource],
+    cameras: &[Result<FrameCamera, String>],
+    mine: &[usize],
+) -> Result<()> {
+    let mine: HashSet<usize> = mine.iter().copied().collect();
+    let flat: HashSet<&str> = views
+        .iter()
+        .filter(|v| v.folder.is_none())
+        .map(|v| v.name.as_str())
+        .collect();
+    // Whether a file in `OUT` is one of a current flat view other than `scene`'s.
+    let owned_by_other = |file: &str, scene: &str| {
+        file.match_indices('.').any(|(at, _)| {
+            let stem = &file[..at];
+            stem != scene && flat.contains(stem) && view_file_names(stem).iter().any(|n| n == file)
+        })
+    };
+    let indices: Vec<usize> = (0..views.len()).collect();
+    for group in indices.chunk_by(|&a, &b| views[a].scene == views[b].scene) {
+        let loaded = group.iter().all(|&i| cameras[i].is_ok());
+        if !loaded || !group.iter().any(|i| mine.contains(i)) {
+            continue;
+        }
+        let first = &views[group[0]];
+        let folder = out.join(&first.scene);
+        if first.folder.is_none() {
+            remove_numbered_views(&folder, &HashSet::new(), true)?;
+            // Left in place when something else is in it.
+            let _ = std::fs::remove_dir(&folder);
+        } else {
+            for name in view_file_names(&first.scene) {
+                if !owned_by_other(&name, &first.scene) {
+                    remove_file_if_there(&out.join(name))?;
+                }
+            }
+            let keep: HashSet<&str> = group.iter().map(|&i| views[i].name.as_str()).collect();
+            remove_numbered_views(&folder, &keep, false)?;
+        }
+    }
+    Ok(())
+}
+
+/// In a scene's folder `dir` (a real folder, not a link), remove the files of the views
+/// with numbered names (`00`, `01`, …) not in `keep`, and `transforms.json` when
+/// `with_index`.
+fn remove_numbered_views(dir: &Path, keep: &HashSet<&str>, with_index: bool) -> Result<()> {
+    if !dir.symlink_metadata().is_ok_and(|m| m.is_dir()) {
+        return Ok(());
+    }
+    let entries = std::fs::read_dir(dir).with_context(|| format!("listing {}", dir.display()))?;
+    for entry in entries {
+        let entry = entry.with_context(|| format!("listing {}", dir.display()))?;
+        if entry.file_type().is_ok_and(|t| t.is_dir()) {
+            continue;
+        }
+        let Some(name) = entry.file_name().to_str().map(str::to_owned) else {
+            continue;
+        };
+        let stem = name.split('.').next().unwrap_or_default();
+        let numbered = !stem.is_empty() && stem.bytes().all(|b| b.is_ascii_digit());
+        let stale = if name == "transforms.json" {
+            with_index
+        } else {
+            numbered
+                && !keep.contains(stem)
+                && view_file_names(stem).iter().any(|n| *n == name)
+        };
+        if stale {
+            remove_file_if_there(&entry.path())?;
+        }
+    }
+    Ok(())
+}
+
+/// Remove a file (or a link itself); a missing one is fine.
+fn remove_file_if_there(path: &Path) -> Result<()> {
+    match std::fs::remove_file(path) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+            Err(e).with_context(|| format!("removing the stale {}", path.display()))
+        }
+        _ => Ok(()),
+    }
 }
 
 #[cfg(test)]

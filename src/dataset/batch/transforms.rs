@@ -107,7 +107,13 @@ impl FrameCamera {
         }
     }
 
-    fn aovs(&self) -> impl Iterator<Item = Aov> + '_ {
+    /// The image size, `(width, height)`.
+    pub(super) fn size(&self) -> (u32, u32) {
+        (self.intrinsics.w, self.intrinsics.h)
+    }
+
+    /// The AOVs in the view's EXR, in `Aov::ALL` order.
+    pub(super) fn aovs(&self) -> impl Iterator<Item = Aov> + '_ {
         Aov::ALL
             .into_iter()
             .enumerate()
