@@ -218,6 +218,10 @@ fn flag_value(v: &serde_json::Value) -> String {
     match v {
         serde_json::Value::String(s) => s.clone(),
         serde_json::Value::Array(a) => a.iter().map(flag_value).collect::<Vec<_>>().join(","),
+        // As a flag is written: `50`, not serde's `50.0`.
+        serde_json::Value::Number(n) if n.is_f64() => {
+            n.as_f64().map_or(n.to_string(), |x| x.to_string())
+        }
         v => v.to_string(),
     }
 }
@@ -256,14 +260,16 @@ fn plan(
     scenes_dir: &Path,
 ) -> Result<Plan> {
     if args.force {
-        return Ok(if args.out.join("generate.json").symlink_metadata().is_ok()
-            || args.out.join("manifest.jsonl").symlink_metadata().is_ok()
-            || !own_scene_files(scenes_dir)?.is_empty()
-        {
-            Plan::Replace
-        } else {
-            Plan::Fresh
-        });
+        return Ok(
+            if args.out.join("generate.json").symlink_metadata().is_ok()
+                || args.out.join("manifest.jsonl").symlink_metadata().is_ok()
+                || !own_scene_files(scenes_dir)?.is_empty()
+            {
+                Plan::Replace
+            } else {
+                Plan::Fresh
+            },
+        );
     }
     let out = args.out.display();
     match existing(&args.out, scenes_dir)? {
@@ -325,7 +331,7 @@ struct Work<'a> {
     scenes_dir: PathBuf,
     plan: Plan,
     /// The manifest's new bytes.
-    manifest: String,
+    manifest: &'a str,
     /// Whether `generate.json` is written.
     write_config: bool,
     /// Whether the manifest is written.
@@ -347,9 +353,7 @@ impl Work<'_> {
 
     /// Whether the run would write or remove nothing.
     fn is_empty(&self) -> bool {
-        !self.write_config
-            && !self.write_manifest
-            && !(0..self.count).any(|i| self.writes_scene(i))
+        !self.write_config && !self.write_manifest && !(0..self.count).any(|i| self.writes_scene(i))
     }
 
     /// The file among those this run writes or removes that is `--config`, if one is.
@@ -415,7 +419,10 @@ impl Work<'_> {
         }
         let result = (|| -> Result<()> {
             written.par_iter().try_for_each(|&i| -> Result<()> {
-                let file = self.options.scene(self.seed, i).map_err(anyhow::Error::msg)?;
+                let file = self
+                    .options
+                    .scene(self.seed, i)
+                    .map_err(anyhow::Error::msg)?;
                 let text = to_json(&file)?;
                 let path = scene_path(&self.scenes_dir, i);
                 atomic_write_bytes(&path, text.as_bytes())
@@ -466,6 +473,19 @@ impl Work<'_> {
     }
 }
 
+/// Refuse a run whose `work` would overwrite or remove its own `--config`.
+fn refuse_own_config(args: &GenerateArgs, work: &Work) -> Result<()> {
+    if let (Some(config), Some(target)) = (&args.config, work.overwritten_config()?) {
+        bail!(
+            "--config {}: this run would overwrite its own input ({}); copy the config \
+             outside --out and give that",
+            config.display(),
+            target.display()
+        );
+    }
+    Ok(())
+}
+
 /// Remove a file (or a link itself); a missing one is fine.
 fn remove_if_there(path: &Path) -> Result<()> {
     match std::fs::remove_file(path) {
@@ -481,27 +501,40 @@ pub fn run(args: &GenerateArgs) -> Result<String> {
     let (count, seed, options) = resolve(args)?;
     let scenes_dir = args.out.join("scenes");
     check_output_dir("--out", &args.out)?;
-    let plan = plan(args, count, seed, &options, &scenes_dir)?;
     let manifest_path = args.out.join("manifest.jsonl");
     let manifest = manifest_text(count)?;
-    let (write_config, write_manifest) = match plan {
-        Plan::Fresh | Plan::Replace => (true, true),
-        Plan::Extend { from } => (
-            count != from,
-            std::fs::read(&manifest_path).map_or(true, |b| b != manifest.as_bytes()),
-        ),
+    let work = |plan: Plan| {
+        let (write_config, write_manifest) = match plan {
+            Plan::Fresh | Plan::Replace => (true, true),
+            Plan::Extend { from } => (
+                count != from,
+                std::fs::read(&manifest_path).map_or(true, |b| b != manifest.as_bytes()),
+            ),
+        };
+        Work {
+            args,
+            count,
+            seed,
+            options: &options,
+            scenes_dir: scenes_dir.clone(),
+            plan,
+            manifest: &manifest,
+            write_config,
+            write_manifest,
+        }
     };
-    let work = Work {
-        args,
-        count,
-        seed,
-        options: &options,
-        scenes_dir: scenes_dir.clone(),
-        plan,
-        manifest,
-        write_config,
-        write_manifest,
-    };
+    // Without a generate.json in --out a run writes every file (or is refused for what it
+    // would overwrite): a --config among them is named first.
+    if args.out.join("generate.json").symlink_metadata().is_err() {
+        let every = work(if args.force {
+            Plan::Replace
+        } else {
+            Plan::Fresh
+        });
+        refuse_own_config(args, &every)?;
+    }
+    let plan = plan(args, count, seed, &options, &scenes_dir)?;
+    let work = work(plan);
     let views = match options.views_per_scene {
         1 => String::new(),
         v => format!(" x {v} cameras"),
@@ -517,14 +550,7 @@ pub fn run(args: &GenerateArgs) -> Result<String> {
             manifest_path.display()
         ));
     }
-    if let (Some(config), Some(target)) = (&args.config, work.overwritten_config()?) {
-        bail!(
-            "--config {}: this run would overwrite its own input ({}); copy the config \
-             outside --out and give that",
-            config.display(),
-            target.display()
-        );
-    }
+    refuse_own_config(args, &work)?;
     // A failed run into a new folder removes what it wrote, then the folders it made.
     let mut dirs = NewDirs::default();
     dirs.create(&scenes_dir)

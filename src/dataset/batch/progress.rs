@@ -298,9 +298,17 @@ mod tests {
             small.add((320, 240), &[Aov::Depth, Aov::Normal], 1, true);
         }
         assert!(small.total() < LARGE_OUTPUT);
-        assert!(!small.message("b", Compression::None).contains("--compression"));
+        assert!(
+            !small
+                .message("b", Compression::None)
+                .contains("--compression")
+        );
         small.add((64, 48), &[Aov::Depth], 1, false);
         assert!(small.mixed);
-        assert!(small.message("b", Compression::None).starts_with("b: 201 views: about"));
+        assert!(
+            small
+                .message("b", Compression::None)
+                .starts_with("b: 201 views: about")
+        );
     }
 }

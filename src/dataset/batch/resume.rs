@@ -361,7 +361,10 @@ mod tests {
                     && patterns.contains(&"NAME.AOV.exr");
             assert!(listed || name == "NAME.normal.png", "{name}");
         }
-        assert_eq!(view_file_names("a").len(), VIEW_SUFFIXES.len() + Aov::ALL.len());
+        assert_eq!(
+            view_file_names("a").len(),
+            VIEW_SUFFIXES.len() + Aov::ALL.len()
+        );
     }
 
     #[test]

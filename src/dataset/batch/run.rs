@@ -12,9 +12,9 @@ use super::transforms::{FrameCamera, index_json, transforms_json};
 use super::verify::{Verifier, selected_for_verify};
 use super::views::{ViewSource, list_views};
 use super::write::{ViewCost, render_view, view_memory};
+use crate::output::aov::ExrLayout;
 use crate::output::io::atomic_write_bytes;
 use crate::scene::camera::Camera;
-use crate::output::aov::ExrLayout;
 use crate::scene::{self, Scene};
 use anyhow::{Context, Result};
 use rayon::prelude::*;
@@ -143,7 +143,10 @@ pub fn run(
     let mine: Vec<usize> = (0..views.len()).filter(|&i| shard.contains(i)).collect();
     if progress != ProgressMode::Off {
         let estimate = estimate(&mine, &cameras, opts);
-        eprintln!("{}", estimate.message(&format!("batch {shard}"), opts.compression));
+        eprintln!(
+            "{}",
+            estimate.message(&format!("batch {shard}"), opts.compression)
+        );
     }
     let work = ShardWork {
         views: &views,
@@ -582,9 +585,7 @@ fn remove_numbered_views(dir: &Path, keep: &HashSet<&str>, with_index: bool) -> 
         let stale = if name == "transforms.json" {
             with_index
         } else {
-            numbered
-                && !keep.contains(stem)
-                && view_file_names(stem).iter().any(|n| *n == name)
+            numbered && !keep.contains(stem) && view_file_names(stem).iter().any(|n| *n == name)
         };
         if stale {
             remove_file_if_there(&entry.path())?;
