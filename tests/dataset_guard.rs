@@ -142,6 +142,29 @@ fn the_same_settings_do_nothing_and_a_larger_count_extends() {
     );
 }
 
+/// A dataset whose writing was cut short (scene files and the manifest missing beside its
+/// generate.json) is completed by the same command: the missing files are written, the
+/// others left as they are.
+#[test]
+fn the_same_command_completes_a_dataset_cut_short() {
+    let dir = fresh_dir("complete");
+    let out = dir.path().join("data");
+    generate(&out, &["--count", "4"]);
+    let want = snapshot(&out);
+    std::fs::remove_file(out.join("manifest.jsonl")).unwrap();
+    std::fs::remove_file(out.join("scenes/000002.json")).unwrap();
+    let kept = std::fs::metadata(out.join("scenes/000001.json"))
+        .unwrap()
+        .ino();
+    let said = generate(&out, &["--count", "4"]);
+    assert!(said.starts_with("completed 4 scenes"), "{said}");
+    assert_eq!(snapshot(&out), want);
+    let now = std::fs::metadata(out.join("scenes/000001.json"))
+        .unwrap()
+        .ino();
+    assert_eq!(now, kept);
+}
+
 /// `--force` replaces generate.json, manifest.jsonl and the scene files (those past the new
 /// count go) and nothing else: a `render/` beside them, a note in `--out` and a file of
 /// another name in `scenes/` stay.

@@ -3,7 +3,9 @@
 //! Layout: `OUT/scenes/NNNNNN.json` (complete scene files), `OUT/manifest.jsonl`
 //! (`{"name": ..., "scene": "scenes/NNNNNN.json"}` per line) and `OUT/generate.json` (the
 //! resolved options, itself a valid `--config`). Every file is written atomically; the
-//! manifest last, so a manifest on disk always names scene files that exist.
+//! manifest last, so a manifest on disk always names scene files that exist, and
+//! `generate.json` first (except under `--force`), so a run cut short is completed by the
+//! same command.
 //!
 //! **An `--out` that holds a dataset** (a `generate.json`) is kept, extended or refused,
 //! never silently rewritten: with the same seed and options and the same `--count` there is
@@ -403,7 +405,7 @@ impl Work<'_> {
             .map(|(_, p)| p))
     }
 
-    /// Write the scene files, `generate.json` and the manifest (last). On failure, what
+    /// Write `generate.json`, the scene files and the manifest (last). On failure, what
     /// this run added is removed and a rewritten `generate.json` restored.
     fn write(&self) -> Result<()> {
         let config_path = self.args.out.join("generate.json");
@@ -417,7 +419,23 @@ impl Work<'_> {
                 remove_if_there(path)?;
             }
         }
+        let write_config = || -> Result<()> {
+            let resolved = to_json(&Resolved {
+                count: self.count,
+                seed: self.seed,
+                options: self.options,
+            })?;
+            atomic_write_bytes(&config_path, resolved.as_bytes())
+                .with_context(|| format!("writing {}", config_path.display()))
+        };
+        // A new or extended dataset records its settings first: a run cut short (killed)
+        // is completed by the same command, which writes only the missing scenes. A
+        // replaced one records them last: its old scenes must never pass for new ones.
+        let config_first = self.write_config && self.plan != Plan::Replace;
         let result = (|| -> Result<()> {
+            if config_first {
+                write_config()?;
+            }
             written.par_iter().try_for_each(|&i| -> Result<()> {
                 let file = self
                     .options
@@ -428,14 +446,8 @@ impl Work<'_> {
                 atomic_write_bytes(&path, text.as_bytes())
                     .with_context(|| format!("writing {}", path.display()))
             })?;
-            if self.write_config {
-                let resolved = to_json(&Resolved {
-                    count: self.count,
-                    seed: self.seed,
-                    options: self.options,
-                })?;
-                atomic_write_bytes(&config_path, resolved.as_bytes())
-                    .with_context(|| format!("writing {}", config_path.display()))?;
+            if self.write_config && !config_first {
+                write_config()?;
             }
             if self.write_manifest {
                 atomic_write_bytes(&manifest_path, self.manifest.as_bytes())

@@ -536,7 +536,9 @@ fn remove_stale_views(
     let owned_by_other = |file: &str, scene: &str| {
         file.match_indices('.').any(|(at, _)| {
             let stem = &file[..at];
-            stem != scene && flat.contains(stem) && view_file_names(stem).iter().any(|n| n == file)
+            stem != scene
+                && flat.contains(stem)
+                && view_file_names(stem).contains(&file.to_string())
         })
     };
     let indices: Vec<usize> = (0..views.len()).collect();
@@ -585,7 +587,7 @@ fn remove_numbered_views(dir: &Path, keep: &HashSet<&str>, with_index: bool) -> 
         let stale = if name == "transforms.json" {
             with_index
         } else {
-            numbered && !keep.contains(stem) && view_file_names(stem).iter().any(|n| *n == name)
+            numbered && !keep.contains(stem) && view_file_names(stem).contains(&name)
         };
         if stale {
             remove_file_if_there(&entry.path())?;
