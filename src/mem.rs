@@ -81,8 +81,9 @@ pub fn peak_rss_mib() -> Option<f64> {
 /// Bytes this process can still allocate, as far as the OS tells: the smallest of the
 /// memory available to the machine (`MemAvailable` plus free swap, `/proc/meminfo`), the
 /// address space left under `RLIMIT_AS` (`ulimit -v`, minus the current `VmSize`) and the
-/// cgroup's `memory.max` minus `memory.current` (containers, Slurm, Kubernetes). `None`
-/// when none of them is known.
+/// cgroup's `memory.max` minus `memory.current` (containers, Slurm, Kubernetes), each plus
+/// the memory this process freed and kept for reuse ([`keep_freed_memory`]: the next
+/// view of a batch reuses the last one's). `None` when none of them is known.
 pub fn memory_available() -> Option<u64> {
     let mut best: Option<u64> = None;
     let mut take = |x: Option<u64>| {
@@ -93,7 +94,20 @@ pub fn memory_available() -> Option<u64> {
     take(meminfo_available());
     take(address_space_left());
     take(cgroup_left());
-    best
+    best.map(|b| b.saturating_add(kept_free()))
+}
+
+/// Bytes the allocator holds free for reuse: counted as used by the kernel, the limit and
+/// the cgroup, yet ours to allocate again (glibc's `mallinfo2`; 0 elsewhere).
+fn kept_free() -> u64 {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    {
+        // SAFETY: `mallinfo2` only reads the allocator's statistics.
+        let info = unsafe { libc::mallinfo2() };
+        info.fordblks as u64
+    }
+    #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+    0
 }
 
 /// A `/proc` style `Key:   123 kB` value in bytes.

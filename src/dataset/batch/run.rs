@@ -318,9 +318,15 @@ impl ShardWork<'_> {
                 // Temporary files are named by the view's position: names repeat across the
                 // folders of several-camera scenes.
                 let tmp_stem = format!("{i:06}");
-                let _memory = self.memory.acquire(view_memory(scene, self.opts));
-                let rendered = std::fs::create_dir_all(&dir)
-                    .with_context(|| format!("creating {}", dir.display()))
+                let bytes = view_memory(scene, self.opts);
+                let _memory = self.memory.acquire(bytes);
+                // A view that does not fit what is left fails alone, before it allocates.
+                let rendered = crate::mem::check_memory(&format!("rendering {}", view.id()), bytes)
+                    .map_err(anyhow::Error::from)
+                    .and_then(|()| {
+                        std::fs::create_dir_all(&dir)
+                            .with_context(|| format!("creating {}", dir.display()))
+                    })
                     .and_then(|()| {
                         render_view(&dir, self.partial, &view.name, &tmp_stem, scene, self.opts)
                     });
