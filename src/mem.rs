@@ -4,12 +4,13 @@
 //! - **Before allocating**: [`check_memory`] refuses a command whose estimate exceeds what
 //!   the machine, `ulimit -v` or the cgroup leave ([`memory_available`]), with one line
 //!   naming what needed it.
-//! - **Our own large buffers** are reserved with [`try_filled`] / [`try_copy`]
-//!   (`try_reserve`): a refusal is an error naming the buffer, like any other.
+//! - **Our own large buffers** are reserved with [`try_reserve`], [`try_zeroed`] and
+//!   [`try_copy`]: a refusal is an error naming the buffer, like any
+//!   other.
 //! - **Everything else** (buffers inside crates such as `exr` and `image`) goes through the
-//!   process's allocator, [`Guarded`]: where Rust would print a backtrace-less
-//!   "memory allocation failed" and abort (exit 134), it prints one `error:` line, removes
-//!   the files staged so far (the hook of [`set_cleanup`]) and exits with status 1.
+//!   process's allocator, [`Guarded`]: where Rust would print "memory allocation of N bytes
+//!   failed" and abort (status 134), it prints one `error:` line, runs the clean-up of
+//!   [`set_cleanup`] (the registry of staged files) and exits with status 1.
 //! - The 2 MiB-page hint and the allocator policy for the large buffers of a render.
 
 use std::alloc::{GlobalAlloc, Layout, System};
@@ -213,7 +214,7 @@ pub fn jobs_in_memory(bytes_each: u64, wanted: usize) -> usize {
 /// with a failed allocation turned into the one-line error and exit 1 instead of Rust's
 /// abort (stable Rust has no hook for that, `std::alloc::set_alloc_error_hook` is
 /// unstable, so the allocator itself reports before returning). Allocations made through
-/// [`try_filled`] and [`try_copy`] are exempt: their refusal comes back as an error.
+/// [`try_reserve`], [`try_zeroed`] and [`try_copy`] are exempt: their refusal comes back as an error.
 ///
 /// [`Guarded::COUNTING`] also counts the live heap bytes and their peak ([`heap_peak`]),
 /// which the tests use to hold the estimates to what the code really allocates.
@@ -453,21 +454,11 @@ fn refused(what: &str, bytes: u64) -> io::Error {
     )
 }
 
-/// `n` copies of `value`, reserved with `try_reserve_exact`: a refusal is an error naming
-/// `what`, not an abort.
-pub fn try_filled<T: Clone>(n: usize, value: T, what: &str) -> io::Result<Vec<T>> {
-    let mut v = Vec::new();
-    fallibly(|| v.try_reserve_exact(n))
-        .map_err(|_| refused(what, (n as u64).saturating_mul(size_of::<T>() as u64)))?;
-    v.resize(n, value);
-    Ok(v)
-}
-
-/// A copy of `src`, reserved as [`try_filled`] reserves.
+/// A copy of `src`, reserved fallibly: a refusal is an error naming `what`.
 pub fn try_copy<T: Copy>(src: &[T], what: &str) -> io::Result<Vec<T>> {
     let mut v = Vec::new();
     fallibly(|| v.try_reserve_exact(src.len()))
-        .map_err(|_| refused(what, (src.len() * size_of::<T>()) as u64))?;
+        .map_err(|_| refused(what, size_of_val(src) as u64))?;
     v.extend_from_slice(src);
     Ok(v)
 }

@@ -363,7 +363,7 @@ fn compare_under_ulimit_is_refused_or_done() {
     cylaov::commands::render::run(&render_args(&s, &a, Compression::None)).unwrap();
     let a = a.to_str().unwrap();
     let (mut refused, mut done) = (0, 0);
-    for kib in (150_000..=400_000).step_by(50_000) {
+    for kib in (150_000..=400_000).step_by(25_000) {
         let o = limited(kib, &["compare", a, a], &[]);
         let err = stderr(&o);
         match o.status.code() {

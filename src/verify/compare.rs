@@ -1120,10 +1120,13 @@ fn with_legend(heat: &RgbImage) -> RgbImage {
                     (x - r, y + d),
                     (x + r, y + d),
                 ] {
-                    if px >= 0 && py >= 0 && px < w as i64 && py < h as i64 {
-                        if !failing(heat.get_pixel(px as u32, py as u32)) {
-                            out.put_pixel(px as u32, py as u32, plot::WHITE);
-                        }
+                    if px >= 0
+                        && py >= 0
+                        && px < w as i64
+                        && py < h as i64
+                        && !failing(heat.get_pixel(px as u32, py as u32))
+                    {
+                        out.put_pixel(px as u32, py as u32, plot::WHITE);
                     }
                 }
             }
