@@ -608,6 +608,39 @@ fn the_heatmap_legend_names_every_class() {
     assert!(LEGEND.iter().any(|(c, _)| *c == SEAM) && LEGEND.iter().any(|(c, _)| *c == SILHOUETTE));
 }
 
+/// `verify --heatmap` writes the same legend under its heatmap (skipped, saying so,
+/// without the reference venv).
+#[test]
+fn verify_heatmaps_carry_the_legend() {
+    use cylaov::verify::compare::LEGEND;
+    let Some(py) = common::venv_python() else {
+        return;
+    };
+    let _one = serial();
+    let dir = fresh_dir("memory", "verify-legend");
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/single.json");
+    let venv = py.parent().and_then(Path::parent).unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_cylaov"))
+        .args(["verify", scene.to_str().unwrap(), "--heatmap"])
+        .arg(dir.path())
+        .env("CYLAOV_VENV", venv)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let img = image::open(dir.path().join("single.heatmap.png"))
+        .unwrap()
+        .to_rgb8();
+    // 320 x 240: scale 2, rows of 16 pixels under the image.
+    assert_eq!(
+        img.dimensions(),
+        (320, 240 + 2 + 16 * (LEGEND.len() as u32 + 1))
+    );
+    for (k, (colour, label)) in LEGEND.iter().enumerate().take(5) {
+        let y = 240 + 3 + 16 * k as u32 + 4;
+        assert_eq!(img.get_pixel(4, y), colour, "{label}");
+    }
+}
+
 /// No `--help` text points at the source (`compare::heatmap`, `src/…`).
 #[test]
 fn help_never_points_at_source_paths() {
