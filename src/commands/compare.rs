@@ -72,8 +72,8 @@ fn header_size(path: &Path) -> Result<(u64, u64)> {
 /// the scene's conditioning 16 for its bounds and 16 for splitting each list. The heatmap
 /// classifies again after the report is freed and holds less. 2 MiB more for the read
 /// buffers and the report. `tests/memory_messages.rs` counts what the allocator hands out
-/// at 256² and 1024²: the peaks lie within this estimate, at most a quarter below it plus
-/// 8 MiB.
+/// at 256² and 1024²: the peaks lie within this estimate, which is at most a quarter above
+/// them plus 8 MiB.
 pub fn memory_needed(a: (u64, u64), b: (u64, u64), scene: bool) -> u64 {
     let per_pixel = 32 + 9 + 32 + if scene { 32 } else { 0 };
     4 * (a.0 * a.1 + b.0 * b.1) + per_pixel * a.0.max(b.0) + (2 << 20)
