@@ -36,7 +36,7 @@
 //!   band by band too ([`output::aov::ExrBands`]), self-describing headers, the per-AOV layout), [`output::depth_png`] (the 16-bit depth
 //!   PNG that fails rather than drop far pixels, and the hit mask), [`output::preview`] (PNG
 //!   previews with legends), [`output::plot`] (the pixel font and axis panels of every
-//!   figure), [`output::io`] (atomic writes, output-target and memory checks, console output
+//!   figure), [`output::io`] (atomic writes, output-target checks, console output
 //!   that survives a closed pipe, the camera and Open3D JSON), [`output::mitsuba`] (the scene
 //!   as Mitsuba 3 XML).
 //!
@@ -56,9 +56,10 @@
 //!   kill-safe rendering, `index.json` and per-scene `transforms.json`), [`dataset::names`]
 //!   (every file name cylaov writes).
 //! - [`rng`]: SplitMix64, written out so generated data never changes under us.
-//! - [`mem`]: the 2 MiB-page hint for the large buffers of every stage (output planes,
-//!   prepared cylinders, the scene file's bytes and cylinder list), and the allocator
-//!   policy `main.rs` sets so freed memory is reused, not faulted in afresh.
+//! - [`mem`]: the memory check before a command allocates, the fallible reservation of
+//!   our large buffers, the process's allocator (a refused allocation is one error line
+//!   and exit 1, never an abort), the 2 MiB-page hint for the large buffers of every stage,
+//!   and the allocator policy `main.rs` sets so freed memory is reused.
 //!
 //! Around them: [`commands`], the IO of each subcommand (`render`, `generate`, `batch`,
 //! `export-mitsuba`, `compare`, `verify`, `stress`, `bench`); `main.rs` only parses

@@ -13,6 +13,11 @@ use cylaov::{bench, commands};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+/// A failed allocation anywhere (inside crates too) is one error line and exit 1, never an
+/// abort with status 134.
+#[global_allocator]
+static ALLOCATOR: cylaov::mem::Guarded = cylaov::mem::Guarded::PLAIN;
+
 /// Compile cylinder scenes into per-pixel AOVs (depth, distance, normal, position,
 /// shape id) as OpenEXR, and verify them against Mitsuba 3.
 #[derive(Parser)]
@@ -319,7 +324,8 @@ struct VerifyCli {
     /// Seed of the --fraction choice (the same choice as batch --verify-seed).
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Write DIR/NAME.heatmap.png for every checked view (see `compare::heatmap`).
+    /// Write DIR/NAME.heatmap.png for every checked view: where cylaov and Mitsuba differ,
+    /// explained by the legend under the image.
     #[arg(long, value_name = "DIR")]
     heatmap: Option<PathBuf>,
     /// Print the results as JSON.
@@ -341,7 +347,8 @@ struct CompareCli {
     a: PathBuf,
     /// Second image (usually the Mitsuba reference).
     b: PathBuf,
-    /// Write a PNG showing where the images differ (see `compare::heatmap`).
+    /// Write a PNG showing where the images differ, explained by the legend under the image
+    /// (silhouette, seam and interior mismatches, errors against their tolerance).
     #[arg(long, value_name = "OUT.png")]
     heatmap: Option<PathBuf>,
     /// Print the report as JSON.
@@ -759,6 +766,7 @@ fn command_line() -> clap::Command {
 fn main() -> ExitCode {
     use clap::FromArgMatches;
     cylaov::mem::keep_freed_memory();
+    cylaov::mem::init_from_env();
     // Usage errors exit 2 (clap's own code); `--help` and `--version` exit 0.
     let cli = match command_line()
         .try_get_matches()

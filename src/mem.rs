@@ -1,6 +1,22 @@
-//! Memory hints for the large buffers of a render: output planes, prepared cylinders, the
-//! scene file's bytes and its cylinder list, and the allocator's policy for them. Used by
-//! every stage, so it belongs to none.
+//! Memory: how much a command may use, what its large buffers cost, and what happens when
+//! the system refuses one. Used by every stage, so it belongs to none.
+//!
+//! - **Before allocating**: [`check_memory`] refuses a command whose estimate exceeds what
+//!   the machine, `ulimit -v` or the cgroup leave ([`memory_available`]), with one line
+//!   naming what needed it.
+//! - **Our own large buffers** are reserved with [`try_reserve`], [`try_zeroed`] and
+//!   [`try_copy`]: a refusal is an error naming the buffer, like any
+//!   other.
+//! - **Everything else** (buffers inside crates such as `exr` and `image`) goes through the
+//!   process's allocator, [`Guarded`]: where Rust would print "memory allocation of N bytes
+//!   failed" and abort (status 134), it prints one `error:` line, runs the clean-up of
+//!   [`set_cleanup`] (the registry of staged files) and exits with status 1.
+//! - The 2 MiB-page hint and the allocator policy for the large buffers of a render.
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+use std::io;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 /// Ask Linux to back the untouched memory of `v` (its whole capacity) with 2 MiB pages.
 /// A 1080p plane is 8 MB: faulting it in 4 KiB pages took about a third of a render's
@@ -31,16 +47,458 @@ pub(crate) fn huge_pages<X>(v: &Vec<X>) {
 /// virtual machines measured here about 1 ms per MiB: 10 of the 58 ms of a 16×16 render
 /// of 100 000 cylinders). A policy for the whole process, so the command line sets it
 /// once at start; other allocators than glibc's are left as they are.
+///
+/// Under `ulimit -v` glibc also keeps to one arena: each thread's own arena reserves
+/// 64 MiB of address space it mostly never uses, and the limit counts it (a ZIP-compressed
+/// 2048² render with every AOV ran under `ulimit -v 540000` with one arena and ran out of
+/// address space under 580000 with glibc's default). The render's hot loops do not
+/// allocate, so they do not contend for the one arena.
 pub fn keep_freed_memory() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     {
         // glibc's largest mmap threshold on 64-bit targets (larger values are refused).
         const MMAP_MAX: libc::c_int = 32 << 20;
+        let limited = address_space_limit().is_some();
         // SAFETY: `mallopt` only changes glibc's allocation policy for later allocations;
         // it is thread-safe, and a refused value leaves the policy as it was.
         unsafe {
             libc::mallopt(libc::M_MMAP_THRESHOLD, MMAP_MAX);
             libc::mallopt(libc::M_TRIM_THRESHOLD, libc::c_int::MAX);
+            if limited {
+                libc::mallopt(libc::M_ARENA_MAX, 1);
+            }
         }
+    }
+}
+
+/// Peak resident memory of this process in MiB (Linux `VmHWM`), if the OS tells.
+pub fn peak_rss_mib() -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib / 1024.0)
+}
+
+/// Bytes this process can still allocate, as far as the OS tells: the smallest of the
+/// memory available to the machine (`MemAvailable` plus free swap, `/proc/meminfo`), the
+/// address space left under `RLIMIT_AS` (`ulimit -v`, minus the current `VmSize`) and the
+/// cgroup's `memory.max` minus `memory.current` (containers, Slurm, Kubernetes), each plus
+/// the memory this process freed and kept for reuse ([`keep_freed_memory`]: the next
+/// view of a batch reuses the last one's). `None` when none of them is known.
+pub fn memory_available() -> Option<u64> {
+    let mut best: Option<u64> = None;
+    let mut take = |x: Option<u64>| {
+        if let Some(x) = x {
+            best = Some(best.map_or(x, |b| b.min(x)));
+        }
+    };
+    take(meminfo_available());
+    take(address_space_left());
+    take(cgroup_left());
+    best.map(|b| b.saturating_add(kept_free()))
+}
+
+/// Bytes the allocator holds free for reuse: counted as used by the kernel, the limit and
+/// the cgroup, yet ours to allocate again (glibc's `mallinfo2`; 0 elsewhere).
+fn kept_free() -> u64 {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    {
+        // SAFETY: `mallinfo2` only reads the allocator's statistics.
+        let info = unsafe { libc::mallinfo2() };
+        info.fordblks as u64
+    }
+    #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+    0
+}
+
+/// A `/proc` style `Key:   123 kB` value in bytes.
+fn kib_field(text: &str, key: &str) -> Option<u64> {
+    let line = text.lines().find(|l| l.starts_with(key))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
+}
+
+fn meminfo_available() -> Option<u64> {
+    let m = std::fs::read_to_string("/proc/meminfo").ok()?;
+    Some(kib_field(&m, "MemAvailable:")? + kib_field(&m, "SwapFree:").unwrap_or(0))
+}
+
+/// `RLIMIT_AS` (`ulimit -v`) in bytes, if one is set.
+#[cfg(target_os = "linux")]
+fn address_space_limit() -> Option<u64> {
+    let mut lim = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: getrlimit only writes the struct it is given.
+    if unsafe { libc::getrlimit(libc::RLIMIT_AS, &mut lim) } != 0
+        || lim.rlim_cur == libc::RLIM_INFINITY
+    {
+        return None;
+    }
+    #[allow(clippy::unnecessary_cast)] // rlim_t is narrower than u64 on some targets
+    Some(lim.rlim_cur as u64)
+}
+
+#[cfg(not(target_os = "linux"))]
+fn address_space_limit() -> Option<u64> {
+    None
+}
+
+/// The address space left under `RLIMIT_AS`: the limit minus the current `VmSize`, minus
+/// what the threads still to start will reserve ([`thread_reserve`]).
+fn address_space_left() -> Option<u64> {
+    let limit = address_space_limit()?;
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let used = kib_field(&status, "VmSize:").unwrap_or(0);
+    Some(limit.saturating_sub(used).saturating_sub(thread_reserve()))
+}
+
+/// Address space the threads of a command reserve beyond its heap, which `ulimit -v`
+/// counts: a stack (Rust's default 2 MiB, plus a guard page) for each thread of the render
+/// pool and of the `exr` encoder's own pool, one of each per core, whether or not they have
+/// started yet; and 16 MiB for the loader's and allocator's own mappings. (Thread arenas
+/// are off under a limit, see [`keep_freed_memory`].)
+fn thread_reserve() -> u64 {
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get()) as u64;
+    let threads = 2 * cores.max(rayon::current_num_threads() as u64);
+    threads * ((2 << 20) + 4096) + (16 << 20)
+}
+
+fn cgroup_left() -> Option<u64> {
+    let max = std::fs::read_to_string("/sys/fs/cgroup/memory.max").ok()?;
+    let max: u64 = max.trim().parse().ok()?; // "max" means no limit
+    let cur: u64 = std::fs::read_to_string("/sys/fs/cgroup/memory.current")
+        .ok()?
+        .trim()
+        .parse()
+        .ok()?;
+    Some(max.saturating_sub(cur))
+}
+
+/// Fail with a clear message, before allocating, when `bytes` (what `what` needs) exceeds
+/// [`memory_available`]. Unknown availability passes: the allocator then has the last word.
+pub fn check_memory(what: &str, bytes: u64) -> io::Result<()> {
+    match memory_available() {
+        Some(avail) if bytes > avail => Err(io::Error::new(
+            io::ErrorKind::OutOfMemory,
+            format!(
+                "{what} needs about {} of memory, only {} is available (free memory, ulimit -v and the cgroup limit)",
+                mib(bytes),
+                mib(avail)
+            ),
+        )),
+        _ => Ok(()),
+    }
+}
+
+fn mib(bytes: u64) -> String {
+    format!("{:.0} MiB", bytes as f64 / (1u64 << 20) as f64)
+}
+
+/// How many jobs of `bytes_each` may run at once within half of [`memory_available`], at
+/// least 1 and at most `wanted` (the thread count): the batch renders this many views at a
+/// time, so its peak memory does not grow with the core count. The other half is headroom
+/// for encoders, page cache and the rest of the machine.
+pub fn jobs_in_memory(bytes_each: u64, wanted: usize) -> usize {
+    let wanted = wanted.max(1);
+    match memory_available() {
+        Some(avail) if bytes_each > 0 => ((avail / 2 / bytes_each) as usize).clamp(1, wanted),
+        _ => wanted,
+    }
+}
+
+// ---- failed allocations --------------------------------------------------------------------
+
+/// The process's global allocator (installed by the command line): the system allocator,
+/// with a failed allocation turned into the one-line error and exit 1 instead of Rust's
+/// abort (stable Rust has no hook for that, `std::alloc::set_alloc_error_hook` is
+/// unstable, so the allocator itself reports before returning). Allocations made through
+/// [`try_reserve`], [`try_zeroed`] and [`try_copy`] are exempt: their refusal comes back as an error.
+///
+/// [`Guarded::COUNTING`] also counts the live heap bytes and their peak ([`heap_peak`]),
+/// which the tests use to hold the estimates to what the code really allocates.
+pub struct Guarded {
+    count: bool,
+}
+
+impl Guarded {
+    /// The allocator of the command line: no counting.
+    pub const PLAIN: Guarded = Guarded { count: false };
+    /// The allocator that also keeps [`heap_live`] and [`heap_peak`].
+    pub const COUNTING: Guarded = Guarded { count: true };
+
+    fn grew(&self, by: usize) {
+        if self.count {
+            let live = LIVE.fetch_add(by, Ordering::Relaxed) + by;
+            PEAK.fetch_max(live, Ordering::Relaxed);
+        }
+    }
+
+    fn shrank(&self, by: usize) {
+        if self.count {
+            LIVE.fetch_sub(by, Ordering::Relaxed);
+        }
+    }
+}
+
+static LIVE: AtomicUsize = AtomicUsize::new(0);
+static PEAK: AtomicUsize = AtomicUsize::new(0);
+/// Allocations larger than this fail, as a refusing system would (tests only, see
+/// [`init_from_env`]).
+static FAIL_OVER: AtomicUsize = AtomicUsize::new(usize::MAX);
+/// The clean-up to run before exiting on a failed allocation (a `fn()` as usize; 0 = none).
+static CLEANUP: AtomicUsize = AtomicUsize::new(0);
+/// Set by the first thread that reports a failed allocation.
+static FAILING: AtomicBool = AtomicBool::new(false);
+
+thread_local! {
+    /// Whether this thread's allocations may fail back to the caller (inside [`fallibly`]).
+    static FALLIBLE: Cell<bool> = const { Cell::new(false) };
+}
+
+// SAFETY: every method forwards to `System` with the caller's layout and pointer; the
+// bookkeeping touches only atomics and a const thread-local without a destructor.
+unsafe impl GlobalAlloc for Guarded {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        let p = if layout.size() > FAIL_OVER.load(Ordering::Relaxed) {
+            std::ptr::null_mut()
+        } else {
+            // SAFETY: the caller's layout, as `GlobalAlloc::alloc` requires.
+            unsafe { System.alloc(layout) }
+        };
+        self.checked(p, layout.size(), 0)
+    }
+
+    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
+        let p = if layout.size() > FAIL_OVER.load(Ordering::Relaxed) {
+            std::ptr::null_mut()
+        } else {
+            // SAFETY: as in `alloc`.
+            unsafe { System.alloc_zeroed(layout) }
+        };
+        self.checked(p, layout.size(), 0)
+    }
+
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: `ptr` came from this allocator (that is, `System`) with `layout`.
+        unsafe { System.dealloc(ptr, layout) };
+        self.shrank(layout.size());
+    }
+
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        let p = if new_size > FAIL_OVER.load(Ordering::Relaxed) {
+            std::ptr::null_mut()
+        } else {
+            // SAFETY: as in `dealloc`; a null return leaves the old block in place.
+            unsafe { System.realloc(ptr, layout, new_size) }
+        };
+        self.checked(p, new_size, layout.size())
+    }
+}
+
+impl Guarded {
+    /// `p` for an allocation of `size` bytes replacing `old`: counted when it succeeded;
+    /// when it failed, null back to a [`fallibly`] caller, else the report and exit.
+    fn checked(&self, p: *mut u8, size: usize, old: usize) -> *mut u8 {
+        if p.is_null() {
+            if FALLIBLE.try_with(Cell::get).unwrap_or(false) {
+                return p;
+            }
+            out_of_memory(size);
+        }
+        if size >= old {
+            self.grew(size - old);
+        } else {
+            self.shrank(old - size);
+        }
+        p
+    }
+}
+
+/// Live heap bytes (with [`Guarded::COUNTING`] installed; else 0).
+pub fn heap_live() -> usize {
+    LIVE.load(Ordering::Relaxed)
+}
+
+/// The largest [`heap_live`] since the last [`reset_heap_peak`].
+pub fn heap_peak() -> usize {
+    PEAK.load(Ordering::Relaxed)
+}
+
+/// Start a new [`heap_peak`] from the current live bytes.
+pub fn reset_heap_peak() {
+    PEAK.store(LIVE.load(Ordering::Relaxed), Ordering::Relaxed);
+}
+
+/// Register the clean-up a failed allocation runs before the process exits (the registry
+/// of staged temporary files sets it): it must not need much memory, and it runs at most
+/// once.
+pub fn set_cleanup(f: fn()) {
+    CLEANUP.store(f as usize, Ordering::SeqCst);
+}
+
+/// Read the test switch `CYLAOV_FAIL_ALLOC_OVER=BYTES`: every later allocation larger
+/// than BYTES fails as a refusing system's would, to test the reporting path without
+/// exhausting the machine. Any other value is ignored. Called once at start.
+pub fn init_from_env() {
+    if let Some(n) = std::env::var("CYLAOV_FAIL_ALLOC_OVER")
+        .ok()
+        .and_then(|v| v.parse::<usize>().ok())
+    {
+        FAIL_OVER.store(n, Ordering::Relaxed);
+    }
+}
+
+/// Run `f` with this thread's failed allocations returned to their caller (what
+/// `try_reserve` needs to see its `Err`) instead of reported by [`Guarded`].
+fn fallibly<R>(f: impl FnOnce() -> R) -> R {
+    let before = FALLIBLE.with(|c| c.replace(true));
+    let r = f();
+    FALLIBLE.with(|c| c.set(before));
+    r
+}
+
+/// The one-line report of a failed allocation of `size` bytes, then the clean-up and
+/// `_exit(1)`. Allocates nothing: the line is built on the stack and written with
+/// `write(2)`. A second thread failing meanwhile waits for the first to exit.
+fn out_of_memory(size: usize) -> ! {
+    exit_after(|| {
+        let mut line = Line::default();
+        line.push(b"error: out of memory: an allocation of ");
+        line.push_size(size);
+        line.push(b" was refused (free memory, ulimit -v or the cgroup limit)");
+        if CLEANUP.load(Ordering::SeqCst) != 0 {
+            line.push(b"; the files being written were removed");
+        }
+        line.push(b"\n");
+        // SAFETY: writes `line.len` initialised bytes of a stack buffer to stderr.
+        unsafe { libc::write(2, line.buf.as_ptr().cast(), line.len) };
+    })
+}
+
+/// Print the report (`report`), run the clean-up of [`set_cleanup`] and `_exit(1)`: no
+/// unwinding, no destructors, no allocator needed after `report`. A second thread failing
+/// meanwhile waits for the first to end the process.
+fn exit_after(report: impl FnOnce()) -> ! {
+    if FAILING.swap(true, Ordering::SeqCst) {
+        loop {
+            // SAFETY: `pause` only waits for a signal; the first thread ends the process.
+            unsafe { libc::pause() };
+        }
+    }
+    report();
+    let f = CLEANUP.load(Ordering::SeqCst);
+    if f != 0 {
+        // SAFETY: only `set_cleanup` stores here, and it stores a `fn()`.
+        let f: fn() = unsafe { std::mem::transmute::<usize, fn()>(f) };
+        f();
+    }
+    // SAFETY: ends the process at once, with no unwinding and no allocator.
+    unsafe { libc::_exit(1) }
+}
+
+/// A fixed line buffer for [`out_of_memory`] (no heap).
+struct Line {
+    buf: [u8; 256],
+    len: usize,
+}
+
+impl Default for Line {
+    fn default() -> Self {
+        Line {
+            buf: [0; 256],
+            len: 0,
+        }
+    }
+}
+
+impl Line {
+    fn push(&mut self, s: &[u8]) {
+        let n = s.len().min(self.buf.len() - self.len);
+        self.buf[self.len..self.len + n].copy_from_slice(&s[..n]);
+        self.len += n;
+    }
+
+    /// `size` in the units [`mib`] uses: MiB from 1 MiB up, else bytes.
+    fn push_size(&mut self, size: usize) {
+        let (n, unit): (usize, &[u8]) = if size >= 1 << 20 {
+            ((size + (1 << 19)) >> 20, b" MiB")
+        } else {
+            (size, b" bytes")
+        };
+        let mut digits = [0u8; 20];
+        let mut k = digits.len();
+        let mut n = n;
+        loop {
+            k -= 1;
+            digits[k] = b'0' + (n % 10) as u8;
+            n /= 10;
+            if n == 0 {
+                break;
+            }
+        }
+        self.push(&digits[k..]);
+        self.push(unit);
+    }
+}
+
+/// The error of a buffer the system refused: names what it was for and its size.
+fn refused(what: &str, bytes: u64) -> io::Error {
+    io::Error::new(
+        io::ErrorKind::OutOfMemory,
+        format!(
+            "{what}: out of memory: {} could not be allocated (free memory, ulimit -v and the cgroup limit)",
+            mib(bytes)
+        ),
+    )
+}
+
+/// A copy of `src`, reserved fallibly: a refusal is an error naming `what`.
+pub fn try_copy<T: Copy>(src: &[T], what: &str) -> io::Result<Vec<T>> {
+    let mut v = Vec::new();
+    fallibly(|| v.try_reserve_exact(src.len()))
+        .map_err(|_| refused(what, size_of_val(src) as u64))?;
+    v.extend_from_slice(src);
+    Ok(v)
+}
+
+/// Reserve room for `additional` more elements in `v` with `try_reserve_exact`: a
+/// refusal is an error naming `what`.
+pub fn try_reserve<T>(v: &mut Vec<T>, additional: usize, what: &str) -> io::Result<()> {
+    fallibly(|| v.try_reserve_exact(additional)).map_err(|_| {
+        refused(
+            what,
+            (additional as u64).saturating_mul(size_of::<T>() as u64),
+        )
+    })
+}
+
+/// `n` zeroed values, allocated zeroed (so the system's fresh pages are not written to
+/// first: they are faulted in by whoever fills them) and fallibly: a refusal is an error
+/// naming `what`.
+pub fn try_zeroed<T: bytemuck::Zeroable>(n: usize, what: &str) -> io::Result<Vec<T>> {
+    let layout = Layout::array::<T>(n)
+        .map_err(|_| refused(what, (n as u64).saturating_mul(size_of::<T>() as u64)))?;
+    if layout.size() == 0 {
+        return Ok((0..n).map(|_| T::zeroed()).collect());
+    }
+    // SAFETY: `layout` has a non-zero size.
+    let p = fallibly(|| unsafe { std::alloc::alloc_zeroed(layout) });
+    if p.is_null() {
+        return Err(refused(what, layout.size() as u64));
+    }
+    // SAFETY: `p` is a zeroed block of the global allocator with `Vec<T>`'s layout for
+    // capacity `n`, and all-zero bytes are a valid `T` (`Zeroable`).
+    Ok(unsafe { Vec::from_raw_parts(p.cast::<T>(), n, n) })
+}
+
+/// [`try_zeroed`] where the caller cannot return an error (the planes of `render::render`,
+/// whose callers' memory check has passed): a refusal is reported as [`Guarded`] reports
+/// one, naming `what`, and the process exits with status 1.
+pub fn zeroed_or_exit<T: bytemuck::Zeroable>(n: usize, what: &str) -> Vec<T> {
+    match try_zeroed(n, what) {
+        Ok(v) => v,
+        Err(e) => exit_after(|| crate::output::io::warn(&format!("error: {e}"))),
     }
 }

@@ -495,7 +495,7 @@ fn memory_is_checked_before_a_render_and_a_comparison() {
     let err = stderr(&o);
     assert_eq!(o.status.code(), Some(1), "{err}");
     assert!(
-        err.contains("needs about 2304 MiB") && err.contains("available"),
+        err.contains("needs about 3074 MiB") && err.contains("available"),
         "{err}"
     );
     assert!(!out.exists());

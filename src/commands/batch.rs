@@ -32,6 +32,8 @@ pub fn run(args: &BatchArgs) -> Result<Summary> {
     crate::output::io::check_output_dir("--out", &args.out)?;
     let shard = batch::resolve_shard(args.shard, args.shards, &|k| std::env::var(k).ok())
         .map_err(anyhow::Error::msg)?;
+    // Bad values are refused before any advice about them is printed.
+    args.options.validate().map_err(anyhow::Error::msg)?;
     let verifier = verifier(args)?;
     if args.options.png && args.options.depth_scale != NERFSTUDIO_DEPTH_SCALE {
         crate::output::io::warn(&format!(

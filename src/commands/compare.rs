@@ -2,10 +2,11 @@
 //! With `--scene`, A must be a render of that scene (cylaov's or Mitsuba's, with `shape_id`,
 //! `distance` and `normal`), and grazing pixels get their float32 conditioning bound.
 
+use crate::mem::check_memory;
 use crate::output::aov::AovImage;
-use crate::output::io::{check_memory, check_outputs};
+use crate::output::io::check_outputs;
 use crate::output::preview::write_png;
-use crate::verify::compare::{Conditioning, Report, Tolerances, compare_with, heatmap};
+use crate::verify::compare::{Conditioning, Report, Tolerances, compare_with, heatmap_figure};
 use anyhow::{Context, Result, bail};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -63,12 +64,19 @@ fn header_size(path: &Path) -> Result<(u64, u64)> {
     Ok((size.0 as u64 * size.1 as u64, h.channels.list.len() as u64))
 }
 
-/// Bytes a comparison holds at its peak: both images (4 bytes a sample, as they are read)
-/// plus 16 bytes a pixel of the larger for the per-pixel classes, identities, errors and
-/// the heatmap. Measured on 4096 x 4096: 1363 MiB peak for two 9-channel images
-/// (estimate 1408), 325 MiB for two depth-only ones (estimate 384).
-pub fn memory_needed(a: (u64, u64), b: (u64, u64)) -> u64 {
-    4 * (a.0 * a.1 + b.0 * b.1) + 16 * a.0.max(b.0)
+/// Bytes a comparison holds at its peak, for images of `(pixels, channels)` (both held, 4
+/// bytes a sample as they are read) and per pixel of the larger, when every pixel is a hit
+/// of the same part (the worst case): 32 bytes of labels while they are built (cylinder
+/// and (cylinder, part) key of each image, 24 kept), 9 for the classes and the list of
+/// same pixels, 32 for two error lists at a time (value and pixel, 16 bytes each); with
+/// the scene's conditioning 16 for its bounds and 16 for splitting each list. The heatmap
+/// classifies again after the report is freed and holds less. 2 MiB more for the read
+/// buffers and the report. `tests/memory_messages.rs` counts what the allocator hands out
+/// at 256² and 1024²: the peaks lie within this estimate, which is at most a quarter above
+/// them plus 8 MiB.
+pub fn memory_needed(a: (u64, u64), b: (u64, u64), scene: bool) -> u64 {
+    let per_pixel = 32 + 9 + 32 + if scene { 32 } else { 0 };
+    4 * (a.0 * a.1 + b.0 * b.1) + per_pixel * a.0.max(b.0) + (2 << 20)
 }
 
 /// The tolerance line of a text report.
@@ -101,7 +109,7 @@ pub fn run(args: &CompareArgs) -> Result<CompareOutcome> {
     let (sa, sb) = (header_size(&args.a)?, header_size(&args.b)?);
     check_memory(
         &format!("comparing {} with {}", args.a.display(), args.b.display()),
-        memory_needed(sa, sb),
+        memory_needed(sa, sb, args.scene.is_some()),
     )?;
     let a = AovImage::read_exr(&args.a)?;
     let b = AovImage::read_exr(&args.b)?;
@@ -123,7 +131,7 @@ pub fn run(args: &CompareArgs) -> Result<CompareOutcome> {
         .with_context(|| format!("comparing {} with {}", args.a.display(), args.b.display()))?;
     if let Some(path) = &args.heatmap {
         write_png(
-            &annotate(heatmap(&a, &b, &report, &args.tolerances, cond.as_ref())),
+            &heatmap_figure(&a, &b, &report, &args.tolerances, cond.as_ref()),
             path,
         )?;
     }
@@ -156,80 +164,4 @@ pub fn run(args: &CompareArgs) -> Result<CompareOutcome> {
         passed,
         report,
     })
-}
-
-/// The heatmap made readable on its own: every failing pixel (red: a mismatch off a
-/// silhouette; magenta: an error above its tolerance) ringed in white, since one such pixel
-/// is invisible at a glance, and a legend strip of every colour under the image.
-fn annotate(heat: image::RgbImage) -> image::RgbImage {
-    use crate::output::plot;
-    use crate::verify::compare::error_colour;
-    use image::Rgb;
-    const RED: Rgb<u8> = Rgb([255, 0, 0]);
-    const MAGENTA: Rgb<u8> = Rgb([255, 0, 255]);
-    let (w, h) = heat.dimensions();
-    let scale = (w / 160).clamp(1, 4);
-    let row = (8 * scale) as i64;
-    let mut out = image::RgbImage::new(w, h + 2 + 4 * row as u32);
-    image::imageops::replace(&mut out, &heat, 0, 0);
-    let failing: Vec<(i64, i64)> = heat
-        .enumerate_pixels()
-        .filter(|(_, _, p)| **p == RED || **p == MAGENTA)
-        .map(|(x, y, _)| (x as i64, y as i64))
-        .collect();
-    // Rings only where they can be told apart: beyond a few thousand the failing area is
-    // itself visible.
-    if failing.len() <= 4000 {
-        let r = 3 + scale as i64;
-        for &(x, y) in &failing {
-            for d in -r..=r {
-                for (px, py) in [
-                    (x + d, y - r),
-                    (x + d, y + r),
-                    (x - r, y + d),
-                    (x + r, y + d),
-                ] {
-                    if py < h as i64 && px >= 0 && py >= 0 && px < w as i64 {
-                        let under = *heat.get_pixel(px as u32, py as u32);
-                        if under != RED && under != MAGENTA {
-                            out.put_pixel(px as u32, py as u32, plot::WHITE);
-                        }
-                    }
-                }
-            }
-        }
-    }
-    let mut y = h as i64 + 3;
-    let mut x = 1i64;
-    let s = scale as i64;
-    let entry = |out: &mut image::RgbImage, x: &mut i64, y: i64, c: Rgb<u8>, label: &str| {
-        plot::fill(out, *x, y, 5 * scale, 5 * scale, c);
-        if c == plot::WHITE {
-            plot::fill(out, *x + s, y + s, 3 * scale, 3 * scale, plot::BLACK);
-        }
-        *x += 6 * s;
-        plot::text(out, *x, y, scale, label, plot::WHITE);
-        *x += plot::text_width(label, scale) + 3 * s;
-    };
-    entry(&mut out, &mut x, y, Rgb([28, 28, 28]), "BOTH MISS");
-    entry(&mut out, &mut x, y, Rgb([255, 140, 0]), "EDGE MISMATCH");
-    y += row;
-    x = 1;
-    entry(&mut out, &mut x, y, RED, "MISMATCH (FAIL)");
-    entry(&mut out, &mut x, y, MAGENTA, "OVER TOL (FAIL)");
-    y += row;
-    x = 1;
-    entry(&mut out, &mut x, y, plot::WHITE, "RING: FAILING PIXEL");
-    y += row;
-    // The error ramp, in units of the tolerance, log scale 1e-4 .. 1.
-    let label = "ERR/TOL 1E-4";
-    plot::text(&mut out, 1, y, scale, label, plot::WHITE);
-    let x0 = 1 + plot::text_width(label, scale) + 2 * s;
-    let x1 = (w as i64 - plot::text_width("1", scale) - 3 * s).max(x0 + 10);
-    for px in x0..x1 {
-        let e = 10f64.powf(-4.0 + 4.0 * (px - x0) as f64 / (x1 - x0 - 1).max(1) as f64);
-        plot::fill(&mut out, px, y, 1, 5 * scale, error_colour(e));
-    }
-    plot::text(&mut out, x1 + 2 * s, y, scale, "1", plot::WHITE);
-    out
 }

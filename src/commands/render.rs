@@ -6,14 +6,15 @@
 //! `--preview DIR` writes `DIR/OUT.normal.preview.png` and `DIR/OUT.depth.preview.png`
 //! (pictures for people: the names say so).
 
+use crate::mem::check_memory;
 use crate::output::aov::AovImage;
 use crate::output::aov::{
     Compression, ExrBands, ExrLayout, exr_attributes, per_aov_image, render_memory, streams,
 };
 use crate::output::depth_png::{self, DepthPng, OutOfRange};
 use crate::output::io::{
-    NewDirs, Staged, camera_json, camera_json_path, check_memory, check_output_dir, check_outputs,
-    commit_all, open3d_json, stage,
+    NewDirs, Staged, camera_json, camera_json_path, check_output_dir, check_outputs, commit_all,
+    open3d_json, stage,
 };
 use crate::output::preview;
 use crate::render::{RenderOptions, render, render_bands};
@@ -205,8 +206,7 @@ pub fn run(args: &RenderArgs) -> Result<String> {
     dirs.keep();
     let write_ms = t1.elapsed().as_secs_f64() * 1e3;
     let (w, h) = (cam.width() as usize, cam.height() as usize);
-    let peak =
-        crate::output::io::peak_rss_mib().map_or(String::new(), |m| format!(", peak {m:.0} MiB"));
+    let peak = crate::mem::peak_rss_mib().map_or(String::new(), |m| format!(", peak {m:.0} MiB"));
     // Streamed, the EXR was written during the trace: say so rather than time it twice.
     let trace = if streamed {
         format!("trace and EXR {trace_ms:.1} ms, other files {write_ms:.1} ms")

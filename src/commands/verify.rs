@@ -7,7 +7,7 @@
 use crate::dataset::batch::{ViewSource, list_views, selected_for_verify};
 use crate::geometry::{FormulaKind, Precision};
 use crate::output::preview::write_png;
-use crate::verify::compare::{Conditioning, Report, Tolerances, heatmap};
+use crate::verify::compare::{Conditioning, Report, Tolerances, heatmap_figure};
 use crate::verify::reference::{Mitsuba, ViewCheck, summary_line, verify_scene};
 use anyhow::Result;
 use serde::Serialize;
@@ -145,7 +145,7 @@ fn check_one(
             std::fs::create_dir_all(parent)?;
         }
         let cond = Conditioning::new(&scene, &ours);
-        let img = heatmap(
+        let img = heatmap_figure(
             &ours,
             &reference,
             &check.report,

@@ -206,16 +206,22 @@ pub fn streams(layout: ExrLayout, compression: Compression, pictures: bool) -> b
 }
 
 /// Bytes a render of `width × height` with `aovs` holds at its peak (see [`streams`] for
-/// which renders are written band by band).
+/// which renders are written band by band), the image's share: the scene, its prepared
+/// cylinders and the BVH come on top.
 ///
 /// - Written band by band: each worker thread holds one band (16 rows) of every channel
 ///   and the band's encoded copy.
-/// - Else one plane per channel (4 bytes a sample), twice over when compressed (the `exr`
-///   crate encodes from its own copy; the uncompressed writer streams from the planes),
-///   plus the RGB pictures (3 bytes a pixel each, one at a time) when asked.
+/// - Else one plane per channel (4 bytes a sample); the per-AOV layout copies one AOV at
+///   a time into its file's channels; a compressed file is copied once more, since the
+///   `exr` crate encodes from its own copy, and its encoder holds blocks in flight (about
+///   a sixth of the file, a third for PIZ, plus 2 MiB a thread, 5 MiB for PIZ); the
+///   pictures (PNGs) hold up to 6 bytes a pixel at once (the normal picture, the depth PNG
+///   and the mask of a batch view).
+/// - 1 MiB of write buffer, and 1 MiB for headers, offset tables and the rest.
 ///
-/// Measured peaks stay within this estimate plus the process's fixed ~10 MiB and the
-/// scene's own memory.
+/// `tests/memory_messages.rs` counts what the allocator hands out at 128², 512² and 1024²,
+/// every compression and both layouts: the peaks lie within this estimate, which is at
+/// most a quarter above them plus 8 MiB.
 pub fn render_memory(
     (width, height): (u32, u32),
     aovs: &[Aov],
@@ -223,20 +229,36 @@ pub fn render_memory(
     compression: Compression,
     pictures: bool,
 ) -> u64 {
+    const MIB: u64 = 1 << 20;
     let channels: u64 = aovs.iter().map(|&a| channel_names(a).len() as u64).sum();
     if streams(layout, compression, pictures) {
         let rows = (crate::accel::tiles::TILE as u64).min(height as u64);
         let threads = rayon::current_num_threads() as u64;
-        return 2 * threads * rows * width as u64 * 4 * channels;
+        return 2 * threads * rows * width as u64 * 4 * channels + MIB;
     }
     let pixels = width as u64 * height as u64;
-    let copies = if compression == Compression::None {
-        1
-    } else {
-        2
+    let planes = pixels * 4 * channels;
+    // The channels one EXR file is encoded from.
+    let file_channels = match layout {
+        ExrLayout::Layers => channels,
+        ExrLayout::PerAov => aovs
+            .iter()
+            .map(|&a| channel_names(a).len() as u64)
+            .max()
+            .unwrap_or(0),
     };
-    let planes = pixels * 4 * channels * copies;
-    planes + if pictures { pixels * 3 } else { 0 }
+    let file = pixels * 4 * file_channels;
+    let copies =
+        u64::from(layout == ExrLayout::PerAov) + u64::from(compression != Compression::None);
+    let threads = rayon::current_num_threads()
+        .max(std::thread::available_parallelism().map_or(1, |n| n.get())) as u64;
+    let encoder = match compression {
+        Compression::None => 0,
+        Compression::Piz => file * 3 / 10 + threads * 5 * MIB,
+        _ => file / 6 + threads * 2 * MIB,
+    };
+    let pngs = if pictures { pixels * 6 } else { 0 };
+    planes + copies * file + encoder + pngs + 2 * MIB
 }
 
 /// Largest shape id a float32 `Y` channel holds exactly.
@@ -249,7 +271,9 @@ pub fn per_aov_image(img: &AovImage, aov: Aov) -> Result<AovImage> {
     let mut channels = Vec::new();
     for (from, to) in channel_names(aov).iter().zip(per_aov_channel_names(aov)) {
         let data = match img.channel(from) {
-            Some(ChannelData::F32(v)) => ChannelData::F32(v.clone()),
+            Some(ChannelData::F32(v)) => {
+                ChannelData::F32(crate::mem::try_copy(v, "the per-AOV image")?)
+            }
             Some(ChannelData::U32(v)) => {
                 if let Some(&big) = v.iter().find(|&&id| id > MAX_FLOAT_ID) {
                     bail!(
@@ -392,17 +416,20 @@ impl AovImage {
                 }
             }
         }
-        let channels: Vec<AnyChannel<FlatSamples>> = self
+        // The crate encodes from its own copy of every plane: reserved fallibly, since it
+        // doubles the image (see `render_memory`).
+        let what = "the copy of the image the EXR encoder needs";
+        let channels = self
             .channels
             .iter()
             .map(|c| {
                 let samples = match &c.data {
-                    ChannelData::F32(v) => FlatSamples::F32(v.clone()),
-                    ChannelData::U32(v) => FlatSamples::U32(v.clone()),
+                    ChannelData::F32(v) => FlatSamples::F32(crate::mem::try_copy(v, what)?),
+                    ChannelData::U32(v) => FlatSamples::U32(crate::mem::try_copy(v, what)?),
                 };
-                AnyChannel::new(c.name.as_str(), samples)
+                Ok(AnyChannel::new(c.name.as_str(), samples))
             })
-            .collect();
+            .collect::<std::io::Result<Vec<AnyChannel<FlatSamples>>>>()?;
         let layer = Layer::new(
             (self.width, self.height),
             layer_attrs,
@@ -656,7 +683,8 @@ mod tests {
     /// bytes of the whole image's streamed write (mixed f32 and u32 channels, names out of
     /// order, a last band of one row), and the `exr` crate reads it back.
     /// A render written band by band is estimated at its bands (two copies of 16 rows
-    /// per thread); one holding the whole image at its planes, twice when compressed.
+    /// per thread); one holding the whole image at its planes, with a second copy when
+    /// compressed, the per-AOV copy of the largest AOV, and the pictures.
     #[test]
     fn the_memory_estimate_follows_what_the_render_holds() {
         let all = [
@@ -667,20 +695,31 @@ mod tests {
             Aov::ShapeId,
         ];
         let size = (16384, 4096);
-        let planes = 16384 * 4096 * 4 * 9;
+        let px = 16384 * 4096;
+        let planes = px * 4 * 9;
         let est = |layout, compression, pictures| {
             render_memory(size, &all, layout, compression, pictures)
         };
-        assert_eq!(est(ExrLayout::PerAov, Compression::None, false), planes);
-        assert_eq!(est(ExrLayout::Layers, Compression::Zip, false), 2 * planes);
+        let fixed = 2 << 20;
+        assert_eq!(
+            est(ExrLayout::PerAov, Compression::None, false),
+            planes + px * 4 * 3 + fixed
+        );
+        let zip = est(ExrLayout::Layers, Compression::Zip, false);
+        assert!(
+            zip > 2 * planes + planes / 6 && zip < 2 * planes + planes / 5,
+            "{zip}"
+        );
+        let piz = est(ExrLayout::Layers, Compression::Piz, false);
+        assert!(piz > zip + planes / 10, "{piz} {zip}");
         assert_eq!(
             est(ExrLayout::Layers, Compression::None, true),
-            planes + 16384 * 4096 * 3
+            planes + px * 6 + fixed
         );
         let threads = rayon::current_num_threads() as u64;
         assert_eq!(
             est(ExrLayout::Layers, Compression::None, false),
-            2 * threads * 16 * 16384 * 4 * 9
+            2 * threads * 16 * 16384 * 4 * 9 + (1 << 20)
         );
     }
 

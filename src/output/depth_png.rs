@@ -42,24 +42,25 @@ pub fn encode(img: &AovImage, scale: f64, policy: OutOfRange) -> Option<Result<E
     let fits = |s: f64| (1.0..=u16::MAX as f64).contains(&s);
     let mut zeroed = 0;
     let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
-    let data: Vec<u16> = v
-        .iter()
-        .map(|&z| {
-            if z <= 0.0 {
-                return 0; // a miss
-            }
-            let z = z as f64;
-            lo = lo.min(z);
-            hi = hi.max(z);
-            let s = (z * scale).round();
-            if fits(s) {
-                s as u16
-            } else {
-                zeroed += 1;
-                0
-            }
-        })
-        .collect();
+    let mut data: Vec<u16> = Vec::new();
+    if let Err(e) = crate::mem::try_reserve(&mut data, v.len(), "depth PNG") {
+        return Some(Err(e.to_string()));
+    }
+    data.extend(v.iter().map(|&z| {
+        if z <= 0.0 {
+            return 0; // a miss
+        }
+        let z = z as f64;
+        lo = lo.min(z);
+        hi = hi.max(z);
+        let s = (z * scale).round();
+        if fits(s) {
+            s as u16
+        } else {
+            zeroed += 1;
+            0
+        }
+    }));
     if zeroed > 0 && policy == OutOfRange::Fail {
         // round(hi × s) <= 65535 needs hi × s < 65535.5; the scale is printed with six
         // decimals, so it is rounded down to them (and stays below the bound). A scale below
@@ -85,7 +86,12 @@ pub fn encode(img: &AovImage, scale: f64, policy: OutOfRange) -> Option<Result<E
 /// without a depth channel. (Every hit has depth >= near_clip > 0; a miss stores 0.)
 pub fn mask(img: &AovImage) -> Option<GrayImage> {
     let v = img.f32_channel("depth")?;
-    let data = v.iter().map(|&z| if z > 0.0 { 255 } else { 0 }).collect();
+    let mut data = crate::mem::zeroed_or_exit::<u8>(v.len(), "the mask PNG");
+    for (m, &z) in data.iter_mut().zip(v) {
+        if z > 0.0 {
+            *m = 255;
+        }
+    }
     ImageBuffer::from_raw(img.width as u32, img.height as u32, data)
 }
 

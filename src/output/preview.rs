@@ -197,9 +197,16 @@ where
     C: std::ops::Deref<Target = [P::Subpixel]>,
 {
     stage(path, |f| {
+        use std::io::Write;
         let mut w = std::io::BufWriter::new(f);
+        // The encoder's IO error as it is, so a full disk gets its advice as the EXR's does;
+        // and the last buffered bytes flushed here, where a failure is still reported.
         img.write_to(&mut w, image::ImageFormat::Png)
-            .map_err(|e| std::io::Error::other(e.to_string()))
+            .map_err(|e| match e {
+                image::ImageError::IoError(e) => e,
+                e => std::io::Error::other(e.to_string()),
+            })?;
+        w.flush()
     })
     .with_context(|| format!("writing {}", path.display()))
 }

@@ -737,9 +737,10 @@ impl<T: Real> TileRays<T> {
 
 /// A zeroed output plane of `n` samples, in huge pages where the system has them (the
 /// hint covers whole 2 MiB pages inside the plane only, so a band's few rows stay in
-/// ordinary pages that the allocator reuses).
-fn zeroed<X: Copy + Default>(n: usize) -> Vec<X> {
-    let v = vec![X::default(); n];
+/// ordinary pages that the allocator reuses). Reserved fallibly: a refusal is the one-line
+/// out-of-memory error and exit 1 (the callers' memory check has passed by then).
+fn zeroed<X: bytemuck::Zeroable>(n: usize) -> Vec<X> {
+    let v = crate::mem::zeroed_or_exit(n, "an output plane of the render");
     crate::mem::huge_pages(&v);
     v
 }
@@ -1013,7 +1014,8 @@ fn band_renderer<T: Simd, F: PacketFormula>(
 fn normals_in_camera(cam: &crate::scene::camera::Camera, n: &[Vec<f32>; 3]) -> [Vec<f32>; 3] {
     let axes = [-cam.left, -cam.true_up, cam.forward];
     let len = n[0].len();
-    let mut out = [vec![0f32; len], vec![0f32; len], vec![0f32; len]];
+    let plane = || crate::mem::zeroed_or_exit::<f32>(len, "the normal_camera planes");
+    let mut out = [plane(), plane(), plane()];
     for k in 0..len {
         let v = DVec3::new(n[0][k] as f64, n[1][k] as f64, n[2][k] as f64);
         if v == DVec3::ZERO {

@@ -598,7 +598,7 @@ impl CameraFile {
             return Err(err(
                 format!("{at}.height"),
                 format!(
-                    "width × height must be <= {MAX_PIXELS} pixels (8192 × 8192), got {} × {} = {pixels}",
+                    "width × height must be <= {MAX_PIXELS} pixels (64 megapixels, e.g. 8192 × 8192; each side <= {MAX_SIDE}), got {} × {} = {pixels}",
                     self.width, self.height
                 ),
             ));

@@ -171,8 +171,9 @@ impl Conditioning {
         }
         let eps32 = f64::from(f32::EPSILON) / 2.0;
         let origin = cam.origin.length();
-        let mut rel = vec![0.0; w * h];
-        let mut normal_deg = vec![0.0; w * h];
+        let what = "the conditioning bounds";
+        let mut rel = crate::mem::zeroed_or_exit::<f64>(w * h, what);
+        let mut normal_deg = crate::mem::zeroed_or_exit::<f64>(w * h, what);
         for j in 0..h {
             let y = cam.row_offset(j as u32);
             for i in 0..w {
@@ -401,9 +402,10 @@ fn is_id_channel(name: &str) -> bool {
 fn id_labels(img: &AovImage, name: &str, which: &str) -> Result<Option<Vec<u32>>> {
     match img.channel(name) {
         None => Ok(None),
-        Some(ChannelData::U32(v)) => Ok(Some(v.clone())),
+        Some(ChannelData::U32(v)) => Ok(Some(crate::mem::try_copy(v, LABELS)?)),
         Some(ChannelData::F32(v)) => {
-            let mut out = Vec::with_capacity(v.len());
+            let mut out = Vec::new();
+            crate::mem::try_reserve(&mut out, v.len(), LABELS)?;
             for (k, &x) in v.iter().enumerate() {
                 if !(x.is_finite() && x >= 0.0 && x.fract() == 0.0 && x <= 16_777_216.0) {
                     bail!(
@@ -419,11 +421,17 @@ fn id_labels(img: &AovImage, name: &str, which: &str) -> Result<Option<Vec<u32>>
     }
 }
 
+/// What the per-pixel buffers of a comparison are called in an out-of-memory error.
+const LABELS: &str = "comparing: the per-pixel labels";
+
 /// Hit (1) / miss (0) from `distance`, else `depth`.
 fn hit_labels(img: &AovImage, which: &str) -> Result<(Vec<u32>, &'static str)> {
     for name in ["distance", "depth"] {
         if let Some(v) = img.f32_channel(name) {
-            return Ok((v.iter().map(|&x| u32::from(x > 0.0)).collect(), name));
+            let mut out = Vec::new();
+            crate::mem::try_reserve(&mut out, v.len(), LABELS)?;
+            out.extend(v.iter().map(|&x| u32::from(x > 0.0)));
+            return Ok((out, name));
         }
     }
     bail!("{which}: cannot tell hits from misses: no shape_id, distance or depth channel")
@@ -457,11 +465,21 @@ fn labels(a: &AovImage, b: &AovImage) -> Result<(Labels, Labels, Identity, Vec<S
     ) {
         (Some(la), Some(lb)) => (la, lb, Identity::ShapeId),
         (ia, ib) => {
-            let (la, ca) = hit_labels(a, "A")?;
-            let (lb, cb) = hit_labels(b, "B")?;
-            let missing = match (ia.is_some(), ib.is_some()) {
-                (false, false) => "both images lack",
-                (true, false) => "B lacks",
+            // An image with shape_id tells its hits by it (0 = miss), the other by depth.
+            let hits = |ids: Option<Vec<u32>>, img: &AovImage, which: &str| match ids {
+                Some(mut ids) => {
+                    ids.iter_mut().for_each(|l| *l = u32::from(*l != 0));
+                    Ok((ids, "shape_id"))
+                }
+                None => hit_labels(img, which),
+            };
+            let missing_a = ia.is_none();
+            let missing_b = ib.is_none();
+            let (la, ca) = hits(ia, a, "A")?;
+            let (lb, cb) = hits(ib, b, "B")?;
+            let missing = match (missing_a, missing_b) {
+                (true, true) => "both images lack",
+                (false, true) => "B lacks",
                 _ => "A lacks",
             };
             notes.push(format!(
@@ -491,15 +509,18 @@ fn labels(a: &AovImage, b: &AovImage) -> Result<(Labels, Labels, Identity, Vec<S
         }
         _ => None,
     };
-    let key = |cyl: &[u32], part: Option<&[u32]>| -> Vec<u64> {
+    let key = |cyl: &[u32], part: Option<&[u32]>| -> Result<Vec<u64>> {
+        let mut out = Vec::new();
+        crate::mem::try_reserve(&mut out, cyl.len(), LABELS)?;
         match part {
-            Some(p) => cyl
-                .iter()
-                .zip(p)
-                .map(|(&c, &p)| u64::from(c) << 32 | u64::from(p))
-                .collect(),
-            None => cyl.iter().map(|&c| u64::from(c) << 32).collect(),
+            Some(p) => out.extend(
+                cyl.iter()
+                    .zip(p)
+                    .map(|(&c, &p)| u64::from(c) << 32 | u64::from(p)),
+            ),
+            None => out.extend(cyl.iter().map(|&c| u64::from(c) << 32)),
         }
+        Ok(out)
     };
     let identity = if parts.is_some() {
         Identity::ShapeIdPart
@@ -511,11 +532,11 @@ fn labels(a: &AovImage, b: &AovImage) -> Result<(Labels, Labels, Identity, Vec<S
         None => (None, None),
     };
     let la = Labels {
-        key: key(&cyl_a, pa),
+        key: key(&cyl_a, pa)?,
         cylinder: cyl_a,
     };
     let lb = Labels {
-        key: key(&cyl_b, pb),
+        key: key(&cyl_b, pb)?,
         cylinder: cyl_b,
     };
     Ok((la, lb, identity, notes))
@@ -540,7 +561,8 @@ fn classify(a: &AovImage, b: &AovImage) -> Result<Classified> {
     }
     let (la, lb, identity, notes) = labels(a, b)?;
     let (w, h) = (a.width, a.height);
-    let mut classes = Vec::with_capacity(w * h);
+    let mut classes = Vec::new();
+    crate::mem::try_reserve(&mut classes, w * h, LABELS)?;
     for y in 0..h {
         for x in 0..w {
             let k = y * w + x;
@@ -667,60 +689,84 @@ struct Errors {
     position_rel: Option<Stat>,
 }
 
-fn errors(a: &AovImage, b: &AovImage, same: &[usize], cond: Option<&Conditioning>) -> Errors {
+fn errors(
+    a: &AovImage,
+    b: &AovImage,
+    same: &[usize],
+    cond: Option<&Conditioning>,
+) -> Result<Errors> {
     let w = a.width;
+    // Every metric is taken over `same`: reserve that much up front, fallibly.
+    let room = || -> Result<Vec<(f64, usize)>> {
+        let mut v = Vec::new();
+        crate::mem::try_reserve(&mut v, same.len(), "comparing: the per-pixel errors")?;
+        Ok(v)
+    };
     let both_f32 = |name: &str| Some((a.f32_channel(name)?, b.f32_channel(name)?));
     let both_vec3 = |name: &str| Some((a.vec3_channel(name)?, b.vec3_channel(name)?));
-    let scalar = |name: &str| {
-        both_f32(name).map(|(va, vb)| {
-            let vals = same
-                .iter()
+    let scalar = |name: &str| -> Result<Option<Metric>> {
+        let Some((va, vb)) = both_f32(name) else {
+            return Ok(None);
+        };
+        let mut vals = room()?;
+        vals.extend(
+            same.iter()
                 .filter(|&&k| va[k].is_finite() && vb[k].is_finite())
-                .map(|&k| (rel(va[k], vb[k]), k))
-                .collect();
-            Metric::new(vals, cond.map(|c| c.rel.as_slice()), w)
-        })
+                .map(|&k| (rel(va[k], vb[k]), k)),
+        );
+        Ok(Some(Metric::new(vals, cond.map(|c| c.rel.as_slice()), w)))
     };
-    let normal_deg = both_vec3("normal").map(|(na, nb)| {
-        let vals = same
-            .iter()
-            .map(|&k| (vec3_at(&na, k), vec3_at(&nb, k), k))
-            .filter(|(x, y, _)| finite3(*x) && finite3(*y))
-            .map(|(x, y, k)| (angle_deg(x, y), k))
-            .collect();
-        Metric::new(vals, cond.map(|c| c.normal_deg.as_slice()), w)
-    });
-    let position_pairs = both_vec3("position").map(|(pa, pb)| {
-        same.iter()
-            .map(|&k| (vec3_at(&pa, k), vec3_at(&pb, k), k))
-            .filter(|(x, y, _)| finite3(*x) && finite3(*y))
-            .map(|(x, y, k)| {
-                let d = [x[0] - y[0], x[1] - y[1], x[2] - y[2]];
-                ((d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt(), k)
-            })
-            .collect::<Vec<_>>()
-    });
+    let normal_deg = match both_vec3("normal") {
+        None => None,
+        Some((na, nb)) => {
+            let mut vals = room()?;
+            vals.extend(
+                same.iter()
+                    .map(|&k| (vec3_at(&na, k), vec3_at(&nb, k), k))
+                    .filter(|(x, y, _)| finite3(*x) && finite3(*y))
+                    .map(|(x, y, k)| (angle_deg(x, y), k)),
+            );
+            Some(Metric::new(vals, cond.map(|c| c.normal_deg.as_slice()), w))
+        }
+    };
+    let position_pairs = match both_vec3("position") {
+        None => None,
+        Some((pa, pb)) => {
+            let mut vals = room()?;
+            vals.extend(
+                same.iter()
+                    .map(|&k| (vec3_at(&pa, k), vec3_at(&pb, k), k))
+                    .filter(|(x, y, _)| finite3(*x) && finite3(*y))
+                    .map(|(x, y, k)| {
+                        let d = [x[0] - y[0], x[1] - y[1], x[2] - y[2]];
+                        ((d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt(), k)
+                    }),
+            );
+            Some(vals)
+        }
+    };
     let position_rel = match (&position_pairs, both_f32("distance")) {
         (Some(p), Some((da, db))) => {
-            let vals = p
-                .iter()
-                .filter(|&&(_, k)| da[k].is_finite() && db[k].is_finite())
-                .map(|&(e, k)| {
-                    let s = f64::from(da[k].abs().max(db[k].abs()));
-                    (if s > 0.0 { e / s } else { e }, k)
-                })
-                .collect();
+            let mut vals = room()?;
+            vals.extend(
+                p.iter()
+                    .filter(|&&(_, k)| da[k].is_finite() && db[k].is_finite())
+                    .map(|&(e, k)| {
+                        let s = f64::from(da[k].abs().max(db[k].abs()));
+                        (if s > 0.0 { e / s } else { e }, k)
+                    }),
+            );
             Some(Stat::from_values(vals, w))
         }
         _ => None,
     };
-    Errors {
-        rel_distance: scalar("distance"),
-        rel_depth: scalar("depth"),
+    Ok(Errors {
+        rel_distance: scalar("distance")?,
+        rel_depth: scalar("depth")?,
         normal_deg,
         position_abs: position_pairs.map(|v| Stat::from_values(v, w)),
         position_rel,
-    }
+    })
 }
 
 /// Non-finite samples in `img`'s compared float channels.
@@ -757,12 +803,14 @@ pub fn compare_with(a: &AovImage, b: &AovImage, cond: Option<&Conditioning>) -> 
     let sets = channel_sets(a, b);
     let mut notes = c.notes;
     notes.extend(sets.notes);
-    let same: Vec<usize> = (0..n).filter(|&k| c.classes[k] == Class::Same).collect();
-    let e = errors(a, b, &same, cond);
+    let count = |cl: Class| c.classes.iter().filter(|&&x| x == cl).count();
+    let mut same = Vec::new();
+    crate::mem::try_reserve(&mut same, count(Class::Same), LABELS)?;
+    same.extend((0..n).filter(|&k| c.classes[k] == Class::Same));
+    let e = errors(a, b, &same, cond)?;
     if e.rel_distance.is_none() && e.rel_depth.is_none() && e.normal_deg.is_none() {
         notes.push("no distance, depth or normal channel in both images: only hit/miss and identity compared".into());
     }
-    let count = |cl: Class| c.classes.iter().filter(|&&x| x == cl).count();
     let cylinders_differ = |k: usize| c.a.cylinder[k] != c.b.cylinder[k];
     let interior: Vec<usize> = (0..n)
         .filter(|&k| c.classes[k] == Class::Interior)
@@ -987,7 +1035,7 @@ impl fmt::Display for Report {
 /// through 1e-2 (green) to 1 (yellow); above the tolerance, magenta.
 pub fn error_colour(e: f64) -> Rgb<u8> {
     if e > 1.0 {
-        return Rgb([255, 0, 255]);
+        return OVER_TOLERANCE;
     }
     let s = ((e.max(1e-4).log10() + 4.0) / 4.0).clamp(0.0, 1.0);
     let lerp =
@@ -999,6 +1047,110 @@ pub fn error_colour(e: f64) -> Rgb<u8> {
         let t = (s - 0.5) / 0.5;
         Rgb([lerp(0, 255, t), lerp(170, 230, t), lerp(60, 0, t)])
     }
+}
+
+/// Heatmap colour of a pixel both images miss.
+pub const BOTH_MISS: Rgb<u8> = Rgb([28, 28, 28]);
+/// Heatmap colour of a silhouette mismatch (allowed up to its fraction).
+pub const SILHOUETTE: Rgb<u8> = Rgb([255, 140, 0]);
+/// Heatmap colour of a seam mismatch (allowed up to its fraction).
+pub const SEAM: Rgb<u8> = Rgb([0, 200, 230]);
+/// Heatmap colour of an interior mismatch (always a failure).
+pub const INTERIOR: Rgb<u8> = Rgb([255, 0, 0]);
+/// Heatmap colour of an error above its bound (always a failure).
+pub const OVER_TOLERANCE: Rgb<u8> = Rgb([255, 0, 255]);
+
+/// [`heatmap`] as the PNG `compare --heatmap` and `verify --heatmap` write: every failing
+/// pixel ringed in white (one such pixel is invisible at a glance), and under the image a
+/// legend of every colour in the words of the text report (silhouette, seam, interior,
+/// tolerance). Wider than the image when the legend needs it.
+pub fn heatmap_figure(
+    a: &AovImage,
+    b: &AovImage,
+    report: &Report,
+    tol: &Tolerances,
+    cond: Option<&Conditioning>,
+) -> RgbImage {
+    with_legend(&heatmap(a, b, report, tol, cond))
+}
+
+/// The legend's entries, top to bottom: colour and label.
+pub const LEGEND: [(Rgb<u8>, &str); 6] = [
+    (BOTH_MISS, "BOTH MISS"),
+    (SILHOUETTE, "SILHOUETTE MISMATCH"),
+    (SEAM, "SEAM MISMATCH"),
+    (INTERIOR, "INTERIOR MISMATCH (FAIL)"),
+    (OVER_TOLERANCE, "OVER TOLERANCE (FAIL)"),
+    (crate::output::plot::WHITE, "RING: FAILING PIXEL"),
+];
+
+fn with_legend(heat: &RgbImage) -> RgbImage {
+    use crate::output::plot;
+    let (w, h) = heat.dimensions();
+    let scale = (w / 160).clamp(1, 4);
+    let s = scale as i64;
+    let row = 8 * s;
+    let ramp_label = "ERROR/TOLERANCE 1E-4";
+    let widest = LEGEND
+        .iter()
+        .map(|(_, l)| 6 * s + plot::text_width(l, scale))
+        .chain([plot::text_width(ramp_label, scale) + 40 * s])
+        .max()
+        .unwrap_or(0)
+        + 2;
+    let fig_w = w.max(widest as u32);
+    let rows = LEGEND.len() as i64 + 1;
+    let mut out = RgbImage::new(fig_w, h + 2 + (rows * row) as u32);
+    image::imageops::replace(&mut out, heat, 0, 0);
+    let failing = |p: &Rgb<u8>| *p == INTERIOR || *p == OVER_TOLERANCE;
+    let ringed: Vec<(i64, i64)> = heat
+        .enumerate_pixels()
+        .filter(|(_, _, p)| failing(p))
+        .map(|(x, y, _)| (x as i64, y as i64))
+        .collect();
+    // Rings only where they can be told apart: beyond a few thousand the failing area is
+    // itself visible.
+    if ringed.len() <= 4000 {
+        let r = 3 + s;
+        for &(x, y) in &ringed {
+            for d in -r..=r {
+                for (px, py) in [
+                    (x + d, y - r),
+                    (x + d, y + r),
+                    (x - r, y + d),
+                    (x + r, y + d),
+                ] {
+                    if px >= 0
+                        && py >= 0
+                        && px < w as i64
+                        && py < h as i64
+                        && !failing(heat.get_pixel(px as u32, py as u32))
+                    {
+                        out.put_pixel(px as u32, py as u32, plot::WHITE);
+                    }
+                }
+            }
+        }
+    }
+    let mut y = h as i64 + 3;
+    for (c, label) in LEGEND {
+        plot::fill(&mut out, 1, y, 5 * scale, 5 * scale, c);
+        if c == plot::WHITE {
+            plot::fill(&mut out, 1 + s, y + s, 3 * scale, 3 * scale, plot::BLACK);
+        }
+        plot::text(&mut out, 1 + 6 * s, y, scale, label, plot::WHITE);
+        y += row;
+    }
+    // The error ramp of same-part pixels, in units of the tolerance, log scale 1e-4 .. 1.
+    plot::text(&mut out, 1, y, scale, ramp_label, plot::WHITE);
+    let x0 = 1 + plot::text_width(ramp_label, scale) + 2 * s;
+    let x1 = (fig_w as i64 - plot::text_width("1", scale) - 3 * s).max(x0 + 10);
+    for px in x0..x1 {
+        let e = 10f64.powf(-4.0 + 4.0 * (px - x0) as f64 / (x1 - x0 - 1).max(1) as f64);
+        plot::fill(&mut out, px, y, 1, 5 * scale, error_colour(e));
+    }
+    plot::text(&mut out, x1 + 2 * s, y, scale, "1", plot::WHITE);
+    out
 }
 
 /// Where `a` and `b` differ, as an image (row 0 at the top):
@@ -1039,10 +1191,10 @@ pub fn heatmap(
     let bound = |flat: f64, per_pixel: Option<f64>| per_pixel.map_or(flat, |p| p.max(flat));
     for (k, class) in c.classes.iter().enumerate() {
         let px = match class {
-            Class::BothMiss => Rgb([28, 28, 28]),
-            Class::Interior => Rgb([255, 0, 0]),
-            Class::Silhouette => Rgb([255, 140, 0]),
-            Class::Seam => Rgb([0, 200, 230]),
+            Class::BothMiss => BOTH_MISS,
+            Class::Interior => INTERIOR,
+            Class::Silhouette => SILHOUETTE,
+            Class::Seam => SEAM,
             Class::Same => {
                 let rel_b = cond.map(|c| c.rel[k]);
                 let mut e: f64 = 0.0;
@@ -1057,7 +1209,7 @@ pub fn heatmap(
                     e = e.max(angle_deg(vec3_at(x, k), vec3_at(y, k)) / nb);
                 }
                 if e.is_nan() {
-                    Rgb([255, 0, 255])
+                    OVER_TOLERANCE
                 } else {
                     error_colour(e)
                 }
