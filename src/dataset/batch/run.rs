@@ -161,12 +161,13 @@ pub fn run(
         eprintln!("{}: skipped {skipped}", input.display());
     }
     let (views, cameras) = expand_views(&scenes, opts);
-    if let Some(e) = cameras
+    // Out of file handles while reading the scenes is not a bad scene.
+    if let Some((what, e)) = cameras
         .iter()
         .filter_map(|c| c.as_ref().err())
-        .find(|e| resource_exhausted(e).is_some())
+        .find_map(|e| resource_exhausted(e).map(|what| (what, e)))
     {
-        anyhow::bail!("reading the scenes: {e}");
+        anyhow::bail!("reading the scenes: {what}: {e}");
     }
     let mine: Vec<usize> = (0..views.len()).filter(|&i| shard.contains(i)).collect();
     let failures_path = out.join(format!("failures.{shard}.jsonl"));
@@ -211,10 +212,12 @@ pub fn run(
     if let Err(e) = write_index(out, input_dir, &views, &cameras, opts) {
         summary.problems.push(format!("{e:#}"));
     }
+    if let Err(e) = cleared {
+        summary.problems.push(format!("{e:#}"));
+    }
     drop(lock);
     // Other shards may still be using `.partial`; it goes when the last one leaves.
     let _ = std::fs::remove_dir(out.join(".partial"));
-    cleared?;
     summary.elapsed = start.elapsed();
     Ok(summary)
 }
@@ -268,10 +271,15 @@ struct Partial {
 }
 
 impl Partial {
-    /// Remove the folder now, saying why if it cannot be.
+    /// Remove the folder now, saying why if it cannot be. Out of file handles,
+    /// `remove_dir_all` cannot open the folder to list it; an empty one still goes by
+    /// `rmdir`, which needs none.
     fn remove(&self) -> Result<()> {
         match std::fs::remove_dir_all(&self.path) {
             Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                if std::fs::remove_dir(&self.path).is_ok() {
+                    return Ok(());
+                }
                 Err(e).with_context(|| format!("removing {}", self.path.display()))
             }
             _ => Ok(()),
@@ -281,7 +289,7 @@ impl Partial {
 
 impl Drop for Partial {
     fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.path);
+        let _ = self.remove();
     }
 }
 
