@@ -413,14 +413,13 @@ fn with_file_limit(blocks: u32, args: &[&str]) -> Output {
     for (k, _) in args.iter().enumerate() {
         line += &format!(" \"${}\"", k + 1);
     }
-    let o = Command::new("sh")
+    Command::new("sh")
         .arg("-c")
         .arg(line)
         .arg(env!("CARGO_BIN_EXE_cylaov"))
         .args(args)
         .output()
-        .unwrap();
-    o
+        .unwrap()
 }
 
 /// A write past `ulimit -f` fails with the file size message (not a silent SIGXFSZ kill),

@@ -229,17 +229,19 @@ fn same_target(a: &Path, b: &Path) -> bool {
 
 /// Check that a folder target (`--preview DIR`) is a folder or can be made one.
 pub fn check_output_dir(flag: &str, dir: &Path) -> io::Result<()> {
-    if let Some(root) = system_folder(dir, true) {
-        return Err(refuse(flag, dir, system_refusal(root)));
-    }
+    let system = || match system_folder(dir, true) {
+        Some(root) => Err(refuse(flag, dir, system_refusal(root))),
+        None => Ok(()),
+    };
     match std::fs::metadata(dir) {
-        Ok(m) if m.is_dir() => Ok(()),
+        Ok(m) if m.is_dir() => system(),
         Ok(m) => Err(refuse(
             flag,
             dir,
             format!("is {}, not a folder", kind_name(m.file_type())),
         )),
         Err(e) if e.kind() == io::ErrorKind::NotFound || e.raw_os_error() == Some(20) => {
+            system()?;
             check_folders(flag, dir)
         }
         Err(e) => Err(refuse(flag, dir, e.to_string())),
