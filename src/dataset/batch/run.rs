@@ -4,8 +4,9 @@
 //! several-camera scene's `OUT/<scene>/transforms.json`.
 //!
 //! Before anything is rendered, every path the shard may replace (the views' files,
-//! `index.json`, the failures file, `transforms.json`) must be missing or a regular file:
-//! a FIFO, a link or a device there is refused by name, never opened or renamed over. A
+//! `index.json`, the failures file, `transforms.json`) must be missing or a regular file
+//! (or, for a view's file, a folder, which fails that view's rename): a FIFO, a link or a
+//! device there is refused by name, never opened or renamed over. A
 //! view that fails because the machine ran out of something every view needs (a full disk
 //! or quota, the file size limit, the open-file limit) stops the shard: the views not yet
 //! started are left for the next run, and the summary says why. The shard's partial folder
@@ -249,15 +250,21 @@ fn check_targets(
 ) -> Result<()> {
     let index = out.join("index.json");
     check_outputs(&[("--out", &index), ("--out", failures_path)], &[])?;
+    // A folder in a file's place cannot block or be written through: the rename onto it
+    // fails, and so does that view alone.
+    let check = |path: &Path| match path.symlink_metadata() {
+        Ok(m) if m.is_dir() => Ok(()),
+        _ => refuse_non_regular(path),
+    };
     for &i in mine {
         let v = &views[i];
         for path in ViewFiles::new(&v.dir(out), &v.name).all() {
-            refuse_non_regular(&path)?;
+            check(&path)?;
         }
     }
     for v in views {
         if let Some(folder) = &v.folder {
-            refuse_non_regular(&out.join(folder).join("transforms.json"))?;
+            check(&out.join(folder).join("transforms.json"))?;
         }
     }
     Ok(())
