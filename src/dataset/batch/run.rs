@@ -86,7 +86,7 @@ pub struct Summary {
     /// Hits stored as 0 in those views, in all.
     pub depth_zeroed: usize,
     /// Why the shard stopped before its last view (a full disk, the file size or open-file
-    /// limit: see [`resource_exhausted`]), if it did.
+    /// limit: the resources every view needs), if it did.
     pub stopped: Option<String>,
     /// Views of this shard not started because the shard stopped.
     pub not_started: usize,
