@@ -46,8 +46,7 @@ fn temp_host() -> &'static str {
     use std::sync::OnceLock;
     static HOST: OnceLock<String> = OnceLock::new();
     HOST.get_or_init(|| {
-        let host = std::fs::read_to_string("/proc/sys/kernel/hostname")
-            .ok()
+        let host = hostname()
             .or_else(|| std::env::var("HOSTNAME").ok())
             .unwrap_or_default();
         // File-name safe and short: a long name must still fit NAME_MAX with the rest.
@@ -59,6 +58,24 @@ fn temp_host() -> &'static str {
             .collect();
         if host.is_empty() { "host".into() } else { host }
     })
+}
+
+/// This machine's name (`gethostname`, which needs no file handle: a run out of them
+/// still names its temporary files like every other run of this host).
+#[cfg(target_os = "linux")]
+fn hostname() -> Option<String> {
+    let mut buf = [0u8; 256];
+    // SAFETY: gethostname writes at most `buf.len()` bytes into the buffer it is given.
+    if unsafe { libc::gethostname(buf.as_mut_ptr().cast(), buf.len()) } != 0 {
+        return None;
+    }
+    let end = buf.iter().position(|&b| b == 0).unwrap_or(buf.len());
+    Some(String::from_utf8_lossy(&buf[..end]).into_owned())
+}
+
+#[cfg(not(target_os = "linux"))]
+fn hostname() -> Option<String> {
+    std::fs::read_to_string("/proc/sys/kernel/hostname").ok()
 }
 
 /// Random characters in a temporary name; with exclusive creation (`O_EXCL`, retried by
