@@ -31,7 +31,9 @@ struct Cli {
 const EXIT_STATUS: &str = "Exit status, every command: 0 = done; 1 = input rejected (a bad scene, \
 a refused output, a full disk) or a check failed (compare's or verify's tolerances, a batch \
 view); 2 = usage error (unknown option, bad value) or a check that could not be made \
-(compare: a missing or unreadable image; verify: a view it could not check). A closed stdout (`| head`) is not an error.";
+(compare: a missing or unreadable image; verify: a view it could not check); 129, 130, 143 = \
+stopped by SIGHUP, SIGINT, SIGTERM (128 + the signal number; unfinished files removed). A \
+closed stdout (`| head`) is not an error.";
 
 #[derive(Subcommand)]
 enum Command {
@@ -605,13 +607,27 @@ fn batch(a: BatchCli) -> anyhow::Result<ExitCode> {
     };
     let summary = commands::batch::run(&args)?;
     say(&summary.to_string())?;
+    let mut why: Vec<String> = Vec::new();
+    if let Some(stopped) = &summary.stopped {
+        why.push(format!(
+            "stopped with {} views not started: {stopped}",
+            summary.not_started
+        ));
+    }
     if summary.counts.failed > 0 {
-        anyhow::bail!(
-            "{} of {} views failed (see {})",
-            summary.counts.failed,
-            summary.in_shard,
-            summary.failures_path.display()
-        );
+        let see = if summary.failures_written {
+            format!(" (see {})", summary.failures_path.display())
+        } else {
+            String::new()
+        };
+        why.push(format!(
+            "{} of {} views failed{see}",
+            summary.counts.failed, summary.in_shard
+        ));
+    }
+    why.extend(summary.problems.iter().cloned());
+    if !why.is_empty() {
+        anyhow::bail!("{}", why.join("; "));
     }
     Ok(ExitCode::SUCCESS)
 }
@@ -765,6 +781,8 @@ fn command_line() -> clap::Command {
 
 fn main() -> ExitCode {
     use clap::FromArgMatches;
+    // First, before any thread starts: see `output::signals`.
+    cylaov::output::signals::install();
     cylaov::mem::keep_freed_memory();
     cylaov::mem::init_from_env();
     // Usage errors exit 2 (clap's own code); `--help` and `--version` exit 0.

@@ -255,6 +255,9 @@ static FAILING: AtomicBool = AtomicBool::new(false);
 thread_local! {
     /// Whether this thread's allocations may fail back to the caller (inside [`fallibly`]).
     static FALLIBLE: Cell<bool> = const { Cell::new(false) };
+    /// Set on the thread that is reporting a failed allocation: a second failure on it
+    /// (inside the clean-up) ends the process at once instead of waiting for itself.
+    static EXITING: Cell<bool> = const { Cell::new(false) };
 }
 
 // SAFETY: every method forwards to `System` with the caller's layout and pointer; the
@@ -381,12 +384,17 @@ fn out_of_memory(size: usize) -> ! {
 /// unwinding, no destructors, no allocator needed after `report`. A second thread failing
 /// meanwhile waits for the first to end the process.
 fn exit_after(report: impl FnOnce()) -> ! {
+    if EXITING.try_with(Cell::get).unwrap_or(true) {
+        // SAFETY: ends the process at once, with no unwinding and no allocator.
+        unsafe { libc::_exit(1) }
+    }
     if FAILING.swap(true, Ordering::SeqCst) {
         loop {
             // SAFETY: `pause` only waits for a signal; the first thread ends the process.
             unsafe { libc::pause() };
         }
     }
+    let _ = EXITING.try_with(|c| c.set(true));
     report();
     let f = CLEANUP.load(Ordering::SeqCst);
     if f != 0 {

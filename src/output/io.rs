@@ -5,6 +5,8 @@
 //! Every command checks its output targets with [`check_outputs`] before it reads or
 //! computes anything, so a refused target costs nothing and leaves nothing behind.
 
+use super::files::{kind_name, system_folder};
+use super::signals::{self, Cleanup, Registration};
 use crate::scene::Aov;
 use crate::scene::camera::{Camera, rows};
 use serde::Serialize;
@@ -21,22 +23,7 @@ use std::path::{Path, PathBuf};
 /// file name limit: any output name the file system accepts also has a temporary name it
 /// accepts.
 fn temp_prefix(path: &Path) -> String {
-    use std::sync::OnceLock;
-    static HOST: OnceLock<String> = OnceLock::new();
-    let host = HOST.get_or_init(|| {
-        let host = std::fs::read_to_string("/proc/sys/kernel/hostname")
-            .ok()
-            .or_else(|| std::env::var("HOSTNAME").ok())
-            .unwrap_or_default();
-        // File-name safe and short: a long name must still fit NAME_MAX with the rest.
-        let host: String = host
-            .trim()
-            .chars()
-            .filter(|c| c.is_ascii_alphanumeric() || *c == '-' || *c == '.')
-            .take(16)
-            .collect();
-        if host.is_empty() { "host".into() } else { host }
-    });
+    let host = temp_host();
     let mut name = path
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
@@ -54,32 +41,49 @@ fn temp_prefix(path: &Path) -> String {
     format!(".{name}{tail}")
 }
 
+/// The host part of a temporary name (see [`temp_prefix`]).
+fn temp_host() -> &'static str {
+    use std::sync::OnceLock;
+    static HOST: OnceLock<String> = OnceLock::new();
+    HOST.get_or_init(|| {
+        let host = hostname()
+            .or_else(|| std::env::var("HOSTNAME").ok())
+            .unwrap_or_default();
+        // File-name safe and short: a long name must still fit NAME_MAX with the rest.
+        let host: String = host
+            .trim()
+            .chars()
+            .filter(|c| c.is_ascii_alphanumeric() || *c == '-' || *c == '.')
+            .take(16)
+            .collect();
+        if host.is_empty() { "host".into() } else { host }
+    })
+}
+
+/// This machine's name (`gethostname`, which needs no file handle: a run out of them
+/// still names its temporary files like every other run of this host).
+#[cfg(target_os = "linux")]
+fn hostname() -> Option<String> {
+    let mut buf = [0u8; 256];
+    // SAFETY: gethostname writes at most `buf.len()` bytes into the buffer it is given.
+    if unsafe { libc::gethostname(buf.as_mut_ptr().cast(), buf.len()) } != 0 {
+        return None;
+    }
+    let end = buf.iter().position(|&b| b == 0).unwrap_or(buf.len());
+    Some(String::from_utf8_lossy(&buf[..end]).into_owned())
+}
+
+#[cfg(not(target_os = "linux"))]
+fn hostname() -> Option<String> {
+    std::fs::read_to_string("/proc/sys/kernel/hostname").ok()
+}
+
 /// Random characters in a temporary name; with exclusive creation (`O_EXCL`, retried by
 /// `tempfile` on a clash) two threads, two processes or two nodes never share one.
 const TEMP_RANDOM: usize = 8;
 
 /// The longest file name (one path component, in bytes) of Linux file systems.
 const NAME_MAX: usize = 255;
-
-/// What a path is, in words, for a refusal message.
-fn kind_name(ft: std::fs::FileType) -> &'static str {
-    use std::os::unix::fs::FileTypeExt;
-    if ft.is_dir() {
-        "a folder"
-    } else if ft.is_char_device() {
-        "a character device"
-    } else if ft.is_block_device() {
-        "a block device"
-    } else if ft.is_fifo() {
-        "a FIFO (named pipe)"
-    } else if ft.is_socket() {
-        "a socket"
-    } else if ft.is_symlink() {
-        "a symbolic link"
-    } else {
-        "a regular file"
-    }
-}
 
 /// The identity of an existing file, through links: (device, inode).
 fn file_id(path: &Path) -> Option<(u64, u64)> {
@@ -94,12 +98,15 @@ fn refuse(flag: &str, path: &Path, why: String) -> io::Error {
     )
 }
 
-/// Check one output target before anything is written: it may be missing or a regular file
-/// (through links), but not a device, FIFO, socket or folder: the write goes to a temporary
-/// file that is renamed over the target, which would replace `/dev/null` itself, and sidecar
-/// files would litter the device's folder. Nor may it be any of `inputs` (compared by
-/// device and inode, so hard and symbolic links count). The existing part of its folder path
-/// must be folders. `flag` names the option in the message (`-o`, `--heatmap`, ...).
+/// Check one output target before anything is written: it may be missing or a regular file,
+/// but not a device, FIFO, socket, folder or symbolic link: the write goes to a temporary
+/// file that is renamed over the target, which would replace `/dev/null` itself or the
+/// user's link (writing through it instead would change a file the link's owner may not
+/// expect to change), and sidecar files would litter the device's folder. Nothing is
+/// created inside `/dev`, `/proc` or `/sys`, however the path gets there (folders on the
+/// way may be links). Nor may the target be any of `inputs` (compared by device and inode,
+/// so hard and symbolic links count). The existing part of its folder path must be
+/// folders. `flag` names the option in the message (`-o`, `--heatmap`, ...).
 pub fn check_output(flag: &str, path: &Path, inputs: &[&Path]) -> io::Result<()> {
     if path.as_os_str().is_empty() {
         return Err(refuse(flag, path, "empty path".into()));
@@ -113,33 +120,11 @@ pub fn check_output(flag: &str, path: &Path, inputs: &[&Path]) -> io::Result<()>
             format!("file name is {} bytes, the limit is {NAME_MAX}", name.len()),
         ));
     }
+    if let Some(root) = system_folder(path, false) {
+        return Err(refuse(flag, path, system_refusal(root)));
+    }
     match std::fs::symlink_metadata(path) {
         Ok(link) => {
-            let target = match std::fs::metadata(path) {
-                Ok(m) => m,
-                Err(_) => {
-                    return Err(refuse(
-                        flag,
-                        path,
-                        "is a symbolic link to nothing; refusing to replace it".into(),
-                    ));
-                }
-            };
-            if !target.is_file() {
-                let via = if link.file_type().is_symlink() {
-                    "is a symbolic link to "
-                } else {
-                    "is "
-                };
-                return Err(refuse(
-                    flag,
-                    path,
-                    format!(
-                        "{via}{}, not a regular file; refusing to replace it",
-                        kind_name(target.file_type())
-                    ),
-                ));
-            }
             let id = file_id(path);
             for input in inputs {
                 if id.is_some() && file_id(input) == id {
@@ -150,6 +135,31 @@ pub fn check_output(flag: &str, path: &Path, inputs: &[&Path]) -> io::Result<()>
                     ));
                 }
             }
+            if link.file_type().is_symlink() {
+                let to = match std::fs::metadata(path) {
+                    Ok(m) => kind_name(m.file_type()),
+                    Err(_) => "nothing",
+                };
+                return Err(refuse(
+                    flag,
+                    path,
+                    format!(
+                        "is a symbolic link (to {to}), not a regular file: cylaov neither \
+                         replaces a link nor writes through one; give the path it points to \
+                         or another name"
+                    ),
+                ));
+            }
+            if !link.is_file() {
+                return Err(refuse(
+                    flag,
+                    path,
+                    format!(
+                        "is {}, not a regular file; refusing to replace it",
+                        kind_name(link.file_type())
+                    ),
+                ));
+            }
         }
         Err(e) if e.kind() == io::ErrorKind::NotFound || e.raw_os_error() == Some(20) => {
             check_folders(flag, path)?
@@ -157,6 +167,14 @@ pub fn check_output(flag: &str, path: &Path, inputs: &[&Path]) -> io::Result<()>
         Err(e) => return Err(refuse(flag, path, e.to_string())),
     }
     Ok(())
+}
+
+/// Why nothing is written under `root`, one of the system folders.
+fn system_refusal(root: &str) -> String {
+    format!(
+        "is inside {root}: cylaov never creates or renames files in /dev, /proc or /sys \
+         (write to a regular file and copy it from there)"
+    )
 }
 
 /// The nearest existing ancestor of a missing `path` must be a folder (else creating the
@@ -228,14 +246,19 @@ fn same_target(a: &Path, b: &Path) -> bool {
 
 /// Check that a folder target (`--preview DIR`) is a folder or can be made one.
 pub fn check_output_dir(flag: &str, dir: &Path) -> io::Result<()> {
+    let system = || match system_folder(dir, true) {
+        Some(root) => Err(refuse(flag, dir, system_refusal(root))),
+        None => Ok(()),
+    };
     match std::fs::metadata(dir) {
-        Ok(m) if m.is_dir() => Ok(()),
+        Ok(m) if m.is_dir() => system(),
         Ok(m) => Err(refuse(
             flag,
             dir,
             format!("is {}, not a folder", kind_name(m.file_type())),
         )),
         Err(e) if e.kind() == io::ErrorKind::NotFound || e.raw_os_error() == Some(20) => {
+            system()?;
             check_folders(flag, dir)
         }
         Err(e) => Err(refuse(flag, dir, e.to_string())),
@@ -248,6 +271,8 @@ pub fn check_output_dir(flag: &str, dir: &Path) -> io::Result<()> {
 #[must_use = "the folders are removed when this is dropped without keep()"]
 pub struct NewDirs {
     made: Vec<PathBuf>,
+    /// Each made folder is also removed (if empty) by a signal's clean-up.
+    registered: Vec<Registration>,
 }
 
 impl NewDirs {
@@ -261,7 +286,11 @@ impl NewDirs {
             missing.push(d.to_path_buf());
         }
         std::fs::create_dir_all(dir).map_err(explain)?;
-        self.made.extend(missing.into_iter().rev());
+        for d in missing.into_iter().rev() {
+            self.registered
+                .push(signals::register(Cleanup::EmptyDir, &d));
+            self.made.push(d);
+        }
         Ok(())
     }
 
@@ -282,6 +311,7 @@ impl NewDirs {
     /// The command succeeded: keep every folder.
     pub fn keep(mut self) {
         self.made.clear();
+        self.registered.clear();
     }
 }
 
@@ -293,16 +323,20 @@ impl Drop for NewDirs {
     }
 }
 
-/// Add the advice a person needs to an IO error: a full disk says so.
+/// Add the advice a person needs to an IO error: a full disk, the file size limit and
+/// the open-file limit say so.
 pub fn explain(e: io::Error) -> io::Error {
-    if e.raw_os_error() == Some(28) || e.kind() == io::ErrorKind::StorageFull {
-        io::Error::new(
-            e.kind(),
-            format!("{e}: the disk is full; free space and run again"),
-        )
-    } else {
-        e
-    }
+    let advice = match e.raw_os_error() {
+        Some(28) => "the disk is full; free space and run again",
+        Some(122) => "the disk quota is exceeded; free space and run again",
+        Some(27) => "the file size limit is reached (ulimit -f); raise it and run again",
+        Some(24) | Some(23) => {
+            "too many open files (ulimit -n); raise the limit or use fewer --threads"
+        }
+        _ if e.kind() == io::ErrorKind::StorageFull => "the disk is full; free space and run again",
+        _ => return e,
+    };
+    io::Error::new(e.kind(), format!("{e}: {advice}"))
 }
 
 /// Write `path` through `fill` into a temporary file, then rename it into place. On any
@@ -321,6 +355,8 @@ pub fn atomic_write(path: &Path, fill: impl FnOnce(&mut File) -> io::Result<()>)
 pub struct Staged {
     file: tempfile::NamedTempFile,
     path: PathBuf,
+    /// Removed by a signal's clean-up until committed or dropped.
+    _registered: Registration,
 }
 
 /// Write `path`'s content through `fill` to its temporary name (see [`Staged`]).
@@ -332,15 +368,23 @@ pub fn stage(path: &Path, fill: impl FnOnce(&mut File) -> io::Result<()>) -> io:
         }
         None => Path::new("."),
     };
-    let mut file = tempfile::Builder::new()
-        .prefix(&temp_prefix(path))
-        .suffix(".tmp")
-        .rand_bytes(TEMP_RANDOM)
-        // The mode `File::create` gives (0666 less the umask), not tempfile's private 0600:
-        // the renamed file is the user's output.
-        .permissions(std::os::unix::fs::PermissionsExt::from_mode(0o666))
-        .tempfile_in(dir)
-        .map_err(explain)?;
+    // What runs killed outright (SIGKILL, a power cut) left here goes first.
+    signals::sweep_once(dir, temp_host(), TEMP_RANDOM);
+    let (mut file, registered) = signals::create_registered(
+        Cleanup::File,
+        || {
+            tempfile::Builder::new()
+                .prefix(&temp_prefix(path))
+                .suffix(".tmp")
+                .rand_bytes(TEMP_RANDOM)
+                // The mode `File::create` gives (0666 less the umask), not tempfile's
+                // private 0600: the renamed file is the user's output.
+                .permissions(std::os::unix::fs::PermissionsExt::from_mode(0o666))
+                .tempfile_in(dir)
+                .map_err(explain)
+        },
+        |f| f.path().to_path_buf(),
+    )?;
     if let Some(errno) = injected_failure() {
         return Err(explain(io::Error::from_raw_os_error(errno)));
     }
@@ -349,6 +393,7 @@ pub fn stage(path: &Path, fill: impl FnOnce(&mut File) -> io::Result<()>) -> io:
     Ok(Staged {
         file,
         path: path.to_path_buf(),
+        _registered: registered,
     })
 }
 

@@ -1,9 +1,12 @@
 //! Output files: the AOV EXR, PNG previews and figures, atomic writes, camera metadata and
-//! the Mitsuba 3 XML export. The last stage of the pipeline; nothing here traces rays.
+//! the Mitsuba 3 XML export; files opened in place without following links (`files`) and
+//! the clean-up of staged files on a signal (`signals`). The last stage of the pipeline; nothing here traces rays.
 
 pub mod aov;
 pub mod depth_png;
+pub mod files;
 pub mod io;
 pub mod mitsuba;
 pub mod plot;
 pub mod preview;
+pub mod signals;

@@ -16,6 +16,10 @@
 //! tolerances and the script: a resumed batch does not run Mitsuba again for a view
 //! already verified.
 //!
+//! **Signals**: Mitsuba's Python runs in a process group of its own (a Ctrl-C reaches
+//! cylaov, not it) registered with `crate::output::signals`, as is the scratch folder, so
+//! a signal to cylaov kills the group and removes the folder before cylaov exits.
+//!
 //! **The venv** is the first of: `$CYLAOV_VENV`; `.venv` in the source tree this binary
 //! was built from (where `scripts/setup-venv` puts it); `~/.local/share/cylaov/venv`
 //! (`CYLAOV_VENV=~/.local/share/cylaov/venv scripts/setup-venv` makes it for an installed
@@ -25,13 +29,14 @@ use crate::dataset::batch::{Verdict, Verifier, ViewSource};
 use crate::geometry::{FormulaKind, Precision};
 use crate::output::aov::AovImage;
 use crate::output::io::atomic_write_bytes;
+use crate::output::signals::{self, Cleanup};
 use crate::render::{RenderOptions, render};
 use crate::scene::{Aov, Scene};
 use crate::verify::compare::{Conditioning, Report, Tolerances, compare_with};
 use anyhow::{Context, Result, bail};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::process::{Command, Stdio};
 
 /// The reference script (`scripts/mitsuba_reference.py`), carried by the binary.
 pub const SCRIPT: &str = include_str!("../../scripts/mitsuba_reference.py");
@@ -93,12 +98,18 @@ impl Mitsuba {
         )?;
         write(&camera, camera_file(scene).as_bytes())?;
         write(&script, SCRIPT.as_bytes())?;
-        let run = Command::new(&self.python)
-            .arg(&script)
+        let mut cmd = Command::new(&self.python);
+        cmd.arg(&script)
             .arg(&xml)
             .arg(&camera)
             .arg(&out)
-            .output()
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped());
+        let (child, _group) = signals::spawn_in_group(&mut cmd)
+            .with_context(|| format!("running {}", self.python.display()))?;
+        let run = child
+            .wait_with_output()
             .with_context(|| format!("running {}", self.python.display()))?;
         if !run.status.success() {
             bail!(
@@ -209,6 +220,7 @@ pub fn verify_scene(
     tol: &Tolerances,
     work: &Path,
 ) -> Result<(ViewCheck, AovImage, AovImage)> {
+    let _scratch = signals::register(Cleanup::Tree, work);
     let ours = check_render(scene, precision, formula);
     let reference = mitsuba.render(scene, source_name, work)?;
     let check = check_against(scene, &ours, &reference, tol)?;
@@ -339,6 +351,7 @@ impl Verifier for MitsubaVerifier {
                 ),
             });
         }
+        let _scratch = signals::register(Cleanup::Tree, work);
         let reference = self
             .mitsuba
             .render(scene, &view.path.display().to_string(), work)?;

@@ -14,8 +14,15 @@
 //! is still held, and whoever locks checks that the file it locked is still the one at the
 //! path (else it retries), so a lock taken on a just-removed file never counts.
 //! (On systems other than Linux the lock is not taken.)
+//!
+//! The lock file is opened in place, so it is opened with `O_NOFOLLOW` and `O_NONBLOCK`
+//! and must be a regular file with a single link: a symbolic link, a hard link to a file
+//! elsewhere, a FIFO or a device planted at its name is refused (naming it), never written
+//! through.
 
 use super::shard::Shard;
+use crate::output::files::{explain_open, kind_name, no_follow};
+use crate::output::signals::{self, Cleanup, Registration};
 use anyhow::{Context, Result, bail};
 use std::fs::File;
 use std::path::{Path, PathBuf};
@@ -24,6 +31,8 @@ use std::path::{Path, PathBuf};
 pub struct ShardLock {
     path: PathBuf,
     _file: File,
+    /// A signal's clean-up removes the file too.
+    _registered: Registration,
 }
 
 impl Drop for ShardLock {
@@ -76,15 +85,10 @@ fn host() -> String {
 pub fn lock_shard(out: &Path, root: &Path, shard: Shard) -> Result<ShardLock> {
     let path = root.join(format!("{shard}.lock"));
     loop {
-        let file = std::fs::OpenOptions::new()
-            .read(true)
-            .write(true)
-            .create(true)
-            .truncate(false)
-            .open(&path)
-            .with_context(|| format!("opening {}", path.display()))?;
-        if !try_lock(&file)? {
-            let holder = std::fs::read_to_string(&path).unwrap_or_default();
+        let file = open_lock(&path)?;
+        if !try_lock(&file).with_context(|| path.display().to_string())? {
+            let mut holder = String::new();
+            let _ = std::io::Read::read_to_string(&mut &file, &mut holder);
             let holder = holder.trim();
             let holder = if holder.is_empty() {
                 "host ?, pid ?"
@@ -105,10 +109,58 @@ pub fn lock_shard(out: &Path, root: &Path, shard: Shard) -> Result<ShardLock> {
             f.set_len(0)?;
             write!(f, "host {}, pid {}", host(), std::process::id())
                 .with_context(|| format!("writing {}", path.display()))?;
-            return Ok(ShardLock { path, _file: file });
+            let registered = signals::register(Cleanup::File, &path);
+            return Ok(ShardLock {
+                path,
+                _file: file,
+                _registered: registered,
+            });
         }
         // The holder removed the file between our open and our lock: try again.
     }
+}
+
+/// Open (or create) the lock file at `path` in place: a regular file with one link, not
+/// followed if it is a link, not waited on if it is a FIFO (see the module docs).
+fn open_lock(path: &Path) -> Result<File> {
+    use std::os::unix::fs::MetadataExt;
+    let refuse = |what: String| {
+        anyhow::anyhow!(
+            "{}: {what}: a shard lock must be cylaov's own file; remove it and run again",
+            path.display()
+        )
+    };
+    if let Ok(m) = path.symlink_metadata()
+        && !m.is_file()
+    {
+        return Err(refuse(format!(
+            "is {}, not a regular file",
+            kind_name(m.file_type())
+        )));
+    }
+    let mut opts = std::fs::OpenOptions::new();
+    opts.read(true).write(true).create(true).truncate(false);
+    no_follow(&mut opts);
+    let file = opts
+        .open(path)
+        .map_err(|e| explain_open(path, e))
+        .context("opening the shard lock")?;
+    let m = file
+        .metadata()
+        .with_context(|| format!("reading {}", path.display()))?;
+    if !m.is_file() {
+        return Err(refuse(format!(
+            "is {}, not a regular file",
+            kind_name(m.file_type())
+        )));
+    }
+    if m.nlink() != 1 {
+        return Err(refuse(format!(
+            "has {} hard links (another name shares its content)",
+            m.nlink()
+        )));
+    }
+    Ok(file)
 }
 
 #[cfg(target_os = "linux")]
@@ -136,7 +188,7 @@ fn try_lock(_file: &File) -> Result<bool> {
 #[cfg(unix)]
 fn same_file(file: &File, path: &Path) -> bool {
     use std::os::unix::fs::MetadataExt;
-    match (file.metadata(), path.metadata()) {
+    match (file.metadata(), path.symlink_metadata()) {
         (Ok(a), Ok(b)) => a.dev() == b.dev() && a.ino() == b.ino(),
         _ => false,
     }

@@ -3,13 +3,13 @@
 
 use super::options::BatchOptions;
 use crate::output::aov::{Compression, ExrLayout, channel_names, per_aov_channel_names};
+use crate::output::files::{open_regular, read_regular};
 use crate::output::io::{camera_json, open3d_json};
 use crate::scene::camera::Camera;
 use crate::scene::{Aov, Scene};
 use exr::meta::MetaData;
 use exr::meta::attribute::SampleType;
 use serde::Serialize;
-use std::fs::File;
 use std::io::{Cursor, Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 
@@ -55,6 +55,24 @@ impl ViewFiles {
     /// `NAME.<aov>.exr` of the per-AOV layout.
     pub fn per_aov(&self, aov: Aov) -> PathBuf {
         self.dir.join(format!("{}.{}.exr", self.name, aov.name()))
+    }
+
+    /// Every path a run may write, replace or remove for this view (both layouts, the
+    /// pictures, the stamp and the cached verdict `NAME.verify.json`).
+    pub fn all(&self) -> Vec<PathBuf> {
+        let mut v = vec![
+            self.exr.clone(),
+            self.camera.clone(),
+            self.open3d.clone(),
+            self.normal_png.clone(),
+            self.depth_png.clone(),
+            self.mask_png.clone(),
+            self.stamp.clone(),
+            self.legacy_normal_png.clone(),
+            self.dir.join(format!("{}.verify.json", self.name)),
+        ];
+        v.extend(Aov::ALL.iter().map(|&a| self.per_aov(a)));
+        v
     }
 }
 
@@ -122,7 +140,7 @@ pub fn exr_is_complete(
     channels: &[(&str, SampleType)],
     compression: Compression,
 ) -> Result<(), String> {
-    let mut f = File::open(path).map_err(|e| e.to_string())?;
+    let mut f = open_regular(path).map_err(|e| e.to_string())?;
     let len = f.metadata().map_err(|e| e.to_string())?.len();
     // Header + offset table: a few hundred bytes + 8 per chunk (16384 rows: 128 KiB).
     let mut prefix = Vec::new();
@@ -193,7 +211,7 @@ pub fn exr_is_complete(
 /// Whether the file exists and ends with `tail` (a PNG's IEND chunk).
 fn file_ends_with(path: &Path, tail: &[u8]) -> bool {
     let read = || -> std::io::Result<bool> {
-        let mut f = File::open(path)?;
+        let mut f = open_regular(path)?;
         let len = f.metadata()?.len();
         if len < tail.len() as u64 {
             return Ok(false);
@@ -309,7 +327,7 @@ pub fn view_is_complete(dir: &Path, name: &str, scene: &Scene, opts: &BatchOptio
     // again.
     let cam = Camera::new(scene.camera);
     let camera = camera_json(&cam, &opts.exr_aovs(scene));
-    let same = |path: &Path, want: &str| std::fs::read(path).is_ok_and(|b| b == want.as_bytes());
+    let same = |path: &Path, want: &str| read_regular(path).is_ok_and(|b| b == want.as_bytes());
     let others = same(&files.camera, &camera)
         && same(&files.open3d, &open3d_json(&cam))
         && same(&files.stamp, &render_stamp(scene, opts))

@@ -2,6 +2,15 @@
 //! render this shard's views through one rayon pool (resuming what is complete, verifying
 //! the selected ones), then write the failures file, `OUT/index.json` and each
 //! several-camera scene's `OUT/<scene>/transforms.json`.
+//!
+//! Before anything is rendered, every path the shard may replace (the views' files,
+//! `index.json`, the failures file, `transforms.json`) must be missing or a regular file
+//! (or, for a view's file, a folder, which fails that view's rename): a FIFO, a link or a
+//! device there is refused by name, never opened or renamed over. A
+//! view that fails because the machine ran out of something every view needs (a full disk
+//! or quota, the file size limit, the open-file limit) stops the shard: the views not yet
+//! started are left for the next run, and the summary says why. The shard's partial folder
+//! goes on every exit, a signal's included (see `crate::output::signals`).
 
 use super::lock::{ShardLock, lock_shard, partial_root};
 use super::options::{BatchOptions, Schedule};
@@ -13,7 +22,9 @@ use super::verify::{Verifier, selected_for_verify};
 use super::views::{ViewSource, list_views};
 use super::write::{ViewCost, render_view, view_memory};
 use crate::output::aov::ExrLayout;
-use crate::output::io::atomic_write_bytes;
+use crate::output::files::refuse_non_regular;
+use crate::output::io::{atomic_write_bytes, check_outputs};
+use crate::output::signals::{self, Cleanup, Registration};
 use crate::scene::camera::Camera;
 use crate::scene::{self, Scene};
 use anyhow::{Context, Result};
@@ -76,6 +87,15 @@ pub struct Summary {
     pub depth_zeroed_views: usize,
     /// Hits stored as 0 in those views, in all.
     pub depth_zeroed: usize,
+    /// Why the shard stopped before its last view (a full disk, the file size or open-file
+    /// limit: the resources every view needs), if it did.
+    pub stopped: Option<String>,
+    /// Views of this shard not started because the shard stopped.
+    pub not_started: usize,
+    /// Whether the failures file was written.
+    pub failures_written: bool,
+    /// What could not be written after the views ran (the failures file, the indexes).
+    pub problems: Vec<String>,
 }
 
 impl fmt::Display for Summary {
@@ -111,8 +131,15 @@ impl fmt::Display for Summary {
                 self.depth_zeroed, self.depth_zeroed_views
             )?;
         }
-        if c.failed > 0 {
+        if c.failed > 0 && self.failures_written {
             write!(f, "; failures in {}", self.failures_path.display())?;
+        }
+        if let Some(why) = &self.stopped {
+            write!(
+                f,
+                "; stopped, {} views not started: {why}",
+                self.not_started
+            )?;
         }
         Ok(())
     }
@@ -136,11 +163,21 @@ pub fn run(
     if !skipped.is_empty() {
         eprintln!("{}: skipped {skipped}", input.display());
     }
-    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let (views, cameras) = expand_views(&scenes, opts);
+    // Out of file handles while reading the scenes is not a bad scene.
+    if let Some((what, e)) = cameras
+        .iter()
+        .filter_map(|c| c.as_ref().err())
+        .find_map(|e| resource_exhausted(e).map(|what| (what, e)))
+    {
+        anyhow::bail!("reading the scenes: {what}: {e}");
+    }
+    let mine: Vec<usize> = (0..views.len()).filter(|&i| shard.contains(i)).collect();
+    let failures_path = out.join(format!("failures.{shard}.jsonl"));
+    check_targets(out, &views, &mine, &failures_path)?;
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let (partial, lock) = clear_partial(out, shard)?;
 
-    let mine: Vec<usize> = (0..views.len()).filter(|&i| shard.contains(i)).collect();
     if progress != ProgressMode::Off {
         let estimate = estimate(&mine, &cameras, opts);
         eprintln!(
@@ -160,8 +197,9 @@ pub fn run(
         memory: MemoryBudget::new(
             crate::mem::memory_available().map_or(u64::MAX, |bytes| bytes / 2),
         ),
+        stopped: Mutex::new(None),
     };
-    let outcomes: Vec<Outcome> = match opts.schedule {
+    let outcomes: Vec<Option<Outcome>> = match opts.schedule {
         Schedule::Views => mine.par_iter().map(|&i| work.view(i)).collect(),
         Schedule::Pixels => mine.iter().map(|&i| work.view(i)).collect(),
     };
@@ -169,21 +207,116 @@ pub fn run(
 
     let mut summary = summarize(shard, &views, &mine, &outcomes, out);
     summary.verified = work.verified.into_inner();
-    write_failures(&summary)?;
+    summary.stopped = work.stopped.into_inner().unwrap_or_else(|e| e.into_inner());
+    // The temporary files go first: on a full disk that is the room the failures file needs.
+    let cleared = partial.remove();
+    match write_failures(&summary) {
+        Ok(()) => summary.failures_written = true,
+        Err(e) => summary.problems.push(format!("{e:#}")),
+    }
     let input_dir = if input.is_dir() {
         input
     } else {
         input.parent().unwrap_or(Path::new(""))
     };
-    write_index(out, input_dir, &views, &cameras, opts)?;
-    remove_stale_views(out, &views, &cameras, &mine)?;
-
-    std::fs::remove_dir_all(&partial).with_context(|| format!("removing {}", partial.display()))?;
+    if let Err(e) = write_index(out, input_dir, &views, &cameras, opts) {
+        summary.problems.push(format!("{e:#}"));
+    }
+    if let Err(e) = remove_stale_views(out, &views, &cameras, &mine) {
+        summary.problems.push(format!("{e:#}"));
+    }
+    if let Err(e) = cleared {
+        summary.problems.push(format!("{e:#}"));
+    }
     drop(lock);
     // Other shards may still be using `.partial`; it goes when the last one leaves.
     let _ = std::fs::remove_dir(out.join(".partial"));
     summary.elapsed = start.elapsed();
     Ok(summary)
+}
+
+/// Which resource ran out, if `error` (a view's failure) says one did that every later
+/// view needs as well: then the shard stops rather than fail each of them the same way.
+pub fn resource_exhausted(error: &str) -> Option<&'static str> {
+    const CODES: [(i32, &str); 5] = [
+        (28, "the disk is full"),
+        (122, "the disk quota is exceeded"),
+        (27, "the file size limit (ulimit -f) is reached"),
+        (24, "too many open files (ulimit -n)"),
+        (23, "too many open files in the system"),
+    ];
+    CODES
+        .iter()
+        .find(|(n, _)| error.contains(&format!("(os error {n})")))
+        .map(|c| c.1)
+}
+
+/// Refuse, before anything is written, a path the shard would replace that is not a
+/// regular file: each view's files (see [`ViewFiles::all`]), `index.json`, the failures
+/// file and the `transforms.json` of several-camera scenes.
+fn check_targets(
+    out: &Path,
+    views: &[ViewSource],
+    mine: &[usize],
+    failures_path: &Path,
+) -> Result<()> {
+    let index = out.join("index.json");
+    check_outputs(&[("--out", &index), ("--out", failures_path)], &[])?;
+    // A folder in a file's place cannot block or be written through: the rename onto it
+    // fails, and so does that view alone.
+    let check = |path: &Path| match path.symlink_metadata() {
+        Ok(m) if m.is_dir() => Ok(()),
+        _ => refuse_non_regular(path),
+    };
+    for &i in mine {
+        let v = &views[i];
+        for path in ViewFiles::new(&v.dir(out), &v.name).all() {
+            check(&path)?;
+        }
+    }
+    for v in views {
+        if let Some(folder) = &v.folder {
+            check(&out.join(folder).join("transforms.json"))?;
+        }
+    }
+    Ok(())
+}
+
+/// A shard's partial folder: removed with its content when dropped (an error return) or by
+/// [`Partial::remove`], and by a signal's clean-up meanwhile.
+struct Partial {
+    path: PathBuf,
+    _registered: [Registration; 2],
+}
+
+impl Partial {
+    /// Remove the folder now, saying why if it cannot be. Out of file handles,
+    /// `remove_dir_all` cannot open the folder to list it; an empty one still goes by
+    /// `rmdir`, which needs none.
+    fn remove(&self) -> Result<()> {
+        match std::fs::remove_dir_all(&self.path) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                if std::fs::remove_dir(&self.path).is_ok() {
+                    return Ok(());
+                }
+                Err(e).with_context(|| format!("removing {}", self.path.display()))
+            }
+            _ => Ok(()),
+        }
+    }
+}
+
+impl Drop for Partial {
+    fn drop(&mut self) {
+        let _ = self.remove();
+    }
+}
+
+impl std::ops::Deref for Partial {
+    type Target = Path;
+    fn deref(&self) -> &Path {
+        &self.path
+    }
 }
 
 /// Read a view's scene, the error naming its file.
@@ -230,8 +363,11 @@ fn expand_views(
 
 /// Lock this shard, then clear and recreate its work-in-progress folder
 /// `OUT/.partial/K-of-N` (see [`super::lock`]: a real folder inside `--out`, never a link).
-fn clear_partial(out: &Path, shard: Shard) -> Result<(PathBuf, ShardLock)> {
+fn clear_partial(out: &Path, shard: Shard) -> Result<(Partial, ShardLock)> {
     let root = partial_root(out)?;
+    // Registered before the lock and the shard's folder, so a signal's clean-up (newest
+    // first) tries it last, when it may be empty.
+    let root_reg = signals::register(Cleanup::EmptyDir, &root);
     let lock = lock_shard(out, &root, shard)?;
     let partial = root.join(shard.to_string());
     // remove_dir_all removes a symlink itself, never what it points to.
@@ -240,8 +376,19 @@ fn clear_partial(out: &Path, shard: Shard) -> Result<(PathBuf, ShardLock)> {
             .or_else(|_| std::fs::remove_file(&partial))
             .with_context(|| format!("clearing {}", partial.display()))?;
     }
-    std::fs::create_dir(&partial).with_context(|| format!("creating {}", partial.display()))?;
-    Ok((partial, lock))
+    let ((), registered) = signals::create_registered(
+        Cleanup::Tree,
+        || std::fs::create_dir(&partial),
+        |_| partial.clone(),
+    )
+    .with_context(|| format!("creating {}", partial.display()))?;
+    Ok((
+        Partial {
+            path: partial,
+            _registered: [root_reg, registered],
+        },
+        lock,
+    ))
 }
 
 /// Everything the views of one shard share while they are rendered.
@@ -257,6 +404,8 @@ struct ShardWork<'a> {
     verified: AtomicUsize,
     /// Bounds the memory of the views rendered at once.
     memory: MemoryBudget,
+    /// Set by the first view that ran out of a resource every view needs.
+    stopped: Mutex<Option<String>>,
 }
 
 /// The views in flight, bounded by memory rather than by thread count: a view starts only
@@ -309,8 +458,30 @@ impl Drop for BudgetGuard<'_> {
 }
 
 impl ShardWork<'_> {
-    /// Skip, render or fail view `i`, then verify it if it is selected.
-    fn view(&self, i: usize) -> Outcome {
+    /// Skip, render or fail view `i`, then verify it if it is selected; `None` when the
+    /// shard has stopped (see [`resource_exhausted`]) before the view started.
+    fn view(&self, i: usize) -> Option<Outcome> {
+        if self.is_stopped() {
+            return None;
+        }
+        let outcome = self.view_outcome(i);
+        if let Outcome::Failed(why) = &outcome
+            && let Some(what) = resource_exhausted(why)
+        {
+            let mut stopped = self.stopped.lock().unwrap_or_else(|e| e.into_inner());
+            stopped.get_or_insert_with(|| format!("{what}: {why}"));
+        }
+        Some(outcome)
+    }
+
+    fn is_stopped(&self) -> bool {
+        self.stopped
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .is_some()
+    }
+
+    fn view_outcome(&self, i: usize) -> Outcome {
         let view = &self.views[i];
         let scene = match &self.cameras[i] {
             Err(e) => Err(e.clone()),
@@ -353,7 +524,12 @@ impl ShardWork<'_> {
                         }
                         Outcome::Done(cost)
                     }
-                    Err(e) => Outcome::Failed(format!("{}: {e:#}", view.path.display())),
+                    Err(e) => {
+                        // Its temporary files go now, not at the end: on a full disk the
+                        // other views need the room.
+                        remove_temps(self.partial, &tmp_stem);
+                        Outcome::Failed(format!("{}: {e:#}", view.path.display()))
+                    }
                 }
             }
         };
@@ -400,13 +576,27 @@ impl ShardWork<'_> {
     }
 }
 
+/// Remove the temporary files `STEM.*` of one view from the partial folder.
+fn remove_temps(partial: &Path, stem: &str) {
+    let prefix = format!("{stem}.");
+    if let Ok(entries) = std::fs::read_dir(partial) {
+        for e in entries.flatten() {
+            if e.file_name().to_string_lossy().starts_with(&prefix)
+                && e.file_type().is_ok_and(|t| t.is_file())
+            {
+                let _ = std::fs::remove_file(e.path());
+            }
+        }
+    }
+}
+
 /// Count the outcomes of this shard's views (`mine`, indices into `views`) and collect the
 /// failures.
 fn summarize(
     shard: Shard,
     views: &[ViewSource],
     mine: &[usize],
-    outcomes: &[Outcome],
+    outcomes: &[Option<Outcome>],
     out: &Path,
 ) -> Summary {
     let mut summary = Summary {
@@ -422,8 +612,16 @@ fn summarize(
         verified: 0,
         depth_zeroed_views: 0,
         depth_zeroed: 0,
+        stopped: None,
+        not_started: 0,
+        failures_written: false,
+        problems: Vec::new(),
     };
     for (&i, o) in mine.iter().zip(outcomes) {
+        let Some(o) = o else {
+            summary.not_started += 1;
+            continue;
+        };
         match o {
             Outcome::Done(cost) => {
                 summary.counts.done += 1;

@@ -8,7 +8,8 @@ use crate::output::aov::{
     streams,
 };
 use crate::output::depth_png;
-use crate::output::io::{camera_json, open3d_json};
+use crate::output::files::create_new;
+use crate::output::io::{camera_json, explain, open3d_json};
 use crate::output::preview;
 use crate::render::{RenderOptions, render, render_bands};
 use crate::scene::camera::Camera;
@@ -39,8 +40,11 @@ fn write_unsynced(
     path: &Path,
     fill: impl FnOnce(&mut BufWriter<File>) -> Result<()>,
 ) -> Result<()> {
-    let mut w =
-        BufWriter::new(File::create(path).with_context(|| format!("creating {}", path.display()))?);
+    let mut w = BufWriter::new(
+        create_new(path)
+            .map_err(explain)
+            .with_context(|| format!("creating {}", path.display()))?,
+    );
     fill(&mut w)
         .and_then(|()| Ok(w.flush()?))
         .with_context(|| format!("writing {}", path.display()))
@@ -97,8 +101,9 @@ pub fn render_view(
     // traced (see `render::render_bands`); `trace` then includes the EXR.
     if streams(opts.exr_layout, opts.compression, opts.png) {
         let exr_tmp = tmp("exr");
-        let file =
-            File::create(&exr_tmp).with_context(|| format!("creating {}", exr_tmp.display()))?;
+        let file = create_new(&exr_tmp)
+            .map_err(explain)
+            .with_context(|| format!("creating {}", exr_tmp.display()))?;
         let attrs = exr_attributes(&cam, &exr_aovs);
         let exr = ExrBands::new(&file, scene.camera.height as usize, &attrs);
         render_bands(scene, &render_opts, &|y0, band| exr.write_band(y0, band))
