@@ -334,10 +334,10 @@ pub fn reset_heap_peak() {
     PEAK.store(LIVE.load(Ordering::Relaxed), Ordering::Relaxed);
 }
 
-/// Register the clean-up a failed allocation runs before the process exits (the registry
-/// of staged temporary files sets it): it must not need much memory, and it runs at most
-/// once.
-pub fn set_cleanup(f: fn()) {
+/// Register the clean-up a failed allocation runs before the process reports it and exits
+/// (the registry of staged temporary files sets it): it returns how many unfinished files
+/// and folders it removed, must not need much memory, and runs at most once.
+pub fn set_cleanup(f: fn() -> usize) {
     CLEANUP.store(f as usize, Ordering::SeqCst);
 }
 
@@ -366,13 +366,13 @@ fn fallibly<R>(f: impl FnOnce() -> R) -> R {
 /// `_exit(1)`. Allocates nothing: the line is built on the stack and written with
 /// `write(2)`. A second thread failing meanwhile waits for the first to exit.
 fn out_of_memory(size: usize) -> ! {
-    exit_after(|| {
+    exit_after(|removed| {
         let mut line = Line::default();
         line.push(b"error: out of memory: an allocation of ");
         line.push_size(size);
         line.push(b" was refused (free memory, ulimit -v or the cgroup limit)");
-        if CLEANUP.load(Ordering::SeqCst) != 0 {
-            line.push(b"; the files being written were removed");
+        if removed > 0 {
+            line.push(b"; the unfinished files were removed");
         }
         line.push(b"\n");
         // SAFETY: writes `line.len` initialised bytes of a stack buffer to stderr.
@@ -380,10 +380,11 @@ fn out_of_memory(size: usize) -> ! {
     })
 }
 
-/// Print the report (`report`), run the clean-up of [`set_cleanup`] and `_exit(1)`: no
-/// unwinding, no destructors, no allocator needed after `report`. A second thread failing
-/// meanwhile waits for the first to end the process.
-fn exit_after(report: impl FnOnce()) -> ! {
+/// Run the clean-up of [`set_cleanup`], print the report (`report`, given how many files
+/// it removed) and `_exit(1)`: no unwinding, no destructors. A second thread failing
+/// meanwhile waits for the first to end the process; a failure inside the clean-up exits
+/// at once.
+fn exit_after(report: impl FnOnce(usize)) -> ! {
     if EXITING.try_with(Cell::get).unwrap_or(true) {
         // SAFETY: ends the process at once, with no unwinding and no allocator.
         unsafe { libc::_exit(1) }
@@ -395,13 +396,15 @@ fn exit_after(report: impl FnOnce()) -> ! {
         }
     }
     let _ = EXITING.try_with(|c| c.set(true));
-    report();
     let f = CLEANUP.load(Ordering::SeqCst);
-    if f != 0 {
-        // SAFETY: only `set_cleanup` stores here, and it stores a `fn()`.
-        let f: fn() = unsafe { std::mem::transmute::<usize, fn()>(f) };
-        f();
-    }
+    let removed = if f != 0 {
+        // SAFETY: only `set_cleanup` stores here, and it stores a `fn() -> usize`.
+        let f: fn() -> usize = unsafe { std::mem::transmute::<usize, fn() -> usize>(f) };
+        f()
+    } else {
+        0
+    };
+    report(removed);
     // SAFETY: ends the process at once, with no unwinding and no allocator.
     unsafe { libc::_exit(1) }
 }
@@ -507,6 +510,6 @@ pub fn try_zeroed<T: bytemuck::Zeroable>(n: usize, what: &str) -> io::Result<Vec
 pub fn zeroed_or_exit<T: bytemuck::Zeroable>(n: usize, what: &str) -> Vec<T> {
     match try_zeroed(n, what) {
         Ok(v) => v,
-        Err(e) => exit_after(|| crate::output::io::warn(&format!("error: {e}"))),
+        Err(e) => exit_after(|_| crate::output::io::warn(&format!("error: {e}"))),
     }
 }

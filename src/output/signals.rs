@@ -202,10 +202,8 @@ fn stop(sig: i32) -> ! {
 /// as a signal's, then the allocator's report exits. `try_lock`: the failing thread may be
 /// the one holding the registry (it is staging a file), and must not wait for itself; then
 /// nothing is removed.
-fn out_of_memory_cleanup() {
-    if let Ok(r) = REGISTRY.try_lock() {
-        remove_all(&r);
-    }
+fn out_of_memory_cleanup() -> usize {
+    REGISTRY.try_lock().map_or(0, |r| remove_all(&r))
 }
 
 /// Kill the registered process groups, then remove the registered paths, newest first;
