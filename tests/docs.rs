@@ -281,7 +281,9 @@ fn check_page(rel: &str) {
                         continue;
                     }
                     if needs_venv(part) && venv.is_none() {
-                        eprintln!("SKIPPED {rel}:{line}: `{part}` needs the venv (scripts/setup-venv)");
+                        eprintln!(
+                            "SKIPPED {rel}:{line}: `{part}` needs the venv (scripts/setup-venv)"
+                        );
                         continue;
                     }
                     let o = shell(dir.path(), part, venv.as_deref());
@@ -424,31 +426,51 @@ fn every_page_is_checked_and_linked() {
         );
         not_run += read(&name).matches(NOT_RUN).count();
     }
-    assert!(
-        not_run <= MAX_NOT_RUN,
-        "{not_run} blocks shown but not run"
-    );
-    // The README's links to pages and anchors inside them resolve.
-    for target in readme
+    assert!(not_run <= MAX_NOT_RUN, "{not_run} blocks shown but not run");
+    // Every page's links to files and to headings inside them resolve.
+    for page in std::iter::once("README.md").chain(checked) {
+        check_links(page);
+    }
+}
+
+/// The relative links of page `rel` (`[text](path#anchor)`) name files that exist and
+/// headings those files have.
+fn check_links(rel: &str) {
+    let text = read(rel);
+    let base = Path::new(ROOT).join(rel);
+    let base = base.parent().unwrap();
+    for target in text
         .split("](")
         .skip(1)
         .filter_map(|r| r.split(')').next())
         .filter(|t| !t.starts_with("http"))
     {
         let (file, anchor) = target.split_once('#').unwrap_or((target, ""));
-        let path = Path::new(ROOT).join(file);
-        if OTHER_OWNER.contains(&file) && !path.exists() {
-            eprintln!("{file}: not in this tree yet (another page's owner writes it)");
+        let path = if file.is_empty() {
+            Path::new(ROOT).join(rel)
+        } else {
+            base.join(file)
+        };
+        let in_root = path
+            .strip_prefix(ROOT)
+            .map(|p| p.to_string_lossy().replace("/docs/../", "/"))
+            .unwrap_or_default();
+        if OTHER_OWNER.iter().any(|o| path.ends_with(o)) && !path.exists() {
+            eprintln!("{rel} links {target}: not in this tree yet (its owner writes it)");
             continue;
         }
-        assert!(path.exists(), "README links {target}: no such file");
+        assert!(
+            path.exists(),
+            "{rel} links {target}: no such file ({in_root})"
+        );
         if !anchor.is_empty() {
-            let text = std::fs::read_to_string(&path).unwrap();
+            let linked = std::fs::read_to_string(&path).unwrap();
             assert!(
-                text.lines()
+                linked
+                    .lines()
                     .filter(|l| l.starts_with('#'))
                     .any(|h| slug(h) == anchor),
-                "README links {target}: no such heading"
+                "{rel} links {target}: no such heading"
             );
         }
     }
@@ -550,7 +572,10 @@ fn narration(line: &str) -> Vec<&'static str> {
                 .find(|c: char| !(c.is_ascii_digit() || c == '.' || c == ' '))
                 .unwrap_or(rest.len());
             let (num, unit) = rest.split_at(num_end);
-            let unit = unit.split(|c: char| !c.is_alphanumeric()).next().unwrap_or("");
+            let unit = unit
+                .split(|c: char| !c.is_alphanumeric())
+                .next()
+                .unwrap_or("");
             if num.trim_start().starts_with(|c: char| c.is_ascii_digit())
                 && ["ms", "s", "mib", "mb", "m"].contains(&unit)
             {
@@ -572,12 +597,22 @@ fn the_narration_patterns_match_what_they_should() {
         ("5.7× in instructions (was 39×)", "was N <unit>"),
         ("peak memory was 40 MiB", "was N <unit>"),
         ("it was 3.2 ms before", "was N <unit>"),
-        ("the same, after the packet kernel (this session)", "a phrase of development history"),
-        ("dense 1 000 read 23.9 ms in an earlier run", "a phrase of development history"),
+        (
+            "the same, after the packet kernel (this session)",
+            "a phrase of development history",
+        ),
+        (
+            "dense 1 000 read 23.9 ms in an earlier run",
+            "a phrase of development history",
+        ),
         ("40 → 9 MiB", "a figure and what it became"),
         ("265 → 250 ms min", "a figure and what it became"),
     ] {
-        assert!(narration(line).contains(&want), "{line:?}: {:?}", narration(line));
+        assert!(
+            narration(line).contains(&want),
+            "{line:?}: {:?}",
+            narration(line)
+        );
     }
     for line in [
         "the direction is rounded to f32 before the kernel sees it",
@@ -590,7 +625,11 @@ fn the_narration_patterns_match_what_they_should() {
         "ids round to the nearest float32 (exact up to 2^24)",
         "one round trip through serde",
     ] {
-        assert!(narration(line).is_empty(), "{line:?}: {:?}", narration(line));
+        assert!(
+            narration(line).is_empty(),
+            "{line:?}: {:?}",
+            narration(line)
+        );
     }
 }
 
