@@ -345,9 +345,15 @@ fn check_page(rel: &str) {
                 None => failures.push(format!(
                     "{rel}:{line}: a Python block without <!-- snippet: NAME --> (no test runs it)"
                 )),
-                Some(n) if !consumers.contains(&format!("\"{n}\"")) => failures.push(format!(
-                    "{rel}:{line}: snippet {n:?} is run by no test in tests/dataset_consumers.rs"
-                )),
+                Some(n)
+                    if !consumers.contains(&format!("\"{n}\""))
+                        && !read("tests/docs.rs").contains(&format!("snippet_code(\"{n}\"")) =>
+                {
+                    failures.push(format!(
+                        "{rel}:{line}: snippet {n:?} is run by no test \
+                         (tests/dataset_consumers.rs, tests/docs.rs)"
+                    ))
+                }
                 Some(_) => {}
             },
         }
@@ -512,6 +518,79 @@ fn slug(heading: &str) -> String {
             _ => None,
         })
         .collect()
+}
+
+/// The Python block after `<!-- snippet: NAME -->` in page `rel`.
+fn snippet_code(name: &str, rel: &str) -> String {
+    let page = read(rel);
+    let marker = format!("<!-- snippet: {name} -->\n```python\n");
+    let start = page
+        .find(&marker)
+        .unwrap_or_else(|| panic!("{rel}: no {marker:?}"))
+        + marker.len();
+    page[start..start + page[start..].find("```").unwrap()].to_string()
+}
+
+/// The README's Python block, run as written from the repository root in the venv where
+/// `scripts/test` installs the package: its depth is bitwise the depth of the EXR that
+/// `cylaov render` writes. Skipped, saying so, where the package is not installed, unless
+/// the tree builds it (`pyproject.toml`) and the run is CI's.
+#[test]
+fn readme_python_block_gives_the_exrs_samples() {
+    let code = snippet_code("readme-python", "README.md");
+    let Some(venv) = venv() else {
+        eprintln!("SKIPPED: no venv");
+        return;
+    };
+    let py = venv.join("bin/python");
+    let has = Command::new(&py)
+        .args(["-c", "import cylaov"])
+        .current_dir(std::env::temp_dir())
+        .stderr(std::process::Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success());
+    if !has {
+        assert!(
+            !(ci() && Path::new(ROOT).join("pyproject.toml").exists()),
+            "the venv lacks the cylaov package (pip install . into it)"
+        );
+        eprintln!("SKIPPED: the venv has no cylaov package (pip install .)");
+        return;
+    }
+    let dir = common::fresh_dir("docs", "python");
+    let raw = dir.path().join("depth.f32");
+    let o = Command::new(&py)
+        .arg("-c")
+        .arg(format!(
+            "{code}\nassert out[\"depth\"].dtype.name == \"float32\"\n\
+             open(r\"{}\", \"wb\").write(out[\"depth\"].tobytes())\n",
+            raw.display()
+        ))
+        .current_dir(ROOT)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let exr = dir.path().join("cluster.exr");
+    common::ok(&[
+        "render",
+        &Path::new(ROOT)
+            .join("scenes/cluster.json")
+            .to_string_lossy(),
+        "-o",
+        &exr.to_string_lossy(),
+        "--aov",
+        "depth,normal",
+    ]);
+    let img = cylaov::output::aov::AovImage::read_exr(&exr).unwrap();
+    let want: Vec<u8> = img
+        .f32_channel("depth")
+        .unwrap()
+        .iter()
+        .flat_map(|x| x.to_le_bytes())
+        .collect();
+    let got = std::fs::read(&raw).unwrap();
+    assert_eq!(got.len(), 320 * 240 * 4);
+    assert!(got == want, "the block's depth differs from the EXR's");
 }
 
 #[test]
