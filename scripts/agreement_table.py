@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Print the README's table of agreement with Mitsuba 3.9.1 (scalar_rgb), as Markdown.
+"""Print the table of agreement with Mitsuba 3.9.1 (scalar_rgb) in docs/verification.md, as Markdown.
 
     python3 scripts/agreement_table.py [--cylaov PATH]
 
@@ -15,7 +15,7 @@ and p99 of the relative distance error over all scenes.
 
 Deterministic: cylaov renders the same bits on every machine and the references are
 committed, so the output changes only when the kernels, the comparison or a reference
-does; tests/readme_tables.rs fails when the README's copy drifts from it. Needs only the
+does; tests/docs.rs fails when the page's copy drifts from it. Needs only the
 standard library (no Mitsuba: the references are already rendered).
 """
 

@@ -1,7 +1,8 @@
 //! The dataset read by the tools that use it, with their own loaders, in the test venv
-//! (`scripts/setup-venv`): the README's "Loading a view" blocks for numpy, Open3D, OpenCV
-//! and nerfstudio's conventions are taken from README.md and run as written (only the
-//! dataset path is replaced), and what they load is checked against the exact hits.
+//! (`scripts/setup-venv`): the "Loading a view" blocks of `docs/datasets.md` for OpenEXR,
+//! numpy, Open3D, OpenCV and nerfstudio's conventions are taken from the page and run as
+//! written (only the dataset path is replaced), and what they load is checked against the
+//! exact hits.
 //!
 //! Without the venv's packages the tests are skipped, saying so; with
 //! `CYLAOV_REQUIRE_VENV=1` they fail instead.
@@ -17,24 +18,24 @@ use std::process::Command;
 use std::sync::OnceLock;
 
 const ROOT: &str = env!("CARGO_MANIFEST_DIR");
-/// The batch's `--depth-scale` (the default) and the README blocks' scale.
+/// The batch's `--depth-scale` (the default) and the page's blocks' scale.
 const SCALE: f64 = 1000.0;
 
-/// The venv's Python if it has numpy, OpenCV and Open3D.
+/// The venv's Python if it has numpy, OpenCV, Open3D and OpenEXR.
 fn python() -> Option<PathBuf> {
     let py = common::venv_python()?;
     let ok = Command::new(&py)
-        .args(["-c", "import numpy, cv2, open3d"])
+        .args(["-c", "import numpy, cv2, open3d, OpenEXR"])
         .status()
         .is_ok_and(|s| s.success());
     if !ok {
         assert!(
             std::env::var("CYLAOV_REQUIRE_VENV").as_deref() != Ok("1"),
-            "{} lacks numpy, cv2 or open3d (run scripts/setup-venv)",
+            "{} lacks numpy, cv2, open3d or OpenEXR (run scripts/setup-venv)",
             py.display()
         );
         eprintln!(
-            "SKIPPED: {} lacks numpy, cv2 or open3d (run scripts/setup-venv)",
+            "SKIPPED: {} lacks numpy, cv2, open3d or OpenEXR (run scripts/setup-venv)",
             py.display()
         );
         return None;
@@ -100,22 +101,20 @@ fn dataset() -> &'static Path {
     })
 }
 
-/// The README block after `<!-- snippet: NAME -->`, with its dataset path made `dir`.
+/// The block of `docs/datasets.md` after `<!-- snippet: NAME -->`, with its dataset path
+/// made `dir`. Nothing else is replaced: the block runs from any folder as written.
 fn snippet(name: &str, dir: &Path) -> String {
-    let readme = std::fs::read_to_string(Path::new(ROOT).join("README.md")).unwrap();
+    let page = std::fs::read_to_string(Path::new(ROOT).join("docs/datasets.md")).unwrap();
     let marker = format!("<!-- snippet: {name} -->\n```python\n");
-    let start = readme
+    let start = page
         .find(&marker)
-        .unwrap_or_else(|| panic!("README: no {marker:?}"))
+        .unwrap_or_else(|| panic!("docs/datasets.md: no {marker:?}"))
         + marker.len();
-    let end = start + readme[start..].find("```").unwrap();
-    let code = &readme[start..end];
+    let end = start + page[start..].find("```").unwrap();
+    let code = &page[start..end];
     let path = format!("Path(r\"{}\")", dir.display());
     assert!(code.contains("Path(\"data/render\")"), "{name}: {code}");
-    code.replace("Path(\"data/render\")", &path).replace(
-        "sys.path.insert(0, \"scripts\")",
-        &format!("sys.path.insert(0, r\"{ROOT}/scripts\")"),
-    )
+    code.replace("Path(\"data/render\")", &path)
 }
 
 /// Run `code` and then `tail` (which saves what the test checks); panics with the output.
@@ -133,7 +132,7 @@ fn run_python(py: &Path, code: &str, tail: &str) {
     );
 }
 
-/// Run the README block `name` on the shared dataset, then `check` (Python statements on
+/// Run the page's block `name` on the shared dataset, then `check` (Python statements on
 /// its variables), and return the N x 3 array the Python expression `array` gives, through
 /// a float64 `.npy` file.
 fn block_array(py: &Path, name: &str, check: &str, array: &str) -> Vec<DVec3> {
@@ -180,6 +179,40 @@ fn max_error(got: &[DVec3], want: &[DVec3]) -> f64 {
         .zip(want)
         .map(|(a, b)| (*a - *b).length())
         .fold(0.0, f64::max)
+}
+
+/// The OpenEXR package reads the layered EXR as written: the block's `normal` (stacked from
+/// `normal.X/Y/Z`), `depth` and `shape_id` are bitwise the file's channels.
+#[test]
+fn openexr_block_reads_every_channel_of_the_layered_exr() {
+    let Some(py) = python() else { return };
+    let dir = dataset();
+    let normal = block_array(
+        &py,
+        "openexr",
+        "assert normal.shape == depth.shape + (3,) and ids.dtype == np.uint32, (normal.shape, ids.dtype)\n\
+         assert header[\"cylaov:channel:depth\"].startswith(\"depth: planar depth\")",
+        "normal.reshape(-1, 3)",
+    );
+    let img = AovImage::read_exr(&dir.join("000000/00.exr")).unwrap();
+    let [x, y, z] = img.vec3_channel("normal").unwrap();
+    assert_eq!(normal.len(), x.len());
+    for (k, n) in normal.iter().enumerate() {
+        let want = DVec3::new(x[k] as f64, y[k] as f64, z[k] as f64);
+        assert_eq!(*n, want, "pixel {k}");
+    }
+    let other = block_array(
+        &py,
+        "openexr",
+        "",
+        "np.stack([depth.ravel(), ids.ravel(), np.zeros(ids.size)], 1)",
+    );
+    let depth = img.f32_channel("depth").unwrap();
+    let ids = img.u32_channel("shape_id").unwrap();
+    assert!(ids.iter().any(|&id| id > 1));
+    for (k, g) in other.iter().enumerate() {
+        assert_eq!((g.x, g.y), (depth[k] as f64, ids[k] as f64), "pixel {k}");
+    }
 }
 
 #[test]
@@ -340,7 +373,7 @@ print("hits", len(i))
 
 /// OpenCV 4 reads the per-AOV EXRs (`OPENCV_IO_ENABLE_OPENEXR=1`, `IMREAD_UNCHANGED`): the
 /// samples are bitwise those of the layered EXR (normals and positions as B, G, R: OpenCV's
-/// channel order), ids as exact float32. The README block loads one.
+/// channel order), ids as exact float32. The page's block loads one.
 #[test]
 fn opencv_reads_per_aov_exrs_bitwise_equal_to_the_layered_file() {
     let Some(py) = python() else { return };
