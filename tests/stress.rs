@@ -136,7 +136,7 @@ fn stable_f32_meets_the_bar_in_grazing_near_axis_inside_rims_input() {
 
 /// f32 far/scale: the κ bar holds too, but its meaning changes with distance: the band
 /// (rays whose hit/miss f32 inputs cannot decide) grows like 8·ε₃₂·D/r, and the normal
-/// error like ε₃₂·D/r. These are the measured numbers the README quotes.
+/// error like ε₃₂·D/r. These are the measured numbers docs/accuracy.md quotes.
 #[test]
 fn stable_f32_far_and_scale_measured_bounds() {
     let records = run(&[Family::Far, Family::Scale], &[Kernel::STABLE_F32]);
@@ -164,7 +164,7 @@ fn stable_f32_far_and_scale_measured_bounds() {
     // Scale is benign in f32 (floats are scale invariant, the frame is centred): no band.
     assert_eq!(scale.band, 0);
     // Far: at D = 1e7 radii most rays are in the f32 band (8·6e-8·1e7 ≈ 5 radii); at
-    // D ≤ 1e3 almost none. This is the cause the README explains (remedy: f64).
+    // D ≤ 1e3 almost none. This is the cause docs/accuracy.md explains (remedy: f64).
     let band_at = |d: f64| {
         let rs: Vec<&Record> = records
             .iter()

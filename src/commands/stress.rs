@@ -20,7 +20,7 @@ pub struct StressArgs {
     pub csv: Option<PathBuf>,
     /// `--plot`: write a log-log PNG of error against difficulty here.
     pub plot: Option<PathBuf>,
-    /// Print the README's Markdown table instead of the text table (no timing: the same
+    /// Print the Markdown table of docs/accuracy.md instead of the text table (no timing: the same
     /// bytes on every run).
     pub markdown: bool,
 }

@@ -1,4 +1,4 @@
-//! Every file name cylaov writes, in one list ([`OUTPUT_NAMES`]): the README's table and the
+//! Every file name cylaov writes, in one list ([`OUTPUT_NAMES`]): the table in docs/datasets.md and the
 //! batch folder scan (which never reads cylaov's own outputs as scenes) both come from it.
 //!
 //! | name | written by | what it is |

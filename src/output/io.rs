@@ -511,7 +511,7 @@ struct CameraMeta {
     aovs: Vec<AovMeaning>,
 }
 
-/// What an AOV means, for the metadata file (the README's AOV table).
+/// What an AOV means, for the metadata file (the same text as the README's AOV table).
 pub fn aov_meaning(aov: Aov) -> (&'static str, &'static str) {
     match aov {
         Aov::Distance => (
