@@ -923,6 +923,39 @@ mod tests {
         }
     }
 
+    /// A ray lying in faces of boxes (direction components ±0, faces level with the
+    /// origin: on an edge or a corner of each box) is in them: the binary traversal and
+    /// the wide one, portable and AVX2, visit every box ahead and none behind.
+    #[test]
+    fn rays_in_a_face_plane_meet_the_box() {
+        // Boxes along +x, each with y and z ranges that end or start at 0.
+        let sides = [(-1.0, 0.0), (0.0, 1.0), (-0.5, 0.0), (0.0, 0.25)];
+        let boxes: Vec<(DVec3, DVec3)> = (0..40)
+            .map(|i| {
+                let (y, z) = (sides[i % 4], sides[(i / 4) % 4]);
+                let x = 2.0 + i as f64 * 0.5;
+                (DVec3::new(x, y.0, z.0), DVec3::new(x + 0.4, y.1, z.1))
+            })
+            .collect();
+        for n in [1, 3, 40] {
+            let bvh = Bvh::build(&boxes[..n], DVec3::ZERO);
+            let wide = WideBvh::new(&bvh);
+            let all: Vec<u32> = (0..n as u32).collect();
+            for (y, z) in [(0.0, 0.0), (-0.0, 0.0), (0.0, -0.0), (-0.0, -0.0)] {
+                for (x, want) in [(1.0f32, &all[..]), (-1.0, &[][..])] {
+                    let d = Vec3A::new(x, y, z);
+                    let inf = f32::INFINITY;
+                    assert_eq!(binary_visits(&bvh, d, 0.0, inf), want, "{n}: d = {d:?}");
+                    assert_eq!(wide_visits(&wide, (), d, 0.0, inf), want, "{n}: d = {d:?}");
+                    if let Some(tok) = Avx2::detect() {
+                        let w = wide_visits(&wide, tok, d, 0.0, inf);
+                        assert_eq!(w, want, "AVX2, {n}: d = {d:?}");
+                    }
+                }
+            }
+        }
+    }
+
     /// Empty and one-box scenes: nothing visited, and the one box visited once.
     #[test]
     fn tiny_scenes() {

@@ -1,0 +1,189 @@
+//! Edges of the input space: rays lying in the faces of BVH boxes (every acceleration
+//! against the double-double oracle).
+
+mod common;
+
+use cylaov::geometry::{Cylinder, FormulaKind, Precision};
+use cylaov::output::aov::AovImage;
+use cylaov::render::{Accel, RenderOptions, render};
+use cylaov::rng::SplitMix64;
+use cylaov::scene::camera::Camera;
+use cylaov::scene::{self, Aov, Scene};
+use cylaov::verify::oracle::{DD, Problem, intersect};
+
+fn scene(json: &str) -> Scene {
+    match scene::parse(json) {
+        Ok(s) => s,
+        Err(e) => panic!("test scene rejected: {e}\n{json}"),
+    }
+}
+
+fn traced(scene: &Scene, accel: Accel) -> AovImage {
+    let opts = RenderOptions {
+        aovs: vec![Aov::Depth, Aov::ShapeId],
+        precision: Precision::F64,
+        formula: FormulaKind::Stable,
+        accel,
+    };
+    render(scene, &opts).image
+}
+
+/// The ids of the cylinders the double-double oracle hits first along pixel (i, j)'s ray
+/// within its clip range, each cylinder widened by `grow` (radius, and height at both
+/// ends): the nearest, and any other within 1e-9 relative of it (coincident surfaces of
+/// overlapping cylinders, where an f64 kernel may pick either); empty for a miss.
+fn oracle_ids(scene: &Scene, cam: &Camera, (i, j): (u32, u32), grow: f64) -> Vec<u32> {
+    let (d, len) = cam.dir_and_length(cam.column_offset(i), cam.row_offset(j));
+    let (tmin, tmax) = cam.clip_range(len);
+    let mut hits: Vec<(f64, u32)> = scene
+        .cylinders
+        .iter()
+        .filter_map(|c| {
+            let c = Cylinder {
+                base: c.base - c.axis * grow,
+                height: c.height + 2.0 * grow,
+                radius: c.radius + grow,
+                ..*c
+            };
+            let p = Problem::new(&c, cam.origin, d);
+            let h = intersect(&p, DD::new(tmin), DD::new(tmax))?;
+            Some((h.t.to_f64(), c.id))
+        })
+        .collect();
+    hits.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    let near = hits.first().map_or(0.0, |h| h.0);
+    hits.iter()
+        .take_while(|h| h.0 <= near * (1.0 + 1e-9))
+        .map(|h| h.1)
+        .collect()
+}
+
+/// Every acceleration finds the tiles' hits, bit for bit, and those are the oracle's: at
+/// each pixel the oracle's nearest cylinder, or a miss where it misses, unless a change
+/// of the cylinders by 1e-9 (an f64 kernel's rounding at a rim or a tangent) changes the
+/// oracle's answer to the tiles'. Returns the hit count and the number of pixels whose
+/// answer was that close.
+fn agree(scene: &Scene, what: &str) -> (usize, usize) {
+    let cam = Camera::new(scene.camera);
+    let tiles = traced(scene, Accel::Tiles);
+    let ids = tiles.u32_channel("shape_id").expect("shape_id");
+    let mut close = 0;
+    for (k, &id) in ids.iter().enumerate() {
+        let px = (k as u32 % cam.width(), k as u32 / cam.width());
+        let fits = |grow: f64| {
+            let want = oracle_ids(scene, &cam, px, grow);
+            if id == 0 { want.is_empty() } else { want.contains(&id) }
+        };
+        if !fits(0.0) {
+            assert!(
+                fits(1e-9) || fits(-1e-9),
+                "{what}: pixel {px:?}: the tiles' {id} against the oracle's {:?}",
+                oracle_ids(scene, &cam, px, 0.0)
+            );
+            close += 1;
+        }
+    }
+    let bits = |im: &AovImage| -> Vec<u32> {
+        im.f32_channel("depth").expect("depth").iter().map(|v| v.to_bits()).collect()
+    };
+    for accel in [Accel::Frustum, Accel::Bvh] {
+        let img = traced(scene, accel);
+        let other = img.u32_channel("shape_id").expect("shape_id");
+        let differ = (0..ids.len()).filter(|&k| other[k] != ids[k]).count();
+        assert_eq!(differ, 0, "{what}, {accel:?}: pixels that differ from the tiles");
+        assert_eq!(bits(&img), bits(&tiles), "{what}, {accel:?}: depth bits");
+    }
+    (ids.iter().filter(|&&id| id != 0).count(), close)
+}
+
+/// A capped cylinder seen by a camera level with its top cap: the centre row's rays lie in
+/// the top face of the cylinder's box.
+#[test]
+fn camera_level_with_a_cap_sees_the_cap_row() {
+    let s = scene(
+        r#"{"camera": {"origin": [3, 0, 1], "target": [0, 0, 1], "up": [0, 0, 1],
+            "fov_deg": 40, "width": 32, "height": 9},
+          "cylinders": [{"p0": [0, 0, 0], "p1": [0, 0, 1], "radius": 0.5, "caps": true}]}"#,
+    );
+    let (hits, close) = agree(&s, "level with the cap");
+    assert_eq!(close, 0);
+    let row = |img: &AovImage| {
+        let ids = img.u32_channel("shape_id").expect("shape_id");
+        ids[4 * 32..5 * 32].iter().filter(|&&id| id != 0).count()
+    };
+    // The centre row crosses the cap edge-on, over the cylinder's 0.5 m half-width.
+    assert_eq!(row(&traced(&s, Accel::Bvh)), 14);
+    assert_eq!(hits, 70);
+}
+
+/// An axis-aligned cylinder's box, `[lo, hi]`, from its base, axis index, height and radius.
+fn aligned_box(base: [f64; 3], axis: usize, h: f64, r: f64) -> ([f64; 3], [f64; 3]) {
+    let (mut lo, mut hi) = (base, base);
+    for a in 0..3 {
+        if a == axis {
+            hi[a] += h;
+        } else {
+            lo[a] -= r;
+            hi[a] += r;
+        }
+    }
+    (lo, hi)
+}
+
+/// Random scenes of axis-aligned cylinders on a half-unit grid, each seen by cameras
+/// looking along an axis from a point level with a face plane, an edge or a corner of
+/// one cylinder's box (odd image sides: the centre row and column hold rays with zero
+/// components, lying in those planes). Some views have fewer pixels than a quarter of
+/// the cylinders (the binary tree), the others the eight-wide tree.
+#[test]
+fn face_grazing_and_corner_rays_agree_with_the_oracle() {
+    let mut rng = SplitMix64::new(25);
+    let (mut views, mut hits, mut close) = (0, 0, 0);
+    for k in 0..24 {
+        let n = [1, 3, 9, 40, 120][k % 5];
+        let mut cyls = Vec::new();
+        let mut boxes = Vec::new();
+        for _ in 0..n {
+            let axis = rng.int_in(0, 2) as usize;
+            let base = [0; 3].map(|_| rng.int_in(0, 8) as f64 * 0.5 - 2.0);
+            let h = rng.int_in(1, 3) as f64 * 0.5;
+            let r = [0.25, 0.5][rng.int_in(0, 1) as usize];
+            let mut top = base;
+            top[axis] += h;
+            let caps = rng.unit() < 0.7;
+            cyls.push(format!(
+                r#"{{"p0": {base:?}, "p1": {top:?}, "radius": {r}, "caps": {caps}}}"#
+            ));
+            boxes.push(aligned_box(base, axis, h, r));
+        }
+        for v in 0..4 {
+            // The point the centre ray passes through: per axis the box's min, max or
+            // centre (a face, an edge or a corner of the box).
+            let (lo, hi) = boxes[rng.int_in(0, n as u32 - 1) as usize];
+            let p: [f64; 3] = std::array::from_fn(|a| match rng.int_in(0, 2) {
+                0 => lo[a],
+                1 => hi[a],
+                _ => (lo[a] + hi[a]) * 0.5,
+            });
+            let look = rng.int_in(0, 2) as usize;
+            let sign = if rng.unit() < 0.5 { 1.0 } else { -1.0 };
+            let mut origin = p;
+            origin[look] -= sign * 6.0;
+            let mut up = [0.0; 3];
+            up[(look + 1 + (v % 2)) % 3] = 1.0;
+            let (w, h) = if v == 3 { (3, 3) } else { (33, 17) };
+            let json = format!(
+                r#"{{"camera": {{"origin": {origin:?}, "target": {p:?}, "up": {up:?},
+                    "fov_deg": 50, "width": {w}, "height": {h}}},
+                  "cylinders": [{}]}}"#,
+                cyls.join(",")
+            );
+            let (h, c) = agree(&scene(&json), &json);
+            (hits, close) = (hits + h, close + c);
+            views += 1;
+        }
+    }
+    assert_eq!(views, 96);
+    assert!(hits > 10_000, "{hits} hit pixels");
+    assert!(close < hits / 1000, "{close} of {hits} pixels at a rim or tangent");
+}
