@@ -1,10 +1,11 @@
 //! Edges of the input space: rays lying in the faces of BVH boxes (every acceleration
-//! against the double-double oracle).
+//! against the double-double oracle), axes too short or too long to square.
 
 mod common;
 
 use cylaov::geometry::{Cylinder, FormulaKind, Precision};
-use cylaov::output::aov::AovImage;
+use cylaov::output::aov::{AovImage, ChannelData};
+use cylaov::output::mitsuba::to_xml;
 use cylaov::render::{Accel, RenderOptions, render};
 use cylaov::rng::SplitMix64;
 use cylaov::scene::camera::Camera;
@@ -186,4 +187,113 @@ fn face_grazing_and_corner_rays_agree_with_the_oracle() {
     assert_eq!(views, 96);
     assert!(hits > 10_000, "{hits} hit pixels");
     assert!(close < hits / 1000, "{close} of {hits} pixels at a rim or tangent");
+}
+
+/// Every channel's samples, as bits (f32 and u32 alike), by name.
+fn channel_bits(img: &AovImage) -> Vec<(String, Vec<u32>)> {
+    let mut out: Vec<(String, Vec<u32>)> = img
+        .channels
+        .iter()
+        .map(|c| {
+            let bits = match &c.data {
+                ChannelData::F32(v) => v.iter().map(|x| x.to_bits()).collect(),
+                ChannelData::U32(v) => v.clone(),
+            };
+            (c.name.clone(), bits)
+        })
+        .collect();
+    out.sort();
+    out
+}
+
+/// The samples of channel `name` as f64 (f32 and u32 alike).
+fn samples(img: &AovImage, name: &str) -> Vec<f64> {
+    match &img.channels.iter().find(|c| c.name == name).expect(name).data {
+        ChannelData::F32(v) => v.iter().map(|&x| x as f64).collect(),
+        ChannelData::U32(v) => v.iter().map(|&x| x as f64).collect(),
+    }
+}
+
+/// Two scene texts give the same cylinders, the same image (every AOV) and the same
+/// Mitsuba XML: bit for bit when `exact`, else to 1e-14 in the axis and 1e-6 in the
+/// image (a tiny axis whose direction has no exact f64 unit vector at both scales). The
+/// image's normals are unit vectors. Returns the hit count.
+fn same_geometry(tiny: &str, unit: &str, exact: bool) -> usize {
+    let (a, b) = (scene(tiny), scene(unit));
+    let opts = RenderOptions::new(Aov::ALL.to_vec());
+    let (ia, ib) = (render(&a, &opts).image, render(&b, &opts).image);
+    if exact {
+        assert_eq!(a.cylinders, b.cylinders, "{tiny}");
+        assert_eq!(channel_bits(&ia), channel_bits(&ib), "{tiny}");
+        assert_eq!(to_xml(&a, "s.json"), to_xml(&b, "s.json"), "{tiny}");
+    } else {
+        let (ca, cb) = (&a.cylinders[0], &b.cylinders[0]);
+        assert!((ca.axis - cb.axis).length() < 1e-14, "{tiny}: {ca:?}");
+        assert_eq!((ca.base, ca.height, ca.radius), (cb.base, cb.height, cb.radius));
+        for c in &ia.channels {
+            let (x, y) = (samples(&ia, &c.name), samples(&ib, &c.name));
+            let off = (0..x.len()).filter(|&k| (x[k] - y[k]).abs() > 1e-6 * y[k].abs().max(1.0));
+            assert_eq!(off.count(), 0, "{tiny}: channel {}", c.name);
+        }
+    }
+    let n = ia.vec3_channel("normal").expect("normal");
+    let ids = ia.u32_channel("shape_id").expect("shape_id");
+    let mut hits = 0;
+    for k in (0..ids.len()).filter(|&k| ids[k] != 0) {
+        let len = (0..3).map(|a| (n[a][k] as f64).powi(2)).sum::<f64>().sqrt();
+        assert!((len - 1.0).abs() < 1e-6, "{tiny}: pixel {k}: |normal| = {len}");
+        hits += 1;
+    }
+    hits
+}
+
+const TINY_CAMERA: &str = r#""camera": {"origin": [3, 2, 1], "target": [0, 0, 0.4],
+    "up": [0, 0, 1], "fov_deg": 50, "width": 48, "height": 32}"#;
+
+/// An axis whose squared length underflows is normalised as the unit axis of the same
+/// direction is: the same height, image and export (bit for bit when the tiny axis is
+/// the other scaled by a power of two).
+#[test]
+fn tiny_axis_is_the_unit_axis() {
+    let p = 2f64.powi(-540);
+    let scaled = |v: [f64; 3]| format!("{:?}", v.map(|x| x * p));
+    for (tiny, unit, exact) in [
+        ("[1.6e-162, 1.6e-162, 0]".to_string(), "[1, 1, 0]", false),
+        ("[0, 0, 1e-200]".to_string(), "[0, 0, 1]", true),
+        (scaled([1.0, 1.0, 0.0]), "[1, 1, 0]", true),
+        (scaled([3.0, -4.0, 5.0]), "[3, -4, 5]", true),
+        (scaled([0.1, 0.7, -0.3]), "[0.1, 0.7, -0.3]", true),
+    ] {
+        let cyl = |axis: &str| {
+            format!(
+                r#"{{ {TINY_CAMERA}, "cylinders": [{{"center": [0, 0, 0], "axis": {axis},
+                    "height": 1.5, "radius": 0.5, "caps": true}}]}}"#
+            )
+        };
+        assert_eq!(scene(&cyl(&tiny)).cylinders[0].height, 1.5);
+        assert!(same_geometry(&cyl(&tiny), &cyl(unit), exact) > 100, "{tiny}");
+    }
+}
+
+/// End points 1e-162 apart: a disk of that thickness whose axis is the direction from p0
+/// to p1, as the same direction given as an axis makes it, and whose normals are unit
+/// vectors.
+#[test]
+fn end_points_a_tiny_length_apart_give_a_unit_axis() {
+    let p = 2f64.powi(-540);
+    for dir in [[1.0, 1.0, 0.0], [0.0, 1.0, 0.0], [-0.2, 1.0, 0.4]] {
+        let p1 = format!("{:?}", dir.map(|x| x * p));
+        let tiny = format!(
+            r#"{{ {TINY_CAMERA}, "cylinders": [{{"p0": [0, 0, 0], "p1": {p1},
+                "radius": 0.5, "caps": true}}]}}"#
+        );
+        let h = scene(&tiny).cylinders[0].height;
+        let want = (dir[0] * dir[0] + dir[1] * dir[1] + dir[2] * dir[2]).sqrt() * p;
+        assert_eq!(h, want, "{p1}");
+        let unit = format!(
+            r#"{{ {TINY_CAMERA}, "cylinders": [{{"center": [0, 0, 0], "axis": {dir:?},
+                "height": {h:e}, "radius": 0.5, "caps": true}}]}}"#
+        );
+        assert!(same_geometry(&tiny, &unit, true) > 50, "{p1}");
+    }
 }

@@ -658,6 +658,35 @@ impl CameraFile {
     }
 }
 
+/// The length of `v` and `v` divided by it. When the squared length leaves the normal
+/// range (a component near 1e-162 squares to a subnormal or to 0, near 1e155 to inf),
+/// `v` is first scaled by the power of two that brings its largest component to [1, 2)
+/// (exactly: a scaled copy, normalised as that copy is), so any finite non-zero `v` gets
+/// its true length and a unit direction. Every other `v` gets `length()` and
+/// `v / length` as they are.
+fn length_and_unit(v: DVec3) -> (f64, DVec3) {
+    let sq = v.length_squared();
+    if sq >= f64::MIN_POSITIVE && sq.is_finite() {
+        let len = sq.sqrt();
+        return (len, v / len);
+    }
+    let m = v.abs().max_element();
+    if m == 0.0 || !m.is_finite() {
+        return (m, v);
+    }
+    // Two exact steps of at most 2^600 each: a subnormal's exponent field is 0.
+    let pre = if m < 1.0 { 2f64.powi(600) } else { 2f64.powi(-600) };
+    let (v, m, back) = if !(2f64.powi(-400)..2f64.powi(400)).contains(&m) {
+        (v * pre, m * pre, 1.0 / pre)
+    } else {
+        (v, m, 1.0)
+    };
+    let exp = ((m.to_bits() >> 52) & 0x7ff) as i32 - 1023;
+    let s = v * 2f64.powi(-exp);
+    let len = s.length();
+    (len * 2f64.powi(exp) * back, s / len)
+}
+
 impl CylinderFile {
     fn validate(&self, index: usize) -> Result<Cylinder, SceneError> {
         let f = |name: &'static str| CylinderField { index, name };
@@ -665,7 +694,7 @@ impl CylinderFile {
         let (base, axis, height) = match (self.p0, self.p1, self.center, self.axis, self.height) {
             (Some(p0), Some(p1), None, None, None) => {
                 let (p0, p1) = (check_vec(f("p0"), p0)?, check_vec(f("p1"), p1)?);
-                let h = (p1 - p0).length();
+                let (h, axis) = length_and_unit(p1 - p0);
                 if h == 0.0 {
                     return Err(err(
                         f("p1").path(),
@@ -675,20 +704,20 @@ impl CylinderFile {
                         ),
                     ));
                 }
-                (p0, (p1 - p0) / h, h)
+                (p0, axis, h)
             }
             (None, None, Some(c), Some(a), Some(h)) => {
                 let c = check_vec(f("center"), c)?;
                 let a = check_vec(f("axis"), a)?;
                 let h = check_positive(f("height"), h)?;
-                let len = a.length();
+                let (len, unit) = length_and_unit(a);
                 if len == 0.0 || !len.is_finite() {
                     return Err(err(
                         f("axis").path(),
                         format!("must be non-zero, got {:?}", a.to_array()),
                     ));
                 }
-                (c, a / len, h)
+                (c, unit, h)
             }
             _ => {
                 return Err(err(
