@@ -1,5 +1,6 @@
 //! Edges of the input space: rays lying in the faces of BVH boxes (every acceleration
-//! against the double-double oracle), axes too short or too long to square.
+//! against the double-double oracle), axes too short or too long to square, cameras whose
+//! focal length overflows.
 
 mod common;
 
@@ -296,4 +297,48 @@ fn end_points_a_tiny_length_apart_give_a_unit_axis() {
         );
         assert!(same_geometry(&tiny, &unit, true) > 50, "{p1}");
     }
+}
+
+/// A field of view whose focal length overflows is refused by name and value, and
+/// nothing is written (`render`, `export-mitsuba`).
+#[test]
+fn a_field_of_view_without_a_finite_focal_length_is_refused() {
+    for (fov, axis) in [("5e-324", "x"), ("1e-310", "y"), ("4e-40", "diagonal")] {
+        let dir = common::fresh_dir("edges", "fov");
+        let path = dir.path().join("s.json");
+        let text = format!(
+            r#"{{"camera": {{"origin": [3, 0, 1], "target": [0, 0, 1], "up": [0, 0, 1],
+                "fov_deg": {fov}, "fov_axis": "{axis}", "width": 64, "height": 48}},
+              "cylinders": [{{"p0": [0, 0, 0], "p1": [0, 0, 1], "radius": 0.5}}]}}"#
+        );
+        std::fs::write(&path, &text).unwrap();
+        let s = path.to_str().unwrap();
+        let out = dir.path().join("out.exr");
+        let xml = dir.path().join("out.xml");
+        for args in [
+            vec!["render", s, "-o", out.to_str().unwrap()],
+            vec!["export-mitsuba", s, "-o", xml.to_str().unwrap()],
+        ] {
+            let run = common::cylaov(&args);
+            let err = String::from_utf8_lossy(&run.stderr);
+            assert_eq!(run.status.code(), Some(1), "{fov} {args:?}: {err}");
+            assert_eq!(err.lines().count(), 1, "{fov}: {err}");
+            assert!(err.contains("camera.fov_deg") && err.contains(fov), "{fov}: {err}");
+            let left: Vec<_> = std::fs::read_dir(dir.path()).unwrap().collect();
+            assert_eq!(left.len(), 1, "{fov} {args:?}: files written");
+        }
+    }
+    // A field of view of 1e-30 degrees has a finite focal length: rendered.
+    let dir = common::fresh_dir("edges", "fov-ok");
+    let path = dir.path().join("s.json");
+    std::fs::write(
+        &path,
+        r#"{"camera": {"origin": [3, 0, 1], "target": [0, 0, 1], "up": [0, 0, 1],
+            "fov_deg": 1e-30, "width": 64, "height": 48},
+          "cylinders": [{"p0": [0, 0, 0], "p1": [0, 0, 1], "radius": 0.5}]}"#,
+    )
+    .unwrap();
+    let out = dir.path().join("out.exr");
+    common::ok(&["render", path.to_str().unwrap(), "-o", out.to_str().unwrap()]);
+    assert!(out.exists());
 }

@@ -13,7 +13,7 @@ mod fast_json;
 pub mod strict;
 
 use crate::geometry::Cylinder;
-use crate::scene::camera::{CameraSpec, FovAxis};
+use crate::scene::camera::{Camera, CameraSpec, FovAxis};
 use glam::DVec3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -644,7 +644,7 @@ impl CameraFile {
                 ),
             ));
         }
-        Ok(CameraSpec {
+        let spec = CameraSpec {
             origin,
             target,
             up,
@@ -654,7 +654,26 @@ impl CameraFile {
             height: self.height,
             near_clip: near,
             far_clip: far,
-        })
+        };
+        // A field of view so small that its tangent underflows leaves no focal length
+        // (an infinite one) and a pixel footprint of 0: the camera files and the EXR
+        // header (f32) could not state the camera.
+        let cam = Camera::new(spec);
+        let (fx, fy) = cam.focal_px();
+        let foot = 2.0 * cam.tan_half_x / self.width as f64;
+        let fits = |x: f64| x > 0.0 && x <= f32::MAX as f64;
+        if !(fits(fx) && fits(fy) && foot > 0.0 && foot.is_finite()) {
+            return Err(err(
+                format!("{at}.fov_deg"),
+                format!(
+                    "is too small for a finite focal length in pixels (at most {:e}), got {} (focal length {} px)",
+                    f32::MAX,
+                    num(fov),
+                    num(fx.max(fy))
+                ),
+            ));
+        }
+        Ok(spec)
     }
 }
 
