@@ -431,7 +431,9 @@ impl Bvh {
         let inv_far = inv * GROW;
         let tmin_v = Vec3A::splat(tmin);
         let slab = |min: Vec3A, max: Vec3A, tmax: f32| -> Option<f32> {
-            let near = (Vec3A::select(neg, max, min) * inv).max(tmin_v).max_element();
+            let near = (Vec3A::select(neg, max, min) * inv)
+                .max(tmin_v)
+                .max_element();
             let far = (Vec3A::select(neg, min, max) * inv_far)
                 .min(Vec3A::splat(tmax))
                 .min_element();
