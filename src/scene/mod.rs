@@ -314,7 +314,11 @@ pub fn load(path: &Path) -> Result<Scene, SceneError> {
         return Err(too_big(bytes.len() as u64));
     }
     // The fast reader takes bytes (what it accepts is valid UTF-8); the rest is checked.
-    if let Some(file) = fast_json::scene_file(bytes) {
+    if plain_reader() {
+        if let Ok(file) = serde_json::from_slice::<strict::Object<SceneFile>>(bytes) {
+            return file.0.validate();
+        }
+    } else if let Some(file) = fast_json::scene_file(bytes) {
         return file.validate();
     }
     let text = std::str::from_utf8(bytes)
@@ -322,14 +326,36 @@ pub fn load(path: &Path) -> Result<Scene, SceneError> {
     parse_serde(text)
 }
 
+/// Set to `serde`, this environment variable makes [`load`] and [`parse`] read every scene
+/// with plain `serde_json` (`from_slice` into the file types, no path tracking) instead
+/// of [`fast_json`]: the same scenes and the same errors, for `cylaov bench --readers`
+/// to time a whole process each way.
+pub const READER_ENV: &str = "CYLAOV_SCENE_READER";
+
+fn plain_reader() -> bool {
+    std::env::var_os(READER_ENV).is_some_and(|v| v == "serde")
+}
+
 /// Parse and validate scene JSON: one JSON object and nothing after it.
 pub fn parse(text: &str) -> Result<Scene, SceneError> {
     // Plain files take the fast reader; anything else (and every error) goes through
     // serde_json, whose messages name the field.
+    if plain_reader() {
+        return parse_plain(text);
+    }
     if let Some(file) = fast_json::scene_file(text.as_bytes()) {
         return file.validate();
     }
     parse_serde(text)
+}
+
+/// [`parse`] through plain `serde_json`, with no fast reader and no path tracking; only
+/// when that fails, again with path tracking, for the message that names the field.
+pub fn parse_plain(text: &str) -> Result<Scene, SceneError> {
+    match serde_json::from_str::<strict::Object<SceneFile>>(text) {
+        Ok(file) => file.0.validate(),
+        Err(_) => parse_serde(text),
+    }
 }
 
 /// [`parse`] through `serde_json` alone.
@@ -694,7 +720,11 @@ fn length_and_unit(v: DVec3) -> (f64, DVec3) {
         return (m, v);
     }
     // Two exact steps of at most 2^600 each: a subnormal's exponent field is 0.
-    let pre = if m < 1.0 { 2f64.powi(600) } else { 2f64.powi(-600) };
+    let pre = if m < 1.0 {
+        2f64.powi(600)
+    } else {
+        2f64.powi(-600)
+    };
     let (v, m, back) = if !(2f64.powi(-400)..2f64.powi(400)).contains(&m) {
         (v * pre, m * pre, 1.0 / pre)
     } else {
