@@ -226,10 +226,6 @@ struct BenchCli {
     /// Skip timing whole `cylaov render` processes.
     #[arg(long)]
     no_process: bool,
-    /// Time only the scene readers: the fast reader against plain serde_json, in process
-    /// and as whole `cylaov render` processes, per family and count.
-    #[arg(long)]
-    readers: bool,
     /// Scene generator seed.
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -632,7 +628,6 @@ fn bench(b: BenchCli) -> anyhow::Result<ExitCode> {
         seed: b.seed,
         accel: b.accel,
         keep_scenes: b.keep_scenes,
-        readers: b.readers,
     };
     let anchors = match (b.mitsuba, b.open3d) {
         (false, false) => None,

@@ -343,8 +343,6 @@ pub struct BenchOptions {
     /// Also keep each generated scene as `DIR/FAMILY-N.json`, to time or profile a render
     /// of it by hand.
     pub keep_scenes: Option<PathBuf>,
-    /// Time the scene readers ([`reader_rows`]) instead of the table.
-    pub readers: bool,
 }
 
 /// The AOV sets of the table: depth only, depth + normal, all.
@@ -457,20 +455,6 @@ fn time_process(
     aovs: &[Aov],
     accel: Accel,
 ) -> Result<(f64, Option<f64>)> {
-    time_process_with(exe, scene, out, kernel, aovs, accel, None)
-}
-
-/// [`time_process`] with the scene reader `reader` (the value of
-/// [`READER_ENV`](crate::scene::READER_ENV)) or the default one.
-fn time_process_with(
-    exe: &Path,
-    scene: &Path,
-    out: &Path,
-    kernel: Kernel,
-    aovs: &[Aov],
-    accel: Accel,
-    reader: Option<&str>,
-) -> Result<(f64, Option<f64>)> {
     // Each process writes a new file, as a render into a fresh dataset folder does:
     // replacing a large file would add the kernel's release of the old one to the
     // render's time.
@@ -478,13 +462,8 @@ fn time_process_with(
         Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(e)?,
         _ => {}
     }
-    let mut cmd = Command::new(exe);
-    cmd.env_remove(crate::scene::READER_ENV);
-    if let Some(r) = reader {
-        cmd.env(crate::scene::READER_ENV, r);
-    }
     let start = Instant::now();
-    let o = cmd
+    let o = Command::new(exe)
         .arg("render")
         .arg(scene)
         .arg("-o")
@@ -619,129 +598,6 @@ pub fn run(opts: &BenchOptions, mut progress: impl FnMut(&Row)) -> Result<Vec<Ro
         }
     }
     Ok(rows)
-}
-
-/// One count of the scene readers' comparison: the fast reader ([`crate::scene::fast_json`])
-/// against plain `serde_json::from_slice` into the same types (path tracking only once
-/// that fails), in process and as whole `cylaov render` processes (stable f64,
-/// depth+normal, the bench's compact scene JSON).
-#[derive(Clone, Debug, Serialize)]
-pub struct ReaderRow {
-    /// The scene family's name.
-    pub family: String,
-    /// Cylinders in the scene.
-    pub cylinders: usize,
-    /// Size of the scene file, MB.
-    pub file_mb: f64,
-    /// `scene::parse` through the fast reader, ms (min of the repeats).
-    pub parse_fast_ms: f64,
-    /// `scene::parse_plain`, ms.
-    pub parse_serde_ms: f64,
-    /// Whole `cylaov render` process with the fast reader, ms.
-    pub process_fast_ms: f64,
-    /// Whole process with plain `serde_json`, ms.
-    pub process_serde_ms: f64,
-    /// `1 - process_fast / process_serde`: the share of the plain process the fast
-    /// reader saves.
-    pub saving: f64,
-}
-
-/// The scene readers' rows (`cylaov bench --readers`): per family and count, both readers
-/// in process and as whole processes, runs interleaved (so a slow spell of a shared
-/// machine slows both), the minimum of `repeats` each.
-pub fn reader_rows(
-    opts: &BenchOptions,
-    mut progress: impl FnMut(&ReaderRow),
-) -> Result<Vec<ReaderRow>> {
-    let scratch = tempfile::Builder::new().prefix("cylaov-bench-").tempdir()?;
-    let dir = scratch.path();
-    let exe = match &opts.exe {
-        Some(exe) => exe.clone(),
-        None => bail!("--readers times whole processes: leave out --no-process"),
-    };
-    let aovs = [Aov::Depth, Aov::Normal];
-    let mut rows = Vec::new();
-    for (&family, &n) in opts
-        .families
-        .iter()
-        .flat_map(|f| opts.counts.iter().map(move |n| (f, n)))
-    {
-        let scene = family.scene(n, opts.seed, opts.width, opts.height);
-        let text = serde_json::to_string(&SceneFile::from_scene(&scene))?;
-        let path = dir.join(format!("scene-{}-{n}.json", family.name()));
-        std::fs::write(&path, &text)?;
-        let (mut fast, mut plain) = (f64::INFINITY, f64::INFINITY);
-        let (mut pfast, mut pplain) = (f64::INFINITY, f64::INFINITY);
-        for i in 0..opts.repeats.max(1) {
-            let t0 = Instant::now();
-            let a = crate::scene::parse(&text)?;
-            fast = fast.min(ms(t0.elapsed()));
-            let t0 = Instant::now();
-            let b = crate::scene::parse_plain(&text)?;
-            plain = plain.min(ms(t0.elapsed()));
-            if a.cylinders != b.cylinders {
-                bail!(
-                    "{} {n}: the two readers read different cylinders",
-                    family.name()
-                );
-            }
-            let out = dir.join("proc.exr");
-            let k = Kernel::STABLE_F64;
-            let run = |reader| time_process_with(&exe, &path, &out, k, &aovs, opts.accel, reader);
-            // Alternate which goes first: a process after another runs on a warmer machine.
-            let first_fast = i % 2 == 0;
-            for fast in [first_fast, !first_fast] {
-                if fast {
-                    pfast = pfast.min(run(None)?.0);
-                } else {
-                    pplain = pplain.min(run(Some("serde"))?.0);
-                }
-            }
-        }
-        let row = ReaderRow {
-            family: family.name().to_string(),
-            cylinders: n,
-            file_mb: text.len() as f64 / 1e6,
-            parse_fast_ms: fast,
-            parse_serde_ms: plain,
-            process_fast_ms: pfast,
-            process_serde_ms: pplain,
-            saving: 1.0 - pfast / pplain,
-        };
-        progress(&row);
-        rows.push(row);
-    }
-    Ok(rows)
-}
-
-/// The readers' table header, aligned with [`format_reader_row`].
-pub fn reader_header() -> String {
-    format!(
-        "{:<6} {:>8} {:>8} {:>10} {:>11} {:>12} {:>13} {:>7}",
-        "family",
-        "cyl",
-        "file_MB",
-        "parse_fast",
-        "parse_serde",
-        "process_fast",
-        "process_serde",
-        "saving"
-    )
-}
-
-/// One aligned line of the readers' table (times in ms).
-pub fn format_reader_row(r: &ReaderRow) -> String {
-    format!(
-        "{:<6} {:>8} {:>8.1} {:>10.1} {:>11.1} {:>12.1} {:>13.1} {:>6.1}%",
-        r.family,
-        r.cylinders,
-        r.file_mb,
-        r.parse_fast_ms,
-        r.parse_serde_ms,
-        r.process_fast_ms,
-        r.process_serde_ms,
-        r.saving * 100.0
-    )
 }
 
 /// The table header, aligned with [`format_row`].

@@ -2,7 +2,6 @@
 
 use crate::bench::{self, Anchors, BenchOptions, Row};
 use crate::output::io::{atomic_write_bytes, check_outputs, csv_bytes, say};
-use crate::scene::READER_ENV;
 use anyhow::{Context, Result, bail};
 use std::path::{Path, PathBuf};
 
@@ -54,9 +53,6 @@ pub fn run(
     }
     let outputs: Vec<(&str, &Path)> = outputs.iter().map(|(f, p)| (*f, p.as_path())).collect();
     check_outputs(&outputs, &[])?;
-    if opts.readers {
-        return readers(opts, csv).map(|()| Vec::new());
-    }
     say(&format!(
         "cylaov bench: {} family, {}x{}, seed {}, accel {:?}, min of {} runs, {} threads; times in ms (parse: the scene JSON; prep: kernel forms; build: tiles or BVH), err = relative distance error vs stable-f64",
         opts.families
@@ -126,28 +122,4 @@ pub fn run(
         say(&format!("wrote {}", path.display()))?;
     }
     Ok(rows)
-}
-
-/// `--readers`: the scene readers' table, and its CSV when asked (to `OUT.csv` itself).
-fn readers(opts: &BenchOptions, csv: Option<PathBuf>) -> Result<()> {
-    say(&format!(
-        "cylaov bench --readers: {}x{}, seed {}, min of {} interleaved runs, times in ms; the fast reader against plain serde_json::from_slice ({READER_ENV}=serde), in process (parse) and as whole `cylaov render` processes (stable-f64, depth+normal)",
-        opts.width, opts.height, opts.seed, opts.repeats
-    ))?;
-    say(&bench::reader_header())?;
-    let mut print_err: Option<std::io::Error> = None;
-    let rows = bench::reader_rows(opts, |r| {
-        if print_err.is_none() {
-            print_err = say(&bench::format_reader_row(r)).err();
-        }
-    })?;
-    if let Some(e) = print_err {
-        return Err(e.into());
-    }
-    if let Some(path) = csv {
-        atomic_write_bytes(&path, &csv_bytes(&rows)?)
-            .with_context(|| format!("writing {}", path.display()))?;
-        say(&format!("wrote {}", path.display()))?;
-    }
-    Ok(())
 }

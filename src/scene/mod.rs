@@ -9,7 +9,6 @@
 //! rejection names the field and the value: `cylinders[3].radius: must be > 0, got -1`.
 
 pub mod camera;
-mod fast_json;
 pub mod strict;
 
 use crate::geometry::Cylinder;
@@ -313,45 +312,20 @@ pub fn load(path: &Path) -> Result<Scene, SceneError> {
     if bytes.len() as u64 > MAX_SCENE_BYTES {
         return Err(too_big(bytes.len() as u64));
     }
-    // The fast reader takes bytes (what it accepts is valid UTF-8); the rest is checked.
-    if plain_reader() {
-        if let Ok(file) = serde_json::from_slice::<strict::Object<SceneFile>>(bytes) {
-            return file.0.validate();
-        }
-    } else if let Some(file) = fast_json::scene_file(bytes) {
-        return file.validate();
+    // Plain serde_json first; only a file it refuses is read again with path tracking
+    // (and checked for UTF-8), for the message that names the field.
+    if let Ok(file) = serde_json::from_slice::<strict::Object<SceneFile>>(bytes) {
+        return file.0.validate();
     }
     let text = std::str::from_utf8(bytes)
         .map_err(|e| err("", format!("not UTF-8 text (byte {})", e.valid_up_to())))?;
     parse_serde(text)
 }
 
-/// Set to `serde`, this environment variable makes [`load`] and [`parse`] read every scene
-/// with plain `serde_json` (`from_slice` into the file types, no path tracking) instead
-/// of [`fast_json`]: the same scenes and the same errors, for `cylaov bench --readers`
-/// to time a whole process each way.
-pub const READER_ENV: &str = "CYLAOV_SCENE_READER";
-
-fn plain_reader() -> bool {
-    std::env::var_os(READER_ENV).is_some_and(|v| v == "serde")
-}
-
-/// Parse and validate scene JSON: one JSON object and nothing after it.
+/// Parse and validate scene JSON: one JSON object and nothing after it. Plain
+/// `serde_json` reads it; only when that fails, [`parse_serde`] reads it again with path
+/// tracking, whose message names the field.
 pub fn parse(text: &str) -> Result<Scene, SceneError> {
-    // Plain files take the fast reader; anything else (and every error) goes through
-    // serde_json, whose messages name the field.
-    if plain_reader() {
-        return parse_plain(text);
-    }
-    if let Some(file) = fast_json::scene_file(text.as_bytes()) {
-        return file.validate();
-    }
-    parse_serde(text)
-}
-
-/// [`parse`] through plain `serde_json`, with no fast reader and no path tracking; only
-/// when that fails, again with path tracking, for the message that names the field.
-pub fn parse_plain(text: &str) -> Result<Scene, SceneError> {
     match serde_json::from_str::<strict::Object<SceneFile>>(text) {
         Ok(file) => file.0.validate(),
         Err(_) => parse_serde(text),
@@ -500,14 +474,6 @@ impl SceneFile {
                     .collect(),
             }
         })
-    }
-}
-
-impl fast_json::FastScene {
-    /// Check the cameras and AOVs (the cylinders were checked as they were read).
-    fn validate(self) -> Result<Scene, SceneError> {
-        let cylinders = self.cylinders;
-        validate_scene(&self.camera, &self.cameras, &self.aovs, || cylinders)
     }
 }
 
