@@ -74,7 +74,11 @@ fn agree(scene: &Scene, what: &str) -> (usize, usize) {
         let px = (k as u32 % cam.width(), k as u32 / cam.width());
         let fits = |grow: f64| {
             let want = oracle_ids(scene, &cam, px, grow);
-            if id == 0 { want.is_empty() } else { want.contains(&id) }
+            if id == 0 {
+                want.is_empty()
+            } else {
+                want.contains(&id)
+            }
         };
         if !fits(0.0) {
             assert!(
@@ -86,13 +90,20 @@ fn agree(scene: &Scene, what: &str) -> (usize, usize) {
         }
     }
     let bits = |im: &AovImage| -> Vec<u32> {
-        im.f32_channel("depth").expect("depth").iter().map(|v| v.to_bits()).collect()
+        im.f32_channel("depth")
+            .expect("depth")
+            .iter()
+            .map(|v| v.to_bits())
+            .collect()
     };
     for accel in [Accel::Frustum, Accel::Bvh] {
         let img = traced(scene, accel);
         let other = img.u32_channel("shape_id").expect("shape_id");
         let differ = (0..ids.len()).filter(|&k| other[k] != ids[k]).count();
-        assert_eq!(differ, 0, "{what}, {accel:?}: pixels that differ from the tiles");
+        assert_eq!(
+            differ, 0,
+            "{what}, {accel:?}: pixels that differ from the tiles"
+        );
         assert_eq!(bits(&img), bits(&tiles), "{what}, {accel:?}: depth bits");
     }
     (ids.iter().filter(|&&id| id != 0).count(), close)
@@ -187,7 +198,10 @@ fn face_grazing_and_corner_rays_agree_with_the_oracle() {
     }
     assert_eq!(views, 96);
     assert!(hits > 10_000, "{hits} hit pixels");
-    assert!(close < hits / 1000, "{close} of {hits} pixels at a rim or tangent");
+    assert!(
+        close < hits / 1000,
+        "{close} of {hits} pixels at a rim or tangent"
+    );
 }
 
 /// Every channel's samples, as bits (f32 and u32 alike), by name.
@@ -209,7 +223,13 @@ fn channel_bits(img: &AovImage) -> Vec<(String, Vec<u32>)> {
 
 /// The samples of channel `name` as f64 (f32 and u32 alike).
 fn samples(img: &AovImage, name: &str) -> Vec<f64> {
-    match &img.channels.iter().find(|c| c.name == name).expect(name).data {
+    match &img
+        .channels
+        .iter()
+        .find(|c| c.name == name)
+        .expect(name)
+        .data
+    {
         ChannelData::F32(v) => v.iter().map(|&x| x as f64).collect(),
         ChannelData::U32(v) => v.iter().map(|&x| x as f64).collect(),
     }
@@ -230,7 +250,10 @@ fn same_geometry(tiny: &str, unit: &str, exact: bool) -> usize {
     } else {
         let (ca, cb) = (&a.cylinders[0], &b.cylinders[0]);
         assert!((ca.axis - cb.axis).length() < 1e-14, "{tiny}: {ca:?}");
-        assert_eq!((ca.base, ca.height, ca.radius), (cb.base, cb.height, cb.radius));
+        assert_eq!(
+            (ca.base, ca.height, ca.radius),
+            (cb.base, cb.height, cb.radius)
+        );
         for c in &ia.channels {
             let (x, y) = (samples(&ia, &c.name), samples(&ib, &c.name));
             let off = (0..x.len()).filter(|&k| (x[k] - y[k]).abs() > 1e-6 * y[k].abs().max(1.0));
@@ -242,7 +265,10 @@ fn same_geometry(tiny: &str, unit: &str, exact: bool) -> usize {
     let mut hits = 0;
     for k in (0..ids.len()).filter(|&k| ids[k] != 0) {
         let len = (0..3).map(|a| (n[a][k] as f64).powi(2)).sum::<f64>().sqrt();
-        assert!((len - 1.0).abs() < 1e-6, "{tiny}: pixel {k}: |normal| = {len}");
+        assert!(
+            (len - 1.0).abs() < 1e-6,
+            "{tiny}: pixel {k}: |normal| = {len}"
+        );
         hits += 1;
     }
     hits
@@ -272,7 +298,10 @@ fn tiny_axis_is_the_unit_axis() {
             )
         };
         assert_eq!(scene(&cyl(&tiny)).cylinders[0].height, 1.5);
-        assert!(same_geometry(&cyl(&tiny), &cyl(unit), exact) > 100, "{tiny}");
+        assert!(
+            same_geometry(&cyl(&tiny), &cyl(unit), exact) > 100,
+            "{tiny}"
+        );
     }
 }
 
@@ -323,7 +352,10 @@ fn a_field_of_view_without_a_finite_focal_length_is_refused() {
             let err = String::from_utf8_lossy(&run.stderr);
             assert_eq!(run.status.code(), Some(1), "{fov} {args:?}: {err}");
             assert_eq!(err.lines().count(), 1, "{fov}: {err}");
-            assert!(err.contains("camera.fov_deg") && err.contains(fov), "{fov}: {err}");
+            assert!(
+                err.contains("camera.fov_deg") && err.contains(fov),
+                "{fov}: {err}"
+            );
             let left: Vec<_> = std::fs::read_dir(dir.path()).unwrap().collect();
             assert_eq!(left.len(), 1, "{fov} {args:?}: files written");
         }
@@ -339,6 +371,11 @@ fn a_field_of_view_without_a_finite_focal_length_is_refused() {
     )
     .unwrap();
     let out = dir.path().join("out.exr");
-    common::ok(&["render", path.to_str().unwrap(), "-o", out.to_str().unwrap()]);
+    common::ok(&[
+        "render",
+        path.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+    ]);
     assert!(out.exists());
 }
