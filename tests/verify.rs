@@ -370,8 +370,18 @@ fn a_real_seam_mismatch_is_a_rim_tie() {
     let img = ours(&scene);
     let checked = check(&scene, &img, &reference);
     assert!(checked.passed(), "{}", checked.text());
-    // One seam on this machine; another CPU's last bits may tie the other way.
-    assert!(checked.report.seams <= 2, "{}", checked.text());
+    // The view holds one such tie (two if a CPU's last bits tip a neighbour too); with
+    // none, the checks below would check nothing.
+    assert!(
+        (1..=2).contains(&checked.report.seams),
+        "{}",
+        checked.text()
+    );
+    assert!(
+        !checked.report.seam_examples.is_empty(),
+        "{}",
+        checked.text()
+    );
     let cam = Camera::new(scene.camera);
     let ids = img.u32_channel("shape_id").expect("ids");
     let parts = img.u32_channel("part").expect("parts");

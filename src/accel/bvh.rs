@@ -50,7 +50,9 @@ pub struct Bvh {
 }
 
 /// Round `x - o` to f32 toward -inf (`down`) or +inf and pad by a relative 1e-6, so the box
-/// in f32 contains the exact one and no ray lies exactly in a face plane by accident.
+/// in f32 contains the exact one and no ray lies exactly in a face plane by accident. A
+/// plane is never ±0: a ray parallel to it (direction component ±0, reciprocal ±inf)
+/// then gets ±inf from the slab test, never 0·inf = NaN.
 fn outward(x: DVec3, o: DVec3, down: bool) -> Vec3A {
     let rel = x - o;
     let pad = rel.abs() * 1e-6 + DVec3::splat(1e-30);
@@ -58,6 +60,8 @@ fn outward(x: DVec3, o: DVec3, down: bool) -> Vec3A {
     let f = |a: f64| {
         let r = a as f32;
         match (down, (r as f64) > a, (r as f64) < a) {
+            (true, _, _) if r == 0.0 => -f32::MIN_POSITIVE,
+            (false, _, _) if r == 0.0 => f32::MIN_POSITIVE,
             (true, true, _) => r.next_down(),
             (false, _, true) => r.next_up(),
             _ => r,
@@ -415,24 +419,27 @@ impl Bvh {
         mut tmax: f32,
         mut visit: impl FnMut(u32) -> Option<f32>,
     ) {
-        // A zero component would make 0·inf = NaN on a face plane; clamp to a huge slope.
-        let safe = |x: f32| {
-            if x.abs() < 1e-30 {
-                1e-30f32.copysign(x)
-            } else {
-                x
-            }
-        };
-        let inv = Vec3A::new(1.0 / safe(d.x), 1.0 / safe(d.y), 1.0 / safe(d.z));
-        // pbrt's 1 + 2γ₃ keeps the f32 slab test conservative.
+        // 1/±0 = ±inf: a ray parallel to a slab is in it for every t or for none. Each axis
+        // is entered by its near face (max when the ray goes towards -axis), so a face in
+        // the ray's own plane (0·inf = NaN) drops out of the max and min below, which keep
+        // their second operand on NaN: the ray is in that slab (faces are inclusive).
+        let inv = Vec3A::ONE / d;
+        let neg = inv.cmplt(Vec3A::ZERO);
+        // pbrt's 1 + 2γ₃ keeps the f32 slab test conservative (see `SlabRay::new` for the
+        // exit's three roundings).
         const GROW: f32 = 1.0 + 2.0 * 3.0 * f32::EPSILON;
-        let hit = |n: &Node, tmax: f32| -> Option<f32> {
-            let t1 = n.min * inv;
-            let t2 = n.max * inv;
-            let near = t1.min(t2).max_element().max(tmin);
-            let far = (t1.max(t2).min_element() * GROW).min(tmax);
+        let inv_far = inv * GROW;
+        let tmin_v = Vec3A::splat(tmin);
+        let slab = |min: Vec3A, max: Vec3A, tmax: f32| -> Option<f32> {
+            let near = (Vec3A::select(neg, max, min) * inv)
+                .max(tmin_v)
+                .max_element();
+            let far = (Vec3A::select(neg, min, max) * inv_far)
+                .min(Vec3A::splat(tmax))
+                .min_element();
             (near <= far).then_some(near)
         };
+        let hit = |n: &Node, tmax: f32| slab(n.min, n.max, tmax);
         // An empty scene is one leaf of nothing (read as interior below, so stop here).
         if self.order.is_empty() || hit(&self.nodes[0], tmax).is_none() {
             return;
@@ -447,11 +454,7 @@ impl Bvh {
                 let start = node.offset;
                 for pos in start..start + node.count {
                     let [lo, hi] = self.boxes[pos as usize];
-                    let t1 = lo * inv;
-                    let t2 = hi * inv;
-                    let near = t1.min(t2).max_element().max(tmin);
-                    let far = (t1.max(t2).min_element() * GROW).min(tmax);
-                    if near <= far
+                    if slab(lo, hi, tmax).is_some()
                         && let Some(t) = visit(pos)
                     {
                         tmax = tmax.min(t);

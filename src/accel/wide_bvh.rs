@@ -21,11 +21,8 @@
 //! its parent are tested), so that chain's latency, not the work, bounds a traversal:
 //! `WideBvh::traverse_in_turn` walks [`IN_TURN`] rays in turn, the processor working
 //! on the others while one waits, which a mispredicted branch, flushing them all, would
-//! undo. Measured on 1920×1080 primary rays into 100 000 cylinders: alone, this walk is
-//! about 20% slower than the sorted one (its chain is longer); two in turn, about 10-15%
-//! faster; four, 6-8% faster again (trace 265 → 250 ms min, 273 → 257 median, seven
-//! interleaved runs); three and six gain less than four (the six walks' state no longer
-//! fits the registers).
+//! undo. Alone, this walk is slower than a sorted one (its chain is longer); in turn it is
+//! faster, most with four rays (see [`IN_TURN`]).
 //!
 //! The boxes are the binary tree's: relative to the render's origin, rounded outward to
 //! f32 and padded (see [`bvh`](super::bvh)), and the exit distance is widened by pbrt's
@@ -53,7 +50,10 @@ const PRIM: u32 = 1 << 31;
 /// level and the binary tree's leaves lie less than [`MAX_DEPTH`] levels down, so
 /// `D < MAX_DEPTH` and `8 · MAX_DEPTH` is enough.
 pub const STACK: usize = 8 * MAX_DEPTH;
-/// Rays the per-ray walk takes in turn (`WideBvh::traverse_in_turn`).
+/// Rays the per-ray walk takes in turn (`WideBvh::traverse_in_turn`): fewer leave the
+/// latency of each ray's chain of nodes uncovered, more no longer keep the walks' state in
+/// registers. Backed by the trace column of `cylaov bench --accel bvh --family dense
+/// --counts 100000`.
 pub const IN_TURN: usize = 4;
 
 /// pbrt's 1 + 2γ₃: the f32 slab test's exit distance widened by its rounding.
@@ -147,10 +147,10 @@ type Lanes = ([(Slot, Vec3A, Vec3A); WIDTH], usize);
 /// lanes of its parent, is the smaller of `n` whole in one lane (its own wide node:
 /// `area(n) + split(n, 8)`) and `split(n, j)`: a leaf's cylinders in a lane each (0 when
 /// they fit), or an interior node's two children sharing the lanes, the least over `k`
-/// of `lanes(left, k) + lanes(right, j − k)`. Measured on a tangle of 100 000 cylinders:
-/// 18 623 wide nodes where the greedy rule (open the largest node that still fits, as
-/// Embree's wide builders do) made 25 906, and 3.3% fewer nodes opened by 1920×1080
-/// primary rays; the plan costs about 130 instructions a binary node.
+/// of `lanes(left, k) + lanes(right, j − k)`. It makes fewer wide nodes than the greedy
+/// rule (open the largest node that still fits, as Embree's wide builders do), and primary
+/// rays open fewer of them (`plan_collapses_at_least_cost` checks that no collapse costs
+/// less).
 struct Plan {
     /// Per binary node, per budget `j` (index `j − 1`): the lanes `split(n, j)` gives its
     /// left child (0 for a leaf, whose cylinders take a lane each).
@@ -421,8 +421,7 @@ impl WideBvh {
         let walks = [walk(0), walk(1), walk(2), walk(3)];
         // Rays of neighbouring pixels nearly always share an octant: then the walk reads
         // its near and far rows at fixed offsets (one copy of it per octant), which takes
-        // six loads off every node: 3.6% of the trace's instructions (callgrind, dense
-        // 100 000 at 480×270, `--accel bvh`).
+        // six loads off every node.
         let o = walks[0].ray.octant();
         if walks.iter().any(|w| w.ray.octant() != o) {
             return self.in_turn::<S, ANY_OCTANT>(slabs, stacks, walks, visit);
@@ -704,7 +703,7 @@ mod tests {
     /// The plan's collapse costs the least of all collapses: the summed area of its wide
     /// nodes (each the union of its lanes' boxes) is the least that trying every way to
     /// fill every node finds, on small tangles two or three wide levels deep (the greedy
-    /// rule it replaced fails here: 2 503 against 2 431 on the first).
+    /// rule fails here: 2 503 against 2 431 on the first).
     #[test]
     fn plan_collapses_at_least_cost() {
         let mut deep = 0;
@@ -920,6 +919,39 @@ mod tests {
                 met > packed && packed > 300,
                 "{met} lanes met, {packed} packed"
             );
+        }
+    }
+
+    /// A ray lying in faces of boxes (direction components ±0, faces level with the
+    /// origin: on an edge or a corner of each box) is in them: the binary traversal and
+    /// the wide one, portable and AVX2, visit every box ahead and none behind.
+    #[test]
+    fn rays_in_a_face_plane_meet_the_box() {
+        // Boxes along +x, each with y and z ranges that end or start at 0.
+        let sides = [(-1.0, 0.0), (0.0, 1.0), (-0.5, 0.0), (0.0, 0.25)];
+        let boxes: Vec<(DVec3, DVec3)> = (0..40)
+            .map(|i| {
+                let (y, z) = (sides[i % 4], sides[(i / 4) % 4]);
+                let x = 2.0 + i as f64 * 0.5;
+                (DVec3::new(x, y.0, z.0), DVec3::new(x + 0.4, y.1, z.1))
+            })
+            .collect();
+        for n in [1, 3, 40] {
+            let bvh = Bvh::build(&boxes[..n], DVec3::ZERO);
+            let wide = WideBvh::new(&bvh);
+            let all: Vec<u32> = (0..n as u32).collect();
+            for (y, z) in [(0.0, 0.0), (-0.0, 0.0), (0.0, -0.0), (-0.0, -0.0)] {
+                for (x, want) in [(1.0f32, &all[..]), (-1.0, &[][..])] {
+                    let d = Vec3A::new(x, y, z);
+                    let inf = f32::INFINITY;
+                    assert_eq!(binary_visits(&bvh, d, 0.0, inf), want, "{n}: d = {d:?}");
+                    assert_eq!(wide_visits(&wide, (), d, 0.0, inf), want, "{n}: d = {d:?}");
+                    if let Some(tok) = Avx2::detect() {
+                        let w = wide_visits(&wide, tok, d, 0.0, inf);
+                        assert_eq!(w, want, "AVX2, {n}: d = {d:?}");
+                    }
+                }
+            }
         }
     }
 

@@ -456,8 +456,8 @@ fn time_process(
     accel: Accel,
 ) -> Result<(f64, Option<f64>)> {
     // Each process writes a new file, as a render into a fresh dataset folder does:
-    // replacing a 33 MB file would add the old one's release (10-20 ms of kernel time
-    // here) to the render's.
+    // replacing a large file would add the kernel's release of the old one to the
+    // render's time.
     match std::fs::remove_file(out) {
         Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(e)?,
         _ => {}

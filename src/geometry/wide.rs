@@ -222,7 +222,7 @@ impl Avx2 {
 /// Made only by [`SlabRay::new`], so every row starts at most 40 f32 into the planes.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct SlabRay {
-    /// `1/d` per axis, never 0, infinite or NaN.
+    /// `1/d` per axis: ±inf along an axis the ray is parallel to, never 0 or NaN.
     inv: [f32; 3],
     /// `inv · grow` per axis: an exit is `plane · inv_far`, one product from the plane (the
     /// next node waits for this test, so a second product would lengthen every step).
@@ -248,14 +248,11 @@ impl SlabRay {
     /// `(1 + u)²` times its exact entry: a box the exact ray meets is still met.
     #[inline(always)]
     pub(crate) fn new(d: [f32; 3], tmin: f32, grow: f32) -> SlabRay {
-        // A zero component would make 0·inf = NaN on a face plane; clamp to a huge slope.
-        let inv = d.map(|x| {
-            1.0 / if x.abs() < 1e-30 {
-                1e-30f32.copysign(x)
-            } else {
-                x
-            }
-        });
+        // 1/±0 = ±inf: a ray parallel to a slab is in it for every t or for none (the BVH
+        // stores no plane at ±0, so no 0·inf = NaN; and one would only widen the test: the
+        // max and min keep their second operand on NaN, and the tmin and tmax terms are
+        // never NaN).
+        let inv = d.map(|x| 1.0 / x);
         // A ray going towards -x enters a box by its max x face, and so on.
         let neg = inv.map(|x| (x < 0.0) as usize);
         let (near_row, far_row) = rows_of(neg[0] | neg[1] << 1 | neg[2] << 2);

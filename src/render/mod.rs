@@ -196,13 +196,72 @@ fn f32_down(x: f64) -> f32 {
     if (f as f64) > x { f.next_down() } else { f }
 }
 
+/// How a render finds each ray's candidate cylinders: what [`strategy`] chose for a view
+/// and a scene, and what the tracer builds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Strategy {
+    /// A tiny view: one list per screen tile of every cylinder it meets, however long, up
+    /// to `max_entries` entries in all; past them, one traversal of the binary BVH per ray.
+    TinyTiles {
+        /// The lists' bound, [`TINY_VIEW_ENTRIES`] per cylinder spread over the tiles.
+        max_entries: usize,
+    },
+    /// Screen-tile lists, or the cone walk where they would be crowded.
+    Tiles,
+    /// The BVH walked tile by tile with each tile's view cone ([`ConeWalk`]).
+    ConeWalk,
+    /// One BVH traversal per ray, through the eight-wide tree (`wide`) or the binary one.
+    PerRay {
+        /// Whether the binary tree is collapsed to the eight-wide one first.
+        wide: bool,
+    },
+}
+
+/// The strategy for a `width × height` view of `cylinders` cylinders under `accel`: a
+/// pure function of the three, so a view's structure (and its bits) never depends on
+/// the machine.
+///
+/// - A tiny view (more than [`TINY_VIEW`] cylinders per pixel) takes
+///   [`Strategy::TinyTiles`] under `tiles`.
+/// - Under `tiles`, more than `8 · CROWDED` cylinders per tile are crowded lists unless
+///   nearly all lie outside the view, so they go to the cone walk without projecting.
+/// - `frustum` is the cone walk; `bvh` is per-ray traversal, through the wide tree unless
+///   the view has fewer pixels than cylinders per [`WIDE_COLLAPSE`].
+pub fn strategy(accel: Accel, (width, height): (u32, u32), cylinders: usize) -> Strategy {
+    let ntiles = width.div_ceil(TILE) as usize * height.div_ceil(TILE) as usize;
+    let pixels = width as usize * height as usize;
+    let tiny = pixels * TINY_VIEW < cylinders;
+    match accel {
+        Accel::Tiles if tiny => Strategy::TinyTiles {
+            max_entries: TINY_VIEW_ENTRIES * cylinders / ntiles,
+        },
+        Accel::Tiles if cylinders <= 8 * tiles::CROWDED * ntiles => Strategy::Tiles,
+        Accel::Tiles | Accel::Frustum => Strategy::ConeWalk,
+        Accel::Bvh => Strategy::PerRay {
+            wide: pixels * WIDE_COLLAPSE >= cylinders,
+        },
+    }
+}
+
+/// A view with more than this many cylinders per pixel is tiny: its tile lists, however
+/// crowded, cost less than building any BVH, and the cone walk (a per-tile structure on a
+/// BVH) more still. Backed by `cylaov bench --family dense --counts 100000 --width 16
+/// --height 16` against the same run with `--accel frustum`.
+pub const TINY_VIEW: usize = 16;
+
 /// A tiny view's tile lists may hold this many entries per cylinder in all (each entry a
-/// cylinder listed in one tile): past it, one BVH traversal per pixel instead. Measured
-/// with callgrind, 16×16 view of dense 100 000 (one tile, 100 000 entries): the whole
-/// process 454 M instructions through the lists against 488 M through a BVH (whose build
-/// alone is 180 M), and 47 against 63 ms: the lists' sort runs on both cores, the build's
-/// top levels on one.
-const TINY_VIEW_ENTRIES: usize = 16;
+/// cylinder listed in one tile): past it, one BVH traversal per pixel instead, as lists
+/// that long cost more to sort than a BVH costs to build. Backed by `cylaov bench
+/// --family dense --counts 100000 --width 16 --height 16` against the same run with
+/// `--accel bvh`.
+pub const TINY_VIEW_ENTRIES: usize = 16;
+
+/// Per-ray traversal collapses the binary tree to the eight-wide one when the view has at
+/// least one pixel per this many cylinders: the collapse costs a fixed amount per cylinder
+/// and saves a multiple of it per ray, which fewer rays cannot repay. Backed by `cylaov
+/// bench --accel bvh --family dense --counts 100000` at `--width 16 --height 16` (binary)
+/// and at the default size (wide).
+pub const WIDE_COLLAPSE: usize = 4;
 
 impl<T: Real, F: Formula> Tracer<T, F> {
     /// Prepare `scene` for its camera, building the structure `accel` needs.
@@ -219,38 +278,24 @@ impl<T: Real, F: Formula> Tracer<T, F> {
             let bounds: Vec<_> = cylinders.par_iter().map(|c| c.bounds()).collect();
             Bvh::build(&bounds, origin)
         };
-        let ntiles =
-            camera.width().div_ceil(TILE) as usize * camera.height().div_ceil(TILE) as usize;
-        // Far more cylinders than the lists could hold uncrowded: crowded unless nearly
-        // all lie outside the view, so skip projecting them all for the tiles.
-        let hopeless = cylinders.len() > 8 * tiles::CROWDED * ntiles;
-        // Far fewer pixels than cylinders (a 16×16 view of 100 000): a per-tile structure
-        // built from a BVH (the cone walk) costs more than the few rays it serves.
-        let pixels = camera.width() as usize * camera.height() as usize;
-        let tiny = pixels * 16 < cylinders.len();
-        let per_ray = accel == Accel::Bvh || (accel == Accel::Tiles && tiny);
-        let (bvh, mut tiles, projected) = match accel {
-            // A tiny view: one list per tile of every cylinder it meets, however long,
-            // nearest first: with so few pixels the lists cost less than any BVH build
-            // (a 16×16 view of dense 100 000: see `TINY_VIEW_ENTRIES`). Bounded in
-            // memory; past the bound, one traversal per pixel.
-            Accel::Tiles if tiny => {
-                match Tiles::build_within(
-                    &camera,
-                    cylinders,
-                    TINY_VIEW_ENTRIES * cylinders.len() / ntiles,
-                ) {
-                    Ok(tiles) => (None, Some(tiles), None),
-                    Err(_) => (Some(bvh()), None, None),
+        let view = (camera.width(), camera.height());
+        let plan = strategy(accel, view, cylinders.len());
+        let (bvh, mut tiles, projected, wide) = match plan {
+            Strategy::TinyTiles { max_entries } => {
+                match Tiles::build_within(&camera, cylinders, max_entries) {
+                    Ok(tiles) => (None, Some(tiles), None, false),
+                    // A tiny view has fewer pixels than a quarter of the cylinders.
+                    Err(_) => (Some(bvh()), None, None, false),
                 }
             }
-            _ if per_ray => (Some(bvh()), None, None),
-            Accel::Tiles if !hopeless => match Tiles::build_or_projections(&camera, cylinders) {
-                Ok(tiles) => (None, Some(tiles), None),
-                Err(projected) => (Some(bvh()), None, Some(projected)),
+            Strategy::Tiles => match Tiles::build_or_projections(&camera, cylinders) {
+                Ok(tiles) => (None, Some(tiles), None, false),
+                Err(projected) => (Some(bvh()), None, Some(projected), false),
             },
-            _ => (Some(bvh()), None, None),
+            Strategy::ConeWalk => (Some(bvh()), None, None, false),
+            Strategy::PerRay { wide } => (Some(bvh()), None, None, wide),
         };
+        let per_ray = matches!(plan, Strategy::PerRay { .. } | Strategy::TinyTiles { .. });
         // Slots follow the order the trace meets cylinders in: the tiles' lists, or the
         // BVH's leaves (a leaf's cylinders then lie together in memory).
         let order = match (&mut tiles, &bvh) {
@@ -260,14 +305,7 @@ impl<T: Real, F: Formula> Tracer<T, F> {
         };
         let cone_cands = (bvh.is_some() && !per_ray)
             .then(|| ConeCands::new(&camera, cylinders, &order, projected));
-        // Collapsing to the wide tree costs about 450 instructions a cylinder (its plan and
-        // its nodes) and saves thousands a ray in a dense scene (callgrind, dense 100 000):
-        // worth it unless there are far fewer rays than cylinders (a 16×16 view of 100 000
-        // traverses the binary tree: 256 rays cannot repay 45 M instructions).
-        let wide = bvh
-            .as_ref()
-            .filter(|_| per_ray && pixels * 4 >= cylinders.len())
-            .map(WideBvh::new);
+        let wide = bvh.as_ref().filter(|_| wide).map(WideBvh::new);
         // Once collapsed, the binary tree is not read again (its order is the slots'):
         // free it (53 MB at a million cylinders).
         let bvh = bvh.filter(|_| wide.is_none());
@@ -1245,6 +1283,44 @@ fn bands_simd<T: Simd, F: PacketFormula>(
 mod tests {
     use super::*;
     use crate::geometry::Stable;
+
+    /// Each threshold of the strategy, on both sides: the tiny view (16 cylinders per
+    /// pixel), the crowded lists (`8 · CROWDED` cylinders per tile, partial tiles counted
+    /// whole), the tiny lists' bound, and the wide collapse (4 cylinders per pixel).
+    #[test]
+    fn strategy_switches_at_its_thresholds() {
+        use Strategy::*;
+        let s = strategy;
+        let crowd = 8 * tiles::CROWDED;
+        // A 16×16 view: one tile, 256 pixels.
+        assert_eq!(s(Accel::Tiles, (16, 16), 0), Tiles);
+        assert_eq!(s(Accel::Tiles, (16, 16), crowd), Tiles);
+        assert_eq!(s(Accel::Tiles, (16, 16), crowd + 1), ConeWalk);
+        assert_eq!(s(Accel::Tiles, (16, 16), 256 * 16), ConeWalk);
+        let tiny = |n: usize, tiles: usize| TinyTiles {
+            max_entries: 16 * n / tiles,
+        };
+        assert_eq!(s(Accel::Tiles, (16, 16), 256 * 16 + 1), tiny(4097, 1));
+        assert_eq!(s(Accel::Tiles, (16, 16), 100_000), tiny(100_000, 1));
+        // 17×16 and 32×16: two tiles.
+        assert_eq!(s(Accel::Tiles, (17, 16), 2 * crowd), Tiles);
+        assert_eq!(s(Accel::Tiles, (17, 16), 2 * crowd + 1), ConeWalk);
+        assert_eq!(s(Accel::Tiles, (32, 16), 100_000), tiny(100_000, 2));
+        // 1920×1080: 120 × 68 tiles (the last row partial).
+        assert_eq!(s(Accel::Tiles, (1920, 1080), 8160 * crowd), Tiles);
+        assert_eq!(s(Accel::Tiles, (1920, 1080), 8160 * crowd + 1), ConeWalk);
+        // The cone walk when asked for, tiny or not.
+        for n in [0, 1, 100_000, 10_000_000] {
+            assert_eq!(s(Accel::Frustum, (16, 16), n), ConeWalk);
+            assert_eq!(s(Accel::Frustum, (1920, 1080), n), ConeWalk);
+        }
+        // Per ray: wide down to one pixel per 4 cylinders.
+        assert_eq!(s(Accel::Bvh, (16, 16), 1024), PerRay { wide: true });
+        assert_eq!(s(Accel::Bvh, (16, 16), 1025), PerRay { wide: false });
+        assert_eq!(s(Accel::Bvh, (1, 1), 0), PerRay { wide: true });
+        assert_eq!(s(Accel::Bvh, (1, 1), 5), PerRay { wide: false });
+        assert_eq!(s(Accel::Bvh, (8192, 8192), 1 << 28), PerRay { wide: true });
+    }
 
     /// Rendered band by band, every AOV is the whole render's bits at the band's rows (an
     /// odd size: a last band of 97 mod 16 = 1 row, partial tiles), through each structure;

@@ -9,11 +9,10 @@
 //! rejection names the field and the value: `cylinders[3].radius: must be > 0, got -1`.
 
 pub mod camera;
-mod fast_json;
 pub mod strict;
 
 use crate::geometry::Cylinder;
-use crate::scene::camera::{CameraSpec, FovAxis};
+use crate::scene::camera::{Camera, CameraSpec, FovAxis};
 use glam::DVec3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -313,23 +312,24 @@ pub fn load(path: &Path) -> Result<Scene, SceneError> {
     if bytes.len() as u64 > MAX_SCENE_BYTES {
         return Err(too_big(bytes.len() as u64));
     }
-    // The fast reader takes bytes (what it accepts is valid UTF-8); the rest is checked.
-    if let Some(file) = fast_json::scene_file(bytes) {
-        return file.validate();
+    // Plain serde_json first; only a file it refuses is read again with path tracking
+    // (and checked for UTF-8), for the message that names the field.
+    if let Ok(file) = serde_json::from_slice::<strict::Object<SceneFile>>(bytes) {
+        return file.0.validate();
     }
     let text = std::str::from_utf8(bytes)
         .map_err(|e| err("", format!("not UTF-8 text (byte {})", e.valid_up_to())))?;
     parse_serde(text)
 }
 
-/// Parse and validate scene JSON: one JSON object and nothing after it.
+/// Parse and validate scene JSON: one JSON object and nothing after it. Plain
+/// `serde_json` reads it; only when that fails, [`parse_serde`] reads it again with path
+/// tracking, whose message names the field.
 pub fn parse(text: &str) -> Result<Scene, SceneError> {
-    // Plain files take the fast reader; anything else (and every error) goes through
-    // serde_json, whose messages name the field.
-    if let Some(file) = fast_json::scene_file(text.as_bytes()) {
-        return file.validate();
+    match serde_json::from_str::<strict::Object<SceneFile>>(text) {
+        Ok(file) => file.0.validate(),
+        Err(_) => parse_serde(text),
     }
-    parse_serde(text)
 }
 
 /// [`parse`] through `serde_json` alone.
@@ -474,14 +474,6 @@ impl SceneFile {
                     .collect(),
             }
         })
-    }
-}
-
-impl fast_json::FastScene {
-    /// Check the cameras and AOVs (the cylinders were checked as they were read).
-    fn validate(self) -> Result<Scene, SceneError> {
-        let cylinders = self.cylinders;
-        validate_scene(&self.camera, &self.cameras, &self.aovs, || cylinders)
     }
 }
 
@@ -644,7 +636,7 @@ impl CameraFile {
                 ),
             ));
         }
-        Ok(CameraSpec {
+        let spec = CameraSpec {
             origin,
             target,
             up,
@@ -654,8 +646,60 @@ impl CameraFile {
             height: self.height,
             near_clip: near,
             far_clip: far,
-        })
+        };
+        // A field of view so small that its tangent underflows leaves no focal length
+        // (an infinite one) and a pixel footprint of 0: the camera files and the EXR
+        // header (f32) could not state the camera.
+        let cam = Camera::new(spec);
+        let (fx, fy) = cam.focal_px();
+        let foot = 2.0 * cam.tan_half_x / self.width as f64;
+        let fits = |x: f64| x > 0.0 && x <= f32::MAX as f64;
+        if !(fits(fx) && fits(fy) && foot > 0.0 && foot.is_finite()) {
+            return Err(err(
+                format!("{at}.fov_deg"),
+                format!(
+                    "is too small for a finite focal length in pixels (at most {:e}), got {} (focal length {} px)",
+                    f32::MAX,
+                    num(fov),
+                    num(fx.max(fy))
+                ),
+            ));
+        }
+        Ok(spec)
     }
+}
+
+/// The length of `v` and `v` divided by it. When the squared length leaves the normal
+/// range (a component near 1e-162 squares to a subnormal or to 0, near 1e155 to inf),
+/// `v` is first scaled by the power of two that brings its largest component to [1, 2)
+/// (exactly: a scaled copy, normalised as that copy is), so any finite non-zero `v` gets
+/// its true length and a unit direction. Every other `v` gets `length()` and
+/// `v / length` as they are.
+fn length_and_unit(v: DVec3) -> (f64, DVec3) {
+    let sq = v.length_squared();
+    if sq >= f64::MIN_POSITIVE && sq.is_finite() {
+        let len = sq.sqrt();
+        return (len, v / len);
+    }
+    let m = v.abs().max_element();
+    if m == 0.0 || !m.is_finite() {
+        return (m, v);
+    }
+    // Two exact steps of at most 2^600 each: a subnormal's exponent field is 0.
+    let pre = if m < 1.0 {
+        2f64.powi(600)
+    } else {
+        2f64.powi(-600)
+    };
+    let (v, m, back) = if !(2f64.powi(-400)..2f64.powi(400)).contains(&m) {
+        (v * pre, m * pre, 1.0 / pre)
+    } else {
+        (v, m, 1.0)
+    };
+    let exp = ((m.to_bits() >> 52) & 0x7ff) as i32 - 1023;
+    let s = v * 2f64.powi(-exp);
+    let len = s.length();
+    (len * 2f64.powi(exp) * back, s / len)
 }
 
 impl CylinderFile {
@@ -665,7 +709,7 @@ impl CylinderFile {
         let (base, axis, height) = match (self.p0, self.p1, self.center, self.axis, self.height) {
             (Some(p0), Some(p1), None, None, None) => {
                 let (p0, p1) = (check_vec(f("p0"), p0)?, check_vec(f("p1"), p1)?);
-                let h = (p1 - p0).length();
+                let (h, axis) = length_and_unit(p1 - p0);
                 if h == 0.0 {
                     return Err(err(
                         f("p1").path(),
@@ -675,20 +719,20 @@ impl CylinderFile {
                         ),
                     ));
                 }
-                (p0, (p1 - p0) / h, h)
+                (p0, axis, h)
             }
             (None, None, Some(c), Some(a), Some(h)) => {
                 let c = check_vec(f("center"), c)?;
                 let a = check_vec(f("axis"), a)?;
                 let h = check_positive(f("height"), h)?;
-                let len = a.length();
+                let (len, unit) = length_and_unit(a);
                 if len == 0.0 || !len.is_finite() {
                     return Err(err(
                         f("axis").path(),
                         format!("must be non-zero, got {:?}", a.to_array()),
                     ));
                 }
-                (c, a / len, h)
+                (c, unit, h)
             }
             _ => {
                 return Err(err(
