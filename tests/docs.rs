@@ -735,11 +735,6 @@ fn the_narration_patterns_match_what_they_should() {
     }
 }
 
-/// Known lines in files this test's owner does not maintain (the library's comments): each
-/// is reported, not failed, until it is rewritten; an entry that no longer matches fails,
-/// so the list only shrinks.
-const KNOWN: &[(&str, &str)] = &[("src/accel/wide_bvh.rs", "trace 265 → 250 ms min")];
-
 #[test]
 fn no_tracked_text_narrates_development() {
     let out = Command::new("git")
@@ -766,7 +761,6 @@ fn no_tracked_text_narrates_development() {
         }
     }
     let mut bad = Vec::new();
-    let mut known_seen = vec![false; KNOWN.len()];
     let mut checked = 0;
     for name in &names {
         // History lives in the changelog; this file spells the patterns out.
@@ -788,31 +782,15 @@ fn no_tracked_text_narrates_development() {
             if found.is_empty() {
                 continue;
             }
-            let known = KNOWN
-                .iter()
-                .position(|(f, l)| f == name && line.contains(l));
-            let msg = format!("{name}:{}: {}: {}", k + 1, found.join(", "), line.trim());
-            match known {
-                Some(i) => {
-                    known_seen[i] = true;
-                    eprintln!("known, to rewrite: {msg}");
-                }
-                None => bad.push(msg),
-            }
+            bad.push(format!(
+                "{name}:{}: {}: {}",
+                k + 1,
+                found.join(", "),
+                line.trim()
+            ));
         }
     }
     assert!(checked > 50, "only {checked} text files: wrong folder?");
-    let stale: Vec<_> = KNOWN
-        .iter()
-        .zip(&known_seen)
-        .filter(|(_, seen)| !**seen)
-        .map(|((f, l), _)| format!("{f}: {l}"))
-        .collect();
-    assert!(
-        stale.is_empty(),
-        "KNOWN entries that no longer match (remove them):\n{}",
-        stale.join("\n")
-    );
     assert!(
         bad.is_empty(),
         "{} line(s) narrate development (state what is; history goes in CHANGELOG.md):\n{}",
