@@ -60,6 +60,10 @@
 //!   prepared cylinders, the scene file's bytes and cylinder list), and the allocator
 //!   policy `main.rs` sets so freed memory is reused, not faulted in afresh.
 //!
+//! Python: `python` (cargo feature `python`), the extension module of the `cylaov`
+//! package: thin bindings over `scene`, `render` (with [`render::cast`], rays from any
+//! origin), `output::aov`, `verify::compare` and `dataset::generate`.
+//!
 //! Around them: [`commands`], the IO of each subcommand (`render`, `generate`, `batch`,
 //! `export-mitsuba`, `compare`, `verify`, `stress`, `bench`); `main.rs` only parses
 //! arguments and maps results to exit codes.
@@ -77,6 +81,8 @@ pub mod dataset;
 pub mod geometry;
 pub mod mem;
 pub mod output;
+#[cfg(feature = "python")]
+pub mod python;
 pub mod render;
 pub mod rng;
 pub mod scene;
