@@ -298,7 +298,65 @@ fn mask_of(planes: &[(Aov, Plane)], n: usize) -> Option<Vec<bool>> {
 /// field and the value. A Scene pickles (as its JSON).
 #[pyclass(name = "Scene", module = "cylaov", frozen)]
 pub struct PyScene {
-    pub(crate) scene: scene::Scene,
+    scene: scene::Scene,
+    /// The file it came from, when `to_json` must give its exact bytes (a generated scene:
+    /// `p1` as drawn, not recomputed from the validated axis and height).
+    file: Option<SceneFile>,
+}
+
+impl From<scene::Scene> for PyScene {
+    fn from(scene: scene::Scene) -> Self {
+        PyScene { scene, file: None }
+    }
+}
+
+/// A validated scene's exact state, for pickling: the cameras as written and every
+/// cylinder's validated fields (base, unit axis, height, radius), so that nothing is
+/// recomputed on the way back.
+#[derive(serde::Serialize, serde::Deserialize)]
+struct State {
+    cameras: Vec<CameraFile>,
+    /// `[base.x, base.y, base.z, axis.x, axis.y, axis.z, height, radius]` per cylinder.
+    cylinders: Vec<[f64; 8]>,
+    caps: Vec<bool>,
+    ids: Vec<u32>,
+    aovs: Vec<Aov>,
+    file: Option<SceneFile>,
+}
+
+/// A Scene from the state `Scene.__reduce__` wrote (the cameras validated again).
+#[pyfunction]
+fn _scene_from_state(state: &[u8]) -> PyResult<PyScene> {
+    let st: State = serde_json::from_slice(state)
+        .map_err(|e| PyValueError::new_err(format!("scene state: {e}")))?;
+    let cams = SceneFile {
+        camera: None,
+        cameras: Some(st.cameras),
+        cylinders: Vec::new(),
+        aovs: Some(st.aovs),
+    }
+    .validate()
+    .map_err(scene_error)?;
+    let cylinders = st
+        .cylinders
+        .iter()
+        .zip(st.caps.iter().zip(&st.ids))
+        .map(|(c, (&caps, &id))| crate::geometry::Cylinder {
+            base: DVec3::new(c[0], c[1], c[2]),
+            axis: DVec3::new(c[3], c[4], c[5]),
+            height: c[6],
+            radius: c[7],
+            caps,
+            id,
+        })
+        .collect();
+    Ok(PyScene {
+        scene: scene::Scene {
+            cylinders,
+            ..cams
+        },
+        file: st.file,
+    })
 }
 
 fn camera_dict<'py>(py: Python<'py>, c: &crate::scene::camera::CameraSpec) -> PyResult<Bound<'py, PyAny>> {
@@ -326,7 +384,7 @@ impl PyScene {
             Ok(_) => {}
         }
         let scene = scene::load(&path).map_err(|e| scene_error(format!("{}: {e}", path.display())))?;
-        Ok(PyScene { scene })
+        Ok(scene.into())
     }
 
     /// Parse and validate scene JSON (`str`, or `bytes` of UTF-8 text).
@@ -344,9 +402,7 @@ impl PyScene {
                 .map_err(|_| PyTypeError::new_err("from_json: text must be str or bytes"))?;
             scene::parse(&s)
         };
-        Ok(PyScene {
-            scene: scene.map_err(scene_error)?,
-        })
+        Ok(scene.map_err(scene_error)?.into())
     }
 
     /// Validate a scene given as a dict of the scene file's keys (`camera` or `cameras`,
@@ -355,7 +411,7 @@ impl PyScene {
     fn from_dict(d: &Bound<'_, PyAny>) -> PyResult<PyScene> {
         let text = py_to_json(d, "from_dict")?;
         let scene = scene::parse(&text).map_err(scene_error)?;
-        Ok(PyScene { scene })
+        Ok(scene.into())
     }
 
     /// A scene from arrays: `p0`, `p1` of shape (N, 3) and `radius` of shape (N,),
@@ -457,9 +513,7 @@ impl PyScene {
                 .collect(),
             aovs: None,
         };
-        Ok(PyScene {
-            scene: file.validate().map_err(scene_error)?,
-        })
+        Ok(file.validate().map_err(scene_error)?.into())
     }
 
     /// The cameras, in file order, each a dict of the scene file's camera keys.
@@ -476,7 +530,11 @@ impl PyScene {
     /// The scene as a scene file (JSON text, every field explicit, as `cylaov generate`
     /// writes it).
     fn to_json(&self) -> PyResult<String> {
-        to_json(&SceneFile::from_scene(&self.scene)).map_err(|e| PyValueError::new_err(e.to_string()))
+        let text = match &self.file {
+            Some(f) => to_json(f),
+            None => to_json(&SceneFile::from_scene(&self.scene)),
+        };
+        text.map_err(|e| PyValueError::new_err(e.to_string()))
     }
 
     /// The scene as Mitsuba 3 XML (what `cylaov export-mitsuba` writes), for camera 0;
@@ -503,9 +561,27 @@ impl PyScene {
             .is_ok_and(|o| o.get().scene == self.scene)
     }
 
-    fn __reduce__<'py>(slf: &Bound<'py, Self>) -> PyResult<(Bound<'py, PyAny>, (String,))> {
-        let f = slf.get_type().getattr("from_json")?;
-        Ok((f, (slf.get().to_json()?,)))
+    fn __reduce__<'py>(slf: &Bound<'py, Self>) -> PyResult<(Bound<'py, PyAny>, (Vec<u8>,))> {
+        let me = slf.get();
+        let sc = &me.scene;
+        let st = State {
+            cameras: sc.cameras.iter().map(CameraFile::from_spec).collect(),
+            cylinders: sc
+                .cylinders
+                .iter()
+                .map(|c| {
+                    let (b, a) = (c.base, c.axis);
+                    [b.x, b.y, b.z, a.x, a.y, a.z, c.height, c.radius]
+                })
+                .collect(),
+            caps: sc.cylinders.iter().map(|c| c.caps).collect(),
+            ids: sc.cylinders.iter().map(|c| c.id).collect(),
+            aovs: sc.aovs.clone(),
+            file: me.file.clone(),
+        };
+        let bytes = serde_json::to_vec(&st).map_err(|e| PyValueError::new_err(e.to_string()))?;
+        let f = slf.py().import("cylaov._cylaov")?.getattr("_scene_from_state")?;
+        Ok((f, (bytes,)))
     }
 }
 
@@ -756,6 +832,7 @@ fn generated(o: &GenerateOptions, seed: u64, index: u64) -> PyResult<PyScene> {
     let file = o.scene(seed, index).map_err(PyValueError::new_err)?;
     Ok(PyScene {
         scene: file.validate().map_err(scene_error)?,
+        file: Some(file),
     })
 }
 
@@ -1050,6 +1127,7 @@ fn _cylaov(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(camera_rays, m)?)?;
     m.add_function(wrap_pyfunction!(_cast_rays, m)?)?;
     m.add_function(wrap_pyfunction!(_oracle_cast, m)?)?;
+    m.add_function(wrap_pyfunction!(_scene_from_state, m)?)?;
     m.add_function(wrap_pyfunction!(_generate, m)?)?;
     m.add_function(wrap_pyfunction!(read, m)?)?;
     m.add_function(wrap_pyfunction!(compare, m)?)?;
