@@ -42,7 +42,10 @@ create_exception!(
 // ---- thread pools ------------------------------------------------------------------------
 
 /// The pools of this process, by thread count, and the process they belong to.
-static POOLS: Mutex<Option<(u32, HashMap<usize, Arc<rayon::ThreadPool>>)>> = Mutex::new(None);
+static POOLS: Mutex<Option<(u32, Pools)>> = Mutex::new(None);
+
+/// One process's pools, by thread count.
+type Pools = HashMap<usize, Arc<rayon::ThreadPool>>;
 
 /// The pool of `threads` threads (`None`: every core) of this process, made on first use.
 fn pool(threads: Option<usize>) -> PyResult<Arc<rayon::ThreadPool>> {
@@ -71,8 +74,19 @@ fn pool(threads: Option<usize>) -> PyResult<Arc<rayon::ThreadPool>> {
     Ok(p)
 }
 
+/// Run pure Rust `f` on this process's pool of `threads` threads, the GIL held (for quick
+/// work: parsing, validation). Whatever uses rayon outside a pool's `install` takes rayon's
+/// global pool, which after a fork is the parent's, without threads: so nothing here does.
+fn on_pool<T: Send>(threads: Option<usize>, f: impl FnOnce() -> T + Send) -> PyResult<T> {
+    Ok(pool(threads)?.install(f))
+}
+
 /// Run `f` on the pool of `threads` threads with the GIL released.
-fn run<T: Send>(py: Python<'_>, threads: Option<usize>, f: impl FnOnce() -> T + Send) -> PyResult<T> {
+fn run<T: Send>(
+    py: Python<'_>,
+    threads: Option<usize>,
+    f: impl FnOnce() -> T + Send,
+) -> PyResult<T> {
     let pool = pool(threads)?;
     Ok(py.detach(|| pool.install(f)))
 }
@@ -334,9 +348,8 @@ fn _scene_from_state(state: &[u8]) -> PyResult<PyScene> {
         cameras: Some(st.cameras),
         cylinders: Vec::new(),
         aovs: Some(st.aovs),
-    }
-    .validate()
-    .map_err(scene_error)?;
+    };
+    let cams = on_pool(None, || cams.validate())?.map_err(scene_error)?;
     let cylinders = st
         .cylinders
         .iter()
@@ -351,16 +364,17 @@ fn _scene_from_state(state: &[u8]) -> PyResult<PyScene> {
         })
         .collect();
     Ok(PyScene {
-        scene: scene::Scene {
-            cylinders,
-            ..cams
-        },
+        scene: scene::Scene { cylinders, ..cams },
         file: st.file,
     })
 }
 
-fn camera_dict<'py>(py: Python<'py>, c: &crate::scene::camera::CameraSpec) -> PyResult<Bound<'py, PyAny>> {
-    let v = serde_json::to_value(CameraFile::from_spec(c)).map_err(|e| PyValueError::new_err(e.to_string()))?;
+fn camera_dict<'py>(
+    py: Python<'py>,
+    c: &crate::scene::camera::CameraSpec,
+) -> PyResult<Bound<'py, PyAny>> {
+    let v = serde_json::to_value(CameraFile::from_spec(c))
+        .map_err(|e| PyValueError::new_err(e.to_string()))?;
     json_to_py(py, &v)
 }
 
@@ -383,7 +397,8 @@ impl PyScene {
             }
             Ok(_) => {}
         }
-        let scene = scene::load(&path).map_err(|e| scene_error(format!("{}: {e}", path.display())))?;
+        let scene = on_pool(None, || scene::load(&path))?
+            .map_err(|e| scene_error(format!("{}: {e}", path.display())))?;
         Ok(scene.into())
     }
 
@@ -392,15 +407,14 @@ impl PyScene {
     fn from_json(text: &Bound<'_, PyAny>) -> PyResult<PyScene> {
         let scene = if let Ok(b) = text.cast::<pyo3::types::PyBytes>() {
             let bytes = b.as_bytes();
-            let s = std::str::from_utf8(bytes).map_err(|e| {
-                scene_error(format!("not UTF-8 text (byte {})", e.valid_up_to()))
-            })?;
-            scene::parse(s)
+            let s = std::str::from_utf8(bytes)
+                .map_err(|e| scene_error(format!("not UTF-8 text (byte {})", e.valid_up_to())))?;
+            on_pool(None, || scene::parse(s))?
         } else {
             let s: String = text
                 .extract()
                 .map_err(|_| PyTypeError::new_err("from_json: text must be str or bytes"))?;
-            scene::parse(&s)
+            on_pool(None, || scene::parse(&s))?
         };
         Ok(scene.map_err(scene_error)?.into())
     }
@@ -410,7 +424,7 @@ impl PyScene {
     #[staticmethod]
     fn from_dict(d: &Bound<'_, PyAny>) -> PyResult<PyScene> {
         let text = py_to_json(d, "from_dict")?;
-        let scene = scene::parse(&text).map_err(scene_error)?;
+        let scene = on_pool(None, || scene::parse(&text))?.map_err(scene_error)?;
         Ok(scene.into())
     }
 
@@ -472,7 +486,9 @@ impl PyScene {
                 let mut v = Vec::with_capacity(n);
                 for (i, &x) in a.iter().enumerate() {
                     v.push(u32::try_from(x).map_err(|_| {
-                        scene_error(format!("cylinders[{i}].id: must be in 1..=4294967295, got {x}"))
+                        scene_error(format!(
+                            "cylinders[{i}].id: must be in 1..=4294967295, got {x}"
+                        ))
                     })?);
                 }
                 Some(v)
@@ -483,7 +499,11 @@ impl PyScene {
             let de = &mut serde_json::Deserializer::from_str(&text);
             serde_path_to_error::deserialize(de).map_err(|e| {
                 let path = e.path().to_string();
-                let at = if path == "." { field.to_string() } else { format!("{field}.{path}") };
+                let at = if path == "." {
+                    field.to_string()
+                } else {
+                    format!("{field}.{path}")
+                };
                 scene_error(format!("{at}: {}", e.into_inner()))
             })
         };
@@ -513,13 +533,19 @@ impl PyScene {
                 .collect(),
             aovs: None,
         };
-        Ok(file.validate().map_err(scene_error)?.into())
+        Ok(on_pool(None, || file.validate())?
+            .map_err(scene_error)?
+            .into())
     }
 
     /// The cameras, in file order, each a dict of the scene file's camera keys.
     #[getter]
     fn cameras<'py>(&self, py: Python<'py>) -> PyResult<Vec<Bound<'py, PyAny>>> {
-        self.scene.cameras.iter().map(|c| camera_dict(py, c)).collect()
+        self.scene
+            .cameras
+            .iter()
+            .map(|c| camera_dict(py, c))
+            .collect()
     }
 
     /// The number of cylinders.
@@ -580,7 +606,10 @@ impl PyScene {
             file: me.file.clone(),
         };
         let bytes = serde_json::to_vec(&st).map_err(|e| PyValueError::new_err(e.to_string()))?;
-        let f = slf.py().import("cylaov._cylaov")?.getattr("_scene_from_state")?;
+        let f = slf
+            .py()
+            .import("cylaov._cylaov")?
+            .getattr("_scene_from_state")?;
         Ok((f, (bytes,)))
     }
 }
@@ -718,7 +747,9 @@ fn _cast_rays<'py>(
     let (lo, hi) = (flat(&t_min, "t_min")?, flat(&t_max, "t_max")?);
     let n = lo.len();
     if o.len() != 3 * n || d.len() != 3 * n || hi.len() != n {
-        return Err(PyValueError::new_err("origins, directions, t_min, t_max: sizes differ"));
+        return Err(PyValueError::new_err(
+            "origins, directions, t_min, t_max: sizes differ",
+        ));
     }
     const KINDS: [&str; 5] = ["t_hit", "normal", "shape_id", "part", "position"];
     for (i, a) in aovs.iter().enumerate() {
@@ -743,7 +774,10 @@ fn _cast_rays<'py>(
     let want = |a: &str| aovs.iter().any(|x| x == a);
     let dyn1 = |v| ArrayD::from_shape_vec(IxDyn(&[n]), v).map_err(shape_err);
     if want("t_hit") {
-        let v: Vec<f64> = hits.iter().map(|h| h.map_or(f64::INFINITY, |h| h.t)).collect();
+        let v: Vec<f64> = hits
+            .iter()
+            .map(|h| h.map_or(f64::INFINITY, |h| h.t))
+            .collect();
         out.set_item("t_hit", dyn1(v)?.into_pyarray(py))?;
     }
     let vec3 = |f: &dyn Fn(&cast::RayHit, &Ray) -> DVec3| -> PyResult<Bound<'py, PyAny>> {
@@ -751,7 +785,10 @@ fn _cast_rays<'py>(
         for (h, r) in hits.iter().zip(&rays) {
             v.extend(h.map_or([0.0; 3], |h| f(&h, r).to_array()));
         }
-        Ok(Array2::from_shape_vec((n, 3), v).map_err(shape_err)?.into_pyarray(py).into_any())
+        Ok(Array2::from_shape_vec((n, 3), v)
+            .map_err(shape_err)?
+            .into_pyarray(py)
+            .into_any())
     };
     if want("normal") {
         out.set_item("normal", vec3(&|h, _| h.normal)?)?;
@@ -760,12 +797,22 @@ fn _cast_rays<'py>(
         out.set_item("position", vec3(&|h, r| r.origin + r.dir * h.t)?)?;
     }
     for (name, f) in [
-        ("shape_id", (|h: &cast::RayHit| h.id) as fn(&cast::RayHit) -> u32),
+        (
+            "shape_id",
+            (|h: &cast::RayHit| h.id) as fn(&cast::RayHit) -> u32,
+        ),
         ("part", |h: &cast::RayHit| h.part),
     ] {
         if want(name) {
             let v: Vec<u32> = hits.iter().map(|h| h.as_ref().map_or(0, f)).collect();
-            out.set_item(name, Array2::from_shape_vec((n, 1), v).map_err(shape_err)?.into_shape_with_order(n).map_err(shape_err)?.into_pyarray(py))?;
+            out.set_item(
+                name,
+                Array2::from_shape_vec((n, 1), v)
+                    .map_err(shape_err)?
+                    .into_shape_with_order(n)
+                    .map_err(shape_err)?
+                    .into_pyarray(py),
+            )?;
         }
     }
     Ok(out)
@@ -799,6 +846,21 @@ fn _oracle_cast(
         .unzip()
 }
 
+/// Seconds per `render` of camera 0 with the default AOVs, timed inside Rust over `calls`
+/// calls (the bench's measure of what a Python call adds).
+#[pyfunction]
+fn _time_render(py: Python<'_>, scene: &Bound<'_, PyScene>, calls: usize) -> PyResult<f64> {
+    let sc = &scene.get().scene;
+    let opts = RenderOptions::new(scene::default_aovs());
+    run(py, None, || {
+        let t0 = std::time::Instant::now();
+        for _ in 0..calls {
+            std::hint::black_box(crate::render::render(sc, &opts));
+        }
+        t0.elapsed().as_secs_f64() / calls.max(1) as f64
+    })
+}
+
 // ---- generate ----------------------------------------------------------------------------
 
 /// The options of `cylaov generate` from the keys of `generate.json` (JSON text; `None`:
@@ -828,10 +890,20 @@ fn options(settings: Option<&str>, seed: u64) -> PyResult<(GenerateOptions, Conf
     Ok((o, config))
 }
 
-fn generated(o: &GenerateOptions, seed: u64, index: u64) -> PyResult<PyScene> {
-    let file = o.scene(seed, index).map_err(PyValueError::new_err)?;
+fn generated(
+    o: &GenerateOptions,
+    seed: u64,
+    index: u64,
+    threads: Option<usize>,
+) -> PyResult<PyScene> {
+    let (file, scene) = on_pool(threads, || {
+        let file = o.scene(seed, index)?;
+        let scene = file.validate().map_err(|e| e.to_string());
+        Ok::<_, String>((file, scene))
+    })?
+    .map_err(PyValueError::new_err)?;
     Ok(PyScene {
-        scene: file.validate().map_err(scene_error)?,
+        scene: scene.map_err(scene_error)?,
         file: Some(file),
     })
 }
@@ -842,7 +914,7 @@ fn generated(o: &GenerateOptions, seed: u64, index: u64) -> PyResult<PyScene> {
 #[pyo3(signature = (settings, seed, index))]
 fn _generate(settings: Option<&str>, seed: u64, index: u64) -> PyResult<PyScene> {
     let (o, _) = options(settings, seed)?;
-    generated(&o, seed, index)
+    generated(&o, seed, index, None)
 }
 
 /// The dataset's state (the package's `Dataset` wraps it): options, seed, length, AOVs.
@@ -901,7 +973,7 @@ impl _Views {
             )));
         }
         let v = self.options.views_per_scene as u64;
-        let scene = generated(&self.options, self.seed, k as u64 / v)?;
+        let scene = generated(&self.options, self.seed, k as u64 / v, self.threads)?;
         let camera = (k as u64 % v) as usize;
         let sc = scene.with_camera(camera)?;
         let opts = RenderOptions::new(self.aovs.clone());
@@ -934,7 +1006,12 @@ fn header_dict<'py>(py: Python<'py>, path: &Path) -> PyResult<(Bound<'py, PyDict
     if let Some(m) = &h.own_attributes.world_to_normalized_device {
         d.set_item("worldToNDC", m44(m))?;
     }
-    for (k, v) in h.own_attributes.other.iter().chain(&h.shared_attributes.other) {
+    for (k, v) in h
+        .own_attributes
+        .other
+        .iter()
+        .chain(&h.shared_attributes.other)
+    {
         let key = k.to_string();
         if let Some(a) = key.strip_prefix("cylaov:channel:") {
             aovs.push(a.to_string());
@@ -960,23 +1037,31 @@ fn read<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, PyDict>> {
         return Err(os_error(&path, &e));
     }
     let (header, named) = header_dict(py, &path)?;
-    let mut image = py
-        .detach(|| AovImage::read_exr(&path))
+    let mut image = run(py, None, || AovImage::read_exr(&path))?
         .map_err(|e| PyOSError::new_err(format!("{e:#}")))?;
     // Per-AOV files name their channels Y or R, G, B: rename to the AOV's channels.
-    let per_aov = image.channels.iter().all(|c| ["Y", "R", "G", "B"].contains(&c.name.as_str()));
+    let per_aov = image
+        .channels
+        .iter()
+        .all(|c| ["Y", "R", "G", "B"].contains(&c.name.as_str()));
     let mut aovs: Vec<Aov> = Vec::new();
     if per_aov && named.len() == 1 {
         let a = parse_aov(&named[0], "header cylaov:channel")?;
         let names = channel_names(a);
         for c in &mut image.channels {
-            let k = ["Y", "R", "G", "B"].iter().position(|n| *n == c.name).unwrap_or(0);
+            let k = ["Y", "R", "G", "B"]
+                .iter()
+                .position(|n| *n == c.name)
+                .unwrap_or(0);
             c.name = names[k.saturating_sub(1).min(names.len() - 1)].to_string();
         }
         aovs.push(a);
     } else {
         for a in Aov::ALL {
-            if channel_names(a).iter().all(|n| image.channels.iter().any(|c| c.name == *n)) {
+            if channel_names(a)
+                .iter()
+                .all(|n| image.channels.iter().any(|c| c.name == *n))
+            {
                 aovs.push(a);
             }
         }
@@ -1014,20 +1099,35 @@ fn image_of(obj: &Bound<'_, PyAny>, which: &str) -> PyResult<(AovImage, String)>
             (w, h) = (ww, hh);
             if a.is_u32() {
                 let v: Vec<u32> = arr.call_method0("ravel")?.extract()?;
-                channels.push(Channel { name: names[0].into(), data: ChannelData::U32(v) });
+                channels.push(Channel {
+                    name: names[0].into(),
+                    data: ChannelData::U32(v),
+                });
             } else {
                 let v: Vec<f32> = arr.call_method0("ravel")?.extract()?;
                 let k = names.len();
                 for (c, name) in names.iter().enumerate() {
                     let plane = v.iter().skip(c).step_by(k).copied().collect();
-                    channels.push(Channel { name: (*name).into(), data: ChannelData::F32(plane) });
+                    channels.push(Channel {
+                        name: (*name).into(),
+                        data: ChannelData::F32(plane),
+                    });
                 }
             }
         }
         if channels.is_empty() {
-            return Err(PyValueError::new_err(format!("{which}: no AOV arrays in the dict")));
+            return Err(PyValueError::new_err(format!(
+                "{which}: no AOV arrays in the dict"
+            )));
         }
-        return Ok((AovImage { width: w, height: h, channels }, format!("<{which}>")));
+        return Ok((
+            AovImage {
+                width: w,
+                height: h,
+                channels,
+            },
+            format!("<{which}>"),
+        ));
     }
     let path: PathBuf = obj
         .extract()
@@ -1035,7 +1135,8 @@ fn image_of(obj: &Bound<'_, PyAny>, which: &str) -> PyResult<(AovImage, String)>
     if let Err(e) = std::fs::metadata(&path) {
         return Err(os_error(&path, &e));
     }
-    let img = AovImage::read_exr(&path).map_err(|e| PyOSError::new_err(format!("{e:#}")))?;
+    let img = on_pool(None, || AovImage::read_exr(&path))?
+        .map_err(|e| PyOSError::new_err(format!("{e:#}")))?;
     Ok((img, path.display().to_string()))
 }
 
@@ -1062,8 +1163,10 @@ fn compare<'py>(
             let key: String = k.extract()?;
             let num = |v: &Bound<'_, PyAny>| -> PyResult<f64> {
                 let x: f64 = v.extract()?;
-                if !(x >= 0.0) {
-                    return Err(PyValueError::new_err(format!("{key}: must be >= 0, got {x}")));
+                if x.is_nan() || x < 0.0 {
+                    return Err(PyValueError::new_err(format!(
+                        "{key}: must be >= 0, got {x}"
+                    )));
                 }
                 Ok(x)
             };
@@ -1092,7 +1195,7 @@ fn compare<'py>(
             Err(_) => PyScene::load(s.extract()?)?.scene,
         }),
     };
-    let report = py.detach(|| -> Result<_, String> {
+    let report = run(py, None, || -> Result<_, String> {
         let cond = match &scene {
             None => None,
             Some(sc) => Some(Conditioning::with_ulps(sc, &ia, ulps).ok_or_else(|| {
@@ -1100,7 +1203,7 @@ fn compare<'py>(
             })?),
         };
         verify::compare_with(&ia, &ib, cond.as_ref()).map_err(|e| format!("comparing {la} with {lb}: {e:#}"))
-    }).map_err(PyValueError::new_err)?;
+    })?.map_err(PyValueError::new_err)?;
     let failures = report.failures(&tol);
     let v = serde_json::json!({
         "a": la,
@@ -1128,6 +1231,7 @@ fn _cylaov(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(_cast_rays, m)?)?;
     m.add_function(wrap_pyfunction!(_oracle_cast, m)?)?;
     m.add_function(wrap_pyfunction!(_scene_from_state, m)?)?;
+    m.add_function(wrap_pyfunction!(_time_render, m)?)?;
     m.add_function(wrap_pyfunction!(_generate, m)?)?;
     m.add_function(wrap_pyfunction!(read, m)?)?;
     m.add_function(wrap_pyfunction!(compare, m)?)?;

@@ -140,8 +140,8 @@ fn tracer_at<T: Real, F: Formula>(
     rays: usize,
 ) -> Tracer<T, F> {
     let cylinders = &scene.cylinders;
-    let bvh = (rays >= BVH_MIN_RAYS && cylinders.len() > LEAF_SIZE)
-        .then(|| Bvh::build(bounds, origin));
+    let bvh =
+        (rays >= BVH_MIN_RAYS && cylinders.len() > LEAF_SIZE).then(|| Bvh::build(bounds, origin));
     let wide = bvh
         .as_ref()
         .filter(|_| rays * 4 >= cylinders.len())
@@ -167,11 +167,7 @@ fn tracer_at<T: Real, F: Formula>(
 }
 
 /// One ray through `tracer`, normalised as a render normalises its pixel rays.
-fn cast_one<T: Real, F: Formula>(
-    scene: &Scene,
-    tracer: &Tracer<T, F>,
-    r: &Ray,
-) -> Option<RayHit> {
+fn cast_one<T: Real, F: Formula>(scene: &Scene, tracer: &Tracer<T, F>, r: &Ray) -> Option<RayHit> {
     let len = r.dir.length();
     let d = r.dir * (1.0 / len);
     let ph: PixelHit<T> = tracer.trace_within(d, r.t_min * len, r.t_max * len)?;
@@ -304,10 +300,35 @@ mod tests {
             t_max: f64::INFINITY,
         };
         let cases = [
-            (Ray { dir: DVec3::ZERO, ..good }, "rays[1].direction: must be finite and non-zero, got [0, 0, 0]"),
-            (Ray { origin: DVec3::new(f64::NAN, 0.0, 0.0), ..good }, "rays[1].origin"),
-            (Ray { t_min: -1.0, ..good }, "rays[1].t_min: must be finite and >= 0, got -1"),
-            (Ray { t_max: 0.5, t_min: 1.0, ..good }, "rays[1].t_max: must be >= t_min (1), got 0.5"),
+            (
+                Ray {
+                    dir: DVec3::ZERO,
+                    ..good
+                },
+                "rays[1].direction: must be finite and non-zero, got [0, 0, 0]",
+            ),
+            (
+                Ray {
+                    origin: DVec3::new(f64::NAN, 0.0, 0.0),
+                    ..good
+                },
+                "rays[1].origin",
+            ),
+            (
+                Ray {
+                    t_min: -1.0,
+                    ..good
+                },
+                "rays[1].t_min: must be finite and >= 0, got -1",
+            ),
+            (
+                Ray {
+                    t_max: 0.5,
+                    t_min: 1.0,
+                    ..good
+                },
+                "rays[1].t_max: must be >= t_min (1), got 0.5",
+            ),
         ];
         for (bad, want) in cases {
             let e = cast(&sc, Kernel::STABLE_F64, &[good, bad]).unwrap_err();
