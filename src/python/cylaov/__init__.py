@@ -49,8 +49,6 @@ __all__ = [
     "__version__",
 ]
 
-RAY_OUTPUTS = ("t_hit", "normal", "shape_id", "part", "position")
-
 
 def cast_rays(scene, origins, directions, t_min=0.0, t_max=float("inf"),
               aovs=("t_hit", "normal", "shape_id", "part"), precision="f64",
