@@ -61,6 +61,10 @@
 //!   and exit 1, never an abort), the 2 MiB-page hint for the large buffers of every stage,
 //!   and the allocator policy `main.rs` sets so freed memory is reused.
 //!
+//! Python: `python` (cargo feature `python`), the extension module of the `cylaov`
+//! package: thin bindings over `scene`, `render` (with [`render::cast`], rays from any
+//! origin), `output::aov`, `verify::compare` and `dataset::generate`.
+//!
 //! Around them: [`commands`], the IO of each subcommand (`render`, `generate`, `batch`,
 //! `export-mitsuba`, `compare`, `verify`, `stress`, `bench`); `main.rs` only parses
 //! arguments and maps results to exit codes.
@@ -78,6 +82,8 @@ pub mod dataset;
 pub mod geometry;
 pub mod mem;
 pub mod output;
+#[cfg(feature = "python")]
+pub mod python;
 pub mod render;
 pub mod rng;
 pub mod scene;

@@ -277,6 +277,11 @@ struct BenchCli {
     /// Largest cylinder count timed with Open3D.
     #[arg(long, default_value_t = 100000)]
     open3d_max: usize,
+    /// Only the Python package's comparison (the reference venv, with `pip install .`
+    /// done): `Dataset[i]` views/s against OpenEXR reading the same views' EXRs, 320x240
+    /// depth+normal, 100 cylinders, and `render()`'s overhead on a 16x16 view.
+    #[arg(long)]
+    python: bool,
     /// Worker threads, 1 to 1024 (default: all cores).
     #[arg(long, value_parser = threads)]
     threads: Option<usize>,
@@ -634,6 +639,16 @@ fn batch(a: BatchCli) -> anyhow::Result<ExitCode> {
 
 fn bench(b: BenchCli) -> anyhow::Result<ExitCode> {
     set_threads(b.threads)?;
+    if b.python {
+        let python = cylaov::verify::reference::Mitsuba::find()
+            .map_err(|why| anyhow::anyhow!("--python: {why}"))?
+            .python;
+        say(&commands::bench::python(
+            &python,
+            &std::env::current_exe()?,
+        )?)?;
+        return Ok(ExitCode::SUCCESS);
+    }
     let (kernels, aov_sets) = if b.quick {
         (
             vec![Kernel::STABLE_F64],

@@ -123,3 +123,33 @@ pub fn run(
     }
     Ok(rows)
 }
+
+/// `scripts/bench_python.py`, compiled in so the binary runs it from anywhere.
+pub const PYTHON_SCRIPT: &str = include_str!("../../scripts/bench_python.py");
+
+/// `cylaov bench --python`: the Python package's `Dataset[i]` against reading the same
+/// views' EXRs with OpenEXR, and `render`'s call overhead on a 16×16 view, measured by
+/// `python` (a venv with the package installed, `pip install .`, and OpenEXR); views of
+/// scenes rendered by `exe`. Returns the script's report.
+pub fn python(python: &Path, exe: &Path) -> Result<String> {
+    let dir = tempfile::tempdir().context("making a folder for the Python bench")?;
+    let script = dir.path().join("bench_python.py");
+    std::fs::write(&script, PYTHON_SCRIPT).context("writing the Python bench script")?;
+    let out = std::process::Command::new(python)
+        .arg(&script)
+        .arg("--cli")
+        .arg(exe)
+        .output()
+        .with_context(|| format!("running {}", python.display()))?;
+    if !out.status.success() {
+        let err = String::from_utf8_lossy(&out.stderr);
+        bail!(
+            "--python: {} {} failed ({}; is the package installed there? pip install .): {}",
+            python.display(),
+            script.display(),
+            out.status,
+            err.trim().lines().last().unwrap_or("")
+        );
+    }
+    Ok(String::from_utf8_lossy(&out.stdout).trim_end().to_string())
+}

@@ -33,6 +33,8 @@ use crate::scene::{Aov, Scene};
 use glam::{DVec3, Vec3A};
 use rayon::prelude::*;
 
+pub mod cast;
+
 /// How primary rays find their candidate cylinders.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
 pub enum Accel {

@@ -146,9 +146,18 @@ impl Camera {
     /// `1 / cos θ` (θ from `forward`): the same `d`, bit for bit.
     #[inline(always)]
     pub fn dir_and_length(&self, x: f64, y: f64) -> (DVec3, f64) {
-        let v = self.forward - self.left * x + self.true_up * y;
+        let v = self.pixel_vector(x, y);
         let len = v.length();
         (v * (1.0 / len), len)
+    }
+
+    /// The unnormalised pixel direction through the image-plane offsets `(x, y)`: its
+    /// camera-space z is 1, so along it the ray parameter is planar depth. Rays cast along
+    /// it from `origin` with `t` in `[near_clip, far_clip]` are a render's pixel rays, bit
+    /// for bit, once normalised as [`Camera::dir_and_length`] does.
+    #[inline(always)]
+    pub fn pixel_vector(&self, x: f64, y: f64) -> DVec3 {
+        self.forward - self.left * x + self.true_up * y
     }
 
     /// The ray parameters of camera-space z = near and far clip along a pixel ray whose

@@ -1,0 +1,175 @@
+"""cylaov: cylinder scenes to per-pixel AOVs as numpy arrays, with no files.
+
+The same Rust library as the ``cylaov`` command: ``render`` returns, bit for bit, the
+samples of the EXR that ``cylaov render`` writes.
+
+A first render::
+
+    import cylaov
+    scene = cylaov.Scene.load("scenes/cluster.json")
+    out = cylaov.render(scene, aovs=("depth", "normal", "shape_id"))
+    out["depth"]      # (H, W) float32, camera-space z; 0 where the ray misses
+    out["normal"]     # (H, W, 3) float32, world-space unit outward normal
+    out["mask"]       # (H, W) bool, True where a cylinder was hit
+
+Functions: ``render``, ``camera_info``, ``cast_rays``, ``camera_rays``, ``generate``,
+``read``, ``compare``; classes ``Scene``, ``Dataset``; errors ``SceneError`` (a
+``ValueError``) and ``OSError`` subclasses for files. ``help(cylaov.render)`` and the others
+say more; the package's documentation page is ``docs/python.md`` in the repository.
+"""
+
+import json as _json
+import os as _os
+
+import numpy as _np
+
+from . import _cylaov
+from ._cylaov import (
+    Scene,
+    SceneError,
+    __version__,
+    camera_info,
+    camera_rays,
+    compare,
+    read,
+    render,
+)
+
+__all__ = [
+    "Scene",
+    "SceneError",
+    "Dataset",
+    "render",
+    "camera_info",
+    "cast_rays",
+    "camera_rays",
+    "generate",
+    "read",
+    "compare",
+    "__version__",
+]
+
+
+def cast_rays(scene, origins, directions, t_min=0.0, t_max=float("inf"),
+              aovs=("t_hit", "normal", "shape_id", "part"), precision="f64",
+              formula="stable", threads=None):
+    """Cast any rays against the scene's cylinders, in f64: the nearest hit of each.
+
+    ``origins`` and ``directions`` are arrays of shape ``(..., 3)`` (converted to float64;
+    ``origins`` broadcasts, so one ``(3,)`` origin serves every ray). Directions need not
+    be unit vectors: ``t_hit`` is in units of each direction's length, as in Open3D's
+    ``RaycastingScene.cast_rays``, so the hit is at ``origin + t_hit * direction``.
+    ``t_min``/``t_max`` (scalars or arrays broadcasting to ``(...)``) bound ``t``.
+
+    Returns a dict of the requested ``aovs``: ``t_hit`` ``(...)`` float64 (``inf`` on a
+    miss), ``normal`` ``(..., 3)`` float64 (world-space unit outward normal, 0 on a miss),
+    ``shape_id`` and ``part`` ``(...)`` uint32 (0 on a miss, as in the EXR: part 1 side from
+    outside, 2 side from inside, 3 bottom cap, 4 top cap), ``position`` ``(..., 3)`` float64.
+
+    Rays sharing an origin share one prepared scene (as a render's pixel rays do); each
+    distinct origin prepares it anew, so group rays by origin (a LiDAR scan: one origin).
+    With ``camera_rays``' rays and the camera's ``near_clip``/``far_clip`` as ``t_min``/
+    ``t_max``, ``float32(t_hit * |d|)`` is the EXR's ``distance``, bit for bit.
+
+    Bad rays (zero or non-finite direction, ``t_min < 0``, ``t_max < t_min``) raise
+    ``ValueError`` naming the ray's flat index.
+    """
+    d = _np.asarray(directions, dtype=_np.float64)
+    if d.ndim < 1 or d.shape[-1] != 3:
+        raise ValueError(f"directions: shape must be (..., 3), got {d.shape}")
+    shape = d.shape[:-1]
+    try:
+        o = _np.broadcast_to(_np.asarray(origins, dtype=_np.float64), d.shape)
+        lo = _np.broadcast_to(_np.asarray(t_min, dtype=_np.float64), shape)
+        hi = _np.broadcast_to(_np.asarray(t_max, dtype=_np.float64), shape)
+    except ValueError as e:
+        raise ValueError(f"origins, t_min, t_max must broadcast to {shape}: {e}") from None
+    aovs = (aovs,) if isinstance(aovs, str) else tuple(aovs)
+    flat = lambda a, k: _np.ascontiguousarray(a.reshape((-1,) + k))
+    out = _cylaov._cast_rays(scene, flat(o, (3,)), flat(d, (3,)), flat(lo, ()), flat(hi, ()),
+                             list(aovs), precision, formula, threads)
+    return {k: v.reshape(shape + v.shape[1:]) for k, v in out.items()}
+
+
+def _settings_json(settings):
+    """``generate.json``'s keys as JSON text: a dict, a path to that file, or None."""
+    if settings is None:
+        return None
+    if isinstance(settings, (str, bytes, _os.PathLike)):
+        with open(settings, encoding="utf-8") as f:
+            return f.read()
+    if not isinstance(settings, dict):
+        raise TypeError(f"settings: a dict, a path to generate.json or None, got {type(settings).__name__}")
+    return _json.dumps(settings, allow_nan=False)
+
+
+def generate(settings, seed, index):
+    """The scene ``cylaov generate`` writes for ``seed`` and ``index`` (0-based).
+
+    ``settings`` holds the keys of ``generate.json`` (or of ``generate --config``): a dict,
+    a path to such a file, or ``None`` for the defaults. Its ``count`` is ignored; a ``seed``
+    in it that differs from the argument raises ``ValueError``. A pure function of its
+    arguments: the same scene in any process, worker or machine.
+    """
+    return _cylaov._generate(_settings_json(settings), int(seed), int(index))
+
+
+class Dataset:
+    """Generated views rendered on the fly: a map-style dataset (PyTorch's ``Dataset``
+    protocol, without importing torch).
+
+    ``length`` counts views; with ``views_per_scene = V``, item ``i`` is camera ``i % V`` of
+    generated scene ``i // V`` (``generate(settings, seed, i // V)`` with V cameras). An item
+    is the dict of ``render`` (``aovs`` and ``mask``) plus ``"camera_info"``; it depends on
+    ``(settings, seed, i)`` alone, so every worker and process gets the same item ``i``
+    (for V = 1 it equals ``render(generate(settings, seed, i), aovs)``).
+
+    ``threads=None`` renders on every core; inside ``DataLoader(num_workers=k)`` workers
+    pass ``threads=1`` so k workers do not fight over the cores. Works in forked workers
+    (each process builds its own thread pool) and pickles for spawned ones. Making one sets
+    glibc's allocator to keep freed memory for reuse, as the ``cylaov`` command does, so
+    each view's buffers land on pages already mapped (a third of a small view's time).
+
+    Example::
+
+        ds = cylaov.Dataset(None, seed=0, length=1000, aovs=("depth", "normal"))
+        loader = torch.utils.data.DataLoader(ds, batch_size=8, num_workers=2)
+    """
+
+    def __init__(self, settings, seed, length, aovs=("depth", "normal"), views_per_scene=1,
+                 threads=None):
+        if length < 0:
+            raise ValueError(f"length: must be >= 0, got {length}")
+        self.settings = settings
+        self.seed = int(seed)
+        self.length = int(length)
+        self.aovs = (aovs,) if isinstance(aovs, str) else tuple(aovs)
+        self.views_per_scene = int(views_per_scene)
+        self.threads = threads
+        self._views = _cylaov._Views(_settings_json(settings), self.seed, self.length,
+                                     list(self.aovs), self.views_per_scene, threads)
+
+    def __len__(self):
+        return self.length
+
+    def __getitem__(self, i):
+        return self._views.item(_index(i))
+
+    def __iter__(self):
+        for i in range(self.length):
+            yield self._views.item(i)
+
+    def __reduce__(self):
+        return (Dataset, (self.settings, self.seed, self.length, self.aovs,
+                          self.views_per_scene, self.threads))
+
+    def __repr__(self):
+        return (f"cylaov.Dataset(seed={self.seed}, length={self.length}, aovs={self.aovs}, "
+                f"views_per_scene={self.views_per_scene})")
+
+
+def _index(i):
+    try:
+        return i.__index__()
+    except AttributeError:
+        raise TypeError(f"Dataset indices must be integers, got {type(i).__name__}") from None

@@ -1,0 +1,103 @@
+"""Type stub of the cylaov package (see help(cylaov) and docs/python.md)."""
+
+import os
+from typing import Any, Dict, Iterator, Literal, Optional, Sequence, Tuple, Union
+
+import numpy as np
+import numpy.typing as npt
+
+__version__: str
+
+PathLike = Union[str, "os.PathLike[str]"]
+AovName = Literal["distance", "depth", "normal", "position", "shape_id", "part", "normal_camera"]
+RayOutput = Literal["t_hit", "normal", "shape_id", "part", "position"]
+Settings = Union[None, Dict[str, Any], PathLike]
+
+class SceneError(ValueError):
+    """A refused scene; the text is the command line's error line without `error: `."""
+
+class Scene:
+    """A validated cylinder scene (cylinders and one or more cameras)."""
+
+    @staticmethod
+    def load(path: PathLike) -> "Scene": ...
+    @staticmethod
+    def from_json(text: Union[str, bytes]) -> "Scene": ...
+    @staticmethod
+    def from_dict(d: Dict[str, Any]) -> "Scene": ...
+    @staticmethod
+    def from_arrays(
+        p0: npt.NDArray[np.float64],
+        p1: npt.NDArray[np.float64],
+        radius: npt.NDArray[np.float64],
+        caps: Union[bool, Sequence[bool], None] = None,
+        ids: Optional[npt.NDArray[np.int64]] = None,
+        camera: Optional[Dict[str, Any]] = None,
+        cameras: Optional[Sequence[Dict[str, Any]]] = None,
+    ) -> "Scene": ...
+    @property
+    def cameras(self) -> list[Dict[str, Any]]: ...
+    def to_json(self) -> str: ...
+    def to_mitsuba_xml(self, source_name: str = "python") -> str: ...
+    def __len__(self) -> int: ...
+
+def render(
+    scene: Scene,
+    aovs: Sequence[AovName] = ("depth", "normal"),
+    camera: int = 0,
+    precision: Literal["f64", "f32"] = "f64",
+    formula: Literal["stable", "literal"] = "stable",
+    accel: Literal["tiles", "frustum", "bvh"] = "tiles",
+    threads: Optional[int] = None,
+) -> Dict[str, np.ndarray]: ...
+def camera_info(scene: Scene, camera: int = 0) -> Dict[str, Any]: ...
+def camera_rays(
+    scene: Scene, camera: int = 0
+) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]: ...
+def cast_rays(
+    scene: Scene,
+    origins: npt.ArrayLike,
+    directions: npt.ArrayLike,
+    t_min: npt.ArrayLike = 0.0,
+    t_max: npt.ArrayLike = float("inf"),
+    aovs: Sequence[RayOutput] = ("t_hit", "normal", "shape_id", "part"),
+    precision: Literal["f64", "f32"] = "f64",
+    formula: Literal["stable", "literal"] = "stable",
+    threads: Optional[int] = None,
+) -> Dict[str, np.ndarray]: ...
+def generate(settings: Settings, seed: int, index: int) -> Scene: ...
+def read(path: PathLike) -> Dict[str, Any]: ...
+def compare(
+    a: Union[PathLike, Dict[str, np.ndarray]],
+    b: Union[PathLike, Dict[str, np.ndarray]],
+    *,
+    max_mismatch_fraction: float = ...,
+    max_seam_fraction: float = ...,
+    rel_distance: float = ...,
+    rel_depth: float = ...,
+    normal_deg: float = ...,
+    scene: Union[Scene, PathLike, None] = None,
+    conditioning_ulps: float = ...,
+) -> Dict[str, Any]: ...
+
+class Dataset:
+    """Generated views rendered on the fly (a map-style, PyTorch-compatible dataset)."""
+
+    settings: Settings
+    seed: int
+    length: int
+    aovs: Tuple[AovName, ...]
+    views_per_scene: int
+    threads: Optional[int]
+    def __init__(
+        self,
+        settings: Settings,
+        seed: int,
+        length: int,
+        aovs: Sequence[AovName] = ("depth", "normal"),
+        views_per_scene: int = 1,
+        threads: Optional[int] = None,
+    ) -> None: ...
+    def __len__(self) -> int: ...
+    def __getitem__(self, i: int) -> Dict[str, Any]: ...
+    def __iter__(self) -> Iterator[Dict[str, Any]]: ...

@@ -1,0 +1,96 @@
+"""`cast_rays`: on the camera's own rays it is the EXR's distance bit for bit; on any rays
+from any origins it is the double-double oracle's nearest hit."""
+
+import numpy as np
+import pytest
+
+import cylaov
+from conftest import SCENES
+
+
+@pytest.mark.parametrize("path", SCENES, ids=lambda p: p.stem)
+def test_camera_rays_give_the_render_distance(path):
+    scene = cylaov.Scene.load(path)
+    cam = scene.cameras[0]
+    want = cylaov.render(scene, aovs=("distance", "normal", "shape_id", "part"))
+    o, d = cylaov.camera_rays(scene)
+    assert o.shape == d.shape == (cam["height"], cam["width"], 3) and d.dtype == np.float64
+    got = cylaov.cast_rays(scene, o, d, t_min=cam["near_clip"], t_max=cam["far_clip"])
+    hit = np.isfinite(got["t_hit"])
+    assert np.array_equal(hit, want["mask"])
+    dist = np.where(hit, got["t_hit"] * np.linalg.norm(d, axis=-1), 0).astype(np.float32)
+    assert np.array_equal(dist.view(np.uint32), want["distance"].view(np.uint32))
+    assert np.array_equal(got["normal"].astype(np.float32).view(np.uint32), want["normal"].view(np.uint32))
+    assert np.array_equal(got["shape_id"], want["shape_id"])
+    assert np.array_equal(got["part"], want["part"])
+    # The directions' camera-space z is 1: t_hit is planar depth.
+    depth = cylaov.render(scene, aovs=("depth",))["depth"]
+    assert np.allclose(got["t_hit"][hit], depth[hit], rtol=1e-6)
+
+
+def random_rays(scene_path, n, seed):
+    rng = np.random.default_rng(seed)
+    scene = cylaov.Scene.load(scene_path)
+    import json
+
+    cyl = json.loads(scene.to_json())["cylinders"]
+    p0 = np.array([c["p0"] for c in cyl])
+    p1 = np.array([c["p1"] for c in cyl])
+    lo, hi = np.minimum(p0, p1).min(0) - 1, np.maximum(p0, p1).max(0) + 1
+    origins = rng.uniform(lo, hi, size=(n, 3))
+    k = rng.integers(0, len(cyl), size=n)
+    aim = p0[k] + (p1[k] - p0[k]) * rng.uniform(0, 1, size=(n, 1))
+    dirs = (aim - origins) * rng.uniform(0.1, 10, size=(n, 1))
+    return scene, origins, dirs
+
+
+@pytest.mark.parametrize("name", ["cluster", "mixed_caps", "tube_inside", "asymmetric"])
+def test_random_rays_from_random_origins_match_the_oracle(name):
+    path = next(p for p in SCENES if p.stem == name)
+    scene, origins, dirs = random_rays(path, 400, 7)
+    got = cylaov.cast_rays(scene, origins, dirs, aovs=("t_hit", "shape_id"))
+    t_or, index = cylaov._cylaov._oracle_cast(scene, origins.tolist(), dirs.tolist())
+    t_or = np.array(t_or)
+    hit = np.isfinite(t_or)
+    assert hit.sum() > 200, hit.sum()
+    assert np.array_equal(np.isfinite(got["t_hit"]), hit)
+    rel = np.abs(got["t_hit"][hit] - t_or[hit]) / t_or[hit]
+    assert rel.max() < 1e-9, rel.max()
+    # The same rays from one shared origin (one prepared scene, through the BVH).
+    one = np.broadcast_to(origins[0], origins.shape)
+    got1 = cylaov.cast_rays(scene, origins[0], dirs)
+    t1, _ = cylaov._cylaov._oracle_cast(scene, one.tolist(), dirs.tolist())
+    t1 = np.array(t1)
+    assert np.array_equal(np.isfinite(got1["t_hit"]), np.isfinite(t1))
+    f = np.isfinite(t1)
+    assert np.max(np.abs(got1["t_hit"][f] - t1[f]) / t1[f]) < 1e-9
+
+
+def test_shapes_units_and_misses():
+    scene = cylaov.Scene.from_dict({
+        "camera": {"origin": [5, 0, 0.5], "target": [0, 0, 0.5], "up": [0, 0, 1], "fov_deg": 40,
+                   "width": 8, "height": 6},
+        "cylinders": [{"p0": [0, 0, 0], "p1": [0, 0, 1], "radius": 0.5, "id": 7}],
+    })
+    # A ray along -x from x = 3 meets the side at x = 0.5: t = 2.5 / |d|.
+    o = np.array([[3.0, 0, 0.5], [3.0, 0, 0.5], [3.0, 0, 5]])
+    d = np.array([[-1.0, 0, 0], [-4.0, 0, 0], [-1.0, 0, 0]])
+    r = cylaov.cast_rays(scene, o, d, aovs=("t_hit", "normal", "shape_id", "part", "position"))
+    assert r["t_hit"][0] == 2.5 and r["t_hit"][1] == 0.625 and r["t_hit"][2] == np.inf
+    assert r["normal"][0].tolist() == [1.0, 0.0, 0.0] and r["normal"][2].tolist() == [0, 0, 0]
+    assert r["shape_id"].tolist() == [7, 7, 0] and r["part"].tolist() == [1, 1, 0]
+    assert r["shape_id"].dtype == np.uint32
+    assert r["position"][1].tolist() == [0.5, 0.0, 0.5]
+    # From inside the tube: the inner face (part 2), and t_max cuts the hit off.
+    inside = cylaov.cast_rays(scene, [0, 0, 0.5], [[1.0, 0, 0]], t_max=[0.4])
+    assert inside["t_hit"][0] == np.inf
+    inside = cylaov.cast_rays(scene, [0, 0, 0.5], [[1.0, 0, 0]])
+    assert inside["t_hit"][0] == 0.5 and inside["part"][0] == 2
+    grid = cylaov.cast_rays(scene, [3, 0, 0.5], np.tile([-1.0, 0, 0], (4, 5, 1)))
+    assert grid["t_hit"].shape == (4, 5) and grid["normal"].shape == (4, 5, 3)
+    with pytest.raises(ValueError, match=r"rays\[1\]\.direction: must be finite and non-zero"):
+        cylaov.cast_rays(scene, o[:2], [[1.0, 0, 0], [0, 0, 0]])
+    with pytest.raises(ValueError, match=r"rays\[0\]\.t_min"):
+        cylaov.cast_rays(scene, o[:1], d[:1], t_min=-1)
+    with pytest.raises(ValueError, match=r"shape must be \(\.\.\., 3\)"):
+        cylaov.cast_rays(scene, o, d[:, :2])
