@@ -7,6 +7,7 @@
 use crate::dataset::batch::{ViewSource, list_views, selected_for_verify};
 use crate::geometry::{FormulaKind, Precision};
 use crate::output::preview::write_png;
+use crate::verify::arbiter::Arbitration;
 use crate::verify::compare::{Conditioning, Report, Tolerances, heatmap};
 use crate::verify::reference::{Mitsuba, ViewCheck, summary_line, verify_scene};
 use anyhow::Result;
@@ -61,6 +62,8 @@ pub struct ViewResult {
     pub accepted: Vec<String>,
     /// The comparison, when the view could be checked.
     pub report: Option<Report>,
+    /// Every disagreeing pixel classified by the exact answer, when the view was checked.
+    pub arbitration: Option<Arbitration>,
 }
 
 /// The outcome: text to print and the exit status.
@@ -190,6 +193,7 @@ pub fn run(args: &VerifyArgs) -> Result<VerifyOutcome> {
                 failures: check.failures.clone(),
                 accepted: check.accepted.clone(),
                 report: Some(check.report),
+                arbitration: Some(check.arbitration),
             },
             Err(e) => ViewResult {
                 name: view.name.clone(),
@@ -198,6 +202,7 @@ pub fn run(args: &VerifyArgs) -> Result<VerifyOutcome> {
                 failures: vec![format!("{e:#}")],
                 accepted: Vec::new(),
                 report: None,
+                arbitration: None,
             },
         };
         if !args.json {
@@ -245,9 +250,17 @@ fn row(r: &ViewResult) -> String {
         Status::Fail => "FAIL",
         Status::Unchecked => "UNCHECKED",
     };
-    match &r.report {
-        Some(rep) => format!("{:<24} {verdict:<9} {}", r.name, summary_line(rep)),
-        None => format!("{:<24} {verdict:<9} {}", r.name, r.failures.join("; ")),
+    match (&r.report, &r.arbitration) {
+        (Some(rep), Some(a)) => format!(
+            "{:<24} {verdict:<9} {}; reference errors {}, unexplained {}, candidate errors {}, ties {}",
+            r.name,
+            summary_line(rep),
+            a.reference_errors,
+            a.unexplained_reference_errors,
+            a.candidate_errors,
+            a.ties
+        ),
+        _ => format!("{:<24} {verdict:<9} {}", r.name, r.failures.join("; ")),
     }
 }
 

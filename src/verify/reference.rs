@@ -27,6 +27,7 @@ use crate::output::aov::AovImage;
 use crate::output::io::atomic_write_bytes;
 use crate::render::{RenderOptions, render};
 use crate::scene::{Aov, Scene};
+use crate::verify::arbiter::{Arbitration, Bound, arbitrate};
 use crate::verify::compare::{Conditioning, Report, Tolerances, compare_with};
 use anyhow::{Context, Result, bail};
 use serde::{Deserialize, Serialize};
@@ -143,23 +144,26 @@ pub fn check_render(scene: &Scene, precision: Precision, formula: FormulaKind) -
 /// The outcome of one view's check.
 #[derive(Clone, Debug)]
 pub struct ViewCheck {
-    /// The comparison of cylaov's render (A) with Mitsuba's (B).
+    /// The comparison of the candidate (A: cylaov's render or a file) with Mitsuba's (B).
     pub report: Report,
     /// The bounds the report was judged by.
     pub tolerances: Tolerances,
-    /// The broken tolerances (the FAIL lines of `cylaov compare`); empty: it passed.
+    /// Every pixel where A and B disagree beyond `tolerances`, classified by the exact answer.
+    pub arbitration: Arbitration,
+    /// Why the view fails (candidate errors, unexplained reference errors); empty: it passed.
     pub failures: Vec<String>,
-    /// What the float32 conditioning rule accepted above the flat bounds.
+    /// What passed without being exact (reference errors, ties, the note where Mitsuba
+    /// cannot discriminate).
     pub accepted: Vec<String>,
 }
 
 impl ViewCheck {
-    /// Whether every tolerance holds (no failures).
+    /// Whether the view passes (no failures).
     pub fn passed(&self) -> bool {
         self.failures.is_empty()
     }
 
-    /// `PASS` or `FAIL:` with one indented line per broken tolerance, as `compare` prints.
+    /// `PASS` or `FAIL:` with one indented line per failure, as `compare` prints.
     pub fn verdict_text(&self) -> String {
         crate::commands::compare::verdict_lines(&self.failures)
     }
@@ -178,23 +182,36 @@ impl ViewCheck {
     }
 }
 
-/// Compare `ours` (a [`check_render`] of `scene`) with `reference`: identity by cylinder
-/// and part, per-pixel float32 conditioning bounds from `scene`, then `tol`.
+/// Check cylaov's f64 render `ours` of `scene` against Mitsuba's `reference`: see
+/// [`check_against_with`].
 pub fn check_against(
     scene: &Scene,
     ours: &AovImage,
     reference: &AovImage,
     tol: &Tolerances,
 ) -> Result<ViewCheck> {
-    let cond = Conditioning::new(scene, ours);
-    if cond.is_none() {
-        bail!("cylaov's render lacks shape_id, distance or normal: cannot condition the check");
-    }
-    let report = compare_with(ours, reference, cond.as_ref())?;
+    check_against_with(scene, ours, reference, tol, Bound::cylaov(Precision::F64))
+}
+
+/// Compare `candidate` with `reference` (identity by cylinder and part, per-pixel float32
+/// conditioning in the statistics), and classify every pixel where they disagree beyond
+/// `tol` with the exact answer as arbiter ([`crate::verify::arbiter`]): the view fails on
+/// a candidate error or an unexplained reference error, or a non-finite sample.
+pub fn check_against_with(
+    scene: &Scene,
+    candidate: &AovImage,
+    reference: &AovImage,
+    tol: &Tolerances,
+    bound: Bound,
+) -> Result<ViewCheck> {
+    let cond = Conditioning::new(scene, candidate);
+    let report = compare_with(candidate, reference, cond.as_ref())?;
+    let arbitration = arbitrate(scene, candidate, reference, tol, bound)?;
     Ok(ViewCheck {
-        failures: report.failures(tol),
-        accepted: report.explained_lines(tol),
+        failures: arbitration.failure_lines(),
+        accepted: arbitration.accepted_lines(),
         tolerances: *tol,
+        arbitration,
         report,
     })
 }
@@ -211,7 +228,7 @@ pub fn verify_scene(
 ) -> Result<(ViewCheck, AovImage, AovImage)> {
     let ours = check_render(scene, precision, formula);
     let reference = mitsuba.render(scene, source_name, work)?;
-    let check = check_against(scene, &ours, &reference, tol)?;
+    let check = check_against_with(scene, &ours, &reference, tol, Bound::cylaov(precision))?;
     Ok((check, ours, reference))
 }
 
@@ -228,12 +245,30 @@ pub fn summary_line(r: &Report) -> String {
     )
 }
 
+/// [`summary_line`] and the exact answer's classes: one line for a log or a table row.
+pub fn check_line(c: &ViewCheck) -> String {
+    let a = &c.arbitration;
+    format!(
+        "{}; reference errors {}, unexplained {}, candidate errors {}, ties {}",
+        summary_line(&c.report),
+        a.reference_errors,
+        a.unexplained_reference_errors,
+        a.candidate_errors,
+        a.ties
+    )
+}
+
+/// The rule a cached verdict was reached by: a verdict of another rule is checked again.
+const RULE: &str = "exact-answer-arbiter-1";
+
 /// What `NAME.verify.json` holds: the verdict and what it is valid for.
 #[derive(Serialize, Deserialize, PartialEq, Debug)]
 struct CachedVerdict {
     /// The view's render stamp (`NAME.render.json`), verbatim.
     stamp: String,
     tolerances: [f64; 5],
+    /// The rule of the verdict ([`RULE`]).
+    rule: String,
     /// FNV-1a of the reference script.
     script: String,
     passed: bool,
@@ -319,6 +354,7 @@ impl Verifier for MitsubaVerifier {
             && let Ok(c) = serde_json::from_str::<CachedVerdict>(&text)
             && c.stamp == stamp
             && (c.tolerances, c.script.clone()) == key
+            && c.rule == RULE
         {
             return Ok(Verdict {
                 passes: c.passed,
@@ -342,8 +378,14 @@ impl Verifier for MitsubaVerifier {
         let reference = self
             .mitsuba
             .render(scene, &view.path.display().to_string(), work)?;
-        let check = check_against(scene, &ours, &reference, &self.tolerances)?;
-        let summary = summary_line(&check.report);
+        let check = check_against_with(
+            scene,
+            &ours,
+            &reference,
+            &self.tolerances,
+            Bound::cylaov(self.precision),
+        )?;
+        let summary = check_line(&check);
         // One line per verified view (seam and silhouette counts); a failure adds the FAIL
         // lines of `compare`. The bar, if any, redraws on the next view.
         let mut line = format!("verify {}: {summary}; {}", view.name, check.verdict_text());
@@ -354,6 +396,7 @@ impl Verifier for MitsubaVerifier {
         let cached = CachedVerdict {
             stamp,
             tolerances: key.0,
+            rule: RULE.into(),
             script: key.1,
             passed: check.passed(),
             silhouette_px: check.report.mismatches,
