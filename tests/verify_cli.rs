@@ -52,28 +52,38 @@ fn verify_exit_codes_table_and_json() {
     assert!(out.contains("1 of 1 views checked: 1 passed, 0 failed, 0 could not be checked"));
     assert!(dir.join("single.heatmap.png").is_file());
 
-    // A scene whose Mitsuba reference is unreliable (camera far from the origin, in
-    // scenes/stress/): exit 1 and compare's FAIL line. (A flat bound below Mitsuba's
-    // float32 floor does not fail: every pixel's own float32 bound is larger there.)
+    // A scene far from the origin (scenes/stress/): Mitsuba's float32 is off by up to a
+    // unit there, cylaov is exact: it passes, with Mitsuba's reference errors counted and
+    // the note that Mitsuba cannot discriminate at that scale.
     let far = root().join("scenes/stress/far_offset.json");
     let o = cylaov(&py, &["verify", s(&far), "--json"]);
-    assert_eq!(o.status.code(), Some(1), "{}", text(&o));
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o));
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
     assert_eq!(
-        (v["checked"].as_u64(), v["failed"].as_u64()),
+        (v["checked"].as_u64(), v["passed"].as_u64()),
         (Some(1), Some(1))
     );
-    let f = v["views"][0]["failures"][0]
-        .as_str()
-        .expect("a failure line");
-    assert!(f.starts_with("silhouette mismatch fraction "), "{f}");
-    assert!(f.contains(" > 5.000e-4"), "{f}");
+    let a = &v["views"][0]["arbitration"];
+    // Measured: 1175 reference errors (123 silhouette, 26 seam), 0 of the other classes.
+    let refs = a["reference_errors"].as_u64().expect("count");
+    assert!((1000..1400).contains(&refs), "{a}");
+    assert_eq!(a["candidate_errors"], 0);
+    assert_eq!(a["unexplained_reference_errors"], 0);
+    assert_eq!(a["cannot_discriminate"], true);
+    assert_eq!(a["pixels"].as_array().map(Vec::len), Some(refs as usize));
+    assert_eq!(a["pixels"][0]["class"], "reference_error");
     assert_eq!(v["views"][0]["report"]["identity"], "shape_id_part");
     let o = cylaov(&py, &["verify", s(&far)]);
+    let out = text(&o);
     assert!(
-        text(&o).contains("far_offset FAIL:\n  silhouette mismatch fraction "),
-        "{}",
-        text(&o)
+        out.contains(
+            "far_offset accepted: Mitsuba cannot discriminate here: its float32 ray error δ = 1.093"
+        ),
+        "{out}"
+    );
+    assert!(
+        out.contains("far_offset accepted: reference error: "),
+        "{out}"
     );
 
     // No venv: every view unchecked, exit 2, one line saying how to make it.
@@ -108,7 +118,7 @@ fn batch_verifies_with_identity_and_keeps_verdicts() {
     let dir = dir_tmp.path();
     let data = dir.join("data");
     let render = dir.join("render");
-    // Two views: a generated one and the unreliable far_offset (which fails).
+    // Two views: a generated one and far_offset (Mitsuba off by up to a unit there).
     let o = cylaov(
         &py,
         &[
@@ -151,47 +161,34 @@ fn batch_verifies_with_identity_and_keeps_verdicts() {
     };
     let o = batch(&[]);
     let out = text(&o);
-    assert!(!o.status.success(), "{out}");
+    assert!(o.status.success(), "{out}");
     assert_eq!(
         out.matches("\nverify ").count() + usize::from(out.starts_with("verify ")),
         2,
         "{out}"
     );
     assert!(out.contains("verify gen: silhouette "), "{out}");
-    // The failed view prints compare's FAIL lines, in the console and the failures file.
-    assert!(
-        out.contains("FAIL:\n  silhouette mismatch fraction "),
-        "{out}"
-    );
-    let failures = std::fs::read_to_string(render.join("failures.0-of-1.jsonl")).expect("failures");
-    assert_eq!(failures.lines().count(), 1, "{failures}");
-    let first: serde_json::Value =
-        serde_json::from_str(failures.lines().next().expect("line")).expect("json line");
-    assert_eq!(first["name"], "far_offset");
-    let err = first["error"].as_str().expect("error");
-    assert!(err.contains("disagrees with the reference"), "{err}");
-    assert!(
-        err.contains("FAIL:\n  silhouette mismatch fraction "),
-        "{err}"
-    );
-    assert!(err.contains("silhouette") && err.contains("seam"), "{err}");
+    assert!(out.contains("verify far_offset: silhouette "), "{out}");
+    assert!(out.contains("candidate errors 0, ties "), "{out}");
     // The dataset stores depth only; the check rendered shape_id and part alongside.
     let exr = cylaov::output::aov::AovImage::read_exr(&render.join("gen.exr")).expect("exr");
     let names: Vec<&str> = exr.channels.iter().map(|c| c.name.as_str()).collect();
     assert_eq!(names, ["depth"], "the dataset's files are unchanged");
-    let cached: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(render.join("gen.verify.json")).expect("verdict kept"),
-    )
-    .expect("json");
-    assert_eq!(cached["passed"], true);
+    for name in ["gen", "far_offset"] {
+        let cached: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(render.join(format!("{name}.verify.json")))
+                .expect("verdict kept"),
+        )
+        .expect("json");
+        assert_eq!(cached["passed"], true, "{name}");
+    }
 
-    // Resume: both views done and their verdicts kept: Mitsuba does not run again, and
-    // the kept failure still fails.
+    // Resume: both views done and their verdicts kept: Mitsuba does not run again.
     let o = batch(&[]);
-    assert!(!o.status.success(), "{}", text(&o));
+    assert!(o.status.success(), "{}", text(&o));
     assert!(!text(&o).contains("verify "), "{}", text(&o));
 
-    // Other bounds are another verdict: both checked again, and now they pass.
+    // Other bounds are another verdict: both checked again.
     let o = batch(&[
         "--max-mismatch-fraction",
         "0.5",
