@@ -50,6 +50,17 @@ fn verify_exit_codes_table_and_json() {
         "{out}"
     );
     assert!(out.contains("1 of 1 views checked: 1 passed, 0 failed, 0 could not be checked"));
+    // Not a terminal: no progress on stderr, the row once (on stdout).
+    assert_eq!(
+        out.matches("single                   PASS").count(),
+        1,
+        "{out}"
+    );
+    assert!(
+        o.stderr.is_empty(),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     assert!(dir.join("single.heatmap.png").is_file());
 
     // A scene far from the origin (scenes/stress/): Mitsuba's float32 is off by up to a
@@ -94,6 +105,12 @@ fn verify_exit_codes_table_and_json() {
         .expect("running cylaov");
     let out = text(&o);
     assert_eq!(o.status.code(), Some(2), "{out}");
+    // Said first, before the table: how to make the venv.
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.starts_with("verify: no Mitsuba venv (looked in "),
+        "{err}"
+    );
     assert!(out.contains("no Mitsuba venv (looked in "), "{out}");
     assert!(out.contains("scripts/setup-venv"), "{out}");
 
@@ -201,4 +218,81 @@ fn batch_verifies_with_identity_and_keeps_verdicts() {
         out.contains("verify gen: ") && out.contains("verify far_offset: "),
         "{out}"
     );
+}
+
+/// `verify DIR --fraction F --seed S` checks the views `batch --verify-fraction F
+/// --verify-seed S` checks: the choice is keyed on (scene, camera) by batch's view id, and
+/// the rows are named `scene/camera`.
+#[test]
+fn verify_and_batch_pick_the_same_views() {
+    let Some(py) = venv_python() else { return };
+    let dir_tmp = common::fresh_dir("verify", "same-views");
+    let dir = dir_tmp.path();
+    let scenes = dir.join("scenes");
+    std::fs::create_dir_all(&scenes).expect("scenes dir");
+    let cameras: Vec<serde_json::Value> = (0..4)
+        .map(|k| {
+            serde_json::json!({
+                "origin": [3.0 + f64::from(k) * 0.25, -5.0, 2.5], "target": [0, 0, 0.6],
+                "up": [0, 0, 1], "fov_deg": 40, "width": 48, "height": 32
+            })
+        })
+        .collect();
+    for name in ["a", "b"] {
+        let scene = serde_json::json!({
+            "cameras": cameras,
+            "cylinders": [{ "p0": [0, 0, 0], "p1": [0, 0, 1.5], "radius": 0.5 }],
+            "aovs": ["depth"]
+        });
+        std::fs::write(scenes.join(format!("{name}.json")), scene.to_string()).expect("scene");
+    }
+    let render = dir.join("render");
+    let o = cylaov(
+        &py,
+        &[
+            "batch",
+            s(&scenes),
+            "--out",
+            s(&render),
+            "--no-png",
+            "--verify-fraction",
+            "0.5",
+            "--verify-seed",
+            "1",
+        ],
+    );
+    assert!(o.status.success(), "{}", text(&o));
+    let mut by_batch: Vec<String> = Vec::new();
+    for name in ["a", "b"] {
+        for k in 0..4 {
+            if render.join(format!("{name}/{k:02}.verify.json")).is_file() {
+                by_batch.push(format!("{name}/{k:02}"));
+            }
+        }
+    }
+    // The seed picks other cameras in the two scenes (keyed on the camera alone it could not).
+    let cams =
+        |n: &str| -> Vec<&str> { by_batch.iter().filter_map(|v| v.strip_prefix(n)).collect() };
+    assert_ne!(cams("a/"), cams("b/"), "{by_batch:?}");
+    let o = cylaov(
+        &py,
+        &[
+            "verify",
+            s(&scenes),
+            "--fraction",
+            "0.5",
+            "--seed",
+            "1",
+            "--json",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+    let by_verify: Vec<String> = v["views"]
+        .as_array()
+        .expect("views")
+        .iter()
+        .map(|r| r["name"].as_str().expect("name").to_string())
+        .collect();
+    assert_eq!(by_verify, by_batch);
 }

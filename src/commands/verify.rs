@@ -4,7 +4,7 @@
 //! and the reference tests. Prints a per-view table and a summary (or JSON); the exit
 //! status is 1 if any view fails a tolerance, else 2 if any could not be checked, else 0.
 
-use crate::dataset::batch::{ViewSource, list_views, selected_for_verify};
+use crate::dataset::batch::{ViewSource, list_views, view_selected};
 use crate::geometry::{FormulaKind, Precision};
 use crate::output::preview::write_png;
 use crate::verify::arbiter::Arbitration;
@@ -50,7 +50,8 @@ pub enum Status {
 /// One view's row.
 #[derive(Clone, Debug, Serialize)]
 pub struct ViewResult {
-    /// Output stem: the scene's name, or the camera number (`00`, …) of a several-camera scene.
+    /// The view's batch id: the scene's name, or `scene/00` for a camera of a several-camera
+    /// scene (as `batch` names it).
     pub name: String,
     /// The scene file's path.
     pub scene: String,
@@ -172,18 +173,32 @@ pub fn run(args: &VerifyArgs) -> Result<VerifyOutcome> {
     let all = views(&args.input)?;
     let selected: Vec<&ViewSource> = all
         .iter()
-        .filter(|v| selected_for_verify(args.seed, &v.name, args.fraction))
+        .filter(|v| view_selected(args.seed, v, args.fraction))
         .collect();
     let mitsuba = Mitsuba::find();
+    // Without the venv nothing can be checked: say how to make it before anything else.
+    if let Err(why) = &mitsuba {
+        crate::output::io::warn(&format!("verify: {why}"));
+    }
+    // Progress: one line redrawn in place, on a terminal only (the table goes to stdout).
+    let live = !args.json && std::io::IsTerminal::is_terminal(&std::io::stderr());
     let mut results = Vec::with_capacity(selected.len());
     for (k, view) in selected.iter().enumerate() {
+        if live && mitsuba.is_ok() {
+            progress(&format!(
+                "[{}/{}] verifying {}",
+                k + 1,
+                selected.len(),
+                view.id()
+            ));
+        }
         let outcome = match &mitsuba {
             Err(why) => Err(anyhow::anyhow!("{why}")),
             Ok(m) => check_one(args, m, view, k),
         };
         let r = match outcome {
             Ok((check, _)) => ViewResult {
-                name: view.name.clone(),
+                name: view.id(),
                 scene: view.path.display().to_string(),
                 status: if check.passed() {
                     Status::Pass
@@ -196,7 +211,7 @@ pub fn run(args: &VerifyArgs) -> Result<VerifyOutcome> {
                 arbitration: Some(check.arbitration),
             },
             Err(e) => ViewResult {
-                name: view.name.clone(),
+                name: view.id(),
                 scene: view.path.display().to_string(),
                 status: Status::Unchecked,
                 failures: vec![format!("{e:#}")],
@@ -205,10 +220,10 @@ pub fn run(args: &VerifyArgs) -> Result<VerifyOutcome> {
                 arbitration: None,
             },
         };
-        if !args.json {
-            crate::output::io::warn(&format!("[{}/{}] {}", k + 1, selected.len(), row(&r)));
-        }
         results.push(r);
+    }
+    if live && mitsuba.is_ok() && !selected.is_empty() {
+        progress("");
     }
     let count = |s: Status| results.iter().filter(|r| r.status == s).count();
     let (passed, failed, unchecked) = (
@@ -241,6 +256,14 @@ pub fn run(args: &VerifyArgs) -> Result<VerifyOutcome> {
         code,
         views: results,
     })
+}
+
+/// Redraw the one progress line on stderr (a terminal): `text` replaces what was there.
+fn progress(text: &str) {
+    use std::io::Write;
+    let mut err = std::io::stderr().lock();
+    let _ = write!(err, "\r\x1b[2K{text}");
+    let _ = err.flush();
 }
 
 /// One table row: name, verdict, mismatch counts, largest errors.
