@@ -296,3 +296,105 @@ fn verify_and_batch_pick_the_same_views() {
         .collect();
     assert_eq!(by_verify, by_batch);
 }
+
+/// An EXR changed after it was written fails `batch --verify-fraction` naming the view and
+/// the pixel, whether or not an earlier verify passed (the kept verdict is the file's, by
+/// its sha256): one depth sample × (1 + 1e-4), a 3×3 patch of flipped normals, one id.
+#[test]
+fn an_exr_changed_after_writing_fails() {
+    use cylaov::output::aov::{AovImage, ChannelData, Compression};
+    let Some(py) = venv_python() else { return };
+    let dir_tmp = common::fresh_dir("verify", "changed-exr");
+    let dir = dir_tmp.path();
+    let scenes = dir.join("scenes");
+    std::fs::create_dir_all(&scenes).expect("scenes dir");
+    std::fs::copy(root().join("scenes/single.json"), scenes.join("one.json")).expect("copy");
+    let render = dir.join("render");
+    let batch = |verify: bool| {
+        let mut args = vec![
+            "batch",
+            s(&scenes),
+            "--out",
+            s(&render),
+            "--no-png",
+            "--aov",
+            "depth,normal,shape_id",
+        ];
+        if verify {
+            args.extend(["--verify-fraction", "1"]);
+        }
+        cylaov(&py, &args)
+    };
+    let exr = render.join("one.exr");
+    let o = batch(true);
+    assert!(o.status.success(), "{}", text(&o));
+    let original = AovImage::read_exr(&exr).expect("exr");
+    let (w, ids) = (
+        original.width,
+        original.u32_channel("shape_id").expect("ids").to_vec(),
+    );
+    let hits: Vec<usize> = (0..ids.len()).filter(|&k| ids[k] != 0).collect();
+    let k = hits[hits.len() / 2];
+    let at = format!("[{}, {}]", k % w, k / w);
+    fn samples<'a>(img: &'a mut AovImage, name: &str) -> &'a mut ChannelData {
+        &mut img
+            .channels
+            .iter_mut()
+            .find(|c| c.name == name)
+            .expect("channel")
+            .data
+    }
+    for (case, verified_before) in [("depth", true), ("normal", true), ("id", false)] {
+        let mut img = original.clone();
+        match (case, samples(&mut img, "depth")) {
+            ("depth", ChannelData::F32(v)) => v[k] *= 1.0 + 1e-4,
+            ("normal", _) => {
+                for c in ["normal.X", "normal.Y", "normal.Z"] {
+                    if let ChannelData::F32(v) = samples(&mut img, c) {
+                        for dy in 0..3 {
+                            for dx in 0..3 {
+                                let j = k + dy * w + dx - w - 1;
+                                v[j] = -v[j];
+                            }
+                        }
+                    }
+                }
+            }
+            _ => {
+                if let ChannelData::U32(v) = samples(&mut img, "shape_id") {
+                    v[k] = 7;
+                }
+            }
+        }
+        if verified_before {
+            // An earlier verify of the same file passed and its verdict is kept.
+            let o = batch(true);
+            assert!(o.status.success(), "{case}: {}", text(&o));
+        } else {
+            std::fs::remove_file(render.join("one.verify.json")).expect("no verdict");
+        }
+        img.write_exr(&exr, Compression::None).expect("write");
+        let o = batch(true);
+        assert!(!o.status.success(), "{case}: {}", text(&o));
+        let failures =
+            std::fs::read_to_string(render.join("failures.0-of-1.jsonl")).expect("failures");
+        let line: serde_json::Value =
+            serde_json::from_str(failures.lines().next().expect("a line")).expect("json");
+        assert_eq!(line["name"], "one", "{case}: {failures}");
+        let err = line["error"].as_str().expect("error");
+        assert!(
+            err.contains("one.exr differs from a fresh render of its scene"),
+            "{case}: {err}"
+        );
+        // The first differing sample: the pixel, or the patch's first (top-left) pixel.
+        let first = if case == "normal" {
+            format!("[{}, {}]", k % w - 1, k / w - 1)
+        } else {
+            at.clone()
+        };
+        assert!(err.contains(&format!("at {first}")), "{case}: {err}");
+        assert!(err.contains("candidate error: "), "{case}: {err}");
+        // Restore the written file for the next case.
+        original.write_exr(&exr, Compression::None).expect("write");
+    }
+}

@@ -11,10 +11,12 @@
 //!    bounds from the scene.
 //!
 //! In a batch, [`MitsubaVerifier`] also checks that the dataset's EXR holds exactly the
-//! samples of that render (so the file is what was verified), and keeps the verdict in
-//! `NAME.verify.json` beside it, keyed to the view's render stamp (`NAME.render.json`), the
-//! tolerances and the script: a resumed batch does not run Mitsuba again for a view
-//! already verified.
+//! samples of that render (so the file is what was verified; where it differs, the file's
+//! samples are judged against Mitsuba and the exact answer, naming the pixels), and keeps
+//! the verdict in `NAME.verify.json` beside it, keyed to the sha256 of the EXR, the view's
+//! render stamp (`NAME.render.json`), the tolerances, the rule and the script: a resumed
+//! batch does not run Mitsuba again for a view already verified, and a file altered since
+//! is checked again.
 //!
 //! **The venv** is the first of: `$CYLAOV_VENV`; `.venv` in the source tree this binary
 //! was built from (where `scripts/setup-venv` puts it); `~/.local/share/cylaov/venv`
@@ -269,6 +271,8 @@ struct CachedVerdict {
     tolerances: [f64; 5],
     /// The rule of the verdict ([`RULE`]).
     rule: String,
+    /// The sha256 of the EXR verified.
+    exr_sha256: String,
     /// FNV-1a of the reference script.
     script: String,
     passed: bool,
@@ -332,16 +336,39 @@ fn beside(exr: &Path, suffix: &str) -> PathBuf {
     exr.with_file_name(format!("{stem}.{suffix}"))
 }
 
-/// The channels of `file` that differ from the same channels of `fresh`.
-fn differing_channels(file: &AovImage, fresh: &AovImage) -> Vec<String> {
+/// Where `file` differs from `fresh`, one phrase per channel: its first differing sample,
+/// `depth at [x, y]: file 1.5, render 1.49` (empty: every stored sample is the render's).
+fn differing_samples(file: &AovImage, fresh: &AovImage) -> Vec<String> {
     if (file.width, file.height) != (fresh.width, fresh.height) {
-        return vec!["(image size)".into()];
+        return vec![format!(
+            "image size: file {}x{}, render {}x{}",
+            file.width, file.height, fresh.width, fresh.height
+        )];
     }
+    let w = file.width;
+    let at = |k: usize| format!("[{}, {}]", k % w, k / w);
     file.channels
         .iter()
-        .filter(|c| fresh.channel(&c.name) != Some(&c.data))
-        .map(|c| c.name.clone())
+        .filter_map(|c| {
+            use crate::output::aov::ChannelData as D;
+            match (&c.data, fresh.channel(&c.name)) {
+                (D::F32(a), Some(D::F32(b))) => (0..a.len().min(b.len()))
+                    .find(|&k| a[k].to_bits() != b[k].to_bits())
+                    .map(|k| format!("{} at {}: file {}, render {}", c.name, at(k), a[k], b[k])),
+                (D::U32(a), Some(D::U32(b))) => (0..a.len().min(b.len()))
+                    .find(|&k| a[k] != b[k])
+                    .map(|k| format!("{} at {}: file {}, render {}", c.name, at(k), a[k], b[k])),
+                _ => Some(format!("{}: not a channel of the render", c.name)),
+            }
+        })
         .collect()
+}
+
+/// The sha256 of a file's bytes, hex.
+fn sha256_of(path: &Path) -> Result<String> {
+    use sha2::Digest;
+    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+    Ok(format!("{:x}", sha2::Sha256::digest(&bytes)))
 }
 
 impl Verifier for MitsubaVerifier {
@@ -349,12 +376,15 @@ impl Verifier for MitsubaVerifier {
         let stamp = std::fs::read_to_string(beside(exr, "render.json")).unwrap_or_default();
         let cache_path = beside(exr, "verify.json");
         let key = (tolerance_key(&self.tolerances), fnv1a(SCRIPT.as_bytes()));
+        // The verdict is the file's: an EXR changed after it was verified is checked again.
+        let sha = sha256_of(exr)?;
         if !stamp.is_empty()
             && let Ok(text) = std::fs::read_to_string(&cache_path)
             && let Ok(c) = serde_json::from_str::<CachedVerdict>(&text)
             && c.stamp == stamp
             && (c.tolerances, c.script.clone()) == key
             && c.rule == RULE
+            && c.exr_sha256 == sha
         {
             return Ok(Verdict {
                 passes: c.passed,
@@ -363,21 +393,35 @@ impl Verifier for MitsubaVerifier {
         }
         let ours = check_render(scene, self.precision, self.formula);
         let file = AovImage::read_exr(exr)?;
-        let differ = differing_channels(&file, &ours);
-        if !differ.is_empty() {
-            // Not cached: a file that does not match its render is re-rendered on resume.
-            return Ok(Verdict {
-                passes: false,
-                report: format!(
-                    "{} differs from a fresh render of its scene in {}",
-                    exr.display(),
-                    differ.join(" ")
-                ),
-            });
-        }
+        let differ = differing_samples(&file, &ours);
         let reference = self
             .mitsuba
             .render(scene, &view.path.display().to_string(), work)?;
+        if !differ.is_empty() {
+            // The file on disk is what is judged: its samples against Mitsuba and the exact
+            // answer name the pixels at fault. Not cached: a file that does not match its
+            // render is re-rendered on resume.
+            let mut report = format!(
+                "{} differs from a fresh render of its scene: {}",
+                exr.display(),
+                differ.join("; ")
+            );
+            if let Ok(c) = check_against_with(
+                scene,
+                &file,
+                &reference,
+                &self.tolerances,
+                Bound::cylaov(self.precision),
+            ) {
+                for f in &c.failures {
+                    report += &format!("\n  {f}");
+                }
+            }
+            return Ok(Verdict {
+                passes: false,
+                report,
+            });
+        }
         let check = check_against_with(
             scene,
             &ours,
@@ -397,6 +441,7 @@ impl Verifier for MitsubaVerifier {
             stamp,
             tolerances: key.0,
             rule: RULE.into(),
+            exr_sha256: sha,
             script: key.1,
             passed: check.passed(),
             silhouette_px: check.report.mismatches,
