@@ -61,10 +61,14 @@ enum Command {
     /// Example: cylaov export-mitsuba scenes/single.json -o single.xml
     ExportMitsuba(ExportCli),
     /// Check scenes against Mitsuba 3: render each view with cylaov and with Mitsuba
-    /// (the pinned venv) and compare them pixel by pixel.
+    /// (the pinned venv) and compare them pixel by pixel. Where they disagree beyond the
+    /// tolerances, the exact answer (double-double, on the camera's f64 ray) decides: a
+    /// reference error (Mitsuba off within its float32 bound) passes and is counted; a
+    /// candidate error (cylaov off the exact answer) or an unexplained reference error
+    /// (Mitsuba off beyond its bound: an export or scene error) fails.
     ///
-    /// Exit status: 1 if any view fails a tolerance, else 2 if any view could not be
-    /// checked (a bad scene, no venv, Mitsuba failed), else 0.
+    /// Exit status: 1 if any view fails, else 2 if any view could not be checked (a bad
+    /// scene, no venv, Mitsuba failed), else 0.
     ///
     /// Example: cylaov verify scenes/single.json --heatmap out
     ///
@@ -302,7 +306,8 @@ struct VerifyCli {
     /// A scene file, a folder of scene files (or holding manifest.jsonl), or a .jsonl
     /// manifest.
     input: PathBuf,
-    /// Fraction of the views to check, chosen from --seed and the view names.
+    /// Fraction of the views to check, chosen from --seed and each view's batch name
+    /// (`scene` or `scene/NN`).
     #[arg(
         long,
         default_value_t = 1.0,
@@ -310,10 +315,10 @@ struct VerifyCli {
         allow_hyphen_values = true
     )]
     fraction: f64,
-    /// Seed of the --fraction choice (the same choice as batch --verify-seed).
+    /// Seed of the --fraction choice (the views batch --verify-seed checks).
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Write DIR/NAME.heatmap.png for every checked view (see `compare::heatmap`).
+    /// Write DIR/NAME.heatmap.png for every checked view.
     #[arg(long, value_name = "DIR")]
     heatmap: Option<PathBuf>,
     /// Print the results as JSON.

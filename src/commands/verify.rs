@@ -1,8 +1,10 @@
 //! `cylaov verify`: the cross-renderer check for any scene, folder or manifest. Each
 //! selected view is rendered by cylaov (in memory) and by Mitsuba 3 and compared by
 //! [`crate::verify::reference::verify_scene`], the code path of `batch --verify-fraction`
-//! and the reference tests. Prints a per-view table and a summary (or JSON); the exit
-//! status is 1 if any view fails a tolerance, else 2 if any could not be checked, else 0.
+//! and the reference tests: where they disagree, the exact answer decides who is wrong
+//! ([`crate::verify::arbiter`]). Prints a per-view table and a summary (or JSON with every
+//! disagreeing pixel's class); the exit status is 1 if any view fails (a candidate error or
+//! an unexplained reference error), else 2 if any could not be checked, else 0.
 
 use crate::dataset::batch::{ViewSource, list_views, view_selected};
 use crate::geometry::{FormulaKind, Precision};
@@ -19,7 +21,7 @@ use std::path::{Path, PathBuf};
 pub struct VerifyArgs {
     /// A scene file, a folder of them, or a `.jsonl` manifest.
     pub input: PathBuf,
-    /// Fraction of the views to check (chosen from `seed` and the view names).
+    /// Fraction of the views to check (chosen from `seed` and the views' batch ids).
     pub fraction: f64,
     /// Seed of the `fraction` choice (the same choice as `batch --verify-seed`).
     pub seed: u64,
@@ -39,9 +41,9 @@ pub struct VerifyArgs {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Status {
-    /// Every tolerance held.
+    /// No candidate error and no unexplained reference error.
     Pass,
-    /// At least one tolerance was broken.
+    /// A candidate error or an unexplained reference error.
     Fail,
     /// The check could not be made (bad scene, Mitsuba failed, no venv).
     Unchecked,
@@ -57,9 +59,11 @@ pub struct ViewResult {
     pub scene: String,
     /// Pass, fail or unchecked.
     pub status: Status,
-    /// The broken tolerances (FAIL lines), or why it could not be checked.
+    /// Why it failed (candidate errors, unexplained reference errors), or why it could not
+    /// be checked.
     pub failures: Vec<String>,
-    /// What the float32 conditioning rule accepted above the flat bounds.
+    /// What passed without being exact: reference errors, ties, the note where Mitsuba
+    /// cannot discriminate.
     pub accepted: Vec<String>,
     /// The comparison, when the view could be checked.
     pub report: Option<Report>,
