@@ -330,6 +330,21 @@ struct VerifyCli {
     /// Kernel formulation of cylaov's side.
     #[arg(long, value_enum, default_value_t = FormulaKind::Stable)]
     formula: FormulaKind,
+    /// Check another renderer's AOV EXR of the scene file instead of cylaov's render:
+    /// against the exact answer, with Mitsuba as a second opinion.
+    #[arg(long, value_name = "THEIR.exr")]
+    candidate: Option<PathBuf>,
+    /// With --candidate: its channel names, AOV=NAME, comma-separated (normal=N maps
+    /// N.X/N.Y/N.Z or N.R/N.G/N.B); unmapped channels are read by cylaov's names.
+    #[arg(long, value_delimiter = ',', value_name = "AOV=NAME")]
+    channels: Vec<String>,
+    /// With --candidate: its bound, in float32 ulps of storage and of sideways ray error.
+    #[arg(long, value_name = "K", default_value_t = 4.0)]
+    candidate_ulps: f64,
+    /// With --candidate: the scene's camera it shows (0-based; needed for a scene with
+    /// several cameras).
+    #[arg(long, value_name = "K")]
+    camera: Option<usize>,
     #[command(flatten)]
     tolerances: TolerancesCli,
 }
@@ -707,6 +722,10 @@ fn verify(a: VerifyCli) -> ExitCode {
         tolerances: a.tolerances.get(),
         precision: a.precision,
         formula: a.formula,
+        candidate: a.candidate,
+        channels: a.channels,
+        candidate_ulps: a.candidate_ulps,
+        camera: a.camera,
     };
     let outcome = commands::verify::run(&args).and_then(|out| {
         say(&out.text)?;

@@ -398,3 +398,101 @@ fn an_exr_changed_after_writing_fails() {
         original.write_exr(&exr, Compression::None).expect("write");
     }
 }
+
+/// `verify SCENE --candidate THEIR.exr`: another renderer's file judged by the exact answer
+/// (K float32 ulps), channels mapped by `--channels`, a wrong sample named by pixel.
+#[test]
+fn verify_a_candidate_file() {
+    use cylaov::geometry::{FormulaKind, Precision};
+    use cylaov::output::aov::{AovImage, Channel, ChannelData, Compression};
+    let Some(py) = venv_python() else { return };
+    let dir_tmp = common::fresh_dir("verify", "candidate");
+    let dir = dir_tmp.path();
+    let scene_path = root().join("scenes/single.json");
+    let scene = cylaov::scene::load(&scene_path).expect("scene");
+    let ours = cylaov::verify::reference::check_render(&scene, Precision::F64, FormulaKind::Stable);
+    // Their file: depth as Z, normals as N.R/N.G/N.B, no identity channels.
+    let rename = |name: &str| match name {
+        "depth" => Some("Z".to_string()),
+        "normal.X" => Some("N.R".into()),
+        "normal.Y" => Some("N.G".into()),
+        "normal.Z" => Some("N.B".into()),
+        _ => None,
+    };
+    let theirs = AovImage {
+        width: ours.width,
+        height: ours.height,
+        channels: ours
+            .channels
+            .iter()
+            .filter_map(|c| {
+                rename(&c.name).map(|name| Channel {
+                    name,
+                    data: c.data.clone(),
+                })
+            })
+            .collect(),
+    };
+    let good = dir.join("theirs.exr");
+    theirs.write_exr(&good, Compression::None).expect("write");
+    let run = |file: &Path, extra: &[&str]| {
+        let mut args = vec!["verify", s(&scene_path), "--candidate", s(file)];
+        args.extend_from_slice(extra);
+        cylaov(&py, &args)
+    };
+    let o = run(&good, &["--channels", "depth=Z,normal=N"]);
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o));
+    assert!(text(&o).contains("candidate errors 0"), "{}", text(&o));
+    // Unmapped, nothing is readable as depth, distance or shape_id: could not be checked.
+    let o = run(&good, &[]);
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+    assert!(
+        text(&o).contains("cannot tell hits from misses"),
+        "{}",
+        text(&o)
+    );
+    // One depth sample off by 1e-3: a candidate error at that pixel.
+    let mut bad = theirs.clone();
+    let ids = ours.u32_channel("shape_id").expect("ids");
+    let hits: Vec<usize> = (0..ids.len()).filter(|&k| ids[k] != 0).collect();
+    let k = hits[hits.len() / 2];
+    if let Some(ChannelData::F32(v)) = bad
+        .channels
+        .iter_mut()
+        .find(|c| c.name == "Z")
+        .map(|c| &mut c.data)
+    {
+        v[k] *= 1.001;
+    }
+    let bad_path = dir.join("bad.exr");
+    bad.write_exr(&bad_path, Compression::None).expect("write");
+    let o = run(&bad_path, &["--channels", "depth=Z,normal=N", "--json"]);
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+    let a = &v["views"][0]["arbitration"];
+    assert_eq!(a["candidate_errors"], 1, "{a}");
+    assert_eq!(a["candidate_bound"]["storage_ulps"], 4.0);
+    let p = a["pixels"]
+        .as_array()
+        .expect("pixels")
+        .iter()
+        .find(|p| p["class"] == "candidate_error")
+        .expect("the pixel");
+    assert_eq!(p["at"], serde_json::json!([k % ours.width, k / ours.width]));
+    assert_eq!(p["kind"], "depth");
+    // A camera the scene does not have, a mapping to no AOV: one line naming the flag.
+    let o = run(&good, &["--camera", "3"]);
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+    assert!(
+        text(&o).contains("--camera: the scene has 1 camera(s), got 3"),
+        "{}",
+        text(&o)
+    );
+    let o = run(&good, &["--channels", "colour=Z"]);
+    assert_ne!(o.status.code(), Some(0), "{}", text(&o));
+    assert!(
+        text(&o).contains("--channels: \"colour\" is not one of"),
+        "{}",
+        text(&o)
+    );
+}

@@ -8,10 +8,13 @@
 
 use crate::dataset::batch::{ViewSource, list_views, view_selected};
 use crate::geometry::{FormulaKind, Precision};
+use crate::output::aov::AovImage;
 use crate::output::preview::write_png;
-use crate::verify::arbiter::Arbitration;
+use crate::verify::arbiter::{Arbitration, Bound};
 use crate::verify::compare::{Conditioning, Report, Tolerances, heatmap};
-use crate::verify::reference::{Mitsuba, ViewCheck, summary_line, verify_scene};
+use crate::verify::reference::{
+    Mitsuba, ViewCheck, check_against_with, summary_line, verify_scene,
+};
 use anyhow::Result;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -35,6 +38,69 @@ pub struct VerifyArgs {
     pub precision: Precision,
     /// Kernel formulation of cylaov's side.
     pub formula: FormulaKind,
+    /// Another renderer's AOV EXR of `input` (a scene file) to check instead of cylaov's
+    /// render.
+    pub candidate: Option<PathBuf>,
+    /// `aov=NAME` maps of the candidate's channels (`normal=N`: `N.X/N.Y/N.Z` or
+    /// `N.R/N.G/N.B`).
+    pub channels: Vec<String>,
+    /// The candidate's bound: float32 ulps of storage and of sideways ray error.
+    pub candidate_ulps: f64,
+    /// The scene's camera the candidate shows (needed when the scene has several).
+    pub camera: Option<usize>,
+}
+
+/// The AOVs a candidate's channels can be mapped to, and whether each is a 3-vector.
+const CANDIDATE_AOVS: [(&str, bool); 6] = [
+    ("distance", false),
+    ("depth", false),
+    ("normal", true),
+    ("position", true),
+    ("shape_id", false),
+    ("part", false),
+];
+
+/// `img`'s channels renamed by `--channels aov=NAME` maps: a vector AOV takes `NAME.X/Y/Z`
+/// or `NAME.R/G/B`; channels not mapped keep their names (cylaov's, if the renderer used
+/// them).
+pub fn map_channels(mut img: AovImage, maps: &[String]) -> Result<AovImage> {
+    for m in maps {
+        let Some((aov, name)) = m.split_once('=') else {
+            anyhow::bail!("--channels: expected AOV=NAME, got {m:?}");
+        };
+        let Some(&(_, vector)) = CANDIDATE_AOVS.iter().find(|(a, _)| *a == aov) else {
+            let names: Vec<&str> = CANDIDATE_AOVS.iter().map(|a| a.0).collect();
+            anyhow::bail!("--channels: {aov:?} is not one of {}", names.join(", "));
+        };
+        let has = |img: &AovImage, n: &str| img.channels.iter().any(|c| c.name == n);
+        let pairs: Vec<(String, String)> = if !vector {
+            vec![(name.to_string(), aov.to_string())]
+        } else if ["X", "Y", "Z"]
+            .iter()
+            .all(|c| has(&img, &format!("{name}.{c}")))
+        {
+            ["X", "Y", "Z"]
+                .iter()
+                .map(|c| (format!("{name}.{c}"), format!("{aov}.{c}")))
+                .collect()
+        } else {
+            ["R", "G", "B"]
+                .iter()
+                .zip(["X", "Y", "Z"])
+                .map(|(c, x)| (format!("{name}.{c}"), format!("{aov}.{x}")))
+                .collect()
+        };
+        for (from, to) in pairs {
+            if !has(&img, &from) {
+                anyhow::bail!("--channels {m}: the candidate has no channel {from}");
+            }
+            img.channels.retain(|c| c.name != to);
+            for c in img.channels.iter_mut().filter(|c| c.name == from) {
+                c.name = to.clone();
+            }
+        }
+    }
+    Ok(img)
 }
 
 /// How one view came out.
@@ -134,15 +200,33 @@ fn check_one(
         .select_camera(view.camera)
         .map_err(|e| anyhow::anyhow!("{}: {e}", view.path.display()))?;
     let work = work_dir(k)?;
-    let result = verify_scene(
-        mitsuba,
-        &scene,
-        &view.path.display().to_string(),
-        args.precision,
-        args.formula,
-        &args.tolerances,
-        work.path(),
-    );
+    let result = match &args.candidate {
+        None => verify_scene(
+            mitsuba,
+            &scene,
+            &view.path.display().to_string(),
+            args.precision,
+            args.formula,
+            &args.tolerances,
+            work.path(),
+        ),
+        Some(file) => (|| {
+            let theirs = AovImage::read_exr(file)
+                .map_err(|e| anyhow::anyhow!("--candidate {}: {e:#}", file.display()))?;
+            let theirs = map_channels(theirs, &args.channels)?;
+            let reference =
+                mitsuba.render(&scene, &view.path.display().to_string(), work.path())?;
+            let check = check_against_with(
+                &scene,
+                &theirs,
+                &reference,
+                &args.tolerances,
+                Bound::float32_ulps(args.candidate_ulps),
+            )
+            .map_err(|e| anyhow::anyhow!("--candidate {}: {e:#}", file.display()))?;
+            Ok((check, theirs, reference))
+        })(),
+    };
     drop(work);
     let (check, ours, reference) = result?;
     let mut heatmap_path = None;
@@ -174,7 +258,32 @@ pub fn run(args: &VerifyArgs) -> Result<VerifyOutcome> {
     if let Some(dir) = &args.heatmap {
         crate::output::io::check_output_dir("--heatmap", dir)?;
     }
-    let all = views(&args.input)?;
+    let mut all = views(&args.input)?;
+    if let Some(file) = &args.candidate {
+        if !(args.input.is_file() && args.input.extension().is_some_and(|e| e == "json")) {
+            anyhow::bail!(
+                "--candidate {}: needs the scene file it shows, got {}",
+                file.display(),
+                args.input.display()
+            );
+        }
+        if !(args.candidate_ulps.is_finite() && args.candidate_ulps > 0.0) {
+            anyhow::bail!("--candidate-ulps: must be > 0, got {}", args.candidate_ulps);
+        }
+        let n = all.len();
+        let k = match args.camera {
+            Some(k) if k < n => k,
+            Some(k) => anyhow::bail!("--camera: the scene has {n} camera(s), got {k}"),
+            None if n == 1 => 0,
+            None => anyhow::bail!(
+                "--camera: the scene has {n} cameras; say which one {} shows",
+                file.display()
+            ),
+        };
+        all = vec![all.swap_remove(k)];
+    } else if args.camera.is_some() || !args.channels.is_empty() {
+        anyhow::bail!("--camera and --channels go with --candidate");
+    }
     let selected: Vec<&ViewSource> = all
         .iter()
         .filter(|v| view_selected(args.seed, v, args.fraction))
