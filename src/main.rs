@@ -345,6 +345,10 @@ struct VerifyCli {
     /// several cameras).
     #[arg(long, value_name = "K")]
     camera: Option<usize>,
+    /// Write DIR/index.html: a self-contained page (images beside it) with the per-view
+    /// table, each view's pictures with legends, and its worst pixels' three answers.
+    #[arg(long, value_name = "DIR")]
+    report: Option<PathBuf>,
     #[command(flatten)]
     tolerances: TolerancesCli,
 }
@@ -726,6 +730,7 @@ fn verify(a: VerifyCli) -> ExitCode {
         channels: a.channels,
         candidate_ulps: a.candidate_ulps,
         camera: a.camera,
+        report: a.report,
     };
     let outcome = commands::verify::run(&args).and_then(|out| {
         say(&out.text)?;

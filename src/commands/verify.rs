@@ -15,6 +15,7 @@ use crate::verify::compare::{Conditioning, Report, Tolerances, heatmap};
 use crate::verify::reference::{
     Mitsuba, ViewCheck, check_against_with, summary_line, verify_scene,
 };
+use crate::verify::report::{ReportView, write_report};
 use anyhow::Result;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -48,6 +49,8 @@ pub struct VerifyArgs {
     pub candidate_ulps: f64,
     /// The scene's camera the candidate shows (needed when the scene has several).
     pub camera: Option<usize>,
+    /// Folder for the report page (`index.html` and its images).
+    pub report: Option<PathBuf>,
 }
 
 /// The AOVs a candidate's channels can be mapped to, and whether each is a 3-vector.
@@ -193,7 +196,7 @@ fn check_one(
     mitsuba: &Mitsuba,
     view: &ViewSource,
     k: usize,
-) -> Result<(ViewCheck, Option<PathBuf>)> {
+) -> Result<(ViewCheck, Option<Images>)> {
     let mut scene = crate::scene::load(&view.path)
         .map_err(|e| anyhow::anyhow!("{}: {e}", view.path.display()))?;
     scene
@@ -229,26 +232,30 @@ fn check_one(
     };
     drop(work);
     let (check, ours, reference) = result?;
-    let mut heatmap_path = None;
+    if args.heatmap.is_none() && args.report.is_none() {
+        return Ok((check, None));
+    }
+    let cond = Conditioning::new(&scene, &ours);
+    let img = heatmap(
+        &ours,
+        &reference,
+        &check.report,
+        &args.tolerances,
+        cond.as_ref(),
+    );
     if let Some(dir) = &args.heatmap {
         let path = view.dir(dir).join(format!("{}.heatmap.png", view.name));
         crate::output::io::check_output("--heatmap", &path, &[&view.path])?;
         if let Some(parent) = path.parent() {
             std::fs::create_dir_all(parent)?;
         }
-        let cond = Conditioning::new(&scene, &ours);
-        let img = heatmap(
-            &ours,
-            &reference,
-            &check.report,
-            &args.tolerances,
-            cond.as_ref(),
-        );
         write_png(&img, &path)?;
-        heatmap_path = Some(path);
     }
-    Ok((check, heatmap_path))
+    Ok((check, Some((ours, reference, img))))
 }
+
+/// A checked view's pictures for the report: candidate, Mitsuba, difference heatmap.
+type Images = (AovImage, AovImage, image::RgbImage);
 
 /// Check every selected view of `args.input`.
 pub fn run(args: &VerifyArgs) -> Result<VerifyOutcome> {
@@ -257,6 +264,9 @@ pub fn run(args: &VerifyArgs) -> Result<VerifyOutcome> {
     }
     if let Some(dir) = &args.heatmap {
         crate::output::io::check_output_dir("--heatmap", dir)?;
+    }
+    if let Some(dir) = &args.report {
+        crate::output::io::check_output_dir("--report", dir)?;
     }
     let mut all = views(&args.input)?;
     if let Some(file) = &args.candidate {
@@ -296,6 +306,7 @@ pub fn run(args: &VerifyArgs) -> Result<VerifyOutcome> {
     // Progress: one line redrawn in place, on a terminal only (the table goes to stdout).
     let live = !args.json && std::io::IsTerminal::is_terminal(&std::io::stderr());
     let mut results = Vec::with_capacity(selected.len());
+    let mut pictures: Vec<Option<Images>> = Vec::new();
     for (k, view) in selected.iter().enumerate() {
         if live && mitsuba.is_ok() {
             progress(&format!(
@@ -310,33 +321,59 @@ pub fn run(args: &VerifyArgs) -> Result<VerifyOutcome> {
             Ok(m) => check_one(args, m, view, k),
         };
         let r = match outcome {
-            Ok((check, _)) => ViewResult {
-                name: view.id(),
-                scene: view.path.display().to_string(),
-                status: if check.passed() {
-                    Status::Pass
-                } else {
-                    Status::Fail
-                },
-                failures: check.failures.clone(),
-                accepted: check.accepted.clone(),
-                report: Some(check.report),
-                arbitration: Some(check.arbitration),
-            },
-            Err(e) => ViewResult {
-                name: view.id(),
-                scene: view.path.display().to_string(),
-                status: Status::Unchecked,
-                failures: vec![format!("{e:#}")],
-                accepted: Vec::new(),
-                report: None,
-                arbitration: None,
-            },
+            Ok((check, images)) => {
+                pictures.push(images);
+                ViewResult {
+                    name: view.id(),
+                    scene: view.path.display().to_string(),
+                    status: if check.passed() {
+                        Status::Pass
+                    } else {
+                        Status::Fail
+                    },
+                    failures: check.failures.clone(),
+                    accepted: check.accepted.clone(),
+                    report: Some(check.report),
+                    arbitration: Some(check.arbitration),
+                }
+            }
+            Err(e) => {
+                pictures.push(None);
+                ViewResult {
+                    name: view.id(),
+                    scene: view.path.display().to_string(),
+                    status: Status::Unchecked,
+                    failures: vec![format!("{e:#}")],
+                    accepted: Vec::new(),
+                    report: None,
+                    arbitration: None,
+                }
+            }
         };
         results.push(r);
     }
     if live && mitsuba.is_ok() && !selected.is_empty() {
         progress("");
+    }
+    if let Some(dir) = &args.report {
+        let views: Vec<ReportView> = results
+            .iter()
+            .zip(&pictures)
+            .map(|(r, p)| ReportView {
+                name: &r.name,
+                verdict: verdict_word(r.status),
+                summary: row(r),
+                worst: r
+                    .report
+                    .as_ref()
+                    .and_then(|rep| rep.rel_distance.as_ref())
+                    .map_or(0.0, |m| m.all.max),
+                arbitration: r.arbitration.as_ref(),
+                lines: r.failures.iter().chain(&r.accepted).cloned().collect(),
+                images: p.as_ref().map(|(a, b, h)| (a, b, h)),
+            })
+            .collect();
+        write_report(dir, &args.input.display().to_string(), &views)?;
     }
     let count = |s: Status| results.iter().filter(|r| r.status == s).count();
     let (passed, failed, unchecked) = (
@@ -379,13 +416,17 @@ fn progress(text: &str) {
     let _ = err.flush();
 }
 
-/// One table row: name, verdict, mismatch counts, largest errors.
-fn row(r: &ViewResult) -> String {
-    let verdict = match r.status {
+fn verdict_word(s: Status) -> &'static str {
+    match s {
         Status::Pass => "PASS",
         Status::Fail => "FAIL",
         Status::Unchecked => "UNCHECKED",
-    };
+    }
+}
+
+/// One table row: name, verdict, mismatch counts, largest errors.
+fn row(r: &ViewResult) -> String {
+    let verdict = verdict_word(r.status);
     match (&r.report, &r.arbitration) {
         (Some(rep), Some(a)) => format!(
             "{:<24} {verdict:<9} {}; reference errors {}, unexplained {}, candidate errors {}, ties {}",

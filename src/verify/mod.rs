@@ -8,4 +8,5 @@ pub mod arbiter;
 pub mod compare;
 pub mod oracle;
 pub mod reference;
+pub mod report;
 pub mod stress;
