@@ -349,6 +349,10 @@ struct VerifyCli {
     /// table, each view's pictures with legends, and its worst pixels' three answers.
     #[arg(long, value_name = "DIR")]
     report: Option<PathBuf>,
+    /// With a batch's output folder (holding index.json) as input: the scene folder or
+    /// manifest the batch read. The EXR files on disk are checked, not a fresh render.
+    #[arg(long, value_name = "DIR")]
+    scenes: Option<PathBuf>,
     #[command(flatten)]
     tolerances: TolerancesCli,
 }
@@ -731,6 +735,7 @@ fn verify(a: VerifyCli) -> ExitCode {
         candidate_ulps: a.candidate_ulps,
         camera: a.camera,
         report: a.report,
+        scenes: a.scenes,
     };
     let outcome = commands::verify::run(&args).and_then(|out| {
         say(&out.text)?;

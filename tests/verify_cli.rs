@@ -496,3 +496,64 @@ fn verify_a_candidate_file() {
         text(&o)
     );
 }
+
+/// `verify OUT --scenes DIR` of a batch's output checks the EXR files on disk: a written
+/// file passes, the same file with one depth sample × (1 + 1e-4) fails naming the view and
+/// the pixel (its kept verdict is the unchanged file's), and without `--scenes` it says
+/// what to add.
+#[test]
+fn verify_checks_the_files_a_batch_wrote() {
+    use cylaov::output::aov::{AovImage, ChannelData, Compression};
+    let Some(py) = venv_python() else { return };
+    let dir_tmp = common::fresh_dir("verify", "written");
+    let dir = dir_tmp.path();
+    let scenes = dir.join("scenes");
+    std::fs::create_dir_all(&scenes).expect("scenes dir");
+    std::fs::copy(root().join("scenes/single.json"), scenes.join("one.json")).expect("copy");
+    let out = dir.join("render");
+    let o = cylaov(
+        &py,
+        &[
+            "batch",
+            s(&scenes),
+            "--out",
+            s(&out),
+            "--no-png",
+            "--aov",
+            "depth",
+        ],
+    );
+    assert!(o.status.success(), "{}", text(&o));
+    let verify = || cylaov(&py, &["verify", s(&out), "--scenes", s(&scenes)]);
+    let o = verify();
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o));
+    let table = String::from_utf8_lossy(&o.stdout).to_string();
+    assert!(table.contains("one                      PASS"), "{table}");
+    assert!(
+        table.contains("1 of 1 written views checked: 1 passed"),
+        "{table}"
+    );
+    let exr = out.join("one.exr");
+    let mut img = AovImage::read_exr(&exr).expect("exr");
+    let w = img.width;
+    let k = match &mut img.channels[0].data {
+        ChannelData::F32(v) => {
+            let hits: Vec<usize> = (0..v.len()).filter(|&k| v[k] > 0.0).collect();
+            let k = hits[hits.len() / 2];
+            v[k] *= 1.0 + 1e-4;
+            k
+        }
+        ChannelData::U32(_) => panic!("depth is u32"),
+    };
+    img.write_exr(&exr, Compression::None).expect("write");
+    let o = verify();
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o));
+    let table = String::from_utf8_lossy(&o.stdout).to_string();
+    assert!(table.contains("one                      FAIL"), "{table}");
+    let at = format!("at [{}, {}]", k % w, k / w);
+    assert!(table.contains(&format!("depth {at}")), "{table}");
+    assert!(table.contains("candidate error: 1 px"), "{table}");
+    let o = cylaov(&py, &["verify", s(&out)]);
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+    assert!(text(&o).contains("index.json: a batch's output; give the folder or manifest its scenes came from with --scenes DIR"), "{}", text(&o));
+}

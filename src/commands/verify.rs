@@ -51,6 +51,147 @@ pub struct VerifyArgs {
     pub camera: Option<usize>,
     /// Folder for the report page (`index.html` and its images).
     pub report: Option<PathBuf>,
+    /// With a batch's output as `input`: the folder (or manifest) the batch read its
+    /// scenes from.
+    pub scenes: Option<PathBuf>,
+}
+
+/// One view of a batch's `index.json`.
+#[derive(serde::Deserialize)]
+struct IndexView {
+    scene: String,
+    scene_file: String,
+    camera: usize,
+    exr_file_path: String,
+}
+
+/// `verify OUT/` of a batch's output: the EXR files on disk, each judged against Mitsuba
+/// and the exact answer (the check of `batch --verify-fraction`, its verdict kept beside
+/// the file keyed on the file's sha256).
+fn run_written(args: &VerifyArgs) -> Result<VerifyOutcome> {
+    let index_path = args.input.join("index.json");
+    let Some(scenes) = &args.scenes else {
+        anyhow::bail!(
+            "{}: a batch's output; give the folder or manifest its scenes came from with --scenes DIR",
+            index_path.display()
+        );
+    };
+    let scene_dir = if scenes.is_file() {
+        scenes.parent().unwrap_or(Path::new(".")).to_path_buf()
+    } else {
+        scenes.clone()
+    };
+    #[derive(serde::Deserialize)]
+    struct Index {
+        views: Vec<IndexView>,
+    }
+    let text = std::fs::read_to_string(&index_path)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", index_path.display()))?;
+    let index: Index = serde_json::from_str(&text)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", index_path.display()))?;
+    let verifier = crate::verify::reference::MitsubaVerifier::find(
+        args.tolerances,
+        args.precision,
+        args.formula,
+    );
+    if let Err(why) = &verifier {
+        crate::output::io::warn(&format!("verify: {why}"));
+    }
+    let mut results = Vec::new();
+    let mut all = 0;
+    for (k, v) in index.views.iter().enumerate() {
+        let (folder, name) = match v.exr_file_path.rsplit_once('/') {
+            Some((f, n)) => (Some(f.to_string()), n),
+            None => (None, v.exr_file_path.as_str()),
+        };
+        let view = ViewSource {
+            name: name.trim_end_matches(".exr").to_string(),
+            path: scene_dir.join(&v.scene_file),
+            scene: v.scene.clone(),
+            camera: v.camera,
+            folder,
+        };
+        all += 1;
+        if !view_selected(args.seed, &view, args.fraction) {
+            continue;
+        }
+        let exr = args.input.join(&v.exr_file_path);
+        let outcome = (|| -> Result<crate::dataset::batch::Verdict> {
+            let verifier = verifier.as_ref().map_err(|why| anyhow::anyhow!("{why}"))?;
+            let mut scene = crate::scene::load(&view.path)
+                .map_err(|e| anyhow::anyhow!("{}: {e}", view.path.display()))?;
+            scene
+                .select_camera(view.camera)
+                .map_err(|e| anyhow::anyhow!("{}: {e}", view.path.display()))?;
+            let work = work_dir(k)?;
+            use crate::dataset::batch::Verifier;
+            verifier.check(&view, &scene, &exr, work.path())
+        })();
+        let (status, failures, accepted) = match outcome {
+            Ok(v) if v.passes => (Status::Pass, Vec::new(), vec![v.report]),
+            Ok(v) => (Status::Fail, vec![v.report], Vec::new()),
+            Err(e) => (Status::Unchecked, vec![format!("{e:#}")], Vec::new()),
+        };
+        results.push(ViewResult {
+            name: view.id(),
+            scene: view.path.display().to_string(),
+            status,
+            failures,
+            accepted,
+            report: None,
+            arbitration: None,
+        });
+    }
+    let count = |s: Status| results.iter().filter(|r| r.status == s).count();
+    let (passed, failed, unchecked) = (
+        count(Status::Pass),
+        count(Status::Fail),
+        count(Status::Unchecked),
+    );
+    let code = if failed > 0 {
+        1
+    } else if unchecked > 0 {
+        2
+    } else {
+        0
+    };
+    let text = if args.json {
+        serde_json::to_string_pretty(&JsonOut {
+            input: args.input.display().to_string(),
+            tolerances: args.tolerances,
+            checked: results.len(),
+            passed,
+            failed,
+            unchecked,
+            views: &results,
+        })?
+    } else {
+        let mut s = format!("{:<24} {:<9} result\n", "view", "verdict");
+        for r in &results {
+            let lines = r
+                .failures
+                .iter()
+                .chain(&r.accepted)
+                .cloned()
+                .collect::<Vec<_>>();
+            s += &format!(
+                "{:<24} {:<9} {}\n",
+                r.name,
+                verdict_word(r.status),
+                lines.join("\n  ")
+            );
+        }
+        s += &format!(
+            "verify: {} of {all} written views checked: {passed} passed, {failed} failed, {unchecked} could not be checked",
+            results.len()
+        );
+        s
+    };
+    Ok(VerifyOutcome {
+        text,
+        code,
+        views: results,
+    })
 }
 
 /// The AOVs a candidate's channels can be mapped to, and whether each is a 3-vector.
@@ -267,6 +408,9 @@ pub fn run(args: &VerifyArgs) -> Result<VerifyOutcome> {
     }
     if let Some(dir) = &args.report {
         crate::output::io::check_output_dir("--report", dir)?;
+    }
+    if args.input.join("index.json").is_file() {
+        return run_written(args);
     }
     let mut all = views(&args.input)?;
     if let Some(file) = &args.candidate {
