@@ -529,6 +529,12 @@ fn verify_checks_the_files_a_batch_wrote() {
     assert_eq!(o.status.code(), Some(0), "{}", text(&o));
     let table = String::from_utf8_lossy(&o.stdout).to_string();
     assert!(table.contains("one                      PASS"), "{table}");
+    // The row once, on stdout: no batch log line on stderr.
+    assert!(
+        o.stderr.is_empty(),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     assert!(
         table.contains("1 of 1 written views checked: 1 passed"),
         "{table}"

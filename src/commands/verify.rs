@@ -93,7 +93,8 @@ fn run_written(args: &VerifyArgs) -> Result<VerifyOutcome> {
         args.tolerances,
         args.precision,
         args.formula,
-    );
+    )
+    .map(|v| crate::verify::reference::MitsubaVerifier { log: false, ..v });
     if let Err(why) = &verifier {
         crate::output::io::warn(&format!("verify: {why}"));
     }

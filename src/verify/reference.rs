@@ -312,6 +312,9 @@ pub struct MitsubaVerifier {
     pub precision: Precision,
     /// The batch's ray–cylinder formulation (literal or stable), the kernel's other half.
     pub formula: FormulaKind,
+    /// Print one line per verified view on stderr (batch's log); `verify` prints its table
+    /// instead.
+    pub log: bool,
 }
 
 impl MitsubaVerifier {
@@ -326,6 +329,7 @@ impl MitsubaVerifier {
             tolerances,
             precision,
             formula,
+            log: true,
         })
     }
 }
@@ -436,7 +440,9 @@ impl Verifier for MitsubaVerifier {
         if std::io::IsTerminal::is_terminal(&std::io::stderr()) {
             line.insert_str(0, "\r\x1b[2K");
         }
-        crate::output::io::warn(&line);
+        if self.log {
+            crate::output::io::warn(&line);
+        }
         let cached = CachedVerdict {
             stamp,
             tolerances: key.0,
