@@ -68,10 +68,14 @@ enum Command {
     /// Example: cylaov export-mitsuba scenes/single.json -o single.xml
     ExportMitsuba(ExportCli),
     /// Check scenes against Mitsuba 3: render each view with cylaov and with Mitsuba
-    /// (the pinned venv) and compare them pixel by pixel.
+    /// (the pinned venv) and compare them pixel by pixel. Where they disagree beyond the
+    /// tolerances, the exact answer (double-double, on the camera's f64 ray) decides: a
+    /// reference error (Mitsuba off within its float32 bound) passes and is counted; a
+    /// candidate error (cylaov off the exact answer) or an unexplained reference error
+    /// (Mitsuba off beyond its bound: an export or scene error) fails.
     ///
-    /// Exit status: 1 if any view fails a tolerance, else 2 if any view could not be
-    /// checked (a bad scene, no venv, Mitsuba failed), else 0.
+    /// Exit status: 1 if any view fails, else 2 if any view could not be checked (a bad
+    /// scene, no venv, Mitsuba failed), else 0.
     ///
     /// Example: cylaov verify scenes/single.json --heatmap out
     ///
@@ -320,7 +324,8 @@ struct VerifyCli {
     /// A scene file, a folder of scene files (or holding manifest.jsonl), or a .jsonl
     /// manifest.
     input: PathBuf,
-    /// Fraction of the views to check, chosen from --seed and the view names.
+    /// Fraction of the views to check, chosen from --seed and each view's batch name
+    /// (`scene` or `scene/NN`).
     #[arg(
         long,
         default_value_t = 1.0,
@@ -328,7 +333,7 @@ struct VerifyCli {
         allow_hyphen_values = true
     )]
     fraction: f64,
-    /// Seed of the --fraction choice (the same choice as batch --verify-seed).
+    /// Seed of the --fraction choice (the views batch --verify-seed checks).
     #[arg(long, default_value_t = 0)]
     seed: u64,
     /// Write DIR/NAME.heatmap.png for every checked view: where cylaov and Mitsuba differ,
@@ -344,6 +349,29 @@ struct VerifyCli {
     /// Kernel formulation of cylaov's side.
     #[arg(long, value_enum, default_value_t = FormulaKind::Stable)]
     formula: FormulaKind,
+    /// Check another renderer's AOV EXR of the scene file instead of cylaov's render:
+    /// against the exact answer, with Mitsuba as a second opinion.
+    #[arg(long, value_name = "THEIR.exr")]
+    candidate: Option<PathBuf>,
+    /// With --candidate: its channel names, AOV=NAME, comma-separated (normal=N maps
+    /// N.X/N.Y/N.Z or N.R/N.G/N.B); unmapped channels are read by cylaov's names.
+    #[arg(long, value_delimiter = ',', value_name = "AOV=NAME")]
+    channels: Vec<String>,
+    /// With --candidate: its bound, in float32 ulps of storage and of sideways ray error.
+    #[arg(long, value_name = "K", default_value_t = 4.0)]
+    candidate_ulps: f64,
+    /// With --candidate: the scene's camera it shows (0-based; needed for a scene with
+    /// several cameras).
+    #[arg(long, value_name = "K")]
+    camera: Option<usize>,
+    /// Write DIR/index.html: a self-contained page (images beside it) with the per-view
+    /// table, each view's pictures with legends, and its worst pixels' three answers.
+    #[arg(long, value_name = "DIR")]
+    report: Option<PathBuf>,
+    /// With a batch's output folder (holding index.json) as input: the scene folder or
+    /// manifest the batch read. The EXR files on disk are checked, not a fresh render.
+    #[arg(long, value_name = "DIR")]
+    scenes: Option<PathBuf>,
     #[command(flatten)]
     tolerances: TolerancesCli,
 }
@@ -747,6 +775,12 @@ fn verify(a: VerifyCli) -> ExitCode {
         tolerances: a.tolerances.get(),
         precision: a.precision,
         formula: a.formula,
+        candidate: a.candidate,
+        channels: a.channels,
+        candidate_ulps: a.candidate_ulps,
+        camera: a.camera,
+        report: a.report,
+        scenes: a.scenes,
     };
     let outcome = commands::verify::run(&args).and_then(|out| {
         say(&out.text)?;

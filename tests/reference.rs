@@ -1,7 +1,7 @@
 //! Every scene in `scenes/` rendered by cylaov (stable kernel, f64 and f32) against its
 //! committed Mitsuba 3.9.1 `scalar_rgb` reference in `reference/`, through the check that
 //! `cylaov verify` and `batch --verify-fraction` run (`verify::reference::check_against`:
-//! identity by cylinder and part, float32 conditioning bounds), at tighter bounds.
+//! identity by cylinder and part, the exact answer as arbiter), at tighter bounds.
 //!
 //! **What the bounds measure.** At every worst pixel we checked against an independent
 //! float64 evaluation of the same pixel ray, cylaov (f64) agrees with it to the float32
@@ -35,11 +35,13 @@
 //!
 //! `rims` (48 short cylinders and open tubes seen from above: thousands of cap and tube
 //! rim pixels) has no seam mismatch; `rim_seam` (a generated view) has one pixel where
-//! cylaov takes a cap and Mitsuba the side of the same rim. Every pixel of every scene but
-//! `grazing_steep` meets the flat bounds, so the float32 conditioning rule accepts nothing
-//! there (the test fails if it ever does); in `grazing_steep` (a generated view with a
-//! steep camera) it accepts one pixel at 5.9e-5 relative distance whose bound is 1.2e-4,
-//! and `tests/verify.rs` shows with the oracle that cylaov is right there.
+//! cylaov takes a cap and Mitsuba the side of the same rim. Where cylaov and Mitsuba
+//! disagree beyond the bounds, the exact answer (double-double, the reference camera's f64
+//! ray) decides, as in `cylaov verify`: cylaov must be on it within its f32 storage, and
+//! Mitsuba's misses must be reference errors within its float32 bound. Two pixels of the
+//! committed scenes are: `grazing_steep`'s most grazing pixel (5.9e-5 relative distance,
+//! bound 1.2e-4) and `rim_seam`'s rim pixel; every other scene has none, and the test fails
+//! if that changes.
 //!
 //! Bounds: one set for every scene, [`BOUNDS`]: the default 0.05% / 3e-5 / 0.1° tightened
 //! to about 1.5× the largest measurement, plus p99 bounds at about 2× the largest p99
@@ -53,8 +55,9 @@
 use cylaov::geometry::{FormulaKind, Precision};
 use cylaov::output::aov::AovImage;
 use cylaov::scene;
+use cylaov::verify::arbiter::Bound;
 use cylaov::verify::compare::{Identity, Tolerances};
-use cylaov::verify::reference::{check_against, check_render};
+use cylaov::verify::reference::{check_against_with, check_render};
 use std::path::{Path, PathBuf};
 
 /// Pass/fail bounds of one scene: the max bounds of [`Tolerances`] and p99 bounds.
@@ -84,6 +87,12 @@ const BOUNDS: Bounds = Bounds {
     p99_normal_deg: 0.02,
 };
 
+/// Mitsuba's reference errors at [`BOUNDS`] with cylaov's f64 kernel, measured (every other
+/// scene has none): `grazing_steep`'s one grazing pixel (5.9e-5 relative distance, cylaov
+/// on the exact answer, see `tests/verify.rs`) and `rim_seam`'s one rim pixel, where
+/// Mitsuba's ray slips between the top cap and the tube and hits the inner wall.
+const REFERENCE_ERRORS: &[(&str, usize)] = &[("grazing_steep", 1), ("rim_seam", 1)];
+
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
@@ -105,8 +114,8 @@ fn check(stem: &str, precision: Precision, reference: &AovImage) -> Vec<String> 
     let scene = scene::load(&scene_path).unwrap_or_else(|e| panic!("{stem}: {e}"));
     let img = check_render(&scene, precision, FormulaKind::Stable);
     let b = BOUNDS;
-    let checked =
-        check_against(&scene, &img, reference, &b.max).unwrap_or_else(|e| panic!("{stem}: {e:#}"));
+    let checked = check_against_with(&scene, &img, reference, &b.max, Bound::cylaov(precision))
+        .unwrap_or_else(|e| panic!("{stem}: {e:#}"));
     let r = &checked.report;
     let tag = format!("{stem} ({precision:?})");
     let mut fails: Vec<String> = checked
@@ -114,14 +123,20 @@ fn check(stem: &str, precision: Precision, reference: &AovImage) -> Vec<String> 
         .iter()
         .map(|f| format!("{tag}: {f}"))
         .collect();
-    // Every committed scene but the one kept for it meets the flat bounds on every pixel:
-    // the conditioning rule accepts nothing elsewhere (tests/verify.rs shows with the
-    // oracle that cylaov is right on the pixels it accepts in `grazing_steep`).
-    if stem != "grazing_steep" {
-        fails.extend(checked.accepted.iter().map(|a| format!("{tag}: {a}")));
-    } else if precision == Precision::F64 && checked.accepted.is_empty() {
+    // The exact answer decides where the two disagree beyond the bounds: no candidate error,
+    // no unexplained reference error (above), no tie, and Mitsuba's reference errors only
+    // where they were measured ([`REFERENCE_ERRORS`]; the f32 kernel's own f32 storage may
+    // sit a little nearer Mitsuba, so at most as many).
+    let a = &checked.arbitration;
+    let expected = REFERENCE_ERRORS
+        .iter()
+        .find(|(s, _)| *s == stem)
+        .map_or(0, |e| e.1);
+    let counted = a.reference_errors;
+    if a.ties > 0 || counted > expected || (precision == Precision::F64 && counted != expected) {
         fails.push(format!(
-            "{tag}: no grazing pixel above the flat bounds any more"
+            "{tag}: {counted} reference errors, {} ties (expected {expected}, 0): {:?}",
+            a.ties, checked.accepted
         ));
     }
     // The reference carries shape_id and part, and so does our render: identity is exact.
@@ -152,6 +167,13 @@ fn check(stem: &str, precision: Precision, reference: &AovImage) -> Vec<String> 
         |m: &Option<cylaov::verify::compare::Metric>| m.as_ref().map_or(f64::NAN, |m| m.all.max);
     let p99 =
         |m: &Option<cylaov::verify::compare::Metric>| m.as_ref().map_or(f64::NAN, |m| m.all.p99);
+    let a = &checked.arbitration;
+    println!(
+        "{tag}: reference errors {} ({}), ties {}",
+        a.reference_errors,
+        a.kinds(cylaov::verify::arbiter::PixelClass::ReferenceError),
+        a.ties
+    );
     println!(
         "{tag}: same {} mismatches {} seams {} | rel distance max {:.2e} p99 {:.2e} | rel depth max {:.2e} | normal max {:.4}° p99 {:.4}°",
         r.same,

@@ -1,14 +1,21 @@
 //! `cylaov verify`: the cross-renderer check for any scene, folder or manifest. Each
 //! selected view is rendered by cylaov (in memory) and by Mitsuba 3 and compared by
 //! [`crate::verify::reference::verify_scene`], the code path of `batch --verify-fraction`
-//! and the reference tests. Prints a per-view table and a summary (or JSON); the exit
-//! status is 1 if any view fails a tolerance, else 2 if any could not be checked, else 0.
+//! and the reference tests: where they disagree, the exact answer decides who is wrong
+//! ([`crate::verify::arbiter`]). Prints a per-view table and a summary (or JSON with every
+//! disagreeing pixel's class); the exit status is 1 if any view fails (a candidate error or
+//! an unexplained reference error), else 2 if any could not be checked, else 0.
 
-use crate::dataset::batch::{ViewSource, list_views, selected_for_verify};
+use crate::dataset::batch::{ViewSource, list_views, view_selected};
 use crate::geometry::{FormulaKind, Precision};
+use crate::output::aov::AovImage;
 use crate::output::preview::write_png;
+use crate::verify::arbiter::{Arbitration, Bound};
 use crate::verify::compare::{Conditioning, Report, Tolerances, heatmap_figure};
-use crate::verify::reference::{Mitsuba, ViewCheck, summary_line, verify_scene};
+use crate::verify::reference::{
+    Mitsuba, ViewCheck, check_against_with, summary_line, verify_scene,
+};
+use crate::verify::report::{ReportView, write_report};
 use anyhow::Result;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -18,7 +25,7 @@ use std::path::{Path, PathBuf};
 pub struct VerifyArgs {
     /// A scene file, a folder of them, or a `.jsonl` manifest.
     pub input: PathBuf,
-    /// Fraction of the views to check (chosen from `seed` and the view names).
+    /// Fraction of the views to check (chosen from `seed` and the views' batch ids).
     pub fraction: f64,
     /// Seed of the `fraction` choice (the same choice as `batch --verify-seed`).
     pub seed: u64,
@@ -32,15 +39,222 @@ pub struct VerifyArgs {
     pub precision: Precision,
     /// Kernel formulation of cylaov's side.
     pub formula: FormulaKind,
+    /// Another renderer's AOV EXR of `input` (a scene file) to check instead of cylaov's
+    /// render.
+    pub candidate: Option<PathBuf>,
+    /// `aov=NAME` maps of the candidate's channels (`normal=N`: `N.X/N.Y/N.Z` or
+    /// `N.R/N.G/N.B`).
+    pub channels: Vec<String>,
+    /// The candidate's bound: float32 ulps of storage and of sideways ray error.
+    pub candidate_ulps: f64,
+    /// The scene's camera the candidate shows (needed when the scene has several).
+    pub camera: Option<usize>,
+    /// Folder for the report page (`index.html` and its images).
+    pub report: Option<PathBuf>,
+    /// With a batch's output as `input`: the folder (or manifest) the batch read its
+    /// scenes from.
+    pub scenes: Option<PathBuf>,
+}
+
+/// One view of a batch's `index.json`.
+#[derive(serde::Deserialize)]
+struct IndexView {
+    scene: String,
+    scene_file: String,
+    camera: usize,
+    exr_file_path: String,
+}
+
+/// `verify OUT/` of a batch's output: the EXR files on disk, each judged against Mitsuba
+/// and the exact answer (the check of `batch --verify-fraction`, its verdict kept beside
+/// the file keyed on the file's sha256).
+fn run_written(args: &VerifyArgs) -> Result<VerifyOutcome> {
+    let index_path = args.input.join("index.json");
+    let Some(scenes) = &args.scenes else {
+        anyhow::bail!(
+            "{}: a batch's output; give the folder or manifest its scenes came from with --scenes DIR",
+            index_path.display()
+        );
+    };
+    let scene_dir = if scenes.is_file() {
+        scenes.parent().unwrap_or(Path::new(".")).to_path_buf()
+    } else {
+        scenes.clone()
+    };
+    #[derive(serde::Deserialize)]
+    struct Index {
+        views: Vec<IndexView>,
+    }
+    let text = std::fs::read_to_string(&index_path)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", index_path.display()))?;
+    let index: Index = serde_json::from_str(&text)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", index_path.display()))?;
+    let verifier = crate::verify::reference::MitsubaVerifier::find(
+        args.tolerances,
+        args.precision,
+        args.formula,
+    )
+    .map(|v| crate::verify::reference::MitsubaVerifier { log: false, ..v });
+    if let Err(why) = &verifier {
+        crate::output::io::warn(&format!("verify: {why}"));
+    }
+    let mut results = Vec::new();
+    let mut all = 0;
+    for (k, v) in index.views.iter().enumerate() {
+        let (folder, name) = match v.exr_file_path.rsplit_once('/') {
+            Some((f, n)) => (Some(f.to_string()), n),
+            None => (None, v.exr_file_path.as_str()),
+        };
+        let view = ViewSource {
+            name: name.trim_end_matches(".exr").to_string(),
+            path: scene_dir.join(&v.scene_file),
+            scene: v.scene.clone(),
+            camera: v.camera,
+            folder,
+        };
+        all += 1;
+        if !view_selected(args.seed, &view, args.fraction) {
+            continue;
+        }
+        let exr = args.input.join(&v.exr_file_path);
+        let outcome = (|| -> Result<crate::dataset::batch::Verdict> {
+            let verifier = verifier.as_ref().map_err(|why| anyhow::anyhow!("{why}"))?;
+            let mut scene = crate::scene::load(&view.path)
+                .map_err(|e| anyhow::anyhow!("{}: {e}", view.path.display()))?;
+            scene
+                .select_camera(view.camera)
+                .map_err(|e| anyhow::anyhow!("{}: {e}", view.path.display()))?;
+            let work = work_dir(k)?;
+            use crate::dataset::batch::Verifier;
+            verifier.check(&view, &scene, &exr, work.path())
+        })();
+        let (status, failures, accepted) = match outcome {
+            Ok(v) if v.passes => (Status::Pass, Vec::new(), vec![v.report]),
+            Ok(v) => (Status::Fail, vec![v.report], Vec::new()),
+            Err(e) => (Status::Unchecked, vec![format!("{e:#}")], Vec::new()),
+        };
+        results.push(ViewResult {
+            name: view.id(),
+            scene: view.path.display().to_string(),
+            status,
+            failures,
+            accepted,
+            report: None,
+            arbitration: None,
+        });
+    }
+    let count = |s: Status| results.iter().filter(|r| r.status == s).count();
+    let (passed, failed, unchecked) = (
+        count(Status::Pass),
+        count(Status::Fail),
+        count(Status::Unchecked),
+    );
+    let code = if failed > 0 {
+        1
+    } else if unchecked > 0 {
+        2
+    } else {
+        0
+    };
+    let text = if args.json {
+        serde_json::to_string_pretty(&JsonOut {
+            input: args.input.display().to_string(),
+            tolerances: args.tolerances,
+            checked: results.len(),
+            passed,
+            failed,
+            unchecked,
+            views: &results,
+        })?
+    } else {
+        let mut s = format!("{:<24} {:<9} result\n", "view", "verdict");
+        for r in &results {
+            let lines = r
+                .failures
+                .iter()
+                .chain(&r.accepted)
+                .cloned()
+                .collect::<Vec<_>>();
+            s += &format!(
+                "{:<24} {:<9} {}\n",
+                r.name,
+                verdict_word(r.status),
+                lines.join("\n  ")
+            );
+        }
+        s += &format!(
+            "verify: {} of {all} written views checked: {passed} passed, {failed} failed, {unchecked} could not be checked",
+            results.len()
+        );
+        s
+    };
+    Ok(VerifyOutcome {
+        text,
+        code,
+        views: results,
+    })
+}
+
+/// The AOVs a candidate's channels can be mapped to, and whether each is a 3-vector.
+const CANDIDATE_AOVS: [(&str, bool); 6] = [
+    ("distance", false),
+    ("depth", false),
+    ("normal", true),
+    ("position", true),
+    ("shape_id", false),
+    ("part", false),
+];
+
+/// `img`'s channels renamed by `--channels aov=NAME` maps: a vector AOV takes `NAME.X/Y/Z`
+/// or `NAME.R/G/B`; channels not mapped keep their names (cylaov's, if the renderer used
+/// them).
+pub fn map_channels(mut img: AovImage, maps: &[String]) -> Result<AovImage> {
+    for m in maps {
+        let Some((aov, name)) = m.split_once('=') else {
+            anyhow::bail!("--channels: expected AOV=NAME, got {m:?}");
+        };
+        let Some(&(_, vector)) = CANDIDATE_AOVS.iter().find(|(a, _)| *a == aov) else {
+            let names: Vec<&str> = CANDIDATE_AOVS.iter().map(|a| a.0).collect();
+            anyhow::bail!("--channels: {aov:?} is not one of {}", names.join(", "));
+        };
+        let has = |img: &AovImage, n: &str| img.channels.iter().any(|c| c.name == n);
+        let pairs: Vec<(String, String)> = if !vector {
+            vec![(name.to_string(), aov.to_string())]
+        } else if ["X", "Y", "Z"]
+            .iter()
+            .all(|c| has(&img, &format!("{name}.{c}")))
+        {
+            ["X", "Y", "Z"]
+                .iter()
+                .map(|c| (format!("{name}.{c}"), format!("{aov}.{c}")))
+                .collect()
+        } else {
+            ["R", "G", "B"]
+                .iter()
+                .zip(["X", "Y", "Z"])
+                .map(|(c, x)| (format!("{name}.{c}"), format!("{aov}.{x}")))
+                .collect()
+        };
+        for (from, to) in pairs {
+            if !has(&img, &from) {
+                anyhow::bail!("--channels {m}: the candidate has no channel {from}");
+            }
+            img.channels.retain(|c| c.name != to);
+            for c in img.channels.iter_mut().filter(|c| c.name == from) {
+                c.name = to.clone();
+            }
+        }
+    }
+    Ok(img)
 }
 
 /// How one view came out.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Status {
-    /// Every tolerance held.
+    /// No candidate error and no unexplained reference error.
     Pass,
-    /// At least one tolerance was broken.
+    /// A candidate error or an unexplained reference error.
     Fail,
     /// The check could not be made (bad scene, Mitsuba failed, no venv).
     Unchecked,
@@ -49,18 +263,23 @@ pub enum Status {
 /// One view's row.
 #[derive(Clone, Debug, Serialize)]
 pub struct ViewResult {
-    /// Output stem: the scene's name, or the camera number (`00`, …) of a several-camera scene.
+    /// The view's batch id: the scene's name, or `scene/00` for a camera of a several-camera
+    /// scene (as `batch` names it).
     pub name: String,
     /// The scene file's path.
     pub scene: String,
     /// Pass, fail or unchecked.
     pub status: Status,
-    /// The broken tolerances (FAIL lines), or why it could not be checked.
+    /// Why it failed (candidate errors, unexplained reference errors), or why it could not
+    /// be checked.
     pub failures: Vec<String>,
-    /// What the float32 conditioning rule accepted above the flat bounds.
+    /// What passed without being exact: reference errors, ties, the note where Mitsuba
+    /// cannot discriminate.
     pub accepted: Vec<String>,
     /// The comparison, when the view could be checked.
     pub report: Option<Report>,
+    /// Every disagreeing pixel classified by the exact answer, when the view was checked.
+    pub arbitration: Option<Arbitration>,
 }
 
 /// The outcome: text to print and the exit status.
@@ -119,44 +338,66 @@ fn check_one(
     mitsuba: &Mitsuba,
     view: &ViewSource,
     k: usize,
-) -> Result<(ViewCheck, Option<PathBuf>)> {
+) -> Result<(ViewCheck, Option<Images>)> {
     let mut scene = crate::scene::load(&view.path)
         .map_err(|e| anyhow::anyhow!("{}: {e}", view.path.display()))?;
     scene
         .select_camera(view.camera)
         .map_err(|e| anyhow::anyhow!("{}: {e}", view.path.display()))?;
     let work = work_dir(k)?;
-    let result = verify_scene(
-        mitsuba,
-        &scene,
-        &view.path.display().to_string(),
-        args.precision,
-        args.formula,
-        &args.tolerances,
-        work.path(),
-    );
+    let result = match &args.candidate {
+        None => verify_scene(
+            mitsuba,
+            &scene,
+            &view.path.display().to_string(),
+            args.precision,
+            args.formula,
+            &args.tolerances,
+            work.path(),
+        ),
+        Some(file) => (|| {
+            let theirs = AovImage::read_exr(file)
+                .map_err(|e| anyhow::anyhow!("--candidate {}: {e:#}", file.display()))?;
+            let theirs = map_channels(theirs, &args.channels)?;
+            let reference =
+                mitsuba.render(&scene, &view.path.display().to_string(), work.path())?;
+            let check = check_against_with(
+                &scene,
+                &theirs,
+                &reference,
+                &args.tolerances,
+                Bound::float32_ulps(args.candidate_ulps),
+            )
+            .map_err(|e| anyhow::anyhow!("--candidate {}: {e:#}", file.display()))?;
+            Ok((check, theirs, reference))
+        })(),
+    };
     drop(work);
     let (check, ours, reference) = result?;
-    let mut heatmap_path = None;
+    if args.heatmap.is_none() && args.report.is_none() {
+        return Ok((check, None));
+    }
+    let cond = Conditioning::new(&scene, &ours);
+    let img = heatmap_figure(
+        &ours,
+        &reference,
+        &check.report,
+        &args.tolerances,
+        cond.as_ref(),
+    );
     if let Some(dir) = &args.heatmap {
         let path = view.dir(dir).join(format!("{}.heatmap.png", view.name));
         crate::output::io::check_output("--heatmap", &path, &[&view.path])?;
         if let Some(parent) = path.parent() {
             std::fs::create_dir_all(parent)?;
         }
-        let cond = Conditioning::new(&scene, &ours);
-        let img = heatmap_figure(
-            &ours,
-            &reference,
-            &check.report,
-            &args.tolerances,
-            cond.as_ref(),
-        );
         write_png(&img, &path)?;
-        heatmap_path = Some(path);
     }
-    Ok((check, heatmap_path))
+    Ok((check, Some((ours, reference, img))))
 }
+
+/// A checked view's pictures for the report: candidate, Mitsuba, difference heatmap.
+type Images = (AovImage, AovImage, image::RgbImage);
 
 /// Check every selected view of `args.input`.
 pub fn run(args: &VerifyArgs) -> Result<VerifyOutcome> {
@@ -166,44 +407,118 @@ pub fn run(args: &VerifyArgs) -> Result<VerifyOutcome> {
     if let Some(dir) = &args.heatmap {
         crate::output::io::check_output_dir("--heatmap", dir)?;
     }
-    let all = views(&args.input)?;
+    if let Some(dir) = &args.report {
+        crate::output::io::check_output_dir("--report", dir)?;
+    }
+    if args.input.join("index.json").is_file() {
+        return run_written(args);
+    }
+    let mut all = views(&args.input)?;
+    if let Some(file) = &args.candidate {
+        if !(args.input.is_file() && args.input.extension().is_some_and(|e| e == "json")) {
+            anyhow::bail!(
+                "--candidate {}: needs the scene file it shows, got {}",
+                file.display(),
+                args.input.display()
+            );
+        }
+        if !(args.candidate_ulps.is_finite() && args.candidate_ulps > 0.0) {
+            anyhow::bail!("--candidate-ulps: must be > 0, got {}", args.candidate_ulps);
+        }
+        let n = all.len();
+        let k = match args.camera {
+            Some(k) if k < n => k,
+            Some(k) => anyhow::bail!("--camera: the scene has {n} camera(s), got {k}"),
+            None if n == 1 => 0,
+            None => anyhow::bail!(
+                "--camera: the scene has {n} cameras; say which one {} shows",
+                file.display()
+            ),
+        };
+        all = vec![all.swap_remove(k)];
+    } else if args.camera.is_some() || !args.channels.is_empty() {
+        anyhow::bail!("--camera and --channels go with --candidate");
+    }
     let selected: Vec<&ViewSource> = all
         .iter()
-        .filter(|v| selected_for_verify(args.seed, &v.name, args.fraction))
+        .filter(|v| view_selected(args.seed, v, args.fraction))
         .collect();
     let mitsuba = Mitsuba::find();
+    // Without the venv nothing can be checked: say how to make it before anything else.
+    if let Err(why) = &mitsuba {
+        crate::output::io::warn(&format!("verify: {why}"));
+    }
+    // Progress: one line redrawn in place, on a terminal only (the table goes to stdout).
+    let live = !args.json && std::io::IsTerminal::is_terminal(&std::io::stderr());
     let mut results = Vec::with_capacity(selected.len());
+    let mut pictures: Vec<Option<Images>> = Vec::new();
     for (k, view) in selected.iter().enumerate() {
+        if live && mitsuba.is_ok() {
+            progress(&format!(
+                "[{}/{}] verifying {}",
+                k + 1,
+                selected.len(),
+                view.id()
+            ));
+        }
         let outcome = match &mitsuba {
             Err(why) => Err(anyhow::anyhow!("{why}")),
             Ok(m) => check_one(args, m, view, k),
         };
         let r = match outcome {
-            Ok((check, _)) => ViewResult {
-                name: view.name.clone(),
-                scene: view.path.display().to_string(),
-                status: if check.passed() {
-                    Status::Pass
-                } else {
-                    Status::Fail
-                },
-                failures: check.failures.clone(),
-                accepted: check.accepted.clone(),
-                report: Some(check.report),
-            },
-            Err(e) => ViewResult {
-                name: view.name.clone(),
-                scene: view.path.display().to_string(),
-                status: Status::Unchecked,
-                failures: vec![format!("{e:#}")],
-                accepted: Vec::new(),
-                report: None,
-            },
+            Ok((check, images)) => {
+                pictures.push(images);
+                ViewResult {
+                    name: view.id(),
+                    scene: view.path.display().to_string(),
+                    status: if check.passed() {
+                        Status::Pass
+                    } else {
+                        Status::Fail
+                    },
+                    failures: check.failures.clone(),
+                    accepted: check.accepted.clone(),
+                    report: Some(check.report),
+                    arbitration: Some(check.arbitration),
+                }
+            }
+            Err(e) => {
+                pictures.push(None);
+                ViewResult {
+                    name: view.id(),
+                    scene: view.path.display().to_string(),
+                    status: Status::Unchecked,
+                    failures: vec![format!("{e:#}")],
+                    accepted: Vec::new(),
+                    report: None,
+                    arbitration: None,
+                }
+            }
         };
-        if !args.json {
-            crate::output::io::warn(&format!("[{}/{}] {}", k + 1, selected.len(), row(&r)));
-        }
         results.push(r);
+    }
+    if live && mitsuba.is_ok() && !selected.is_empty() {
+        progress("");
+    }
+    if let Some(dir) = &args.report {
+        let views: Vec<ReportView> = results
+            .iter()
+            .zip(&pictures)
+            .map(|(r, p)| ReportView {
+                name: &r.name,
+                verdict: verdict_word(r.status),
+                summary: row(r),
+                worst: r
+                    .report
+                    .as_ref()
+                    .and_then(|rep| rep.rel_distance.as_ref())
+                    .map_or(0.0, |m| m.all.max),
+                arbitration: r.arbitration.as_ref(),
+                lines: r.failures.iter().chain(&r.accepted).cloned().collect(),
+                images: p.as_ref().map(|(a, b, h)| (a, b, h)),
+            })
+            .collect();
+        write_report(dir, &args.input.display().to_string(), &views)?;
     }
     let count = |s: Status| results.iter().filter(|r| r.status == s).count();
     let (passed, failed, unchecked) = (
@@ -238,16 +553,36 @@ pub fn run(args: &VerifyArgs) -> Result<VerifyOutcome> {
     })
 }
 
-/// One table row: name, verdict, mismatch counts, largest errors.
-fn row(r: &ViewResult) -> String {
-    let verdict = match r.status {
+/// Redraw the one progress line on stderr (a terminal): `text` replaces what was there.
+fn progress(text: &str) {
+    use std::io::Write;
+    let mut err = std::io::stderr().lock();
+    let _ = write!(err, "\r\x1b[2K{text}");
+    let _ = err.flush();
+}
+
+fn verdict_word(s: Status) -> &'static str {
+    match s {
         Status::Pass => "PASS",
         Status::Fail => "FAIL",
         Status::Unchecked => "UNCHECKED",
-    };
-    match &r.report {
-        Some(rep) => format!("{:<24} {verdict:<9} {}", r.name, summary_line(rep)),
-        None => format!("{:<24} {verdict:<9} {}", r.name, r.failures.join("; ")),
+    }
+}
+
+/// One table row: name, verdict, mismatch counts, largest errors.
+fn row(r: &ViewResult) -> String {
+    let verdict = verdict_word(r.status);
+    match (&r.report, &r.arbitration) {
+        (Some(rep), Some(a)) => format!(
+            "{:<24} {verdict:<9} {}; reference errors {}, unexplained {}, candidate errors {}, ties {}",
+            r.name,
+            summary_line(rep),
+            a.reference_errors,
+            a.unexplained_reference_errors,
+            a.candidate_errors,
+            a.ties
+        ),
+        _ => format!("{:<24} {verdict:<9} {}", r.name, r.failures.join("; ")),
     }
 }
 

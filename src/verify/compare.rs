@@ -424,6 +424,12 @@ fn id_labels(img: &AovImage, name: &str, which: &str) -> Result<Option<Vec<u32>>
 /// What the per-pixel buffers of a comparison are called in an out-of-memory error.
 const LABELS: &str = "comparing: the per-pixel labels";
 
+/// An id channel (`shape_id` or `part`) of `img` as u32 labels, whether stored as u32 or
+/// as float32 (Mitsuba); `None` when absent. `which` names the image in the error.
+pub fn id_channel(img: &AovImage, name: &str, which: &str) -> Result<Option<Vec<u32>>> {
+    id_labels(img, name, which)
+}
+
 /// Hit (1) / miss (0) from `distance`, else `depth`.
 fn hit_labels(img: &AovImage, which: &str) -> Result<(Vec<u32>, &'static str)> {
     for name in ["distance", "depth"] {

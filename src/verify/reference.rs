@@ -11,10 +11,12 @@
 //!    bounds from the scene.
 //!
 //! In a batch, [`MitsubaVerifier`] also checks that the dataset's EXR holds exactly the
-//! samples of that render (so the file is what was verified), and keeps the verdict in
-//! `NAME.verify.json` beside it, keyed to the view's render stamp (`NAME.render.json`), the
-//! tolerances and the script: a resumed batch does not run Mitsuba again for a view
-//! already verified.
+//! samples of that render (so the file is what was verified; where it differs, the file's
+//! samples are judged against Mitsuba and the exact answer, naming the pixels), and keeps
+//! the verdict in `NAME.verify.json` beside it, keyed to the sha256 of the EXR, the view's
+//! render stamp (`NAME.render.json`), the tolerances, the rule and the script: a resumed
+//! batch does not run Mitsuba again for a view already verified, and a file altered since
+//! is checked again.
 //!
 //! **Signals**: Mitsuba's Python runs in a process group of its own (a Ctrl-C reaches
 //! cylaov, not it) registered with `crate::output::signals`, as is the scratch folder, so
@@ -32,6 +34,7 @@ use crate::output::io::atomic_write_bytes;
 use crate::output::signals::{self, Cleanup};
 use crate::render::{RenderOptions, render};
 use crate::scene::{Aov, Scene};
+use crate::verify::arbiter::{Arbitration, Bound, arbitrate};
 use crate::verify::compare::{Conditioning, Report, Tolerances, compare_with};
 use anyhow::{Context, Result, bail};
 use serde::{Deserialize, Serialize};
@@ -154,23 +157,26 @@ pub fn check_render(scene: &Scene, precision: Precision, formula: FormulaKind) -
 /// The outcome of one view's check.
 #[derive(Clone, Debug)]
 pub struct ViewCheck {
-    /// The comparison of cylaov's render (A) with Mitsuba's (B).
+    /// The comparison of the candidate (A: cylaov's render or a file) with Mitsuba's (B).
     pub report: Report,
     /// The bounds the report was judged by.
     pub tolerances: Tolerances,
-    /// The broken tolerances (the FAIL lines of `cylaov compare`); empty: it passed.
+    /// Every pixel where A and B disagree beyond `tolerances`, classified by the exact answer.
+    pub arbitration: Arbitration,
+    /// Why the view fails (candidate errors, unexplained reference errors); empty: it passed.
     pub failures: Vec<String>,
-    /// What the float32 conditioning rule accepted above the flat bounds.
+    /// What passed without being exact (reference errors, ties, the note where Mitsuba
+    /// cannot discriminate).
     pub accepted: Vec<String>,
 }
 
 impl ViewCheck {
-    /// Whether every tolerance holds (no failures).
+    /// Whether the view passes (no failures).
     pub fn passed(&self) -> bool {
         self.failures.is_empty()
     }
 
-    /// `PASS` or `FAIL:` with one indented line per broken tolerance, as `compare` prints.
+    /// `PASS` or `FAIL:` with one indented line per failure, as `compare` prints.
     pub fn verdict_text(&self) -> String {
         crate::commands::compare::verdict_lines(&self.failures)
     }
@@ -189,23 +195,36 @@ impl ViewCheck {
     }
 }
 
-/// Compare `ours` (a [`check_render`] of `scene`) with `reference`: identity by cylinder
-/// and part, per-pixel float32 conditioning bounds from `scene`, then `tol`.
+/// Check cylaov's f64 render `ours` of `scene` against Mitsuba's `reference`: see
+/// [`check_against_with`].
 pub fn check_against(
     scene: &Scene,
     ours: &AovImage,
     reference: &AovImage,
     tol: &Tolerances,
 ) -> Result<ViewCheck> {
-    let cond = Conditioning::new(scene, ours);
-    if cond.is_none() {
-        bail!("cylaov's render lacks shape_id, distance or normal: cannot condition the check");
-    }
-    let report = compare_with(ours, reference, cond.as_ref())?;
+    check_against_with(scene, ours, reference, tol, Bound::cylaov(Precision::F64))
+}
+
+/// Compare `candidate` with `reference` (identity by cylinder and part, per-pixel float32
+/// conditioning in the statistics), and classify every pixel where they disagree beyond
+/// `tol` with the exact answer as arbiter ([`crate::verify::arbiter`]): the view fails on
+/// a candidate error or an unexplained reference error, or a non-finite sample.
+pub fn check_against_with(
+    scene: &Scene,
+    candidate: &AovImage,
+    reference: &AovImage,
+    tol: &Tolerances,
+    bound: Bound,
+) -> Result<ViewCheck> {
+    let cond = Conditioning::new(scene, candidate);
+    let report = compare_with(candidate, reference, cond.as_ref())?;
+    let arbitration = arbitrate(scene, candidate, reference, tol, bound)?;
     Ok(ViewCheck {
-        failures: report.failures(tol),
-        accepted: report.explained_lines(tol),
+        failures: arbitration.failure_lines(),
+        accepted: arbitration.accepted_lines(),
         tolerances: *tol,
+        arbitration,
         report,
     })
 }
@@ -223,7 +242,7 @@ pub fn verify_scene(
     let _scratch = signals::register(Cleanup::Tree, work);
     let ours = check_render(scene, precision, formula);
     let reference = mitsuba.render(scene, source_name, work)?;
-    let check = check_against(scene, &ours, &reference, tol)?;
+    let check = check_against_with(scene, &ours, &reference, tol, Bound::cylaov(precision))?;
     Ok((check, ours, reference))
 }
 
@@ -240,12 +259,32 @@ pub fn summary_line(r: &Report) -> String {
     )
 }
 
+/// [`summary_line`] and the exact answer's classes: one line for a log or a table row.
+pub fn check_line(c: &ViewCheck) -> String {
+    let a = &c.arbitration;
+    format!(
+        "{}; reference errors {}, unexplained {}, candidate errors {}, ties {}",
+        summary_line(&c.report),
+        a.reference_errors,
+        a.unexplained_reference_errors,
+        a.candidate_errors,
+        a.ties
+    )
+}
+
+/// The rule a cached verdict was reached by: a verdict of another rule is checked again.
+const RULE: &str = "exact-answer-arbiter-1";
+
 /// What `NAME.verify.json` holds: the verdict and what it is valid for.
 #[derive(Serialize, Deserialize, PartialEq, Debug)]
 struct CachedVerdict {
     /// The view's render stamp (`NAME.render.json`), verbatim.
     stamp: String,
     tolerances: [f64; 5],
+    /// The rule of the verdict ([`RULE`]).
+    rule: String,
+    /// The sha256 of the EXR verified.
+    exr_sha256: String,
     /// FNV-1a of the reference script.
     script: String,
     passed: bool,
@@ -285,6 +324,9 @@ pub struct MitsubaVerifier {
     pub precision: Precision,
     /// The batch's ray–cylinder formulation (literal or stable), the kernel's other half.
     pub formula: FormulaKind,
+    /// Print one line per verified view on stderr (batch's log); `verify` prints its table
+    /// instead.
+    pub log: bool,
 }
 
 impl MitsubaVerifier {
@@ -299,6 +341,7 @@ impl MitsubaVerifier {
             tolerances,
             precision,
             formula,
+            log: true,
         })
     }
 }
@@ -309,16 +352,39 @@ fn beside(exr: &Path, suffix: &str) -> PathBuf {
     exr.with_file_name(format!("{stem}.{suffix}"))
 }
 
-/// The channels of `file` that differ from the same channels of `fresh`.
-fn differing_channels(file: &AovImage, fresh: &AovImage) -> Vec<String> {
+/// Where `file` differs from `fresh`, one phrase per channel: its first differing sample,
+/// `depth at [x, y]: file 1.5, render 1.49` (empty: every stored sample is the render's).
+fn differing_samples(file: &AovImage, fresh: &AovImage) -> Vec<String> {
     if (file.width, file.height) != (fresh.width, fresh.height) {
-        return vec!["(image size)".into()];
+        return vec![format!(
+            "image size: file {}x{}, render {}x{}",
+            file.width, file.height, fresh.width, fresh.height
+        )];
     }
+    let w = file.width;
+    let at = |k: usize| format!("[{}, {}]", k % w, k / w);
     file.channels
         .iter()
-        .filter(|c| fresh.channel(&c.name) != Some(&c.data))
-        .map(|c| c.name.clone())
+        .filter_map(|c| {
+            use crate::output::aov::ChannelData as D;
+            match (&c.data, fresh.channel(&c.name)) {
+                (D::F32(a), Some(D::F32(b))) => (0..a.len().min(b.len()))
+                    .find(|&k| a[k].to_bits() != b[k].to_bits())
+                    .map(|k| format!("{} at {}: file {}, render {}", c.name, at(k), a[k], b[k])),
+                (D::U32(a), Some(D::U32(b))) => (0..a.len().min(b.len()))
+                    .find(|&k| a[k] != b[k])
+                    .map(|k| format!("{} at {}: file {}, render {}", c.name, at(k), a[k], b[k])),
+                _ => Some(format!("{}: not a channel of the render", c.name)),
+            }
+        })
         .collect()
+}
+
+/// The sha256 of a file's bytes, hex.
+fn sha256_of(path: &Path) -> Result<String> {
+    use sha2::Digest;
+    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+    Ok(format!("{:x}", sha2::Sha256::digest(&bytes)))
 }
 
 impl Verifier for MitsubaVerifier {
@@ -326,11 +392,15 @@ impl Verifier for MitsubaVerifier {
         let stamp = std::fs::read_to_string(beside(exr, "render.json")).unwrap_or_default();
         let cache_path = beside(exr, "verify.json");
         let key = (tolerance_key(&self.tolerances), fnv1a(SCRIPT.as_bytes()));
+        // The verdict is the file's: an EXR changed after it was verified is checked again.
+        let sha = sha256_of(exr)?;
         if !stamp.is_empty()
             && let Ok(text) = std::fs::read_to_string(&cache_path)
             && let Ok(c) = serde_json::from_str::<CachedVerdict>(&text)
             && c.stamp == stamp
             && (c.tolerances, c.script.clone()) == key
+            && c.rule == RULE
+            && c.exr_sha256 == sha
         {
             return Ok(Verdict {
                 passes: c.passed,
@@ -339,34 +409,58 @@ impl Verifier for MitsubaVerifier {
         }
         let ours = check_render(scene, self.precision, self.formula);
         let file = AovImage::read_exr(exr)?;
-        let differ = differing_channels(&file, &ours);
-        if !differ.is_empty() {
-            // Not cached: a file that does not match its render is re-rendered on resume.
-            return Ok(Verdict {
-                passes: false,
-                report: format!(
-                    "{} differs from a fresh render of its scene in {}",
-                    exr.display(),
-                    differ.join(" ")
-                ),
-            });
-        }
+        let differ = differing_samples(&file, &ours);
         let _scratch = signals::register(Cleanup::Tree, work);
         let reference = self
             .mitsuba
             .render(scene, &view.path.display().to_string(), work)?;
-        let check = check_against(scene, &ours, &reference, &self.tolerances)?;
-        let summary = summary_line(&check.report);
+        if !differ.is_empty() {
+            // The file on disk is what is judged: its samples against Mitsuba and the exact
+            // answer name the pixels at fault. Not cached: a file that does not match its
+            // render is re-rendered on resume.
+            let mut report = format!(
+                "{} differs from a fresh render of its scene: {}",
+                exr.display(),
+                differ.join("; ")
+            );
+            if let Ok(c) = check_against_with(
+                scene,
+                &file,
+                &reference,
+                &self.tolerances,
+                Bound::cylaov(self.precision),
+            ) {
+                for f in &c.failures {
+                    report += &format!("\n  {f}");
+                }
+            }
+            return Ok(Verdict {
+                passes: false,
+                report,
+            });
+        }
+        let check = check_against_with(
+            scene,
+            &ours,
+            &reference,
+            &self.tolerances,
+            Bound::cylaov(self.precision),
+        )?;
+        let summary = check_line(&check);
         // One line per verified view (seam and silhouette counts); a failure adds the FAIL
         // lines of `compare`. The bar, if any, redraws on the next view.
         let mut line = format!("verify {}: {summary}; {}", view.name, check.verdict_text());
         if std::io::IsTerminal::is_terminal(&std::io::stderr()) {
             line.insert_str(0, "\r\x1b[2K");
         }
-        crate::output::io::warn(&line);
+        if self.log {
+            crate::output::io::warn(&line);
+        }
         let cached = CachedVerdict {
             stamp,
             tolerances: key.0,
+            rule: RULE.into(),
+            exr_sha256: sha,
             script: key.1,
             passed: check.passed(),
             silhouette_px: check.report.mismatches,

@@ -55,6 +55,6 @@ pub use resume::{
 pub use run::{Failure, Outcome, Summary, run};
 pub use shard::{Shard, resolve_shard};
 pub use transforms::{FrameCamera, transforms_json};
-pub use verify::{Verdict, Verifier, selected_for_verify};
+pub use verify::{Verdict, Verifier, selected_for_verify, view_selected};
 pub use views::{Skipped, ViewSource, list_views};
 pub use write::{ViewCost, render_view};

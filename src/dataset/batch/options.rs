@@ -38,7 +38,7 @@ pub struct BatchOptions {
     /// How the pool's threads share the work.
     pub schedule: Schedule,
     /// Fraction of views also checked against an independent reference (Mitsuba), chosen
-    /// by [`selected_for_verify`](super::selected_for_verify) from `verify_seed` and the view name.
+    /// by [`view_selected`](super::view_selected) from `verify_seed` and the view's id.
     pub verify_fraction: f64,
     /// Seed of the `verify_fraction` choice.
     pub verify_seed: u64,

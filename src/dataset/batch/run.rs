@@ -18,7 +18,7 @@ use super::progress::{Counts, Progress, ProgressMode, SizeEstimate};
 use super::resume::{ViewFiles, view_file_names, view_is_complete};
 use super::shard::Shard;
 use super::transforms::{FrameCamera, index_json, transforms_json};
-use super::verify::{Verifier, selected_for_verify};
+use super::verify::{Verifier, view_selected};
 use super::views::{ViewSource, list_views};
 use super::write::{ViewCost, render_view, view_memory};
 use crate::output::aov::ExrLayout;
@@ -146,7 +146,7 @@ impl fmt::Display for Summary {
 }
 
 /// Render `shard` of the views of `input` into `out`; see the module docs. With a
-/// `verifier`, the views [`selected_for_verify`] (rendered now or earlier) are checked, and
+/// `verifier`, the views [`view_selected`] (rendered now or earlier) are checked, and
 /// one that disagrees counts as failed. Per-view problems are counted in the summary; only
 /// whole-batch problems are errors.
 pub fn run(
@@ -535,7 +535,7 @@ impl ShardWork<'_> {
         };
         if let (Some(v), Ok(scene)) = (self.verifier, &scene)
             && !matches!(outcome, Outcome::Failed(_))
-            && selected_for_verify(self.opts.verify_seed, &view.id(), self.opts.verify_fraction)
+            && view_selected(self.opts.verify_seed, view, self.opts.verify_fraction)
             && let Err(why) = self.verify(v, view, scene)
         {
             outcome = Outcome::Failed(why);

@@ -24,6 +24,14 @@ pub trait Verifier: Sync {
     fn check(&self, view: &ViewSource, scene: &Scene, exr: &Path, work: &Path) -> Result<Verdict>;
 }
 
+/// Whether `view` is in the seed-determined `fraction` checked against Mitsuba: the one
+/// choice of `batch --verify-fraction` and `cylaov verify --fraction`, keyed on the view's
+/// batch id (`scene`, or `scene/00` for camera 0 of a several-camera scene), so each scene's
+/// cameras are chosen apart and a verdict batch kept stays the one verify looks for.
+pub fn view_selected(seed: u64, view: &ViewSource, fraction: f64) -> bool {
+    selected_for_verify(seed, &view.id(), fraction)
+}
+
 /// Whether view `name` is in the seed-determined `fraction` checked against Mitsuba:
 /// a hash of (seed, name), so the choice does not depend on sharding or order.
 pub fn selected_for_verify(seed: u64, name: &str, fraction: f64) -> bool {
@@ -51,5 +59,27 @@ mod tests {
         assert!((900..1100).contains(&picked), "{picked}");
         assert!(!selected_for_verify(7, "a", 0.0));
         assert!(selected_for_verify(7, "a", 1.0));
+    }
+
+    /// Camera k of two scenes is chosen apart: keyed on the camera number alone, each seed
+    /// would pick the same cameras in every scene.
+    #[test]
+    fn view_choice_is_keyed_on_scene_and_camera() {
+        let scene = |name: &str| ViewSource::scene(name.into(), format!("{name}.json").into());
+        let picks = |name: &str| -> Vec<bool> {
+            scene(name)
+                .cameras(16)
+                .iter()
+                .map(|v| view_selected(3, v, 0.5))
+                .collect()
+        };
+        let (a, b) = (picks("a"), picks("b"));
+        assert_ne!(a, b);
+        assert_eq!(a, picks("a"));
+        let ids: Vec<String> = scene("a").cameras(16).iter().map(ViewSource::id).collect();
+        for (k, id) in ids.iter().enumerate() {
+            assert_eq!(a[k], selected_for_verify(3, id, 0.5), "{id}");
+        }
+        assert_eq!(ids[4], "a/04");
     }
 }

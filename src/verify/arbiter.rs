@@ -1,0 +1,773 @@
+//! The exact answer as arbiter: where the checked file (the *candidate*: cylaov's render or
+//! another renderer's EXR) and Mitsuba disagree, the double-double [`oracle`] decides who is
+//! wrong.
+//!
+//! A pixel *disagrees* when the two differ in identity (another cylinder, hit vs miss, or
+//! another part) or beyond the flat [`Tolerances`] in relative distance, relative depth or
+//! normal angle. For each such pixel the exact answer is evaluated on the reference camera's
+//! f64 pixel ray (nearest hit over every cylinder of the scene), and each side is judged by
+//! its own bound:
+//!
+//! - a value is within its side's bound when its error against the exact value is at most
+//!   `ulps` float32 ulps of storage plus the float32-input conditioning term of
+//!   [`crate::verify::compare`]: a ray displaced sideways by `δ = K·ε·L` moves the hit by
+//!   `δ / cos i`, so distance and depth by `δ / (t cos i)` relative and a side's normal by
+//!   `δ / (r cos i)` (with `cos i` clamped at `√(δ/r)`, where the linear model breaks);
+//! - an identity is within its side's bound when the exact ray passes within `δ` of the
+//!   boundary (the oracle's margin, probed with rays displaced sideways by up to `δ`): for
+//!   another cylinder or hit vs miss, some displaced ray sees that side's cylinder (any
+//!   part) or misses; for another part of the same cylinder (a rim, where a float32 ray may slip
+//!   between a cap disk and the tube), some displaced ray sees another part or cylinder.
+//!
+//! The classes ([`PixelClass`]): *candidate error* (the candidate is off the exact answer
+//! beyond its bound), *unexplained reference error* (the candidate is right, Mitsuba is off
+//! beyond its float32 bound: an export or scene error is as likely as Mitsuba's), *reference
+//! error* (the candidate is right, Mitsuba is off within its bound), *tie* (both within
+//! their bounds, the candidate not exactly on the exact answer either, e.g. a ray through a
+//! rim). A view passes when it has no candidate error and no unexplained reference error.
+//!
+//! The bounds ([`Bound`]): cylaov's f64 render is its f32 storage (one ulp) of an f64 answer
+//! (ray error `K·ε₆₄·L`); its f32 kernel has ray error `K·ε₃₂·L`; Mitsuba has `K·ε₃₂·L` with
+//! `K` = [`CONDITIONING_ULPS`]; another renderer's file (`--candidate`) is allowed `K` float32
+//! ulps of storage and of ray error.
+//!
+//! **Where Mitsuba cannot discriminate.** When Mitsuba's `δ` is as large as the scene's
+//! features (its smallest radius or height), every disagreement is "within δ": the report
+//! says so ([`Arbitration::cannot_discriminate`]), and the verdict rests on the candidate
+//! against the exact answer alone.
+
+use crate::geometry::{Cylinder, Precision, Surface};
+use crate::output::aov::AovImage;
+use crate::scene::Scene;
+use crate::scene::camera::Camera;
+use crate::verify::compare::{CONDITIONING_ULPS, Tolerances, id_channel};
+use crate::verify::oracle::{DD, intersect};
+use crate::verify::oracle::{DV3, Problem};
+use anyhow::{Result, bail};
+use glam::DVec3;
+use serde::Serialize;
+use std::fmt;
+
+/// Unit roundoff of float32.
+const EPS32: f64 = 5.960_464_477_539_063e-8;
+/// Unit roundoff of float64.
+const EPS64: f64 = f64::EPSILON / 2.0;
+
+/// How far a side may be from the exact answer: `storage_ulps` float32 ulps of its stored
+/// value, plus the conditioning of a ray displaced sideways by `ray_ulps·ray_eps·L`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Bound {
+    /// Float32 ulps of storage rounding allowed on every value.
+    pub storage_ulps: f64,
+    /// Ulps of the sideways ray error.
+    pub ray_ulps: f64,
+    /// Unit roundoff of the arithmetic that built the ray (ε₆₄ or ε₃₂).
+    pub ray_eps: f64,
+}
+
+impl Bound {
+    /// cylaov's own render at `precision`: one float32 ulp of storage of an answer whose ray
+    /// carries `CONDITIONING_ULPS` ulps of that precision.
+    pub fn cylaov(precision: Precision) -> Bound {
+        Bound {
+            storage_ulps: 1.0,
+            ray_ulps: CONDITIONING_ULPS,
+            ray_eps: match precision {
+                Precision::F64 => EPS64,
+                Precision::F32 => EPS32,
+            },
+        }
+    }
+
+    /// Mitsuba 3 (`scalar_rgb`): float32 rays, `CONDITIONING_ULPS` ulps.
+    pub fn mitsuba() -> Bound {
+        Bound {
+            storage_ulps: 1.0,
+            ray_ulps: CONDITIONING_ULPS,
+            ray_eps: EPS32,
+        }
+    }
+
+    /// Another renderer's file: `ulps` float32 ulps of storage and of ray error.
+    pub fn float32_ulps(ulps: f64) -> Bound {
+        Bound {
+            storage_ulps: ulps,
+            ray_ulps: ulps,
+            ray_eps: EPS32,
+        }
+    }
+
+    /// The sideways ray error at coordinate size `l`.
+    fn delta(&self, l: f64) -> f64 {
+        self.ray_ulps * self.ray_eps * l
+    }
+}
+
+/// Who is wrong at one disagreeing pixel.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PixelClass {
+    /// The candidate is within its bound of the exact answer; Mitsuba is off it, within its
+    /// float32 bound δ.
+    ReferenceError,
+    /// The candidate is right; Mitsuba is off by more than δ (an export or scene error is
+    /// as likely as Mitsuba's). Fails the view.
+    UnexplainedReferenceError,
+    /// The candidate is off the exact answer beyond its bound. Fails the view.
+    CandidateError,
+    /// Both within their bounds, neither exactly the exact answer (a ray through a rim or
+    /// a silhouette, decided by the last bits).
+    Tie,
+}
+
+impl PixelClass {
+    /// The words the table and the report use.
+    pub fn label(self) -> &'static str {
+        match self {
+            PixelClass::ReferenceError => "reference error",
+            PixelClass::UnexplainedReferenceError => "unexplained reference error",
+            PixelClass::CandidateError => "candidate error",
+            PixelClass::Tie => "tie",
+        }
+    }
+}
+
+/// What made a pixel disagree (the first that applies).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Kind {
+    /// Another cylinder, or hit vs miss.
+    Silhouette,
+    /// The same cylinder, another part.
+    Seam,
+    /// Relative distance beyond the flat bound.
+    Distance,
+    /// Relative depth beyond the flat bound.
+    Depth,
+    /// Normal angle beyond the flat bound.
+    Normal,
+    /// A non-finite sample.
+    NonFinite,
+}
+
+/// One side's answer at a pixel (`id` 0: a miss; `None`: not stored).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Sample {
+    /// `shape_id` (0 = miss), `None` when the image has none.
+    pub id: Option<u32>,
+    /// `part` (1 side outside, 2 side inside, 3 bottom cap, 4 top cap, 0 miss).
+    pub part: Option<u32>,
+    /// Distance along the ray.
+    pub distance: Option<f64>,
+    /// Camera-space depth.
+    pub depth: Option<f64>,
+    /// World-space outward normal.
+    pub normal: Option<[f64; 3]>,
+}
+
+impl fmt::Display for Sample {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match (self.id, self.distance) {
+            (Some(0), _) => return write!(f, "miss"),
+            (None, Some(d)) if d <= 0.0 => return write!(f, "miss"),
+            _ => {}
+        }
+        let mut parts = Vec::new();
+        if let Some(id) = self.id {
+            parts.push(format!("id {id}"));
+        }
+        if let Some(p) = self.part {
+            parts.push(format!("part {p}"));
+        }
+        if let Some(d) = self.distance {
+            parts.push(format!("distance {d:.9}"));
+        }
+        if let Some(d) = self.depth {
+            parts.push(format!("depth {d:.9}"));
+        }
+        if let Some(n) = self.normal {
+            parts.push(format!("normal [{:.6}, {:.6}, {:.6}]", n[0], n[1], n[2]));
+        }
+        write!(f, "{}", parts.join(" "))
+    }
+}
+
+/// One disagreeing pixel, its three answers and its class.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Pixel {
+    /// `[x, y]`, row 0 at the top.
+    pub at: [usize; 2],
+    /// Who is wrong.
+    pub class: PixelClass,
+    /// What disagreed.
+    pub kind: Kind,
+    /// The checked file's answer.
+    pub candidate: Sample,
+    /// Mitsuba's answer.
+    pub reference: Sample,
+    /// The exact answer (double-double oracle on the reference camera's f64 ray).
+    pub exact: Sample,
+    /// Mitsuba's sideways ray error δ at this pixel (world units).
+    pub delta: f64,
+    /// The largest error of the candidate against the exact answer, in units of its bound
+    /// (0 for an identity within its margin; infinite for an identity beyond it).
+    pub candidate_off: f64,
+    /// The same for Mitsuba.
+    pub reference_off: f64,
+}
+
+/// Every disagreeing pixel of a view, classified.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Arbitration {
+    /// The candidate's bound.
+    pub candidate_bound: Bound,
+    /// Mitsuba's bound.
+    pub reference_bound: Bound,
+    /// Pixels where candidate and Mitsuba disagree (every one is classified below).
+    pub disagreeing: usize,
+    /// Pixels of each class.
+    pub reference_errors: usize,
+    /// See [`PixelClass::UnexplainedReferenceError`].
+    pub unexplained_reference_errors: usize,
+    /// See [`PixelClass::CandidateError`].
+    pub candidate_errors: usize,
+    /// See [`PixelClass::Tie`].
+    pub ties: usize,
+    /// Mitsuba's largest sideways ray error δ over the scene's cylinders.
+    pub delta_max: f64,
+    /// The scene's smallest feature (radius or height).
+    pub feature_min: f64,
+    /// The scene's largest radius.
+    pub radius_max: f64,
+    /// Whether `delta_max` is at least `feature_min`: Mitsuba cannot tell right from wrong
+    /// there, the verdict rests on the exact answer alone.
+    pub cannot_discriminate: bool,
+    /// The pixels, in image order.
+    pub pixels: Vec<Pixel>,
+}
+
+impl Arbitration {
+    /// No candidate error and no unexplained reference error.
+    pub fn passed(&self) -> bool {
+        self.candidate_errors == 0 && self.unexplained_reference_errors == 0
+    }
+
+    /// The pixels of `class`.
+    pub fn of(&self, class: PixelClass) -> impl Iterator<Item = &Pixel> {
+        self.pixels.iter().filter(move |p| p.class == class)
+    }
+
+    /// Counts by kind of the pixels of `class`: "silhouette 3, distance 1".
+    pub fn kinds(&self, class: PixelClass) -> String {
+        let mut out = Vec::new();
+        for (kind, name) in [
+            (Kind::Silhouette, "silhouette"),
+            (Kind::Seam, "seam"),
+            (Kind::Distance, "distance"),
+            (Kind::Depth, "depth"),
+            (Kind::Normal, "normal"),
+            (Kind::NonFinite, "non-finite"),
+        ] {
+            let n = self.of(class).filter(|p| p.kind == kind).count();
+            if n > 0 {
+                out.push(format!("{name} {n}"));
+            }
+        }
+        out.join(", ")
+    }
+
+    /// The failure lines (empty when it passes): each failing class, its count, and the
+    /// worst pixel's three answers.
+    pub fn failure_lines(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        for (class, n, why) in [
+            (
+                PixelClass::CandidateError,
+                self.candidate_errors,
+                "off the exact answer beyond the candidate's bound",
+            ),
+            (
+                PixelClass::UnexplainedReferenceError,
+                self.unexplained_reference_errors,
+                "Mitsuba off the exact answer beyond its float32 bound δ while the candidate is on it (an export or scene error is as likely as Mitsuba's)",
+            ),
+        ] {
+            if n > 0 {
+                out.push(format!(
+                    "{}: {n} px {why} ({}); {}",
+                    class.label(),
+                    self.kinds(class),
+                    self.example(class)
+                ));
+            }
+        }
+        out
+    }
+
+    /// The lines that say what passed without being exact: reference errors, ties, and the
+    /// note where Mitsuba cannot discriminate.
+    pub fn accepted_lines(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        if self.reference_errors > 0 {
+            out.push(format!(
+                "reference error: {} px where Mitsuba is off the exact answer within its float32 bound δ and the candidate is on it ({}); {}",
+                self.reference_errors,
+                self.kinds(PixelClass::ReferenceError),
+                self.example(PixelClass::ReferenceError)
+            ));
+        }
+        if self.ties > 0 {
+            out.push(format!(
+                "tie: {} px where both are within their bounds of the exact answer ({}); {}",
+                self.ties,
+                self.kinds(PixelClass::Tie),
+                self.example(PixelClass::Tie)
+            ));
+        }
+        if let Some(note) = self.note() {
+            out.push(note);
+        }
+        out
+    }
+
+    /// The "Mitsuba cannot discriminate here" note, when it applies.
+    pub fn note(&self) -> Option<String> {
+        self.cannot_discriminate.then(|| {
+            format!(
+                "Mitsuba cannot discriminate here: its float32 ray error δ = {:.3} is as large as the scene's features ({:.3} to {:.3}); the verdict rests on the exact answer alone",
+                self.delta_max, self.feature_min, self.radius_max
+            )
+        })
+    }
+
+    /// The worst pixel of `class` (largest error of the side at fault), as one phrase.
+    fn example(&self, class: PixelClass) -> String {
+        let key = |p: &Pixel| match class {
+            PixelClass::CandidateError => p.candidate_off,
+            _ => p.reference_off,
+        };
+        let Some(p) = self
+            .of(class)
+            .max_by(|a, b| key(a).total_cmp(&key(b)).then(b.at.cmp(&a.at)))
+        else {
+            return String::new();
+        };
+        format!(
+            "e.g. at [{}, {}] ({:?}): candidate {}, Mitsuba {}, exact {} (δ {:.2e})",
+            p.at[0], p.at[1], p.kind, p.candidate, p.reference, p.exact, p.delta
+        )
+        .replace("(Silhouette)", "(silhouette)")
+        .replace("(Seam)", "(seam)")
+        .replace("(Distance)", "(distance)")
+        .replace("(Depth)", "(depth)")
+        .replace("(Normal)", "(normal)")
+        .replace("(NonFinite)", "(non-finite)")
+    }
+}
+
+/// The exact answer at one ray: which cylinder and part, where, and what the bounds need.
+#[derive(Clone, Copy, Debug)]
+struct Exact {
+    index: usize,
+    part: u32,
+    t: f64,
+    depth: f64,
+    normal: DVec3,
+    /// |cos| of the incidence angle.
+    cos: f64,
+}
+
+/// The scene's cylinders with what the exact answer needs, and the camera.
+struct Tracer<'a> {
+    cylinders: &'a [Cylinder],
+    /// Per cylinder: its box, for a cheap test before the oracle.
+    boxes: Vec<(DVec3, DVec3)>,
+    cam: Camera,
+}
+
+/// Whether the ray `o + s·d`, `s ∈ [0, tmax]`, meets the box `(lo, hi)` widened by `pad`
+/// (inclusive; a zero direction component compares the origin, never 0·∞).
+fn meets_box(o: DVec3, d: DVec3, tmax: f64, (lo, hi): (DVec3, DVec3), pad: f64) -> bool {
+    let (mut t0, mut t1) = (0.0f64, tmax);
+    for k in 0..3 {
+        let (lo, hi) = (lo[k] - pad, hi[k] + pad);
+        if d[k] == 0.0 {
+            if o[k] < lo || o[k] > hi {
+                return false;
+            }
+            continue;
+        }
+        let (a, b) = ((lo - o[k]) / d[k], (hi - o[k]) / d[k]);
+        let (a, b) = if a <= b { (a, b) } else { (b, a) };
+        t0 = t0.max(a);
+        t1 = t1.min(b);
+        if t0 > t1 {
+            return false;
+        }
+    }
+    true
+}
+
+impl Tracer<'_> {
+    /// The nearest exact hit of the ray `o + t·d` (`d` unit) with `t` in the clip range.
+    fn trace(&self, o: DVec3, d: DVec3, len: f64) -> Option<Exact> {
+        let (tmin, tmax) = self.cam.clip_range(len);
+        let (lo, hi) = (DD::new(tmin), DD::new(tmax));
+        let mut best: Option<(DD, usize, crate::verify::oracle::Hit)> = None;
+        for (k, c) in self.cylinders.iter().enumerate() {
+            // Padded so that rounding in the box test never drops a hit.
+            let pad = 1e-9 * (c.radius + c.height + c.base.length());
+            if !meets_box(o, d, tmax, self.boxes[k], pad) {
+                continue;
+            }
+            let hit = intersect(&Problem::new(c, o, d), lo, hi);
+            if let Some(h) = hit
+                && best.as_ref().is_none_or(|(t, _, _)| h.t < *t)
+            {
+                best = Some((h.t, k, h));
+            }
+        }
+        let (_, index, h) = best?;
+        let normal = h.normal.to_f64();
+        let part = match h.surface {
+            Surface::Side if normal.dot(d) > 0.0 => 2,
+            Surface::Side => 1,
+            Surface::Bottom => 3,
+            Surface::Top => 4,
+        };
+        let t = h.t.to_f64();
+        let depth = (h.t * DV3::from_f64(d).dot(DV3::from_f64(self.cam.forward))).to_f64();
+        Some(Exact {
+            index,
+            part,
+            t,
+            depth,
+            normal,
+            cos: normal.dot(d).abs(),
+        })
+    }
+
+    /// The exact identities seen by rays displaced sideways by up to `delta` (1, 1/4, 1/16,
+    /// 1/64 of it, in 8 directions, so a thin feature is not jumped over).
+    fn nearby(&self, o: DVec3, d: DVec3, len: f64, delta: f64) -> Vec<Option<Exact>> {
+        let e1 = d.any_orthonormal_vector();
+        let e2 = d.cross(e1);
+        let s = std::f64::consts::FRAC_1_SQRT_2;
+        let dirs = [
+            e1,
+            -e1,
+            e2,
+            -e2,
+            (e1 + e2) * s,
+            (e1 - e2) * s,
+            (-e1 + e2) * s,
+            (-e1 - e2) * s,
+        ];
+        let mut out = Vec::with_capacity(32);
+        for f in [1.0, 0.25, 0.0625, 0.015625] {
+            for e in &dirs {
+                out.push(self.trace(o + *e * (delta * f), d, len));
+            }
+        }
+        out
+    }
+}
+
+/// One side's labels and values.
+struct Side<'a> {
+    ids: Option<Vec<u32>>,
+    parts: Option<Vec<u32>>,
+    distance: Option<&'a [f32]>,
+    depth: Option<&'a [f32]>,
+    normal: Option<[&'a [f32]; 3]>,
+}
+
+impl<'a> Side<'a> {
+    fn new(img: &'a AovImage, which: &str) -> Result<Side<'a>> {
+        let side = Side {
+            ids: id_channel(img, "shape_id", which)?,
+            parts: id_channel(img, "part", which)?,
+            distance: img.f32_channel("distance"),
+            depth: img.f32_channel("depth"),
+            normal: img.vec3_channel("normal"),
+        };
+        if side.ids.is_none() && side.distance.is_none() && side.depth.is_none() {
+            bail!("{which}: cannot tell hits from misses: no shape_id, distance or depth channel");
+        }
+        Ok(side)
+    }
+
+    /// Whether pixel `k` is a hit, and the sample there.
+    fn hit(&self, k: usize) -> bool {
+        match &self.ids {
+            Some(ids) => ids[k] != 0,
+            None => self.distance.or(self.depth).is_some_and(|v| v[k] > 0.0),
+        }
+    }
+
+    fn sample(&self, k: usize) -> Sample {
+        let hit = self.hit(k);
+        let f = |v: Option<&[f32]>| v.map(|v| f64::from(v[k]));
+        Sample {
+            id: self.ids.as_ref().map(|v| v[k]),
+            part: self.parts.as_ref().map(|v| v[k]),
+            distance: f(self.distance),
+            depth: f(self.depth).filter(|_| hit),
+            normal: self
+                .normal
+                .map(|n| [n[0][k], n[1][k], n[2][k]].map(f64::from))
+                .filter(|_| hit),
+        }
+    }
+
+    fn non_finite(&self, k: usize) -> bool {
+        let bad = |v: Option<&[f32]>| v.is_some_and(|v| !v[k].is_finite());
+        bad(self.distance)
+            || bad(self.depth)
+            || self
+                .normal
+                .is_some_and(|n| n.iter().any(|c| !c[k].is_finite()))
+    }
+}
+
+/// `|a - b| / max(|a|, |b|)`.
+fn rel(a: f64, b: f64) -> f64 {
+    let s = a.abs().max(b.abs());
+    if s == 0.0 { 0.0 } else { (a - b).abs() / s }
+}
+
+/// Angle between two vectors, radians (`atan2(|a × b|, a · b)`; π if either is zero).
+fn angle(a: DVec3, b: DVec3) -> f64 {
+    if a.length_squared() == 0.0 || b.length_squared() == 0.0 {
+        return std::f64::consts::PI;
+    }
+    a.cross(b).length().atan2(a.dot(b))
+}
+
+/// Whether `s`'s identity is that of the exact answer `e` (an absent channel matches).
+fn same_identity(cyls: &[Cylinder], s: &Sample, hit: bool, e: Option<&Exact>) -> bool {
+    match e {
+        None => !hit,
+        Some(e) => {
+            hit && s.id.is_none_or(|id| id == cyls[e.index].id)
+                && s.part.is_none_or(|p| p == e.part)
+        }
+    }
+}
+
+/// How far a side's values are from the exact answer `e` (same identity), in units of its
+/// bound (the largest over distance, depth and normal; ≤ 1: within).
+fn values_off(s: &Sample, e: &Exact, cyl: &Cylinder, bound: &Bound, l: f64) -> f64 {
+    let delta = bound.delta(l);
+    let cos = e.cos.max((delta / cyl.radius).sqrt()).min(1.0);
+    let storage = bound.storage_ulps * 2.0 * EPS32;
+    let rel_bound = storage + delta / (e.t * cos);
+    let mut off: f64 = 0.0;
+    if let Some(d) = s.distance {
+        off = off.max(rel(d, e.t) / rel_bound);
+    }
+    if let Some(z) = s.depth {
+        off = off.max(rel(z, e.depth) / rel_bound);
+    }
+    if let Some(n) = s.normal {
+        let on_side = e.part <= 2;
+        let n_bound = 2.0 * storage
+            + if on_side {
+                delta / (cyl.radius * cos)
+            } else {
+                0.0
+            };
+        off = off.max(angle(DVec3::from_array(n), e.normal) / n_bound);
+    }
+    if off.is_nan() { f64::INFINITY } else { off }
+}
+
+/// Classify every pixel where `candidate` and `reference` (Mitsuba's render of `scene`'s
+/// camera) disagree beyond `tol`, with the exact answer as arbiter (see the module docs).
+pub fn arbitrate(
+    scene: &Scene,
+    candidate: &AovImage,
+    reference: &AovImage,
+    tol: &Tolerances,
+    candidate_bound: Bound,
+) -> Result<Arbitration> {
+    let cam = Camera::new(scene.camera);
+    let (w, h) = (cam.width() as usize, cam.height() as usize);
+    for (img, which) in [(candidate, "candidate"), (reference, "reference")] {
+        if (img.width, img.height) != (w, h) {
+            bail!(
+                "{which} is {}x{}, the scene's camera {w}x{h}",
+                img.width,
+                img.height
+            );
+        }
+    }
+    let (a, b) = (
+        Side::new(candidate, "candidate")?,
+        Side::new(reference, "reference")?,
+    );
+    let reference_bound = Bound::mitsuba();
+    let tracer = Tracer {
+        cylinders: &scene.cylinders,
+        boxes: scene.cylinders.iter().map(Cylinder::bounds).collect(),
+        cam,
+    };
+    let cam = &tracer.cam;
+    let origin_len = cam.origin.length();
+    let reach = |c: &Cylinder| c.base.length().max(c.top().length());
+    let (mut delta_max, mut feature_min, mut radius_max) = (0.0f64, f64::INFINITY, 0.0f64);
+    for c in &scene.cylinders {
+        let l = origin_len + reach(c) + (c.base - cam.origin).length();
+        delta_max = delta_max.max(reference_bound.delta(l));
+        feature_min = feature_min.min(c.radius.min(c.height));
+        radius_max = radius_max.max(c.radius);
+    }
+    let flat_normal = tol.normal_deg.to_radians();
+    let mut pixels = Vec::new();
+    for y in 0..h {
+        for x in 0..w {
+            let k = y * w + x;
+            let (sa, sb) = (a.sample(k), b.sample(k));
+            let (ha, hb) = (a.hit(k), b.hit(k));
+            let kind = if a.non_finite(k) || b.non_finite(k) {
+                Some(Kind::NonFinite)
+            } else if ha != hb || (ha && sa.id.zip(sb.id).is_some_and(|(p, q)| p != q)) {
+                Some(Kind::Silhouette)
+            } else if ha && sa.part.zip(sb.part).is_some_and(|(p, q)| p != q) {
+                Some(Kind::Seam)
+            } else if !ha {
+                None
+            } else if sa
+                .distance
+                .zip(sb.distance)
+                .is_some_and(|(p, q)| rel(p, q) > tol.rel_distance)
+            {
+                Some(Kind::Distance)
+            } else if sa
+                .depth
+                .zip(sb.depth)
+                .is_some_and(|(p, q)| rel(p, q) > tol.rel_depth)
+            {
+                Some(Kind::Depth)
+            } else if sa.normal.zip(sb.normal).is_some_and(|(p, q)| {
+                angle(DVec3::from_array(p), DVec3::from_array(q)) > flat_normal
+            }) {
+                Some(Kind::Normal)
+            } else {
+                None
+            };
+            let Some(kind) = kind else { continue };
+            let (d, len) =
+                cam.dir_and_length(cam.column_offset(x as u32), cam.row_offset(y as u32));
+            let e = tracer.trace(cam.origin, d, len);
+            let exact = match &e {
+                None => Sample {
+                    id: Some(0),
+                    part: Some(0),
+                    distance: None,
+                    depth: None,
+                    normal: None,
+                },
+                Some(e) => Sample {
+                    id: Some(scene.cylinders[e.index].id),
+                    part: Some(e.part),
+                    distance: Some(e.t),
+                    depth: Some(e.depth),
+                    normal: Some(e.normal.to_array()),
+                },
+            };
+            // Coordinate size of the rounded inputs: the camera, the cylinders involved,
+            // and the run of the ray.
+            let mut l_reach: f64 = 0.0;
+            let mut l_t: f64 = 0.0;
+            let ids_of = |s: &Sample| s.id.filter(|&i| i != 0);
+            for id in [ids_of(&sa), ids_of(&sb), exact.id.filter(|&i| i != 0)]
+                .into_iter()
+                .flatten()
+            {
+                for c in scene.cylinders.iter().filter(|c| c.id == id) {
+                    l_reach = l_reach.max(reach(c));
+                }
+            }
+            if let Some(e) = &e {
+                l_reach = l_reach.max(reach(&scene.cylinders[e.index]));
+                l_t = e.t;
+            }
+            for v in [sa.distance, sb.distance].into_iter().flatten() {
+                if v.is_finite() {
+                    l_t = l_t.max(v);
+                }
+            }
+            let l = origin_len + l_reach + l_t;
+            let delta_a = candidate_bound.delta(l);
+            let delta_b = reference_bound.delta(l);
+            // Each side against the exact answer: identity first, then values.
+            let judge = |s: &Sample, hit: bool, non_finite: bool, bound: &Bound, delta: f64| {
+                if non_finite {
+                    return (f64::INFINITY, false);
+                }
+                if same_identity(&scene.cylinders, s, hit, e.as_ref()) {
+                    let off = e.as_ref().map_or(0.0, |e| {
+                        values_off(s, e, &scene.cylinders[e.index], bound, l)
+                    });
+                    (off, true)
+                } else {
+                    let nearby = tracer.nearby(cam.origin, d, len, delta);
+                    // Another part of the exact answer's cylinder (a rim): within δ when the
+                    // exact ray passes within δ of a part boundary of what it hits. Another
+                    // cylinder or hit vs miss: when a ray within δ sees that identity.
+                    let seam = e.as_ref().is_some_and(|e| {
+                        hit && s.id.is_none_or(|id| id == scene.cylinders[e.index].id)
+                    });
+                    let within = if seam {
+                        let key = |x: &Option<Exact>| x.as_ref().map(|x| (x.index, x.part));
+                        nearby.iter().any(|n| key(n) != key(&e))
+                    } else {
+                        let cylinder = Sample { part: None, ..*s };
+                        nearby
+                            .iter()
+                            .any(|n| same_identity(&scene.cylinders, &cylinder, hit, n.as_ref()))
+                    };
+                    (if within { 0.0 } else { f64::INFINITY }, false)
+                }
+            };
+            let (off_a, exact_a) = judge(&sa, ha, a.non_finite(k), &candidate_bound, delta_a);
+            let (off_b, _) = judge(&sb, hb, b.non_finite(k), &reference_bound, delta_b);
+            let class = if off_a > 1.0 {
+                PixelClass::CandidateError
+            } else if off_b > 1.0 {
+                PixelClass::UnexplainedReferenceError
+            } else if exact_a {
+                PixelClass::ReferenceError
+            } else {
+                PixelClass::Tie
+            };
+            pixels.push(Pixel {
+                at: [x, y],
+                class,
+                kind,
+                candidate: sa,
+                reference: sb,
+                exact,
+                delta: delta_b,
+                candidate_off: off_a,
+                reference_off: off_b,
+            });
+        }
+    }
+    let count = |c: PixelClass| pixels.iter().filter(|p| p.class == c).count();
+    Ok(Arbitration {
+        candidate_bound,
+        reference_bound,
+        disagreeing: pixels.len(),
+        reference_errors: count(PixelClass::ReferenceError),
+        unexplained_reference_errors: count(PixelClass::UnexplainedReferenceError),
+        candidate_errors: count(PixelClass::CandidateError),
+        ties: count(PixelClass::Tie),
+        delta_max,
+        feature_min,
+        radius_max,
+        cannot_discriminate: delta_max >= feature_min,
+        pixels,
+    })
+}

@@ -1,0 +1,176 @@
+//! `verify --report DIR`: one self-contained page, `DIR/index.html`, with its images beside
+//! it (no network): a per-view table sortable by worst error, and per view the candidate's
+//! and Mitsuba's depth, the difference heatmap with its legend and colour bar, and the worst
+//! disagreeing pixels with their three answers (candidate, Mitsuba, exact) and class.
+
+use crate::output::aov::AovImage;
+use crate::verify::arbiter::{Arbitration, PixelClass};
+use anyhow::{Context, Result};
+use image::{Luma, RgbImage};
+use std::fmt::Write as _;
+use std::path::Path;
+
+/// One view of the page.
+pub struct ReportView<'a> {
+    /// The view's batch id (`scene` or `scene/NN`).
+    pub name: &'a str,
+    /// PASS, FAIL or UNCHECKED.
+    pub verdict: &'a str,
+    /// The table row's text (counts and largest errors, or why it was not checked).
+    pub summary: String,
+    /// The sort key: the largest relative distance error (0 when unchecked).
+    pub worst: f64,
+    /// The classified pixels, when checked.
+    pub arbitration: Option<&'a Arbitration>,
+    /// The failure and accepted lines.
+    pub lines: Vec<String>,
+    /// The images: candidate, Mitsuba, heatmap (when checked).
+    pub images: Option<(&'a AovImage, &'a AovImage, &'a RgbImage)>,
+}
+
+/// How many of the worst pixels a view lists.
+const WORST: usize = 10;
+
+fn esc(s: &str) -> String {
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace('"', "&quot;")
+}
+
+/// A grey picture of `img`'s depth (or distance), near white, far dark, misses black, with
+/// the range it spans.
+fn depth_picture(img: &AovImage) -> Option<(image::GrayImage, f32, f32)> {
+    let v = img
+        .f32_channel("depth")
+        .or_else(|| img.f32_channel("distance"))?;
+    let hits = v.iter().copied().filter(|x| x.is_finite() && *x > 0.0);
+    let (lo, hi) = hits.fold((f32::INFINITY, 0f32), |(a, b), x| (a.min(x), b.max(x)));
+    let span = if hi > lo { hi - lo } else { 1.0 };
+    let mut out = image::GrayImage::new(img.width as u32, img.height as u32);
+    for (k, &x) in v.iter().enumerate() {
+        let g = if x.is_finite() && x > 0.0 {
+            (255.0 - 200.0 * (x - lo) / span).round() as u8
+        } else {
+            0
+        };
+        out.put_pixel((k % img.width) as u32, (k / img.width) as u32, Luma([g]));
+    }
+    Some((out, lo, hi))
+}
+
+const LEGEND: &str = "<p class=\"legend\"><span style=\"background:#1c1c1c\"></span>both miss \
+<span style=\"background:#ff8c00\"></span>silhouette (another cylinder or hit vs miss) \
+<span style=\"background:#00c8e6\"></span>seam (same cylinder, another part) \
+<span style=\"background:#ff0000\"></span>mismatch away from any boundary \
+<span style=\"background:#ff00ff\"></span>above its bound</p>\
+<div class=\"bar\"></div><p class=\"ticks\"><span>1e-4</span><span>1e-2</span><span>1 (the bound)</span></p>\
+<p class=\"note\">Same cylinder and part: the largest of the relative distance, relative depth and normal errors over its bound (the flat tolerance, or the pixel's float32 bound where larger), log scale.</p>";
+
+const STYLE: &str = "body{font-family:sans-serif;margin:1em 2em}table{border-collapse:collapse}\
+td,th{border:1px solid #bbb;padding:2px 6px;font-size:13px}th{cursor:pointer;background:#eee}\
+.PASS{color:#070}.FAIL{color:#b00}.UNCHECKED{color:#a60}img{image-rendering:pixelated;width:320px;border:1px solid #888}\
+figure{display:inline-block;margin:4px}.legend span{display:inline-block;width:12px;height:12px;margin:0 4px 0 12px}\
+.bar{width:320px;height:12px;background:linear-gradient(to right,#00145a,#00aa3c,#ffe600)}\
+.ticks{width:320px;display:flex;justify-content:space-between;font-size:11px;margin:0}.note{font-size:12px;color:#444}";
+
+const SCRIPT: &str = "function sortBy(c){const t=document.getElementById('views');const r=[...t.tBodies[0].rows];\
+const d=t.dataset.dir==='1'?-1:1;t.dataset.dir=d===1?'1':'0';r.sort((a,b)=>{const x=a.cells[c].dataset.v||a.cells[c].textContent;\
+const y=b.cells[c].dataset.v||b.cells[c].textContent;const n=parseFloat(x)-parseFloat(y);return d*(isNaN(n)?x.localeCompare(y):n)});\
+r.forEach(e=>t.tBodies[0].appendChild(e));}";
+
+/// Write `dir/index.html` and its images for `views`.
+pub fn write_report(dir: &Path, title: &str, views: &[ReportView]) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let mut html = format!(
+        "<!DOCTYPE html><html><head><meta charset=\"utf-8\"><title>cylaov verify: {}</title><style>{STYLE}</style><script>{SCRIPT}</script></head><body><h1>cylaov verify: {}</h1>",
+        esc(title),
+        esc(title)
+    );
+    html += "<table id=\"views\"><thead><tr><th onclick=\"sortBy(0)\">view</th><th onclick=\"sortBy(1)\">verdict</th><th onclick=\"sortBy(2)\">worst rel distance</th><th onclick=\"sortBy(3)\">reference errors</th><th onclick=\"sortBy(4)\">candidate errors</th><th onclick=\"sortBy(5)\">unexplained</th><th>result</th></tr></thead><tbody>";
+    for (i, v) in views.iter().enumerate() {
+        let count = |f: fn(&Arbitration) -> usize| v.arbitration.map_or(0, f);
+        let _ = write!(
+            html,
+            "<tr class=\"view\"><td><a href=\"#v{i}\">{}</a></td><td class=\"{}\">{}</td><td data-v=\"{}\">{:.2e}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+            esc(v.name),
+            v.verdict,
+            v.verdict,
+            v.worst,
+            v.worst,
+            count(|a| a.reference_errors),
+            count(|a| a.candidate_errors),
+            count(|a| a.unexplained_reference_errors),
+            esc(&v.summary)
+        );
+    }
+    html += "</tbody></table>";
+    for (i, v) in views.iter().enumerate() {
+        let _ = write!(
+            html,
+            "<h2 id=\"v{i}\">{} <span class=\"{}\">{}</span></h2>",
+            esc(v.name),
+            v.verdict,
+            v.verdict
+        );
+        for l in &v.lines {
+            let _ = write!(html, "<p>{}</p>", esc(l));
+        }
+        if let Some((cand, reference, heat)) = v.images {
+            let stem = format!("view{i}");
+            for (img, label) in [(cand, "candidate"), (reference, "Mitsuba")] {
+                if let Some((pic, lo, hi)) = depth_picture(img) {
+                    let file = format!("{stem}.{}.png", label.to_lowercase());
+                    pic.save(dir.join(&file))
+                        .with_context(|| format!("writing {}", dir.join(&file).display()))?;
+                    let _ = write!(
+                        html,
+                        "<figure><img src=\"{file}\" alt=\"{label} depth\"><figcaption>{label} depth: white {lo:.4} to dark {hi:.4}, black: miss</figcaption></figure>"
+                    );
+                }
+            }
+            let file = format!("{stem}.heatmap.png");
+            heat.save(dir.join(&file))
+                .with_context(|| format!("writing {}", dir.join(&file).display()))?;
+            let _ = write!(
+                html,
+                "<figure><img src=\"{file}\" alt=\"difference\"><figcaption>difference</figcaption>{LEGEND}</figure>"
+            );
+        }
+        if let Some(a) = v.arbitration {
+            let mut worst: Vec<_> = a.pixels.iter().collect();
+            let rank = |c: PixelClass| match c {
+                PixelClass::CandidateError => 0,
+                PixelClass::UnexplainedReferenceError => 1,
+                PixelClass::ReferenceError => 2,
+                PixelClass::Tie => 3,
+            };
+            worst.sort_by(|p, q| {
+                rank(p.class)
+                    .cmp(&rank(q.class))
+                    .then(q.reference_off.total_cmp(&p.reference_off))
+            });
+            if !worst.is_empty() {
+                html += "<table><tr><th>pixel</th><th>class</th><th>kind</th><th>candidate</th><th>Mitsuba</th><th>exact</th></tr>";
+                for p in worst.iter().take(WORST) {
+                    let _ = write!(
+                        html,
+                        "<tr><td>[{}, {}]</td><td>{}</td><td>{:?}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+                        p.at[0],
+                        p.at[1],
+                        p.class.label(),
+                        p.kind,
+                        esc(&p.candidate.to_string()),
+                        esc(&p.reference.to_string()),
+                        esc(&p.exact.to_string())
+                    );
+                }
+                html += "</table>";
+            }
+        }
+    }
+    html += "</body></html>\n";
+    let path = dir.join("index.html");
+    crate::output::io::atomic_write_bytes(&path, html.as_bytes())
+        .with_context(|| format!("writing {}", path.display()))
+}
