@@ -143,32 +143,9 @@ fn run_written(args: &VerifyArgs) -> Result<VerifyOutcome> {
             arbitration: None,
         });
     }
-    let count = |s: Status| results.iter().filter(|r| r.status == s).count();
-    let (passed, failed, unchecked) = (
-        count(Status::Pass),
-        count(Status::Fail),
-        count(Status::Unchecked),
-    );
-    let code = if failed > 0 {
-        1
-    } else if unchecked > 0 {
-        2
-    } else {
-        0
-    };
-    let text = if args.json {
-        serde_json::to_string_pretty(&JsonOut {
-            input: args.input.display().to_string(),
-            tolerances: args.tolerances,
-            checked: results.len(),
-            passed,
-            failed,
-            unchecked,
-            views: &results,
-        })?
-    } else {
+    outcome(args, results, |results, (passed, failed, unchecked)| {
         let mut s = format!("{:<24} {:<9} result\n", "view", "verdict");
-        for r in &results {
+        for r in results {
             let lines = r
                 .failures
                 .iter()
@@ -187,11 +164,6 @@ fn run_written(args: &VerifyArgs) -> Result<VerifyOutcome> {
             results.len()
         );
         s
-    };
-    Ok(VerifyOutcome {
-        text,
-        code,
-        views: results,
     })
 }
 
@@ -520,6 +492,19 @@ pub fn run(args: &VerifyArgs) -> Result<VerifyOutcome> {
             .collect();
         write_report(dir, &args.input.display().to_string(), &views)?;
     }
+    outcome(args, results, |results, counts| {
+        table(args, &all, results, counts, &mitsuba)
+    })
+}
+
+/// The exit status and the printed text (JSON, or the table `table` makes from the views and
+/// their (passed, failed, unchecked) counts) of checked views: 1 if any failed, else 2 if
+/// any could not be checked, else 0.
+fn outcome(
+    args: &VerifyArgs,
+    results: Vec<ViewResult>,
+    table: impl FnOnce(&[ViewResult], (usize, usize, usize)) -> String,
+) -> Result<VerifyOutcome> {
     let count = |s: Status| results.iter().filter(|r| r.status == s).count();
     let (passed, failed, unchecked) = (
         count(Status::Pass),
@@ -544,7 +529,7 @@ pub fn run(args: &VerifyArgs) -> Result<VerifyOutcome> {
             views: &results,
         })?
     } else {
-        table(args, &all, &results, (passed, failed, unchecked), &mitsuba)
+        table(&results, (passed, failed, unchecked))
     };
     Ok(VerifyOutcome {
         text,

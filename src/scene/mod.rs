@@ -323,7 +323,7 @@ pub fn load(path: &Path) -> Result<Scene, SceneError> {
 }
 
 /// Parse and validate scene JSON: one JSON object and nothing after it. Plain
-/// `serde_json` reads it; only when that fails, [`parse_serde`] reads it again with path
+/// `serde_json` reads it; only when that fails, `parse_serde` reads it again with path
 /// tracking, whose message names the field.
 pub fn parse(text: &str) -> Result<Scene, SceneError> {
     match serde_json::from_str::<strict::Object<SceneFile>>(text) {

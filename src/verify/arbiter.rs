@@ -1,5 +1,5 @@
 //! The exact answer as arbiter: where the checked file (the *candidate*: cylaov's render or
-//! another renderer's EXR) and Mitsuba disagree, the double-double [`oracle`] decides who is
+//! another renderer's EXR) and Mitsuba disagree, the double-double [`oracle`](crate::verify::oracle) decides who is
 //! wrong.
 //!
 //! A pixel *disagrees* when the two differ in identity (another cylinder, hit vs miss, or

@@ -171,7 +171,7 @@ const TEXT_BYTES_PER_VIEW: u64 = 5 << 10;
 /// What a batch is about to write, estimated before it starts from the views' sizes and
 /// AOVs: the EXRs exactly as an uncompressed file holds them (4 bytes a channel a pixel,
 /// 16 bytes a scanline for its offset and chunk header, 2 KiB of header), the PNGs at
-/// [`PNG_BYTES_PER_PIXEL`], the JSON files at [`TEXT_BYTES_PER_VIEW`]. Compressed EXRs
+/// `PNG_BYTES_PER_PIXEL`, the JSON files at `TEXT_BYTES_PER_VIEW`. Compressed EXRs
 /// are counted at their uncompressed size, an upper bound.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct SizeEstimate {
