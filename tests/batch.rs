@@ -2,34 +2,16 @@
 //! after kill -9, a bad scene among good ones, and the back-projection example.
 
 mod common;
-use common::{cylaov, ok};
+use common::{cylaov, ok, tree};
 
 use cylaov::output::aov::AovImage;
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::time::{Duration, Instant};
 
 fn fresh_dir(name: &str) -> tempfile::TempDir {
     common::fresh_dir("batch", name)
-}
-
-/// Every file under `dir` (relative path → bytes).
-fn tree(dir: &Path) -> BTreeMap<String, Vec<u8>> {
-    fn walk(root: &Path, dir: &Path, out: &mut BTreeMap<String, Vec<u8>>) {
-        for e in std::fs::read_dir(dir).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                walk(root, &p, out);
-            } else {
-                let rel = p.strip_prefix(root).unwrap().to_string_lossy().into_owned();
-                out.insert(rel, std::fs::read(&p).unwrap());
-            }
-        }
-    }
-    let mut out = BTreeMap::new();
-    walk(dir, dir, &mut out);
-    out
 }
 
 /// The arguments of `cylaov batch INPUT --out OUT EXTRA...`.

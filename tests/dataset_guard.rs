@@ -5,8 +5,7 @@
 
 mod common;
 
-use common::{cylaov, ok};
-use std::collections::BTreeMap;
+use common::{cylaov, ok, tree};
 use std::os::unix::fs::MetadataExt;
 use std::path::Path;
 
@@ -24,24 +23,6 @@ fn refused(args: &[&str]) -> String {
     let err = String::from_utf8_lossy(&out.stderr).into_owned();
     assert_eq!(out.status.code(), Some(1), "cylaov {args:?}: {err}");
     err
-}
-
-/// Every file under `dir` (relative path -> bytes).
-fn snapshot(dir: &Path) -> BTreeMap<String, Vec<u8>> {
-    fn walk(root: &Path, dir: &Path, out: &mut BTreeMap<String, Vec<u8>>) {
-        for e in std::fs::read_dir(dir).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                walk(root, &p, out);
-            } else {
-                let rel = p.strip_prefix(root).unwrap().display().to_string();
-                out.insert(rel, std::fs::read(&p).unwrap());
-            }
-        }
-    }
-    let mut out = BTreeMap::new();
-    walk(dir, dir, &mut out);
-    out
 }
 
 fn names(dir: &Path) -> Vec<String> {
@@ -74,7 +55,7 @@ fn a_dataset_with_other_settings_or_more_scenes_is_refused() {
     let dir = fresh_dir("refused");
     let out = dir.path().join("data");
     generate(&out, &["--count", "4", "--seed", "1"]);
-    let before = snapshot(&out);
+    let before = tree(&out);
     let base = [
         "generate",
         "--out",
@@ -100,7 +81,7 @@ fn a_dataset_with_other_settings_or_more_scenes_is_refused() {
     assert!(err.contains("--count 2"), "{err}");
     assert!(err.contains("holds 4 scenes"), "{err}");
     assert_eq!(err.lines().count(), 1, "{err}");
-    assert_eq!(snapshot(&out), before);
+    assert_eq!(tree(&out), before);
 }
 
 /// The same settings: nothing to do, nothing written (also through its own
@@ -111,7 +92,7 @@ fn the_same_settings_do_nothing_and_a_larger_count_extends() {
     let dir = fresh_dir("extend");
     let out = dir.path().join("data");
     generate(&out, &["--count", "3", "--seed", "7"]);
-    let before = snapshot(&out);
+    let before = tree(&out);
     let inode = |i: u32| {
         std::fs::metadata(out.join(format!("scenes/{i:06}.json")))
             .unwrap()
@@ -124,7 +105,7 @@ fn the_same_settings_do_nothing_and_a_larger_count_extends() {
     let config = out.join("generate.json");
     let own = ok(&["generate", "--config", s(&config), "--out", s(&out)]);
     assert!(own.starts_with("nothing to do"), "{own}");
-    assert_eq!(snapshot(&out), before);
+    assert_eq!(tree(&out), before);
     assert_eq!((0..3).map(inode).collect::<Vec<_>>(), inodes);
 
     let more = generate(&out, &["--count", "5", "--seed", "7"]);
@@ -132,7 +113,7 @@ fn the_same_settings_do_nothing_and_a_larger_count_extends() {
     assert_eq!((0..3).map(inode).collect::<Vec<_>>(), inodes);
     let fresh = dir.path().join("fresh");
     generate(&fresh, &["--count", "5", "--seed", "7"]);
-    assert_eq!(snapshot(&out), snapshot(&fresh));
+    assert_eq!(tree(&out), tree(&fresh));
     assert_eq!(
         std::fs::read_to_string(out.join("manifest.jsonl"))
             .unwrap()
@@ -150,7 +131,7 @@ fn the_same_command_completes_a_dataset_cut_short() {
     let dir = fresh_dir("complete");
     let out = dir.path().join("data");
     generate(&out, &["--count", "4"]);
-    let want = snapshot(&out);
+    let want = tree(&out);
     std::fs::remove_file(out.join("manifest.jsonl")).unwrap();
     std::fs::remove_file(out.join("scenes/000002.json")).unwrap();
     let kept = std::fs::metadata(out.join("scenes/000001.json"))
@@ -158,7 +139,7 @@ fn the_same_command_completes_a_dataset_cut_short() {
         .ino();
     let said = generate(&out, &["--count", "4"]);
     assert!(said.starts_with("completed 4 scenes"), "{said}");
-    assert_eq!(snapshot(&out), want);
+    assert_eq!(tree(&out), want);
     let now = std::fs::metadata(out.join("scenes/000001.json"))
         .unwrap()
         .ino();
@@ -182,11 +163,11 @@ fn force_replaces_generates_files_and_nothing_else() {
     assert!(said.starts_with("replaced the dataset: 2 scenes"), "{said}");
     let fresh = dir.path().join("fresh");
     generate(&fresh, &["--count", "2", "--seed", "3"]);
-    let mut want = snapshot(&fresh);
+    let mut want = tree(&fresh);
     want.insert("render/000000.exr".into(), b"a render".to_vec());
     want.insert("notes.txt".into(), b"mine".to_vec());
     want.insert("scenes/README.txt".into(), b"also mine".to_vec());
-    assert_eq!(snapshot(&out), want);
+    assert_eq!(tree(&out), want);
 }
 
 /// A run that would overwrite its own `--config` is refused before anything is written,
@@ -199,11 +180,11 @@ fn generate_never_overwrites_its_own_config() {
     generate(&out, &["--count", "3"]);
     let config = out.join("scenes/000004.json");
     std::fs::write(&config, r#"{"count": 5, "width": 32, "height": 24}"#).unwrap();
-    let before = snapshot(&out);
+    let before = tree(&out);
     let err = refused(&["generate", "--config", s(&config), "--out", s(&out)]);
     assert!(err.contains("would overwrite its own input"), "{err}");
     assert!(err.contains(s(&config)), "{err}");
-    assert_eq!(snapshot(&out), before);
+    assert_eq!(tree(&out), before);
 
     let extend = refused(&[
         "generate",
@@ -215,7 +196,7 @@ fn generate_never_overwrites_its_own_config() {
         s(&out),
     ]);
     assert!(extend.contains("would overwrite its own input"), "{extend}");
-    assert_eq!(snapshot(&out), before);
+    assert_eq!(tree(&out), before);
 
     let other = dir.path().join("other");
     std::fs::create_dir(&other).unwrap();
@@ -343,7 +324,7 @@ fn batch_prints_its_estimated_output_size_first() {
         .and_then(|t| t.split(" MiB").next())
         .and_then(|t| t.parse().ok())
         .unwrap_or_else(|| panic!("no size in {first:?}"));
-    let written: usize = snapshot(&out).values().map(Vec::len).sum();
+    let written: usize = tree(&out).values().map(Vec::len).sum();
     let estimated = mib * (1u64 << 20) as f64;
     assert!(
         (estimated / written as f64 - 1.0).abs() < 0.05,

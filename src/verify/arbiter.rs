@@ -450,19 +450,7 @@ impl Tracer<'_> {
     /// The exact identities seen by rays displaced sideways by up to `delta` (1, 1/4, 1/16,
     /// 1/64 of it, in 8 directions, so a thin feature is not jumped over).
     fn nearby(&self, o: DVec3, d: DVec3, len: f64, delta: f64) -> Vec<Option<Exact>> {
-        let e1 = d.any_orthonormal_vector();
-        let e2 = d.cross(e1);
-        let s = std::f64::consts::FRAC_1_SQRT_2;
-        let dirs = [
-            e1,
-            -e1,
-            e2,
-            -e2,
-            (e1 + e2) * s,
-            (e1 - e2) * s,
-            (-e1 + e2) * s,
-            (-e1 - e2) * s,
-        ];
+        let dirs = crate::verify::oracle::sideways(d);
         let mut out = Vec::with_capacity(32);
         for f in [1.0, 0.25, 0.0625, 0.015625] {
             for e in &dirs {

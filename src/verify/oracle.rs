@@ -598,19 +598,7 @@ fn in_band(p: &Problem, hit: Option<Hit>, lo: DD, hi: DD, eps: f64) -> (bool, bo
     let jump = JUMP * (p.r + p.h).to_f64() + 16.0 * w;
     let dlen = p.d.length().to_f64();
     let d = p.d.to_f64() / dlen;
-    let e1 = d.any_orthonormal_vector();
-    let e2 = d.cross(e1);
-    let s = std::f64::consts::FRAC_1_SQRT_2;
-    let sideways = [
-        e1,
-        -e1,
-        e2,
-        -e2,
-        (e1 + e2) * s,
-        (e1 - e2) * s,
-        (-e1 + e2) * s,
-        (-e1 - e2) * s,
-    ];
+    let sideways = sideways(d);
     // (problem, shift of t the move itself causes: a move along d by s shifts t by -s/|d|)
     let mut moved: Vec<(Problem, f64)> = Vec::with_capacity(44);
     for f in [1.0, 0.25, 0.0625, 0.015625] {
@@ -642,6 +630,25 @@ fn in_band(p: &Problem, hit: Option<Hit>, lo: DD, hi: DD, eps: f64) -> (bool, bo
         }
     }
     (band_hit, band_branch)
+}
+
+/// Eight unit directions perpendicular to the unit vector `d`, 45° apart: the four axes of
+/// an orthonormal frame first, then the four diagonals. Probing a ray moved sideways along
+/// each finds a boundary in any direction (the first four are the axes alone).
+pub fn sideways(d: DVec3) -> [DVec3; 8] {
+    let e1 = d.any_orthonormal_vector();
+    let e2 = d.cross(e1);
+    let s = std::f64::consts::FRAC_1_SQRT_2;
+    [
+        e1,
+        -e1,
+        e2,
+        -e2,
+        (e1 + e2) * s,
+        (e1 - e2) * s,
+        (-e1 + e2) * s,
+        (-e1 - e2) * s,
+    ]
 }
 
 #[cfg(test)]
