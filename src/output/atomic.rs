@@ -299,4 +299,3 @@ fn injected_failure() -> Option<i32> {
 pub fn atomic_write_bytes(path: &Path, bytes: &[u8]) -> io::Result<()> {
     atomic_write(path, |f| f.write_all(bytes))
 }
-

@@ -29,4 +29,3 @@ pub fn say(text: &str) -> io::Result<()> {
 pub fn warn(text: &str) {
     let _ = writeln!(io::stderr().lock(), "{text}");
 }
-

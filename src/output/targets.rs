@@ -186,4 +186,3 @@ pub fn check_output_dir(flag: &str, dir: &Path) -> io::Result<()> {
         Err(e) => Err(refuse(flag, dir, e.to_string())),
     }
 }
-

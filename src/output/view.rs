@@ -114,6 +114,19 @@ pub struct ViewPlan {
     pub stamp: Option<String>,
 }
 
+/// A depth PNG that cannot hold the view's depths ([`OutOfRange::Fail`]): the message
+/// names the depth range and the largest scale that fits.
+#[derive(Debug)]
+pub struct DepthOutOfRange(pub String);
+
+impl std::fmt::Display for DepthOutOfRange {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for DepthOutOfRange {}
+
 /// What executing a plan cost and found.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Written {
@@ -305,7 +318,7 @@ impl ViewPlan {
             Some(d) => Some(
                 depth_png::encode(image, d.scale, d.out_of_range)
                     .context("no depth AOV")?
-                    .map_err(|e| anyhow!(e))?,
+                    .map_err(DepthOutOfRange)?,
             ),
             None => None,
         };
@@ -375,7 +388,11 @@ fn add_exr(
     })
 }
 
-fn add_png<P, C>(sink: &mut dyn ViewSink, member: Member, img: &image::ImageBuffer<P, C>) -> Result<()>
+fn add_png<P, C>(
+    sink: &mut dyn ViewSink,
+    member: Member,
+    img: &image::ImageBuffer<P, C>,
+) -> Result<()>
 where
     P: image::PixelWithColorType,
     [P::Subpixel]: image::EncodableLayout,
@@ -491,8 +508,9 @@ impl ViewSink for FileSink {
             }
         }
         // EXRs last: an EXR in place says the view is complete.
-        let (exrs, others): (Vec<_>, Vec<_>) =
-            std::mem::take(&mut self.staged).into_iter().partition(|(m, _)| m.is_exr());
+        let (exrs, others): (Vec<_>, Vec<_>) = std::mem::take(&mut self.staged)
+            .into_iter()
+            .partition(|(m, _)| m.is_exr());
         let ordered = others.into_iter().chain(exrs).map(|(_, s)| s).collect();
         commit_all(ordered).context("putting the outputs in place")
     }
@@ -531,8 +549,9 @@ impl ViewSink for MemorySink {
     }
 
     fn commit(&mut self) -> Result<()> {
-        let (exrs, others): (Vec<_>, Vec<_>) =
-            std::mem::take(&mut self.staged).into_iter().partition(|(m, _)| m.is_exr());
+        let (exrs, others): (Vec<_>, Vec<_>) = std::mem::take(&mut self.staged)
+            .into_iter()
+            .partition(|(m, _)| m.is_exr());
         for (m, bytes) in others.into_iter().chain(exrs) {
             self.members.push((self.label(m), bytes));
         }
