@@ -511,35 +511,10 @@ struct CameraMeta {
     aovs: Vec<AovMeaning>,
 }
 
-/// What an AOV means, for the metadata file (the same text as the README's AOV table).
+/// What an AOV means and its miss value, for the metadata file: its row of the AOV table
+/// ([`crate::scene::aov::AOV_TABLE`]).
 pub fn aov_meaning(aov: Aov) -> (&'static str, &'static str) {
-    match aov {
-        Aov::Distance => (
-            "Euclidean distance from the camera origin to the hit, world units",
-            "0",
-        ),
-        Aov::Depth => (
-            "planar depth: camera-space z of the hit (distance * cos theta), world units",
-            "0",
-        ),
-        Aov::Normal => (
-            "world-space unit outward normal, not flipped toward the camera",
-            "[0,0,0]",
-        ),
-        Aov::Position => ("world-space hit point", "[0,0,0]"),
-        Aov::NormalCamera => (
-            "camera-space unit outward normal, OpenCV axes (x right, y down, z forward), not flipped toward the camera",
-            "[0,0,0]",
-        ),
-        Aov::ShapeId => (
-            "u32 id of the hit cylinder (scene 'id', default 1-based index)",
-            "0",
-        ),
-        Aov::Part => (
-            "u32 part of the hit cylinder: 1 side seen from outside, 2 side seen from inside, 3 bottom cap (at p0), 4 top cap (at p1)",
-            "0",
-        ),
-    }
+    (aov.spec().meaning, aov.spec().miss)
 }
 
 /// Pretty JSON of one of cylaov's own records (camera metadata, stamps, indexes). They are
