@@ -198,8 +198,8 @@ pub fn mitsuba_aov_list() -> String {
 /// The README's AOV table (what `cylaov aovs` prints): Markdown, one row per AOV.
 pub fn markdown_table() -> String {
     let mut s = String::from(
-        "| AOV | EXR channels | per-AOV file | type | meaning | on a miss | compared by |\n\
-         |---|---|---|---|---|---|---|\n",
+        "| AOV | EXR channels | per-AOV file (f32) | type | meaning | on a miss | Mitsuba reference | compared by |\n\
+         |---|---|---|---|---|---|---|---|\n",
     );
     for a in &AOV_TABLE {
         let channels = match a.channels {
@@ -208,12 +208,15 @@ pub fn markdown_table() -> String {
             [] => String::new(),
         };
         s.push_str(&format!(
-            "| `{}` | {channels} | `{}` | {} | {} | {} | {} |\n",
+            "| `{}` | {channels} | `{}` | {} | {} | {} | {} | {} |\n",
             a.name,
             a.per_aov_channels().join(", "),
             a.sample.name(),
             a.meaning,
             a.miss,
+            a.mitsuba.map_or("derived".to_string(), |m| {
+                format!("`{}`", m.split(':').next_back().unwrap_or(m))
+            }),
             a.metric.describe(),
         ));
     }
@@ -268,7 +271,7 @@ mod tests {
         assert_eq!(t.lines().count(), 2 + Aov::ALL.len());
         assert!(t.contains(
             "| `normal` | `normal.X/Y/Z` | `R, G, B` | f32 | world-space unit outward normal, \
-             not flipped toward the camera | [0,0,0] | angle (degrees) |\n"
+             not flipped toward the camera | [0,0,0] | `sh_normal` | angle (degrees) |\n"
         ));
     }
 }
