@@ -234,8 +234,8 @@ pub(super) fn channels_of(opts: &RenderOptions, cam: &Camera, samples: Samples) 
             });
         }
     };
-    push("distance", planes.distance.map(ChannelData::F32));
-    push("depth", planes.depth.map(ChannelData::F32));
+    push(Aov::Distance.name(), planes.distance.map(ChannelData::F32));
+    push(Aov::Depth.name(), planes.depth.map(ChannelData::F32));
     let normal_camera = want(Aov::NormalCamera)
         .then(|| planes.normal.as_ref().map(|n| normals_in_camera(cam, n)))
         .flatten();
@@ -243,26 +243,17 @@ pub(super) fn channels_of(opts: &RenderOptions, cam: &Camera, samples: Samples) 
         planes.normal = None;
     }
     let [nx, ny, nz] = planes.normal.map(|v| v.map(Some)).unwrap_or_default();
-    for (c, v) in ["normal.X", "normal.Y", "normal.Z"]
-        .iter()
-        .zip([nx, ny, nz])
-    {
+    for (c, v) in Aov::Normal.spec().channels.iter().zip([nx, ny, nz]) {
         push(c, v.map(ChannelData::F32));
     }
     let [px, py, pz] = planes.position.map(|v| v.map(Some)).unwrap_or_default();
-    for (c, v) in ["position.X", "position.Y", "position.Z"]
-        .iter()
-        .zip([px, py, pz])
-    {
+    for (c, v) in Aov::Position.spec().channels.iter().zip([px, py, pz]) {
         push(c, v.map(ChannelData::F32));
     }
-    push("shape_id", id.map(ChannelData::U32));
-    push("part", part.map(ChannelData::U32));
+    push(Aov::ShapeId.name(), id.map(ChannelData::U32));
+    push(Aov::Part.name(), part.map(ChannelData::U32));
     let [cx, cy, cz] = normal_camera.map(|v| v.map(Some)).unwrap_or_default();
-    for (c, v) in ["normal_camera.X", "normal_camera.Y", "normal_camera.Z"]
-        .iter()
-        .zip([cx, cy, cz])
-    {
+    for (c, v) in Aov::NormalCamera.spec().channels.iter().zip([cx, cy, cz]) {
         push(c, v.map(ChannelData::F32));
     }
     channels
