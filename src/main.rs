@@ -95,6 +95,11 @@ enum Command {
     ///
     /// Example: cylaov stress --family grazing --csv out/grazing.csv --plot out/stress.png
     Stress(StressCli),
+    /// Print the AOV table: each AOV's EXR channels, per-AOV file channels, sample type,
+    /// meaning (the text the EXR header carries), miss value and how `compare` judges it.
+    ///
+    /// Example: cylaov aovs
+    Aovs,
 }
 
 #[derive(Args)]
@@ -806,6 +811,10 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::ExportMitsuba(a) => export_mitsuba(a),
         Command::Compare(a) => Ok(compare(a)),
         Command::Verify(a) => Ok(verify(a)),
+        Command::Aovs => {
+            print!("{}", cylaov::scene::aov::markdown_table());
+            Ok(ExitCode::SUCCESS)
+        }
     }
 }
 

@@ -33,7 +33,7 @@
 //! `Y` (all float32; ids are exact up to 2^24 and larger ones are refused), `normal` and
 //! `position` as `R, G, B` (= X, Y, Z). The samples are bitwise those of the layered file.
 
-use crate::output::io::{Staged, aov_meaning, stage};
+use crate::output::io::{Staged, stage};
 use crate::scene::Aov;
 use crate::scene::camera::Camera;
 use anyhow::{Context, Result, bail};
@@ -101,17 +101,9 @@ impl Compression {
     }
 }
 
-/// The EXR channel names of an AOV, in order.
+/// The EXR channel names of an AOV, in order (its row of the AOV table).
 pub fn channel_names(aov: Aov) -> &'static [&'static str] {
-    match aov {
-        Aov::Distance => &["distance"],
-        Aov::Depth => &["depth"],
-        Aov::Normal => &["normal.X", "normal.Y", "normal.Z"],
-        Aov::Position => &["position.X", "position.Y", "position.Z"],
-        Aov::ShapeId => &["shape_id"],
-        Aov::Part => &["part"],
-        Aov::NormalCamera => &["normal_camera.X", "normal_camera.Y", "normal_camera.Z"],
-    }
+    aov.spec().channels
 }
 
 /// One header attribute beyond the required ones.
@@ -181,10 +173,9 @@ pub fn exr_attributes(cam: &Camera, aovs: &[Aov]) -> Vec<ExrAttr> {
         ExrAttr::Float("cylaov:cy_opencv", k_cv[1][2] as f32),
     ];
     for &a in aovs {
-        let (meaning, miss) = aov_meaning(a);
         attrs.push(ExrAttr::Text(
             format!("cylaov:channel:{}", a.name()),
-            format!("{}: {meaning}; miss = {miss}", channel_names(a).join(", ")),
+            a.spec().header_text(),
         ));
     }
     attrs
@@ -192,11 +183,12 @@ pub fn exr_attributes(cam: &Camera, aovs: &[Aov]) -> Vec<ExrAttr> {
 
 /// The channel names of `aov` in the per-AOV layout, in order (`Y`, or `R, G, B`).
 pub fn per_aov_channel_names(aov: Aov) -> &'static [&'static str] {
-    match channel_names(aov) {
-        [_] => &["Y"],
-        _ => &["R", "G", "B"],
-    }
+    aov.spec().per_aov_channels()
 }
+
+/// Rows in one band of a render written band by band (see [`streams`]): the tracer's tile
+/// side, which `render` checks at compile time, so that `output` needs nothing of `accel`.
+pub const BAND_ROWS: usize = 16;
 
 /// Whether a render going to `layout` with `compression`, and `pictures` (PNGs) or not,
 /// is written band by band while it is traced (see `render::render_bands`): one
@@ -232,7 +224,7 @@ pub fn render_memory(
     const MIB: u64 = 1 << 20;
     let channels: u64 = aovs.iter().map(|&a| channel_names(a).len() as u64).sum();
     if streams(layout, compression, pictures) {
-        let rows = (crate::accel::tiles::TILE as u64).min(height as u64);
+        let rows = (BAND_ROWS as u64).min(height as u64);
         let threads = rayon::current_num_threads() as u64;
         return 2 * threads * rows * width as u64 * 4 * channels + MIB;
     }

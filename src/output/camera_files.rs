@@ -62,36 +62,6 @@ struct CameraMeta {
     aovs: Vec<AovMeaning>,
 }
 
-/// What an AOV means, for the metadata file (the same text as the README's AOV table).
-pub fn aov_meaning(aov: Aov) -> (&'static str, &'static str) {
-    match aov {
-        Aov::Distance => (
-            "Euclidean distance from the camera origin to the hit, world units",
-            "0",
-        ),
-        Aov::Depth => (
-            "planar depth: camera-space z of the hit (distance * cos theta), world units",
-            "0",
-        ),
-        Aov::Normal => (
-            "world-space unit outward normal, not flipped toward the camera",
-            "[0,0,0]",
-        ),
-        Aov::Position => ("world-space hit point", "[0,0,0]"),
-        Aov::NormalCamera => (
-            "camera-space unit outward normal, OpenCV axes (x right, y down, z forward), not flipped toward the camera",
-            "[0,0,0]",
-        ),
-        Aov::ShapeId => (
-            "u32 id of the hit cylinder (scene 'id', default 1-based index)",
-            "0",
-        ),
-        Aov::Part => (
-            "u32 part of the hit cylinder: 1 side seen from outside, 2 side seen from inside, 3 bottom cap (at p0), 4 top cap (at p1)",
-            "0",
-        ),
-    }
-}
 
 /// Pretty JSON of one of cylaov's own records (camera metadata, stamps, indexes). They are
 /// structs of numbers, strings and lists with string keys, which serde_json always serialises
@@ -133,12 +103,12 @@ pub fn camera_json(cam: &Camera, aovs: &[Aov]) -> String {
         aovs: aovs
             .iter()
             .map(|&a| {
-                let (meaning, miss) = aov_meaning(a);
+                let spec = a.spec();
                 AovMeaning {
                     name: a.name(),
                     channels: crate::output::aov::channel_names(a),
-                    meaning,
-                    miss,
+                    meaning: spec.meaning,
+                    miss: spec.miss,
                 }
             })
             .collect(),

@@ -12,6 +12,7 @@
 //! `mask_path` of nerfstudio's `transforms.json`.
 
 use crate::output::aov::AovImage;
+use crate::scene::Aov;
 use image::{GrayImage, ImageBuffer, Luma};
 
 /// A 16-bit grey image.
@@ -38,7 +39,7 @@ pub struct Encoded {
 /// Encode the `depth` channel of `img` at `scale` values per world unit; `None` without a
 /// depth channel. The error says why the view cannot be stored and what would fit.
 pub fn encode(img: &AovImage, scale: f64, policy: OutOfRange) -> Option<Result<Encoded, String>> {
-    let v = img.f32_channel("depth")?;
+    let v = img.f32_channel(Aov::Depth.name())?;
     let fits = |s: f64| (1.0..=u16::MAX as f64).contains(&s);
     let mut zeroed = 0;
     let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
@@ -85,7 +86,7 @@ pub fn encode(img: &AovImage, scale: f64, policy: OutOfRange) -> Option<Result<E
 /// The hit mask of `img`: 255 where the `depth` channel holds a hit, 0 on a miss; `None`
 /// without a depth channel. (Every hit has depth >= near_clip > 0; a miss stores 0.)
 pub fn mask(img: &AovImage) -> Option<GrayImage> {
-    let v = img.f32_channel("depth")?;
+    let v = img.f32_channel(Aov::Depth.name())?;
     let mut data = crate::mem::zeroed_or_exit::<u8>(v.len(), "the mask PNG");
     for (m, &z) in data.iter_mut().zip(v) {
         if z > 0.0 {

@@ -5,13 +5,14 @@
 use crate::output::aov::AovImage;
 use crate::output::io::{Staged, stage};
 use crate::output::plot;
+use crate::scene::Aov;
 use anyhow::{Context, Result};
 use image::{ImageBuffer, Luma, Rgb, RgbImage};
 use std::path::Path;
 
 /// Normals mapped `n * 0.5 + 0.5` to RGB; a miss is black.
 pub fn normal_rgb(img: &AovImage) -> Option<RgbImage> {
-    let [x, y, z] = img.vec3_channel("normal")?;
+    let [x, y, z] = img.vec3_channel(Aov::Normal.name())?;
     let to8 = |v: f32| ((v * 0.5 + 0.5).clamp(0.0, 1.0) * 255.0).round() as u8;
     Some(RgbImage::from_fn(
         img.width as u32,
@@ -99,7 +100,7 @@ pub fn depth_colormap(img: &AovImage, channel: &str) -> Option<RgbImage> {
             out.put_pixel(i, j, Rgb(c));
         }
     }
-    let quantity = if channel == "depth" {
+    let quantity = if channel == Aov::Depth.name() {
         "DEPTH Z"
     } else {
         channel
@@ -162,7 +163,7 @@ pub fn normal_preview(img: &AovImage) -> Option<RgbImage> {
 /// 16-bit depth PNG (Open3D/TUM): `round(depth * scale)`, 0 for a miss or a value out of
 /// the u16 range.
 pub fn depth_u16(img: &AovImage, scale: f64) -> Option<ImageBuffer<Luma<u16>, Vec<u16>>> {
-    let v = img.f32_channel("depth")?;
+    let v = img.f32_channel(Aov::Depth.name())?;
     let data = v
         .iter()
         .map(|&z| {

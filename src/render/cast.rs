@@ -11,7 +11,8 @@
 //!
 //! [`Camera::pixel_vector`]: crate::scene::camera::Camera::pixel_vector
 
-use super::{PixelHit, Tracer, part_code};
+use super::planes::part_code;
+use super::{PixelHit, Tracer};
 use crate::accel::bvh::{Bvh, LEAF_SIZE};
 use crate::accel::wide_bvh::WideBvh;
 use crate::geometry::kernel::KernelFn;

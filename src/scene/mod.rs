@@ -8,6 +8,7 @@
 //! Serde types live here only; everything past [`Scene`] is plain validated data. Every
 //! rejection names the field and the value: `cylinders[3].radius: must be > 0, got -1`.
 
+pub mod aov;
 pub mod camera;
 pub mod strict;
 
@@ -27,7 +28,7 @@ pub const MAX_SIDE: u32 = 16384;
 /// buffers; 16384 × 16384 would be 9.7 GB.
 pub const MAX_PIXELS: u64 = 1 << 26;
 
-/// One AOV (the README's AOV table says what each stores).
+/// One AOV ([`aov::AOV_TABLE`] says what each stores).
 #[derive(
     Clone,
     Copy,
@@ -78,20 +79,12 @@ impl Aov {
 
     /// The AOV's name as scene files and the command line spell it.
     pub fn name(self) -> &'static str {
-        match self {
-            Aov::Distance => "distance",
-            Aov::Depth => "depth",
-            Aov::Normal => "normal",
-            Aov::Position => "position",
-            Aov::ShapeId => "shape_id",
-            Aov::Part => "part",
-            Aov::NormalCamera => "normal_camera",
-        }
+        self.spec().name
     }
 
     /// Whether the AOV is stored as u32 samples (ids), not float32.
     pub fn is_u32(self) -> bool {
-        matches!(self, Aov::ShapeId | Aov::Part)
+        self.spec().sample == aov::SampleType::U32
     }
 
     /// The AOV named `s` (as [`Aov::name`] spells it), or `None`.

@@ -60,8 +60,9 @@
 //! [`Report::type_clashes`] and a note says so.
 
 use crate::output::aov::{AovImage, ChannelData};
-use crate::scene::Scene;
+use crate::scene::aov::CompareMetric;
 use crate::scene::camera::Camera;
+use crate::scene::{Aov, Scene};
 use anyhow::{Result, bail};
 use glam::DVec3;
 use image::{Rgb, RgbImage};
@@ -395,7 +396,7 @@ enum Class {
 
 /// Whether `name` is an id channel (compared as ids whatever its sample type).
 fn is_id_channel(name: &str) -> bool {
-    name == "shape_id" || name == "part"
+    Aov::of_channel(name).is_some_and(|a| a.spec().metric == CompareMetric::Identity)
 }
 
 /// An id channel as u32 labels, from a u32 or a float32 channel.
@@ -1190,7 +1191,7 @@ pub fn heatmap(
     let depth = has("depth")
         .then(|| Some((a.f32_channel("depth")?, b.f32_channel("depth")?)))
         .flatten();
-    let normal = has("normal.X")
+    let normal = has(Aov::Normal.spec().channels[0])
         .then(|| Some((a.vec3_channel("normal")?, b.vec3_channel("normal")?)))
         .flatten();
     let cond = cond.filter(|c| (c.width, c.height) == (w, h));

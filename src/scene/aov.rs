@@ -1,0 +1,277 @@
+//! The AOV table: everything cylaov knows about each AOV in one place, so that the EXR
+//! writer, the header and camera JSON, the per-AOV layout, the Mitsuba reference, the
+//! comparison and the README's AOV table all read it instead of spelling names by string.
+//!
+//! Adding an AOV means one [`Aov`] variant, one row of [`AOV_TABLE`], its computation in
+//! the tracer and its test.
+
+use super::Aov;
+
+/// How an AOV's samples are stored in the layered EXR and handed to Python.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SampleType {
+    /// float32 samples.
+    F32,
+    /// u32 samples (ids).
+    U32,
+}
+
+impl SampleType {
+    /// The short name the README's AOV table and `cylaov aovs` print.
+    pub fn name(self) -> &'static str {
+        match self {
+            SampleType::F32 => "f32",
+            SampleType::U32 => "u32",
+        }
+    }
+}
+
+/// What `compare` (and so `verify`) judges an AOV by.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CompareMetric {
+    /// Relative error `|a − b| / max(|a|, |b|)` per pixel (the `--rel` tolerance).
+    Relative,
+    /// Angle between the two unit vectors, in degrees (the `--normal-deg` tolerance).
+    AngleDeg,
+    /// Euclidean distance between the two points, absolute and relative to `distance`.
+    PointDistance,
+    /// Pixel identity: equal labels or a classified mismatch (silhouette, seam, interior).
+    Identity,
+    /// Not compared (it follows from another AOV that is).
+    None,
+}
+
+impl CompareMetric {
+    /// What `cylaov aovs` prints for the metric.
+    pub fn describe(self) -> &'static str {
+        match self {
+            CompareMetric::Relative => "relative error",
+            CompareMetric::AngleDeg => "angle (degrees)",
+            CompareMetric::PointDistance => "point distance, relative to `distance`",
+            CompareMetric::Identity => "pixel identity",
+            CompareMetric::None => "not compared",
+        }
+    }
+}
+
+/// One AOV's row of the table.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct AovSpec {
+    /// The AOV this row describes.
+    pub aov: Aov,
+    /// Its name in scene files, on the command line and as a Python key.
+    pub name: &'static str,
+    /// Its channels in the layered EXR, in order (one, or three `NAME.X/Y/Z`).
+    pub channels: &'static [&'static str],
+    /// Its sample type in the layered EXR.
+    pub sample: SampleType,
+    /// Its samples on a miss, as the header and camera JSON write it.
+    pub miss: &'static str,
+    /// What it holds, as the EXR header (`cylaov:channel:NAME`) and camera JSON write it.
+    pub meaning: &'static str,
+    /// The Mitsuba `aov` integrator entry it is taken from in a reference
+    /// (`prefix:mitsuba_aov`), or `None` when the reference derives it from another.
+    pub mitsuba: Option<&'static str>,
+    /// What `compare` judges it by.
+    pub metric: CompareMetric,
+}
+
+impl AovSpec {
+    /// Its channel names in the per-AOV layout (`Y`, or `R, G, B`).
+    pub fn per_aov_channels(&self) -> &'static [&'static str] {
+        match self.channels {
+            [_] => &["Y"],
+            _ => &["R", "G", "B"],
+        }
+    }
+
+    /// The `cylaov:channel:NAME` header text: channels, meaning and miss value.
+    pub fn header_text(&self) -> String {
+        format!(
+            "{}: {}; miss = {}",
+            self.channels.join(", "),
+            self.meaning,
+            self.miss
+        )
+    }
+}
+
+/// Every AOV's row, in [`Aov::ALL`] order (so `AOV_TABLE[aov as usize]` is its row).
+pub const AOV_TABLE: [AovSpec; 7] = [
+    AovSpec {
+        aov: Aov::Distance,
+        name: "distance",
+        channels: &["distance"],
+        sample: SampleType::F32,
+        miss: "0",
+        meaning: "Euclidean distance from the camera origin to the hit, world units",
+        mitsuba: None,
+        metric: CompareMetric::Relative,
+    },
+    AovSpec {
+        aov: Aov::Depth,
+        name: "depth",
+        channels: &["depth"],
+        sample: SampleType::F32,
+        miss: "0",
+        meaning: "planar depth: camera-space z of the hit (distance * cos theta), world units",
+        mitsuba: Some("dd.y:depth"),
+        metric: CompareMetric::Relative,
+    },
+    AovSpec {
+        aov: Aov::Normal,
+        name: "normal",
+        channels: &["normal.X", "normal.Y", "normal.Z"],
+        sample: SampleType::F32,
+        miss: "[0,0,0]",
+        meaning: "world-space unit outward normal, not flipped toward the camera",
+        mitsuba: Some("nn:sh_normal"),
+        metric: CompareMetric::AngleDeg,
+    },
+    AovSpec {
+        aov: Aov::Position,
+        name: "position",
+        channels: &["position.X", "position.Y", "position.Z"],
+        sample: SampleType::F32,
+        miss: "[0,0,0]",
+        meaning: "world-space hit point",
+        mitsuba: Some("pp:position"),
+        metric: CompareMetric::PointDistance,
+    },
+    AovSpec {
+        aov: Aov::ShapeId,
+        name: "shape_id",
+        channels: &["shape_id"],
+        sample: SampleType::U32,
+        miss: "0",
+        meaning: "u32 id of the hit cylinder (scene 'id', default 1-based index)",
+        mitsuba: Some("ii:shape_index"),
+        metric: CompareMetric::Identity,
+    },
+    AovSpec {
+        aov: Aov::Part,
+        name: "part",
+        channels: &["part"],
+        sample: SampleType::U32,
+        miss: "0",
+        meaning: "u32 part of the hit cylinder: 1 side seen from outside, 2 side seen from inside, 3 bottom cap (at p0), 4 top cap (at p1)",
+        mitsuba: None,
+        metric: CompareMetric::Identity,
+    },
+    AovSpec {
+        aov: Aov::NormalCamera,
+        name: "normal_camera",
+        channels: &["normal_camera.X", "normal_camera.Y", "normal_camera.Z"],
+        sample: SampleType::F32,
+        miss: "[0,0,0]",
+        meaning: "camera-space unit outward normal, OpenCV axes (x right, y down, z forward), not flipped toward the camera",
+        mitsuba: None,
+        metric: CompareMetric::None,
+    },
+];
+
+impl Aov {
+    /// This AOV's row of [`AOV_TABLE`].
+    pub fn spec(self) -> &'static AovSpec {
+        &AOV_TABLE[self as usize]
+    }
+
+    /// The AOV whose layered-EXR channels include `channel`, if any.
+    pub fn of_channel(channel: &str) -> Option<Aov> {
+        AOV_TABLE
+            .iter()
+            .find(|s| s.channels.contains(&channel))
+            .map(|s| s.aov)
+    }
+}
+
+/// The Mitsuba `aov` integrator's `aovs` list a reference renders (`prefix:aov`, comma
+/// separated, in table order).
+pub fn mitsuba_aov_list() -> String {
+    AOV_TABLE
+        .iter()
+        .filter_map(|s| s.mitsuba)
+        .collect::<Vec<_>>()
+        .join(",")
+}
+
+/// The README's AOV table (what `cylaov aovs` prints): Markdown, one row per AOV.
+pub fn markdown_table() -> String {
+    let mut s = String::from(
+        "| AOV | EXR channels | per-AOV file (f32) | type | meaning | on a miss | Mitsuba reference | compared by |\n\
+         |---|---|---|---|---|---|---|---|\n",
+    );
+    for a in &AOV_TABLE {
+        let channels = match a.channels {
+            [one] => format!("`{one}`"),
+            [first, ..] => format!("`{}.X/Y/Z`", first.trim_end_matches(".X")),
+            [] => String::new(),
+        };
+        s.push_str(&format!(
+            "| `{}` | {channels} | `{}` | {} | {} | {} | {} | {} |\n",
+            a.name,
+            a.per_aov_channels().join(", "),
+            a.sample.name(),
+            a.meaning,
+            a.miss,
+            a.mitsuba.map_or("derived".to_string(), |m| {
+                format!("`{}`", m.split(':').next_back().unwrap_or(m))
+            }),
+            a.metric.describe(),
+        ));
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The table is indexed by the enum: each row sits at its AOV's position, under the
+    /// name the command line parses, with channels that name no other AOV.
+    #[test]
+    fn rows_follow_the_enum() {
+        for (k, a) in Aov::ALL.into_iter().enumerate() {
+            let s = &AOV_TABLE[k];
+            assert_eq!(s.aov, a);
+            assert_eq!(a as usize, k);
+            assert_eq!(Aov::parse(s.name), Some(a));
+            for c in s.channels {
+                assert_eq!(Aov::of_channel(c), Some(a), "{c}");
+            }
+            assert!(matches!(s.channels.len(), 1 | 3), "{}", s.name);
+        }
+        assert_eq!(Aov::of_channel("Y"), None);
+    }
+
+    /// The header text of the table is the text files have always carried.
+    #[test]
+    fn header_text_is_the_files_text() {
+        assert_eq!(
+            Aov::Normal.spec().header_text(),
+            "normal.X, normal.Y, normal.Z: world-space unit outward normal, not flipped \
+             toward the camera; miss = [0,0,0]"
+        );
+        assert_eq!(
+            Aov::Depth.spec().header_text(),
+            "depth: planar depth: camera-space z of the hit (distance * cos theta), world \
+             units; miss = 0"
+        );
+    }
+
+    /// The Mitsuba export renders exactly the AOVs the table says a reference takes.
+    #[test]
+    fn the_mitsuba_list_is_the_exports() {
+        assert_eq!(mitsuba_aov_list(), crate::output::mitsuba::AOV_LIST);
+    }
+
+    #[test]
+    fn the_markdown_table_has_a_row_per_aov() {
+        let t = markdown_table();
+        assert_eq!(t.lines().count(), 2 + Aov::ALL.len());
+        assert!(t.contains(
+            "| `normal` | `normal.X/Y/Z` | `R, G, B` | f32 | world-space unit outward normal, \
+             not flipped toward the camera | [0,0,0] | `sh_normal` | angle (degrees) |\n"
+        ));
+    }
+}
