@@ -369,7 +369,8 @@ struct VerifyCli {
     #[arg(long, value_name = "DIR")]
     report: Option<PathBuf>,
     /// With a batch's output folder (holding index.json) as input: the scene folder or
-    /// manifest the batch read. The EXR files on disk are checked, not a fresh render.
+    /// manifest the batch read, instead of the one index.json records (scenes moved since).
+    /// The EXR files on disk are checked, not a fresh render.
     #[arg(long, value_name = "DIR")]
     scenes: Option<PathBuf>,
     #[command(flatten)]

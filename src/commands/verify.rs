@@ -70,25 +70,35 @@ struct IndexView {
 /// the file keyed on the file's sha256).
 fn run_written(args: &VerifyArgs) -> Result<VerifyOutcome> {
     let index_path = args.input.join("index.json");
-    let Some(scenes) = &args.scenes else {
-        anyhow::bail!(
-            "{}: a batch's output; give the folder or manifest its scenes came from with --scenes DIR",
-            index_path.display()
-        );
-    };
-    let scene_dir = if scenes.is_file() {
-        scenes.parent().unwrap_or(Path::new(".")).to_path_buf()
-    } else {
-        scenes.clone()
-    };
     #[derive(serde::Deserialize)]
     struct Index {
+        /// The batch's input, absolute (absent in the indexes of older versions).
+        input: Option<PathBuf>,
         views: Vec<IndexView>,
     }
     let text = std::fs::read_to_string(&index_path)
         .map_err(|e| anyhow::anyhow!("{}: {e}", index_path.display()))?;
     let index: Index = serde_json::from_str(&text)
         .map_err(|e| anyhow::anyhow!("{}: {e}", index_path.display()))?;
+    // `--scenes` overrides the recorded input (a dataset whose scenes moved).
+    let scenes = match (&args.scenes, &index.input) {
+        (Some(scenes), _) => scenes.clone(),
+        (None, Some(input)) if input.exists() => input.clone(),
+        (None, Some(input)) => anyhow::bail!(
+            "{}: the batch's input {} is gone; give the folder or manifest its scenes are in now with --scenes DIR",
+            index_path.display(),
+            input.display()
+        ),
+        (None, None) => anyhow::bail!(
+            "{}: a batch's output that does not record its input; give the folder or manifest its scenes came from with --scenes DIR",
+            index_path.display()
+        ),
+    };
+    let scene_dir = if scenes.is_file() {
+        scenes.parent().unwrap_or(Path::new(".")).to_path_buf()
+    } else {
+        scenes
+    };
     let verifier = crate::verify::reference::MitsubaVerifier::find(
         args.tolerances,
         args.precision,
