@@ -214,6 +214,10 @@ struct BatchCli {
     /// Seed of the --verify-fraction choice.
     #[arg(long, default_value_t = 0)]
     verify_seed: u64,
+    /// Write DIR/index.html for the views --verify-fraction checked: the page of
+    /// `cylaov verify --report`.
+    #[arg(long, value_name = "DIR")]
+    report: Option<PathBuf>,
     #[command(flatten, next_help_heading = "Bounds of --verify-fraction")]
     tolerances: TolerancesCli,
     /// Parallelise over views (default) or within one view at a time.
@@ -638,6 +642,7 @@ fn batch(a: BatchCli) -> anyhow::Result<ExitCode> {
         },
         progress: ProgressMode::auto(),
         tolerances: a.tolerances.get(),
+        report: a.report,
     };
     let summary = commands::batch::run(&args)?;
     say(&summary.to_string())?;
