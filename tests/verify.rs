@@ -569,3 +569,28 @@ fn a_sample_off_by_less_than_the_flat_tolerance_is_a_candidate_error() {
         assert_eq!(c.arbitration.disagreeing, base.arbitration.disagreeing);
     }
 }
+
+/// The verification layer stands below the commands: no file of `src/verify` reaches into
+/// `crate::commands` (the wording `compare` and `verify` print lives in `verify::compare`).
+#[test]
+fn verify_does_not_import_the_commands() {
+    let dir = root().join("src/verify");
+    let mut files = vec![dir.clone()];
+    let mut seen = 0;
+    while let Some(p) = files.pop() {
+        if p.is_dir() {
+            for e in std::fs::read_dir(&p).expect("read_dir") {
+                files.push(e.expect("entry").path());
+            }
+        } else if p.extension().is_some_and(|e| e == "rs") {
+            seen += 1;
+            let text = std::fs::read_to_string(&p).expect("read");
+            assert!(
+                !text.contains("crate::commands"),
+                "{} imports crate::commands",
+                p.display()
+            );
+        }
+    }
+    assert!(seen >= 5, "{seen} files under {}", dir.display());
+}

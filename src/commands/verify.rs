@@ -665,7 +665,7 @@ fn table(
             s += &format!("{} accepted: {a}\n", r.name);
         }
     }
-    s += &crate::commands::compare::tolerance_line(&args.tolerances);
+    s += &crate::verify::compare::tolerance_line(&args.tolerances);
     s.push('\n');
     if let Err(why) = mitsuba {
         s += &format!("verify: {why}\n");

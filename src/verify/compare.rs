@@ -1037,6 +1037,26 @@ impl fmt::Display for Report {
     }
 }
 
+/// The tolerance line of a text report.
+pub fn tolerance_line(t: &Tolerances) -> String {
+    format!(
+        "tolerances: silhouette mismatches <= {:.2e}, seam mismatches <= {:.2e}, rel distance <= {:.1e}, rel depth <= {:.1e}, normal <= {} deg",
+        t.max_mismatch_fraction, t.max_seam_fraction, t.rel_distance, t.rel_depth, t.normal_deg
+    )
+}
+
+/// `PASS`, or `FAIL:` and one indented line per broken tolerance.
+pub fn verdict_lines(failures: &[String]) -> String {
+    if failures.is_empty() {
+        return "PASS".into();
+    }
+    let mut s = String::from("FAIL:");
+    for f in failures {
+        s += &format!("\n  {f}");
+    }
+    s
+}
+
 /// Colour for an error `e` in units of its tolerance: log scale from 1e-4 (dark blue)
 /// through 1e-2 (green) to 1 (yellow); above the tolerance, magenta.
 pub fn error_colour(e: f64) -> Rgb<u8> {

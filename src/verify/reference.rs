@@ -179,7 +179,7 @@ impl ViewCheck {
 
     /// `PASS` or `FAIL:` with one indented line per failure, as `compare` prints.
     pub fn verdict_text(&self) -> String {
-        crate::commands::compare::verdict_lines(&self.failures)
+        crate::verify::compare::verdict_lines(&self.failures)
     }
 
     /// The report, tolerances, accepted lines and verdict, as `compare` prints them.
@@ -187,7 +187,7 @@ impl ViewCheck {
         let mut s = format!(
             "{}\n{}\n",
             self.report,
-            crate::commands::compare::tolerance_line(&self.tolerances)
+            crate::verify::compare::tolerance_line(&self.tolerances)
         );
         for line in &self.accepted {
             s += &format!("accepted: {line}\n");
