@@ -342,12 +342,12 @@ pub struct Report {
     /// both hit, under a coarser [`Identity`]): the statistics' population.
     pub same: usize,
     /// Pixels of different cylinders or hit vs miss.
-    pub mismatches: usize,
-    /// Those of `mismatches` next to a cylinder boundary in either image (the kind
+    pub silhouette_mismatches: usize,
+    /// Those of `silhouette_mismatches` next to a cylinder boundary in either image (the kind
     /// that may be allowed).
-    pub mismatches_on_silhouette: usize,
+    pub silhouette_on_boundary: usize,
     /// Silhouette mismatches over all pixels (what `max_mismatch_fraction` bounds).
-    pub mismatch_fraction: f64,
+    pub silhouette_fraction: f64,
     /// Pixels of the same cylinder but another part.
     pub seams: usize,
     /// Those of `seams` next to a (cylinder, part) boundary in either image (the
@@ -357,7 +357,8 @@ pub struct Report {
     pub seam_fraction: f64,
     /// Up to 10 seam mismatches on a part boundary, `[x, y]`.
     pub seam_examples: Vec<[usize; 2]>,
-    /// Mismatches of either kind away from any boundary (always a failure).
+    /// Mismatches of either kind, silhouette and seam, away from any boundary (always a
+    /// failure).
     pub mismatches_interior: usize,
     /// Up to 10 interior mismatches, `[x, y]`.
     pub interior_examples: Vec<[usize; 2]>,
@@ -835,9 +836,9 @@ pub fn compare_with(a: &AovImage, b: &AovImage, cond: Option<&Conditioning>) -> 
         hits_a: c.a.cylinder.iter().filter(|&&l| l != 0).count(),
         hits_b: c.b.cylinder.iter().filter(|&&l| l != 0).count(),
         same: same.len(),
-        mismatches,
-        mismatches_on_silhouette: on_sil,
-        mismatch_fraction: mismatches as f64 / n as f64,
+        silhouette_mismatches: mismatches,
+        silhouette_on_boundary: on_sil,
+        silhouette_fraction: mismatches as f64 / n as f64,
         seams,
         seams_on_boundary: on_seam,
         seam_fraction: seams as f64 / n as f64,
@@ -894,10 +895,10 @@ impl Report {
     /// how much, and where.
     pub fn failures(&self, tol: &Tolerances) -> Vec<String> {
         let mut out = Vec::new();
-        if self.mismatch_fraction > tol.max_mismatch_fraction {
+        if self.silhouette_fraction > tol.max_mismatch_fraction {
             out.push(format!(
                 "silhouette mismatch fraction {:.3e} ({} px) > {:.3e}",
-                self.mismatch_fraction, self.mismatches, tol.max_mismatch_fraction
+                self.silhouette_fraction, self.silhouette_mismatches, tol.max_mismatch_fraction
             ));
         }
         if self.seam_fraction > tol.max_seam_fraction {
@@ -981,8 +982,8 @@ impl fmt::Display for Report {
         writeln!(
             f,
             "mismatches: {} ({:.4}%) silhouette, {} ({:.4}%) seam; {} of them interior",
-            self.mismatches,
-            100.0 * self.mismatch_fraction,
+            self.silhouette_mismatches,
+            100.0 * self.silhouette_fraction,
             self.seams,
             100.0 * self.seam_fraction,
             self.mismatches_interior
@@ -1328,7 +1329,10 @@ mod tests {
         let a = image();
         let r = compare(&a, &a).expect("same size");
         assert_eq!(r.identity, Identity::ShapeIdPart);
-        assert_eq!((r.hits_a, r.hits_b, r.same, r.mismatches), (9, 9, 9, 0));
+        assert_eq!(
+            (r.hits_a, r.hits_b, r.same, r.silhouette_mismatches),
+            (9, 9, 9, 0)
+        );
         let d = &r.rel_distance.as_ref().expect("distance compared").all;
         assert_eq!((d.count, d.median, d.p99, d.max), (9, 0.0, 0.0, 0.0));
         assert_eq!(r.normal_deg.as_ref().expect("normal").all.max, 0.0);
@@ -1399,14 +1403,14 @@ mod tests {
         let r = compare(&a, &b).expect("same size");
         assert_eq!(
             (
-                r.mismatches,
-                r.mismatches_on_silhouette,
+                r.silhouette_mismatches,
+                r.silhouette_on_boundary,
                 r.mismatches_interior
             ),
             (1, 1, 0)
         );
         assert_eq!(r.same, 9);
-        assert!((r.mismatch_fraction - 1.0 / 30.0).abs() < 1e-12);
+        assert!((r.silhouette_fraction - 1.0 / 30.0).abs() < 1e-12);
         // 1 of 30 pixels breaks the 0.05% bound but nothing else.
         let f = r.failures(&Tolerances::default());
         assert_eq!(f.len(), 1, "{f:?}");
@@ -1430,7 +1434,7 @@ mod tests {
         // but in B they differ from it, so by the either-image rule it is a silhouette.
         ids_mut(&mut b)[2 * 6 + 2] = 5;
         let r = compare(&a, &b).expect("same size");
-        assert_eq!((r.mismatches, r.mismatches_on_silhouette), (1, 1));
+        assert_eq!((r.silhouette_mismatches, r.silhouette_on_boundary), (1, 1));
         // A true interior mismatch needs both neighbourhoods uniform: B relabels A's whole
         // 3x3 cylinder, so the centre (2, 2) is 1 in A and 4 in B with no edge in either.
         let a3 = image();
@@ -1441,7 +1445,7 @@ mod tests {
             }
         }
         let r = compare(&a3, &b3).expect("same size");
-        assert_eq!(r.mismatches, 9);
+        assert_eq!(r.silhouette_mismatches, 9);
         assert_eq!(r.mismatches_interior, 1);
         assert_eq!(r.interior_examples, vec![[2, 2]]);
         assert!(!r.passes(&Tolerances::default()));
@@ -1482,7 +1486,7 @@ mod tests {
             (
                 r.seams,
                 r.seams_on_boundary,
-                r.mismatches,
+                r.silhouette_mismatches,
                 r.mismatches_interior
             ),
             (1, 1, 0, 0)
@@ -1526,7 +1530,10 @@ mod tests {
             }
         }
         let r = compare(&a, &b).expect("same size");
-        assert_eq!((r.seams, r.seams_on_boundary, r.mismatches), (9, 8, 0));
+        assert_eq!(
+            (r.seams, r.seams_on_boundary, r.silhouette_mismatches),
+            (9, 8, 0)
+        );
         assert_eq!(r.mismatches_interior, 1);
         assert_eq!(r.interior_examples, vec![[2, 2]]);
         let loose = Tolerances {
@@ -1615,7 +1622,7 @@ mod tests {
         });
         let r = compare(&a, &b).expect("float ids");
         assert_eq!(
-            (r.identity, r.same, r.mismatches),
+            (r.identity, r.same, r.silhouette_mismatches),
             (Identity::ShapeIdPart, 9, 0)
         );
         // u32 against float32 shape_id is the Mitsuba reference case: compared, as ids.
@@ -1636,7 +1643,10 @@ mod tests {
             }
         }
         let r2 = compare(&a, &b2).expect("float ids");
-        assert_eq!((r2.same, r2.mismatches, r2.mismatches_interior), (0, 9, 1));
+        assert_eq!(
+            (r2.same, r2.silhouette_mismatches, r2.mismatches_interior),
+            (0, 9, 1)
+        );
         // A fractional id is an error naming the pixel.
         if let Some(ChannelData::F32(v)) = b
             .channels
@@ -1654,7 +1664,7 @@ mod tests {
             .retain(|c| c.name != "shape_id" && c.name != "part");
         let r = compare(&a, &c).expect("fallback");
         assert_eq!(r.identity, Identity::HitMiss);
-        assert_eq!((r.same, r.mismatches), (9, 0));
+        assert_eq!((r.same, r.silhouette_mismatches), (9, 0));
         assert!(r.notes[0].starts_with("B lacks shape_id"));
         assert_eq!(
             r.only_in_a,

@@ -252,7 +252,7 @@ pub fn summary_line(r: &Report) -> String {
     let max = |m: &Option<crate::verify::compare::Metric>| m.as_ref().map_or(0.0, |m| m.all.max);
     format!(
         "silhouette {} px, seam {} px, rel distance max {:.2e}, rel depth max {:.2e}, normal max {:.3}°",
-        r.mismatches,
+        r.silhouette_mismatches,
         r.seams,
         max(&r.rel_distance),
         max(&r.rel_depth),
@@ -520,7 +520,7 @@ impl MitsubaVerifier {
             exr_sha256: sha,
             script: key.1,
             passed: check.passed(),
-            silhouette_px: check.report.mismatches,
+            silhouette_px: check.report.silhouette_mismatches,
             seam_px: check.report.seams,
             summary: summary.clone(),
             report: if check.passed() {
