@@ -63,8 +63,8 @@ def compare(cylaov, scene, precision, work):
 
 def mismatches(r):
     parts = []
-    if r["mismatches"]:
-        parts.append(f"{r['mismatches']} on silhouettes")
+    if r["silhouette_mismatches"]:
+        parts.append(f"{r['silhouette_mismatches']} on silhouettes")
     if r["seams"]:
         parts.append(f"{r['seams']} seam pixel{'s' if r['seams'] > 1 else ''}")
     return ", ".join(parts) or "0"

@@ -219,6 +219,10 @@ struct BatchCli {
     /// Seed of the --verify-fraction choice.
     #[arg(long, default_value_t = 0)]
     verify_seed: u64,
+    /// Write DIR/index.html for the views --verify-fraction checked: the page of
+    /// `cylaov verify --report`.
+    #[arg(long, value_name = "DIR")]
+    report: Option<PathBuf>,
     #[command(flatten, next_help_heading = "Bounds of --verify-fraction")]
     tolerances: TolerancesCli,
     /// Parallelise over views (default) or within one view at a time.
@@ -374,7 +378,8 @@ struct VerifyCli {
     #[arg(long, value_name = "DIR")]
     report: Option<PathBuf>,
     /// With a batch's output folder (holding index.json) as input: the scene folder or
-    /// manifest the batch read. The EXR files on disk are checked, not a fresh render.
+    /// manifest the batch read, instead of the one index.json records (scenes moved since).
+    /// The EXR files on disk are checked, not a fresh render.
     #[arg(long, value_name = "DIR")]
     scenes: Option<PathBuf>,
     #[command(flatten)]
@@ -642,6 +647,7 @@ fn batch(a: BatchCli) -> anyhow::Result<ExitCode> {
         },
         progress: ProgressMode::auto(),
         tolerances: a.tolerances.get(),
+        report: a.report,
     };
     let summary = commands::batch::run(&args)?;
     say(&summary.to_string())?;

@@ -60,7 +60,6 @@ fn output_never_imports_accel() {
 }
 
 #[test]
-#[ignore = "verify still calls commands::compare; un-ignore once verify no longer does"]
 fn verify_never_imports_commands() {
     let hits = uses("verify", "commands");
     assert!(

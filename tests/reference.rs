@@ -177,7 +177,7 @@ fn check(stem: &str, precision: Precision, reference: &AovImage) -> Vec<String> 
     println!(
         "{tag}: same {} mismatches {} seams {} | rel distance max {:.2e} p99 {:.2e} | rel depth max {:.2e} | normal max {:.4}° p99 {:.4}°",
         r.same,
-        r.mismatches,
+        r.silhouette_mismatches,
         r.seams,
         max(&r.rel_distance),
         p99(&r.rel_distance),

@@ -126,3 +126,105 @@ fn the_report_page_is_self_contained_and_loads() {
         "the screenshot is nearly blank: {differing} pixels differ"
     );
 }
+
+/// `batch --verify-fraction 1 --report DIR` writes the page of `verify --report` for the
+/// views it checked (one row and three pictures beside the page per view, the classified
+/// pixels), and so does `verify OUT --report DIR` of its written files; `--report` without
+/// `--verify-fraction` is refused naming both flags, before anything is rendered.
+#[test]
+fn batch_and_written_files_write_the_same_page() {
+    let tmp = common::fresh_dir("report", "batch");
+    let scenes = tmp.path().join("scenes");
+    std::fs::create_dir_all(&scenes).expect("dir");
+    for stem in ["single", "mixed_caps"] {
+        std::fs::copy(
+            root().join(format!("scenes/{stem}.json")),
+            scenes.join(format!("{stem}.json")),
+        )
+        .expect("copy");
+    }
+    let out = tmp.path().join("render");
+    let page_dir = tmp.path().join("page");
+    let cylaov = |args: &[&str], venv: Option<&Path>| {
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_cylaov"));
+        cmd.args(args);
+        if let Some(v) = venv {
+            cmd.env("CYLAOV_VENV", v);
+        }
+        cmd.output().expect("running cylaov")
+    };
+    let o = cylaov(
+        &[
+            "batch",
+            s(&scenes),
+            "--out",
+            s(&out),
+            "--report",
+            s(&page_dir),
+        ],
+        None,
+    );
+    assert_ne!(o.status.code(), Some(0));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("--report") && err.contains("goes with --verify-fraction"),
+        "{err}"
+    );
+    assert!(!out.exists() && !page_dir.exists(), "nothing written");
+
+    let Some(py) = venv_python() else { return };
+    let venv = py.parent().and_then(Path::parent).expect("venv dir");
+    let check_page = |dir: &Path| {
+        let page = std::fs::read_to_string(dir.join("index.html")).expect("index.html");
+        assert_eq!(page.matches("<tr class=\"view\">").count(), 2, "{page}");
+        for name in ["single", "mixed_caps"] {
+            assert!(page.contains(&format!(">{name}</a>")), "{name}: {page}");
+        }
+        let images: Vec<&str> = page
+            .split("src=\"")
+            .skip(1)
+            .filter_map(|rest| rest.split('"').next())
+            .collect();
+        assert_eq!(images.len(), 6, "{images:?}");
+        for img in &images {
+            assert!(dir.join(img).is_file(), "{img}");
+        }
+        page
+    };
+    let o = cylaov(
+        &[
+            "batch",
+            s(&scenes),
+            "--out",
+            s(&out),
+            "--no-png",
+            "--verify-fraction",
+            "1",
+            "--report",
+            s(&page_dir),
+        ],
+        Some(venv),
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let from_batch = check_page(&page_dir);
+    let written_dir = tmp.path().join("page-written");
+    let o = cylaov(
+        &["verify", s(&out), "--report", s(&written_dir)],
+        Some(venv),
+    );
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stdout)
+    );
+    let from_verify = check_page(&written_dir);
+    // The same rows: the table is the same check's.
+    let rows = |page: &str| -> Vec<String> {
+        page.split("<tr class=\"view\">")
+            .skip(1)
+            .map(|r| r.split("</tr>").next().unwrap_or("").to_string())
+            .collect()
+    };
+    assert_eq!(rows(&from_batch), rows(&from_verify));
+}

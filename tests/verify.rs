@@ -523,3 +523,49 @@ fn part_is_what_the_camera_sees() {
         assert_eq!(differ, 0, "{stem}");
     }
 }
+
+/// Every hit pixel of the candidate is judged against the exact answer, not only where
+/// Mitsuba disagrees: one sample off by less than the flat tolerances (depth × (1 + 1e-6),
+/// under 3e-5; a position or a camera-frame normal, which the flat tolerances do not bound)
+/// is a candidate error at that pixel, while Mitsuba agrees there.
+#[test]
+fn a_sample_off_by_less_than_the_flat_tolerance_is_a_candidate_error() {
+    let (scene, reference) = load("mixed_caps");
+    let img = ours(&scene);
+    let base = check(&scene, &img, &reference);
+    assert!(base.passed(), "{}", base.text());
+    let ids = img.u32_channel("shape_id").expect("ids");
+    let hits: Vec<usize> = (0..ids.len()).filter(|&k| ids[k] != 0).collect();
+    assert_eq!(base.arbitration.checked, hits.len());
+    let k = hits[hits.len() / 2];
+    let at = [k % img.width, k / img.width];
+    for (channel, factor, kind) in [
+        ("depth", 1.0 + 1e-6, "depth"),
+        ("position.X", 1.0 + 1e-5, "position"),
+        ("normal_camera.Y", 1.0 + 1e-4, "normal_camera"),
+    ] {
+        let mut bad = img.clone();
+        let v = &mut f32_mut(&mut bad, channel)[k];
+        *v = (f64::from(*v) * factor) as f32;
+        let c = check(&scene, &bad, &reference);
+        assert!(!c.passed(), "{channel}: {}", c.text());
+        assert_eq!(c.arbitration.candidate_errors, 1, "{channel}: {}", c.text());
+        let p = c
+            .arbitration
+            .of(PixelClass::CandidateError)
+            .next()
+            .expect("the pixel");
+        assert_eq!(p.at, at, "{channel}");
+        assert!(
+            !p.disagrees,
+            "{channel}: Mitsuba agrees within the flat tolerances"
+        );
+        assert!(
+            c.failures[0].contains(&format!("({kind} 1)"))
+                && c.failures[0].contains(&format!("at [{}, {}]", at[0], at[1])),
+            "{channel}: {:?}",
+            c.failures
+        );
+        assert_eq!(c.arbitration.disagreeing, base.arbitration.disagreeing);
+    }
+}

@@ -497,10 +497,11 @@ fn verify_a_candidate_file() {
     );
 }
 
-/// `verify OUT --scenes DIR` of a batch's output checks the EXR files on disk: a written
-/// file passes, the same file with one depth sample × (1 + 1e-4) fails naming the view and
-/// the pixel (its kept verdict is the unchanged file's), and without `--scenes` it says
-/// what to add.
+/// `verify OUT` of a batch's output checks the EXR files on disk, its scenes found from the
+/// input `index.json` records: a written file passes, the same file with one depth sample
+/// × (1 + 1e-6) (under the flat tolerance) fails naming the view and the pixel (its kept
+/// verdict is the unchanged file's), `--json` gives that pixel's class; with the scenes
+/// moved it says to give `--scenes`, which then finds them.
 #[test]
 fn verify_checks_the_files_a_batch_wrote() {
     use cylaov::output::aov::{AovImage, ChannelData, Compression};
@@ -524,7 +525,11 @@ fn verify_checks_the_files_a_batch_wrote() {
         ],
     );
     assert!(o.status.success(), "{}", text(&o));
-    let verify = || cylaov(&py, &["verify", s(&out), "--scenes", s(&scenes)]);
+    let index: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("index.json")).expect("index"))
+            .expect("json");
+    assert_eq!(index["input"], s(&scenes), "the input, absolute");
+    let verify = || cylaov(&py, &["verify", s(&out)]);
     let o = verify();
     assert_eq!(o.status.code(), Some(0), "{}", text(&o));
     let table = String::from_utf8_lossy(&o.stdout).to_string();
@@ -546,7 +551,7 @@ fn verify_checks_the_files_a_batch_wrote() {
         ChannelData::F32(v) => {
             let hits: Vec<usize> = (0..v.len()).filter(|&k| v[k] > 0.0).collect();
             let k = hits[hits.len() / 2];
-            v[k] *= 1.0 + 1e-4;
+            v[k] *= 1.0 + 1e-6;
             k
         }
         ChannelData::U32(_) => panic!("depth is u32"),
@@ -559,7 +564,41 @@ fn verify_checks_the_files_a_batch_wrote() {
     let at = format!("at [{}, {}]", k % w, k / w);
     assert!(table.contains(&format!("depth {at}")), "{table}");
     assert!(table.contains("candidate error: 1 px"), "{table}");
-    let o = cylaov(&py, &["verify", s(&out)]);
+    let o = cylaov(&py, &["verify", s(&out), "--json"]);
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+    let a = &v["views"][0]["arbitration"];
+    assert_eq!(a["candidate_errors"], 1, "{a}");
+    let p = a["pixels"]
+        .as_array()
+        .expect("pixels")
+        .iter()
+        .find(|p| p["class"] == "candidate_error")
+        .expect("the pixel");
+    assert_eq!(p["at"], serde_json::json!([k % w, k / w]));
+    assert_eq!(p["kind"], "depth");
+    assert_eq!(
+        p["disagrees"], false,
+        "Mitsuba agrees within the flat tolerance"
+    );
+    // The scenes moved: the recorded input is gone, `--scenes` says where they are now.
+    let moved = dir.join("moved");
+    std::fs::rename(&scenes, &moved).expect("move");
+    let o = verify();
     assert_eq!(o.status.code(), Some(2), "{}", text(&o));
-    assert!(text(&o).contains("index.json: a batch's output; give the folder or manifest its scenes came from with --scenes DIR"), "{}", text(&o));
+    assert!(
+        text(&o).contains(&format!(
+            "index.json: the batch's input {} is gone; give the folder or manifest its scenes are in now with --scenes DIR",
+            scenes.display()
+        )),
+        "{}",
+        text(&o)
+    );
+    let o = cylaov(&py, &["verify", s(&out), "--scenes", s(&moved)]);
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o));
+    assert!(
+        String::from_utf8_lossy(&o.stdout).contains(&format!("depth {at}")),
+        "{}",
+        text(&o)
+    );
 }

@@ -25,6 +25,8 @@ pub struct BatchArgs {
     pub progress: ProgressMode,
     /// Bounds of `--verify-fraction`'s check.
     pub tolerances: crate::verify::compare::Tolerances,
+    /// `--report DIR`: the page of `verify --report` for the views checked.
+    pub report: Option<PathBuf>,
 }
 
 /// Run the batch; the summary says what happened (failed views are not an `Err`).
@@ -34,7 +36,19 @@ pub fn run(args: &BatchArgs) -> Result<Summary> {
         .map_err(anyhow::Error::msg)?;
     // Bad values are refused before any advice about them is printed.
     args.options.validate().map_err(anyhow::Error::msg)?;
-    let verifier = verifier(args)?;
+    if let Some(dir) = &args.report {
+        if args.options.verify_fraction <= 0.0 {
+            anyhow::bail!(
+                "--report {}: goes with --verify-fraction F (F > 0), the views it shows",
+                dir.display()
+            );
+        }
+        crate::output::io::check_output_dir("--report", dir)?;
+    }
+    let mut verifier = verifier(args)?;
+    if let Some(v) = verifier.as_mut().filter(|_| args.report.is_some()) {
+        v.keep = Some(std::sync::Mutex::new(Vec::new()));
+    }
     if args.options.png && args.options.depth_scale != NERFSTUDIO_DEPTH_SCALE {
         crate::output::io::warn(&format!(
             "warning: --depth-scale {}: nerfstudio reads depth PNGs at {NERFSTUDIO_DEPTH_SCALE} \
@@ -45,14 +59,19 @@ pub fn run(args: &BatchArgs) -> Result<Summary> {
             1.0 / args.options.depth_scale
         ));
     }
-    batch::run(
+    let summary = batch::run(
         &args.input,
         &args.out,
         shard,
         &args.options,
         args.progress,
         verifier.as_ref().map(|v| v as &dyn batch::Verifier),
-    )
+    )?;
+    if let (Some(dir), Some(kept)) = (&args.report, verifier.and_then(|v| v.keep)) {
+        let kept = kept.into_inner().unwrap_or_else(|e| e.into_inner());
+        crate::commands::verify::batch_report(dir, &args.out.display().to_string(), kept)?;
+    }
+    Ok(summary)
 }
 
 /// The Mitsuba verifier for `--verify-fraction`, if asked for and the reference venv exists

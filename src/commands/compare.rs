@@ -6,7 +6,9 @@ use crate::mem::check_memory;
 use crate::output::aov::AovImage;
 use crate::output::io::check_outputs;
 use crate::output::preview::write_png;
-use crate::verify::compare::{Conditioning, Report, Tolerances, compare_with, heatmap_figure};
+use crate::verify::compare::{
+    Conditioning, Report, Tolerances, compare_with, heatmap_figure, tolerance_line, verdict_lines,
+};
 use anyhow::{Context, Result, bail};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -77,26 +79,6 @@ fn header_size(path: &Path) -> Result<(u64, u64)> {
 pub fn memory_needed(a: (u64, u64), b: (u64, u64), scene: bool) -> u64 {
     let per_pixel = 32 + 9 + 32 + if scene { 32 } else { 0 };
     4 * (a.0 * a.1 + b.0 * b.1) + per_pixel * a.0.max(b.0) + (2 << 20)
-}
-
-/// The tolerance line of a text report.
-pub fn tolerance_line(t: &Tolerances) -> String {
-    format!(
-        "tolerances: silhouette mismatches <= {:.2e}, seam mismatches <= {:.2e}, rel distance <= {:.1e}, rel depth <= {:.1e}, normal <= {} deg",
-        t.max_mismatch_fraction, t.max_seam_fraction, t.rel_distance, t.rel_depth, t.normal_deg
-    )
-}
-
-/// `PASS`, or `FAIL:` and one indented line per broken tolerance.
-pub fn verdict_lines(failures: &[String]) -> String {
-    if failures.is_empty() {
-        return "PASS".into();
-    }
-    let mut s = String::from("FAIL:");
-    for f in failures {
-        s += &format!("\n  {f}");
-    }
-    s
 }
 
 /// Read both images, compare, write the heatmap if asked, and format the result.

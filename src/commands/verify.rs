@@ -70,31 +70,46 @@ struct IndexView {
 /// the file keyed on the file's sha256).
 fn run_written(args: &VerifyArgs) -> Result<VerifyOutcome> {
     let index_path = args.input.join("index.json");
-    let Some(scenes) = &args.scenes else {
-        anyhow::bail!(
-            "{}: a batch's output; give the folder or manifest its scenes came from with --scenes DIR",
-            index_path.display()
-        );
-    };
-    let scene_dir = if scenes.is_file() {
-        scenes.parent().unwrap_or(Path::new(".")).to_path_buf()
-    } else {
-        scenes.clone()
-    };
     #[derive(serde::Deserialize)]
     struct Index {
+        /// The batch's input, absolute (absent in the indexes of older versions).
+        input: Option<PathBuf>,
         views: Vec<IndexView>,
     }
     let text = std::fs::read_to_string(&index_path)
         .map_err(|e| anyhow::anyhow!("{}: {e}", index_path.display()))?;
     let index: Index = serde_json::from_str(&text)
         .map_err(|e| anyhow::anyhow!("{}: {e}", index_path.display()))?;
+    // `--scenes` overrides the recorded input (a dataset whose scenes moved).
+    let scenes = match (&args.scenes, &index.input) {
+        (Some(scenes), _) => scenes.clone(),
+        (None, Some(input)) if input.exists() => input.clone(),
+        (None, Some(input)) => anyhow::bail!(
+            "{}: the batch's input {} is gone; give the folder or manifest its scenes are in now with --scenes DIR",
+            index_path.display(),
+            input.display()
+        ),
+        (None, None) => anyhow::bail!(
+            "{}: a batch's output that does not record its input; give the folder or manifest its scenes came from with --scenes DIR",
+            index_path.display()
+        ),
+    };
+    let scene_dir = if scenes.is_file() {
+        scenes.parent().unwrap_or(Path::new(".")).to_path_buf()
+    } else {
+        scenes
+    };
     let verifier = crate::verify::reference::MitsubaVerifier::find(
         args.tolerances,
         args.precision,
         args.formula,
     )
     .map(|v| crate::verify::reference::MitsubaVerifier { log: false, ..v });
+    // The pixels' classes (JSON) and the pictures (the page) need a fresh check: a cached
+    // verdict has neither.
+    let pictures = args.report.is_some();
+    let fresh = args.json || pictures;
+    let mut images: Vec<Option<Images>> = Vec::new();
     if let Err(why) = &verifier {
         crate::output::io::warn(&format!("verify: {why}"));
     }
@@ -117,7 +132,7 @@ fn run_written(args: &VerifyArgs) -> Result<VerifyOutcome> {
             continue;
         }
         let exr = args.input.join(&v.exr_file_path);
-        let outcome = (|| -> Result<crate::dataset::batch::Verdict> {
+        let outcome = (|| -> Result<crate::verify::reference::Checked> {
             let verifier = verifier.as_ref().map_err(|why| anyhow::anyhow!("{why}"))?;
             let mut scene = crate::scene::load(&view.path)
                 .map_err(|e| anyhow::anyhow!("{}: {e}", view.path.display()))?;
@@ -125,23 +140,28 @@ fn run_written(args: &VerifyArgs) -> Result<VerifyOutcome> {
                 .select_camera(view.camera)
                 .map_err(|e| anyhow::anyhow!("{}: {e}", view.path.display()))?;
             let work = work_dir(k)?;
-            use crate::dataset::batch::Verifier;
-            verifier.check(&view, &scene, &exr, work.path())
+            verifier.check_file(&view, &scene, &exr, work.path(), fresh, pictures)
         })();
-        let (status, failures, accepted) = match outcome {
-            Ok(v) if v.passes => (Status::Pass, Vec::new(), vec![v.report]),
-            Ok(v) => (Status::Fail, vec![v.report], Vec::new()),
-            Err(e) => (Status::Unchecked, vec![format!("{e:#}")], Vec::new()),
+        let (result, pics) = match outcome {
+            Ok(c) => checked_result(c),
+            Err(e) => (
+                ViewResult {
+                    name: view.id(),
+                    scene: view.path.display().to_string(),
+                    status: Status::Unchecked,
+                    failures: vec![format!("{e:#}")],
+                    accepted: Vec::new(),
+                    report: None,
+                    arbitration: None,
+                },
+                None,
+            ),
         };
-        results.push(ViewResult {
-            name: view.id(),
-            scene: view.path.display().to_string(),
-            status,
-            failures,
-            accepted,
-            report: None,
-            arbitration: None,
-        });
+        results.push(result);
+        images.push(pics);
+    }
+    if let Some(dir) = &args.report {
+        write_page(dir, &args.input.display().to_string(), &results, &images)?;
     }
     outcome(args, results, |results, (passed, failed, unchecked)| {
         let mut s = format!("{:<24} {:<9} result\n", "view", "verdict");
@@ -473,28 +493,79 @@ pub fn run(args: &VerifyArgs) -> Result<VerifyOutcome> {
         progress("");
     }
     if let Some(dir) = &args.report {
-        let views: Vec<ReportView> = results
-            .iter()
-            .zip(&pictures)
-            .map(|(r, p)| ReportView {
-                name: &r.name,
-                verdict: verdict_word(r.status),
-                summary: row(r),
-                worst: r
-                    .report
-                    .as_ref()
-                    .and_then(|rep| rep.rel_distance.as_ref())
-                    .map_or(0.0, |m| m.all.max),
-                arbitration: r.arbitration.as_ref(),
-                lines: r.failures.iter().chain(&r.accepted).cloned().collect(),
-                images: p.as_ref().map(|(a, b, h)| (a, b, h)),
-            })
-            .collect();
-        write_report(dir, &args.input.display().to_string(), &views)?;
+        write_page(dir, &args.input.display().to_string(), &results, &pictures)?;
     }
     outcome(args, results, |results, counts| {
         table(args, &all, results, counts, &mitsuba)
     })
+}
+
+/// A view checked by the batch verifier as a row, with its pictures: a verdict read from the
+/// cache has its line and no pixels.
+fn checked_result(c: crate::verify::reference::Checked) -> (ViewResult, Option<Images>) {
+    let v = &c.verdict;
+    let status = if v.passes { Status::Pass } else { Status::Fail };
+    let (failures, accepted) = match &c.check {
+        // The file's failures: the first differing sample, then the exact answer's classes.
+        Some(check) if !v.passes => (vec![v.report.clone()], check.accepted.clone()),
+        Some(check) => (Vec::new(), check.accepted.clone()),
+        None if v.passes => (Vec::new(), vec![v.report.clone()]),
+        None => (vec![v.report.clone()], Vec::new()),
+    };
+    let (report, arbitration) = c
+        .check
+        .map(|check| (check.report, check.arbitration))
+        .unzip();
+    let result = ViewResult {
+        name: c.name,
+        scene: c.scene,
+        status,
+        failures,
+        accepted,
+        report,
+        arbitration,
+    };
+    (result, c.images)
+}
+
+/// `DIR/index.html` of checked views and their pictures, titled `title`.
+fn write_page(
+    dir: &Path,
+    title: &str,
+    results: &[ViewResult],
+    pictures: &[Option<Images>],
+) -> Result<()> {
+    let views: Vec<ReportView> = results
+        .iter()
+        .zip(pictures)
+        .map(|(r, p)| ReportView {
+            name: &r.name,
+            verdict: verdict_word(r.status),
+            summary: row(r),
+            worst: r
+                .report
+                .as_ref()
+                .and_then(|rep| rep.rel_distance.as_ref())
+                .map_or(0.0, |m| m.all.max),
+            arbitration: r.arbitration.as_ref(),
+            lines: r.failures.iter().chain(&r.accepted).cloned().collect(),
+            images: p.as_ref().map(|(a, b, h)| (a, b, h)),
+        })
+        .collect();
+    write_report(dir, title, &views)
+}
+
+/// `batch --verify-fraction F --report DIR`: the page of `verify --report` for the views the
+/// batch checked (kept by its verifier), sorted by view id.
+pub fn batch_report(
+    dir: &Path,
+    title: &str,
+    mut checked: Vec<crate::verify::reference::Checked>,
+) -> Result<()> {
+    checked.sort_by(|a, b| a.name.cmp(&b.name));
+    let (results, pictures): (Vec<ViewResult>, Vec<Option<Images>>) =
+        checked.into_iter().map(checked_result).unzip();
+    write_page(dir, title, &results, &pictures)
 }
 
 /// The exit status and the printed text (JSON, or the table `table` makes from the views and
@@ -594,7 +665,7 @@ fn table(
             s += &format!("{} accepted: {a}\n", r.name);
         }
     }
-    s += &crate::commands::compare::tolerance_line(&args.tolerances);
+    s += &crate::verify::compare::tolerance_line(&args.tolerances);
     s.push('\n');
     if let Err(why) = mitsuba {
         s += &format!("verify: {why}\n");

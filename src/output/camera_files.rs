@@ -62,7 +62,6 @@ struct CameraMeta {
     aovs: Vec<AovMeaning>,
 }
 
-
 /// Pretty JSON of one of cylaov's own records (camera metadata, stamps, indexes). They are
 /// structs of numbers, strings and lists with string keys, which serde_json always serialises
 /// (it fails only on non-string map keys or a failing custom `Serialize`), so a failure is a

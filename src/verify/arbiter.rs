@@ -45,6 +45,7 @@ use crate::verify::oracle::{DD, intersect};
 use crate::verify::oracle::{DV3, Problem};
 use anyhow::{Result, bail};
 use glam::DVec3;
+use rayon::prelude::*;
 use serde::Serialize;
 use std::fmt;
 
@@ -146,6 +147,12 @@ pub enum Kind {
     Depth,
     /// Normal angle beyond the flat bound.
     Normal,
+    /// Hit position off the exact answer beyond the candidate's bound (judged against the
+    /// exact answer only: the flat tolerances have no position bound).
+    Position,
+    /// Camera-frame normal off the exact answer beyond the candidate's bound (judged
+    /// against the exact answer only).
+    NormalCamera,
     /// A non-finite sample.
     NonFinite,
 }
@@ -163,6 +170,11 @@ pub struct Sample {
     pub depth: Option<f64>,
     /// World-space outward normal.
     pub normal: Option<[f64; 3]>,
+    /// World-space hit position (the candidate's and the exact answer's; Mitsuba's is not
+    /// judged).
+    pub position: Option<[f64; 3]>,
+    /// Camera-frame (OpenCV axes) normal (the candidate's and the exact answer's).
+    pub normal_camera: Option<[f64; 3]>,
 }
 
 impl fmt::Display for Sample {
@@ -188,6 +200,15 @@ impl fmt::Display for Sample {
         if let Some(n) = self.normal {
             parts.push(format!("normal [{:.6}, {:.6}, {:.6}]", n[0], n[1], n[2]));
         }
+        if let Some(p) = self.position {
+            parts.push(format!("position [{:.9}, {:.9}, {:.9}]", p[0], p[1], p[2]));
+        }
+        if let Some(n) = self.normal_camera {
+            parts.push(format!(
+                "normal_camera [{:.6}, {:.6}, {:.6}]",
+                n[0], n[1], n[2]
+            ));
+        }
         write!(f, "{}", parts.join(" "))
     }
 }
@@ -199,8 +220,12 @@ pub struct Pixel {
     pub at: [usize; 2],
     /// Who is wrong.
     pub class: PixelClass,
-    /// What disagreed.
+    /// What disagreed (where Mitsuba agrees: what of the candidate is off the exact answer
+    /// most).
     pub kind: Kind,
+    /// Whether candidate and Mitsuba disagree here; `false`: Mitsuba agrees within the flat
+    /// tolerances and the candidate is off the exact answer beyond its bound.
+    pub disagrees: bool,
     /// The checked file's answer.
     pub candidate: Sample,
     /// Mitsuba's answer.
@@ -225,6 +250,10 @@ pub struct Arbitration {
     pub reference_bound: Bound,
     /// Pixels where candidate and Mitsuba disagree (every one is classified below).
     pub disagreeing: usize,
+    /// The candidate's hit pixels, every one judged against the exact answer with the
+    /// candidate's bound (a pixel off it is a candidate error even where Mitsuba agrees
+    /// within the flat tolerances).
+    pub checked: usize,
     /// Pixels of each class.
     pub reference_errors: usize,
     /// See [`PixelClass::UnexplainedReferenceError`].
@@ -266,6 +295,8 @@ impl Arbitration {
             (Kind::Distance, "distance"),
             (Kind::Depth, "depth"),
             (Kind::Normal, "normal"),
+            (Kind::Position, "position"),
+            (Kind::NormalCamera, "normal_camera"),
             (Kind::NonFinite, "non-finite"),
         ] {
             let n = self.of(class).filter(|p| p.kind == kind).count();
@@ -360,7 +391,9 @@ impl Arbitration {
         .replace("(Seam)", "(seam)")
         .replace("(Distance)", "(distance)")
         .replace("(Depth)", "(depth)")
+        .replace("(NormalCamera)", "(normal_camera)")
         .replace("(Normal)", "(normal)")
+        .replace("(Position)", "(position)")
         .replace("(NonFinite)", "(non-finite)")
     }
 }
@@ -373,6 +406,8 @@ struct Exact {
     t: f64,
     depth: f64,
     normal: DVec3,
+    /// The hit point `o + t·d`, evaluated in double-double and rounded once.
+    position: DVec3,
     /// |cos| of the incidence angle.
     cos: f64,
 }
@@ -437,12 +472,14 @@ impl Tracer<'_> {
         };
         let t = h.t.to_f64();
         let depth = (h.t * DV3::from_f64(d).dot(DV3::from_f64(self.cam.forward))).to_f64();
+        let position = (DV3::from_f64(o) + DV3::from_f64(d).scale(h.t)).to_f64();
         Some(Exact {
             index,
             part,
             t,
             depth,
             normal,
+            position,
             cos: normal.dot(d).abs(),
         })
     }
@@ -468,16 +505,22 @@ struct Side<'a> {
     distance: Option<&'a [f32]>,
     depth: Option<&'a [f32]>,
     normal: Option<[&'a [f32]; 3]>,
+    position: Option<[&'a [f32]; 3]>,
+    normal_camera: Option<[&'a [f32]; 3]>,
 }
 
 impl<'a> Side<'a> {
-    fn new(img: &'a AovImage, which: &str) -> Result<Side<'a>> {
+    /// `every_aov`: read `position` and `normal_camera` too (the candidate's, judged
+    /// against the exact answer; Mitsuba's are not).
+    fn new(img: &'a AovImage, which: &str, every_aov: bool) -> Result<Side<'a>> {
         let side = Side {
             ids: id_channel(img, "shape_id", which)?,
             parts: id_channel(img, "part", which)?,
             distance: img.f32_channel("distance"),
             depth: img.f32_channel("depth"),
             normal: img.vec3_channel("normal"),
+            position: img.vec3_channel("position").filter(|_| every_aov),
+            normal_camera: img.vec3_channel("normal_camera").filter(|_| every_aov),
         };
         if side.ids.is_none() && side.distance.is_none() && side.depth.is_none() {
             bail!("{which}: cannot tell hits from misses: no shape_id, distance or depth channel");
@@ -496,25 +539,29 @@ impl<'a> Side<'a> {
     fn sample(&self, k: usize) -> Sample {
         let hit = self.hit(k);
         let f = |v: Option<&[f32]>| v.map(|v| f64::from(v[k]));
+        let v3 = |v: Option<[&[f32]; 3]>| {
+            v.map(|n| [n[0][k], n[1][k], n[2][k]].map(f64::from))
+                .filter(|_| hit)
+        };
         Sample {
             id: self.ids.as_ref().map(|v| v[k]),
             part: self.parts.as_ref().map(|v| v[k]),
             distance: f(self.distance),
             depth: f(self.depth).filter(|_| hit),
-            normal: self
-                .normal
-                .map(|n| [n[0][k], n[1][k], n[2][k]].map(f64::from))
-                .filter(|_| hit),
+            normal: v3(self.normal),
+            position: v3(self.position),
+            normal_camera: v3(self.normal_camera),
         }
     }
 
     fn non_finite(&self, k: usize) -> bool {
         let bad = |v: Option<&[f32]>| v.is_some_and(|v| !v[k].is_finite());
+        let bad3 = |v: Option<[&[f32]; 3]>| v.is_some_and(|n| n.iter().any(|c| !c[k].is_finite()));
         bad(self.distance)
             || bad(self.depth)
-            || self
-                .normal
-                .is_some_and(|n| n.iter().any(|c| !c[k].is_finite()))
+            || bad3(self.normal)
+            || bad3(self.position)
+            || bad3(self.normal_camera)
     }
 }
 
@@ -544,30 +591,70 @@ fn same_identity(cyls: &[Cylinder], s: &Sample, hit: bool, e: Option<&Exact>) ->
 }
 
 /// How far a side's values are from the exact answer `e` (same identity), in units of its
-/// bound (the largest over distance, depth and normal; ≤ 1: within).
-fn values_off(s: &Sample, e: &Exact, cyl: &Cylinder, bound: &Bound, l: f64) -> f64 {
+/// bound (the largest over every value it stores; ≤ 1: within), and which value that is.
+/// `axes` are the camera's OpenCV axes (x right, y down, z forward), for `normal_camera`.
+fn values_off(
+    s: &Sample,
+    e: &Exact,
+    cyl: &Cylinder,
+    bound: &Bound,
+    l: f64,
+    axes: &[DVec3; 3],
+) -> (f64, Kind) {
     let delta = bound.delta(l);
     let cos = e.cos.max((delta / cyl.radius).sqrt()).min(1.0);
     let storage = bound.storage_ulps * 2.0 * EPS32;
     let rel_bound = storage + delta / (e.t * cos);
-    let mut off: f64 = 0.0;
+    let mut worst = (0.0f64, Kind::Distance);
+    let mut judge = |off: f64, kind: Kind| {
+        let off = if off.is_nan() { f64::INFINITY } else { off };
+        if off > worst.0 {
+            worst = (off, kind);
+        }
+    };
     if let Some(d) = s.distance {
-        off = off.max(rel(d, e.t) / rel_bound);
+        judge(rel(d, e.t) / rel_bound, Kind::Distance);
     }
     if let Some(z) = s.depth {
-        off = off.max(rel(z, e.depth) / rel_bound);
+        judge(rel(z, e.depth) / rel_bound, Kind::Depth);
     }
+    let on_side = e.part <= 2;
+    let n_bound = 2.0 * storage
+        + if on_side {
+            delta / (cyl.radius * cos)
+        } else {
+            0.0
+        };
     if let Some(n) = s.normal {
-        let on_side = e.part <= 2;
-        let n_bound = 2.0 * storage
-            + if on_side {
-                delta / (cyl.radius * cos)
-            } else {
-                0.0
-            };
-        off = off.max(angle(DVec3::from_array(n), e.normal) / n_bound);
+        judge(
+            angle(DVec3::from_array(n), e.normal) / n_bound,
+            Kind::Normal,
+        );
     }
-    if off.is_nan() { f64::INFINITY } else { off }
+    if let Some(p) = s.position {
+        // Each component rounded to float32 (`storage` of |p| in all), and the sideways
+        // ray error moving the hit by δ / cos i along the surface.
+        let p_bound = storage * e.position.length() + delta / cos;
+        judge(
+            (DVec3::from_array(p) - e.position).length() / p_bound,
+            Kind::Position,
+        );
+    }
+    if let Some(n) = s.normal_camera {
+        // The world normal rotated into the camera's axes (an f64 rotation, exact up to
+        // f64 rounding) and rounded to float32 once more: the normal's bound plus one
+        // more storage rounding.
+        let exact = DVec3::new(
+            axes[0].dot(e.normal),
+            axes[1].dot(e.normal),
+            axes[2].dot(e.normal),
+        );
+        judge(
+            angle(DVec3::from_array(n), exact) / (n_bound + storage),
+            Kind::NormalCamera,
+        );
+    }
+    worst
 }
 
 /// Classify every pixel where `candidate` and `reference` (Mitsuba's render of `scene`'s
@@ -591,8 +678,8 @@ pub fn arbitrate(
         }
     }
     let (a, b) = (
-        Side::new(candidate, "candidate")?,
-        Side::new(reference, "reference")?,
+        Side::new(candidate, "candidate", true)?,
+        Side::new(reference, "reference", false)?,
     );
     let reference_bound = Bound::mitsuba();
     let tracer = Tracer {
@@ -611,13 +698,13 @@ pub fn arbitrate(
         radius_max = radius_max.max(c.radius);
     }
     let flat_normal = tol.normal_deg.to_radians();
-    let mut pixels = Vec::new();
-    for y in 0..h {
-        for x in 0..w {
-            let k = y * w + x;
-            let (sa, sb) = (a.sample(k), b.sample(k));
-            let (ha, hb) = (a.hit(k), b.hit(k));
-            let kind = if a.non_finite(k) || b.non_finite(k) {
+    let axes = [-cam.left, -cam.true_up, cam.forward];
+    let at = |x: usize, y: usize| -> Option<Pixel> {
+        let k = y * w + x;
+        let (sa, sb) = (a.sample(k), b.sample(k));
+        let (ha, hb) = (a.hit(k), b.hit(k));
+        let kind =
+            if a.non_finite(k) || b.non_finite(k) {
                 Some(Kind::NonFinite)
             } else if ha != hb || (ha && sa.id.zip(sb.id).is_some_and(|(p, q)| p != q)) {
                 Some(Kind::Silhouette)
@@ -644,110 +731,136 @@ pub fn arbitrate(
             } else {
                 None
             };
-            let Some(kind) = kind else { continue };
-            let (d, len) =
-                cam.dir_and_length(cam.column_offset(x as u32), cam.row_offset(y as u32));
-            let e = tracer.trace(cam.origin, d, len);
-            let exact = match &e {
-                None => Sample {
-                    id: Some(0),
-                    part: Some(0),
-                    distance: None,
-                    depth: None,
-                    normal: None,
-                },
-                Some(e) => Sample {
-                    id: Some(scene.cylinders[e.index].id),
-                    part: Some(e.part),
-                    distance: Some(e.t),
-                    depth: Some(e.depth),
-                    normal: Some(e.normal.to_array()),
-                },
-            };
-            // Coordinate size of the rounded inputs: the camera, the cylinders involved,
-            // and the run of the ray.
-            let mut l_reach: f64 = 0.0;
-            let mut l_t: f64 = 0.0;
-            let ids_of = |s: &Sample| s.id.filter(|&i| i != 0);
-            for id in [ids_of(&sa), ids_of(&sb), exact.id.filter(|&i| i != 0)]
-                .into_iter()
-                .flatten()
-            {
-                for c in scene.cylinders.iter().filter(|c| c.id == id) {
-                    l_reach = l_reach.max(reach(c));
-                }
-            }
-            if let Some(e) = &e {
-                l_reach = l_reach.max(reach(&scene.cylinders[e.index]));
-                l_t = e.t;
-            }
-            for v in [sa.distance, sb.distance].into_iter().flatten() {
-                if v.is_finite() {
-                    l_t = l_t.max(v);
-                }
-            }
-            let l = origin_len + l_reach + l_t;
-            let delta_a = candidate_bound.delta(l);
-            let delta_b = reference_bound.delta(l);
-            // Each side against the exact answer: identity first, then values.
-            let judge = |s: &Sample, hit: bool, non_finite: bool, bound: &Bound, delta: f64| {
-                if non_finite {
-                    return (f64::INFINITY, false);
-                }
-                if same_identity(&scene.cylinders, s, hit, e.as_ref()) {
-                    let off = e.as_ref().map_or(0.0, |e| {
-                        values_off(s, e, &scene.cylinders[e.index], bound, l)
-                    });
-                    (off, true)
-                } else {
-                    let nearby = tracer.nearby(cam.origin, d, len, delta);
-                    // Another part of the exact answer's cylinder (a rim): within δ when the
-                    // exact ray passes within δ of a part boundary of what it hits. Another
-                    // cylinder or hit vs miss: when a ray within δ sees that identity.
-                    let seam = e.as_ref().is_some_and(|e| {
-                        hit && s.id.is_none_or(|id| id == scene.cylinders[e.index].id)
-                    });
-                    let within = if seam {
-                        let key = |x: &Option<Exact>| x.as_ref().map(|x| (x.index, x.part));
-                        nearby.iter().any(|n| key(n) != key(&e))
-                    } else {
-                        let cylinder = Sample { part: None, ..*s };
-                        nearby
-                            .iter()
-                            .any(|n| same_identity(&scene.cylinders, &cylinder, hit, n.as_ref()))
-                    };
-                    (if within { 0.0 } else { f64::INFINITY }, false)
-                }
-            };
-            let (off_a, exact_a) = judge(&sa, ha, a.non_finite(k), &candidate_bound, delta_a);
-            let (off_b, _) = judge(&sb, hb, b.non_finite(k), &reference_bound, delta_b);
-            let class = if off_a > 1.0 {
-                PixelClass::CandidateError
-            } else if off_b > 1.0 {
-                PixelClass::UnexplainedReferenceError
-            } else if exact_a {
-                PixelClass::ReferenceError
-            } else {
-                PixelClass::Tie
-            };
-            pixels.push(Pixel {
-                at: [x, y],
-                class,
-                kind,
-                candidate: sa,
-                reference: sb,
-                exact,
-                delta: delta_b,
-                candidate_off: off_a,
-                reference_off: off_b,
-            });
+        // Both miss: nothing to judge. Otherwise the exact answer is evaluated: at a
+        // disagreement to classify it, at a hit of the candidate where Mitsuba agrees to
+        // catch a candidate off the exact answer by less than the flat tolerances.
+        if kind.is_none() && !ha {
+            return None;
         }
-    }
+        let (d, len) = cam.dir_and_length(cam.column_offset(x as u32), cam.row_offset(y as u32));
+        let e = tracer.trace(cam.origin, d, len);
+        let exact = match &e {
+            None => Sample {
+                id: Some(0),
+                part: Some(0),
+                distance: None,
+                depth: None,
+                normal: None,
+                position: None,
+                normal_camera: None,
+            },
+            Some(e) => Sample {
+                id: Some(scene.cylinders[e.index].id),
+                part: Some(e.part),
+                distance: Some(e.t),
+                depth: Some(e.depth),
+                normal: Some(e.normal.to_array()),
+                position: Some(e.position.to_array()),
+                normal_camera: Some(axes.map(|a| a.dot(e.normal))),
+            },
+        };
+        // Coordinate size of the rounded inputs: the camera, the cylinders involved,
+        // and the run of the ray.
+        let mut l_reach: f64 = 0.0;
+        let mut l_t: f64 = 0.0;
+        let ids_of = |s: &Sample| s.id.filter(|&i| i != 0);
+        for id in [ids_of(&sa), ids_of(&sb), exact.id.filter(|&i| i != 0)]
+            .into_iter()
+            .flatten()
+        {
+            for c in scene.cylinders.iter().filter(|c| c.id == id) {
+                l_reach = l_reach.max(reach(c));
+            }
+        }
+        if let Some(e) = &e {
+            l_reach = l_reach.max(reach(&scene.cylinders[e.index]));
+            l_t = e.t;
+        }
+        for v in [sa.distance, sb.distance].into_iter().flatten() {
+            if v.is_finite() {
+                l_t = l_t.max(v);
+            }
+        }
+        let l = origin_len + l_reach + l_t;
+        let delta_a = candidate_bound.delta(l);
+        let delta_b = reference_bound.delta(l);
+        // Each side against the exact answer: identity first, then values. Gives the
+        // error in units of the side's bound, whether the identity is the exact one, and
+        // what is off most.
+        let judge = |s: &Sample, hit: bool, non_finite: bool, bound: &Bound, delta: f64| {
+            if non_finite {
+                return (f64::INFINITY, false, Kind::NonFinite);
+            }
+            if same_identity(&scene.cylinders, s, hit, e.as_ref()) {
+                let (off, kind) = e.as_ref().map_or((0.0, Kind::Distance), |e| {
+                    values_off(s, e, &scene.cylinders[e.index], bound, l, &axes)
+                });
+                (off, true, kind)
+            } else {
+                let nearby = tracer.nearby(cam.origin, d, len, delta);
+                // Another part of the exact answer's cylinder (a rim): within δ when the
+                // exact ray passes within δ of a part boundary of what it hits. Another
+                // cylinder or hit vs miss: when a ray within δ sees that identity.
+                let seam = e.as_ref().is_some_and(|e| {
+                    hit && s.id.is_none_or(|id| id == scene.cylinders[e.index].id)
+                });
+                let within = if seam {
+                    let key = |x: &Option<Exact>| x.as_ref().map(|x| (x.index, x.part));
+                    nearby.iter().any(|n| key(n) != key(&e))
+                } else {
+                    let cylinder = Sample { part: None, ..*s };
+                    nearby
+                        .iter()
+                        .any(|n| same_identity(&scene.cylinders, &cylinder, hit, n.as_ref()))
+                };
+                let kind = if seam { Kind::Seam } else { Kind::Silhouette };
+                (if within { 0.0 } else { f64::INFINITY }, false, kind)
+            }
+        };
+        let (off_a, exact_a, worst_a) = judge(&sa, ha, a.non_finite(k), &candidate_bound, delta_a);
+        let disagrees = kind.is_some();
+        let kind = match kind {
+            Some(kind) => kind,
+            // Mitsuba agrees within the flat tolerances: only a candidate error is news.
+            None if off_a > 1.0 => worst_a,
+            None => return None,
+        };
+        let (off_b, _, _) = judge(&sb, hb, b.non_finite(k), &reference_bound, delta_b);
+        let class = if off_a > 1.0 {
+            PixelClass::CandidateError
+        } else if off_b > 1.0 {
+            PixelClass::UnexplainedReferenceError
+        } else if exact_a {
+            PixelClass::ReferenceError
+        } else {
+            PixelClass::Tie
+        };
+        Some(Pixel {
+            at: [x, y],
+            class,
+            kind,
+            disagrees,
+            candidate: sa,
+            reference: sb,
+            exact,
+            delta: delta_b,
+            candidate_off: off_a,
+            reference_off: off_b,
+        })
+    };
+    // Rows in parallel, kept in image order.
+    let rows: Vec<Vec<Pixel>> = (0..h)
+        .into_par_iter()
+        .map(|y| (0..w).filter_map(|x| at(x, y)).collect())
+        .collect();
+    let pixels: Vec<Pixel> = rows.into_iter().flatten().collect();
+    let checked = (0..w * h).filter(|&k| a.hit(k)).count();
     let count = |c: PixelClass| pixels.iter().filter(|p| p.class == c).count();
     Ok(Arbitration {
         candidate_bound,
         reference_bound,
-        disagreeing: pixels.len(),
+        disagreeing: pixels.iter().filter(|p| p.disagrees).count(),
+        checked,
         reference_errors: count(PixelClass::ReferenceError),
         unexplained_reference_errors: count(PixelClass::UnexplainedReferenceError),
         candidate_errors: count(PixelClass::CandidateError),

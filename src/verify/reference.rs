@@ -35,11 +35,12 @@ use crate::output::signals::{self, Cleanup};
 use crate::render::{RenderOptions, render};
 use crate::scene::{Aov, Scene};
 use crate::verify::arbiter::{Arbitration, Bound, arbitrate};
-use crate::verify::compare::{Conditioning, Report, Tolerances, compare_with};
+use crate::verify::compare::{Conditioning, Report, Tolerances, compare_with, heatmap_figure};
 use anyhow::{Context, Result, bail};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
+use std::sync::Mutex;
 
 /// The reference script (`scripts/mitsuba_reference.py`), carried by the binary.
 pub const SCRIPT: &str = include_str!("../../scripts/mitsuba_reference.py");
@@ -178,7 +179,7 @@ impl ViewCheck {
 
     /// `PASS` or `FAIL:` with one indented line per failure, as `compare` prints.
     pub fn verdict_text(&self) -> String {
-        crate::commands::compare::verdict_lines(&self.failures)
+        crate::verify::compare::verdict_lines(&self.failures)
     }
 
     /// The report, tolerances, accepted lines and verdict, as `compare` prints them.
@@ -186,7 +187,7 @@ impl ViewCheck {
         let mut s = format!(
             "{}\n{}\n",
             self.report,
-            crate::commands::compare::tolerance_line(&self.tolerances)
+            crate::verify::compare::tolerance_line(&self.tolerances)
         );
         for line in &self.accepted {
             s += &format!("accepted: {line}\n");
@@ -251,7 +252,7 @@ pub fn summary_line(r: &Report) -> String {
     let max = |m: &Option<crate::verify::compare::Metric>| m.as_ref().map_or(0.0, |m| m.all.max);
     format!(
         "silhouette {} px, seam {} px, rel distance max {:.2e}, rel depth max {:.2e}, normal max {:.3}°",
-        r.mismatches,
+        r.silhouette_mismatches,
         r.seams,
         max(&r.rel_distance),
         max(&r.rel_depth),
@@ -327,6 +328,25 @@ pub struct MitsubaVerifier {
     /// Print one line per verified view on stderr (batch's log); `verify` prints its table
     /// instead.
     pub log: bool,
+    /// Where `batch --report` keeps every checked view for the page (`None`: nothing kept).
+    /// Kept views are checked afresh: a cached verdict has no pixels or pictures.
+    pub keep: Option<Mutex<Vec<Checked>>>,
+}
+
+/// One view checked by [`MitsubaVerifier::check_file`]: the verdict, and when it was checked
+/// now (not read from the cache) the comparison and, if asked for, the pictures.
+pub struct Checked {
+    /// The view's batch id (`scene` or `scene/NN`).
+    pub name: String,
+    /// The scene file's path.
+    pub scene: String,
+    /// The verdict.
+    pub verdict: Verdict,
+    /// The comparison of the file's samples (or the identical fresh render) with Mitsuba's,
+    /// every disagreeing pixel classified; `None` for a verdict read from the cache.
+    pub check: Option<ViewCheck>,
+    /// Candidate, Mitsuba and the difference heatmap, when pictures were asked for.
+    pub images: Option<(AovImage, AovImage, image::RgbImage)>,
 }
 
 impl MitsubaVerifier {
@@ -342,6 +362,7 @@ impl MitsubaVerifier {
             precision,
             formula,
             log: true,
+            keep: None,
         })
     }
 }
@@ -389,12 +410,42 @@ fn sha256_of(path: &Path) -> Result<String> {
 
 impl Verifier for MitsubaVerifier {
     fn check(&self, view: &ViewSource, scene: &Scene, exr: &Path, work: &Path) -> Result<Verdict> {
+        let keep = self.keep.is_some();
+        let checked = self.check_file(view, scene, exr, work, keep, keep)?;
+        let verdict = checked.verdict.clone();
+        if let Some(kept) = &self.keep {
+            kept.lock().unwrap_or_else(|e| e.into_inner()).push(checked);
+        }
+        Ok(verdict)
+    }
+}
+
+impl MitsubaVerifier {
+    /// Check the view's file `exr` (see the module docs): `fresh` skips the cached verdict
+    /// (so the pixels are classified), `pictures` also keeps the images for a report.
+    pub fn check_file(
+        &self,
+        view: &ViewSource,
+        scene: &Scene,
+        exr: &Path,
+        work: &Path,
+        fresh: bool,
+        pictures: bool,
+    ) -> Result<Checked> {
+        let done = |verdict: Verdict, check: Option<ViewCheck>, images| Checked {
+            name: view.id(),
+            scene: view.path.display().to_string(),
+            verdict,
+            check,
+            images,
+        };
         let stamp = std::fs::read_to_string(beside(exr, "render.json")).unwrap_or_default();
         let cache_path = beside(exr, "verify.json");
         let key = (tolerance_key(&self.tolerances), fnv1a(SCRIPT.as_bytes()));
         // The verdict is the file's: an EXR changed after it was verified is checked again.
         let sha = sha256_of(exr)?;
-        if !stamp.is_empty()
+        if !fresh
+            && !stamp.is_empty()
             && let Ok(text) = std::fs::read_to_string(&cache_path)
             && let Ok(c) = serde_json::from_str::<CachedVerdict>(&text)
             && c.stamp == stamp
@@ -402,10 +453,11 @@ impl Verifier for MitsubaVerifier {
             && c.rule == RULE
             && c.exr_sha256 == sha
         {
-            return Ok(Verdict {
+            let verdict = Verdict {
                 passes: c.passed,
                 report: if c.passed { c.summary } else { c.report },
-            });
+            };
+            return Ok(done(verdict, None, None));
         }
         let ours = check_render(scene, self.precision, self.formula);
         let file = AovImage::read_exr(exr)?;
@@ -423,21 +475,26 @@ impl Verifier for MitsubaVerifier {
                 exr.display(),
                 differ.join("; ")
             );
-            if let Ok(c) = check_against_with(
+            let check = check_against_with(
                 scene,
                 &file,
                 &reference,
                 &self.tolerances,
                 Bound::cylaov(self.precision),
-            ) {
-                for f in &c.failures {
-                    report += &format!("\n  {f}");
-                }
+            )
+            .ok();
+            for f in check.iter().flat_map(|c| &c.failures) {
+                report += &format!("\n  {f}");
             }
-            return Ok(Verdict {
+            let verdict = Verdict {
                 passes: false,
                 report,
-            });
+            };
+            let images = check
+                .as_ref()
+                .filter(|_| pictures)
+                .map(|c| self.pictures(scene, file, reference, c));
+            return Ok(done(verdict, check, images));
         }
         let check = check_against_with(
             scene,
@@ -463,7 +520,7 @@ impl Verifier for MitsubaVerifier {
             exr_sha256: sha,
             script: key.1,
             passed: check.passed(),
-            silhouette_px: check.report.mismatches,
+            silhouette_px: check.report.silhouette_mismatches,
             seam_px: check.report.seams,
             summary: summary.clone(),
             report: if check.passed() {
@@ -477,13 +534,34 @@ impl Verifier for MitsubaVerifier {
             atomic_write_bytes(&cache_path, json.as_bytes())
                 .with_context(|| format!("writing {}", cache_path.display()))?;
         }
-        Ok(Verdict {
+        let verdict = Verdict {
             passes: check.passed(),
             report: if check.passed() {
                 summary
             } else {
                 check.text()
             },
-        })
+        };
+        let images = pictures.then(|| self.pictures(scene, ours, reference, &check));
+        Ok(done(verdict, Some(check), images))
+    }
+
+    /// The candidate, Mitsuba's render and the difference heatmap of a check.
+    fn pictures(
+        &self,
+        scene: &Scene,
+        candidate: AovImage,
+        reference: AovImage,
+        check: &ViewCheck,
+    ) -> (AovImage, AovImage, image::RgbImage) {
+        let cond = Conditioning::new(scene, &candidate);
+        let heatmap = heatmap_figure(
+            &candidate,
+            &reference,
+            &check.report,
+            &self.tolerances,
+            cond.as_ref(),
+        );
+        (candidate, reference, heatmap)
     }
 }

@@ -219,7 +219,7 @@ pub fn run(
     } else {
         input.parent().unwrap_or(Path::new(""))
     };
-    if let Err(e) = write_index(out, input_dir, &views, &cameras, opts) {
+    if let Err(e) = write_index(out, input, input_dir, &views, &cameras, opts) {
         summary.problems.push(format!("{e:#}"));
     }
     if let Err(e) = remove_stale_views(out, &views, &cameras, &mine) {
@@ -659,9 +659,12 @@ fn write_failures(summary: &Summary) -> Result<()> {
 
 /// Write `OUT/index.json` (every view whose scene loads) and the `transforms.json` of each
 /// several-camera scene in its folder; remove the `OUT/transforms.json` of older versions,
-/// which listed unrelated scenes as one (a resumed old dataset must not keep it).
+/// which listed unrelated scenes as one (a resumed old dataset must not keep it). `input`
+/// (the batch's scene folder or manifest, as given) is recorded made absolute, for
+/// `cylaov verify OUT`.
 fn write_index(
     out: &Path,
+    input: &Path,
     input_dir: &Path,
     views: &[ViewSource],
     cameras: &[Result<FrameCamera, String>],
@@ -673,8 +676,12 @@ fn write_index(
         .filter_map(|(v, c)| c.as_ref().ok().map(|c| (v, *c)))
         .collect();
     let index = out.join("index.json");
-    atomic_write_bytes(&index, index_json(&valid, input_dir, opts).as_bytes())
-        .with_context(|| format!("writing {}", index.display()))?;
+    let input = std::path::absolute(input).unwrap_or_else(|_| input.to_path_buf());
+    atomic_write_bytes(
+        &index,
+        index_json(&valid, &input, input_dir, opts).as_bytes(),
+    )
+    .with_context(|| format!("writing {}", index.display()))?;
     for scene in valid.chunk_by(|a, b| a.0.folder == b.0.folder && a.0.path == b.0.path) {
         let Some(folder) = &scene[0].0.folder else {
             continue;

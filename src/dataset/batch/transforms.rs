@@ -74,6 +74,10 @@ struct IndexView {
 #[derive(Serialize)]
 struct Index {
     camera_model: &'static str,
+    /// The batch's input (scene folder or manifest) as given, made absolute: where
+    /// `scene_file` paths are relative to (a manifest's folder), so `cylaov verify OUT`
+    /// finds the scenes.
+    input: String,
     #[serde(skip_serializing_if = "Option::is_none")]
     depth_unit_scale_factor: Option<f64>,
     principal_point_note: &'static str,
@@ -198,9 +202,11 @@ pub fn transforms_json(views: &[(&str, FrameCamera)], opts: &BatchOptions) -> St
 /// `OUT/index.json`: every valid view of the batch in view-list order, each with its scene,
 /// camera and frame fields (own intrinsics), paths relative to `OUT`.
 /// `input_dir` is the folder scene paths are shown relative to (the input folder, or the
-/// manifest's), so the bytes do not depend on where the input lies.
+/// manifest's), so the views' entries do not depend on where the input lies; `input` is
+/// the input as given, made absolute.
 pub fn index_json(
     views: &[(&ViewSource, FrameCamera)],
+    input: &Path,
     input_dir: &Path,
     opts: &BatchOptions,
 ) -> String {
@@ -223,6 +229,7 @@ pub fn index_json(
         .collect();
     let index = Index {
         camera_model: "OPENCV",
+        input: input.display().to_string(),
         depth_unit_scale_factor: opts.png.then(|| 1.0 / opts.depth_scale),
         principal_point_note: PRINCIPAL_POINT_NOTE,
         layout_note: "views of different scenes are unrelated: each several-camera scene has its own SCENE/transforms.json for nerfstudio (ns-train ... --data OUT/SCENE); a one-camera scene's files are OUT/SCENE.*",
