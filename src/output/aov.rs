@@ -432,7 +432,11 @@ impl AovImage {
             },
             AnyChannels::sort(channels.into()),
         );
-        Image::from_layer(layer).write().to_buffered(out)?;
+        let mut canonical = SortedHeader::new(out);
+        Image::from_layer(layer)
+            .write()
+            .to_buffered(&mut canonical)?;
+        canonical.finish()?;
         Ok(())
     }
 
@@ -765,5 +769,116 @@ mod tests {
         let back = AovImage::read_exr(&path).unwrap();
         assert_eq!(back.f32_channel("depth"), img.f32_channel("depth"));
         assert_eq!(back.u32_channel("shape_id"), img.u32_channel("shape_id"));
+    }
+}
+
+/// A writer that puts a single-part OpenEXR header's attributes in name order before they
+/// reach `inner`. The `exr` crate keeps custom attributes in a `HashMap`, so their order, and
+/// with it the file's bytes, would change from one process to the next; sorted, a compressed
+/// EXR is a pure function of its image and options, as an uncompressed one is. (OpenEXR's
+/// own writer also emits attributes in name order: its header is a `std::map`.) The header's
+/// length does not depend on the order, so the offsets the crate writes later stay right.
+///
+/// Bytes are held until the header is complete (magic, version, then `name\0 type\0 size
+/// value` records up to a lone `\0`); from then on writes and seeks pass through. The crate
+/// writes the header in one go before it first seeks (to fill in the offset table), so a seek
+/// with the header still incomplete is a bug and is refused.
+struct SortedHeader<W: std::io::Write + std::io::Seek> {
+    inner: W,
+    held: Option<Vec<u8>>,
+}
+
+impl<W: std::io::Write + std::io::Seek> SortedHeader<W> {
+    fn new(inner: W) -> Self {
+        SortedHeader {
+            inner,
+            held: Some(Vec::new()),
+        }
+    }
+
+    /// The byte ranges of the header's attribute records, and the header's end (one past its
+    /// terminating `\0`); `None` while the header is incomplete.
+    fn records(bytes: &[u8]) -> Option<(Vec<std::ops::Range<usize>>, usize)> {
+        let mut at = 8; // magic number and version
+        let mut records = Vec::new();
+        loop {
+            if *bytes.get(at)? == 0 {
+                return Some((records, at + 1));
+            }
+            let start = at;
+            let name_end = at + bytes.get(at..)?.iter().position(|&b| b == 0)?;
+            let type_end =
+                name_end + 1 + bytes.get(name_end + 1..)?.iter().position(|&b| b == 0)?;
+            let size: [u8; 4] = bytes.get(type_end + 1..type_end + 5)?.try_into().ok()?;
+            let size = usize::try_from(i32::from_le_bytes(size)).ok()?;
+            at = type_end + 5 + size;
+            bytes.get(..at)?;
+            records.push(start..at);
+        }
+    }
+
+    /// Write out a held header once it is complete; return whether it was.
+    fn release(&mut self) -> std::io::Result<bool> {
+        let Some(held) = &self.held else {
+            return Ok(true);
+        };
+        let Some((mut records, end)) = Self::records(held) else {
+            return Ok(false);
+        };
+        let name = |r: &std::ops::Range<usize>| {
+            let b = &held[r.clone()];
+            &b[..b.iter().position(|&c| c == 0).unwrap_or(b.len())]
+        };
+        records.sort_by(|a, b| name(a).cmp(name(b)));
+        let mut out = Vec::with_capacity(held.len());
+        out.extend_from_slice(&held[..8]);
+        for r in &records {
+            out.extend_from_slice(&held[r.clone()]);
+        }
+        out.extend_from_slice(&held[end - 1..]);
+        self.inner.write_all(&out)?;
+        self.held = None;
+        Ok(true)
+    }
+
+    /// Flush what is held and the writer; an incomplete header is an error.
+    fn finish(mut self) -> std::io::Result<()> {
+        if !self.release()? {
+            return Err(std::io::Error::other(
+                "the EXR encoder wrote an incomplete header",
+            ));
+        }
+        self.inner.flush()
+    }
+}
+
+impl<W: std::io::Write + std::io::Seek> std::io::Write for SortedHeader<W> {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        match &mut self.held {
+            Some(held) => {
+                held.extend_from_slice(buf);
+                self.release()?;
+                Ok(buf.len())
+            }
+            None => self.inner.write(buf),
+        }
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        if self.held.is_none() {
+            self.inner.flush()?;
+        }
+        Ok(())
+    }
+}
+
+impl<W: std::io::Write + std::io::Seek> std::io::Seek for SortedHeader<W> {
+    fn seek(&mut self, pos: std::io::SeekFrom) -> std::io::Result<u64> {
+        if !self.release()? {
+            return Err(std::io::Error::other(
+                "the EXR encoder sought before its header was complete",
+            ));
+        }
+        self.inner.seek(pos)
     }
 }
