@@ -329,7 +329,7 @@ fn load(view: &ViewSource) -> Result<Scene, String> {
 /// Every shard reads every scene (the index lists every valid view) but keeps only what the
 /// index needs: memory is O(views), not O(views x cylinders). The views of this shard are
 /// read again, one at a time, when rendered. The list is a pure function of the input.
-fn expand_views(
+pub(super) fn expand_views(
     scenes: &[ViewSource],
     opts: &BatchOptions,
 ) -> (Vec<ViewSource>, Vec<Result<FrameCamera, String>>) {
