@@ -710,10 +710,9 @@ fn batch(a: BatchCli) -> anyhow::Result<ExitCode> {
 
 /// `batch --format webdataset`: exit 1 when any view of this process's tars failed.
 fn shards(args: &commands::batch::BatchArgs, sopts: &ShardOptions) -> anyhow::Result<ExitCode> {
-    let shard = cylaov::dataset::batch::resolve_shard(args.shard, args.shards, &|k| {
-        std::env::var(k).ok()
-    })
-    .map_err(anyhow::Error::msg)?;
+    let shard =
+        cylaov::dataset::batch::resolve_shard(args.shard, args.shards, &|k| std::env::var(k).ok())
+            .map_err(anyhow::Error::msg)?;
     let summary = cylaov::dataset::batch::shards::write_shards(
         &args.input,
         &args.out,

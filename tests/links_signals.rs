@@ -507,8 +507,7 @@ fn a_signal_during_verify_stops_mitsuba_and_removes_its_folder() {
         ),
     )
     .unwrap();
-    std::fs::set_permissions(&python, std::os::unix::fs::PermissionsExt::from_mode(0o755))
-        .unwrap();
+    std::fs::set_permissions(&python, std::os::unix::fs::PermissionsExt::from_mode(0o755)).unwrap();
     let started = |_pid: u32| pids.exists();
     let o = signal_when(
         &["verify", s(&scene)],

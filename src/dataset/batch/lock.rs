@@ -91,7 +91,9 @@ pub fn lock_shard(out: &Path, root: &Path, shard: Shard) -> Result<ShardLock> {
 /// Lock `OUT/.partial/NAME.lock` as [`lock_shard`] locks a shard: for what one process at a
 /// time may write besides a shard (the merged index of tar shards).
 pub fn lock_named(out: &Path, root: &Path, name: &str) -> Result<ShardLock> {
-    lock_file(out, &root.join(format!("{name}.lock")), &|| name.to_string())
+    lock_file(out, &root.join(format!("{name}.lock")), &|| {
+        name.to_string()
+    })
 }
 
 fn lock_file(out: &Path, path: &Path, what: &dyn Fn() -> String) -> Result<ShardLock> {

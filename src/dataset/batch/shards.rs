@@ -274,7 +274,9 @@ fn dataset_aovs(
             Some(_) => {}
         }
     }
-    Ok(found.map(|f| f.0).unwrap_or_else(|| vec![Aov::Depth, Aov::Normal]))
+    Ok(found
+        .map(|f| f.0)
+        .unwrap_or_else(|| vec![Aov::Depth, Aov::Normal]))
 }
 
 fn names(aovs: &[Aov]) -> String {
@@ -305,7 +307,11 @@ fn aov_npy(image: &AovImage, aov: Aov) -> Result<Vec<u8>> {
     }
     let planes: Vec<&[f32]> = chans
         .iter()
-        .map(|c| image.f32_channel(c).ok_or_else(|| anyhow!("no {c} channel")))
+        .map(|c| {
+            image
+                .f32_channel(c)
+                .ok_or_else(|| anyhow!("no {c} channel"))
+        })
         .collect::<Result<_>>()?;
     Ok(npy::f32_planes(h, w, &planes))
 }
@@ -590,11 +596,17 @@ impl Plan<'_> {
 
     /// Write tar `j` (unless its sidecar vouches for it) under its lock.
     fn tar(&self, j: usize) -> Result<(TarOutcome, Sidecar, usize)> {
-        let _lock = lock_shard(self.out, &self.root, Shard::new(j as u32, self.tars as u32)
-            .map_err(anyhow::Error::msg)?)?;
+        let _lock = lock_shard(
+            self.out,
+            &self.root,
+            Shard::new(j as u32, self.tars as u32).map_err(anyhow::Error::msg)?,
+        )?;
         let range = self.range(j);
-        let scenes: Vec<Result<Scene, String>> =
-            range.clone().into_par_iter().map(|i| self.scene(i)).collect();
+        let scenes: Vec<Result<Scene, String>> = range
+            .clone()
+            .into_par_iter()
+            .map(|i| self.scene(i))
+            .collect();
         let stamp = self.stamp(&scenes, j);
         if let Some(car) = self.vouched(j, &stamp) {
             return Ok((TarOutcome::Skipped, car, 0));
@@ -831,7 +843,9 @@ pub fn write_shards(
         bail!("--shard-size: must be >= 1, got 0");
     }
     if opts.verify_fraction > 0.0 {
-        bail!("--verify-fraction: not with --format webdataset (the check reads the files format's EXRs)");
+        bail!(
+            "--verify-fraction: not with --format webdataset (the check reads the files format's EXRs)"
+        );
     }
     crate::output::io::check_output_dir("--out", out)?;
     let (scenes, skipped) = list_views(input, Some(out))?;
@@ -853,7 +867,10 @@ pub fn write_shards(
         TarSelection::Shard(s) => (0..tars).filter(|&j| s.contains(j)).collect(),
         TarSelection::List(list) => {
             if let Some(&j) = list.iter().find(|&&j| j >= tars) {
-                bail!("shards: tar {j} does not exist ({tars} tars of {} views)", views.len());
+                bail!(
+                    "shards: tar {j} does not exist ({tars} tars of {} views)",
+                    views.len()
+                );
             }
             let mut l = list.clone();
             l.sort_unstable();
@@ -970,6 +987,9 @@ mod tests {
     fn tar_bytes_are_the_arrays_plus_headers() {
         let per = view_tar_bytes(320, 240, &[Aov::Depth, Aov::Normal], &[]);
         let raw = 320 * 240 * (4 + 12 + 1);
-        assert!(per > raw && (per - raw) as f64 / (raw as f64) < 0.02, "{per} vs {raw}");
+        assert!(
+            per > raw && (per - raw) as f64 / (raw as f64) < 0.02,
+            "{per} vs {raw}"
+        );
     }
 }
