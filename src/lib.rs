@@ -36,8 +36,13 @@
 //!   band by band too ([`output::aov::ExrBands`]), self-describing headers, the per-AOV layout), [`output::depth_png`] (the 16-bit depth
 //!   PNG that fails rather than drop far pixels, and the hit mask), [`output::preview`] (PNG
 //!   previews with legends), [`output::plot`] (the pixel font and axis panels of every
-//!   figure), [`output::io`] (atomic writes, output-target checks, console output
-//!   that survives a closed pipe, the camera and Open3D JSON), [`output::mitsuba`] (the scene
+//!   figure), [`output::view`] (one view's files as a plan executed into a sink: `render`
+//!   and `batch` write through it), [`output::atomic`] (files staged under temporary names
+//!   and committed together), [`output::targets`] (output-target checks before any work),
+//!   [`output::camera_files`] (the camera and Open3D JSON, record encoding),
+//!   [`output::console`] (console output that survives a closed pipe), [`output::io`] (one
+//!   import path for those four), [`output::files`] (opening in place without following
+//!   links), [`output::signals`] (the clean-up on a signal), [`output::mitsuba`] (the scene
 //!   as Mitsuba 3 XML).
 //!
 //! Checking tools:

@@ -1,8 +1,15 @@
-//! Output files: the AOV EXR, PNG previews and figures, atomic writes, camera metadata and
-//! the Mitsuba 3 XML export; `.npy` arrays and ustar archives for tar shards; files opened in place without following links (`files`) and
-//! the clean-up of staged files on a signal (`signals`). The last stage of the pipeline; nothing here traces rays.
+//! Output files: the AOV EXR, PNG previews and figures, the Mitsuba 3 XML export, and one
+//! view's files written as one plan (`view`); `.npy` arrays (`npy`) and ustar archives
+//! (`tar`) for tar shards; files never half-written (`atomic`), output targets checked
+//! before any work (`targets`), camera metadata and record encoding (`camera_files`),
+//! console output (`console`), files opened in place without following links (`files`) and
+//! the clean-up of staged files on a signal (`signals`). The last stage of the pipeline;
+//! nothing here traces rays.
 
 pub mod aov;
+pub mod atomic;
+pub mod camera_files;
+pub mod console;
 pub mod depth_png;
 pub mod files;
 pub mod io;
@@ -12,3 +19,5 @@ pub mod plot;
 pub mod preview;
 pub mod signals;
 pub mod tar;
+pub mod targets;
+pub mod view;

@@ -35,13 +35,14 @@ use super::resume::render_stamp;
 use super::run::{expand_views, resource_exhausted};
 use super::shard::Shard;
 use super::views::{ViewSource, list_views};
-use crate::output::aov::{AovImage, channel_names, exr_attributes};
+use crate::output::aov::{AovImage, ExrLayout, channel_names};
 use crate::output::files::{create_new, open_regular, read_regular};
-use crate::output::io::{aov_meaning, atomic_write_bytes, camera_json, check_outputs, record_json};
+use crate::output::io::{aov_meaning, atomic_write_bytes, check_outputs, record_json};
 use crate::output::npy;
 use crate::output::signals::{self, Cleanup};
 use crate::output::tar::{self, TarWriter};
-use crate::render::{RenderOptions, render};
+use crate::output::view::{DepthPngPlan, Fill, Member as ViewMember, ViewPlan, ViewSink};
+use crate::render::RenderOptions;
 use crate::scene::camera::Camera;
 use crate::scene::{self, Aov, Scene};
 use anyhow::{Context, Result, anyhow, bail};
@@ -338,8 +339,97 @@ struct SampleMeta<'a> {
     cylaov_version: &'static str,
 }
 
-/// The members of one view, in tar order (see the module docs): the one function a tar
-/// shard takes a view's bytes from.
+/// A view's tar members: a [`ViewSink`] of the view's [`ViewPlan`]. The arrays come from
+/// the traced image ([`ViewSink::image`]); `KEY.json` from the plan's camera member and the
+/// sample's fields; `KEY.exr` and `KEY.depth.png` are the plan's own members when asked
+/// for (the others are never encoded). Committed in tar order (see the module docs).
+struct TarSink<'a> {
+    key: &'a str,
+    arrays: &'a [Aov],
+    extra: serde_json::Value,
+    keep: &'a [Member],
+    npys: Vec<(String, Vec<u8>)>,
+    camera: Option<Vec<u8>>,
+    exr: Option<Vec<u8>>,
+    depth_png: Option<Vec<u8>>,
+    members: Vec<(String, Vec<u8>)>,
+}
+
+impl TarSink<'_> {
+    fn fill(member: ViewMember, fill: Fill) -> Result<Vec<u8>> {
+        let mut buf = std::io::Cursor::new(Vec::new());
+        fill(&mut buf).with_context(|| format!("encoding {}", member.suffix()))?;
+        Ok(buf.into_inner())
+    }
+}
+
+impl ViewSink for TarSink<'_> {
+    fn add(&mut self, member: ViewMember, fill: Fill) -> Result<()> {
+        match member {
+            ViewMember::Camera => self.camera = Some(Self::fill(member, fill)?),
+            ViewMember::Exr if self.keep.contains(&Member::Exr) => {
+                self.exr = Some(Self::fill(member, fill)?)
+            }
+            ViewMember::DepthPng if self.keep.contains(&Member::DepthPng) => {
+                self.depth_png = Some(Self::fill(member, fill)?)
+            }
+            _ => {}
+        }
+        Ok(())
+    }
+
+    fn image(&mut self, image: &AovImage) -> Result<()> {
+        let (h, w) = (image.height, image.width);
+        for &a in self.arrays {
+            self.npys
+                .push((format!("{}.{}.npy", self.key, a.name()), aov_npy(image, a)?));
+        }
+        let depth = image.f32_channel("depth").context("no depth AOV")?;
+        self.npys.push((
+            format!("{}.mask.npy", self.key),
+            npy::bool_plane(h, w, depth.iter().map(|&z| z > 0.0)),
+        ));
+        Ok(())
+    }
+
+    fn label(&self, member: ViewMember) -> String {
+        format!("{}.{}", self.key, member.suffix())
+    }
+
+    fn commit(&mut self) -> Result<()> {
+        let camera = self.camera.take().context("the plan gave no camera JSON")?;
+        let mut meta: serde_json::Value = serde_json::from_slice(&camera)?;
+        if let (Some(m), serde_json::Value::Object(e)) = (meta.as_object_mut(), self.extra.take()) {
+            m.extend(e);
+        }
+        let mut json = record_json(&meta);
+        json.push('\n');
+        self.members = std::mem::take(&mut self.npys);
+        self.members
+            .push((format!("{}.json", self.key), json.into_bytes()));
+        if let Some(exr) = self.exr.take() {
+            self.members.push((format!("{}.exr", self.key), exr));
+        }
+        if let Some(png) = self.depth_png.take() {
+            self.members.push((format!("{}.depth.png", self.key), png));
+        }
+        Ok(())
+    }
+}
+
+/// The AOVs of a shard's view plan: the dataset's, plus depth and normal (always arrays).
+fn plan_aovs(aovs: &[Aov]) -> Vec<Aov> {
+    let mut v = aovs.to_vec();
+    for a in [Aov::Depth, Aov::Normal] {
+        if !v.contains(&a) {
+            v.push(a);
+        }
+    }
+    v
+}
+
+/// The members of one view, in tar order (see the module docs): the view's plan executed
+/// into a [`TarSink`].
 pub fn view_members(
     key: &str,
     view: &ViewSource,
@@ -350,35 +440,21 @@ pub fn view_members(
     members: &[Member],
 ) -> Result<Vec<(String, Vec<u8>)>> {
     let arrays = array_aovs(aovs);
-    let render_opts = RenderOptions {
-        precision: opts.precision,
-        formula: opts.formula,
-        ..RenderOptions::new(arrays.clone())
+    let plan = ViewPlan {
+        camera: Camera::new(scene.camera),
+        exr_aovs: plan_aovs(aovs),
+        layout: ExrLayout::Layers,
+        compression: opts.compression,
+        depth_png: members.contains(&Member::DepthPng).then_some(DepthPngPlan {
+            scale: opts.depth_scale,
+            out_of_range: opts.depth_out_of_range,
+        }),
+        mask: false,
+        normal_picture: false,
+        previews: false,
+        stamp: None,
     };
-    let mut image = render(scene, &render_opts).image;
-    let (w, h) = (image.width, image.height);
-    let cam = Camera::new(scene.camera);
-    let depth_png = if members.contains(&Member::DepthPng) {
-        let d = crate::output::depth_png::encode(&image, opts.depth_scale, opts.depth_out_of_range)
-            .context("no depth AOV")?
-            .map_err(|e| anyhow!(e))?;
-        let mut png = std::io::Cursor::new(Vec::new());
-        d.png.write_to(&mut png, image::ImageFormat::Png)?;
-        Some(png.into_inner())
-    } else {
-        None
-    };
-    let mut out = Vec::with_capacity(arrays.len() + 4);
-    for &a in &arrays {
-        out.push((format!("{key}.{}.npy", a.name()), aov_npy(&image, a)?));
-    }
-    let depth = image.f32_channel("depth").context("no depth AOV")?;
-    out.push((
-        format!("{key}.mask.npy"),
-        npy::bool_plane(h, w, depth.iter().map(|&z| z > 0.0)),
-    ));
-
-    let mut meta: serde_json::Value = serde_json::from_str(&camera_json(&cam, aovs))?;
+    let (w, h) = (scene.camera.width as usize, scene.camera.height as usize);
     let mut miss = serde_json::Map::new();
     let mut shapes = serde_json::Map::new();
     for &a in &arrays {
@@ -412,27 +488,24 @@ pub fn view_members(
         arrays: shapes,
         cylaov_version: env!("CARGO_PKG_VERSION"),
     })?;
-    if let (Some(m), serde_json::Value::Object(e)) = (meta.as_object_mut(), extra) {
-        m.extend(e);
-    }
-    let mut json = record_json(&meta);
-    json.push('\n');
-    out.push((format!("{key}.json"), json.into_bytes()));
-
-    if members.contains(&Member::Exr) {
-        let keep: Vec<&str> = aovs
-            .iter()
-            .flat_map(|&a| channel_names(a).iter().copied())
-            .collect();
-        image.channels.retain(|c| keep.contains(&c.name.as_str()));
-        let mut exr = std::io::Cursor::new(Vec::new());
-        image.write_exr_with(&mut exr, opts.compression, &exr_attributes(&cam, aovs))?;
-        out.push((format!("{key}.exr"), exr.into_inner()));
-    }
-    if let Some(png) = depth_png {
-        out.push((format!("{key}.depth.png"), png));
-    }
-    Ok(out)
+    let mut sink = TarSink {
+        key,
+        arrays: &arrays,
+        extra,
+        keep: members,
+        npys: Vec::new(),
+        camera: None,
+        exr: None,
+        depth_png: None,
+        members: Vec::new(),
+    };
+    let render_opts = RenderOptions {
+        precision: opts.precision,
+        formula: opts.formula,
+        ..RenderOptions::new(plan.traced_aovs())
+    };
+    plan.execute(scene, &render_opts, &mut sink)?;
+    Ok(sink.members)
 }
 
 /// Bytes a tar of views of `w`×`h` with `aovs` and `members` takes per view, the JSON

@@ -1,0 +1,301 @@
+//! Files that are never half-written: each is staged under a temporary name in the
+//! target's folder (or a work folder on the same file system) and renamed into place
+//! when complete, alone ([`atomic_write`]) or together with the other files of one
+//! command ([`commit_all`]). Staged files are registered with [`super::signals`], so a
+//! signal removes them too; the folders a command made go again if it fails
+//! ([`NewDirs`]).
+
+use super::signals::{self, Cleanup, Registration};
+use std::fs::File;
+use std::io::{self, Write};
+use std::path::{Path, PathBuf};
+
+/// The start of the temporary name used while `path` is written: `.NAME.HOST.PID.`, to
+/// which [`stage`] adds random characters and `.tmp`, in the same folder so the rename is
+/// atomic. Hidden and ending in `.tmp`, the suffix every work-in-progress file of cylaov
+/// carries; the host (`/proc/sys/kernel/hostname`, else `$HOSTNAME`) and PID say who left a
+/// file behind (shards on different nodes of a shared filesystem can have equal PIDs).
+/// `NAME` is shortened (at a character boundary) when the whole would pass the 255-byte
+/// file name limit: any output name the file system accepts also has a temporary name it
+/// accepts.
+fn temp_prefix(path: &Path) -> String {
+    let host = temp_host();
+    let mut name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let tail = format!(".{host}.{}.", std::process::id());
+    // One byte for the leading dot, the random part and `.tmp`; the tail is at most ~30 bytes.
+    let room = NAME_MAX.saturating_sub(1 + tail.len() + TEMP_RANDOM + ".tmp".len());
+    if name.len() > room {
+        let mut cut = room;
+        while !name.is_char_boundary(cut) {
+            cut -= 1;
+        }
+        name.truncate(cut);
+    }
+    format!(".{name}{tail}")
+}
+
+/// The host part of a temporary name (see [`temp_prefix`]).
+fn temp_host() -> &'static str {
+    use std::sync::OnceLock;
+    static HOST: OnceLock<String> = OnceLock::new();
+    HOST.get_or_init(|| {
+        let host = hostname()
+            .or_else(|| std::env::var("HOSTNAME").ok())
+            .unwrap_or_default();
+        // File-name safe and short: a long name must still fit NAME_MAX with the rest.
+        let host: String = host
+            .trim()
+            .chars()
+            .filter(|c| c.is_ascii_alphanumeric() || *c == '-' || *c == '.')
+            .take(16)
+            .collect();
+        if host.is_empty() { "host".into() } else { host }
+    })
+}
+
+/// This machine's name (`gethostname`, which needs no file handle: a run out of them
+/// still names its temporary files like every other run of this host).
+#[cfg(target_os = "linux")]
+fn hostname() -> Option<String> {
+    let mut buf = [0u8; 256];
+    // SAFETY: gethostname writes at most `buf.len()` bytes into the buffer it is given.
+    if unsafe { libc::gethostname(buf.as_mut_ptr().cast(), buf.len()) } != 0 {
+        return None;
+    }
+    let end = buf.iter().position(|&b| b == 0).unwrap_or(buf.len());
+    Some(String::from_utf8_lossy(&buf[..end]).into_owned())
+}
+
+#[cfg(not(target_os = "linux"))]
+fn hostname() -> Option<String> {
+    std::fs::read_to_string("/proc/sys/kernel/hostname").ok()
+}
+
+/// Random characters in a temporary name; with exclusive creation (`O_EXCL`, retried by
+/// `tempfile` on a clash) two threads, two processes or two nodes never share one.
+const TEMP_RANDOM: usize = 8;
+
+/// The longest file name (one path component, in bytes) of Linux file systems.
+pub(crate) const NAME_MAX: usize = 255;
+
+/// The folders a command created, removed again (innermost first, where empty) when it is
+/// dropped before [`NewDirs::keep`]: a failed `-o new/sub/x.exr` leaves no `new/`.
+#[derive(Default)]
+#[must_use = "the folders are removed when this is dropped without keep()"]
+pub struct NewDirs {
+    made: Vec<PathBuf>,
+    /// Each made folder is also removed (if empty) by a signal's clean-up.
+    registered: Vec<Registration>,
+}
+
+impl NewDirs {
+    /// Create `dir` and its missing parents, remembering the ones this call made.
+    pub fn create(&mut self, dir: &Path) -> io::Result<()> {
+        let mut missing: Vec<PathBuf> = Vec::new();
+        for d in dir.ancestors() {
+            if d.as_os_str().is_empty() || d.exists() {
+                break;
+            }
+            missing.push(d.to_path_buf());
+        }
+        std::fs::create_dir_all(dir).map_err(explain)?;
+        for d in missing.into_iter().rev() {
+            self.registered
+                .push(signals::register(Cleanup::EmptyDir, &d));
+            self.made.push(d);
+        }
+        Ok(())
+    }
+
+    /// [`NewDirs::create`] for the parent folder of a file target, if it has one.
+    pub fn create_parent(&mut self, file: &Path) -> io::Result<()> {
+        match file.parent() {
+            Some(d) if !d.as_os_str().is_empty() => self.create(d),
+            _ => Ok(()),
+        }
+    }
+
+    /// Whether any folder was made (the target is new: what the command wrote in it is all
+    /// its own).
+    pub fn made_any(&self) -> bool {
+        !self.made.is_empty()
+    }
+
+    /// The command succeeded: keep every folder.
+    pub fn keep(mut self) {
+        self.made.clear();
+        self.registered.clear();
+    }
+}
+
+impl Drop for NewDirs {
+    fn drop(&mut self) {
+        for d in self.made.iter().rev() {
+            let _ = std::fs::remove_dir(d);
+        }
+    }
+}
+
+/// Add the advice a person needs to an IO error: a full disk, the file size limit and
+/// the open-file limit say so.
+pub fn explain(e: io::Error) -> io::Error {
+    let advice = match e.raw_os_error() {
+        Some(28) => "the disk is full; free space and run again",
+        Some(122) => "the disk quota is exceeded; free space and run again",
+        Some(27) => "the file size limit is reached (ulimit -f); raise it and run again",
+        Some(24) | Some(23) => {
+            "too many open files (ulimit -n); raise the limit or use fewer --threads"
+        }
+        _ if e.kind() == io::ErrorKind::StorageFull => "the disk is full; free space and run again",
+        _ => return e,
+    };
+    io::Error::new(e.kind(), format!("{e}: {advice}"))
+}
+
+/// Write `path` through `fill` into a temporary file, then rename it into place. On any
+/// error the temporary file is removed and `path` is untouched. A killed process leaves at
+/// most a `.tmp` file, never a partial `path`. No fsync: that guards against power loss,
+/// not process death, and costs more than encoding a 1080p EXR.
+pub fn atomic_write(path: &Path, fill: impl FnOnce(&mut File) -> io::Result<()>) -> io::Result<()> {
+    stage(path, fill)?.commit()
+}
+
+/// A file written under its temporary name and not yet renamed into place: a command that
+/// writes several files stages them all, then commits them, so a failure half-way leaves
+/// none of them behind. Dropped uncommitted, the temporary file is removed (`tempfile`'s
+/// `NamedTempFile`, which also created it exclusively).
+#[must_use = "a staged file is removed unless committed"]
+pub struct Staged {
+    file: tempfile::NamedTempFile,
+    path: PathBuf,
+    /// Removed by a signal's clean-up until committed or dropped.
+    _registered: Registration,
+}
+
+/// Write `path`'s content through `fill` to its temporary name (see [`Staged`]), in
+/// `path`'s own folder.
+pub fn stage(path: &Path, fill: impl FnOnce(&mut File) -> io::Result<()>) -> io::Result<Staged> {
+    let dir = match path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        Some(dir) => {
+            std::fs::create_dir_all(dir)?;
+            dir
+        }
+        None => Path::new("."),
+    };
+    // What runs killed outright (SIGKILL, a power cut) left here goes first.
+    signals::sweep_once(dir, temp_host(), TEMP_RANDOM);
+    stage_at(path, dir, &temp_prefix(path), fill)
+}
+
+/// [`stage`] with the temporary file in `work` (a folder of cylaov's own on the same file
+/// system, such as a batch shard's partial folder, which goes as a whole) named
+/// `PREFIX` + random characters + `.tmp`.
+pub fn stage_in(
+    path: &Path,
+    work: &Path,
+    prefix: &str,
+    fill: impl FnOnce(&mut File) -> io::Result<()>,
+) -> io::Result<Staged> {
+    stage_at(path, work, prefix, fill)
+}
+
+fn stage_at(
+    path: &Path,
+    dir: &Path,
+    prefix: &str,
+    fill: impl FnOnce(&mut File) -> io::Result<()>,
+) -> io::Result<Staged> {
+    let (mut file, registered) = signals::create_registered(
+        Cleanup::File,
+        || {
+            tempfile::Builder::new()
+                .prefix(prefix)
+                .suffix(".tmp")
+                .rand_bytes(TEMP_RANDOM)
+                // The mode `File::create` gives (0666 less the umask), not tempfile's
+                // private 0600: the renamed file is the user's output.
+                .permissions(std::os::unix::fs::PermissionsExt::from_mode(0o666))
+                .tempfile_in(dir)
+                .map_err(explain)
+        },
+        |f| f.path().to_path_buf(),
+    )?;
+    if let Some(errno) = injected_failure() {
+        return Err(explain(io::Error::from_raw_os_error(errno)));
+    }
+    fill(file.as_file_mut()).map_err(explain)?;
+    file.as_file_mut().flush().map_err(explain)?;
+    Ok(Staged {
+        file,
+        path: path.to_path_buf(),
+        _registered: registered,
+    })
+}
+
+impl Staged {
+    /// Where the content waits until [`Staged::commit`].
+    pub fn temp_path(&self) -> &Path {
+        self.file.path()
+    }
+
+    /// The temporary file, for a writer that fills it in place (positional writes).
+    pub fn file(&self) -> &File {
+        self.file.as_file()
+    }
+
+    /// Where the file goes.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Rename the file into place.
+    pub fn commit(self) -> io::Result<()> {
+        self.file.persist(&self.path).map_err(|e| e.error)?;
+        Ok(())
+    }
+}
+
+/// Commit staged files together: none is renamed while any destination is a folder, and
+/// if a rename still fails, the files this call already put in place are removed again.
+pub fn commit_all(staged: Vec<Staged>) -> io::Result<()> {
+    if let Some(s) = staged.iter().find(|s| s.path.is_dir()) {
+        return Err(io::Error::other(format!(
+            "{} is a folder",
+            s.path.display()
+        )));
+    }
+    let mut done: Vec<PathBuf> = Vec::new();
+    for s in staged {
+        let path = s.path.clone();
+        if let Err(e) = s.commit() {
+            for p in &done {
+                let _ = std::fs::remove_file(p);
+            }
+            return Err(io::Error::other(format!("{}: {e}", path.display())));
+        }
+        done.push(path);
+    }
+    Ok(())
+}
+
+/// A write failure injected for tests: `CYLAOV_FAIL_WRITES=ENOSPC` makes every staged write
+/// fail as a full disk would, after its temporary file was created (so the clean-up runs).
+/// Read once; any other value is ignored.
+fn injected_failure() -> Option<i32> {
+    use std::sync::OnceLock;
+    static FAIL: OnceLock<Option<i32>> = OnceLock::new();
+    *FAIL.get_or_init(
+        || match std::env::var("CYLAOV_FAIL_WRITES").ok()?.as_str() {
+            "ENOSPC" => Some(28),
+            _ => None,
+        },
+    )
+}
+
+/// Write bytes atomically.
+pub fn atomic_write_bytes(path: &Path, bytes: &[u8]) -> io::Result<()> {
+    atomic_write(path, |f| f.write_all(bytes))
+}
