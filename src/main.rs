@@ -309,6 +309,14 @@ struct BenchCli {
     /// depth+normal, 100 cylinders, and `render()`'s overhead on a 16x16 view.
     #[arg(long)]
     python: bool,
+    /// Only the dataset formats side by side: `batch` of one generated dataset (320x240,
+    /// depth+normal, 100 cylinders a scene) in the files format with pictures, EXR-only,
+    /// and as webdataset tar shards, in views/s, on the --threads given.
+    #[arg(long)]
+    batch_formats: bool,
+    /// Views of the --batch-formats dataset.
+    #[arg(long, default_value_t = 2000, value_parser = clap::value_parser!(u64).range(1..))]
+    batch_views: u64,
     /// Worker threads, 1 to 1024 (default: all cores).
     #[arg(long, value_parser = threads)]
     threads: Option<usize>,
@@ -734,6 +742,24 @@ fn shards(args: &commands::batch::BatchArgs, sopts: &ShardOptions) -> anyhow::Re
 
 fn bench(b: BenchCli) -> anyhow::Result<ExitCode> {
     set_threads(b.threads)?;
+    if b.batch_formats {
+        let rows = bench::batch_formats::run(b.batch_views, 100, 320, 240)?;
+        say(&format!(
+            "{:<16} {:>7} {:>9} {:>10} {:>10}",
+            "format", "views", "seconds", "views/s", "MiB"
+        ))?;
+        for r in rows {
+            say(&format!(
+                "{:<16} {:>7} {:>9.3} {:>10.1} {:>10.1}",
+                r.format,
+                r.views,
+                r.seconds,
+                r.views_per_s,
+                r.bytes as f64 / (1u64 << 20) as f64
+            ))?;
+        }
+        return Ok(ExitCode::SUCCESS);
+    }
     if b.python {
         let python = cylaov::verify::reference::Mitsuba::find()
             .map_err(|why| anyhow::anyhow!("--python: {why}"))?
