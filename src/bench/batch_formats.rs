@@ -77,7 +77,10 @@ pub fn run(views: u64, cylinders: u64, width: u32, height: u32) -> Result<Vec<Fo
     };
     for (format, png) in [("files", true), ("files --no-png", false)] {
         let out = tmp.path().join(format.replace(' ', ""));
-        let o = BatchOptions { png, ..opts.clone() };
+        let o = BatchOptions {
+            png,
+            ..opts.clone()
+        };
         let t = Instant::now();
         let s = batch::run(&data, &out, Shard::ALL, &o, ProgressMode::Off, None)?;
         row(format, s.counts.done, t, &out);

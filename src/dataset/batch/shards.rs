@@ -739,45 +739,70 @@ impl Plan<'_> {
             inner: BufWriter::with_capacity(1 << 20, file),
             hash: Sha256::new(),
         });
-        let mut failures = Vec::new();
-        let mut samples = 0;
-        let batch = 4 * rayon::current_num_threads().max(1);
-        let indices: Vec<usize> = range.clone().collect();
-        for chunk in indices.chunks(batch) {
-            let rendered: Vec<Result<Vec<(String, Vec<u8>)>, String>> = chunk
-                .par_iter()
-                .map(|&i| {
-                    let scene = scenes[i - range.start].as_ref().map_err(|e| e.clone())?;
-                    view_members(
-                        &self.keys[i],
-                        &self.views[i],
-                        scene,
-                        &self.input_dir,
-                        &self.aovs,
-                        &self.opts,
-                        &self.sopts.members,
-                    )
-                    .map_err(|e| format!("{}: {e:#}", self.views[i].path.display()))
-                })
-                .collect();
-            for (&i, r) in chunk.iter().zip(rendered) {
-                match r {
-                    Ok(members) => {
-                        for (name, bytes) in &members {
-                            tar.append(name, bytes)
-                                .with_context(|| format!("writing {}", tmp.display()))?;
+        type Rendered = Vec<(usize, Result<Vec<(String, Vec<u8>)>, String>)>;
+        // The pool renders a chunk while this thread's helper appends the one before
+        // (appending and hashing are sequential: they overlap the rendering instead).
+        let (send, receive) = std::sync::mpsc::sync_channel::<Rendered>(1);
+        let writer = |tar: &mut TarWriter<Hashing<BufWriter<std::fs::File>>>| -> Result<(usize, Vec<ShardFailure>)> {
+            let (mut samples, mut failures) = (0, Vec::new());
+            for chunk in receive {
+                for (i, r) in chunk {
+                    match r {
+                        Ok(members) => {
+                            for (name, bytes) in &members {
+                                tar.append(name, bytes)
+                                    .with_context(|| format!("writing {}", tmp.display()))?;
+                            }
+                            samples += 1;
                         }
-                        samples += 1;
-                    }
-                    Err(e) => {
-                        if let Some(what) = resource_exhausted(&e) {
-                            bail!("{}: {what}: {e}", tmp.display());
+                        Err(e) => {
+                            if let Some(what) = resource_exhausted(&e) {
+                                bail!("{}: {what}: {e}", tmp.display());
+                            }
+                            failures.push(self.failure(i, e));
                         }
-                        failures.push(self.failure(i, e));
                     }
                 }
             }
-        }
+            Ok((samples, failures))
+        };
+        let batch = 2 * rayon::current_num_threads().max(1);
+        let indices: Vec<usize> = range.clone().collect();
+        let written = std::thread::scope(|s| {
+            let handle = s.spawn(|| writer(&mut tar));
+            for chunk in indices.chunks(batch) {
+                let rendered: Rendered = chunk
+                    .par_iter()
+                    .map(|&i| {
+                        let r = scenes[i - range.start]
+                            .as_ref()
+                            .map_err(|e| e.clone())
+                            .and_then(|scene| {
+                                view_members(
+                                    &self.keys[i],
+                                    &self.views[i],
+                                    scene,
+                                    &self.input_dir,
+                                    &self.aovs,
+                                    &self.opts,
+                                    &self.sopts.members,
+                                )
+                                .map_err(|e| format!("{}: {e:#}", self.views[i].path.display()))
+                            });
+                        (i, r)
+                    })
+                    .collect();
+                // The helper stopped on an error: it says which.
+                if send.send(rendered).is_err() {
+                    break;
+                }
+            }
+            drop(send);
+            handle
+                .join()
+                .unwrap_or_else(|_| Err(anyhow!("the tar writer thread panicked")))
+        });
+        let (samples, failures) = written?;
         let (hashing, bytes) = tar
             .finish()
             .with_context(|| format!("writing {}", tmp.display()))?;
