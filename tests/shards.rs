@@ -352,12 +352,17 @@ fn arrays_are_the_files_formats_samples() {
     let data = generate(dir.path(), 3);
     let files = dir.path().join("files");
     let shards = dir.path().join("shards");
-    ok(&[
+    let said = must(cylaov(&[
         "batch",
         data.to_str().unwrap(),
         "--out",
         files.to_str().unwrap(),
-    ]);
+    ]));
+    // The files format's size line gives the shards' size too: 3 views of 1.31 MB.
+    assert!(
+        said.contains("as --format webdataset tar shards: about 3.8 MiB"),
+        "{said}"
+    );
     must(batch_wds(&data, &shards, &["--members", "exr,depth.png"]));
     let tar = std::fs::read(shards.join("shard-000000.tar")).unwrap();
     let m: BTreeMap<String, Vec<u8>> = members(&tar).into_iter().collect();

@@ -181,8 +181,13 @@ pub fn run(
     if progress != ProgressMode::Off {
         let estimate = estimate(&mine, &cameras, opts);
         eprintln!(
-            "{}",
-            estimate.message(&format!("batch {shard}"), opts.compression)
+            "{}; as --format webdataset tar shards: about {}",
+            estimate.message(&format!("batch {shard}"), opts.compression),
+            super::shards::mib(super::shards::tar_estimate(
+                mine.iter()
+                    .filter_map(|&i| cameras[i].as_ref().ok())
+                    .map(|c| (c.size(), c.aovs().collect::<Vec<_>>()))
+            ))
         );
     }
     let work = ShardWork {

@@ -584,6 +584,8 @@ struct Plan<'a> {
     opts: BatchOptions,
     sopts: &'a ShardOptions,
     tars: usize,
+    /// Whether the files format would write PNGs (for its size estimate).
+    files_png: bool,
 }
 
 impl Plan<'_> {
@@ -898,6 +900,23 @@ impl Plan<'_> {
     }
 }
 
+/// Bytes of the tar shards of views of these sizes and AOV sets (no optional members), in
+/// tars of [`DEFAULT_SHARD_SIZE`]: what the files format's size line adds.
+pub(super) fn tar_estimate(views: impl Iterator<Item = ((u32, u32), Vec<Aov>)>) -> u64 {
+    let mut n = 0u64;
+    let mut bytes = 0u64;
+    for ((w, h), aovs) in views {
+        bytes += view_tar_bytes(w as usize, h as usize, &aovs, &[]);
+        n += 1;
+    }
+    bytes + n.div_ceil(DEFAULT_SHARD_SIZE as u64) * 2 * tar::BLOCK as u64
+}
+
+/// Bytes as MiB with one decimal.
+pub(super) fn mib(bytes: u64) -> String {
+    format!("{:.1} MiB", bytes as f64 / (1u64 << 20) as f64)
+}
+
 /// The size line printed before a sharded run: the tars', and what the files format
 /// would write for the same views.
 fn estimate_line(plan: &Plan, mine: &[usize]) -> String {
@@ -908,13 +927,12 @@ fn estimate_line(plan: &Plan, mine: &[usize]) -> String {
         for i in plan.range(j) {
             let Ok(cam) = &plan.cameras[i] else { continue };
             let (w, h) = cam.size();
-            files.add((w, h), &plan.aovs, 1, plan.opts.png);
+            files.add((w, h), &plan.aovs, 1, plan.files_png);
             shards += view_tar_bytes(w as usize, h as usize, &plan.aovs, &plan.sopts.members);
             views += 1;
         }
     }
     shards += mine.len() as u64 * 2 * tar::BLOCK as u64;
-    let mib = |b: u64| format!("{:.1} MiB", b as f64 / (1u64 << 20) as f64);
     format!(
         "batch webdataset: {} tars, {views} views: about {} of tar shards (the files format: \
          about {})",
@@ -1001,6 +1019,7 @@ pub fn write_shards(
         opts: shard_opts,
         sopts,
         tars,
+        files_png: opts.png,
     };
     let mut targets: Vec<(&str, PathBuf)> = vec![
         ("--out", out.join("shards.json")),
