@@ -268,9 +268,15 @@ pub fn commit_all(staged: Vec<Staged>) -> io::Result<()> {
         )));
     }
     let mut done: Vec<PathBuf> = Vec::new();
-    for s in staged {
+    let last = staged.len().saturating_sub(1);
+    for (i, s) in staged.into_iter().enumerate() {
         let path = s.path.clone();
-        if let Err(e) = s.commit() {
+        let committed = if i == last && i > 0 && injected() == Some(Injected::LastRename) {
+            Err(io::Error::from_raw_os_error(5))
+        } else {
+            s.commit()
+        };
+        if let Err(e) = committed {
             for p in &done {
                 let _ = std::fs::remove_file(p);
             }
@@ -281,18 +287,36 @@ pub fn commit_all(staged: Vec<Staged>) -> io::Result<()> {
     Ok(())
 }
 
-/// A write failure injected for tests: `CYLAOV_FAIL_WRITES=ENOSPC` makes every staged write
-/// fail as a full disk would, after its temporary file was created (so the clean-up runs).
-/// Read once; any other value is ignored.
-fn injected_failure() -> Option<i32> {
+/// A failure injected for tests (`CYLAOV_FAIL_WRITES`, read once; any other value is
+/// ignored).
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Injected {
+    /// `ENOSPC`: every staged write fails as a full disk would, after its temporary file
+    /// was created (so the clean-up runs).
+    Write(i32),
+    /// `COMMIT`: the last rename of every [`commit_all`] of several files fails (EIO) after
+    /// the others were put in place (so the roll-back runs).
+    LastRename,
+}
+
+fn injected() -> Option<Injected> {
     use std::sync::OnceLock;
-    static FAIL: OnceLock<Option<i32>> = OnceLock::new();
+    static FAIL: OnceLock<Option<Injected>> = OnceLock::new();
     *FAIL.get_or_init(
         || match std::env::var("CYLAOV_FAIL_WRITES").ok()?.as_str() {
-            "ENOSPC" => Some(28),
+            "ENOSPC" => Some(Injected::Write(28)),
+            "COMMIT" => Some(Injected::LastRename),
             _ => None,
         },
     )
+}
+
+/// The errno of an injected write failure (see [`Injected::Write`]).
+fn injected_failure() -> Option<i32> {
+    match injected()? {
+        Injected::Write(errno) => Some(errno),
+        Injected::LastRename => None,
+    }
 }
 
 /// Write bytes atomically.

@@ -333,24 +333,45 @@ impl ViewPlan {
         };
         let depth_zeroed = depth.as_ref().map_or(0, |d| d.zeroed);
         sink.image(image)?;
-        self.add_metadata(sink)?;
-        if self.normal_picture {
-            let normal = preview::normal_rgb(image).context("no normal AOV")?;
-            add_png(sink, Member::NormalPicture, &normal)?;
-        }
-        if let Some(d) = &depth {
-            add_png(sink, Member::DepthPng, &d.png)?;
-        }
-        if self.mask {
-            let mask = depth_png::mask(image).context("no depth AOV")?;
-            add_png(sink, Member::MaskPng, &mask)?;
-        }
+        // The dataset pictures use AOVs the EXR may not store.
+        let normal = match self.normal_picture {
+            true => Some(preview::normal_rgb(image).context("no normal AOV")?),
+            false => None,
+        };
+        let mask = match self.mask {
+            true => Some(depth_png::mask(image).context("no depth AOV")?),
+            false => None,
+        };
         let keep: Vec<&str> = self
             .exr_aovs
             .iter()
             .flat_map(|&a| channel_names(a).iter().copied())
             .collect();
         image.channels.retain(|c| keep.contains(&c.name.as_str()));
+        // Staged in the order of the streamed path: EXRs, metadata, pictures.
+        match self.layout {
+            ExrLayout::Layers => {
+                let attrs = exr_attributes(&self.camera, &self.exr_aovs);
+                add_exr(sink, Member::Exr, image, self.compression, &attrs)?;
+            }
+            ExrLayout::PerAov => {
+                for &a in &self.exr_aovs {
+                    let one = per_aov_image(image, a)?;
+                    let attrs = exr_attributes(&self.camera, &[a]);
+                    add_exr(sink, Member::AovExr(a), &one, self.compression, &attrs)?;
+                }
+            }
+        }
+        self.add_metadata(sink)?;
+        if let Some(normal) = &normal {
+            add_png(sink, Member::NormalPicture, normal)?;
+        }
+        if let Some(d) = &depth {
+            add_png(sink, Member::DepthPng, &d.png)?;
+        }
+        if let Some(mask) = &mask {
+            add_png(sink, Member::MaskPng, mask)?;
+        }
         // The previews show what the EXR stores.
         if self.previews {
             if let Some(p) = preview::normal_preview(image) {
@@ -363,19 +384,6 @@ impl ViewPlan {
                 && let Some(p) = preview::depth_colormap(image, a.name())
             {
                 add_png(sink, Member::DepthPreview(a), &p)?;
-            }
-        }
-        match self.layout {
-            ExrLayout::Layers => {
-                let attrs = exr_attributes(&self.camera, &self.exr_aovs);
-                add_exr(sink, Member::Exr, image, self.compression, &attrs)?;
-            }
-            ExrLayout::PerAov => {
-                for &a in &self.exr_aovs {
-                    let one = per_aov_image(image, a)?;
-                    let attrs = exr_attributes(&self.camera, &[a]);
-                    add_exr(sink, Member::AovExr(a), &one, self.compression, &attrs)?;
-                }
             }
         }
         Ok(depth_zeroed)

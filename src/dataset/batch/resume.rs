@@ -4,8 +4,7 @@
 use super::options::BatchOptions;
 use crate::output::aov::{Compression, ExrLayout, channel_names, per_aov_channel_names};
 use crate::output::files::{open_regular, read_regular};
-use crate::output::io::{camera_json, open3d_json};
-use crate::scene::camera::Camera;
+use crate::output::view::Member;
 use crate::scene::{Aov, Scene};
 use exr::meta::MetaData;
 use exr::meta::attribute::SampleType;
@@ -325,12 +324,13 @@ pub fn view_is_complete(dir: &Path, name: &str, scene: &Scene, opts: &BatchOptio
     // The camera file and the stamp must be the ones this run would write: a changed scene
     // (e.g. regenerated under the same names), AOV list or output option renders the view
     // again.
-    let cam = Camera::new(scene.camera);
-    let camera = camera_json(&cam, &opts.exr_aovs(scene));
-    let same = |path: &Path, want: &str| read_regular(path).is_ok_and(|b| b == want.as_bytes());
-    let others = same(&files.camera, &camera)
-        && same(&files.open3d, &open3d_json(&cam))
-        && same(&files.stamp, &render_stamp(scene, opts))
+    let plan = super::write::view_plan(scene, opts);
+    let same = |path: &Path, member: Member| {
+        read_regular(path).is_ok_and(|b| plan.member_bytes(member).is_some_and(|want| b == want))
+    };
+    let others = same(&files.camera, Member::Camera)
+        && same(&files.open3d, Member::Open3d)
+        && same(&files.stamp, Member::Stamp)
         && (!opts.png
             || [&files.normal_png, &files.depth_png, &files.mask_png]
                 .iter()
