@@ -15,6 +15,11 @@
 //! `KEY.depth.png`, the bytes the files format writes. A view that fails keeps its slot: it
 //! is absent from its tar and listed in the sidecar and the failures file.
 //!
+//! A view's members come from its `crate::output::view::ViewPlan`, executed into a tar
+//! sink (`TarSink`, behind [`view_members`]): the arrays from the traced image, `KEY.json`
+//! from the plan's camera member, `KEY.exr` and `KEY.depth.png` from the plan's own members
+//! (not encoded unless asked for).
+//!
 //! **Determinism.** Members in that fixed order, every header fixed (see
 //! `crate::output::tar`), scene files named relative to the input folder: a tar is a pure
 //! function of the input and the options, whichever process or engine writes it.
@@ -429,7 +434,7 @@ fn plan_aovs(aovs: &[Aov]) -> Vec<Aov> {
 }
 
 /// The members of one view, in tar order (see the module docs): the view's plan executed
-/// into a [`TarSink`].
+/// into a tar sink.
 pub fn view_members(
     key: &str,
     view: &ViewSource,
