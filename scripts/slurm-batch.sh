@@ -10,7 +10,9 @@
 # Re-submitting the same array resumes: finished views are verified and skipped.
 # Failed views are listed in OUT/failures.K-of-N.jsonl and make the task exit non-zero.
 #
-# Extra cylaov options go after the two paths, e.g. --aov depth,normal,shape_id.
+# Extra cylaov options go after the two paths, e.g. --aov depth,normal,shape_id; with
+# --format webdataset [--shard-size N] each task writes whole tar shards (tar j goes to task
+# j % N) and the last to finish writes OUT/shards.json.
 #
 # Resources: one CPU and 1 GB per task by default, which any node can give (a request larger
 # than every node, such as 8 CPUs on a 2-core node, leaves the array pending forever without

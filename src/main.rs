@@ -1,6 +1,7 @@
 //! The `cylaov` command line: parses arguments, calls the library, reports errors.
 
 use clap::{Args, Parser, Subcommand};
+use cylaov::dataset::batch::shards::{Member, ShardOptions, TarSelection};
 use cylaov::dataset::batch::{BatchOptions, ProgressMode, Schedule, Shard};
 use cylaov::dataset::generate::{Range, Volume};
 use cylaov::geometry::{FormulaKind, Kernel, Precision};
@@ -228,6 +229,28 @@ struct BatchCli {
     /// Parallelise over views (default) or within one view at a time.
     #[arg(long, value_enum, default_value_t = Schedule::Views, hide = true)]
     schedule: Schedule,
+    /// `files`: the files above per view; `webdataset`: tar shards OUT/shard-000000.tar, ...
+    /// (KEY.depth.npy, KEY.normal.npy, one KEY.<aov>.npy per other AOV, KEY.mask.npy,
+    /// KEY.json), each with its sidecar shard-000000.json, and OUT/shards.json; --shard K/N
+    /// then assigns whole tars (j % N == K).
+    #[arg(long, value_enum, default_value_t = Format::Files)]
+    format: Format,
+    /// Views per tar shard (--format webdataset).
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    shard_size: Option<u64>,
+    /// Extra members per view in each tar (--format webdataset), comma-separated: `exr`
+    /// (KEY.exr), `depth.png` (KEY.depth.png, at --depth-scale).
+    #[arg(long, value_enum, value_delimiter = ',')]
+    members: Vec<Member>,
+}
+
+/// What `batch` writes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+enum Format {
+    /// Files per view.
+    Files,
+    /// Tar shards that webdataset, Hugging Face datasets and Ray Data read.
+    Webdataset,
 }
 
 #[derive(Args)]
@@ -295,6 +318,14 @@ struct BenchCli {
     /// depth+normal, 100 cylinders, and `render()`'s overhead on a 16x16 view.
     #[arg(long)]
     python: bool,
+    /// Only the dataset formats side by side: `batch` of one generated dataset (320x240,
+    /// depth+normal, 100 cylinders a scene) in the files format with pictures, EXR-only,
+    /// and as webdataset tar shards, in views/s, on the --threads given.
+    #[arg(long)]
+    batch_formats: bool,
+    /// Views of the --batch-formats dataset.
+    #[arg(long, default_value_t = 2000, value_parser = clap::value_parser!(u64).range(1..))]
+    batch_views: u64,
     /// Worker threads, 1 to 1024 (default: all cores).
     #[arg(long, value_parser = threads)]
     threads: Option<usize>,
@@ -627,6 +658,23 @@ fn generate(a: GenerateCli) -> anyhow::Result<ExitCode> {
 /// Exit 1 when any view failed (the summary names the failures file).
 fn batch(a: BatchCli) -> anyhow::Result<ExitCode> {
     set_threads(a.kernel.threads)?;
+    if a.format == Format::Files {
+        if a.shard_size.is_some() {
+            anyhow::bail!("--shard-size: only with --format webdataset");
+        }
+        if !a.members.is_empty() {
+            anyhow::bail!("--members: only with --format webdataset");
+        }
+    }
+    let format = a.format;
+    let sopts = ShardOptions {
+        shard_size: a
+            .shard_size
+            .map_or(cylaov::dataset::batch::shards::DEFAULT_SHARD_SIZE, |n| {
+                n as usize
+            }),
+        members: a.members.clone(),
+    };
     let args = commands::batch::BatchArgs {
         input: a.input,
         out: a.out,
@@ -649,6 +697,9 @@ fn batch(a: BatchCli) -> anyhow::Result<ExitCode> {
         tolerances: a.tolerances.get(),
         report: a.report,
     };
+    if format == Format::Webdataset {
+        return shards(&args, &sopts);
+    }
     let summary = commands::batch::run(&args)?;
     say(&summary.to_string())?;
     let mut why: Vec<String> = Vec::new();
@@ -676,8 +727,50 @@ fn batch(a: BatchCli) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
+/// `batch --format webdataset`: exit 1 when any view of this process's tars failed.
+fn shards(args: &commands::batch::BatchArgs, sopts: &ShardOptions) -> anyhow::Result<ExitCode> {
+    let shard =
+        cylaov::dataset::batch::resolve_shard(args.shard, args.shards, &|k| std::env::var(k).ok())
+            .map_err(anyhow::Error::msg)?;
+    let summary = cylaov::dataset::batch::shards::write_shards(
+        &args.input,
+        &args.out,
+        &TarSelection::Shard(shard),
+        &args.options,
+        sopts,
+        args.progress != ProgressMode::Off,
+    )?;
+    say(&summary.to_string())?;
+    if !summary.failures.is_empty() {
+        anyhow::bail!(
+            "{} views failed (see {})",
+            summary.failures.len(),
+            summary.failures_path.display()
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
 fn bench(b: BenchCli) -> anyhow::Result<ExitCode> {
     set_threads(b.threads)?;
+    if b.batch_formats {
+        let rows = bench::batch_formats::run(b.batch_views, 100, 320, 240)?;
+        say(&format!(
+            "{:<16} {:>7} {:>9} {:>10} {:>10}",
+            "format", "views", "seconds", "views/s", "MiB"
+        ))?;
+        for r in rows {
+            say(&format!(
+                "{:<16} {:>7} {:>9.3} {:>10.1} {:>10.1}",
+                r.format,
+                r.views,
+                r.seconds,
+                r.views_per_s,
+                r.bytes as f64 / (1u64 << 20) as f64
+            ))?;
+        }
+        return Ok(ExitCode::SUCCESS);
+    }
     if b.python {
         let python = cylaov::verify::reference::Mitsuba::find()
             .map_err(|why| anyhow::anyhow!("--python: {why}"))?

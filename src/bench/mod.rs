@@ -12,6 +12,8 @@
 //! Every number in a row comes from one run on this machine; compare ratios within a
 //! table, not across runs.
 
+pub mod batch_formats;
+
 use crate::accel::tiles;
 use crate::geometry::Kernel;
 use crate::geometry::kernel::KernelFn;

@@ -1,9 +1,10 @@
 //! Output files: the AOV EXR, PNG previews and figures, the Mitsuba 3 XML export, and one
-//! view's files written as one plan (`view`); files never half-written (`atomic`), output
-//! targets checked before any work (`targets`), camera metadata and record encoding
-//! (`camera_files`), console output (`console`), files opened in place without following
-//! links (`files`) and the clean-up of staged files on a signal (`signals`). The last stage
-//! of the pipeline; nothing here traces rays.
+//! view's files written as one plan (`view`); `.npy` arrays (`npy`) and ustar archives
+//! (`tar`) for tar shards; files never half-written (`atomic`), output targets checked
+//! before any work (`targets`), camera metadata and record encoding (`camera_files`),
+//! console output (`console`), files opened in place without following links (`files`) and
+//! the clean-up of staged files on a signal (`signals`). The last stage of the pipeline;
+//! nothing here traces rays.
 
 pub mod aov;
 pub mod atomic;
@@ -13,8 +14,10 @@ pub mod depth_png;
 pub mod files;
 pub mod io;
 pub mod mitsuba;
+pub mod npy;
 pub mod plot;
 pub mod preview;
 pub mod signals;
+pub mod tar;
 pub mod targets;
 pub mod view;

@@ -13,7 +13,9 @@
 //!   named by [`Member::suffix`] after the view's name; [`ViewSink::commit`] appends the
 //!   buffered `(name, bytes)` pairs to the tar, EXRs last, or nothing on an error. A sink
 //!   without files leaves [`ViewSink::stream_file`] at its default (`None`), so the view is
-//!   traced whole and then encoded.
+//!   traced whole and then encoded; [`ViewSink::image`] hands it the traced image for
+//!   arrays, and a member it does not keep is one whose `fill` it never calls (nothing is
+//!   encoded). `crate::dataset::batch::shards` is that sink.
 //! - **The Python package** wants arrays, not files: it takes the AOVs to trace from
 //!   [`ViewPlan::traced_aovs`] and the camera record from [`ViewPlan::member_bytes`] (or
 //!   `camera_json`) and hands out the traced image itself; it needs no sink.
@@ -164,6 +166,13 @@ pub trait ViewSink {
     /// How errors name `member` (its path, for files).
     fn label(&self, member: Member) -> String {
         member.suffix()
+    }
+    /// The traced image, before any member is encoded from it (never called when the EXR
+    /// streams): a sink that stores arrays rather than files (a tar shard's `.npy`
+    /// members) takes them here. The default takes nothing.
+    fn image(&mut self, image: &AovImage) -> Result<()> {
+        let _ = image;
+        Ok(())
     }
     /// Put every staged member in place, EXRs last; on an error none stays.
     fn commit(&mut self) -> Result<()>;
@@ -323,6 +332,7 @@ impl ViewPlan {
             None => None,
         };
         let depth_zeroed = depth.as_ref().map_or(0, |d| d.zeroed);
+        sink.image(image)?;
         // The dataset pictures use AOVs the EXR may not store.
         let normal = match self.normal_picture {
             true => Some(preview::normal_rgb(image).context("no normal AOV")?),

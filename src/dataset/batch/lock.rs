@@ -83,7 +83,21 @@ fn host() -> String {
 
 /// Lock `shard` of the batch writing into `out` (see the module docs).
 pub fn lock_shard(out: &Path, root: &Path, shard: Shard) -> Result<ShardLock> {
-    let path = root.join(format!("{shard}.lock"));
+    lock_file(out, &root.join(format!("{shard}.lock")), &|| {
+        format!("shard {} of {}", shard.index, shard.count)
+    })
+}
+
+/// Lock `OUT/.partial/NAME.lock` as [`lock_shard`] locks a shard: for what one process at a
+/// time may write besides a shard (the merged index of tar shards).
+pub fn lock_named(out: &Path, root: &Path, name: &str) -> Result<ShardLock> {
+    lock_file(out, &root.join(format!("{name}.lock")), &|| {
+        name.to_string()
+    })
+}
+
+fn lock_file(out: &Path, path: &Path, what: &dyn Fn() -> String) -> Result<ShardLock> {
+    let path = path.to_path_buf();
     loop {
         let file = open_lock(&path)?;
         if !try_lock(&file).with_context(|| path.display().to_string())? {
@@ -96,10 +110,9 @@ pub fn lock_shard(out: &Path, root: &Path, shard: Shard) -> Result<ShardLock> {
                 holder
             };
             bail!(
-                "another batch is writing shard {} of {} in {} ({holder}); wait for it, or \
-                 give this one another --out",
-                shard.index,
-                shard.count,
+                "another batch is writing {} in {} ({holder}); wait for it, or give this one \
+                 another --out",
+                what(),
                 out.display()
             );
         }

@@ -34,7 +34,7 @@
 //! folder), `options`, `resume` (output paths, render stamp, completeness
 //! checks), `write` (one view rendered and moved into place), `verify` (the reference check
 //! interface), `transforms` (`transforms.json`), `progress`, and `run` (the loop tying them
-//! together).
+//! together); `shards` writes the same views as tar shards (`--format webdataset`).
 
 mod lock;
 mod options;
@@ -42,6 +42,7 @@ mod progress;
 mod resume;
 mod run;
 mod shard;
+pub mod shards;
 mod transforms;
 mod verify;
 mod views;

@@ -181,8 +181,13 @@ pub fn run(
     if progress != ProgressMode::Off {
         let estimate = estimate(&mine, &cameras, opts);
         eprintln!(
-            "{}",
-            estimate.message(&format!("batch {shard}"), opts.compression)
+            "{}; as --format webdataset tar shards: about {}",
+            estimate.message(&format!("batch {shard}"), opts.compression),
+            super::shards::mib(super::shards::tar_estimate(
+                mine.iter()
+                    .filter_map(|&i| cameras[i].as_ref().ok())
+                    .map(|c| (c.size(), c.aovs().collect::<Vec<_>>()))
+            ))
         );
     }
     let work = ShardWork {
@@ -329,7 +334,7 @@ fn load(view: &ViewSource) -> Result<Scene, String> {
 /// Every shard reads every scene (the index lists every valid view) but keeps only what the
 /// index needs: memory is O(views), not O(views x cylinders). The views of this shard are
 /// read again, one at a time, when rendered. The list is a pure function of the input.
-fn expand_views(
+pub(super) fn expand_views(
     scenes: &[ViewSource],
     opts: &BatchOptions,
 ) -> (Vec<ViewSource>, Vec<Result<FrameCamera, String>>) {

@@ -13,7 +13,7 @@ A first render::
     out["mask"]       # (H, W) bool, True where a cylinder was hit
 
 Functions: ``render``, ``camera_info``, ``cast_rays``, ``camera_rays``, ``generate``,
-``read``, ``compare``; classes ``Scene``, ``Dataset``; errors ``SceneError`` (a
+``read``, ``compare``, ``write_shards``, ``shard_count``; classes ``Scene``, ``Dataset``; errors ``SceneError`` (a
 ``ValueError``) and ``OSError`` subclasses for files. ``help(cylaov.render)`` and the others
 say more; the package's documentation page is ``docs/python.md`` in the repository.
 """
@@ -33,6 +33,8 @@ from ._cylaov import (
     compare,
     read,
     render,
+    shard_count,
+    write_shards,
 )
 
 __all__ = [
@@ -46,6 +48,8 @@ __all__ = [
     "generate",
     "read",
     "compare",
+    "write_shards",
+    "shard_count",
     "__version__",
 ]
 

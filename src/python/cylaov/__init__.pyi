@@ -101,3 +101,22 @@ class Dataset:
     def __len__(self) -> int: ...
     def __getitem__(self, i: int) -> Dict[str, Any]: ...
     def __iter__(self) -> Iterator[Dict[str, Any]]: ...
+
+def shard_count(input: PathLike, shard_size: int = 1000) -> int:
+    """The number of tar shards `cylaov batch INPUT --format webdataset` makes."""
+    ...
+def write_shards(
+    input: PathLike,
+    out: PathLike,
+    shards: Optional[Sequence[int]] = None,
+    shard_size: int = 1000,
+    aovs: Optional[Sequence[AovName]] = None,
+    members: Sequence[Literal["exr", "depth.png"]] = (),
+    precision: Literal["f64", "f32"] = "f64",
+    formula: Literal["stable", "literal"] = "stable",
+    depth_scale: float = 1000.0,
+    threads: Optional[int] = None,
+) -> Dict[str, Any]:
+    """Write tar shards `shards` (None: all) as `batch --format webdataset` does, same bytes;
+    returns {"tars", "written", "skipped", "failed", "index_written"}."""
+    ...

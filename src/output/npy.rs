@@ -1,0 +1,151 @@
+//! NumPy `.npy` (format 1.0) encoding of the arrays of a tar shard: `(H, W)` or
+//! `(H, W, C)`, C order, little-endian float32, uint32 or bool, which `numpy.load` and
+//! `webdataset`'s decoder read as they are.
+//!
+//! A file is the magic `\x93NUMPY`, version 1.0, a little-endian u16 header length, the
+//! header (a Python dict literal padded with spaces and ending in a newline so the data
+//! starts at a multiple of 64 bytes), then the samples.
+
+/// The element types a shard stores.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Dtype {
+    /// `<f4`.
+    F32,
+    /// `<u4`.
+    U32,
+    /// `|b1`: one byte, 0 or 1.
+    Bool,
+}
+
+impl Dtype {
+    fn descr(self) -> &'static str {
+        match self {
+            Dtype::F32 => "<f4",
+            Dtype::U32 => "<u4",
+            Dtype::Bool => "|b1",
+        }
+    }
+
+    /// Bytes of one element.
+    pub fn size(self) -> usize {
+        match self {
+            Dtype::F32 | Dtype::U32 => 4,
+            Dtype::Bool => 1,
+        }
+    }
+}
+
+/// The magic, version, header length and header of an array of `shape`: a multiple of
+/// 64 bytes.
+pub fn header(dtype: Dtype, shape: &[usize]) -> Vec<u8> {
+    let dims: Vec<String> = shape.iter().map(|d| d.to_string()).collect();
+    // A one-element tuple needs its trailing comma.
+    let tuple = match dims.len() {
+        1 => format!("({},)", dims[0]),
+        _ => format!("({})", dims.join(", ")),
+    };
+    let mut dict = format!(
+        "{{'descr': '{}', 'fortran_order': False, 'shape': {tuple}, }}",
+        dtype.descr()
+    );
+    let unpadded = 10 + dict.len() + 1;
+    dict.push_str(&" ".repeat(unpadded.next_multiple_of(64) - unpadded));
+    dict.push('\n');
+    let mut out = Vec::with_capacity(10 + dict.len());
+    out.extend_from_slice(b"\x93NUMPY\x01\x00");
+    out.extend_from_slice(&(dict.len() as u16).to_le_bytes());
+    out.extend_from_slice(dict.as_bytes());
+    out
+}
+
+/// Bytes of the `.npy` file of an array of `shape`.
+pub fn file_size(dtype: Dtype, shape: &[usize]) -> usize {
+    header(dtype, shape).len() + shape.iter().product::<usize>() * dtype.size()
+}
+
+/// A float32 array of `shape` from `channels` planes of `H×W` samples each, interleaved
+/// (one plane: `(H, W)`; C planes: `(H, W, C)`).
+pub fn f32_planes(height: usize, width: usize, planes: &[&[f32]]) -> Vec<u8> {
+    let shape = shape(height, width, planes.len());
+    let mut out = header(Dtype::F32, &shape);
+    let start = out.len();
+    let c = planes.len();
+    out.resize(start + height * width * c * 4, 0);
+    for (k, px) in out[start..].chunks_exact_mut(4 * c).enumerate() {
+        for (p, plane) in planes.iter().enumerate() {
+            px[4 * p..4 * p + 4].copy_from_slice(&plane[k].to_le_bytes());
+        }
+    }
+    out
+}
+
+/// A `(H, W)` uint32 array.
+pub fn u32_plane(height: usize, width: usize, plane: &[u32]) -> Vec<u8> {
+    let mut out = header(Dtype::U32, &[height, width]);
+    out.reserve(plane.len() * 4);
+    for v in plane {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    out
+}
+
+/// A `(H, W)` bool array: `true` where `hit`.
+pub fn bool_plane(height: usize, width: usize, hit: impl Iterator<Item = bool>) -> Vec<u8> {
+    let mut out = header(Dtype::Bool, &[height, width]);
+    out.extend(hit.map(u8::from));
+    out
+}
+
+fn shape(height: usize, width: usize, channels: usize) -> Vec<usize> {
+    if channels == 1 {
+        vec![height, width]
+    } else {
+        vec![height, width, channels]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The headers numpy 2.4 `np.save` writes for these arrays: 128 bytes each, the same
+    /// dict text.
+    #[test]
+    fn headers_are_numpys() {
+        let h = header(Dtype::F32, &[240, 320]);
+        assert_eq!(h.len(), 128);
+        let text = std::str::from_utf8(&h[10..]).unwrap();
+        assert_eq!(
+            text.trim_end(),
+            "{'descr': '<f4', 'fortran_order': False, 'shape': (240, 320), }"
+        );
+        assert!(text.ends_with(" \n"));
+        assert_eq!(u16::from_le_bytes([h[8], h[9]]) as usize, h.len() - 10);
+        for shape in [&[2, 3][..], &[1, 2, 3], &[5]] {
+            assert_eq!(header(Dtype::Bool, shape).len(), 128, "{shape:?}");
+        }
+        assert!(
+            std::str::from_utf8(&header(Dtype::U32, &[5])[10..])
+                .unwrap()
+                .contains("'shape': (5,), ")
+        );
+    }
+
+    /// Planes interleave per pixel, little-endian; the sizes match `file_size`.
+    #[test]
+    fn samples_interleave_per_pixel() {
+        let (x, y, z) = ([1.0f32, 2.0], [3.0f32, 4.0], [5.0f32, -0.0]);
+        let b = f32_planes(1, 2, &[&x, &y, &z]);
+        assert_eq!(b.len(), file_size(Dtype::F32, &[1, 2, 3]));
+        let data: Vec<f32> = b[128..]
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
+            .collect();
+        assert_eq!(data, [1.0, 3.0, 5.0, 2.0, 4.0, -0.0]);
+        assert_eq!(data[5].to_bits(), (-0.0f32).to_bits());
+        let m = bool_plane(1, 3, [true, false, true].into_iter());
+        assert_eq!(&m[128..], &[1, 0, 1]);
+        let u = u32_plane(1, 1, &[0x0102_0304]);
+        assert_eq!(&u[128..], &[4, 3, 2, 1]);
+    }
+}

@@ -1,0 +1,102 @@
+//! `cylaov.write_shards` and `cylaov.shard_count`: the tar shards of `batch --format
+//! webdataset` from Python, so any engine (Ray, Dask, a process pool) can map tars over
+//! workers and get the command line's bytes.
+
+use super::{kernel, parse_aovs, run};
+use crate::dataset::batch::BatchOptions;
+use crate::dataset::batch::shards::{self, Member, ShardOptions, TarOutcome, TarSelection};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+use std::path::PathBuf;
+
+fn value_error(e: anyhow::Error) -> PyErr {
+    PyValueError::new_err(format!("{e:#}"))
+}
+
+/// The number of tar shards the views of `input` make at `shard_size` views a tar.
+#[pyfunction]
+#[pyo3(signature = (input, shard_size = shards::DEFAULT_SHARD_SIZE))]
+pub fn shard_count(py: Python<'_>, input: PathBuf, shard_size: usize) -> PyResult<usize> {
+    run(py, None, || shards::shard_count(&input, shard_size))?.map_err(value_error)
+}
+
+/// Write the tar shards `shards` (indices; `None`: all) of the views of `input` into `out`,
+/// as `cylaov batch INPUT --out OUT --format webdataset` does; a summary dict.
+#[pyfunction]
+#[pyo3(signature = (input, out, shards = None, shard_size = shards::DEFAULT_SHARD_SIZE,
+    aovs = None, members = Vec::new(), precision = "f64", formula = "stable",
+    depth_scale = 1000.0, threads = None))]
+#[allow(clippy::too_many_arguments)]
+pub fn write_shards<'py>(
+    py: Python<'py>,
+    input: PathBuf,
+    out: PathBuf,
+    shards: Option<Vec<usize>>,
+    shard_size: usize,
+    aovs: Option<Vec<String>>,
+    members: Vec<String>,
+    precision: &str,
+    formula: &str,
+    depth_scale: f64,
+    threads: Option<usize>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let k = kernel(precision, formula)?;
+    let members = members
+        .iter()
+        .enumerate()
+        .map(|(i, m)| match m.as_str() {
+            "exr" => Ok(Member::Exr),
+            "depth.png" => Ok(Member::DepthPng),
+            _ => Err(PyValueError::new_err(format!(
+                "members[{i}]: \"exr\" or \"depth.png\", got {m:?}"
+            ))),
+        })
+        .collect::<PyResult<Vec<_>>>()?;
+    let opts = BatchOptions {
+        aovs: aovs.as_deref().map(parse_aovs).transpose()?,
+        precision: k.precision,
+        formula: k.formula,
+        depth_scale,
+        ..BatchOptions::default()
+    };
+    let sopts = ShardOptions {
+        shard_size,
+        members,
+    };
+    let selection = match shards {
+        Some(list) => TarSelection::List(list),
+        None => TarSelection::Shard(crate::dataset::batch::Shard::ALL),
+    };
+    let summary = run(py, threads, || {
+        shards::write_shards(&input, &out, &selection, &opts, &sopts, false)
+    })?
+    .map_err(value_error)?;
+    let d = PyDict::new(py);
+    let pick = |o: TarOutcome| -> Vec<usize> {
+        summary
+            .outcomes
+            .iter()
+            .filter(|x| x.1 == o)
+            .map(|x| x.0)
+            .collect()
+    };
+    d.set_item("tars", summary.tars)?;
+    d.set_item("written", pick(TarOutcome::Written))?;
+    d.set_item("skipped", pick(TarOutcome::Skipped))?;
+    let failed: Vec<(String, String)> = summary
+        .failures
+        .iter()
+        .map(|f| (f.key.clone(), f.error.clone()))
+        .collect();
+    d.set_item("failed", failed)?;
+    d.set_item("index_written", summary.index_written)?;
+    Ok(d)
+}
+
+/// Add this file's functions to the module.
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(shard_count, m)?)?;
+    m.add_function(wrap_pyfunction!(write_shards, m)?)?;
+    Ok(())
+}
