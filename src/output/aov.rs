@@ -671,107 +671,6 @@ impl<'f> ExrBands<'f> {
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// Written band by band in scrambled order through positional writes, the file is the
-    /// bytes of the whole image's streamed write (mixed f32 and u32 channels, names out of
-    /// order, a last band of one row), and the `exr` crate reads it back.
-    /// A render written band by band is estimated at its bands (two copies of 16 rows
-    /// per thread); one holding the whole image at its planes, with a second copy when
-    /// compressed, the per-AOV copy of the largest AOV, and the pictures.
-    #[test]
-    fn the_memory_estimate_follows_what_the_render_holds() {
-        let all = [
-            Aov::Distance,
-            Aov::Depth,
-            Aov::Normal,
-            Aov::Position,
-            Aov::ShapeId,
-        ];
-        let size = (16384, 4096);
-        let px = 16384 * 4096;
-        let planes = px * 4 * 9;
-        let est = |layout, compression, pictures| {
-            render_memory(size, &all, layout, compression, pictures)
-        };
-        let fixed = 2 << 20;
-        assert_eq!(
-            est(ExrLayout::PerAov, Compression::None, false),
-            planes + px * 4 * 3 + fixed
-        );
-        let zip = est(ExrLayout::Layers, Compression::Zip, false);
-        assert!(
-            zip > 2 * planes + planes / 6 && zip < 2 * planes + planes / 5,
-            "{zip}"
-        );
-        let piz = est(ExrLayout::Layers, Compression::Piz, false);
-        assert!(piz > zip + planes / 10, "{piz} {zip}");
-        assert_eq!(
-            est(ExrLayout::Layers, Compression::None, true),
-            planes + px * 6 + fixed
-        );
-        let threads = rayon::current_num_threads() as u64;
-        assert_eq!(
-            est(ExrLayout::Layers, Compression::None, false),
-            2 * threads * 16 * 16384 * 4 * 9 + (1 << 20)
-        );
-    }
-
-    #[test]
-    fn band_writes_make_the_whole_file() {
-        let (w, h) = (37, 33);
-        let ramp = |k: f32| (0..w * h).map(|i| i as f32 * k - 5.0).collect::<Vec<f32>>();
-        let channel = |name: &str, data| Channel {
-            name: name.into(),
-            data,
-        };
-        let img = AovImage {
-            width: w,
-            height: h,
-            channels: vec![
-                channel("normal.Z", ChannelData::F32(ramp(0.25))),
-                channel("depth", ChannelData::F32(ramp(1.5))),
-                channel("shape_id", ChannelData::U32((0..(w * h) as u32).collect())),
-            ],
-        };
-        let attrs = [ExrAttr::Text("cylaov:units".into(), "m".into())];
-        let mut whole = Vec::new();
-        img.write_uncompressed_with(&mut whole, &attrs).unwrap();
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("bands.exr");
-        let file = std::fs::File::create(&path).unwrap();
-        let bands = ExrBands::new(&file, h, &attrs);
-        for y0 in [32, 16, 0] {
-            let rows = y0..(y0 + 16).min(h);
-            let samples = rows.start * w..rows.end * w;
-            let band = AovImage {
-                width: w,
-                height: rows.len(),
-                channels: img
-                    .channels
-                    .iter()
-                    .map(|c| Channel {
-                        name: c.name.clone(),
-                        data: match &c.data {
-                            ChannelData::F32(v) => ChannelData::F32(v[samples.clone()].to_vec()),
-                            ChannelData::U32(v) => ChannelData::U32(v[samples.clone()].to_vec()),
-                        },
-                    })
-                    .collect(),
-            };
-            bands.write_band(y0, &band).unwrap();
-        }
-        bands.finish().unwrap();
-        drop(file);
-        assert!(std::fs::read(&path).unwrap() == whole, "the same bytes");
-        let back = AovImage::read_exr(&path).unwrap();
-        assert_eq!(back.f32_channel("depth"), img.f32_channel("depth"));
-        assert_eq!(back.u32_channel("shape_id"), img.u32_channel("shape_id"));
-    }
-}
-
 /// A writer that puts a single-part OpenEXR header's attributes in name order before they
 /// reach `inner`. The `exr` crate keeps custom attributes in a `HashMap`, so their order, and
 /// with it the file's bytes, would change from one process to the next; sorted, a compressed
@@ -880,5 +779,106 @@ impl<W: std::io::Write + std::io::Seek> std::io::Seek for SortedHeader<W> {
             ));
         }
         self.inner.seek(pos)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Written band by band in scrambled order through positional writes, the file is the
+    /// bytes of the whole image's streamed write (mixed f32 and u32 channels, names out of
+    /// order, a last band of one row), and the `exr` crate reads it back.
+    /// A render written band by band is estimated at its bands (two copies of 16 rows
+    /// per thread); one holding the whole image at its planes, with a second copy when
+    /// compressed, the per-AOV copy of the largest AOV, and the pictures.
+    #[test]
+    fn the_memory_estimate_follows_what_the_render_holds() {
+        let all = [
+            Aov::Distance,
+            Aov::Depth,
+            Aov::Normal,
+            Aov::Position,
+            Aov::ShapeId,
+        ];
+        let size = (16384, 4096);
+        let px = 16384 * 4096;
+        let planes = px * 4 * 9;
+        let est = |layout, compression, pictures| {
+            render_memory(size, &all, layout, compression, pictures)
+        };
+        let fixed = 2 << 20;
+        assert_eq!(
+            est(ExrLayout::PerAov, Compression::None, false),
+            planes + px * 4 * 3 + fixed
+        );
+        let zip = est(ExrLayout::Layers, Compression::Zip, false);
+        assert!(
+            zip > 2 * planes + planes / 6 && zip < 2 * planes + planes / 5,
+            "{zip}"
+        );
+        let piz = est(ExrLayout::Layers, Compression::Piz, false);
+        assert!(piz > zip + planes / 10, "{piz} {zip}");
+        assert_eq!(
+            est(ExrLayout::Layers, Compression::None, true),
+            planes + px * 6 + fixed
+        );
+        let threads = rayon::current_num_threads() as u64;
+        assert_eq!(
+            est(ExrLayout::Layers, Compression::None, false),
+            2 * threads * 16 * 16384 * 4 * 9 + (1 << 20)
+        );
+    }
+
+    #[test]
+    fn band_writes_make_the_whole_file() {
+        let (w, h) = (37, 33);
+        let ramp = |k: f32| (0..w * h).map(|i| i as f32 * k - 5.0).collect::<Vec<f32>>();
+        let channel = |name: &str, data| Channel {
+            name: name.into(),
+            data,
+        };
+        let img = AovImage {
+            width: w,
+            height: h,
+            channels: vec![
+                channel("normal.Z", ChannelData::F32(ramp(0.25))),
+                channel("depth", ChannelData::F32(ramp(1.5))),
+                channel("shape_id", ChannelData::U32((0..(w * h) as u32).collect())),
+            ],
+        };
+        let attrs = [ExrAttr::Text("cylaov:units".into(), "m".into())];
+        let mut whole = Vec::new();
+        img.write_uncompressed_with(&mut whole, &attrs).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("bands.exr");
+        let file = std::fs::File::create(&path).unwrap();
+        let bands = ExrBands::new(&file, h, &attrs);
+        for y0 in [32, 16, 0] {
+            let rows = y0..(y0 + 16).min(h);
+            let samples = rows.start * w..rows.end * w;
+            let band = AovImage {
+                width: w,
+                height: rows.len(),
+                channels: img
+                    .channels
+                    .iter()
+                    .map(|c| Channel {
+                        name: c.name.clone(),
+                        data: match &c.data {
+                            ChannelData::F32(v) => ChannelData::F32(v[samples.clone()].to_vec()),
+                            ChannelData::U32(v) => ChannelData::U32(v[samples.clone()].to_vec()),
+                        },
+                    })
+                    .collect(),
+            };
+            bands.write_band(y0, &band).unwrap();
+        }
+        bands.finish().unwrap();
+        drop(file);
+        assert!(std::fs::read(&path).unwrap() == whole, "the same bytes");
+        let back = AovImage::read_exr(&path).unwrap();
+        assert_eq!(back.f32_channel("depth"), img.f32_channel("depth"));
+        assert_eq!(back.u32_channel("shape_id"), img.u32_channel("shape_id"));
     }
 }

@@ -42,7 +42,7 @@ use super::shard::Shard;
 use super::views::{ViewSource, list_views};
 use crate::output::aov::{AovImage, ExrLayout, channel_names};
 use crate::output::files::{create_new, open_regular, read_regular};
-use crate::output::io::{aov_meaning, atomic_write_bytes, check_outputs, record_json};
+use crate::output::io::{atomic_write_bytes, check_outputs, record_json};
 use crate::output::npy;
 use crate::output::signals::{self, Cleanup};
 use crate::output::tar::{self, TarWriter};
@@ -463,7 +463,7 @@ pub fn view_members(
     let mut miss = serde_json::Map::new();
     let mut shapes = serde_json::Map::new();
     for &a in &arrays {
-        let m = aov_meaning(a).1;
+        let m = a.spec().miss;
         let v = serde_json::from_str(m).unwrap_or_else(|_| serde_json::Value::from(m));
         miss.insert(a.name().into(), v);
         let dtype = if a.is_u32() { "uint32" } else { "float32" };
