@@ -19,7 +19,9 @@
 //! - [`scene`]: the scene file schema (serde), defaults, validation with field-naming errors,
 //!   one camera or several; [`scene::strict`]: strict JSON reading (objects only, exact
 //!   3-vectors, long values cut in messages); [`scene::camera`]: Mitsuba's look-at pinhole
-//!   camera, pixel rays in f64, K in both pixel conventions, pose matrices.
+//!   camera, pixel rays in f64, K in both pixel conventions, pose matrices; [`scene::aov`]:
+//!   the one AOV table (channels, sample type, miss value, meaning, Mitsuba's source, the
+//!   comparison metric) every other layer reads.
 //! - [`geometry`]: the f32/f64 abstraction ([`geometry::real`]), the literal and stable
 //!   ray–cylinder kernels ([`geometry::cylinder`]), scalar and in packets of eight lanes, and
 //!   [`geometry::kernel`], the one type that names a kernel (formulation × precision).
@@ -31,7 +33,9 @@
 //! - [`render`]: parallel bands of tiles, nearest hit, only the requested AOVs; the whole
 //!   image ([`render::render`]) or each band handed on as soon as it is traced
 //!   ([`render::render_bands`]: `cylaov render` and `batch` write an uncompressed EXR that
-//!   way, during the trace, without holding the image).
+//!   way, during the trace, without holding the image); [`render::strategy`] picks the
+//!   acceleration; the tracer, the tile walk and the planes (the AOV buffers being filled)
+//!   are its files `tracer.rs`, `walk.rs`, `planes.rs`; [`render::cast`], rays from any origin.
 //! - [`output`]: [`output::aov`] (the in-memory AOV image, its EXR reading and writing,
 //!   band by band too ([`output::aov::ExrBands`]), self-describing headers, the per-AOV layout), [`output::depth_png`] (the 16-bit depth
 //!   PNG that fails rather than drop far pixels, and the hit mask), [`output::preview`] (PNG
@@ -42,23 +46,29 @@
 //!   [`output::camera_files`] (the camera and Open3D JSON, record encoding),
 //!   [`output::console`] (console output that survives a closed pipe), [`output::io`] (one
 //!   import path for those four), [`output::files`] (opening in place without following
-//!   links), [`output::signals`] (the clean-up on a signal), [`output::mitsuba`] (the scene
-//!   as Mitsuba 3 XML).
+//!   links), [`output::signals`] (the clean-up on a signal), [`output::tar`] and
+//!   [`output::npy`] (deterministic ustar members and `.npy` arrays of tar shards),
+//!   [`output::mitsuba`] (the scene as Mitsuba 3 XML).
 //!
 //! Checking tools:
 //! - [`verify`]: [`verify::compare`] (the per-pixel rule: identity by cylinder and part,
-//!   silhouette and seam mismatches, float32 conditioning bounds, heatmaps),
+//!   silhouette and seam mismatches, float32 conditioning bounds; its report and wording;
+//!   the heatmap), [`verify::arbiter`] (the exact answer judging each pixel: reference
+//!   error, candidate error, tie), [`verify::report`] (the HTML page of `--report`),
 //!   [`verify::reference`](mod@verify::reference) (the one check against Mitsuba 3 behind
 //!   `cylaov verify`, `batch --verify-fraction` and the reference tests; the script is
 //!   compiled in), [`verify::oracle`] (double-double reference answer, κ and tangency band),
 //!   [`verify::stress`] (the hard ray families of `cylaov stress`).
 //! - [`bench`](mod@bench): run time against error per kernel, AOV set, cylinder count and
-//!   scene family, with Mitsuba's and Open3D's times on the same scenes ([`bench::Anchors`]).
+//!   scene family, with Mitsuba's and Open3D's times on the same scenes ([`bench::Anchors`]),
+//!   and the two dataset formats side by side (`--batch-formats`).
 //!
 //! Datasets:
 //! - [`dataset`]: [`dataset::generate`] (seeded procedural scenes, several cameras each if
 //!   asked), [`dataset::batch`] (views of (scene, camera), shards and their locks, resumable
-//!   kill-safe rendering, `index.json` and per-scene `transforms.json`), [`dataset::names`]
+//!   kill-safe rendering, `index.json` and per-scene `transforms.json`, and
+//!   [`dataset::batch::shards`], `--format webdataset`: tar shards, sidecars and
+//!   `shards.json`, resumable per tar), [`dataset::names`]
 //!   (every file name cylaov writes).
 //! - [`rng`]: SplitMix64, written out so generated data never changes under us.
 //! - [`mem`]: the memory check before a command allocates, the fallible reservation of
@@ -68,10 +78,11 @@
 //!
 //! Python: `python` (cargo feature `python`), the extension module of the `cylaov`
 //! package: thin bindings over `scene`, `render` (with [`render::cast`], rays from any
-//! origin), `output::aov`, `verify::compare` and `dataset::generate`.
+//! origin), `output::aov`, `verify::compare`, `dataset::generate` and the tar shards of
+//! `dataset::batch::shards` (`write_shards`, `shard_count`).
 //!
 //! Around them: [`commands`], the IO of each subcommand (`render`, `generate`, `batch`,
-//! `export-mitsuba`, `compare`, `verify`, `stress`, `bench`); `main.rs` only parses
+//! `export-mitsuba`, `compare`, `verify`, `stress`, `bench`, `aovs`); `main.rs` only parses
 //! arguments and maps results to exit codes.
 //!
 //! **Invariants**: `geometry`, `accel` and `render` never do IO (`render_bands` hands its

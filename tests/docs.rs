@@ -798,3 +798,91 @@ fn no_tracked_text_narrates_development() {
         bad.join("\n")
     );
 }
+
+/// The shard snippets run as written: `docs/datasets.md`'s `write_shards` loop writes the
+/// command line's tar bytes, and the README's readers (webdataset, Hugging Face `datasets`,
+/// Ray Data) read every sample of it. Skipped, saying so, where the venv lacks the package
+/// or the readers, except under CI.
+#[test]
+fn shard_snippets_write_the_clis_bytes_and_the_readers_read_them() {
+    let write = snippet_code("write-shards", "docs/datasets.md");
+    let read_back = snippet_code("readme-shards", "README.md");
+    let Some(venv) = venv() else {
+        assert!(!ci(), "no venv under CI");
+        eprintln!("SKIPPED: no venv");
+        return;
+    };
+    let py = venv.join("bin/python");
+    let has = Command::new(&py)
+        .args(["-c", "import cylaov, webdataset, datasets, ray"])
+        .current_dir(std::env::temp_dir())
+        .stderr(std::process::Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success());
+    if !has {
+        assert!(!ci(), "the venv lacks cylaov, webdataset, datasets or ray");
+        eprintln!("SKIPPED: the venv lacks cylaov, webdataset, datasets or ray");
+        return;
+    }
+    let dir = common::fresh_dir("docs", "shards");
+    let d = dir.path();
+    let data = d.join("data");
+    common::ok(&[
+        "generate",
+        "--count",
+        "6",
+        "--seed",
+        "3",
+        "--out",
+        &data.to_string_lossy(),
+        "--cylinders",
+        "5..10",
+        "--width",
+        "64",
+        "--height",
+        "48",
+    ]);
+    let cli = d.join("cli");
+    common::ok(&[
+        "batch",
+        &data.to_string_lossy(),
+        "--out",
+        &cli.to_string_lossy(),
+        "--format",
+        "webdataset",
+    ]);
+    let run = |code: String| {
+        let o = Command::new(&py)
+            .arg("-c")
+            .arg(code)
+            .current_dir(d)
+            .env("HF_HUB_OFFLINE", "1")
+            .env("RAY_ENABLE_UV_RUN_RUNTIME_ENV", "0")
+            .output()
+            .unwrap();
+        assert!(
+            o.status.success(),
+            "{}\n{}",
+            String::from_utf8_lossy(&o.stdout),
+            String::from_utf8_lossy(&o.stderr)
+        );
+    };
+    run(write);
+    let tar = "shard-000000.tar";
+    assert_eq!(
+        std::fs::read(data.join("shards").join(tar)).unwrap(),
+        std::fs::read(cli.join(tar)).unwrap(),
+        "write_shards and batch --format webdataset differ"
+    );
+    run(format!(
+        "import ray\nray.init(num_cpus=2, include_dashboard=False, \
+         object_store_memory=200_000_000)\n{read_back}\n\
+         n = sum(1 for _ in wds.WebDataset([\"data/shards/{tar}\"], shardshuffle=False))\n\
+         assert n == 6, n\n\
+         assert depth.shape == (48, 64) and depth.dtype.name == \"float32\", depth.shape\n\
+         assert normal.shape == (48, 64, 3), normal.shape\n\
+         assert meta[\"width\"] == 64, sorted(meta)\n\
+         assert len(ds) == 6, len(ds)\n\
+         assert len(rows) == 4, len(rows)\n"
+    ));
+}

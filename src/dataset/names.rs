@@ -20,6 +20,10 @@
 //! | `SCENE/transforms.json` | batch | nerfstudio index of one several-camera scene |
 //! | `failures.K-of-N.jsonl` | batch | the views of shard K that failed, and why |
 //! | `.partial/` | batch | work in progress, cleared when a shard starts |
+//! | `shard-J.tar` | batch `--format webdataset` | tar shard J: each view's `.npy` arrays and JSON |
+//! | `shard-J.json` | batch `--format webdataset` | tar J's sidecar: samples, sha256, input stamp |
+//! | `shards.json` | batch `--format webdataset` | every shard's name, count, sha256; the settings |
+//! | `failures.tar-J.jsonl` | Python `write_shards` | the views of tar J that failed, and why |
 //! | `scenes/NNNNNN.json` | generate | the scene files |
 //! | `manifest.jsonl`, `generate.json` | generate | the scene list; the resolved options |
 //!
@@ -60,6 +64,10 @@ pub const OUTPUT_NAMES: &[OutputName] = &[
     out("transforms.json", "batch (in SCENE/)"),
     out("failures.K-of-N.jsonl", "batch"),
     out(".partial", "batch"),
+    out("shard-J.tar", "batch --format webdataset"),
+    out("shard-J.json", "batch --format webdataset"),
+    out("shards.json", "batch --format webdataset"),
+    out("failures.tar-J.jsonl", "Python write_shards"),
     out("scenes/NNNNNN.json", "generate"),
     out("manifest.jsonl", "generate"),
     out("generate.json", "generate"),
@@ -87,7 +95,7 @@ pub fn is_cylaov_output(file_name: &str) -> bool {
     is_output_json(file_name)
 }
 
-/// Match a pattern whose upper-case words (`NAME`, `OUT`, `AOV`, `K`, `N`) stand for any
+/// Match a pattern whose upper-case words (`NAME`, `OUT`, `AOV`, `J`, `K`, `N`) stand for any
 /// non-empty text; everything else is literal.
 fn matches(pattern: &str, name: &str) -> bool {
     let Some(at) = pattern.find(|c: char| c.is_ascii_uppercase()) else {
@@ -119,6 +127,8 @@ mod tests {
             "index.json",
             "transforms.json",
             "generate.json",
+            "shard-000003.json",
+            "shards.json",
         ] {
             assert!(is_cylaov_output(own), "{own}");
         }

@@ -5,18 +5,18 @@
 //! writer puts each band in its file while the others trace, and no whole image is held.
 //!
 //! Primary rays go tile by tile (16×16 pixels). A tile finds its cylinders one of two
-//! ways: from its screen-tile list ([`Tiles`], binned before the trace), or, when the
+//! ways: from its screen-tile list ([`Tiles`](crate::accel::tiles::Tiles), binned before the trace), or, when the
 //! lists would be crowded, by walking the BVH with the tile's view cone, nearest node
 //! first, and stopping once every pixel's best hit is nearer than the next node
-//! ([`ConeWalk`]): the cost then follows what is visible, not what is listed. Either
+//! ([`ConeWalk`](crate::accel::bvh::ConeWalk)): the cost then follows what is visible, not what is listed. Either
 //! way each candidate is rasterised over just the pixels its projection can cover. A tiny
 //! view (under one pixel per 16 cylinders) takes the lists however crowded: its few tiles
 //! cost less to list than any BVH costs to build.
 //!
 //! One traversal per ray (`--accel bvh`, and a tiny view whose lists would pass their
-//! memory bound) goes through the eight-wide tree ([`WideBvh`]; the binary one when there
+//! memory bound) goes through the eight-wide tree ([`WideBvh`](crate::accel::wide_bvh::WideBvh); the binary one when there
 //! are fewer than a quarter as many pixels as cylinders, too few rays to repay collapsing
-//! it), [`IN_TURN`] pixels at a time, each after testing the cylinder of the last hit,
+//! it), [`IN_TURN`](crate::accel::wide_bvh::IN_TURN) pixels at a time, each after testing the cylinder of the last hit,
 //! whose hit bounds its traversal.
 
 use crate::accel::tiles::{self, TILE};
@@ -133,7 +133,7 @@ pub enum Strategy {
     },
     /// Screen-tile lists, or the cone walk where they would be crowded.
     Tiles,
-    /// The BVH walked tile by tile with each tile's view cone ([`ConeWalk`]).
+    /// The BVH walked tile by tile with each tile's view cone ([`ConeWalk`](crate::accel::bvh::ConeWalk)).
     ConeWalk,
     /// One BVH traversal per ray, through the eight-wide tree (`wide`) or the binary one.
     PerRay {
