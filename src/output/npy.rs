@@ -64,16 +64,34 @@ pub fn file_size(dtype: Dtype, shape: &[usize]) -> usize {
 }
 
 /// A float32 array of `shape` from `channels` planes of `H×W` samples each, interleaved
-/// (one plane: `(H, W)`; C planes: `(H, W, C)`).
+/// (one plane: `(H, W)`; C planes: `(H, W, C)`). One and three planes (depth, normal) have
+/// their own loops: appended without zero-filling first, they compile to straight copies.
 pub fn f32_planes(height: usize, width: usize, planes: &[&[f32]]) -> Vec<u8> {
     let shape = shape(height, width, planes.len());
     let mut out = header(Dtype::F32, &shape);
-    let start = out.len();
-    let c = planes.len();
-    out.resize(start + height * width * c * 4, 0);
-    for (k, px) in out[start..].chunks_exact_mut(4 * c).enumerate() {
-        for (p, plane) in planes.iter().enumerate() {
-            px[4 * p..4 * p + 4].copy_from_slice(&plane[k].to_le_bytes());
+    let n = height * width;
+    out.reserve_exact(n * planes.len() * 4);
+    match planes {
+        [p] => {
+            for v in &p[..n] {
+                out.extend_from_slice(&v.to_le_bytes());
+            }
+        }
+        [x, y, z] => {
+            for ((a, b), c) in x[..n].iter().zip(&y[..n]).zip(&z[..n]) {
+                let mut px = [0u8; 12];
+                px[..4].copy_from_slice(&a.to_le_bytes());
+                px[4..8].copy_from_slice(&b.to_le_bytes());
+                px[8..].copy_from_slice(&c.to_le_bytes());
+                out.extend_from_slice(&px);
+            }
+        }
+        _ => {
+            for k in 0..n {
+                for plane in planes {
+                    out.extend_from_slice(&plane[k].to_le_bytes());
+                }
+            }
         }
     }
     out
@@ -143,6 +161,14 @@ mod tests {
             .collect();
         assert_eq!(data, [1.0, 3.0, 5.0, 2.0, 4.0, -0.0]);
         assert_eq!(data[5].to_bits(), (-0.0f32).to_bits());
+        let one = f32_planes(1, 2, &[&[1.5, -2.0]]);
+        assert_eq!(one.len(), file_size(Dtype::F32, &[1, 2]));
+        assert_eq!(&one[128..132], &1.5f32.to_le_bytes());
+        assert_eq!(&one[132..], &(-2.0f32).to_le_bytes());
+        let two = f32_planes(1, 2, &[&x, &y]);
+        assert_eq!(two.len(), file_size(Dtype::F32, &[1, 2, 2]));
+        assert_eq!(&two[132..136], &3.0f32.to_le_bytes());
+        assert_eq!(&two[136..140], &2.0f32.to_le_bytes());
         let m = bool_plane(1, 3, [true, false, true].into_iter());
         assert_eq!(&m[128..], &[1, 0, 1]);
         let u = u32_plane(1, 1, &[0x0102_0304]);

@@ -742,8 +742,11 @@ impl Plan<'_> {
         let file = create_new(tmp)
             .map_err(crate::output::io::explain)
             .with_context(|| format!("creating {}", tmp.display()))?;
+        // A buffer smaller than the arrays: BufWriter passes a write at least its size
+        // straight to the file, so an array is hashed and written from where it was encoded,
+        // never copied into the buffer first; headers and JSON are gathered.
         let mut tar = TarWriter::new(Hashing {
-            inner: BufWriter::with_capacity(1 << 20, file),
+            inner: BufWriter::with_capacity(64 << 10, file),
             hash: Sha256::new(),
         });
         type Rendered = Vec<(usize, Result<Vec<(String, Vec<u8>)>, String>)>;
@@ -773,7 +776,9 @@ impl Plan<'_> {
             }
             Ok((samples, failures))
         };
-        let batch = 2 * rayon::current_num_threads().max(1);
+        // Chunks of several views a thread: the pool waits for a chunk's slowest view, so
+        // small chunks leave threads idle at each one's end.
+        let batch = 8 * rayon::current_num_threads().max(1);
         let indices: Vec<usize> = range.clone().collect();
         let written = std::thread::scope(|s| {
             let handle = s.spawn(|| writer(&mut tar));
