@@ -124,26 +124,33 @@ fn shards_are_deterministic_across_runs_and_processes() {
         ]
     );
     assert_eq!(one, shard_files(&b));
-    let procs: Vec<_> = (0..3)
-        .map(|k| {
-            std::process::Command::new(env!("CARGO_BIN_EXE_cylaov"))
-                .args([
-                    "batch",
-                    data.to_str().unwrap(),
-                    "--out",
-                    c.to_str().unwrap(),
-                ])
-                .args(["--format", "webdataset", "--shard-size", "3"])
-                .args(["--shard", &format!("{k}/3")])
-                .env_remove("SLURM_ARRAY_TASK_ID")
-                .output()
-                .unwrap()
-        })
-        .collect();
-    for p in procs {
-        must(p);
+    // Three processes at once, several times over: they share `.partial`, which the last
+    // to leave removes, and `shards.json`, which the last to finish writes.
+    for round in 0..6 {
+        let c = c.with_extension(round.to_string());
+        let procs: Vec<_> = (0..3)
+            .map(|k| {
+                std::process::Command::new(env!("CARGO_BIN_EXE_cylaov"))
+                    .args([
+                        "batch",
+                        data.to_str().unwrap(),
+                        "--out",
+                        c.to_str().unwrap(),
+                    ])
+                    .args(["--format", "webdataset", "--shard-size", "3"])
+                    .args(["--shard", &format!("{k}/3")])
+                    .env_remove("SLURM_ARRAY_TASK_ID")
+                    .stdout(std::process::Stdio::piped())
+                    .stderr(std::process::Stdio::piped())
+                    .spawn()
+                    .unwrap()
+            })
+            .collect();
+        for p in procs {
+            must(p.wait_with_output().unwrap());
+        }
+        assert_eq!(one, shard_files(&c), "round {round}");
     }
-    assert_eq!(one, shard_files(&c));
     let index: serde_json::Value = serde_json::from_slice(&one["shards.json"]).unwrap();
     assert_eq!(index["samples"], 10);
     assert_eq!(index["shards"][3]["samples"], 1);

@@ -83,24 +83,39 @@ fn host() -> String {
 
 /// Lock `shard` of the batch writing into `out` (see the module docs).
 pub fn lock_shard(out: &Path, root: &Path, shard: Shard) -> Result<ShardLock> {
-    lock_file(out, &root.join(format!("{shard}.lock")), &|| {
+    lock_file(out, &root.join(format!("{shard}.lock")), false, &|| {
         format!("shard {} of {}", shard.index, shard.count)
     })
 }
 
-/// Lock `OUT/.partial/NAME.lock` as [`lock_shard`] locks a shard: for what one process at a
-/// time may write besides a shard (the merged index of tar shards).
+/// Lock `OUT/.partial/NAME.lock` as [`lock_shard`] locks a shard, but waiting for another
+/// holder instead of refusing: for what every process writes in turn besides its shard (the
+/// merged index of tar shards, which the last one to finish must see whole).
 pub fn lock_named(out: &Path, root: &Path, name: &str) -> Result<ShardLock> {
-    lock_file(out, &root.join(format!("{name}.lock")), &|| {
+    lock_file(out, &root.join(format!("{name}.lock")), true, &|| {
         name.to_string()
     })
 }
 
-fn lock_file(out: &Path, path: &Path, what: &dyn Fn() -> String) -> Result<ShardLock> {
+/// Lock `path` (in `OUT/.partial`), refusing when another process holds it, or waiting for
+/// it when `wait`. `.partial` is removed by the last process to leave it, so it can vanish
+/// between one lock and the next of a process still working: then it is made again.
+fn lock_file(out: &Path, path: &Path, wait: bool, what: &dyn Fn() -> String) -> Result<ShardLock> {
     let path = path.to_path_buf();
     loop {
-        let file = open_lock(&path)?;
-        if !try_lock(&file).with_context(|| path.display().to_string())? {
+        let file = match open_lock(&path) {
+            Err(e)
+                if e.chain().any(|c| {
+                    c.downcast_ref::<std::io::Error>()
+                        .is_some_and(|io| io.kind() == std::io::ErrorKind::NotFound)
+                }) && path.parent() == Some(&out.join(".partial")) =>
+            {
+                partial_root(out)?;
+                continue;
+            }
+            r => r?,
+        };
+        if !lock(&file, wait).with_context(|| path.display().to_string())? {
             let mut holder = String::new();
             let _ = std::io::Read::read_to_string(&mut &file, &mut holder);
             let holder = holder.trim();
@@ -176,11 +191,18 @@ fn open_lock(path: &Path) -> Result<File> {
     Ok(file)
 }
 
+/// Take `file`'s exclusive lock: at once or not at all (`false` when another holds it), or,
+/// when `wait`, once the holder lets go.
 #[cfg(target_os = "linux")]
-fn try_lock(file: &File) -> Result<bool> {
+fn lock(file: &File, wait: bool) -> Result<bool> {
     use std::os::fd::AsRawFd;
+    let how = if wait {
+        libc::LOCK_EX
+    } else {
+        libc::LOCK_EX | libc::LOCK_NB
+    };
     // SAFETY: flock on a file descriptor this function borrows; no memory is involved.
-    let rc = unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) };
+    let rc = unsafe { libc::flock(file.as_raw_fd(), how) };
     if rc == 0 {
         return Ok(true);
     }
@@ -193,7 +215,7 @@ fn try_lock(file: &File) -> Result<bool> {
 }
 
 #[cfg(not(target_os = "linux"))]
-fn try_lock(_file: &File) -> Result<bool> {
+fn lock(_file: &File, _wait: bool) -> Result<bool> {
     Ok(true)
 }
 
