@@ -52,7 +52,7 @@ fn pool(threads: Option<usize>) -> PyResult<Arc<rayon::ThreadPool>> {
     let n = match threads {
         Some(0) => return Err(PyValueError::new_err("threads: must be >= 1, got 0")),
         Some(n) => n,
-        None => std::thread::available_parallelism().map_or(1, |n| n.get()),
+        None => cores(),
     };
     let pid = std::process::id();
     let mut guard = POOLS.lock().unwrap_or_else(|e| e.into_inner());
@@ -72,6 +72,13 @@ fn pool(threads: Option<usize>) -> PyResult<Arc<rayon::ThreadPool>> {
     let p = Arc::new(p);
     pools.insert(n, p.clone());
     Ok(p)
+}
+
+/// The cores this process may use, asked once: the standard library reads the cgroup's
+/// files on every call, which costs more than a small view's trace gains from the pool.
+fn cores() -> usize {
+    static CORES: std::sync::OnceLock<usize> = std::sync::OnceLock::new();
+    *CORES.get_or_init(|| std::thread::available_parallelism().map_or(1, |n| n.get()))
 }
 
 /// Run pure Rust `f` on this process's pool of `threads` threads, the GIL held (for quick
@@ -1033,17 +1040,25 @@ impl _Views {
             )));
         }
         let v = self.options.views_per_scene as u64;
-        let scene = generated(&self.options, self.seed, k as u64 / v, self.threads)?;
-        let camera = (k as u64 % v) as usize;
-        let sc = scene.with_camera(camera)?;
-        let opts = RenderOptions::new(self.aovs.clone());
-        let a = run(py, self.threads, || {
-            arrays(crate::render::render(&sc, &opts).image, &self.aovs)
-        })?;
+        let (index, camera) = (k as u64 / v, (k as u64 % v) as usize);
+        // Generation, validation, the trace and the arrays in one trip to the pool, the
+        // GIL released: each trip costs a hand-over to a worker and back.
+        let (a, v) = run(py, self.threads, || {
+            let file = self
+                .options
+                .scene(self.seed, index)
+                .map_err(PyValueError::new_err)?;
+            let mut sc = file.validate().map_err(scene_error)?;
+            sc.select_camera(camera)
+                .map_err(|e| PyIndexError::new_err(format!("camera: {e}")))?;
+            let opts = RenderOptions::new(self.aovs.clone());
+            let a = arrays(crate::render::render(&sc, &opts).image, &self.aovs);
+            let text = crate::output::io::camera_json(&Camera::new(sc.camera), &self.aovs);
+            let v: serde_json::Value =
+                serde_json::from_str(&text).map_err(|e| PyValueError::new_err(e.to_string()))?;
+            Ok::<_, PyErr>((a, v))
+        })??;
         let d = arrays_to_dict(py, a)?;
-        let text = crate::output::io::camera_json(&Camera::new(sc.camera), &self.aovs);
-        let v: serde_json::Value =
-            serde_json::from_str(&text).map_err(|e| PyValueError::new_err(e.to_string()))?;
         d.set_item("camera_info", json_to_py(py, &v)?)?;
         Ok(d)
     }
