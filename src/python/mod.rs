@@ -54,7 +54,7 @@ fn pool(threads: Option<usize>) -> PyResult<Arc<rayon::ThreadPool>> {
     let n = match threads {
         Some(0) => return Err(PyValueError::new_err("threads: must be >= 1, got 0")),
         Some(n) => n,
-        None => std::thread::available_parallelism().map_or(1, |n| n.get()),
+        None => cores(),
     };
     let pid = std::process::id();
     let mut guard = POOLS.lock().unwrap_or_else(|e| e.into_inner());
@@ -74,6 +74,13 @@ fn pool(threads: Option<usize>) -> PyResult<Arc<rayon::ThreadPool>> {
     let p = Arc::new(p);
     pools.insert(n, p.clone());
     Ok(p)
+}
+
+/// The cores this process may use, asked once: the standard library reads the cgroup's
+/// files on every call, which costs more than a small view's trace gains from the pool.
+fn cores() -> usize {
+    static CORES: std::sync::OnceLock<usize> = std::sync::OnceLock::new();
+    *CORES.get_or_init(|| std::thread::available_parallelism().map_or(1, |n| n.get()))
 }
 
 /// Run pure Rust `f` on this process's pool of `threads` threads, the GIL held (for quick
@@ -202,12 +209,45 @@ enum Plane {
     Vec3(Vec<f32>),
 }
 
-/// The image's AOVs by name (owned: the arrays take the buffers), the `mask` beside them.
-fn image_to_dict<'py>(
-    py: Python<'py>,
-    image: AovImage,
-    aovs: &[Aov],
-) -> PyResult<Bound<'py, PyDict>> {
+/// An image's arrays before they become Python objects: built with the GIL released, on
+/// the call's pool.
+struct Arrays {
+    width: usize,
+    height: usize,
+    planes: Vec<(Aov, Plane)>,
+    mask: Option<Vec<bool>>,
+}
+
+/// Pixels per task of the interleave: big enough that a task outweighs its scheduling,
+/// small enough that a 320x240 view still spreads over the cores.
+const INTERLEAVE_CHUNK: usize = 4096;
+
+/// Planes `x`, `y`, `z` as one buffer of `[x, y, z]` triples, written once (no zeroing
+/// first), in chunks spread over the current pool.
+fn interleave(x: &[f32], y: &[f32], z: &[f32]) -> Vec<f32> {
+    use rayon::prelude::*;
+    let n = x.len().min(y.len()).min(z.len());
+    let mut v: Vec<f32> = Vec::with_capacity(3 * n);
+    v.spare_capacity_mut()[..3 * n]
+        .par_chunks_mut(3 * INTERLEAVE_CHUNK)
+        .zip(x[..n].par_chunks(INTERLEAVE_CHUNK))
+        .zip(y[..n].par_chunks(INTERLEAVE_CHUNK))
+        .zip(z[..n].par_chunks(INTERLEAVE_CHUNK))
+        .for_each(|(((o, x), y), z)| {
+            for (o, ((&a, &b), &c)) in o.chunks_exact_mut(3).zip(x.iter().zip(y).zip(z)) {
+                o[0].write(a);
+                o[1].write(b);
+                o[2].write(c);
+            }
+        });
+    // SAFETY: the chunks above cover `[..3 * n]` exactly (the output's chunks are three
+    // times the inputs', whose lengths are `n`), and every element of them was written.
+    unsafe { v.set_len(3 * n) };
+    v
+}
+
+/// The image's requested AOVs (owned: the arrays take the buffers) and the `mask`.
+fn arrays(image: AovImage, aovs: &[Aov]) -> Arrays {
     let (w, h) = (image.width, image.height);
     let mut by_name: HashMap<String, ChannelData> = image
         .channels
@@ -235,17 +275,29 @@ fn image_to_dict<'py>(
                 let (Some(x), Some(y), Some(z)) = (f(take(x)), f(take(y)), f(take(z))) else {
                     continue;
                 };
-                let mut v = Vec::with_capacity(3 * x.len());
-                for k in 0..x.len() {
-                    v.extend([x[k], y[k], z[k]]);
-                }
-                Plane::Vec3(v)
+                Plane::Vec3(interleave(&x, &y, &z))
             }
             _ => unreachable!("AOVs have one or three channels"),
         };
         planes.push((a, plane));
     }
     let mask = mask_of(&planes, w * h);
+    Arrays {
+        width: w,
+        height: h,
+        planes,
+        mask,
+    }
+}
+
+/// The arrays as a dict keyed by AOV name, `mask` beside them; numpy takes the buffers.
+fn arrays_to_dict<'py>(py: Python<'py>, arrays: Arrays) -> PyResult<Bound<'py, PyDict>> {
+    let Arrays {
+        width: w,
+        height: h,
+        planes,
+        mask,
+    } = arrays;
     let d = PyDict::new(py);
     for (a, plane) in planes {
         let arr = match plane {
@@ -273,6 +325,15 @@ fn image_to_dict<'py>(
         )?;
     }
     Ok(d)
+}
+
+/// The image's AOVs by name (owned: the arrays take the buffers), the `mask` beside them.
+fn image_to_dict<'py>(
+    py: Python<'py>,
+    image: AovImage,
+    aovs: &[Aov],
+) -> PyResult<Bound<'py, PyDict>> {
+    arrays_to_dict(py, on_pool(None, || arrays(image, aovs))?)
 }
 
 fn shape_err(e: impl std::fmt::Display) -> PyErr {
@@ -669,8 +730,10 @@ fn render<'py>(
         formula: k.formula,
         accel,
     };
-    let image = run(py, threads, || crate::render::render(&sc, &opts).image)?;
-    image_to_dict(py, image, &aovs)
+    let a = run(py, threads, || {
+        arrays(crate::render::render(&sc, &opts).image, &aovs)
+    })?;
+    arrays_to_dict(py, a)
 }
 
 /// The camera metadata of `cylaov render`'s `OUT.camera.json` for camera `camera`: `K`
@@ -979,15 +1042,25 @@ impl _Views {
             )));
         }
         let v = self.options.views_per_scene as u64;
-        let scene = generated(&self.options, self.seed, k as u64 / v, self.threads)?;
-        let camera = (k as u64 % v) as usize;
-        let sc = scene.with_camera(camera)?;
-        let opts = RenderOptions::new(self.aovs.clone());
-        let image = run(py, self.threads, || crate::render::render(&sc, &opts).image)?;
-        let d = image_to_dict(py, image, &self.aovs)?;
-        let text = crate::output::io::camera_json(&Camera::new(sc.camera), &self.aovs);
-        let v: serde_json::Value =
-            serde_json::from_str(&text).map_err(|e| PyValueError::new_err(e.to_string()))?;
+        let (index, camera) = (k as u64 / v, (k as u64 % v) as usize);
+        // Generation, validation, the trace and the arrays in one trip to the pool, the
+        // GIL released: each trip costs a hand-over to a worker and back.
+        let (a, v) = run(py, self.threads, || {
+            let file = self
+                .options
+                .scene(self.seed, index)
+                .map_err(PyValueError::new_err)?;
+            let mut sc = file.validate().map_err(scene_error)?;
+            sc.select_camera(camera)
+                .map_err(|e| PyIndexError::new_err(format!("camera: {e}")))?;
+            let opts = RenderOptions::new(self.aovs.clone());
+            let a = arrays(crate::render::render(&sc, &opts).image, &self.aovs);
+            let text = crate::output::io::camera_json(&Camera::new(sc.camera), &self.aovs);
+            let v: serde_json::Value =
+                serde_json::from_str(&text).map_err(|e| PyValueError::new_err(e.to_string()))?;
+            Ok::<_, PyErr>((a, v))
+        })??;
+        let d = arrays_to_dict(py, a)?;
         d.set_item("camera_info", json_to_py(py, &v)?)?;
         Ok(d)
     }
