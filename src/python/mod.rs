@@ -1020,8 +1020,8 @@ impl _Views {
             return Err(PyValueError::new_err("threads: must be >= 1, got 0"));
         }
         // Each view allocates its planes afresh: kept by the allocator, their pages are
-        // reused warm instead of faulted in again (measured: 2.9 -> 1.8 ms a 320x240
-        // depth+normal view here). A process-wide policy, taken by streaming datasets only.
+        // reused warm instead of faulted in again (`cylaov bench --python` times a 320x240
+        // depth+normal view with it). A process-wide policy, taken by streaming datasets only.
         crate::mem::keep_freed_memory();
         Ok(_Views {
             options,
