@@ -144,18 +144,7 @@ fn run_written(args: &VerifyArgs) -> Result<VerifyOutcome> {
         })();
         let (result, pics) = match outcome {
             Ok(c) => checked_result(c),
-            Err(e) => (
-                ViewResult {
-                    name: view.id(),
-                    scene: view.path.display().to_string(),
-                    status: Status::Unchecked,
-                    failures: vec![format!("{e:#}")],
-                    accepted: Vec::new(),
-                    report: None,
-                    arbitration: None,
-                },
-                None,
-            ),
+            Err(e) => (ViewResult::unchecked(&view, &e), None),
         };
         results.push(result);
         images.push(pics);
@@ -272,6 +261,21 @@ pub struct ViewResult {
     pub report: Option<Report>,
     /// Every disagreeing pixel classified by the exact answer, when the view was checked.
     pub arbitration: Option<Arbitration>,
+}
+
+impl ViewResult {
+    /// The row of a view that could not be checked, saying why.
+    fn unchecked(view: &ViewSource, e: &anyhow::Error) -> ViewResult {
+        ViewResult {
+            name: view.id(),
+            scene: view.path.display().to_string(),
+            status: Status::Unchecked,
+            failures: vec![format!("{e:#}")],
+            accepted: Vec::new(),
+            report: None,
+            arbitration: None,
+        }
+    }
 }
 
 /// The outcome: text to print and the exit status.
@@ -476,15 +480,7 @@ pub fn run(args: &VerifyArgs) -> Result<VerifyOutcome> {
             }
             Err(e) => {
                 pictures.push(None);
-                ViewResult {
-                    name: view.id(),
-                    scene: view.path.display().to_string(),
-                    status: Status::Unchecked,
-                    failures: vec![format!("{e:#}")],
-                    accepted: Vec::new(),
-                    report: None,
-                    arbitration: None,
-                }
+                ViewResult::unchecked(view, &e)
             }
         };
         results.push(r);

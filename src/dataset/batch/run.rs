@@ -159,19 +159,7 @@ pub fn run(
 ) -> Result<Summary> {
     let start = Instant::now();
     opts.validate().map_err(anyhow::Error::msg)?;
-    let (scenes, skipped) = list_views(input, Some(out))?;
-    if !skipped.is_empty() {
-        eprintln!("{}: skipped {skipped}", input.display());
-    }
-    let (views, cameras) = expand_views(&scenes, opts);
-    // Out of file handles while reading the scenes is not a bad scene.
-    if let Some((what, e)) = cameras
-        .iter()
-        .filter_map(|c| c.as_ref().err())
-        .find_map(|e| resource_exhausted(e).map(|what| (what, e)))
-    {
-        anyhow::bail!("reading the scenes: {what}: {e}");
-    }
+    let (views, cameras) = read_views(input, out, opts, true)?;
     let mine: Vec<usize> = (0..views.len()).filter(|&i| shard.contains(i)).collect();
     let failures_path = out.join(format!("failures.{shard}.jsonl"));
     check_targets(out, &views, &mine, &failures_path)?;
@@ -334,6 +322,33 @@ fn load(view: &ViewSource) -> Result<Scene, String> {
 /// Every shard reads every scene (the index lists every valid view) but keeps only what the
 /// index needs: memory is O(views), not O(views x cylinders). The views of this shard are
 /// read again, one at a time, when rendered. The list is a pure function of the input.
+/// The batch's view list and each view's camera (or why it has none).
+pub(super) type Views = (Vec<ViewSource>, Vec<Result<FrameCamera, String>>);
+
+/// The batch's view list and each view's camera, read from `input` (the folder scan skips
+/// `out`'s own files), saying what the scan skipped when `announce`. Out of file handles
+/// while reading the scenes is not a bad scene: it stops the run.
+pub(super) fn read_views(
+    input: &Path,
+    out: &Path,
+    opts: &BatchOptions,
+    announce: bool,
+) -> Result<Views> {
+    let (scenes, skipped) = list_views(input, Some(out))?;
+    if !skipped.is_empty() && announce {
+        eprintln!("{}: skipped {skipped}", input.display());
+    }
+    let (views, cameras) = expand_views(&scenes, opts);
+    if let Some((what, e)) = cameras
+        .iter()
+        .filter_map(|c| c.as_ref().err())
+        .find_map(|e| resource_exhausted(e).map(|what| (what, e)))
+    {
+        anyhow::bail!("reading the scenes: {what}: {e}");
+    }
+    Ok((views, cameras))
+}
+
 pub(super) fn expand_views(
     scenes: &[ViewSource],
     opts: &BatchOptions,

@@ -37,7 +37,7 @@ use super::lock::{lock_named, lock_shard, partial_root};
 use super::options::BatchOptions;
 use super::progress::SizeEstimate;
 use super::resume::render_stamp;
-use super::run::{expand_views, resource_exhausted};
+use super::run::{expand_views, read_views, resource_exhausted};
 use super::shard::Shard;
 use super::views::{ViewSource, list_views};
 use crate::output::aov::{AovImage, ExrLayout, channel_names};
@@ -974,18 +974,7 @@ pub fn write_shards(
         );
     }
     crate::output::io::check_output_dir("--out", out)?;
-    let (scenes, skipped) = list_views(input, Some(out))?;
-    if !skipped.is_empty() && announce {
-        eprintln!("{}: skipped {skipped}", input.display());
-    }
-    let (views, cameras) = expand_views(&scenes, opts);
-    if let Some((what, e)) = cameras
-        .iter()
-        .filter_map(|c| c.as_ref().err())
-        .find_map(|e| resource_exhausted(e).map(|what| (what, e)))
-    {
-        bail!("reading the scenes: {what}: {e}");
-    }
+    let (views, cameras) = read_views(input, out, opts, announce)?;
     let keys = keys(&views)?;
     let aovs = dataset_aovs(opts, &views, &cameras)?;
     let tars = views.len().div_ceil(sopts.shard_size);
