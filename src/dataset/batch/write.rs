@@ -55,7 +55,7 @@ fn member_path(dir: &Path, name: &str, member: Member) -> PathBuf {
 
 /// What a commit of view `done` removes before renaming: every EXR of either layout (each
 /// is a "done" marker), the normal picture under its pre-0.2 name and, without PNGs, the
-/// pictures of an earlier run (they would not match the stamp).
+/// pictures already there (they would not match the stamp).
 ///
 /// An EXR in place is the view's "done" marker, so an older one goes before any new file
 /// of the view replaces its sibling: a re-render killed between the renames leaves no
