@@ -36,7 +36,8 @@
 //!   way, during the trace, without holding the image); [`render::strategy`] picks the
 //!   acceleration; the tracer, the tile walk and the planes (the AOV buffers being filled)
 //!   are its files `tracer.rs`, `walk.rs`, `planes.rs`; [`render::cast`], rays from any origin.
-//! - [`output`]: [`output::aov`] (the in-memory AOV image, its EXR reading and writing,
+//! - [`output`]: [`output::aov`] (the in-memory AOV image, one buffer per AOV in numpy's
+//!   `(H, W)` / `(H, W, 3)` layout, its EXR reading and writing,
 //!   band by band too ([`output::aov::ExrBands`]), self-describing headers, the per-AOV layout), [`output::depth_png`] (the 16-bit depth
 //!   PNG that fails rather than drop far pixels, and the hit mask), [`output::preview`] (PNG
 //!   previews with legends), [`output::plot`] (the pixel font and axis panels of every

@@ -7,7 +7,7 @@ mod common;
 use common::venv_python;
 
 use cylaov::geometry::{FormulaKind, Precision};
-use cylaov::output::aov::{AovImage, ChannelData};
+use cylaov::output::aov::{AovImage, ChannelMut, StridedMut};
 use cylaov::scene;
 use cylaov::verify::arbiter::{Kind, PixelClass};
 use cylaov::verify::compare::Tolerances;
@@ -77,16 +77,10 @@ fn stress_scenes_pass_with_reference_errors_counted() {
     }
 }
 
-fn f32_mut<'a>(img: &'a mut AovImage, name: &str) -> &'a mut Vec<f32> {
-    match &mut img
-        .channels
-        .iter_mut()
-        .find(|c| c.name == name)
-        .expect("channel")
-        .data
-    {
-        ChannelData::F32(v) => v,
-        ChannelData::U32(_) => panic!("{name} is u32"),
+fn f32_mut<'a>(img: &'a mut AovImage, name: &str) -> StridedMut<'a, f32> {
+    match img.channel_mut(name).expect("channel") {
+        ChannelMut::F32(v) => v,
+        ChannelMut::U32(_) => panic!("{name} is u32"),
     }
 }
 

@@ -352,7 +352,7 @@ fn manifest_and_folder_inputs() {
     assert_eq!(paths, vec!["b.exr", "a.exr"]);
     assert!(t.get("depth_unit_scale_factor").is_none());
     let img = AovImage::read_exr(&out.join("a.exr")).unwrap();
-    let names: Vec<&str> = img.channels.iter().map(|c| c.name.as_str()).collect();
+    let names: Vec<&str> = img.names();
     assert_eq!(names, vec!["depth", "shape_id"]);
     assert!(!out.join("a.depth.png").exists());
 

@@ -4,7 +4,7 @@
 
 mod common;
 
-use cylaov::output::aov::{AovImage, ChannelData};
+use cylaov::output::aov::{AovImage, ChannelRef};
 use std::path::Path;
 
 fn s(p: &Path) -> &str {
@@ -73,7 +73,7 @@ fn anchors_run_and_open3d_sees_the_same_scene() {
     let scene = dir.join("dense-300.json");
     run(&["render", s(&scene), "-o", s(&exr), "--aov", "shape_id"]);
     let img = AovImage::read_exr(&exr).unwrap();
-    let Some(ChannelData::U32(ids)) = img.channel("shape_id") else {
+    let Some(ChannelRef::U32(ids)) = img.channel("shape_id") else {
         panic!("no u32 shape_id in {}", exr.display())
     };
     let ours = ids.iter().filter(|&&v| v != 0).count() as f64;

@@ -5,7 +5,7 @@
 mod common;
 
 use cylaov::geometry::{Cylinder, FormulaKind, Precision};
-use cylaov::output::aov::{AovImage, ChannelData};
+use cylaov::output::aov::{AovImage, ChannelData, ChannelRef};
 use cylaov::output::mitsuba::to_xml;
 use cylaov::render::{Accel, RenderOptions, render};
 use cylaov::rng::SplitMix64;
@@ -122,7 +122,7 @@ fn camera_level_with_a_cap_sees_the_cap_row() {
     assert_eq!(close, 0);
     let row = |img: &AovImage| {
         let ids = img.u32_channel("shape_id").expect("shape_id");
-        ids[4 * 32..5 * 32].iter().filter(|&&id| id != 0).count()
+        ids.range(4 * 32..5 * 32).filter(|&&id| id != 0).count()
     };
     // The centre row crosses the cap edge-on, over the cylinder's 0.5 m half-width.
     assert_eq!(row(&traced(&s, Accel::Bvh)), 14);
@@ -207,7 +207,7 @@ fn face_grazing_and_corner_rays_agree_with_the_oracle() {
 /// Every channel's samples, as bits (f32 and u32 alike), by name.
 fn channel_bits(img: &AovImage) -> Vec<(String, Vec<u32>)> {
     let mut out: Vec<(String, Vec<u32>)> = img
-        .channels
+        .to_channels()
         .iter()
         .map(|c| {
             let bits = match &c.data {
@@ -223,15 +223,9 @@ fn channel_bits(img: &AovImage) -> Vec<(String, Vec<u32>)> {
 
 /// The samples of channel `name` as f64 (f32 and u32 alike).
 fn samples(img: &AovImage, name: &str) -> Vec<f64> {
-    match &img
-        .channels
-        .iter()
-        .find(|c| c.name == name)
-        .expect(name)
-        .data
-    {
-        ChannelData::F32(v) => v.iter().map(|&x| x as f64).collect(),
-        ChannelData::U32(v) => v.iter().map(|&x| x as f64).collect(),
+    match img.channel(name).expect(name) {
+        ChannelRef::F32(v) => v.iter().map(|&x| x as f64).collect(),
+        ChannelRef::U32(v) => v.iter().map(|&x| x as f64).collect(),
     }
 }
 
@@ -254,10 +248,10 @@ fn same_geometry(tiny: &str, unit: &str, exact: bool) -> usize {
             (ca.base, ca.height, ca.radius),
             (cb.base, cb.height, cb.radius)
         );
-        for c in &ia.channels {
-            let (x, y) = (samples(&ia, &c.name), samples(&ib, &c.name));
+        for name in ia.names() {
+            let (x, y) = (samples(&ia, name), samples(&ib, name));
             let off = (0..x.len()).filter(|&k| (x[k] - y[k]).abs() > 1e-6 * y[k].abs().max(1.0));
-            assert_eq!(off.count(), 0, "{tiny}: channel {}", c.name);
+            assert_eq!(off.count(), 0, "{tiny}: channel {name}");
         }
     }
     let n = ia.vec3_channel("normal").expect("normal");

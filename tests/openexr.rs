@@ -53,12 +53,12 @@ for i, n in enumerate(names):
             .unwrap_or_else(|| panic!("extra channel {name}"))
         {
             // Weighted by 1 + pixel index, so a misplaced row or column shows.
-            cylaov::output::aov::ChannelData::F32(v) => v
+            cylaov::output::aov::ChannelRef::F32(v) => v
                 .iter()
                 .enumerate()
                 .map(|(k, &x)| x as f64 * (1 + k) as f64)
                 .sum(),
-            cylaov::output::aov::ChannelData::U32(v) => v
+            cylaov::output::aov::ChannelRef::U32(v) => v
                 .iter()
                 .enumerate()
                 .map(|(k, &x)| x as f64 * (1 + k) as f64)
@@ -70,7 +70,7 @@ for i, n in enumerate(names):
         );
         seen += 1;
     }
-    assert_eq!(seen, img.channels.len(), "OpenEXR saw {text}");
+    assert_eq!(seen, img.names().len(), "OpenEXR saw {text}");
 }
 
 /// `cylaov render` writes one uncompressed EXR band by band during the trace, and the

@@ -225,7 +225,7 @@ fn references_are_small_and_complete() {
         let path = dir.join(format!("{stem}.exr"));
         total += std::fs::metadata(&path).map(|m| m.len()).unwrap_or(0);
         let img = AovImage::read_exr(&path).unwrap_or_else(|e| panic!("{e:#}"));
-        let mut names: Vec<&str> = img.channels.iter().map(|c| c.name.as_str()).collect();
+        let mut names: Vec<&str> = img.names();
         names.sort();
         assert_eq!(
             names,

@@ -317,7 +317,7 @@ fn scene_failures<T: Real, F: Formula>(name: &str) -> Vec<String> {
         failures.push(format!("{} NaN/inf values", img.non_finite_count()));
     }
     let ids = img.u32_channel("shape_id").expect("ids");
-    for (x, y) in speckles(ids, w, h) {
+    for (x, y) in speckles(&ids.to_vec(), w, h) {
         failures.push(format!("({x},{y}) speckle/hole"));
     }
     let hits = ids.iter().filter(|&&i| i != 0).count();

@@ -10,7 +10,7 @@ use common::venv_python;
 
 use cylaov::geometry::{Cylinder, Surface};
 use cylaov::geometry::{FormulaKind, Precision};
-use cylaov::output::aov::{AovImage, ChannelData};
+use cylaov::output::aov::{AovImage, ChannelMut, ChannelRef, StridedMut};
 use cylaov::scene::camera::Camera;
 use cylaov::scene::{self, Scene};
 use cylaov::verify::arbiter::{Bound, PixelClass};
@@ -67,29 +67,17 @@ fn check(scene: &Scene, a: &AovImage, b: &AovImage) -> ViewCheck {
     check_against(scene, a, b, &Tolerances::default()).expect("comparable")
 }
 
-fn f32_mut<'a>(img: &'a mut AovImage, name: &str) -> &'a mut Vec<f32> {
-    match &mut img
-        .channels
-        .iter_mut()
-        .find(|c| c.name == name)
-        .expect("channel")
-        .data
-    {
-        ChannelData::F32(v) => v,
-        ChannelData::U32(_) => panic!("{name} is u32"),
+fn f32_mut<'a>(img: &'a mut AovImage, name: &str) -> StridedMut<'a, f32> {
+    match img.channel_mut(name).expect("channel") {
+        ChannelMut::F32(v) => v,
+        ChannelMut::U32(_) => panic!("{name} is u32"),
     }
 }
 
-fn u32_mut<'a>(img: &'a mut AovImage, name: &str) -> &'a mut Vec<u32> {
-    match &mut img
-        .channels
-        .iter_mut()
-        .find(|c| c.name == name)
-        .expect("channel")
-        .data
-    {
-        ChannelData::U32(v) => v,
-        ChannelData::F32(_) => panic!("{name} is f32"),
+fn u32_mut<'a>(img: &'a mut AovImage, name: &str) -> StridedMut<'a, u32> {
+    match img.channel_mut(name).expect("channel") {
+        ChannelMut::U32(v) => v,
+        ChannelMut::F32(_) => panic!("{name} is f32"),
     }
 }
 
@@ -352,7 +340,7 @@ fn seam_rule_on_a_scene_with_many_rims() {
                 "position.Y",
                 "position.Z",
             ] {
-                let v = f32_mut(&mut b, c);
+                let mut v = f32_mut(&mut b, c);
                 v[k] = v[j];
             }
         }
@@ -390,7 +378,7 @@ fn seam_rule_on_a_scene_with_many_rims() {
     assert_eq!(max(&r), max(&base));
     // Without part the same pixels are same-cylinder pixels with a 90° normal error.
     let mut no_part = b.clone();
-    no_part.channels.retain(|c| c.name != "part");
+    no_part.retain_channels(|c| c != "part");
     let r = compare(&no_part, &reference).expect("comparable");
     assert!(r.normal_deg.expect("normal").all.max > 45.0);
 
@@ -512,7 +500,7 @@ fn part_is_what_the_camera_sees() {
         seen.dedup();
         assert_eq!(seen, expected, "{stem}");
         let theirs = match reference.channel("part") {
-            Some(ChannelData::F32(v)) => v.clone(),
+            Some(ChannelRef::F32(v)) => v.to_vec(),
             other => panic!("{stem}: reference part is {other:?}"),
         };
         let differ = parts

@@ -189,7 +189,7 @@ fn batch_verifies_with_identity_and_keeps_verdicts() {
     assert!(out.contains("candidate errors 0, ties "), "{out}");
     // The dataset stores depth only; the check rendered shape_id and part alongside.
     let exr = cylaov::output::aov::AovImage::read_exr(&render.join("gen.exr")).expect("exr");
-    let names: Vec<&str> = exr.channels.iter().map(|c| c.name.as_str()).collect();
+    let names: Vec<&str> = exr.names();
     assert_eq!(names, ["depth"], "the dataset's files are unchanged");
     for name in ["gen", "far_offset"] {
         let cached: serde_json::Value = serde_json::from_str(
@@ -302,7 +302,7 @@ fn verify_and_batch_pick_the_same_views() {
 /// its sha256): one depth sample × (1 + 1e-4), a 3×3 patch of flipped normals, one id.
 #[test]
 fn an_exr_changed_after_writing_fails() {
-    use cylaov::output::aov::{AovImage, ChannelData, Compression};
+    use cylaov::output::aov::{AovImage, ChannelMut, Compression};
     let Some(py) = venv_python() else { return };
     let dir_tmp = common::fresh_dir("verify", "changed-exr");
     let dir = dir_tmp.path();
@@ -336,21 +336,16 @@ fn an_exr_changed_after_writing_fails() {
     let hits: Vec<usize> = (0..ids.len()).filter(|&k| ids[k] != 0).collect();
     let k = hits[hits.len() / 2];
     let at = format!("[{}, {}]", k % w, k / w);
-    fn samples<'a>(img: &'a mut AovImage, name: &str) -> &'a mut ChannelData {
-        &mut img
-            .channels
-            .iter_mut()
-            .find(|c| c.name == name)
-            .expect("channel")
-            .data
+    fn samples<'a>(img: &'a mut AovImage, name: &str) -> ChannelMut<'a> {
+        img.channel_mut(name).expect("channel")
     }
     for (case, verified_before) in [("depth", true), ("normal", true), ("id", false)] {
         let mut img = original.clone();
         match (case, samples(&mut img, "depth")) {
-            ("depth", ChannelData::F32(v)) => v[k] *= 1.0 + 1e-4,
+            ("depth", ChannelMut::F32(mut v)) => v[k] *= 1.0 + 1e-4,
             ("normal", _) => {
                 for c in ["normal.X", "normal.Y", "normal.Z"] {
-                    if let ChannelData::F32(v) = samples(&mut img, c) {
+                    if let ChannelMut::F32(mut v) = samples(&mut img, c) {
                         for dy in 0..3 {
                             for dx in 0..3 {
                                 let j = k + dy * w + dx - w - 1;
@@ -361,7 +356,7 @@ fn an_exr_changed_after_writing_fails() {
                 }
             }
             _ => {
-                if let ChannelData::U32(v) = samples(&mut img, "shape_id") {
+                if let ChannelMut::U32(mut v) = samples(&mut img, "shape_id") {
                     v[k] = 7;
                 }
             }
@@ -404,7 +399,7 @@ fn an_exr_changed_after_writing_fails() {
 #[test]
 fn verify_a_candidate_file() {
     use cylaov::geometry::{FormulaKind, Precision};
-    use cylaov::output::aov::{AovImage, Channel, ChannelData, Compression};
+    use cylaov::output::aov::{AovImage, Channel, ChannelMut, Compression};
     let Some(py) = venv_python() else { return };
     let dir_tmp = common::fresh_dir("verify", "candidate");
     let dir = dir_tmp.path();
@@ -419,20 +414,14 @@ fn verify_a_candidate_file() {
         "normal.Z" => Some("N.B".into()),
         _ => None,
     };
-    let theirs = AovImage {
-        width: ours.width,
-        height: ours.height,
-        channels: ours
-            .channels
-            .iter()
-            .filter_map(|c| {
-                rename(&c.name).map(|name| Channel {
-                    name,
-                    data: c.data.clone(),
-                })
-            })
+    let theirs = AovImage::from_channels(
+        ours.width,
+        ours.height,
+        ours.to_channels()
+            .into_iter()
+            .filter_map(|c| rename(&c.name).map(|name| Channel { name, data: c.data }))
             .collect(),
-    };
+    );
     let good = dir.join("theirs.exr");
     theirs.write_exr(&good, Compression::None).expect("write");
     let run = |file: &Path, extra: &[&str]| {
@@ -456,12 +445,7 @@ fn verify_a_candidate_file() {
     let ids = ours.u32_channel("shape_id").expect("ids");
     let hits: Vec<usize> = (0..ids.len()).filter(|&k| ids[k] != 0).collect();
     let k = hits[hits.len() / 2];
-    if let Some(ChannelData::F32(v)) = bad
-        .channels
-        .iter_mut()
-        .find(|c| c.name == "Z")
-        .map(|c| &mut c.data)
-    {
+    if let Some(ChannelMut::F32(mut v)) = bad.channel_mut("Z") {
         v[k] *= 1.001;
     }
     let bad_path = dir.join("bad.exr");
@@ -504,7 +488,7 @@ fn verify_a_candidate_file() {
 /// moved it says to give `--scenes`, which then finds them.
 #[test]
 fn verify_checks_the_files_a_batch_wrote() {
-    use cylaov::output::aov::{AovImage, ChannelData, Compression};
+    use cylaov::output::aov::{AovImage, ChannelMut, Compression};
     let Some(py) = venv_python() else { return };
     let dir_tmp = common::fresh_dir("verify", "written");
     let dir = dir_tmp.path();
@@ -547,14 +531,15 @@ fn verify_checks_the_files_a_batch_wrote() {
     let exr = out.join("one.exr");
     let mut img = AovImage::read_exr(&exr).expect("exr");
     let w = img.width;
-    let k = match &mut img.channels[0].data {
-        ChannelData::F32(v) => {
+    let name = img.names()[0].to_string();
+    let k = match img.channel_mut(&name).expect("a channel") {
+        ChannelMut::F32(mut v) => {
             let hits: Vec<usize> = (0..v.len()).filter(|&k| v[k] > 0.0).collect();
             let k = hits[hits.len() / 2];
             v[k] *= 1.0 + 1e-6;
             k
         }
-        ChannelData::U32(_) => panic!("depth is u32"),
+        ChannelMut::U32(_) => panic!("depth is u32"),
     };
     img.write_exr(&exr, Compression::None).expect("write");
     let o = verify();

@@ -198,7 +198,7 @@ pub fn map_channels(mut img: AovImage, maps: &[String]) -> Result<AovImage> {
             let names: Vec<&str> = CANDIDATE_AOVS.iter().map(|a| a.0).collect();
             anyhow::bail!("--channels: {aov:?} is not one of {}", names.join(", "));
         };
-        let has = |img: &AovImage, n: &str| img.channels.iter().any(|c| c.name == n);
+        let has = |img: &AovImage, n: &str| img.has_channel(n);
         let pairs: Vec<(String, String)> = if !vector {
             vec![(name.to_string(), aov.to_string())]
         } else if ["X", "Y", "Z"]
@@ -220,13 +220,12 @@ pub fn map_channels(mut img: AovImage, maps: &[String]) -> Result<AovImage> {
             if !has(&img, &from) {
                 anyhow::bail!("--channels {m}: the candidate has no channel {from}");
             }
-            img.channels.retain(|c| c.name != to);
-            for c in img.channels.iter_mut().filter(|c| c.name == from) {
-                c.name = to.clone();
-            }
+            img.rename_channel(&from, &to);
         }
     }
-    Ok(img)
+    // The renamed X/Y/Z planes of a vector AOV become its one buffer.
+    let (w, h) = (img.width, img.height);
+    Ok(AovImage::from_channels(w, h, img.to_channels()))
 }
 
 /// How one view came out.

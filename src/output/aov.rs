@@ -3,6 +3,10 @@
 //! Channel names are the contract: `distance`, `depth`, `normal.X/Y/Z`, `position.X/Y/Z`
 //! (float32), `shape_id` and `part` (u32). Row 0 is the top row. A missed pixel is 0 everywhere.
 //!
+//! **In memory** each AOV is one buffer ([`AovBuffer`]): `(H, W)` or `(H, W, 3)`,
+//! row-major, a pixel's channels side by side, the layout numpy arrays and `.npy` members
+//! take as they are. Its channels are read one by one through [`Strided`] views.
+//!
 //! **Self-describing files.** `render` and `batch` write header attributes
 //! ([`exr_attributes`]) so a file separated from its JSON still says what it holds:
 //!
@@ -19,10 +23,11 @@
 //! | `cylaov:cx_opencv`, `cylaov:cy_opencv` | float | principal point, pixel centres at integers (W/2 − 0.5: OpenCV, Open3D, COLMAP) |
 //!
 //! **Two writers.** Compressed files go through the `exr` crate. Uncompressed files (the
-//! default) are streamed by hand from the planes ([`AovImage::write_uncompressed`]): the
+//! default) are streamed by hand from the buffers ([`AovImage::write_uncompressed`]): the
 //! crate copies every sample through its own layout, which at 1080p cost more than the
-//! render, while the uncompressed scanline format is a header, an offset table and rows
-//! that already lie contiguous in the planes. Since every line has the same size, where
+//! render, while the uncompressed scanline format is a header, an offset table and rows:
+//! a one-channel AOV's row lies contiguous in its buffer, a three-channel AOV's channel is
+//! gathered from its row (`cylaov bench --exr-writer` times that against planes). Since every line has the same size, where
 //! each line goes is known before any is written: [`ExrBands`] writes an image band by band,
 //! in any order, while the render is still tracing the rest (what `cylaov render` and
 //! `batch` do for one uncompressed EXR), the same bytes. The tests read these files back
@@ -41,7 +46,7 @@ use exr::prelude::*;
 use std::io::Write;
 use std::path::Path;
 
-/// The samples of one channel, row-major, row 0 at the top.
+/// Samples of one buffer, row-major, row 0 at the top, a pixel's channels side by side.
 #[derive(Clone, Debug, PartialEq)]
 pub enum ChannelData {
     /// float32 samples: every channel but the layered layout's `shape_id` and `part` (and
@@ -51,7 +56,34 @@ pub enum ChannelData {
     U32(Vec<u32>),
 }
 
-/// One named channel.
+impl ChannelData {
+    /// Samples held.
+    pub fn len(&self) -> usize {
+        match self {
+            ChannelData::F32(v) => v.len(),
+            ChannelData::U32(v) => v.len(),
+        }
+    }
+
+    /// Whether it holds no sample.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Every `stride`-th sample from `offset`: one channel of an interleaved buffer.
+    fn pick(&self, offset: usize, stride: usize) -> ChannelData {
+        fn every<X: Copy>(v: &[X], offset: usize, stride: usize) -> Vec<X> {
+            v.iter().skip(offset).step_by(stride).copied().collect()
+        }
+        match self {
+            ChannelData::F32(v) => ChannelData::F32(every(v, offset, stride)),
+            ChannelData::U32(v) => ChannelData::U32(every(v, offset, stride)),
+        }
+    }
+}
+
+/// One named channel on its own (a plane of `width × height` samples): how images are
+/// built from, and taken apart into, their file channels ([`AovImage::from_channels`]).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Channel {
     /// The EXR channel name, e.g. `depth` or `normal.X` (see [`channel_names`]).
@@ -60,15 +92,188 @@ pub struct Channel {
     pub data: ChannelData,
 }
 
-/// A multi-channel image of AOVs.
+/// The samples of one AOV in one buffer: `(H, W)` for one channel, `(H, W, C)` for `C`,
+/// row-major and pixel-interleaved, the layout numpy and the `.npy` members of tar shards
+/// hand out as is (no copy, no reordering). Files read from elsewhere keep each channel
+/// that is not an AOV of the table as a buffer of its own.
 #[derive(Clone, Debug, PartialEq)]
+pub struct AovBuffer {
+    /// The EXR channel names of its components, in interleaved order (`normal.X`,
+    /// `normal.Y`, `normal.Z`; one name for a one-channel AOV).
+    pub names: Vec<String>,
+    /// `width × height × names.len()` samples.
+    pub data: ChannelData,
+}
+
+impl AovBuffer {
+    /// A buffer of `names` over `data` (`names.len()` samples a pixel).
+    pub fn new(names: &[&str], data: ChannelData) -> AovBuffer {
+        AovBuffer {
+            names: names.iter().map(|n| n.to_string()).collect(),
+            data,
+        }
+    }
+
+    /// Channels a pixel.
+    pub fn stride(&self) -> usize {
+        self.names.len()
+    }
+
+    /// Where channel `name` lies in a pixel, if it is one of this buffer's.
+    fn position(&self, name: &str) -> Option<usize> {
+        self.names.iter().position(|n| n == name)
+    }
+
+    /// The samples of its component `k`.
+    fn component(&self, k: usize) -> ChannelRef<'_> {
+        let s = self.stride();
+        match &self.data {
+            ChannelData::F32(v) => ChannelRef::F32(Strided::new(v, k, s)),
+            ChannelData::U32(v) => ChannelRef::U32(Strided::new(v, k, s)),
+        }
+    }
+}
+
+/// One channel of a buffer: every `stride`-th sample from `offset` (a slice when the
+/// buffer has one channel). Indexed by pixel.
+#[derive(Clone, Copy, Debug)]
+pub struct Strided<'a, X> {
+    data: &'a [X],
+    offset: usize,
+    stride: usize,
+}
+
+impl<'a, X: Copy> Strided<'a, X> {
+    fn new(data: &'a [X], offset: usize, stride: usize) -> Self {
+        Strided {
+            data,
+            offset,
+            stride,
+        }
+    }
+
+    /// Pixels (samples of this channel).
+    pub fn len(&self) -> usize {
+        self.data.len() / self.stride
+    }
+
+    /// Whether it has no sample.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The samples in pixel order.
+    pub fn iter(&self) -> std::iter::StepBy<std::iter::Skip<std::slice::Iter<'a, X>>> {
+        self.data.iter().skip(self.offset).step_by(self.stride)
+    }
+
+    /// The samples of pixels `range`, in order.
+    pub fn range(
+        &self,
+        range: std::ops::Range<usize>,
+    ) -> std::iter::StepBy<std::iter::Skip<std::slice::Iter<'a, X>>> {
+        let s = self.stride;
+        let end = (range.end * s).min(self.data.len());
+        self.data[range.start * s..end]
+            .iter()
+            .skip(self.offset)
+            .step_by(s)
+    }
+
+    /// The samples as a slice, when they are contiguous (a one-channel buffer).
+    pub fn as_slice(&self) -> Option<&'a [X]> {
+        (self.stride == 1).then_some(self.data)
+    }
+
+    /// The samples as a vector of their own.
+    pub fn to_vec(&self) -> Vec<X> {
+        self.iter().copied().collect()
+    }
+}
+
+impl<'a, X: Copy> IntoIterator for Strided<'a, X> {
+    type Item = &'a X;
+    type IntoIter = std::iter::StepBy<std::iter::Skip<std::slice::Iter<'a, X>>>;
+    fn into_iter(self) -> Self::IntoIter {
+        self.iter()
+    }
+}
+
+impl<X> std::ops::Index<usize> for Strided<'_, X> {
+    type Output = X;
+    #[inline(always)]
+    fn index(&self, k: usize) -> &X {
+        &self.data[k * self.stride + self.offset]
+    }
+}
+
+impl<X: PartialEq + Copy> PartialEq for Strided<'_, X> {
+    fn eq(&self, other: &Self) -> bool {
+        self.len() == other.len() && self.iter().eq(other.iter())
+    }
+}
+
+/// One channel's samples, of either type (see [`AovImage::channel`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ChannelRef<'a> {
+    /// float32 samples.
+    F32(Strided<'a, f32>),
+    /// u32 samples.
+    U32(Strided<'a, u32>),
+}
+
+/// One channel of a buffer, writable in place (see [`AovImage::channel_mut`]).
+#[derive(Debug)]
+pub struct StridedMut<'a, X> {
+    data: &'a mut [X],
+    offset: usize,
+    stride: usize,
+}
+
+impl<X> StridedMut<'_, X> {
+    /// Pixels (samples of this channel).
+    pub fn len(&self) -> usize {
+        self.data.len() / self.stride
+    }
+
+    /// Whether it has no sample.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+impl<X> std::ops::Index<usize> for StridedMut<'_, X> {
+    type Output = X;
+    fn index(&self, k: usize) -> &X {
+        &self.data[k * self.stride + self.offset]
+    }
+}
+
+impl<X> std::ops::IndexMut<usize> for StridedMut<'_, X> {
+    fn index_mut(&mut self, k: usize) -> &mut X {
+        &mut self.data[k * self.stride + self.offset]
+    }
+}
+
+/// One channel's samples, writable, of either type.
+#[derive(Debug)]
+pub enum ChannelMut<'a> {
+    /// float32 samples.
+    F32(StridedMut<'a, f32>),
+    /// u32 samples.
+    U32(StridedMut<'a, u32>),
+}
+
+/// A multi-channel image of AOVs: one buffer an AOV (see [`AovBuffer`]). Two images are
+/// equal when they hold the same buffers, in whatever order.
+#[derive(Clone, Debug)]
 pub struct AovImage {
     /// Width in pixels.
     pub width: usize,
     /// Height in pixels.
     pub height: usize,
-    /// The channels, each `width × height` samples; any order (files sort them by name).
-    pub channels: Vec<Channel>,
+    /// The buffers; any order (files sort their channels by name).
+    pub buffers: Vec<AovBuffer>,
 }
 
 /// EXR compression for written files.
@@ -203,7 +408,7 @@ pub fn streams(layout: ExrLayout, compression: Compression, pictures: bool) -> b
 ///
 /// - Written band by band: each worker thread holds one band (16 rows) of every channel
 ///   and the band's encoded copy.
-/// - Else one plane per channel (4 bytes a sample); the per-AOV layout copies one AOV at
+/// - Else one buffer per AOV (4 bytes a sample); the per-AOV layout copies one AOV at
 ///   a time into its file's channels; a compressed file is copied once more, since the
 ///   `exr` crate encodes from its own copy, and its encoder holds blocks in flight (about
 ///   a sixth of the file, a third for PIZ, plus 2 MiB a thread, 5 MiB for PIZ); the
@@ -260,63 +465,177 @@ pub const MAX_FLOAT_ID: u32 = 1 << 24;
 /// `shape_id`, converted to float32 (exact up to 2^24; larger ids are an error naming the
 /// id, since a float32 cannot tell them apart).
 pub fn per_aov_image(img: &AovImage, aov: Aov) -> Result<AovImage> {
-    let mut channels = Vec::new();
-    for (from, to) in channel_names(aov).iter().zip(per_aov_channel_names(aov)) {
-        let data = match img.channel(from) {
-            Some(ChannelData::F32(v)) => {
-                ChannelData::F32(crate::mem::try_copy(v, "the per-AOV image")?)
+    let names = channel_names(aov);
+    let data = match img.aov_buffer(aov).map(|b| &b.data) {
+        Some(ChannelData::F32(v)) => {
+            ChannelData::F32(crate::mem::try_copy(v, "the per-AOV image")?)
+        }
+        Some(ChannelData::U32(v)) => {
+            if let Some(&big) = v.iter().find(|&&id| id > MAX_FLOAT_ID) {
+                bail!(
+                    "--exr-layout per-aov: {} {big} does not fit a float32 channel \
+                     exactly (ids up to 2^24 = {MAX_FLOAT_ID} do); use --exr-layout layers, \
+                     which stores ids as u32",
+                    names[0]
+                );
             }
-            Some(ChannelData::U32(v)) => {
-                if let Some(&big) = v.iter().find(|&&id| id > MAX_FLOAT_ID) {
-                    bail!(
-                        "--exr-layout per-aov: {from} {big} does not fit a float32 channel \
-                         exactly (ids up to 2^24 = {MAX_FLOAT_ID} do); use --exr-layout layers, \
-                         which stores ids as u32"
-                    );
-                }
-                ChannelData::F32(v.iter().map(|&id| id as f32).collect())
-            }
-            None => bail!("no {from} channel"),
-        };
-        channels.push(Channel {
-            name: (*to).to_string(),
-            data,
-        });
-    }
+            ChannelData::F32(v.iter().map(|&id| id as f32).collect())
+        }
+        None => bail!("no {} channel", names.join(", ")),
+    };
     Ok(AovImage {
         width: img.width,
         height: img.height,
-        channels,
+        buffers: vec![AovBuffer::new(per_aov_channel_names(aov), data)],
     })
 }
 
+impl PartialEq for AovImage {
+    fn eq(&self, other: &Self) -> bool {
+        (self.width, self.height, self.buffers.len())
+            == (other.width, other.height, other.buffers.len())
+            && self.buffers.iter().all(|b| other.buffers.contains(b))
+    }
+}
+
 impl AovImage {
-    /// The samples of the channel named `name`, if there is one.
-    pub fn channel(&self, name: &str) -> Option<&ChannelData> {
-        self.channels
+    /// An image of `channels`, each a plane: the channels of each AOV of the table that
+    /// has several (all present, all float32) become that AOV's one interleaved buffer, in
+    /// the table's order, where its first channel was; every other channel is a buffer of
+    /// its own.
+    pub fn from_channels(width: usize, height: usize, channels: Vec<Channel>) -> AovImage {
+        let mut slots: Vec<Option<Channel>> = channels.into_iter().map(Some).collect();
+        let mut buffers = Vec::new();
+        for k in 0..slots.len() {
+            let Some(first) = &slots[k] else { continue };
+            let group = Aov::of_channel(&first.name)
+                .map(channel_names)
+                .filter(|names| names.len() > 1)
+                .and_then(|names| {
+                    let at: Vec<usize> = names
+                        .iter()
+                        .map(|n| {
+                            slots.iter().position(|s| {
+                                s.as_ref().is_some_and(|c| {
+                                    c.name == *n && matches!(c.data, ChannelData::F32(_))
+                                })
+                            })
+                        })
+                        .collect::<Option<_>>()?;
+                    Some((names, at))
+                });
+            match group {
+                Some((names, at)) => {
+                    let planes: Vec<Vec<f32>> = at
+                        .iter()
+                        .map(|&i| match slots[i].take().map(|c| c.data) {
+                            Some(ChannelData::F32(v)) => v,
+                            _ => unreachable!("checked float32 above"),
+                        })
+                        .collect();
+                    let n = planes.iter().map(Vec::len).min().unwrap_or(0);
+                    // Exactly the samples' size (a collected iterator would grow by
+                    // doubling and keep up to twice that).
+                    let mut data = Vec::with_capacity(n * planes.len());
+                    for p in 0..n {
+                        data.extend(planes.iter().map(|v| v[p]));
+                    }
+                    buffers.push(AovBuffer::new(names, ChannelData::F32(data)));
+                }
+                None => {
+                    if let Some(c) = slots[k].take() {
+                        buffers.push(AovBuffer {
+                            names: vec![c.name],
+                            data: c.data,
+                        });
+                    }
+                }
+            }
+        }
+        AovImage {
+            width,
+            height,
+            buffers,
+        }
+    }
+
+    /// Its channels, each a plane of its own (copies), in buffer order.
+    pub fn to_channels(&self) -> Vec<Channel> {
+        self.buffers
             .iter()
-            .find(|c| c.name == name)
-            .map(|c| &c.data)
+            .flat_map(|b| {
+                b.names.iter().enumerate().map(|(k, name)| Channel {
+                    name: name.clone(),
+                    data: b.data.pick(k, b.stride()),
+                })
+            })
+            .collect()
+    }
+
+    /// Every channel's name, in buffer order.
+    pub fn names(&self) -> Vec<&str> {
+        self.buffers
+            .iter()
+            .flat_map(|b| b.names.iter().map(String::as_str))
+            .collect()
+    }
+
+    /// Whether it has a channel named `name`.
+    pub fn has_channel(&self, name: &str) -> bool {
+        self.find(name).is_some()
+    }
+
+    /// The buffer holding channel `name` and the channel's place in a pixel.
+    fn find(&self, name: &str) -> Option<(usize, usize)> {
+        self.buffers
+            .iter()
+            .enumerate()
+            .find_map(|(b, buf)| Some((b, buf.position(name)?)))
+    }
+
+    /// The samples of the channel named `name`, if there is one.
+    pub fn channel(&self, name: &str) -> Option<ChannelRef<'_>> {
+        let (b, k) = self.find(name)?;
+        Some(self.buffers[b].component(k))
+    }
+
+    /// The samples of the channel named `name`, writable in place.
+    pub fn channel_mut(&mut self, name: &str) -> Option<ChannelMut<'_>> {
+        let (b, offset) = self.find(name)?;
+        let buf = &mut self.buffers[b];
+        let stride = buf.names.len();
+        Some(match &mut buf.data {
+            ChannelData::F32(v) => ChannelMut::F32(StridedMut {
+                data: v,
+                offset,
+                stride,
+            }),
+            ChannelData::U32(v) => ChannelMut::U32(StridedMut {
+                data: v,
+                offset,
+                stride,
+            }),
+        })
     }
 
     /// The samples of the float32 channel named `name`; `None` if absent or u32.
-    pub fn f32_channel(&self, name: &str) -> Option<&[f32]> {
+    pub fn f32_channel(&self, name: &str) -> Option<Strided<'_, f32>> {
         match self.channel(name)? {
-            ChannelData::F32(v) => Some(v),
-            ChannelData::U32(_) => None,
+            ChannelRef::F32(v) => Some(v),
+            ChannelRef::U32(_) => None,
         }
     }
 
     /// The samples of the u32 channel named `name`; `None` if absent or float32.
-    pub fn u32_channel(&self, name: &str) -> Option<&[u32]> {
+    pub fn u32_channel(&self, name: &str) -> Option<Strided<'_, u32>> {
         match self.channel(name)? {
-            ChannelData::U32(v) => Some(v),
-            ChannelData::F32(_) => None,
+            ChannelRef::U32(v) => Some(v),
+            ChannelRef::F32(_) => None,
         }
     }
 
-    /// Three f32 channels `NAME.X/Y/Z` as one slice each.
-    pub fn vec3_channel(&self, name: &str) -> Option<[&[f32]; 3]> {
+    /// Three f32 channels `NAME.X/Y/Z`.
+    pub fn vec3_channel(&self, name: &str) -> Option<[Strided<'_, f32>; 3]> {
         Some([
             self.f32_channel(&format!("{name}.X"))?,
             self.f32_channel(&format!("{name}.Y"))?,
@@ -324,11 +643,69 @@ impl AovImage {
         ])
     }
 
+    /// The buffer of `aov`: its channels of the table, in the table's order.
+    pub fn aov_buffer(&self, aov: Aov) -> Option<&AovBuffer> {
+        let names = channel_names(aov);
+        self.buffers
+            .iter()
+            .find(|b| b.names.iter().map(String::as_str).eq(names.iter().copied()))
+    }
+
+    /// Take the buffer of `aov` out of the image (see [`AovImage::aov_buffer`]).
+    pub fn take_aov_buffer(&mut self, aov: Aov) -> Option<AovBuffer> {
+        let names = channel_names(aov);
+        let at = self
+            .buffers
+            .iter()
+            .position(|b| b.names.iter().map(String::as_str).eq(names.iter().copied()))?;
+        Some(self.buffers.remove(at))
+    }
+
+    /// Keep the channels whose name `keep` accepts. A buffer losing some of its channels
+    /// but not all is split into one buffer per kept channel.
+    pub fn retain_channels(&mut self, keep: impl Fn(&str) -> bool) {
+        let mut out = Vec::with_capacity(self.buffers.len());
+        for b in std::mem::take(&mut self.buffers) {
+            let kept = b.names.iter().filter(|n| keep(n)).count();
+            if kept == b.names.len() {
+                out.push(b);
+            } else if kept > 0 {
+                for (k, name) in b.names.iter().enumerate().filter(|(_, n)| keep(n)) {
+                    out.push(AovBuffer {
+                        names: vec![name.clone()],
+                        data: b.data.pick(k, b.stride()),
+                    });
+                }
+            }
+        }
+        self.buffers = out;
+    }
+
+    /// Add `channel` as a buffer of its own (after removing any channel of its name).
+    pub fn push_channel(&mut self, channel: Channel) {
+        self.retain_channels(|n| n != channel.name);
+        self.buffers.push(AovBuffer {
+            names: vec![channel.name],
+            data: channel.data,
+        });
+    }
+
+    /// Rename channel `from` to `to` (a channel already named `to` goes first).
+    pub fn rename_channel(&mut self, from: &str, to: &str) {
+        if from == to || !self.has_channel(from) {
+            return;
+        }
+        self.retain_channels(|n| n != to);
+        if let Some((b, k)) = self.find(from) {
+            self.buffers[b].names[k] = to.to_string();
+        }
+    }
+
     /// Count of NaN or infinite samples over all float channels.
     pub fn non_finite_count(&self) -> usize {
-        self.channels
+        self.buffers
             .iter()
-            .map(|c| match &c.data {
+            .map(|b| match &b.data {
                 ChannelData::F32(v) => v.iter().filter(|x| !x.is_finite()).count(),
                 ChannelData::U32(_) => 0,
             })
@@ -411,17 +788,16 @@ impl AovImage {
         // The crate encodes from its own copy of every plane: reserved fallibly, since it
         // doubles the image (see `render_memory`).
         let what = "the copy of the image the EXR encoder needs";
-        let channels = self
-            .channels
-            .iter()
-            .map(|c| {
-                let samples = match &c.data {
-                    ChannelData::F32(v) => FlatSamples::F32(crate::mem::try_copy(v, what)?),
-                    ChannelData::U32(v) => FlatSamples::U32(crate::mem::try_copy(v, what)?),
+        let mut channels = Vec::new();
+        for b in &self.buffers {
+            for (k, name) in b.names.iter().enumerate() {
+                let samples = match &b.data {
+                    ChannelData::F32(v) => FlatSamples::F32(copy_channel(v, k, b.stride(), what)?),
+                    ChannelData::U32(v) => FlatSamples::U32(copy_channel(v, k, b.stride(), what)?),
                 };
-                Ok(AnyChannel::new(c.name.as_str(), samples))
-            })
-            .collect::<std::io::Result<Vec<AnyChannel<FlatSamples>>>>()?;
+                channels.push(AnyChannel::new(name.as_str(), samples));
+            }
+        }
         let layer = Layer::new(
             (self.width, self.height),
             layer_attrs,
@@ -430,7 +806,7 @@ impl AovImage {
                 blocks: Blocks::ScanLines,
                 line_order: LineOrder::Increasing,
             },
-            AnyChannels::sort(channels.into()),
+            AnyChannels::sort(channels.into_iter().collect()),
         );
         let mut canonical = SortedHeader::new(out);
         Image::from_layer(layer)
@@ -440,12 +816,11 @@ impl AovImage {
         Ok(())
     }
 
-    /// Stream an uncompressed single-part scanline OpenEXR straight from the planes (the
+    /// Stream an uncompressed single-part scanline OpenEXR straight from the buffers (the
     /// `exr` crate copies every sample through its own layout, which costs more than the
     /// render at 1080p). Layout: magic and version, the header attributes, the
     /// offset table (one u64 per line), then per line its `y`, byte count, and each
-    /// channel's row in channel-name order. Every row is already contiguous in its plane,
-    /// so a line is written as slices, with no per-sample work on little-endian machines.
+    /// channel's row in channel-name order (see [`Uncompressed::write_line`]).
     pub fn write_uncompressed<W: std::io::Write>(&self, out: &mut W) -> std::io::Result<()> {
         self.write_uncompressed_with(out, &[])
     }
@@ -493,12 +868,19 @@ impl AovImage {
         if size.0 == 0 || size.1 == 0 {
             bail!("{}: empty image", path.display());
         }
-        Ok(AovImage {
-            width: size.0,
-            height: size.1,
-            channels,
-        })
+        Ok(AovImage::from_channels(size.0, size.1, channels))
     }
+}
+
+/// Channel `k` of a buffer of `stride` channels, as a plane of its own, reserved fallibly.
+fn copy_channel<X: Copy>(v: &[X], k: usize, stride: usize, what: &str) -> std::io::Result<Vec<X>> {
+    if stride == 1 {
+        return crate::mem::try_copy(v, what);
+    }
+    let mut out = Vec::new();
+    crate::mem::try_reserve(&mut out, v.len() / stride, what)?;
+    out.extend(v.iter().skip(k).step_by(stride));
+    Ok(out)
 }
 
 /// The layout of an uncompressed single-part scanline OpenEXR: magic and version, the
@@ -509,8 +891,8 @@ impl AovImage {
 struct Uncompressed {
     /// Everything before the first line: magic, attributes, offset table.
     head: Vec<u8>,
-    /// Channel positions in the image, in file (name) order.
-    order: Vec<usize>,
+    /// Each channel's buffer and place in a pixel, in file (name) order.
+    order: Vec<(usize, usize)>,
     /// Bytes of one line after its `y` and byte count.
     line_bytes: usize,
 }
@@ -519,11 +901,11 @@ impl Uncompressed {
     /// The layout of an image `height` rows tall with the channels (names, types, width)
     /// of `img`, which may be a band of it.
     fn new(img: &AovImage, height: usize, attrs: &[ExrAttr]) -> Uncompressed {
-        let mut order: Vec<usize> = (0..img.channels.len()).collect();
-        order.sort_by(|&a, &b| {
-            let name = |k: usize| img.channels[k].name.as_bytes();
-            name(a).cmp(name(b))
-        });
+        let mut order: Vec<(usize, usize)> = (img.buffers.iter().enumerate())
+            .flat_map(|(b, buf)| (0..buf.stride()).map(move |k| (b, k)))
+            .collect();
+        let name = |&(b, k): &(usize, usize)| img.buffers[b].names[k].as_bytes();
+        order.sort_by(|a, b| name(a).cmp(name(b)));
         let w = img.width;
         let mut head = Vec::with_capacity(512);
         head.extend_from_slice(&20000630i32.to_le_bytes());
@@ -537,11 +919,11 @@ impl Uncompressed {
             head.extend_from_slice(value);
         };
         let mut chlist = Vec::new();
-        for &k in &order {
-            let c = &img.channels[k];
-            chlist.extend_from_slice(c.name.as_bytes());
+        for &(b, k) in &order {
+            let buf = &img.buffers[b];
+            chlist.extend_from_slice(buf.names[k].as_bytes());
             chlist.push(0);
-            let pixel_type: i32 = match c.data {
+            let pixel_type: i32 = match buf.data {
                 ChannelData::U32(_) => 0,
                 ChannelData::F32(_) => 2,
             };
@@ -591,8 +973,9 @@ impl Uncompressed {
         (self.head.len() + y * (8 + self.line_bytes)) as u64
     }
 
-    /// Write row `row` of `img` as the file's line `y`. Every row is already contiguous in
-    /// its plane, so on little-endian machines a line is written as slices.
+    /// Write row `row` of `img` as the file's line `y`: each channel's row in name order.
+    /// A one-channel buffer's row is contiguous and goes out as a slice on little-endian
+    /// machines; a channel of an interleaved buffer is gathered into `scratch` first.
     fn write_line<W: std::io::Write>(
         &self,
         out: &mut W,
@@ -604,23 +987,45 @@ impl Uncompressed {
         let w = img.width;
         out.write_all(&(y as i32).to_le_bytes())?;
         out.write_all(&(self.line_bytes as i32).to_le_bytes())?;
-        for &k in &self.order {
-            let samples = row * w..(row + 1) * w;
-            let bytes: &[u8] = match &img.channels[k].data {
-                ChannelData::F32(v) => bytemuck::cast_slice(&v[samples]),
-                ChannelData::U32(v) => bytemuck::cast_slice(&v[samples]),
-            };
-            if cfg!(target_endian = "little") {
-                out.write_all(bytes)?;
-            } else {
-                // Samples are stored little-endian: swap each 4-byte word.
-                scratch.clear();
-                scratch.extend(bytes.chunks_exact(4).flat_map(|q| [q[3], q[2], q[1], q[0]]));
-                out.write_all(scratch)?;
+        for &(b, k) in &self.order {
+            let buf = &img.buffers[b];
+            let s = buf.stride();
+            let samples = row * w * s..(row + 1) * w * s;
+            match &buf.data {
+                ChannelData::F32(v) => write_row(out, &v[samples], k, s, scratch)?,
+                ChannelData::U32(v) => write_row(out, &v[samples], k, s, scratch)?,
             }
         }
         Ok(())
     }
+}
+
+/// Channel `k` of a row of pixels of `stride` channels, little-endian.
+fn write_row<W: std::io::Write, X: bytemuck::Pod>(
+    out: &mut W,
+    row: &[X],
+    k: usize,
+    stride: usize,
+    scratch: &mut Vec<u8>,
+) -> std::io::Result<()> {
+    const SIZE: usize = 4;
+    debug_assert_eq!(std::mem::size_of::<X>(), SIZE);
+    if stride == 1 && cfg!(target_endian = "little") {
+        return out.write_all(bytemuck::cast_slice(row));
+    }
+    let n = row.len() / stride;
+    scratch.clear();
+    scratch.resize(n * SIZE, 0);
+    for (o, x) in scratch
+        .chunks_exact_mut(SIZE)
+        .zip(row.iter().skip(k).step_by(stride))
+    {
+        o.copy_from_slice(bytemuck::bytes_of(x));
+        if cfg!(target_endian = "big") {
+            o.reverse();
+        }
+    }
+    out.write_all(scratch)
 }
 
 /// An uncompressed OpenEXR written band by band, in any order and from any thread, while
@@ -830,23 +1235,65 @@ mod tests {
         );
     }
 
-    #[test]
-    fn band_writes_make_the_whole_file() {
+    /// Mixed f32 and u32 channels, names out of order, an interleaved three-channel
+    /// buffer and a last band of one row.
+    fn sample_image() -> AovImage {
         let (w, h) = (37, 33);
         let ramp = |k: f32| (0..w * h).map(|i| i as f32 * k - 5.0).collect::<Vec<f32>>();
         let channel = |name: &str, data| Channel {
             name: name.into(),
             data,
         };
-        let img = AovImage {
-            width: w,
-            height: h,
-            channels: vec![
+        AovImage::from_channels(
+            w,
+            h,
+            vec![
                 channel("normal.Z", ChannelData::F32(ramp(0.25))),
                 channel("depth", ChannelData::F32(ramp(1.5))),
                 channel("shape_id", ChannelData::U32((0..(w * h) as u32).collect())),
+                channel("normal.X", ChannelData::F32(ramp(-0.5))),
+                channel("normal.Y", ChannelData::F32(ramp(2.0))),
             ],
+        )
+    }
+
+    /// The three normal planes become one buffer of `(x, y, z)` triples in the table's
+    /// order; each channel reads back as its plane; taken apart, the same planes.
+    #[test]
+    fn vector_channels_share_one_interleaved_buffer() {
+        let img = sample_image();
+        assert_eq!(img.buffers.len(), 3);
+        let n = img.aov_buffer(Aov::Normal).expect("one normal buffer");
+        let ChannelData::F32(v) = &n.data else {
+            panic!("normal is f32")
         };
+        assert_eq!(v.len(), 3 * 37 * 33);
+        let k = 100;
+        assert_eq!(
+            v[3 * k..3 * k + 3],
+            [
+                k as f32 * -0.5 - 5.0,
+                k as f32 * 2.0 - 5.0,
+                k as f32 * 0.25 - 5.0
+            ]
+        );
+        let [x, _, z] = img.vec3_channel("normal").unwrap();
+        assert_eq!((x[k], z[k]), (v[3 * k], v[3 * k + 2]));
+        assert_eq!(z.len(), 37 * 33);
+        let back = AovImage::from_channels(img.width, img.height, img.to_channels());
+        assert_eq!(back, img);
+        let mut one = img.clone();
+        one.retain_channels(|c| c != "normal.Y");
+        assert_eq!(one.names(), ["normal.X", "normal.Z", "depth", "shape_id"]);
+        assert_eq!(one.f32_channel("normal.Z"), img.f32_channel("normal.Z"));
+    }
+
+    /// Written band by band in scrambled order through positional writes, the file is the
+    /// bytes of the whole image's streamed write, and the `exr` crate reads it back.
+    #[test]
+    fn band_writes_make_the_whole_file() {
+        let img = sample_image();
+        let (w, h) = (img.width, img.height);
         let attrs = [ExrAttr::Text("cylaov:units".into(), "m".into())];
         let mut whole = Vec::new();
         img.write_uncompressed_with(&mut whole, &attrs).unwrap();
@@ -856,19 +1303,21 @@ mod tests {
         let bands = ExrBands::new(&file, h, &attrs);
         for y0 in [32, 16, 0] {
             let rows = y0..(y0 + 16).min(h);
-            let samples = rows.start * w..rows.end * w;
             let band = AovImage {
                 width: w,
                 height: rows.len(),
-                channels: img
-                    .channels
+                buffers: img
+                    .buffers
                     .iter()
-                    .map(|c| Channel {
-                        name: c.name.clone(),
-                        data: match &c.data {
-                            ChannelData::F32(v) => ChannelData::F32(v[samples.clone()].to_vec()),
-                            ChannelData::U32(v) => ChannelData::U32(v[samples.clone()].to_vec()),
-                        },
+                    .map(|b| {
+                        let s = rows.start * w * b.stride()..rows.end * w * b.stride();
+                        AovBuffer {
+                            names: b.names.clone(),
+                            data: match &b.data {
+                                ChannelData::F32(v) => ChannelData::F32(v[s].to_vec()),
+                                ChannelData::U32(v) => ChannelData::U32(v[s].to_vec()),
+                            },
+                        }
                     })
                     .collect(),
             };
@@ -878,7 +1327,10 @@ mod tests {
         drop(file);
         assert!(std::fs::read(&path).unwrap() == whole, "the same bytes");
         let back = AovImage::read_exr(&path).unwrap();
-        assert_eq!(back.f32_channel("depth"), img.f32_channel("depth"));
-        assert_eq!(back.u32_channel("shape_id"), img.u32_channel("shape_id"));
+        assert_eq!(back, img);
+        // The exr crate's own writer (compressed) holds the same samples.
+        let zip = dir.path().join("zip.exr");
+        img.write_exr(&zip, Compression::Zip).unwrap();
+        assert_eq!(AovImage::read_exr(&zip).unwrap(), img);
     }
 }

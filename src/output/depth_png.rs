@@ -102,14 +102,14 @@ mod tests {
     use crate::output::aov::{Channel, ChannelData};
 
     fn depth_image(values: &[f32]) -> AovImage {
-        AovImage {
-            width: values.len(),
-            height: 1,
-            channels: vec![Channel {
+        AovImage::from_channels(
+            values.len(),
+            1,
+            vec![Channel {
                 name: "depth".into(),
                 data: ChannelData::F32(values.to_vec()),
             }],
-        }
+        )
     }
 
     #[test]

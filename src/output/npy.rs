@@ -63,46 +63,21 @@ pub fn file_size(dtype: Dtype, shape: &[usize]) -> usize {
     header(dtype, shape).len() + shape.iter().product::<usize>() * dtype.size()
 }
 
-/// A float32 array of `shape` from `channels` planes of `H×W` samples each, interleaved
-/// (one plane: `(H, W)`; C planes: `(H, W, C)`). One and three planes (depth, normal) have
-/// their own loops: appended without zero-filling first, they compile to straight copies.
-pub fn f32_planes(height: usize, width: usize, planes: &[&[f32]]) -> Vec<u8> {
-    let shape = shape(height, width, planes.len());
-    let mut out = header(Dtype::F32, &shape);
-    let n = height * width;
-    out.reserve_exact(n * planes.len() * 4);
-    match planes {
-        [p] => {
-            for v in &p[..n] {
-                out.extend_from_slice(&v.to_le_bytes());
-            }
+/// An array of `shape` from its samples in C order (an AOV buffer as the render holds
+/// it: `(H, W)`, or `(H, W, C)` with a pixel's channels side by side): the header, then the
+/// samples' bytes as they lie in memory on a little-endian machine.
+pub fn array<X: bytemuck::Pod>(dtype: Dtype, shape: &[usize], samples: &[X]) -> Vec<u8> {
+    debug_assert_eq!(std::mem::size_of::<X>(), dtype.size());
+    debug_assert_eq!(shape.iter().product::<usize>(), samples.len());
+    let mut out = header(dtype, shape);
+    let bytes: &[u8] = bytemuck::cast_slice(samples);
+    if cfg!(target_endian = "little") {
+        out.extend_from_slice(bytes);
+    } else {
+        out.reserve_exact(bytes.len());
+        for w in bytes.chunks_exact(dtype.size()) {
+            out.extend(w.iter().rev());
         }
-        [x, y, z] => {
-            for ((a, b), c) in x[..n].iter().zip(&y[..n]).zip(&z[..n]) {
-                let mut px = [0u8; 12];
-                px[..4].copy_from_slice(&a.to_le_bytes());
-                px[4..8].copy_from_slice(&b.to_le_bytes());
-                px[8..].copy_from_slice(&c.to_le_bytes());
-                out.extend_from_slice(&px);
-            }
-        }
-        _ => {
-            for k in 0..n {
-                for plane in planes {
-                    out.extend_from_slice(&plane[k].to_le_bytes());
-                }
-            }
-        }
-    }
-    out
-}
-
-/// A `(H, W)` uint32 array.
-pub fn u32_plane(height: usize, width: usize, plane: &[u32]) -> Vec<u8> {
-    let mut out = header(Dtype::U32, &[height, width]);
-    out.reserve(plane.len() * 4);
-    for v in plane {
-        out.extend_from_slice(&v.to_le_bytes());
     }
     out
 }
@@ -112,14 +87,6 @@ pub fn bool_plane(height: usize, width: usize, hit: impl Iterator<Item = bool>) 
     let mut out = header(Dtype::Bool, &[height, width]);
     out.extend(hit.map(u8::from));
     out
-}
-
-fn shape(height: usize, width: usize, channels: usize) -> Vec<usize> {
-    if channels == 1 {
-        vec![height, width]
-    } else {
-        vec![height, width, channels]
-    }
 }
 
 #[cfg(test)]
@@ -149,29 +116,25 @@ mod tests {
         );
     }
 
-    /// Planes interleave per pixel, little-endian; the sizes match `file_size`.
+    /// Samples go out in their order, little-endian; the sizes match `file_size`.
     #[test]
-    fn samples_interleave_per_pixel() {
-        let (x, y, z) = ([1.0f32, 2.0], [3.0f32, 4.0], [5.0f32, -0.0]);
-        let b = f32_planes(1, 2, &[&x, &y, &z]);
+    fn samples_keep_their_order() {
+        let xyz = [1.0f32, 3.0, 5.0, 2.0, 4.0, -0.0];
+        let b = array(Dtype::F32, &[1, 2, 3], &xyz);
         assert_eq!(b.len(), file_size(Dtype::F32, &[1, 2, 3]));
         let data: Vec<f32> = b[128..]
             .chunks_exact(4)
             .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
             .collect();
-        assert_eq!(data, [1.0, 3.0, 5.0, 2.0, 4.0, -0.0]);
+        assert_eq!(data, xyz);
         assert_eq!(data[5].to_bits(), (-0.0f32).to_bits());
-        let one = f32_planes(1, 2, &[&[1.5, -2.0]]);
+        let one = array(Dtype::F32, &[1, 2], &[1.5f32, -2.0]);
         assert_eq!(one.len(), file_size(Dtype::F32, &[1, 2]));
         assert_eq!(&one[128..132], &1.5f32.to_le_bytes());
         assert_eq!(&one[132..], &(-2.0f32).to_le_bytes());
-        let two = f32_planes(1, 2, &[&x, &y]);
-        assert_eq!(two.len(), file_size(Dtype::F32, &[1, 2, 2]));
-        assert_eq!(&two[132..136], &3.0f32.to_le_bytes());
-        assert_eq!(&two[136..140], &2.0f32.to_le_bytes());
         let m = bool_plane(1, 3, [true, false, true].into_iter());
         assert_eq!(&m[128..], &[1, 0, 1]);
-        let u = u32_plane(1, 1, &[0x0102_0304]);
+        let u = array(Dtype::U32, &[1, 1], &[0x0102_0304u32]);
         assert_eq!(&u[128..], &[4, 3, 2, 1]);
     }
 }

@@ -347,7 +347,7 @@ impl ViewPlan {
             .iter()
             .flat_map(|&a| channel_names(a).iter().copied())
             .collect();
-        image.channels.retain(|c| keep.contains(&c.name.as_str()));
+        image.retain_channels(|c| keep.contains(&c));
         // Staged in the order of the streamed path: EXRs, metadata, pictures.
         match self.layout {
             ExrLayout::Layers => {

@@ -11,7 +11,7 @@
 
 use crate::dataset::generate::{ConfigFile, GenerateOptions, to_json};
 use crate::geometry::{FormulaKind, Kernel, Precision};
-use crate::output::aov::{AovImage, Channel, ChannelData, channel_names};
+use crate::output::aov::{AovBuffer, AovImage, ChannelData, channel_names, per_aov_channel_names};
 use crate::render::cast::{self, Ray};
 use crate::render::{Accel, RenderOptions};
 use crate::scene::camera::Camera;
@@ -202,7 +202,8 @@ fn kernel(precision: &str, formula: &str) -> PyResult<Kernel> {
     Ok(Kernel::new(formula, precision))
 }
 
-/// AOV name and its array: planes of 3-vectors interleaved into `(H, W, 3)`.
+/// AOV name and its array: the AOV's buffer, `(H, W)` or `(H, W, 3)` as the render
+/// filled it.
 enum Plane {
     F32(Vec<f32>),
     U32(Vec<u32>),
@@ -218,66 +219,23 @@ struct Arrays {
     mask: Option<Vec<bool>>,
 }
 
-/// Pixels per task of the interleave: big enough that a task outweighs its scheduling,
-/// small enough that a 320x240 view still spreads over the cores.
-const INTERLEAVE_CHUNK: usize = 4096;
-
-/// Planes `x`, `y`, `z` as one buffer of `[x, y, z]` triples, written once (no zeroing
-/// first), in chunks spread over the current pool.
-fn interleave(x: &[f32], y: &[f32], z: &[f32]) -> Vec<f32> {
-    use rayon::prelude::*;
-    let n = x.len().min(y.len()).min(z.len());
-    let mut v: Vec<f32> = Vec::with_capacity(3 * n);
-    v.spare_capacity_mut()[..3 * n]
-        .par_chunks_mut(3 * INTERLEAVE_CHUNK)
-        .zip(x[..n].par_chunks(INTERLEAVE_CHUNK))
-        .zip(y[..n].par_chunks(INTERLEAVE_CHUNK))
-        .zip(z[..n].par_chunks(INTERLEAVE_CHUNK))
-        .for_each(|(((o, x), y), z)| {
-            for (o, ((&a, &b), &c)) in o.chunks_exact_mut(3).zip(x.iter().zip(y).zip(z)) {
-                o[0].write(a);
-                o[1].write(b);
-                o[2].write(c);
-            }
-        });
-    // SAFETY: the chunks above cover `[..3 * n]` exactly (the output's chunks are three
-    // times the inputs', whose lengths are `n`), and every element of them was written.
-    unsafe { v.set_len(3 * n) };
-    v
-}
-
-/// The image's requested AOVs (owned: the arrays take the buffers) and the `mask`.
-fn arrays(image: AovImage, aovs: &[Aov]) -> Arrays {
+/// The image's requested AOVs (owned: the arrays take the buffers as they are, no copy;
+/// float32 ids of a per-AOV file become uint32) and the `mask`.
+fn arrays(mut image: AovImage, aovs: &[Aov]) -> Arrays {
     let (w, h) = (image.width, image.height);
-    let mut by_name: HashMap<String, ChannelData> = image
-        .channels
-        .into_iter()
-        .map(|c| (c.name, c.data))
-        .collect();
     let mut planes: Vec<(Aov, Plane)> = Vec::new();
     for &a in aovs {
-        let names = channel_names(a);
-        let mut take = |n: &str| by_name.remove(n);
-        let plane = match names {
-            [one] => match take(one) {
-                Some(ChannelData::F32(v)) if a.is_u32() => {
-                    Plane::U32(v.into_iter().map(|x| x as u32).collect())
-                }
-                Some(ChannelData::F32(v)) => Plane::F32(v),
-                Some(ChannelData::U32(v)) => Plane::U32(v),
-                None => continue,
-            },
-            [x, y, z] => {
-                let f = |c: Option<ChannelData>| match c {
-                    Some(ChannelData::F32(v)) => Some(v),
-                    _ => None,
-                };
-                let (Some(x), Some(y), Some(z)) = (f(take(x)), f(take(y)), f(take(z))) else {
-                    continue;
-                };
-                Plane::Vec3(interleave(&x, &y, &z))
+        let Some(buffer) = image.take_aov_buffer(a) else {
+            continue;
+        };
+        let plane = match (buffer.data, channel_names(a).len()) {
+            (ChannelData::F32(v), 1) if a.is_u32() => {
+                Plane::U32(v.into_iter().map(|x| x as u32).collect())
             }
-            _ => unreachable!("AOVs have one or three channels"),
+            (ChannelData::F32(v), 1) => Plane::F32(v),
+            (ChannelData::U32(v), 1) => Plane::U32(v),
+            (ChannelData::F32(v), 3) => Plane::Vec3(v),
+            _ => continue,
         };
         planes.push((a, plane));
     }
@@ -1120,30 +1078,24 @@ fn read<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, PyDict>> {
         .map_err(|e| PyOSError::new_err(format!("{e:#}")))?;
     // Per-AOV files name their channels Y or R, G, B: rename to the AOV's channels.
     let per_aov = image
-        .channels
+        .names()
         .iter()
-        .all(|c| ["Y", "R", "G", "B"].contains(&c.name.as_str()));
+        .all(|c| ["Y", "R", "G", "B"].contains(c));
     let mut aovs: Vec<Aov> = Vec::new();
     if per_aov && named.len() == 1 {
         let a = parse_aov(&named[0], "header cylaov:channel")?;
-        let names = channel_names(a);
-        for c in &mut image.channels {
-            let k = ["Y", "R", "G", "B"]
-                .iter()
-                .position(|n| *n == c.name)
-                .unwrap_or(0);
-            c.name = names[k.saturating_sub(1).min(names.len() - 1)].to_string();
+        for (from, to) in per_aov_channel_names(a).iter().zip(channel_names(a)) {
+            image.rename_channel(from, to);
         }
+        let (w, h) = (image.width, image.height);
+        image = AovImage::from_channels(w, h, image.to_channels());
         aovs.push(a);
     } else {
-        for a in Aov::ALL {
-            if channel_names(a)
-                .iter()
-                .all(|n| image.channels.iter().any(|c| c.name == *n))
-            {
-                aovs.push(a);
-            }
-        }
+        aovs.extend(
+            Aov::ALL
+                .into_iter()
+                .filter(|&a| image.aov_buffer(a).is_some()),
+        );
     }
     let d = image_to_dict(py, image, &aovs)?;
     d.set_item("header", header)?;
@@ -1153,7 +1105,7 @@ fn read<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, PyDict>> {
 /// An image from a path or from a dict of arrays (as `render` or `read` return).
 fn image_of(obj: &Bound<'_, PyAny>, which: &str) -> PyResult<(AovImage, String)> {
     if let Ok(d) = obj.cast::<PyDict>() {
-        let mut channels = Vec::new();
+        let mut buffers = Vec::new();
         let (mut w, mut h) = (0usize, 0usize);
         for a in Aov::ALL {
             let Some(arr) = d.get_item(a.name())? else {
@@ -1176,25 +1128,14 @@ fn image_of(obj: &Bound<'_, PyAny>, which: &str) -> PyResult<(AovImage, String)>
                 }
             };
             (w, h) = (ww, hh);
-            if a.is_u32() {
-                let v: Vec<u32> = arr.call_method0("ravel")?.extract()?;
-                channels.push(Channel {
-                    name: names[0].into(),
-                    data: ChannelData::U32(v),
-                });
+            let data = if a.is_u32() {
+                ChannelData::U32(arr.call_method0("ravel")?.extract()?)
             } else {
-                let v: Vec<f32> = arr.call_method0("ravel")?.extract()?;
-                let k = names.len();
-                for (c, name) in names.iter().enumerate() {
-                    let plane = v.iter().skip(c).step_by(k).copied().collect();
-                    channels.push(Channel {
-                        name: (*name).into(),
-                        data: ChannelData::F32(plane),
-                    });
-                }
-            }
+                ChannelData::F32(arr.call_method0("ravel")?.extract()?)
+            };
+            buffers.push(AovBuffer::new(names, data));
         }
-        if channels.is_empty() {
+        if buffers.is_empty() {
             return Err(PyValueError::new_err(format!(
                 "{which}: no AOV arrays in the dict"
             )));
@@ -1203,7 +1144,7 @@ fn image_of(obj: &Bound<'_, PyAny>, which: &str) -> PyResult<(AovImage, String)>
             AovImage {
                 width: w,
                 height: h,
-                channels,
+                buffers,
             },
             format!("<{which}>"),
         ));

@@ -34,7 +34,7 @@ mod planes;
 mod tracer;
 mod walk;
 
-use planes::{BandInputs, bands, channels_of, output_planes};
+use planes::{BandInputs, bands, buffers_of, output_planes};
 pub use tracer::{PixelHit, Tracer};
 use walk::band_renderer;
 
@@ -259,11 +259,10 @@ fn render_simd<T: Simd, F: PacketFormula>(
         .enumerate()
         .map(|(b, mut band)| band_fn(&inputs, b, &mut band))
         .sum();
-    let channels = channels_of(opts, cam, samples);
     let image = AovImage {
         width: w,
         height: h,
-        channels,
+        buffers: buffers_of(opts, cam, samples),
     };
     (Render { image, hits }, setup.timing(start))
 }
@@ -320,7 +319,7 @@ fn bands_simd<T: Simd, F: PacketFormula>(
             let image = AovImage {
                 width: w,
                 height: rows,
-                channels: channels_of(opts, cam, samples),
+                buffers: buffers_of(opts, cam, samples),
             };
             sink(b * band_rows, &image).map(|()| hits)
         })
@@ -391,11 +390,14 @@ mod tests {
             let seen = std::sync::Mutex::new(vec![0u32; 97]);
             let (hits, _) = render_bands(&sc, &o, &|y0, band| {
                 assert_eq!(band.width, 173);
-                let names: Vec<_> = band.channels.iter().map(|c| &c.name).collect();
-                let want: Vec<_> = whole.image.channels.iter().map(|c| &c.name).collect();
-                assert_eq!(names, want, "same channels, same order");
-                let rows = y0 * 173..(y0 + band.height) * 173;
-                for (c, w) in band.channels.iter().zip(&whole.image.channels) {
+                assert_eq!(
+                    band.names(),
+                    whole.image.names(),
+                    "same channels, same order"
+                );
+                for (c, w) in band.buffers.iter().zip(&whole.image.buffers) {
+                    let s = c.stride();
+                    let rows = y0 * 173 * s..(y0 + band.height) * 173 * s;
                     let same = match (&c.data, &w.data) {
                         (ChannelData::F32(a), ChannelData::F32(b)) => a
                             .iter()
@@ -406,8 +408,8 @@ mod tests {
                     };
                     assert!(
                         same,
-                        "{accel:?}: {} differs in the band at row {y0}",
-                        c.name
+                        "{accel:?}: {:?} differs in the band at row {y0}",
+                        c.names
                     );
                 }
                 for n in &mut seen.lock().unwrap()[y0..y0 + band.height] {
@@ -482,12 +484,8 @@ mod tests {
             );
             for (x, y) in [(&a, &b), (&c, &d)] {
                 assert_eq!(x.hits, y.hits);
-                for ch in &x.image.channels {
-                    assert!(
-                        y.image.channel(&ch.name) == Some(&ch.data),
-                        "{} differs",
-                        ch.name
-                    );
+                for b in &x.image.buffers {
+                    assert!(y.image.buffers.contains(b), "{:?} differs", b.names);
                 }
             }
             hits += a.hits;

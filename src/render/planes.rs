@@ -4,7 +4,7 @@
 use super::RenderOptions;
 use super::tracer::{PixelHit, Tracer};
 use crate::geometry::{Formula, Real, Surface};
-use crate::output::aov::{Channel, ChannelData};
+use crate::output::aov::{AovBuffer, ChannelData};
 use crate::scene::Aov;
 use crate::scene::camera::Camera;
 use glam::DVec3;
@@ -19,12 +19,13 @@ pub(super) fn zeroed<X: bytemuck::Zeroable>(n: usize) -> Vec<X> {
     v
 }
 
-/// Output planes of the requested AOVs; `None` for the rest.
+/// Output planes of the requested AOVs; `None` for the rest. A vector AOV's plane holds
+/// its pixels' `(x, y, z)` side by side (the layout of [`AovBuffer`]).
 pub(super) struct Planes<P> {
     pub(super) distance: Option<P>,
     pub(super) depth: Option<P>,
-    pub(super) normal: Option<[P; 3]>,
-    pub(super) position: Option<[P; 3]>,
+    pub(super) normal: Option<P>,
+    pub(super) position: Option<P>,
 }
 
 /// The requested planes of an image or a band (`shape_id` and `part` as u32).
@@ -41,57 +42,32 @@ pub(super) struct Band<'a> {
     pub(super) part: Option<&'a mut [u32]>,
 }
 
-/// Cut each requested plane into bands of `len` samples.
+/// Cut each requested plane into bands of `len` pixels.
 pub(super) fn bands<'a>(samples: &'a mut Samples, len: usize, count: usize) -> Vec<Band<'a>> {
     let Samples { f, id, part } = samples;
-    fn cut<X>(v: Option<&mut Vec<X>>, len: usize, count: usize) -> Vec<Option<&mut [X]>> {
+    fn cut<X>(
+        v: Option<&mut Vec<X>>,
+        len: usize,
+        count: usize,
+    ) -> std::vec::IntoIter<Option<&mut [X]>> {
         match v {
-            Some(v) => v.chunks_mut(len).map(Some).collect(),
-            None => (0..count).map(|_| None).collect(),
+            Some(v) => v.chunks_mut(len).map(Some).collect::<Vec<_>>().into_iter(),
+            None => (0..count).map(|_| None).collect::<Vec<_>>().into_iter(),
         }
     }
-    let mut d = cut(f.distance.as_mut(), len, count).into_iter();
-    let mut z = cut(f.depth.as_mut(), len, count).into_iter();
-    let [n0, n1, n2] = f
-        .normal
-        .as_mut()
-        .map(|[a, b, c]| [Some(a), Some(b), Some(c)])
-        .unwrap_or_default();
-    let mut n = [
-        cut(n0, len, count).into_iter(),
-        cut(n1, len, count).into_iter(),
-        cut(n2, len, count).into_iter(),
-    ];
-    let [p0, p1, p2] = f
-        .position
-        .as_mut()
-        .map(|[a, b, c]| [Some(a), Some(b), Some(c)])
-        .unwrap_or_default();
-    let mut p = [
-        cut(p0, len, count).into_iter(),
-        cut(p1, len, count).into_iter(),
-        cut(p2, len, count).into_iter(),
-    ];
-    let mut ids = cut(id.as_mut(), len, count).into_iter();
-    let mut parts = cut(part.as_mut(), len, count).into_iter();
-    let three =
-        |it: &mut [std::vec::IntoIter<Option<&'a mut [f32]>>; 3]| -> Option<[&'a mut [f32]; 3]> {
-            match (
-                it[0].next().flatten(),
-                it[1].next().flatten(),
-                it[2].next().flatten(),
-            ) {
-                (Some(x), Some(y), Some(z)) => Some([x, y, z]),
-                _ => None,
-            }
-        };
+    let mut d = cut(f.distance.as_mut(), len, count);
+    let mut z = cut(f.depth.as_mut(), len, count);
+    let mut n = cut(f.normal.as_mut(), 3 * len, count);
+    let mut p = cut(f.position.as_mut(), 3 * len, count);
+    let mut ids = cut(id.as_mut(), len, count);
+    let mut parts = cut(part.as_mut(), len, count);
     (0..count)
         .map(|_| Band {
             f: Planes {
                 distance: d.next().flatten(),
                 depth: z.next().flatten(),
-                normal: three(&mut n),
-                position: three(&mut p),
+                normal: n.next().flatten(),
+                position: p.next().flatten(),
             },
             id: ids.next().flatten(),
             part: parts.next().flatten(),
@@ -139,13 +115,13 @@ pub(super) fn shade<T: Real, F: Formula>(
     if let Some(s) = f.depth.as_deref_mut() {
         s[k] = (t * d.dot(cam.forward)) as f32;
     }
-    if let Some(s) = f.normal.as_mut() {
+    if let Some(s) = f.normal.as_deref_mut() {
         let nrm = fr.tracer.normal(d, &ph);
-        (s[0][k], s[1][k], s[2][k]) = (nrm.x as f32, nrm.y as f32, nrm.z as f32);
+        s[3 * k..3 * k + 3].copy_from_slice(&[nrm.x as f32, nrm.y as f32, nrm.z as f32]);
     }
-    if let Some(s) = f.position.as_mut() {
+    if let Some(s) = f.position.as_deref_mut() {
         let p = cam.origin + d * t;
-        (s[0][k], s[1][k], s[2][k]) = (p.x as f32, p.y as f32, p.z as f32);
+        s[3 * k..3 * k + 3].copy_from_slice(&[p.x as f32, p.y as f32, p.z as f32]);
     }
     if let Some(s) = band.id.as_deref_mut() {
         s[k] = fr.ids[ph.index as usize];
@@ -172,30 +148,25 @@ pub(super) fn part_code<T: Real, F: Formula>(
     }
 }
 
-/// The `normal_camera` planes: each stored world normal rotated into OpenCV camera axes
+/// The `normal_camera` buffer: each stored world normal rotated into OpenCV camera axes
 /// (x right = -left, y down = -true_up, z forward) in f64 and rounded once to f32; a miss
 /// (0, 0, 0) stays 0. Rotating the stored f32 normal adds at most an ulp or so to its error.
-pub(super) fn normals_in_camera(
-    cam: &crate::scene::camera::Camera,
-    n: &[Vec<f32>; 3],
-) -> [Vec<f32>; 3] {
+pub(super) fn normals_in_camera(cam: &crate::scene::camera::Camera, n: &[f32]) -> Vec<f32> {
     let axes = [-cam.left, -cam.true_up, cam.forward];
-    let len = n[0].len();
-    let plane = || crate::mem::zeroed_or_exit::<f32>(len, "the normal_camera planes");
-    let mut out = [plane(), plane(), plane()];
-    for k in 0..len {
-        let v = DVec3::new(n[0][k] as f64, n[1][k] as f64, n[2][k] as f64);
+    let mut out = crate::mem::zeroed_or_exit::<f32>(n.len(), "the normal_camera buffer");
+    for (o, v) in out.chunks_exact_mut(3).zip(n.chunks_exact(3)) {
+        let v = DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64);
         if v == DVec3::ZERO {
             continue;
         }
-        for (o, a) in out.iter_mut().zip(axes) {
-            o[k] = a.dot(v) as f32;
+        for (o, a) in o.iter_mut().zip(axes) {
+            *o = a.dot(v) as f32;
         }
     }
     out
 }
 
-/// The output planes of `n` samples for the requested AOVs, zeroed (a miss is 0
+/// The output planes of `n` pixels for the requested AOVs, zeroed (a miss is 0
 /// everywhere): a whole image's, or one band's.
 pub(super) fn output_planes(opts: &RenderOptions, n: usize) -> Samples {
     let want = |a: Aov| opts.aovs.contains(&a);
@@ -205,8 +176,8 @@ pub(super) fn output_planes(opts: &RenderOptions, n: usize) -> Samples {
         distance: want(Aov::Distance).then(plane),
         depth: want(Aov::Depth).then(plane),
         // Camera-frame normals are the world normals rotated: both need these planes.
-        normal: (want(Aov::Normal) || want(Aov::NormalCamera)).then(|| [plane(), plane(), plane()]),
-        position: want(Aov::Position).then(|| [plane(), plane(), plane()]),
+        normal: (want(Aov::Normal) || want(Aov::NormalCamera)).then(|| zeroed::<f32>(3 * n)),
+        position: want(Aov::Position).then(|| zeroed::<f32>(3 * n)),
     };
     Samples {
         f: planes,
@@ -215,46 +186,32 @@ pub(super) fn output_planes(opts: &RenderOptions, n: usize) -> Samples {
     }
 }
 
-/// The channels of filled planes, in the order every image of a render has them (a whole
+/// The buffers of filled planes, in the order every image of a render has them (a whole
 /// image and each of its bands alike): the requested AOVs, `normal_camera` rotated from
 /// the world normals here.
-pub(super) fn channels_of(opts: &RenderOptions, cam: &Camera, samples: Samples) -> Vec<Channel> {
+pub(super) fn buffers_of(opts: &RenderOptions, cam: &Camera, samples: Samples) -> Vec<AovBuffer> {
     let Samples {
         f: mut planes,
         id,
         part,
     } = samples;
     let want = |a: Aov| opts.aovs.contains(&a);
-    let mut channels = Vec::new();
-    let mut push = |name: &str, data: Option<ChannelData>| {
-        if let Some(data) = data {
-            channels.push(Channel {
-                name: name.to_string(),
-                data,
-            });
-        }
-    };
-    push(Aov::Distance.name(), planes.distance.map(ChannelData::F32));
-    push(Aov::Depth.name(), planes.depth.map(ChannelData::F32));
     let normal_camera = want(Aov::NormalCamera)
-        .then(|| planes.normal.as_ref().map(|n| normals_in_camera(cam, n)))
+        .then(|| planes.normal.as_deref().map(|n| normals_in_camera(cam, n)))
         .flatten();
     if !want(Aov::Normal) {
         planes.normal = None;
     }
-    let [nx, ny, nz] = planes.normal.map(|v| v.map(Some)).unwrap_or_default();
-    for (c, v) in Aov::Normal.spec().channels.iter().zip([nx, ny, nz]) {
-        push(c, v.map(ChannelData::F32));
-    }
-    let [px, py, pz] = planes.position.map(|v| v.map(Some)).unwrap_or_default();
-    for (c, v) in Aov::Position.spec().channels.iter().zip([px, py, pz]) {
-        push(c, v.map(ChannelData::F32));
-    }
-    push(Aov::ShapeId.name(), id.map(ChannelData::U32));
-    push(Aov::Part.name(), part.map(ChannelData::U32));
-    let [cx, cy, cz] = normal_camera.map(|v| v.map(Some)).unwrap_or_default();
-    for (c, v) in Aov::NormalCamera.spec().channels.iter().zip([cx, cy, cz]) {
-        push(c, v.map(ChannelData::F32));
-    }
-    channels
+    [
+        (Aov::Distance, planes.distance.map(ChannelData::F32)),
+        (Aov::Depth, planes.depth.map(ChannelData::F32)),
+        (Aov::Normal, planes.normal.map(ChannelData::F32)),
+        (Aov::Position, planes.position.map(ChannelData::F32)),
+        (Aov::ShapeId, id.map(ChannelData::U32)),
+        (Aov::Part, part.map(ChannelData::U32)),
+        (Aov::NormalCamera, normal_camera.map(ChannelData::F32)),
+    ]
+    .into_iter()
+    .filter_map(|(a, data)| Some(AovBuffer::new(a.spec().channels, data?)))
+    .collect()
 }

@@ -37,7 +37,7 @@
 //! against the exact answer alone.
 
 use crate::geometry::{Cylinder, Precision, Surface};
-use crate::output::aov::AovImage;
+use crate::output::aov::{AovImage, Strided};
 use crate::scene::Scene;
 use crate::scene::camera::Camera;
 use crate::verify::compare::{CONDITIONING_ULPS, Tolerances, id_channel};
@@ -502,11 +502,11 @@ impl Tracer<'_> {
 struct Side<'a> {
     ids: Option<Vec<u32>>,
     parts: Option<Vec<u32>>,
-    distance: Option<&'a [f32]>,
-    depth: Option<&'a [f32]>,
-    normal: Option<[&'a [f32]; 3]>,
-    position: Option<[&'a [f32]; 3]>,
-    normal_camera: Option<[&'a [f32]; 3]>,
+    distance: Option<Strided<'a, f32>>,
+    depth: Option<Strided<'a, f32>>,
+    normal: Option<[Strided<'a, f32>; 3]>,
+    position: Option<[Strided<'a, f32>; 3]>,
+    normal_camera: Option<[Strided<'a, f32>; 3]>,
 }
 
 impl<'a> Side<'a> {
@@ -538,8 +538,8 @@ impl<'a> Side<'a> {
 
     fn sample(&self, k: usize) -> Sample {
         let hit = self.hit(k);
-        let f = |v: Option<&[f32]>| v.map(|v| f64::from(v[k]));
-        let v3 = |v: Option<[&[f32]; 3]>| {
+        let f = |v: Option<Strided<f32>>| v.map(|v| f64::from(v[k]));
+        let v3 = |v: Option<[Strided<f32>; 3]>| {
             v.map(|n| [n[0][k], n[1][k], n[2][k]].map(f64::from))
                 .filter(|_| hit)
         };
@@ -555,8 +555,9 @@ impl<'a> Side<'a> {
     }
 
     fn non_finite(&self, k: usize) -> bool {
-        let bad = |v: Option<&[f32]>| v.is_some_and(|v| !v[k].is_finite());
-        let bad3 = |v: Option<[&[f32]; 3]>| v.is_some_and(|n| n.iter().any(|c| !c[k].is_finite()));
+        let bad = |v: Option<Strided<f32>>| v.is_some_and(|v| !v[k].is_finite());
+        let bad3 =
+            |v: Option<[Strided<f32>; 3]>| v.is_some_and(|n| n.iter().any(|c| !c[k].is_finite()));
         bad(self.distance)
             || bad(self.depth)
             || bad3(self.normal)

@@ -384,18 +384,18 @@ fn differing_samples(file: &AovImage, fresh: &AovImage) -> Vec<String> {
     }
     let w = file.width;
     let at = |k: usize| format!("[{}, {}]", k % w, k / w);
-    file.channels
-        .iter()
-        .filter_map(|c| {
-            use crate::output::aov::ChannelData as D;
-            match (&c.data, fresh.channel(&c.name)) {
-                (D::F32(a), Some(D::F32(b))) => (0..a.len().min(b.len()))
+    file.names()
+        .into_iter()
+        .filter_map(|name| {
+            use crate::output::aov::ChannelRef as C;
+            match (file.channel(name)?, fresh.channel(name)) {
+                (C::F32(a), Some(C::F32(b))) => (0..a.len().min(b.len()))
                     .find(|&k| a[k].to_bits() != b[k].to_bits())
-                    .map(|k| format!("{} at {}: file {}, render {}", c.name, at(k), a[k], b[k])),
-                (D::U32(a), Some(D::U32(b))) => (0..a.len().min(b.len()))
+                    .map(|k| format!("{name} at {}: file {}, render {}", at(k), a[k], b[k])),
+                (C::U32(a), Some(C::U32(b))) => (0..a.len().min(b.len()))
                     .find(|&k| a[k] != b[k])
-                    .map(|k| format!("{} at {}: file {}, render {}", c.name, at(k), a[k], b[k])),
-                _ => Some(format!("{}: not a channel of the render", c.name)),
+                    .map(|k| format!("{name} at {}: file {}, render {}", at(k), a[k], b[k])),
+                _ => Some(format!("{name}: not a channel of the render")),
             }
         })
         .collect()

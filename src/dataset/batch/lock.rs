@@ -113,7 +113,10 @@ fn lock_file(out: &Path, path: &Path, wait: bool, what: &dyn Fn() -> String) -> 
                 partial_root(out)?;
                 continue;
             }
-            r => r?,
+            // A peer removed the file between our open and our look at it: try again.
+            Ok(None) => continue,
+            Ok(Some(file)) => file,
+            Err(e) => return Err(e),
         };
         if !lock(&file, wait).with_context(|| path.display().to_string())? {
             let mut holder = String::new();
@@ -149,8 +152,9 @@ fn lock_file(out: &Path, path: &Path, wait: bool, what: &dyn Fn() -> String) -> 
 }
 
 /// Open (or create) the lock file at `path` in place: a regular file with one link, not
-/// followed if it is a link, not waited on if it is a FIFO (see the module docs).
-fn open_lock(path: &Path) -> Result<File> {
+/// followed if it is a link, not waited on if it is a FIFO (see the module docs). `None`
+/// when the file opened has no name left (no link: its holder removed it after our open).
+fn open_lock(path: &Path) -> Result<Option<File>> {
     use std::os::unix::fs::MetadataExt;
     let refuse = |what: String| {
         anyhow::anyhow!(
@@ -182,13 +186,13 @@ fn open_lock(path: &Path) -> Result<File> {
             kind_name(m.file_type())
         )));
     }
-    if m.nlink() != 1 {
-        return Err(refuse(format!(
-            "has {} hard links (another name shares its content)",
-            m.nlink()
-        )));
+    match m.nlink() {
+        0 => Ok(None),
+        1 => Ok(Some(file)),
+        n => Err(refuse(format!(
+            "has {n} hard links (another name shares its content)"
+        ))),
     }
-    Ok(file)
 }
 
 /// Take `file`'s exclusive lock: at once or not at all (`false` when another holds it), or,

@@ -40,7 +40,7 @@ use super::resume::render_stamp;
 use super::run::{expand_views, read_views, resource_exhausted};
 use super::shard::Shard;
 use super::views::{ViewSource, list_views};
-use crate::output::aov::{AovImage, ExrLayout, channel_names};
+use crate::output::aov::{AovImage, ChannelData, ExrLayout, channel_names};
 use crate::output::files::{create_new, open_regular, read_regular};
 use crate::output::io::{atomic_write_bytes, check_outputs, record_json};
 use crate::output::npy;
@@ -301,25 +301,16 @@ fn array_aovs(aovs: &[Aov]) -> Vec<Aov> {
     v
 }
 
-/// The array of `aov` as `.npy` bytes.
+/// The array of `aov` as `.npy` bytes: its buffer as the render holds it.
 fn aov_npy(image: &AovImage, aov: Aov) -> Result<Vec<u8>> {
-    let (h, w) = (image.height, image.width);
-    let chans = channel_names(aov);
-    if aov.is_u32() {
-        let plane = image
-            .u32_channel(chans[0])
-            .ok_or_else(|| anyhow!("no {} channel", chans[0]))?;
-        return Ok(npy::u32_plane(h, w, plane));
-    }
-    let planes: Vec<&[f32]> = chans
-        .iter()
-        .map(|c| {
-            image
-                .f32_channel(c)
-                .ok_or_else(|| anyhow!("no {c} channel"))
-        })
-        .collect::<Result<_>>()?;
-    Ok(npy::f32_planes(h, w, &planes))
+    let shape = aov_shape(aov, image.width, image.height);
+    let buffer = image
+        .aov_buffer(aov)
+        .ok_or_else(|| anyhow!("no {} AOV", aov.name()))?;
+    Ok(match &buffer.data {
+        ChannelData::F32(v) => npy::array(npy::Dtype::F32, &shape, v),
+        ChannelData::U32(v) => npy::array(npy::Dtype::U32, &shape, v),
+    })
 }
 
 /// The shape of `aov`'s array at `w`×`h`.

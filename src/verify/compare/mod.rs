@@ -59,7 +59,7 @@
 //! sample types (u32 in one, float32 in the other) is not compared: it is listed in
 //! [`Report::type_clashes`] and a note says so.
 
-use crate::output::aov::{AovImage, ChannelData};
+use crate::output::aov::{AovImage, ChannelRef};
 use crate::scene::Scene;
 use crate::scene::camera::Camera;
 use anyhow::{Result, bail};
@@ -79,7 +79,7 @@ pub use rule::*;
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::output::aov::Channel;
+    use crate::output::aov::{Channel, ChannelData, ChannelMut, StridedMut};
 
     /// A 6x5 image: cylinder 1 fills columns 1..=3 of rows 1..=3, the rest misses.
     fn image() -> AovImage {
@@ -95,62 +95,40 @@ mod tests {
                 nz[k] = 1.0;
             }
         }
-        AovImage {
-            width: w,
-            height: h,
-            channels: vec![
-                Channel {
-                    name: "distance".into(),
-                    data: ChannelData::F32(dist),
-                },
-                Channel {
-                    name: "normal.X".into(),
-                    data: ChannelData::F32(vec![0.0; w * h]),
-                },
-                Channel {
-                    name: "normal.Y".into(),
-                    data: ChannelData::F32(vec![0.0; w * h]),
-                },
-                Channel {
-                    name: "normal.Z".into(),
-                    data: ChannelData::F32(nz),
-                },
-                Channel {
-                    name: "shape_id".into(),
-                    data: ChannelData::U32(ids.clone()),
-                },
-                Channel {
-                    name: "part".into(),
-                    data: ChannelData::U32(ids),
-                },
+        let channel = |name: &str, data| Channel {
+            name: name.into(),
+            data,
+        };
+        AovImage::from_channels(
+            w,
+            h,
+            vec![
+                channel("distance", ChannelData::F32(dist)),
+                channel("normal.X", ChannelData::F32(vec![0.0; w * h])),
+                channel("normal.Y", ChannelData::F32(vec![0.0; w * h])),
+                channel("normal.Z", ChannelData::F32(nz)),
+                channel("shape_id", ChannelData::U32(ids.clone())),
+                channel("part", ChannelData::U32(ids)),
             ],
+        )
+    }
+
+    fn f32_mut<'a>(img: &'a mut AovImage, name: &str) -> StridedMut<'a, f32> {
+        match img.channel_mut(name).expect("channel") {
+            ChannelMut::F32(v) => v,
+            ChannelMut::U32(_) => panic!("{name} is u32"),
         }
     }
 
-    fn f32_mut<'a>(img: &'a mut AovImage, name: &str) -> &'a mut Vec<f32> {
-        match &mut img
-            .channels
-            .iter_mut()
-            .find(|c| c.name == name)
-            .expect("channel")
-            .data
-        {
-            ChannelData::F32(v) => v,
-            ChannelData::U32(_) => panic!("{name} is u32"),
+    fn u32_mut<'a>(img: &'a mut AovImage, name: &str) -> StridedMut<'a, u32> {
+        match img.channel_mut(name).expect("channel") {
+            ChannelMut::U32(v) => v,
+            ChannelMut::F32(_) => panic!("{name} is f32"),
         }
     }
 
-    fn ids_mut(img: &mut AovImage) -> &mut Vec<u32> {
-        match &mut img
-            .channels
-            .iter_mut()
-            .find(|c| c.name == "shape_id")
-            .expect("ids")
-            .data
-        {
-            ChannelData::U32(v) => v,
-            ChannelData::F32(_) => panic!("shape_id is f32"),
-        }
+    fn ids_mut(img: &mut AovImage) -> StridedMut<'_, u32> {
+        u32_mut(img, "shape_id")
     }
 
     #[test]
@@ -282,17 +260,8 @@ mod tests {
         assert_eq!(*hm.get_pixel(2, 2), Rgb([255, 0, 0]));
     }
 
-    fn part_mut(img: &mut AovImage) -> &mut Vec<u32> {
-        match &mut img
-            .channels
-            .iter_mut()
-            .find(|c| c.name == "part")
-            .expect("part")
-            .data
-        {
-            ChannelData::U32(v) => v,
-            ChannelData::F32(_) => panic!("part is f32"),
-        }
+    fn part_mut(img: &mut AovImage) -> StridedMut<'_, u32> {
+        u32_mut(img, "part")
     }
 
     #[test]
@@ -340,7 +309,7 @@ mod tests {
         assert_eq!(*hm.get_pixel(2, 2), Rgb([0, 200, 230]));
         // Without part in B the same pixel is a same-cylinder pixel with a 90° normal.
         let mut c = b.clone();
-        c.channels.retain(|c| c.name != "part");
+        c.retain_channels(|c| c != "part");
         let r = compare(&a, &c).expect("same size");
         assert_eq!((r.identity, r.seams, r.same), (Identity::ShapeId, 0, 9));
         assert!(r.notes[0].starts_with("B lacks part"), "{:?}", r.notes);
@@ -443,9 +412,13 @@ mod tests {
         let a = image();
         // B: shape_id as float32, as Mitsuba references store it.
         let mut b = image();
-        let ids: Vec<f32> = ids_mut(&mut b).iter().map(|&i| i as f32).collect();
-        b.channels.retain(|c| c.name != "shape_id");
-        b.channels.push(Channel {
+        let ids: Vec<f32> = b
+            .u32_channel("shape_id")
+            .unwrap()
+            .iter()
+            .map(|&i| i as f32)
+            .collect();
+        b.push_channel(Channel {
             name: "shape_id".into(),
             data: ChannelData::F32(ids),
         });
@@ -459,12 +432,7 @@ mod tests {
         assert!(r.type_clashes.is_empty() && r.notes.is_empty(), "{r:?}");
         // ... and a wrong id in the float image is caught.
         let mut b2 = b.clone();
-        if let Some(ChannelData::F32(v)) = b2
-            .channels
-            .iter_mut()
-            .find(|c| c.name == "shape_id")
-            .map(|c| &mut c.data)
-        {
+        if let Some(ChannelMut::F32(mut v)) = b2.channel_mut("shape_id") {
             for y in 1..=3 {
                 for x in 1..=3 {
                     v[y * 6 + x] = 2.0;
@@ -477,20 +445,14 @@ mod tests {
             (0, 9, 1)
         );
         // A fractional id is an error naming the pixel.
-        if let Some(ChannelData::F32(v)) = b
-            .channels
-            .iter_mut()
-            .find(|c| c.name == "shape_id")
-            .map(|c| &mut c.data)
-        {
+        if let Some(ChannelMut::F32(mut v)) = b.channel_mut("shape_id") {
             v[3] = 0.5;
         }
         let e = compare(&a, &b).expect_err("fractional id");
         assert!(e.to_string().contains("pixel [3, 0] is 0.5"), "{e}");
         // Without shape_id in B: hit/miss from distance, and a note says so.
         let mut c = image();
-        c.channels
-            .retain(|c| c.name != "shape_id" && c.name != "part");
+        c.retain_channels(|c| c != "shape_id" && c != "part");
         let r = compare(&a, &c).expect("fallback");
         assert_eq!(r.identity, Identity::HitMiss);
         assert_eq!((r.same, r.silhouette_mismatches), (9, 0));
@@ -506,15 +468,16 @@ mod tests {
         let a = image();
         let mut b = image();
         // B stores distance as u32: not comparable, so not "compared", and a note says so.
-        let d: Vec<u32> = f32_mut(&mut b, "distance")
+        let d: Vec<u32> = b
+            .f32_channel("distance")
+            .unwrap()
             .iter()
             .map(|&x| x as u32)
             .collect();
-        b.channels
-            .iter_mut()
-            .find(|c| c.name == "distance")
-            .expect("distance")
-            .data = ChannelData::U32(d);
+        b.push_channel(Channel {
+            name: "distance".into(),
+            data: ChannelData::U32(d),
+        });
         let r = compare(&a, &b).expect("same size");
         assert_eq!(r.type_clashes, vec!["distance".to_string()]);
         assert!(

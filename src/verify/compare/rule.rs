@@ -266,8 +266,13 @@ pub(super) fn is_id_channel(name: &str) -> bool {
 pub(super) fn id_labels(img: &AovImage, name: &str, which: &str) -> Result<Option<Vec<u32>>> {
     match img.channel(name) {
         None => Ok(None),
-        Some(ChannelData::U32(v)) => Ok(Some(crate::mem::try_copy(v, LABELS)?)),
-        Some(ChannelData::F32(v)) => {
+        Some(ChannelRef::U32(v)) => {
+            let mut out = Vec::new();
+            crate::mem::try_reserve(&mut out, v.len(), LABELS)?;
+            out.extend(v.iter());
+            Ok(Some(out))
+        }
+        Some(ChannelRef::F32(v)) => {
             let mut out = Vec::new();
             crate::mem::try_reserve(&mut out, v.len(), LABELS)?;
             for (k, &x) in v.iter().enumerate() {
@@ -308,7 +313,7 @@ pub(super) fn hit_labels(img: &AovImage, which: &str) -> Result<(Vec<u32>, &'sta
 }
 
 pub(super) fn names(img: &AovImage) -> Vec<String> {
-    img.channels.iter().map(|c| c.name.clone()).collect()
+    img.names().into_iter().map(String::from).collect()
 }
 
 /// Per-pixel identities of one image: cylinder label (0 = miss) and the (cylinder, part)
@@ -503,7 +508,7 @@ pub(super) fn angle_deg(a: [f64; 3], b: [f64; 3]) -> f64 {
     c.atan2(d).to_degrees()
 }
 
-pub(super) fn vec3_at(v: &[&[f32]; 3], k: usize) -> [f64; 3] {
+pub(super) fn vec3_at(v: &[crate::output::aov::Strided<f32>; 3], k: usize) -> [f64; 3] {
     [f64::from(v[0][k]), f64::from(v[1][k]), f64::from(v[2][k])]
 }
 
@@ -514,8 +519,8 @@ pub(super) fn finite3(p: [f64; 3]) -> bool {
 pub(super) fn same_sample_type(a: &AovImage, b: &AovImage, name: &str) -> bool {
     matches!(
         (a.channel(name), b.channel(name)),
-        (Some(ChannelData::F32(_)), Some(ChannelData::F32(_)))
-            | (Some(ChannelData::U32(_)), Some(ChannelData::U32(_)))
+        (Some(ChannelRef::F32(_)), Some(ChannelRef::F32(_)))
+            | (Some(ChannelRef::U32(_)), Some(ChannelRef::U32(_)))
     )
 }
 
@@ -536,7 +541,7 @@ pub(super) fn channel_sets(a: &AovImage, b: &AovImage) -> ChannelSets {
         .cloned()
         .partition(|name| is_id_channel(name) || same_sample_type(a, b, name));
     let kind = |img: &AovImage, name: &str| match img.channel(name) {
-        Some(ChannelData::U32(_)) => "u32",
+        Some(ChannelRef::U32(_)) => "u32",
         _ => "float32",
     };
     let notes = type_clashes
