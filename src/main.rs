@@ -14,8 +14,9 @@ use cylaov::{bench, commands};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-/// A failed allocation anywhere (inside crates too) is one error line and exit 1, never an
-/// abort with status 134.
+/// A failed allocation anywhere (inside crates too) is one error line and the command's
+/// status for too little memory (1; 2 in `compare` and `verify`), never an abort with
+/// status 134.
 #[global_allocator]
 static ALLOCATOR: cylaov::mem::Guarded = cylaov::mem::Guarded::PLAIN;
 
@@ -30,9 +31,10 @@ struct Cli {
 
 /// The one exit-status rule of every command (also in the README).
 const EXIT_STATUS: &str = "Exit status, every command: 0 = done; 1 = input rejected (a bad scene, \
-a refused output, a full disk) or a check failed (compare's or verify's tolerances, a batch \
-view); 2 = usage error (unknown option, bad value) or a check that could not be made \
-(compare: a missing or unreadable image; verify: a view it could not check); 129, 130, 143 = \
+a refused output, a full disk, too little memory) or a check failed (compare's or verify's \
+tolerances, a batch view); 2 = usage error (unknown option, bad value) or a check that could \
+not be made (compare: a missing or unreadable image, too little memory; verify: a view it \
+could not check, too little memory); 129, 130, 143 = \
 stopped by SIGHUP, SIGINT, SIGTERM (128 + the signal number; unfinished files removed). A \
 closed stdout (`| head`) is not an error.";
 
@@ -76,7 +78,7 @@ enum Command {
     /// (Mitsuba off beyond its bound: an export or scene error) fails.
     ///
     /// Exit status: 1 if any view fails, else 2 if any view could not be checked (a bad
-    /// scene, no venv, Mitsuba failed), else 0.
+    /// scene, no venv, Mitsuba failed, too little memory), else 0.
     ///
     /// Example: cylaov verify scenes/single.json --heatmap out
     ///
@@ -87,7 +89,8 @@ enum Command {
     ///
     /// Exit status: 0 when every tolerance holds, 1 when one is broken (the report says
     /// which), 2 when the comparison could not be made (a missing or unreadable file, images
-    /// of different sizes, a bad shape_id, an unwritable heatmap) or the arguments are wrong.
+    /// of different sizes, a bad shape_id, an unwritable heatmap, too little memory) or the
+    /// arguments are wrong.
     ///
     /// Example: cylaov compare out/single.exr reference/single.exr --heatmap diff.png
     Compare(CompareCli),
@@ -842,8 +845,10 @@ fn export_mitsuba(a: ExportCli) -> anyhow::Result<ExitCode> {
 }
 
 /// 0 when every tolerance holds, 1 when one is broken, 2 when the comparison could not be
-/// made (its errors, printing the report included, are reported here).
+/// made (its errors, printing the report included, are reported here; a refused
+/// allocation ends the process with 2 as well).
 fn compare(a: CompareCli) -> ExitCode {
+    cylaov::mem::set_out_of_memory_status(2);
     let args = commands::compare::CompareArgs {
         a: a.a,
         b: a.b,
@@ -868,8 +873,10 @@ fn compare(a: CompareCli) -> ExitCode {
 }
 
 /// 0 when every checked view agrees, 1 when one breaks a tolerance, 2 when a view could
-/// not be checked or the check could not start (reported here).
+/// not be checked or the check could not start (reported here; a refused allocation ends
+/// the process with 2 as well).
 fn verify(a: VerifyCli) -> ExitCode {
+    cylaov::mem::set_out_of_memory_status(2);
     let args = commands::verify::VerifyArgs {
         input: a.input,
         fraction: a.fraction,

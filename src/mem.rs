@@ -10,13 +10,15 @@
 //! - **Everything else** (buffers inside crates such as `exr` and `image`) goes through the
 //!   process's allocator, [`Guarded`]: where Rust would print "memory allocation of N bytes
 //!   failed" and abort (status 134), it prints one `error:` line, runs the clean-up of
-//!   [`set_cleanup`] (the registry of staged files) and exits with status 1.
+//!   [`set_cleanup`] (the registry of staged files) and exits with the command's status
+//!   for too little memory ([`set_out_of_memory_status`]: 1, or 2 in `compare` and
+//!   `verify`, where 1 means a broken tolerance).
 //! - The 2 MiB-page hint and the allocator policy for the large buffers of a render.
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 use std::io;
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicI32, AtomicUsize, Ordering};
 
 /// Ask Linux to back the untouched memory of `v` (its whole capacity) with 2 MiB pages.
 /// A 1080p plane is 8 MB: faulting it in 4 KiB pages took about a third of a render's
@@ -211,10 +213,11 @@ pub fn jobs_in_memory(bytes_each: u64, wanted: usize) -> usize {
 // ---- failed allocations --------------------------------------------------------------------
 
 /// The process's global allocator (installed by the command line): the system allocator,
-/// with a failed allocation turned into the one-line error and exit 1 instead of Rust's
-/// abort (stable Rust has no hook for that, `std::alloc::set_alloc_error_hook` is
-/// unstable, so the allocator itself reports before returning). Allocations made through
-/// [`try_reserve`], [`try_zeroed`] and [`try_copy`] are exempt: their refusal comes back as an error.
+/// with a failed allocation turned into the one-line error and the exit status of
+/// [`set_out_of_memory_status`] instead of Rust's abort (stable Rust has no hook for that,
+/// `std::alloc::set_alloc_error_hook` is unstable, so the allocator itself reports before
+/// returning). Allocations made through [`try_reserve`], [`try_zeroed`] and [`try_copy`]
+/// are exempt: their refusal comes back as an error.
 ///
 /// [`Guarded::COUNTING`] also counts the live heap bytes and their peak ([`heap_peak`]),
 /// which the tests use to hold the estimates to what the code really allocates.
@@ -251,6 +254,8 @@ static FAIL_OVER: AtomicUsize = AtomicUsize::new(usize::MAX);
 static CLEANUP: AtomicUsize = AtomicUsize::new(0);
 /// Set by the first thread that reports a failed allocation.
 static FAILING: AtomicBool = AtomicBool::new(false);
+/// The exit status of a failed allocation (see [`set_out_of_memory_status`]).
+static OOM_STATUS: AtomicI32 = AtomicI32::new(1);
 
 thread_local! {
     /// Whether this thread's allocations may fail back to the caller (inside [`fallibly`]).
@@ -341,6 +346,19 @@ pub fn set_cleanup(f: fn() -> usize) {
     CLEANUP.store(f as usize, Ordering::SeqCst);
 }
 
+/// Set the exit status of a failed allocation that ends the process (1 unless set): a
+/// command whose status 1 means something else (`compare`, `verify`: a broken tolerance)
+/// sets the status of a check that could not be made, 2. Set once at start, before the
+/// command allocates.
+pub fn set_out_of_memory_status(status: i32) {
+    OOM_STATUS.store(status, Ordering::SeqCst);
+}
+
+/// The exit status a failed allocation ends the process with.
+fn out_of_memory_status() -> i32 {
+    OOM_STATUS.load(Ordering::SeqCst)
+}
+
 /// Read the test switch `CYLAOV_FAIL_ALLOC_OVER=BYTES`: every later allocation larger
 /// than BYTES fails as a refusing system's would, to test the reporting path without
 /// exhausting the machine. Any other value is ignored. Called once at start.
@@ -363,8 +381,9 @@ fn fallibly<R>(f: impl FnOnce() -> R) -> R {
 }
 
 /// The one-line report of a failed allocation of `size` bytes, then the clean-up and
-/// `_exit(1)`. Allocates nothing: the line is built on the stack and written with
-/// `write(2)`. A second thread failing meanwhile waits for the first to exit.
+/// `_exit` with the command's status ([`set_out_of_memory_status`]). Allocates nothing:
+/// the line is built on the stack and written with `write(2)`. A second thread failing
+/// meanwhile waits for the first to exit.
 fn out_of_memory(size: usize) -> ! {
     exit_after(|removed| {
         let mut line = Line::default();
@@ -381,13 +400,13 @@ fn out_of_memory(size: usize) -> ! {
 }
 
 /// Run the clean-up of [`set_cleanup`], print the report (`report`, given how many files
-/// it removed) and `_exit(1)`: no unwinding, no destructors. A second thread failing
+/// it removed) and `_exit` with [`set_out_of_memory_status`]'s status: no unwinding, no destructors. A second thread failing
 /// meanwhile waits for the first to end the process; a failure inside the clean-up exits
 /// at once.
 fn exit_after(report: impl FnOnce(usize)) -> ! {
     if EXITING.try_with(Cell::get).unwrap_or(true) {
         // SAFETY: ends the process at once, with no unwinding and no allocator.
-        unsafe { libc::_exit(1) }
+        unsafe { libc::_exit(out_of_memory_status()) }
     }
     if FAILING.swap(true, Ordering::SeqCst) {
         loop {
@@ -406,7 +425,7 @@ fn exit_after(report: impl FnOnce(usize)) -> ! {
     };
     report(removed);
     // SAFETY: ends the process at once, with no unwinding and no allocator.
-    unsafe { libc::_exit(1) }
+    unsafe { libc::_exit(out_of_memory_status()) }
 }
 
 /// A fixed line buffer for [`out_of_memory`] (no heap).
@@ -506,7 +525,8 @@ pub fn try_zeroed<T: bytemuck::Zeroable>(n: usize, what: &str) -> io::Result<Vec
 
 /// [`try_zeroed`] where the caller cannot return an error (the planes of `render::render`,
 /// whose callers' memory check has passed): a refusal is reported as [`Guarded`] reports
-/// one, naming `what`, and the process exits with status 1.
+/// one, naming `what`, and the process exits with the status of
+/// [`set_out_of_memory_status`].
 pub fn zeroed_or_exit<T: bytemuck::Zeroable>(n: usize, what: &str) -> Vec<T> {
     match try_zeroed(n, what) {
         Ok(v) => v,

@@ -241,6 +241,50 @@ fn output_links_and_system_folders_are_refused() {
             failures.push(format!("-o {}: wrote into /dev", target.display()));
         }
     }
+    // Inside /proc and /sys: a new name in each, and through a link on the way.
+    let to_proc = d.join("to-proc");
+    std::os::unix::fs::symlink("/proc", &to_proc).unwrap();
+    let pid = std::process::id();
+    for (target, root) in [
+        (
+            PathBuf::from(format!("/proc/cylaov-links-{pid}.exr")),
+            "/proc",
+        ),
+        (to_proc.join(format!("cylaov-links-{pid}.exr")), "/proc"),
+        (
+            PathBuf::from(format!("/proc/{pid}/cylaov-links.exr")),
+            "/proc",
+        ),
+        (
+            PathBuf::from(format!("/sys/cylaov-links-{pid}.exr")),
+            "/sys",
+        ),
+        (
+            PathBuf::from(format!("/sys/kernel/cylaov-links-{pid}.exr")),
+            "/sys",
+        ),
+    ] {
+        for (args, code) in [
+            (vec!["render", s(&scene), "-o", s(&target)], 1),
+            (vec!["export-mitsuba", s(&scene), "-o", s(&target)], 1),
+            (
+                vec!["compare", s(&exr), s(&exr), "--heatmap", s(&target)],
+                2,
+            ),
+        ] {
+            let o = run_bounded(&args, 60);
+            let err = stderr(&o);
+            if o.status.code() != Some(code)
+                || err
+                    != format!(
+                        "error: {}: is inside {root}: cylaov never creates or renames files in /dev, /proc or /sys (write to a regular file and copy it from there)\n",
+                        flagged(&args, &target)
+                    )
+            {
+                failures.push(format!("{args:?}: {:?} {err}", o.status));
+            }
+        }
+    }
     let stdout_was_link = is_symlink(Path::new("/dev/stdout"));
     for (args, code) in [
         (vec!["render", s(&scene), "-o", "/dev/stdout"], 1),
@@ -276,6 +320,12 @@ fn output_links_and_system_folders_are_refused() {
     common::ok(&["render", s(&scene), "-o", s(&to_real.join("x.exr"))]);
     assert!(real.join("x.exr").is_file() && real.join("x.camera.json").is_file());
     assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+/// `FLAG PATH` as a refusal names the output `target` of `args` (the option before it).
+fn flagged(args: &[&str], target: &Path) -> String {
+    let k = args.iter().position(|a| *a == s(target)).unwrap();
+    format!("{} {}", args[k - 1], target.display())
 }
 
 /// A FIFO among a batch's outputs (a view's EXR, index.json, the failures file) is named
@@ -314,6 +364,159 @@ fn fifos_among_batch_outputs_are_refused_without_blocking() {
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
 
+/// A symbolic link planted at a view's output (`OUT/000000.exr`, `OUT/000001.depth.png`)
+/// to a file elsewhere is refused by name, in one line, before any view is rendered: in a
+/// new `--out` and in one a finished batch wrote. The link stays a link and the file it
+/// leads to is left as it was.
+#[test]
+fn links_at_batch_view_outputs_are_refused() {
+    let tmp = dir("viewlinks");
+    let d = tmp.path();
+    let ds = generated(d, 2, 16, 12, 3);
+    let victim = d.join("victim.bin");
+    let mut failures = Vec::new();
+    for (out, name) in [
+        (d.join("new"), "000000.exr"),
+        (d.join("done"), "000000.exr"),
+        (d.join("done"), "000001.depth.png"),
+    ] {
+        if name == "000000.exr" && out.ends_with("done") {
+            let o = run_bounded(&["batch", s(&ds), "--out", s(&out)], 60);
+            assert!(o.status.success(), "{}", stderr(&o));
+        }
+        std::fs::create_dir_all(&out).unwrap();
+        let link = out.join(name);
+        let _ = std::fs::remove_file(&link);
+        std::fs::write(&victim, "mine\n").unwrap();
+        std::os::unix::fs::symlink(&victim, &link).unwrap();
+        let before = std::fs::read_dir(&out).unwrap().count();
+        let o = run_bounded(&["batch", s(&ds), "--out", s(&out)], 60);
+        let err = stderr(&o);
+        let what = format!("{}", link.display());
+        if o.status.code() != Some(1)
+            || err
+                != format!(
+                    "error: {what}: is a symbolic link, not a regular file; refusing to replace it (remove it and run again)\n"
+                )
+        {
+            failures.push(format!("{what}: {:?} {err}", o.status));
+        }
+        if !is_symlink(&link) {
+            failures.push(format!("{what}: the link was replaced"));
+        }
+        if std::fs::read_to_string(&victim).unwrap() != "mine\n" {
+            failures.push(format!("{what}: the linked file was written"));
+        }
+        if std::fs::read_dir(&out).unwrap().count() != before {
+            failures.push(format!("{what}: the batch wrote into {}", out.display()));
+        }
+        std::fs::remove_file(&link).unwrap();
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+/// `generate` into a folder whose `manifest.jsonl`, `generate.json` or a scene file it would
+/// write is a link to a file elsewhere or a FIFO: refused at once in one line naming the
+/// path and what it is, whether the run would do nothing, extend the dataset or replace it
+/// (`--force`); the link or FIFO stays and the linked file is left as it was.
+#[test]
+fn generate_refuses_links_and_fifos_among_its_files() {
+    let tmp = dir("generate");
+    let d = tmp.path();
+    let ds = generated(d, 2, 16, 12, 3);
+    let victim = d.join("victim.txt");
+    let base = [
+        "generate",
+        "--out",
+        s(&ds),
+        "--width",
+        "16",
+        "--height",
+        "12",
+        "--cylinders",
+        "3",
+    ];
+    let runs: [&[&str]; 3] = [
+        &["--count", "2"],
+        &["--count", "3"],
+        &["--count", "3", "--force"],
+    ];
+    let mut failures = Vec::new();
+    for (name, plant) in [
+        ("manifest.jsonl", "symlink"),
+        ("generate.json", "symlink"),
+        ("scenes/000002.json", "symlink"),
+        ("generate.json", "fifo"),
+        ("manifest.jsonl", "fifo"),
+    ] {
+        let path = ds.join(name);
+        let saved = std::fs::read(&path).ok();
+        let _ = std::fs::remove_file(&path);
+        match plant {
+            "symlink" => std::os::unix::fs::symlink(&victim, &path).unwrap(),
+            _ => mkfifo(&path),
+        }
+        let want = match plant {
+            "symlink" => format!(
+                "error: --out {}: is a symbolic link (to a regular file), not a regular file: cylaov neither replaces a link nor writes through one; give the path it points to or another name\n",
+                path.display()
+            ),
+            _ => format!(
+                "error: --out {}: is a FIFO (named pipe), not a regular file; refusing to replace it\n",
+                path.display()
+            ),
+        };
+        for extra in runs {
+            // The scene past the count of 2 is only written by a run of 3.
+            if name.starts_with("scenes/") && extra == ["--count", "2"] {
+                continue;
+            }
+            std::fs::write(&victim, "mine\n").unwrap();
+            let args: Vec<&str> = base.iter().chain(extra).copied().collect();
+            let o = run_bounded(&args, 10);
+            let err = stderr(&o);
+            let what = format!("{plant} at {name}, {extra:?}");
+            if o.status.code() != Some(1) || err != want {
+                failures.push(format!("{what}: {:?} {err}", o.status));
+            }
+            let kept = match plant {
+                "symlink" => is_symlink(&path),
+                _ => is_fifo(&path),
+            };
+            if !kept {
+                failures.push(format!("{what}: the {plant} was replaced"));
+            }
+            if std::fs::read_to_string(&victim).unwrap() != "mine\n" {
+                failures.push(format!("{what}: the linked file was written"));
+            }
+            if ds.join("scenes/000002.json").is_file() && name != "scenes/000002.json" {
+                failures.push(format!("{what}: the dataset was extended"));
+                let _ = std::fs::remove_file(ds.join("scenes/000002.json"));
+            }
+        }
+        std::fs::remove_file(&path).unwrap();
+        if let Some(bytes) = saved {
+            std::fs::write(&path, bytes).unwrap();
+        }
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+    // Its own files back, the same command does nothing.
+    let o = run_bounded(
+        &base
+            .iter()
+            .chain(&["--count", "2"])
+            .copied()
+            .collect::<Vec<_>>(),
+        10,
+    );
+    assert!(
+        o.status.success() && stdout(&o).starts_with("nothing to do"),
+        "{}{}",
+        stdout(&o),
+        stderr(&o)
+    );
+}
+
 /// Start `args`, wait until `ready` holds (polling), send `sig`, and return the output.
 fn signal_when(
     args: &[&str],
@@ -344,8 +547,34 @@ fn signal_when(
     wait_bounded(child, 60, &format!("{args:?} after signal {sig}"))
 }
 
+/// Whether the last line on stderr of a run stopped by `sig` is the clean-up's report,
+/// `cylaov: stopped by SIGINT: N unfinished files and folders removed (exit 130)`, with N
+/// at least 1 (the run was caught with a file staged).
+fn stopped_line(o: &Output, sig: i32) -> bool {
+    let name = match sig {
+        libc::SIGHUP => "SIGHUP",
+        libc::SIGINT => "SIGINT",
+        _ => "SIGTERM",
+    };
+    let err = stderr(o);
+    let Some(last) = err.lines().last() else {
+        return false;
+    };
+    let n = last
+        .strip_prefix(&format!("cylaov: stopped by {name}: "))
+        .and_then(|rest| {
+            rest.strip_suffix(&format!(
+                " unfinished files and folders removed (exit {})",
+                128 + sig
+            ))
+        })
+        .and_then(|n| n.parse::<u32>().ok());
+    err.ends_with('\n') && n.is_some_and(|n| n >= 1)
+}
+
 /// SIGINT, SIGTERM and SIGHUP during a render remove its staged EXR and exit 130, 143,
-/// 129; a SIGTERM during a batch removes its partial folder and every temporary file.
+/// 129, saying so on stderr; a SIGTERM during a batch removes its partial folder and
+/// every temporary file.
 #[test]
 fn signals_remove_staged_files_and_exit_128_plus_n() {
     let tmp = dir("signals");
@@ -374,7 +603,7 @@ fn signals_remove_staged_files_and_exit_128_plus_n() {
             .flatten()
             .map(|e| e.file_name())
             .collect();
-        if o.status.code() != Some(code) || !left.is_empty() {
+        if o.status.code() != Some(code) || !left.is_empty() || !stopped_line(&o, sig) {
             failures.push(format!(
                 "render, signal {sig}: {:?}, left {left:?}, {}",
                 o.status,
@@ -395,7 +624,11 @@ fn signals_remove_staged_files_and_exit_128_plus_n() {
         &busy,
         &[],
     );
-    if o.status.code() != Some(143) || out.join(".partial").exists() || !temps(&out).is_empty() {
+    if o.status.code() != Some(143)
+        || out.join(".partial").exists()
+        || !temps(&out).is_empty()
+        || !stopped_line(&o, libc::SIGTERM)
+    {
         failures.push(format!(
             "batch: {:?}, .partial there: {}, temps {:?}, {}",
             o.status,

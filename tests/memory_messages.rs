@@ -1,6 +1,7 @@
 //! Memory and messages: the memory estimates hold what the code really allocates (heap
 //! peaks counted by the allocator at several sizes, every compression); a refused
-//! allocation is one error line and exit 1, never an abort; and the one-line messages name
+//! allocation is one error line and the command's status (1; 2 in `compare` and `verify`),
+//! never an abort; and the one-line messages name
 //! the real cause (identity, `--depth-scale`, a full disk, the pixel cap, the heatmap
 //! legend, `--help`).
 
@@ -382,44 +383,86 @@ fn compare_under_ulimit_is_refused_or_done() {
     assert!(refused > 0 && done > 0, "{refused} refused, {done} done");
 }
 
-/// A refused allocation inside a crate (the `exr` reader's sample vectors, made to fail
-/// by `CYLAOV_FAIL_ALLOC_OVER`) is one `error: out of memory` line and status 1, not
-/// Rust's abort; one of our own buffers (a render's planes) is the same line naming it.
+/// `cylaov ARGS` with every allocation over 1 MB refused (`CYLAOV_FAIL_ALLOC_OVER`), with
+/// `envs` set.
+fn refusing(args: &[&str], envs: &[(&str, &Path)]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_cylaov"))
+        .args(args)
+        .env("CYLAOV_FAIL_ALLOC_OVER", "1000000")
+        .envs(envs.iter().copied())
+        .output()
+        .unwrap()
+}
+
+/// A refused allocation in `render` (one of our own buffers, the render's planes) is one
+/// line naming it and status 1, not Rust's abort, with nothing written.
 #[test]
 fn a_refused_allocation_is_one_line_and_status_1() {
     let _one = serial();
     let dir = fresh_dir("memory", "refused");
     let s = scene(dir.path(), "r", (1024, 1024), ALL);
-    let a = dir.path().join("a.exr");
-    cylaov::commands::render::run(&render_args(&s, &a, Compression::None)).unwrap();
-    let fail = [("CYLAOV_FAIL_ALLOC_OVER", "1000000")];
-    let o = Command::new(env!("CARGO_BIN_EXE_cylaov"))
-        .args(["compare", a.to_str().unwrap(), a.to_str().unwrap()])
-        .envs(fail)
-        .output()
-        .unwrap();
-    let err = stderr(&o);
-    assert_eq!(o.status.code(), Some(1), "{err}");
-    assert_eq!(
-        err,
-        "error: out of memory: an allocation of 4 MiB was refused (free memory, ulimit -v or the cgroup limit)\n"
-    );
-
     let out = dir.path().join("out");
     std::fs::create_dir(&out).unwrap();
-    let o = Command::new(env!("CARGO_BIN_EXE_cylaov"))
-        .args(["render", s.to_str().unwrap(), "-o"])
-        .arg(out.join("r.exr"))
-        .args(["--compression", "zip"])
-        .envs(fail)
-        .output()
-        .unwrap();
+    let r = out.join("r.exr");
+    let o = refusing(
+        &[
+            "render",
+            s.to_str().unwrap(),
+            "-o",
+            r.to_str().unwrap(),
+            "--compression",
+            "zip",
+        ],
+        &[],
+    );
     assert_clean_failure("render", &o, &out);
     assert_eq!(
         stderr(&o),
         "error: an output plane of the render: out of memory: 4 MiB could not be allocated (free memory, ulimit -v and the cgroup limit)\n"
     );
     assert_eq!(std::fs::read_dir(&out).unwrap().count(), 0);
+}
+
+/// In `compare` and `verify` status 1 means a broken tolerance, so a refused allocation
+/// there is status 2, a check that could not be made: inside a crate (the `exr` reader's
+/// sample vectors in `compare`) and in one of our own buffers (the planes of `verify`'s
+/// own render, before Mitsuba is started; the stand-in venv is never run). The line is
+/// the same and `verify`'s scratch folder goes.
+#[test]
+fn a_refused_allocation_in_compare_or_verify_is_status_2() {
+    let _one = serial();
+    let dir = fresh_dir("memory", "refused-check");
+    let s = scene(dir.path(), "r", (1024, 1024), ALL);
+    let a = dir.path().join("a.exr");
+    cylaov::commands::render::run(&render_args(&s, &a, Compression::None)).unwrap();
+    let o = refusing(&["compare", a.to_str().unwrap(), a.to_str().unwrap()], &[]);
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(2), "compare: {err}");
+    assert_eq!(
+        err,
+        "error: out of memory: an allocation of 4 MiB was refused (free memory, ulimit -v or the cgroup limit)\n"
+    );
+
+    let venv = dir.path().join("venv");
+    std::fs::create_dir_all(venv.join("bin")).unwrap();
+    std::fs::write(venv.join("bin/python"), "#!/bin/sh\nexit 3\n").unwrap();
+    let scratch = dir.path().join("tmp");
+    std::fs::create_dir(&scratch).unwrap();
+    let o = refusing(
+        &["verify", s.to_str().unwrap()],
+        &[("CYLAOV_VENV", &venv), ("TMPDIR", &scratch)],
+    );
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(2), "verify: {err}");
+    assert_eq!(
+        err,
+        "error: an output plane of the render: out of memory: 4 MiB could not be allocated (free memory, ulimit -v and the cgroup limit)\n"
+    );
+    assert_eq!(
+        std::fs::read_dir(&scratch).unwrap().count(),
+        0,
+        "verify's scratch stayed"
+    );
 }
 
 /// The issue's case scaled by the estimate: two 4096² files of every AOV need the images
@@ -489,9 +532,38 @@ fn a_bad_depth_scale_is_the_error_alone() {
     }
 }
 
+/// `render --depth-png --depth-scale 0|NaN|inf`: the error alone, status 1, nothing
+/// written.
+#[test]
+fn a_bad_render_depth_scale_is_the_error_alone() {
+    let _one = serial();
+    let dir = fresh_dir("memory", "render-depth-scale");
+    let s = scene(dir.path(), "a", (16, 12), r#"["depth"]"#);
+    let out = dir.path().join("out");
+    std::fs::create_dir(&out).unwrap();
+    for bad in ["0", "NaN", "inf"] {
+        let o = cylaov(&[
+            "render",
+            s.to_str().unwrap(),
+            "-o",
+            out.join("a.exr").to_str().unwrap(),
+            "--depth-png",
+            "--depth-scale",
+            bad,
+        ]);
+        assert_eq!(o.status.code(), Some(1), "{bad}: {}", stderr(&o));
+        assert_eq!(
+            stderr(&o),
+            format!("error: --depth-scale: must be finite and > 0, got {bad}\n")
+        );
+        assert_eq!(std::fs::read_dir(&out).unwrap().count(), 0, "{bad}");
+    }
+}
+
 /// A full disk while the depth PNG is written gives the same advice as the EXR's: a
 /// tmpfs with room for the EXR and the two JSON files, in whole pages, and not one page
-/// more (the PNG is staged last). Needs root to mount; skipped, saying so, without.
+/// more (the PNG is staged last). Needs root to mount; skipped, saying so, without, except
+/// under CI=true, where a run that cannot mount fails.
 #[test]
 fn a_full_disk_under_the_depth_png_says_so() {
     let _one = serial();
@@ -533,6 +605,11 @@ fn a_full_disk_under_the_depth_png_says_so() {
         .output()
         .is_ok_and(|o| o.status.success());
     if !mounted {
+        assert!(
+            std::env::var("CI").as_deref() != Ok("true"),
+            "CI=true but a tmpfs cannot be mounted at {}",
+            disk.display()
+        );
         eprintln!("SKIPPED: cannot mount a tmpfs here (needs root)");
         return;
     }

@@ -18,9 +18,16 @@
 //!
 //! **Outputs are not inputs**: a run that would overwrite or remove its own `--config` is
 //! refused before anything is written.
+//!
+//! **Files it does not own**: `generate.json`, `manifest.jsonl` and every scene file the
+//! run would write must be missing or regular files; a symbolic link (even to a regular
+//! file), a FIFO, a device or a folder at one of those names is refused before anything is
+//! written, naming the path and what it is. What it reads back from `--out` is opened
+//! without following a link or blocking on a FIFO.
 
 use crate::dataset::generate::{ConfigFile, GenerateOptions, to_json, view_name};
-use crate::output::io::{NewDirs, atomic_write_bytes, check_output_dir};
+use crate::output::files::read_regular;
+use crate::output::io::{NewDirs, atomic_write_bytes, check_output, check_output_dir};
 use anyhow::{Context, Result, bail};
 use rayon::prelude::*;
 use serde::Serialize;
@@ -59,9 +66,13 @@ struct Resolved<'a> {
 
 /// Read a config file; errors name the file and the field.
 pub fn load_config(path: &Path) -> Result<ConfigFile> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    let de = &mut serde_json::Deserializer::from_str(&text);
+    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+    parse_config(path, &bytes)
+}
+
+/// The config file `path` holding `bytes`; errors name the file and the field.
+fn parse_config(path: &Path, bytes: &[u8]) -> Result<ConfigFile> {
+    let de = &mut serde_json::Deserializer::from_slice(bytes);
     serde_path_to_error::deserialize(de).map_err(|e| {
         let field = e.path().to_string();
         anyhow::anyhow!("{}: {field}: {}", path.display(), e.into_inner())
@@ -187,7 +198,10 @@ fn existing(out: &Path, scenes_dir: &Path) -> Result<Existing> {
             out.display()
         )
     };
-    let file = load_config(&config_path).map_err(|e| unreadable(format!("{e:#}")))?;
+    let file = read_regular(&config_path)
+        .map_err(anyhow::Error::from)
+        .and_then(|bytes| parse_config(&config_path, &bytes))
+        .map_err(|e| unreadable(format!("{e:#}")))?;
     let (Some(count), Some(seed)) = (file.count, file.seed) else {
         return Err(unreadable(format!(
             "{}: expected \"count\" and \"seed\"",
@@ -353,6 +367,28 @@ impl Work<'_> {
         }
     }
 
+    /// Refuse, before anything is written, a scene file this run would write whose name
+    /// holds something other than a regular file (a link, a FIFO, a folder: see
+    /// [`check_output`]).
+    fn check_scene_targets(&self) -> Result<()> {
+        let listing = || format!("listing {}", self.scenes_dir.display());
+        let entries = match std::fs::read_dir(&self.scenes_dir) {
+            Ok(e) => e,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
+            Err(e) => return Err(e).with_context(listing),
+        };
+        for entry in entries {
+            let entry = entry.with_context(listing)?;
+            let Some(i) = entry.file_name().to_str().and_then(scene_index) else {
+                continue;
+            };
+            if !entry.file_type().is_ok_and(|t| t.is_file()) && self.writes_scene(i) {
+                check_output("--out", &entry.path(), &[])?;
+            }
+        }
+        Ok(())
+    }
+
     /// Whether the run would write or remove nothing.
     fn is_empty(&self) -> bool {
         !self.write_config && !self.write_manifest && !(0..self.count).any(|i| self.writes_scene(i))
@@ -410,7 +446,7 @@ impl Work<'_> {
     fn write(&self) -> Result<()> {
         let config_path = self.args.out.join("generate.json");
         let manifest_path = self.args.out.join("manifest.jsonl");
-        let old_config = std::fs::read(&config_path).ok();
+        let old_config = read_regular(&config_path).ok();
         let written: Vec<u64> = (0..self.count).filter(|&i| self.writes_scene(i)).collect();
         if self.plan == Plan::Replace {
             // No manifest and no generate.json while the scenes change: a run cut short is
@@ -514,13 +550,16 @@ pub fn run(args: &GenerateArgs) -> Result<String> {
     let scenes_dir = args.out.join("scenes");
     check_output_dir("--out", &args.out)?;
     let manifest_path = args.out.join("manifest.jsonl");
+    for path in [&args.out.join("generate.json"), &manifest_path] {
+        check_output("--out", path, &[])?;
+    }
     let manifest = manifest_text(count)?;
     let work = |plan: Plan| {
         let (write_config, write_manifest) = match plan {
             Plan::Fresh | Plan::Replace => (true, true),
             Plan::Extend { from } => (
                 count != from,
-                std::fs::read(&manifest_path).map_or(true, |b| b != manifest.as_bytes()),
+                read_regular(&manifest_path).map_or(true, |b| b != manifest.as_bytes()),
             ),
         };
         Work {
@@ -547,6 +586,7 @@ pub fn run(args: &GenerateArgs) -> Result<String> {
     }
     let plan = plan(args, count, seed, &options, &scenes_dir)?;
     let work = work(plan);
+    work.check_scene_targets()?;
     let views = match options.views_per_scene {
         1 => String::new(),
         v => format!(" x {v} cameras"),
