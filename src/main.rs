@@ -326,6 +326,12 @@ struct BenchCli {
     /// and as webdataset tar shards, in views/s, on the --threads given.
     #[arg(long)]
     batch_formats: bool,
+    /// Only the EXR writer: an uncompressed file of a 1080p render (depth+normal, and every
+    /// AOV) encoded into memory from the render's AOV buffers, and from the same image held
+    /// one plane per channel (the same bytes), fastest of --repeats (at least 5); `--csv`
+    /// keeps the rows.
+    #[arg(long)]
+    exr_writer: bool,
     /// Views of the --batch-formats dataset.
     #[arg(long, default_value_t = 2000, value_parser = clap::value_parser!(u64).range(1..))]
     batch_views: u64,
@@ -756,6 +762,17 @@ fn shards(args: &commands::batch::BatchArgs, sopts: &ShardOptions) -> anyhow::Re
 
 fn bench(b: BenchCli) -> anyhow::Result<ExitCode> {
     set_threads(b.threads)?;
+    if b.exr_writer {
+        if let Some(p) = &b.csv {
+            cylaov::output::io::check_outputs(&[("--csv", p)], &[])?;
+        }
+        let rows = bench::exr_writer::run(1000, b.width, b.height, b.repeats.max(5))?;
+        say(&bench::exr_writer::table(&rows))?;
+        if let Some(p) = &b.csv {
+            cylaov::output::io::atomic_write_bytes(p, &cylaov::output::io::csv_bytes(&rows)?)?;
+        }
+        return Ok(ExitCode::SUCCESS);
+    }
     if b.batch_formats {
         let rows = bench::batch_formats::run(b.batch_views, 100, 320, 240)?;
         say(&format!(

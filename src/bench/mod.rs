@@ -13,6 +13,7 @@
 //! table, not across runs.
 
 pub mod batch_formats;
+pub mod exr_writer;
 
 use crate::accel::tiles;
 use crate::geometry::Kernel;
