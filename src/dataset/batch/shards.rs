@@ -380,7 +380,9 @@ impl ViewSink for TarSink<'_> {
             self.npys
                 .push((format!("{}.{}.npy", self.key, a.name()), aov_npy(image, a)?));
         }
-        let depth = image.f32_channel("depth").context("no depth AOV")?;
+        let Some(ChannelData::F32(depth)) = image.aov_buffer(Aov::Depth).map(|b| &b.data) else {
+            bail!("no depth AOV");
+        };
         self.npys.push((
             format!("{}.mask.npy", self.key),
             npy::bool_plane(h, w, depth.iter().map(|&z| z > 0.0)),
