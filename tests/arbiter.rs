@@ -7,7 +7,7 @@ mod common;
 use common::venv_python;
 
 use cylaov::geometry::{FormulaKind, Precision};
-use cylaov::output::aov::{AovImage, ChannelMut, StridedMut};
+use cylaov::output::aov::{AovImage, StridedMut};
 use cylaov::scene;
 use cylaov::verify::arbiter::{Kind, PixelClass};
 use cylaov::verify::compare::Tolerances;
@@ -78,10 +78,7 @@ fn stress_scenes_pass_with_reference_errors_counted() {
 }
 
 fn f32_mut<'a>(img: &'a mut AovImage, name: &str) -> StridedMut<'a, f32> {
-    match img.channel_mut(name).expect("channel") {
-        ChannelMut::F32(v) => v,
-        ChannelMut::U32(_) => panic!("{name} is u32"),
-    }
+    img.f32_channel_mut(name).expect(name)
 }
 
 /// The classes on `single` with a reference made from cylaov's own render: a distance off

@@ -10,7 +10,7 @@ use common::venv_python;
 
 use cylaov::geometry::{Cylinder, Surface};
 use cylaov::geometry::{FormulaKind, Precision};
-use cylaov::output::aov::{AovImage, ChannelMut, ChannelRef, StridedMut};
+use cylaov::output::aov::{AovImage, ChannelRef, StridedMut};
 use cylaov::scene::camera::Camera;
 use cylaov::scene::{self, Scene};
 use cylaov::verify::arbiter::{Bound, PixelClass};
@@ -68,17 +68,11 @@ fn check(scene: &Scene, a: &AovImage, b: &AovImage) -> ViewCheck {
 }
 
 fn f32_mut<'a>(img: &'a mut AovImage, name: &str) -> StridedMut<'a, f32> {
-    match img.channel_mut(name).expect("channel") {
-        ChannelMut::F32(v) => v,
-        ChannelMut::U32(_) => panic!("{name} is u32"),
-    }
+    img.f32_channel_mut(name).expect(name)
 }
 
 fn u32_mut<'a>(img: &'a mut AovImage, name: &str) -> StridedMut<'a, u32> {
-    match img.channel_mut(name).expect("channel") {
-        ChannelMut::U32(v) => v,
-        ChannelMut::F32(_) => panic!("{name} is f32"),
-    }
+    img.u32_channel_mut(name).expect(name)
 }
 
 /// The pixels of (cylinder id, part) in `img`.

@@ -618,6 +618,22 @@ impl AovImage {
         })
     }
 
+    /// The float32 channel named `name`, writable; `None` if absent or u32.
+    pub fn f32_channel_mut(&mut self, name: &str) -> Option<StridedMut<'_, f32>> {
+        match self.channel_mut(name)? {
+            ChannelMut::F32(v) => Some(v),
+            ChannelMut::U32(_) => None,
+        }
+    }
+
+    /// The u32 channel named `name`, writable; `None` if absent or float32.
+    pub fn u32_channel_mut(&mut self, name: &str) -> Option<StridedMut<'_, u32>> {
+        match self.channel_mut(name)? {
+            ChannelMut::U32(v) => Some(v),
+            ChannelMut::F32(_) => None,
+        }
+    }
+
     /// The samples of the float32 channel named `name`; `None` if absent or u32.
     pub fn f32_channel(&self, name: &str) -> Option<Strided<'_, f32>> {
         match self.channel(name)? {

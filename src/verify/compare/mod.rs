@@ -114,17 +114,11 @@ mod tests {
     }
 
     fn f32_mut<'a>(img: &'a mut AovImage, name: &str) -> StridedMut<'a, f32> {
-        match img.channel_mut(name).expect("channel") {
-            ChannelMut::F32(v) => v,
-            ChannelMut::U32(_) => panic!("{name} is u32"),
-        }
+        img.f32_channel_mut(name).expect(name)
     }
 
     fn u32_mut<'a>(img: &'a mut AovImage, name: &str) -> StridedMut<'a, u32> {
-        match img.channel_mut(name).expect("channel") {
-            ChannelMut::U32(v) => v,
-            ChannelMut::F32(_) => panic!("{name} is f32"),
-        }
+        img.u32_channel_mut(name).expect(name)
     }
 
     fn ids_mut(img: &mut AovImage) -> StridedMut<'_, u32> {
