@@ -4,11 +4,15 @@ depth + normal views of 100 cylinders, against reading the same views' EXRs with
 OpenEXR package from a warm page cache; and the call overhead of `render` on a 16x16 view
 over its trace. Needs the package installed (`pip install .`) and OpenEXR.
 
-Usage: bench_python.py [--views N] [--repeats R] [--cli PATH] [--json]
-Prints one line per measure and the ratio; `--json` prints them as one JSON object.
+Usage: bench_python.py [--views N] [--repeats R] [--cli PATH] [--json] [--csv PATH]
+Prints one line per measure and the ratio; `--json` prints them as one JSON object;
+`--csv PATH` also writes them as `measure,value,unit` rows (`cylaov bench --python --csv
+reference/bench/python.csv` writes the CSV that docs/python.md's table is printed from, by
+scripts/bench_table.py).
 """
 
 import argparse
+import csv
 import json
 import os
 import pathlib
@@ -36,12 +40,37 @@ def best(f, repeats):
     return min(times)
 
 
+# The CSV's rows: measure, the key of the report, unit.
+CSV_ROWS = [
+    ("views", "views", "views"),
+    ("dataset", "dataset_views_per_s", "views/s"),
+    ("openexr", "openexr_views_per_s", "views/s"),
+    ("ratio", "ratio", "x"),
+    ("render_16x16_call", "render_16x16_call_ms", "ms"),
+    ("render_16x16_rust", "render_16x16_rust_ms", "ms"),
+    ("render_16x16_overhead", "render_16x16_overhead_ms", "ms"),
+]
+
+
+def write_csv(path, out):
+    """The measures as `measure,value,unit`, written to a temporary file then renamed."""
+    path = pathlib.Path(path)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    with open(tmp, "w", newline="") as f:
+        w = csv.writer(f, lineterminator="\n")
+        w.writerow(["measure", "value", "unit"])
+        for measure, key, unit in CSV_ROWS:
+            w.writerow([measure, repr(out[key]), unit])
+    os.replace(tmp, path)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--views", type=int, default=200)
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--cli", default=os.environ.get("CYLAOV_BIN", str(ROOT / "target/release/cylaov")))
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--csv", metavar="PATH")
     args = ap.parse_args()
     import OpenEXR
 
@@ -97,6 +126,8 @@ def main():
         }
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+    if args.csv:
+        write_csv(args.csv, out)
     if args.json:
         print(json.dumps(out))
         return
@@ -109,6 +140,8 @@ def main():
           f"{out['render_16x16_rust_ms']:.4f} ms of it the render in Rust: overhead "
           f"{out['render_16x16_overhead_ms']:.4f} ms (target <= 0.2) "
           f"(cast_rays of its 256 pixel rays: {out['cast_16x16_call_ms']:.4f} ms)")
+    if args.csv:
+        print(f"wrote {args.csv}")
 
 
 if __name__ == "__main__":

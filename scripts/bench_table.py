@@ -1,13 +1,17 @@
 #!/usr/bin/env python3
-"""Print a timing table of docs/performance.md, as Markdown, from the committed bench CSVs.
+"""Print a timing table of the docs, as Markdown, from the committed bench CSVs.
 
-    python3 scripts/bench_table.py --table cylaov|anchors|kernel [--csv PATH]
+    python3 scripts/bench_table.py --table cylaov|anchors|kernel|formats|python [--csv PATH]
 
-The CSVs are the ones one `cylaov bench --csv reference/bench/bench.csv` run writes
-(`bench.csv`, `bench.kernel.csv`, `bench.anchors.csv`), together with the figure
-`reference/figures/bench.png` (`--plot`), so the tables, the figure and the CSVs always come
-from one run. Timings cannot be re-measured in CI: tests/docs.rs checks that the page's
-tables are what this script prints from the committed CSVs. Needs only the standard library.
+`cylaov`, `anchors`, `kernel` (docs/performance.md): the CSVs one `cylaov bench --csv
+reference/bench/bench.csv` run writes (`bench.csv`, `bench.kernel.csv`,
+`bench.anchors.csv`), together with the figure `reference/figures/bench.png` (`--plot`), so
+the tables, the figure and the CSVs always come from one run. `formats`
+(docs/performance.md): `reference/bench/batch_formats.csv`, from `cylaov bench
+--batch-formats --csv`. `python` (docs/python.md): `reference/bench/python.csv`, from
+`cylaov bench --python --csv`. Timings cannot be re-measured in CI: tests/docs.rs checks that
+the pages' tables are what this script prints from the committed CSVs. Needs only the
+standard library.
 """
 
 import argparse
@@ -36,6 +40,11 @@ def count(n):
     return f"{int(n):,}".replace(",", " ")
 
 
+def sig3(x):
+    """Three significant digits, e.g. `0.0582`, `1.25`."""
+    return f"{float(x):#.3g}".rstrip(".")
+
+
 def rows(path):
     with open(path, newline="") as f:
         return list(csv.DictReader(f))
@@ -57,18 +66,58 @@ def process_ms(cy, family, n):
     return None
 
 
+# Where each table's CSV is, unless --csv says.
+DEFAULT_CSV = {
+    "cylaov": "bench.csv",
+    "anchors": "bench.csv",
+    "kernel": "bench.csv",
+    "formats": "batch_formats.csv",
+    "python": "python.csv",
+}
+
+# The Python measures, in the order of the table, and how each reads.
+PYTHON_ROWS = {
+    "views": ("views timed, 320×240 depth + normal, 100 cylinders", count),
+    "dataset": ("`Dataset[i]`, views a second", lambda v: count(round(float(v)))),
+    "openexr": ("OpenEXR reading the same views' EXRs, views a second", lambda v: count(round(float(v)))),
+    "ratio": ("`Dataset[i]` / OpenEXR", lambda v: f"{float(v):.2f}×"),
+    "render_16x16_call": ("`render()` on a 16×16 view, ms a call", sig3),
+    "render_16x16_rust": ("the same render inside Rust, ms", sig3),
+    "render_16x16_overhead": ("the call's overhead, ms", sig3),
+}
+
 RENDERER = {"llvm_ad_rgb": "Mitsuba llvm", "scalar_rgb": "Mitsuba scalar", "open3d_embree": "Open3D"}
 
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--table", required=True, choices=["cylaov", "anchors", "kernel"])
-    ap.add_argument("--csv", default=str(ROOT / "reference/bench/bench.csv"))
+    ap.add_argument("--table", required=True, choices=list(DEFAULT_CSV))
+    ap.add_argument("--csv", help="the table's CSV (default: reference/bench/ as above)")
     a = ap.parse_args()
-    base = pathlib.Path(a.csv)
+    base = pathlib.Path(a.csv or ROOT / "reference/bench" / DEFAULT_CSV[a.table])
     sibling = lambda kind: base.with_name(base.stem + f".{kind}.csv")
-    cy = cylaov_rows(base)
     out = []
+    if a.table == "formats":
+        out.append("| format | views | views/s | MiB | MB/s |")
+        out.append("|---|--:|--:|--:|--:|")
+        for r in rows(base):
+            label = r["format"].replace("--no-png", "`--no-png`")
+            mb_s = int(r["bytes"]) / float(r["seconds"]) / 1e6
+            out.append(
+                f"| {label} | {count(r['views'])} | {count(round(float(r['views_per_s'])))} "
+                f"| {count(round(int(r['bytes']) / 2**20))} | {count(round(mb_s))} |"
+            )
+        sys.stdout.write("\n".join(out) + "\n")
+        return
+    if a.table == "python":
+        out.append("| measure | value |")
+        out.append("|---|--:|")
+        got = {r["measure"]: r["value"] for r in rows(base)}
+        for measure, (label, fmt) in PYTHON_ROWS.items():
+            out.append(f"| {label} | {fmt(got[measure])} |")
+        sys.stdout.write("\n".join(out) + "\n")
+        return
+    cy = cylaov_rows(base)
     if a.table == "cylaov":
         out.append("| family | cylinders | parse ms | prep ms | build ms | trace ms | write ms | process ms | peak MiB |")
         out.append("|---|--:|--:|--:|--:|--:|--:|--:|--:|")

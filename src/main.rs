@@ -286,7 +286,8 @@ struct BenchCli {
     #[arg(long, value_enum, default_value_t = Accel::Tiles)]
     accel: Accel,
     /// Also write the table as CSV (the kernel-alone rows to OUT.kernel.csv, Mitsuba's and
-    /// Open3D's to OUT.anchors.csv).
+    /// Open3D's to OUT.anchors.csv); with --batch-formats, its rows; with --python, its
+    /// measures (measure,value,unit).
     #[arg(long, value_name = "OUT.csv")]
     csv: Option<PathBuf>,
     /// Also keep each generated scene as DIR/FAMILY-N.json (an existing folder), to time or
@@ -323,7 +324,8 @@ struct BenchCli {
     python: bool,
     /// Only the dataset formats side by side: `batch` of one generated dataset (320x240,
     /// depth+normal, 100 cylinders a scene) in the files format with pictures, EXR-only,
-    /// and as webdataset tar shards, in views/s, on the --threads given.
+    /// and as webdataset tar shards, in views/s, on the --threads given; then the tar
+    /// shards' ceilings on the same tar bytes: writing them alone, hashing them alone.
     #[arg(long)]
     batch_formats: bool,
     /// Only the EXR writer: an uncompressed file of a 1080p render (depth+normal, and every
@@ -774,21 +776,7 @@ fn bench(b: BenchCli) -> anyhow::Result<ExitCode> {
         return Ok(ExitCode::SUCCESS);
     }
     if b.batch_formats {
-        let rows = bench::batch_formats::run(b.batch_views, 100, 320, 240)?;
-        say(&format!(
-            "{:<16} {:>7} {:>9} {:>10} {:>10}",
-            "format", "views", "seconds", "views/s", "MiB"
-        ))?;
-        for r in rows {
-            say(&format!(
-                "{:<16} {:>7} {:>9.3} {:>10.1} {:>10.1}",
-                r.format,
-                r.views,
-                r.seconds,
-                r.views_per_s,
-                r.bytes as f64 / (1u64 << 20) as f64
-            ))?;
-        }
+        commands::bench::batch_formats(b.batch_views, b.csv.as_deref())?;
         return Ok(ExitCode::SUCCESS);
     }
     if b.python {
@@ -798,6 +786,7 @@ fn bench(b: BenchCli) -> anyhow::Result<ExitCode> {
         say(&commands::bench::python(
             &python,
             &std::env::current_exe()?,
+            b.csv.as_deref(),
         )?)?;
         return Ok(ExitCode::SUCCESS);
     }

@@ -22,7 +22,8 @@ use std::process::Command;
 
 const ROOT: &str = env!("CARGO_MANIFEST_DIR");
 const END: &str = "<!-- end of generated table -->";
-/// `docs/python.md` is the Python package's page: its blocks are run by `tests/python/`.
+/// `docs/python.md` is the Python package's page: its examples are run by `tests/python/`
+/// (its generated tables are checked here).
 const OTHER_OWNER: &[&str] = &["docs/python.md"];
 /// A `sh` block shown but not run says why in this comment on the line before it; there
 /// may be at most this many (a command too slow or too invasive for a test).
@@ -258,6 +259,22 @@ fn generated(dir: &Path, command: &str) -> Option<String> {
 /// Run page `rel`: its shell lines in order, its generated blocks checked (or pasted in
 /// under `CYLAOV_BLESS_DOCS=1`), its Python blocks checked to be run by a test.
 fn check_page(rel: &str) {
+    check_steps(rel, true);
+}
+
+/// Only the generated blocks of page `rel`, checked (or pasted in), for a page whose other
+/// blocks another test runs ([`OTHER_OWNER`]); the page must have at least one.
+fn check_generated_blocks(rel: &str) {
+    let n = steps(&read(rel))
+        .iter()
+        .filter(|s| matches!(s, Step::Generated { .. }))
+        .count();
+    assert!(n > 0, "{rel} has no generated block");
+    check_steps(rel, false);
+}
+
+/// [`check_page`], or with `all` false only the generated blocks.
+fn check_steps(rel: &str, all: bool) {
     let page = read(rel);
     let dir = workdir(&rel.replace(['/', '.'], "-"));
     let venv = venv();
@@ -267,6 +284,9 @@ fn check_page(rel: &str) {
     let mut replace: Vec<(std::ops::Range<usize>, String)> = Vec::new();
     let (mut ran, mut not_run) = (0, 0);
     for step in steps(&page) {
+        if !all && !matches!(step, Step::Generated { .. }) {
+            continue;
+        }
         match step {
             Step::Shell { line, text, run } => {
                 let (cmd, want) = split_comment(&text);
@@ -423,6 +443,13 @@ fn performance_page_runs_as_written() {
 #[test]
 fn development_page_runs_as_written() {
     check_page("docs/development.md");
+}
+
+/// The Python page's examples are run by `tests/python/`; its tables (the Python bench's
+/// figures, from the committed CSV) are checked here.
+#[test]
+fn python_page_tables_are_generated() {
+    check_generated_blocks("docs/python.md");
 }
 
 /// Every page in `docs/` is checked by one of the tests above (or is another test's), the

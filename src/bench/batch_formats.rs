@@ -1,19 +1,26 @@
 //! `cylaov bench --batch-formats`: one generated dataset written by `batch` in the files
 //! format (with pictures, and EXR-only) and as tar shards, side by side in one run, in
-//! views per second of the whole batch (listing, rendering, encoding, writing).
+//! views per second of the whole batch (listing, rendering, encoding, writing); then two
+//! ceilings on the tar shards, measured on the tar bytes that run wrote: writing them alone
+//! (the tar writer's buffered writes, no render, no hash) and hashing them alone (sha256 in
+//! memory).
 
 use crate::commands::generate::{GenerateArgs, run as generate};
 use crate::dataset::batch::shards::{ShardOptions, TarSelection, write_shards};
 use crate::dataset::batch::{self, BatchOptions, ProgressMode, Shard};
 use crate::dataset::generate::{ConfigFile, Range};
+use crate::output::tar::BLOCK;
 use anyhow::{Context, Result};
-use std::path::Path;
-use std::time::Instant;
+use sha2::{Digest, Sha256};
+use std::io::{BufReader, BufWriter, Read, Write};
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
 
 /// One row: a format and its throughput.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct FormatRow {
-    /// `files`, `files --no-png` or `webdataset`.
+    /// `files`, `files --no-png`, `webdataset`, or a ceiling on the tar shards:
+    /// [`WRITE_ONLY`], [`SHA256_ONLY`].
     pub format: &'static str,
     /// Views written.
     pub views: usize,
@@ -24,6 +31,11 @@ pub struct FormatRow {
     /// Bytes written.
     pub bytes: u64,
 }
+
+/// The row of writing the webdataset run's tar bytes alone.
+pub const WRITE_ONLY: &str = "tar bytes: write only";
+/// The row of hashing the webdataset run's tar bytes alone.
+pub const SHA256_ONLY: &str = "tar bytes: sha256 only";
 
 fn folder_bytes(dir: &Path) -> u64 {
     let Ok(entries) = std::fs::read_dir(dir) else {
@@ -38,8 +50,27 @@ fn folder_bytes(dir: &Path) -> u64 {
         .sum()
 }
 
+/// Put every file under `dir` on disk (untimed, after its format's row): each format then
+/// starts with no dirty pages ahead of it, where a gigabyte left by the one before would make
+/// Linux throttle its writes. The files stay in the page cache, so no format writes into
+/// memory another one has just freed.
+fn sync_tree(dir: &Path) -> Result<()> {
+    for e in std::fs::read_dir(dir).with_context(|| format!("listing {}", dir.display()))? {
+        let path = e?.path();
+        if path.is_dir() {
+            sync_tree(&path)?;
+        } else {
+            std::fs::File::open(&path)
+                .and_then(|f| f.sync_all())
+                .with_context(|| format!("syncing {}", path.display()))?;
+        }
+    }
+    Ok(())
+}
+
 /// Generate `views` scenes of `cylinders` cylinders at `width`×`height` in a temp folder
-/// and time each format on them (depth+normal, the rayon pool as set).
+/// and time each format on them (depth+normal, the rayon pool as set), then the tar
+/// shards' two ceilings on the webdataset run's tars.
 pub fn run(views: u64, cylinders: u64, width: u32, height: u32) -> Result<Vec<FormatRow>> {
     let tmp = tempfile::Builder::new()
         .prefix("cylaov-bench-formats-")
@@ -60,6 +91,7 @@ pub fn run(views: u64, cylinders: u64, width: u32, height: u32) -> Result<Vec<Fo
         },
         force: false,
     })?;
+    sync_tree(&data)?;
     let opts = BatchOptions {
         aovs: Some(vec![crate::scene::Aov::Depth, crate::scene::Aov::Normal]),
         ..BatchOptions::default()
@@ -84,6 +116,7 @@ pub fn run(views: u64, cylinders: u64, width: u32, height: u32) -> Result<Vec<Fo
         let t = Instant::now();
         let s = batch::run(&data, &out, Shard::ALL, &o, ProgressMode::Off, None)?;
         row(format, s.counts.done, t, &out);
+        sync_tree(&out)?;
     }
     let out = tmp.path().join("webdataset");
     let t = Instant::now();
@@ -96,5 +129,118 @@ pub fn run(views: u64, cylinders: u64, width: u32, height: u32) -> Result<Vec<Fo
         false,
     )?;
     row("webdataset", s.rendered, t, &out);
+    sync_tree(&out)?;
+    let (write, sha, bytes) = tar_ceilings(&out, &tmp.path().join("write-only"))?;
+    for (format, seconds) in [(WRITE_ONLY, write), (SHA256_ONLY, sha)] {
+        let seconds = seconds.as_secs_f64();
+        rows.push(FormatRow {
+            format,
+            views: s.rendered,
+            seconds,
+            views_per_s: s.rendered as f64 / seconds,
+            bytes,
+        });
+    }
     Ok(rows)
+}
+
+/// Read a tar from `r` and call `f` with each member's pieces as
+/// [`crate::output::tar::TarWriter`] writes them (its header block, its data, its padding),
+/// then with the closing blocks; one member in memory at a time.
+fn each_member(mut r: impl Read, mut f: impl FnMut(&[&[u8]]) -> Result<()>) -> Result<()> {
+    let mut header = [0u8; BLOCK];
+    let mut data = Vec::new();
+    loop {
+        r.read_exact(&mut header)?;
+        if header.iter().all(|&b| b == 0) {
+            let mut end = header.to_vec();
+            r.read_to_end(&mut end)?;
+            return f(&[&end]);
+        }
+        let field = String::from_utf8_lossy(&header[124..136]);
+        let size = u64::from_str_radix(field.trim_matches(|c: char| c == '\0' || c == ' '), 8)
+            .context("a tar header's size field")? as usize;
+        data.resize(size.div_ceil(BLOCK) * BLOCK, 0);
+        r.read_exact(&mut data)?;
+        let (body, pad) = data.split_at(size);
+        f(&[&header, body, pad])?;
+    }
+}
+
+/// The time to write the tar files of `shards` (in the page cache after their run) to new
+/// files in `dir`, through the tar writer's 64 KiB `BufWriter` in the tar writer's pieces,
+/// and the time to hash them with sha256 in memory; and their bytes. Only the writes (from
+/// creating each file to its last write) and the hashing are timed, not reading each
+/// member into memory, which is one member at a time, as the tar writer holds them.
+fn tar_ceilings(shards: &Path, dir: &Path) -> Result<(Duration, Duration, u64)> {
+    std::fs::create_dir(dir).with_context(|| format!("making {}", dir.display()))?;
+    let mut tars: Vec<PathBuf> = std::fs::read_dir(shards)
+        .with_context(|| format!("listing {}", shards.display()))?
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| p.extension().is_some_and(|x| x == "tar"))
+        .collect();
+    tars.sort();
+    let (mut write, mut sha, mut bytes) = (Duration::ZERO, Duration::ZERO, 0);
+    for path in &tars {
+        let tar = std::fs::File::open(path)
+            .map(BufReader::new)
+            .with_context(|| format!("opening {}", path.display()))?;
+        let copy = dir.join(path.file_name().unwrap_or_default());
+        let t = Instant::now();
+        let file = std::fs::File::create_new(&copy)
+            .with_context(|| format!("creating {}", copy.display()))?;
+        let mut w = BufWriter::with_capacity(64 << 10, file);
+        write += t.elapsed();
+        let mut h = Sha256::new();
+        each_member(tar, |pieces| {
+            let t = Instant::now();
+            for p in pieces {
+                w.write_all(p)?;
+            }
+            write += t.elapsed();
+            let t = Instant::now();
+            for p in pieces {
+                h.update(p);
+                bytes += p.len() as u64;
+            }
+            sha += t.elapsed();
+            Ok(())
+        })
+        .with_context(|| format!("copying {} to {}", path.display(), copy.display()))?;
+        let t = Instant::now();
+        drop(
+            w.into_inner()
+                .map_err(|e| e.into_error())
+                .with_context(|| format!("writing {}", copy.display()))?,
+        );
+        write += t.elapsed();
+        let t = Instant::now();
+        std::hint::black_box(h.finalize());
+        sha += t.elapsed();
+    }
+    Ok((write, sha, bytes))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::output::tar::TarWriter;
+
+    #[test]
+    fn each_member_gives_the_writers_writes() {
+        let mut w = TarWriter::new(Vec::new());
+        w.append("a.json", b"{}").unwrap();
+        w.append("a.npy", &[7u8; 1024]).unwrap();
+        let (tar, _) = w.finish().unwrap();
+        let (mut lens, mut all) = (Vec::new(), Vec::<u8>::new());
+        each_member(&tar[..], |pieces| {
+            lens.push(pieces.iter().map(|p| p.len()).collect::<Vec<_>>());
+            all.extend(pieces.iter().flat_map(|p| p.iter()));
+            Ok(())
+        })
+        .unwrap();
+        assert_eq!(lens, [vec![512, 2, 510], vec![512, 1024, 0], vec![1024]]);
+        assert_eq!(all, tar);
+    }
 }

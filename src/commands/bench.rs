@@ -130,15 +130,26 @@ pub const PYTHON_SCRIPT: &str = include_str!("../../scripts/bench_python.py");
 /// `cylaov bench --python`: the Python package's `Dataset[i]` against reading the same
 /// views' EXRs with OpenEXR, and `render`'s call overhead on a 16×16 view, measured by
 /// `python` (a venv with the package installed, `pip install .`, and OpenEXR); views of
-/// scenes rendered by `exe`. Returns the script's report.
-pub fn python(python: &Path, exe: &Path) -> Result<String> {
+/// scenes rendered by `exe`. With `csv`, the script also writes its measures there
+/// (`measure,value,unit`). Returns the script's report.
+pub fn python(python: &Path, exe: &Path, csv: Option<&Path>) -> Result<String> {
+    let csv = match csv {
+        Some(p) => {
+            check_parent(p, "--csv")?;
+            check_outputs(&[("--csv", p)], &[])?;
+            Some(std::path::absolute(p).with_context(|| format!("--csv {}", p.display()))?)
+        }
+        None => None,
+    };
     let dir = tempfile::tempdir().context("making a folder for the Python bench")?;
     let script = dir.path().join("bench_python.py");
     std::fs::write(&script, PYTHON_SCRIPT).context("writing the Python bench script")?;
-    let out = std::process::Command::new(python)
-        .arg(&script)
-        .arg("--cli")
-        .arg(exe)
+    let mut cmd = std::process::Command::new(python);
+    cmd.arg(&script).arg("--cli").arg(exe);
+    if let Some(p) = &csv {
+        cmd.arg("--csv").arg(p);
+    }
+    let out = cmd
         .output()
         .with_context(|| format!("running {}", python.display()))?;
     if !out.status.success() {
@@ -152,4 +163,39 @@ pub fn python(python: &Path, exe: &Path) -> Result<String> {
         );
     }
     Ok(String::from_utf8_lossy(&out.stdout).trim_end().to_string())
+}
+
+/// `cylaov bench --batch-formats`: the dataset formats side by side on `views` generated
+/// views (320×240, depth+normal, 100 cylinders a scene) and the two ceilings on the tar
+/// shards, printed as a table; with `csv`, the same rows written there.
+pub fn batch_formats(views: u64, csv: Option<&Path>) -> Result<()> {
+    if let Some(p) = csv {
+        check_parent(p, "--csv")?;
+        check_outputs(&[("--csv", p)], &[])?;
+    }
+    say(&format!(
+        "cylaov bench --batch-formats: {views} views, 320x240, depth+normal, 100 cylinders a scene, {} threads",
+        rayon::current_num_threads()
+    ))?;
+    let rows = bench::batch_formats::run(views, 100, 320, 240)?;
+    say(&format!(
+        "{:<22} {:>7} {:>9} {:>10} {:>10}",
+        "format", "views", "seconds", "views/s", "MiB"
+    ))?;
+    for r in &rows {
+        say(&format!(
+            "{:<22} {:>7} {:>9.3} {:>10.1} {:>10.1}",
+            r.format,
+            r.views,
+            r.seconds,
+            r.views_per_s,
+            r.bytes as f64 / (1u64 << 20) as f64
+        ))?;
+    }
+    if let Some(path) = csv {
+        atomic_write_bytes(path, &csv_bytes(&rows)?)
+            .with_context(|| format!("writing {}", path.display()))?;
+        say(&format!("wrote {}", path.display()))?;
+    }
+    Ok(())
 }
