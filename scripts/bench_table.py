@@ -1,14 +1,15 @@
 #!/usr/bin/env python3
 """Print a timing table of the docs, as Markdown, from the committed bench CSVs.
 
-    python3 scripts/bench_table.py --table cylaov|anchors|kernel|formats|python [--csv PATH]
+    python3 scripts/bench_table.py --table cylaov|anchors|kernel|formats|python|exr_writer [--csv PATH]
 
 `cylaov`, `anchors`, `kernel` (docs/performance.md): the CSVs one `cylaov bench --csv
 reference/bench/bench.csv` run writes (`bench.csv`, `bench.kernel.csv`,
 `bench.anchors.csv`), together with the figure `reference/figures/bench.png` (`--plot`), so
 the tables, the figure and the CSVs always come from one run. `formats`
 (docs/performance.md): `reference/bench/batch_formats.csv`, from `cylaov bench
---batch-formats --csv`. `python` (docs/python.md): `reference/bench/python.csv`, from
+--batch-formats --csv`; `exr_writer` (docs/performance.md): `reference/bench/exr_writer.csv`,
+from `cylaov bench --exr-writer --csv`. `python` (docs/python.md): `reference/bench/python.csv`, from
 `cylaov bench --python --csv`. Timings cannot be re-measured in CI: tests/docs.rs checks that
 the pages' tables are what this script prints from the committed CSVs. Needs only the
 standard library.
@@ -73,6 +74,7 @@ DEFAULT_CSV = {
     "kernel": "bench.csv",
     "formats": "batch_formats.csv",
     "python": "python.csv",
+    "exr_writer": "exr_writer.csv",
 }
 
 # The Python measures, in the order of the table, and how each reads.
@@ -106,6 +108,18 @@ def main():
             out.append(
                 f"| {label} | {count(r['views'])} | {count(round(float(r['views_per_s'])))} "
                 f"| {count(round(int(r['bytes']) / 2**20))} | {count(round(mb_s))} |"
+            )
+        sys.stdout.write("\n".join(out) + "\n")
+        return
+    if a.table == "exr_writer":
+        out.append("| AOVs | into | size | MiB | from the AOV buffers, ms | from planes, ms | planes / buffers |")
+        out.append("|---|---|--:|--:|--:|--:|--:|")
+        for r in rows(base):
+            aovs = "every AOV" if r["aovs"].count(",") >= 6 else r["aovs"].replace(",", " + ")
+            out.append(
+                f"| {aovs} | {r['target']} | {r['width']}×{r['height']} "
+                f"| {int(r['bytes']) / 2**20:.1f} | {float(r['buffers_ms']):.2f} "
+                f"| {float(r['planes_ms']):.2f} | {float(r['speed_ratio']):.2f} |"
             )
         sys.stdout.write("\n".join(out) + "\n")
         return
