@@ -842,7 +842,7 @@ impl AovImage {
     /// `exr` crate copies every sample through its own layout, which costs more than the
     /// render at 1080p). Layout: magic and version, the header attributes, the
     /// offset table (one u64 per line), then per line its `y`, byte count, and each
-    /// channel's row in channel-name order (see [`Uncompressed::write_line`]).
+    /// channel's row in channel-name order.
     pub fn write_uncompressed<W: std::io::Write>(&self, out: &mut W) -> std::io::Result<()> {
         self.write_uncompressed_with(out, &[])
     }
