@@ -223,9 +223,7 @@ pub fn map_channels(mut img: AovImage, maps: &[String]) -> Result<AovImage> {
             img.rename_channel(&from, &to);
         }
     }
-    // The renamed X/Y/Z planes of a vector AOV become its one buffer.
-    let (w, h) = (img.width, img.height);
-    Ok(AovImage::from_channels(w, h, img.to_channels()))
+    Ok(img.regrouped())
 }
 
 /// How one view came out.

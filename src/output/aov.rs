@@ -57,19 +57,6 @@ pub enum ChannelData {
 }
 
 impl ChannelData {
-    /// Samples held.
-    pub fn len(&self) -> usize {
-        match self {
-            ChannelData::F32(v) => v.len(),
-            ChannelData::U32(v) => v.len(),
-        }
-    }
-
-    /// Whether it holds no sample.
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
-    }
-
     /// Every `stride`-th sample from `offset`: one channel of an interleaved buffer.
     fn pick(&self, offset: usize, stride: usize) -> ChannelData {
         fn every<X: Copy>(v: &[X], offset: usize, stride: usize) -> Vec<X> {
@@ -178,11 +165,6 @@ impl<'a, X: Copy> Strided<'a, X> {
             .iter()
             .skip(self.offset)
             .step_by(s)
-    }
-
-    /// The samples as a slice, when they are contiguous (a one-channel buffer).
-    pub fn as_slice(&self) -> Option<&'a [X]> {
-        (self.stride == 1).then_some(self.data)
     }
 
     /// The samples as a vector of their own.
@@ -659,22 +641,30 @@ impl AovImage {
         ])
     }
 
-    /// The buffer of `aov`: its channels of the table, in the table's order.
-    pub fn aov_buffer(&self, aov: Aov) -> Option<&AovBuffer> {
+    /// Where the buffer of `aov` is: the one holding its channels of the table, in the
+    /// table's order.
+    fn aov_position(&self, aov: Aov) -> Option<usize> {
         let names = channel_names(aov);
         self.buffers
             .iter()
-            .find(|b| b.names.iter().map(String::as_str).eq(names.iter().copied()))
+            .position(|b| b.names.iter().map(String::as_str).eq(names.iter().copied()))
+    }
+
+    /// The buffer of `aov`: its channels of the table, in the table's order.
+    pub fn aov_buffer(&self, aov: Aov) -> Option<&AovBuffer> {
+        Some(&self.buffers[self.aov_position(aov)?])
     }
 
     /// Take the buffer of `aov` out of the image (see [`AovImage::aov_buffer`]).
     pub fn take_aov_buffer(&mut self, aov: Aov) -> Option<AovBuffer> {
-        let names = channel_names(aov);
-        let at = self
-            .buffers
-            .iter()
-            .position(|b| b.names.iter().map(String::as_str).eq(names.iter().copied()))?;
+        let at = self.aov_position(aov)?;
         Some(self.buffers.remove(at))
+    }
+
+    /// The same image with the table's vector AOVs each in one buffer again, after their
+    /// channels were renamed into place (a candidate's `N.R`, a per-AOV file's `R, G, B`).
+    pub fn regrouped(self) -> AovImage {
+        AovImage::from_channels(self.width, self.height, self.to_channels())
     }
 
     /// Keep the channels whose name `keep` accepts. A buffer losing some of its channels

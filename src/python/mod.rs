@@ -1087,8 +1087,7 @@ fn read<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, PyDict>> {
         for (from, to) in per_aov_channel_names(a).iter().zip(channel_names(a)) {
             image.rename_channel(from, to);
         }
-        let (w, h) = (image.width, image.height);
-        image = AovImage::from_channels(w, h, image.to_channels());
+        image = image.regrouped();
         aovs.push(a);
     } else {
         aovs.extend(
