@@ -64,6 +64,7 @@ pub fn random_scene(n: usize, seed: u64, width: u32, height: u32) -> Scene {
                 radius: rng.range(0.03, 0.15) * size,
                 caps: rng.unit() < 0.7,
                 id: i as u32 + 1,
+                label: 0,
             }
         })
         .collect();
@@ -117,6 +118,7 @@ pub fn dense_scene(n: usize, seed: u64, width: u32, height: u32) -> Scene {
                 radius: rng.range(0.05, 0.6),
                 caps: rng.unit() < 0.7,
                 id: i as u32 + 1,
+                label: 0,
             }
         })
         .collect();

@@ -62,6 +62,9 @@ pub struct Cylinder {
     pub caps: bool,
     /// Value written to the `shape_id` AOV (> 0).
     pub id: u32,
+    /// The user's class of this cylinder (0 when the scene gives none): what the `label`
+    /// AOV stores, so class masks come from `label` and instance masks from `shape_id`.
+    pub label: u32,
 }
 
 impl Cylinder {

@@ -355,6 +355,9 @@ struct State {
     cylinders: Vec<[f64; 8]>,
     caps: Vec<bool>,
     ids: Vec<u32>,
+    /// Per cylinder; absent (all 0) in states written before labels existed.
+    #[serde(default)]
+    labels: Vec<u32>,
     aovs: Vec<Aov>,
     file: Option<SceneFile>,
 }
@@ -375,13 +378,15 @@ fn _scene_from_state(state: &[u8]) -> PyResult<PyScene> {
         .cylinders
         .iter()
         .zip(st.caps.iter().zip(&st.ids))
-        .map(|(c, (&caps, &id))| crate::geometry::Cylinder {
+        .enumerate()
+        .map(|(i, (c, (&caps, &id)))| crate::geometry::Cylinder {
             base: DVec3::new(c[0], c[1], c[2]),
             axis: DVec3::new(c[3], c[4], c[5]),
             height: c[6],
             radius: c[7],
             caps,
             id,
+            label: st.labels.get(i).copied().unwrap_or(0),
         })
         .collect();
     Ok(PyScene {
@@ -623,6 +628,7 @@ impl PyScene {
                 .collect(),
             caps: sc.cylinders.iter().map(|c| c.caps).collect(),
             ids: sc.cylinders.iter().map(|c| c.id).collect(),
+            labels: sc.cylinders.iter().map(|c| c.label).collect(),
             aovs: sc.aovs.clone(),
             file: me.file.clone(),
         };

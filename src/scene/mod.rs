@@ -230,6 +230,14 @@ pub struct CylinderFile {
     /// What `shape_id` stores, > 0 (0 means miss); default the 1-based index in the file.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub id: Option<u32>,
+    /// The cylinder's class, any u32; default 0. Written only when non-zero, so files
+    /// without labels keep their bytes.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub label: u32,
+}
+
+fn is_zero(v: &u32) -> bool {
+    *v == 0
 }
 
 /// A whole scene file: exactly one of `camera` and `cameras` is given.
@@ -440,6 +448,7 @@ impl SceneFile {
                     radius: y.radius,
                     caps: y.caps,
                     id: Some(y.id),
+                    label: y.label,
                     ..CylinderFile::default()
                 })
                 .collect(),
@@ -755,6 +764,7 @@ impl CylinderFile {
             radius,
             caps: self.caps,
             id,
+            label: self.label,
         })
     }
 }

@@ -687,6 +687,7 @@ mod tests {
             radius: r,
             caps,
             id: 1,
+            label: 0,
         }
     }
 

@@ -202,6 +202,7 @@ impl CylinderFrame {
             radius: r,
             caps,
             id: 1,
+            label: 0,
         }
     }
 }
