@@ -7,8 +7,49 @@
 //! both pixel conventions: [`Camera::k_matrix`] (centres at `i + 0.5`) and
 //! [`Camera::k_matrix_opencv`] (centres at integers).
 
-use glam::{DMat4, DVec3, DVec4};
+use glam::{DMat4, DVec2, DVec3, DVec4};
 use serde::{Deserialize, Serialize};
+
+pub mod lens;
+
+use lens::Lens;
+
+/// How a camera maps a pixel to a ray and a world point to a pixel: the one place a
+/// projection is defined. [`Camera::pixel_ray`] and [`Camera::project`] dispatch on it; a
+/// new model is one variant here plus its tests.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Projection {
+    /// Mitsuba's `perspective` sensor with a `look_at` transform: the pinhole every scene
+    /// file describes today (the tiles' fast path assumes it).
+    Perspective,
+    /// Mitsuba's `orthographic` sensor: parallel rays along `forward`, from the image
+    /// plane through the camera origin; pixel centres at `i + 0.5` as the pinhole.
+    Orthographic {
+        /// Half the image width in world units (`ortho_width / 2`).
+        half_width: f64,
+        /// Half the image height in world units (`half_width / aspect`).
+        half_height: f64,
+    },
+    /// A lens model in the camera's OpenCV axes (x right, y down, z forward), see [`lens`].
+    Lens(Lens),
+}
+
+/// One pixel's primary ray: `origin + t · dir` for `t` in `[tmin, tmax]`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PixelRay {
+    /// Where the ray starts, world units (the camera centre, except orthographic).
+    pub origin: DVec3,
+    /// Unit direction, world axes.
+    pub dir: DVec3,
+    /// Smallest ray parameter counted (the near clip along this ray).
+    pub tmin: f64,
+    /// Largest ray parameter counted (the far clip along this ray); below `tmin` for a
+    /// pixel that has no ray (never so for a validated camera).
+    pub tmax: f64,
+    /// Whether `depth` along this ray is camera-space z (`t · dir·forward`); if not, it is
+    /// the Euclidean distance `t` (equirectangular, fisheye rays at or beyond 90°).
+    pub planar_depth: bool,
+}
 
 /// Which image extent `fov_deg` spans, as Mitsuba's `fov_axis`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -80,6 +121,9 @@ pub struct Camera {
     pub tan_half_x: f64,
     /// Half height of the image plane at unit distance: `tan_half_x / (width / height)`.
     pub tan_half_y: f64,
+    /// How pixels map to rays; [`Projection::Perspective`] from [`Camera::new`], whose
+    /// pinhole `tan_half_x`, `tan_half_y` and the offset helpers below describe.
+    pub projection: Projection,
 }
 
 impl Camera {
@@ -109,6 +153,112 @@ impl Camera {
             true_up,
             tan_half_x,
             tan_half_y: tan_half_x / aspect,
+            projection: Projection::Perspective,
+        }
+    }
+
+    /// This camera's frame with another projection (validated by the caller: a lens by
+    /// [`Lens::validate`], an orthographic extent finite and positive).
+    pub fn with_projection(self, projection: Projection) -> Self {
+        Camera { projection, ..self }
+    }
+
+    /// Whether the camera is the pinhole the screen tiles and the per-column/per-row
+    /// offset helpers assume.
+    pub fn is_pinhole(&self) -> bool {
+        self.projection == Projection::Perspective
+    }
+
+    /// Camera-space coordinates of world point `p`, OpenCV axes (x right, y down, z
+    /// forward).
+    pub fn to_camera_opencv(&self, p: DVec3) -> DVec3 {
+        let v = p - self.origin;
+        DVec3::new(-v.dot(self.left), -v.dot(self.true_up), v.dot(self.forward))
+    }
+
+    /// World direction of camera-space (OpenCV axes) direction `v`.
+    pub fn from_camera_opencv(&self, v: DVec3) -> DVec3 {
+        -self.left * v.x - self.true_up * v.y + self.forward * v.z
+    }
+
+    /// Pixel `(i, j)`'s ray under this camera's projection. For the perspective pinhole it
+    /// is the render's pixel ray bit for bit ([`Camera::dir_and_length`] at the column and
+    /// row offsets, [`Camera::clip_range`]).
+    pub fn pixel_ray(&self, i: u32, j: u32) -> PixelRay {
+        let (near, far) = (self.spec.near_clip, self.spec.far_clip);
+        match self.projection {
+            Projection::Perspective => {
+                let (dir, len) = self.dir_and_length(self.column_offset(i), self.row_offset(j));
+                let (tmin, tmax) = self.clip_range(len);
+                PixelRay {
+                    origin: self.origin,
+                    dir,
+                    tmin,
+                    tmax,
+                    planar_depth: true,
+                }
+            }
+            Projection::Orthographic {
+                half_width,
+                half_height,
+            } => {
+                let x = ((i as f64 + 0.5) / self.spec.width as f64 * 2.0 - 1.0) * half_width;
+                let y = (1.0 - (j as f64 + 0.5) / self.spec.height as f64 * 2.0) * half_height;
+                PixelRay {
+                    origin: self.origin - self.left * x + self.true_up * y,
+                    dir: self.forward,
+                    tmin: near,
+                    tmax: far,
+                    planar_depth: true,
+                }
+            }
+            Projection::Lens(lens) => match lens.unproject(i, j) {
+                Ok(v) => {
+                    let planar = lens.planar_depth(v);
+                    // Planar clips become ray parameters through 1/cos θ; where depth is
+                    // Euclidean the clips bound the distance itself.
+                    let scale = if planar { 1.0 / v.z } else { 1.0 };
+                    PixelRay {
+                        origin: self.origin,
+                        dir: self.from_camera_opencv(v).normalize(),
+                        tmin: near * scale,
+                        tmax: far * scale,
+                        planar_depth: planar,
+                    }
+                }
+                Err(_) => PixelRay {
+                    origin: self.origin,
+                    dir: self.forward,
+                    tmin: 1.0,
+                    tmax: 0.0,
+                    planar_depth: true,
+                },
+            },
+        }
+    }
+
+    /// The continuous pixel coordinates world point `p` projects to, in the projection's
+    /// own pixel convention (centres at `i + 0.5` for perspective, orthographic and
+    /// equirectangular; at integers for the OpenCV models); `None` where it has no image
+    /// (behind a pinhole, at the camera centre).
+    pub fn project(&self, p: DVec3) -> Option<DVec2> {
+        let c = self.to_camera_opencv(p);
+        let (w, h) = (self.spec.width as f64, self.spec.height as f64);
+        match self.projection {
+            Projection::Perspective => (c.z > 0.0).then(|| {
+                DVec2::new(
+                    (c.x / c.z / self.tan_half_x + 1.0) * 0.5 * w,
+                    (c.y / c.z / self.tan_half_y + 1.0) * 0.5 * h,
+                )
+            }),
+            Projection::Orthographic {
+                half_width,
+                half_height,
+            } => Some(DVec2::new(
+                (c.x / half_width + 1.0) * 0.5 * w,
+                (c.y / half_height + 1.0) * 0.5 * h,
+            )),
+            Projection::Lens(lens) => lens.project(c),
         }
     }
 
