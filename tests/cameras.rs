@@ -183,3 +183,94 @@ fn bad_intrinsics_are_refused_by_field() {
     };
     assert_eq!(lens.validate(4, 4).unwrap_err().field, "cx");
 }
+
+mod common;
+
+/// Project every pixel's ray with OpenCV itself and return the worst distance, in pixels,
+/// from the pixel centre (integers, OpenCV's convention).
+fn worst_by_opencv(py: &std::path::Path, lens: Lens, w: u32, h: u32) -> f64 {
+    let (call, params) = match lens {
+        Lens::OpenCv {
+            fx,
+            fy,
+            cx,
+            cy,
+            dist,
+        } => ("cv2.projectPoints", (fx, fy, cx, cy, dist.to_vec())),
+        Lens::OpenCvFisheye { fx, fy, cx, cy, k } => {
+            ("cv2.fisheye.projectPoints", (fx, fy, cx, cy, k.to_vec()))
+        }
+        Lens::Equirectangular { .. } => unreachable!(),
+    };
+    let mut dirs = Vec::new();
+    for j in 0..h {
+        for i in 0..w {
+            let v = lens.unproject(i, j).unwrap();
+            dirs.push([v.x, v.y, v.z]);
+        }
+    }
+    let input = serde_json::json!({"params": params, "dirs": dirs, "w": w, "h": h});
+    let script = format!(
+        r#"
+import json, sys, numpy as np, cv2
+d = json.load(sys.stdin)
+fx, fy, cx, cy, dist = d["params"]
+K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]], float)
+P = np.array(d["dirs"], float).reshape(-1, 1, 3)
+z = np.zeros((3, 1))
+px, _ = {call}(P, z, z, K, np.array(dist, float))
+px = px.reshape(d["h"], d["w"], 2)
+j, i = np.mgrid[0:d["h"], 0:d["w"]]
+print(float(np.hypot(px[..., 0] - i, px[..., 1] - j).max()))
+"#
+    );
+    use std::io::Write;
+    let mut child = std::process::Command::new(py)
+        .args(["-c", &script])
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    child
+        .stdin
+        .take()
+        .unwrap()
+        .write_all(input.to_string().as_bytes())
+        .unwrap();
+    let out = child.wait_with_output().unwrap();
+    assert!(out.status.success());
+    String::from_utf8(out.stdout)
+        .unwrap()
+        .trim()
+        .parse()
+        .unwrap()
+}
+
+#[test]
+fn opencv_itself_projects_every_ray_onto_its_pixel_centre() {
+    let Some(py) = common::venv_python() else {
+        return;
+    };
+    let pinhole = Lens::OpenCv {
+        fx: 60.0,
+        fy: 58.0,
+        cx: 31.7,
+        cy: 24.2,
+        dist: [-0.28, 0.07, 0.001, -0.0015, -0.01],
+    };
+    let worst = worst_by_opencv(&py, pinhole, 64, 48);
+    eprintln!("cv2.projectPoints: worst {worst:e} px");
+    assert!(worst < 1e-3, "cv2.projectPoints: {worst} px");
+    // cv2.fisheye.projectPoints takes θ = atan(r) from x/z, so only rays in front of the
+    // camera: about 148° across the diagonal here (θ_d = 1.32 at the corners).
+    let fisheye = Lens::OpenCvFisheye {
+        fx: 45.0,
+        fy: 45.0,
+        cx: 47.5,
+        cy: 35.5,
+        k: [0.02, -0.003, 0.0005, -0.00002],
+    };
+    let worst = worst_by_opencv(&py, fisheye, 96, 72);
+    eprintln!("cv2.fisheye.projectPoints: worst {worst:e} px");
+    assert!(worst < 1e-3, "cv2.fisheye.projectPoints: {worst} px");
+}
