@@ -101,6 +101,11 @@ fn theta_d(k: &[f64; 4], t: f64) -> (f64, f64) {
     (t * poly, poly + dpoly)
 }
 
+/// `x > 0`, false for NaN: the Newton steps stop on a zero, negative or NaN slope.
+fn positive(x: f64) -> bool {
+    x > 0.0
+}
+
 /// The first coefficient that is non-zero, to name in a refusal (`k1` when all are zero).
 fn first_nonzero(names: &[&'static str], values: &[f64]) -> &'static str {
     names
@@ -186,7 +191,7 @@ impl Lens {
                     let (p, jac) = distort(&dist, ab.x, ab.y);
                     let r = p - goal;
                     let det = jac[0][0] * jac[1][1] - jac[0][1] * jac[1][0];
-                    if !(det > 0.0) {
+                    if !positive(det) {
                         break;
                     }
                     let step = DVec2::new(
@@ -200,7 +205,7 @@ impl Lens {
                 }
                 let (_, jac) = distort(&dist, ab.x, ab.y);
                 let det = jac[0][0] * jac[1][1] - jac[0][1] * jac[1][0];
-                if !(det > 0.0) || !ab.is_finite() {
+                if !positive(det) || !ab.is_finite() {
                     let field = first_nonzero(&["k1", "k2", "p1", "p2", "k3"], &dist);
                     return Err(lens_err(
                         field,
@@ -222,7 +227,7 @@ impl Lens {
                     let mut t = want;
                     for _ in 0..NEWTON_STEPS {
                         let (td, dtd) = theta_d(&k, t);
-                        if !(dtd > 0.0) {
+                        if !positive(dtd) {
                             break;
                         }
                         let step = (td - want) / dtd;
@@ -316,7 +321,7 @@ impl Lens {
                 for s in 1..=steps {
                     let t = top * s as f64 / steps as f64;
                     let (td, dtd) = theta_d(&k, t);
-                    if !(dtd > 0.0) {
+                    if !positive(dtd) {
                         return Err(lens_err(
                             first_nonzero(&["k1", "k2", "k3", "k4"], &k),
                             format!(
