@@ -742,72 +742,52 @@ impl Plan<'_> {
             inner: BufWriter::with_capacity(64 << 10, file),
             hash: Sha256::new(),
         });
-        type Rendered = Vec<(usize, Result<Vec<(String, Vec<u8>)>, String>)>;
-        // The pool renders a chunk while this thread's helper appends the one before
-        // (appending and hashing are sequential: they overlap the rendering instead).
-        let (send, receive) = std::sync::mpsc::sync_channel::<Rendered>(1);
-        let writer = |tar: &mut TarWriter<Hashing<BufWriter<std::fs::File>>>| -> Result<(usize, Vec<ShardFailure>)> {
-            let (mut samples, mut failures) = (0, Vec::new());
-            for chunk in receive {
-                for (i, r) in chunk {
-                    match r {
-                        Ok(members) => {
-                            for (name, bytes) in &members {
-                                tar.append(name, bytes)
-                                    .with_context(|| format!("writing {}", tmp.display()))?;
-                            }
-                            samples += 1;
+        // Several tars are in flight at once (see `write_shards`), each appended and hashed
+        // by the worker that owns it: while one appends, the others' views render. Within a
+        // tar the pool renders a chunk of views, then its owner appends them in view order.
+        let (mut samples, mut failures) = (0, Vec::new());
+        let chunk = rayon::current_num_threads().max(1);
+        let indices: Vec<usize> = range.clone().collect();
+        for chunk in indices.chunks(chunk) {
+            let rendered: Vec<(usize, Result<Vec<(String, Vec<u8>)>, String>)> = chunk
+                .par_iter()
+                .map(|&i| {
+                    let r = scenes[i - range.start]
+                        .as_ref()
+                        .map_err(|e| e.clone())
+                        .and_then(|scene| {
+                            view_members(
+                                &self.keys[i],
+                                &self.views[i],
+                                scene,
+                                &self.input_dir,
+                                &self.aovs,
+                                &self.opts,
+                                &self.sopts.members,
+                            )
+                            .map_err(|e| format!("{}: {e:#}", self.views[i].path.display()))
+                        });
+                    (i, r)
+                })
+                .collect();
+            for (i, r) in rendered {
+                match r {
+                    Ok(members) => {
+                        for (name, bytes) in &members {
+                            tar.append(name, bytes)
+                                .with_context(|| format!("writing {}", tmp.display()))?;
                         }
-                        Err(e) => {
-                            if let Some(what) = resource_exhausted(&e) {
-                                bail!("{}: {what}: {e}", tmp.display());
-                            }
-                            failures.push(self.failure(i, e));
+                        samples += 1;
+                    }
+                    Err(e) => {
+                        if let Some(what) = resource_exhausted(&e) {
+                            bail!("{}: {what}: {e}", tmp.display());
                         }
+                        failures.push(self.failure(i, e));
                     }
                 }
             }
-            Ok((samples, failures))
-        };
-        // Chunks of several views a thread: the pool waits for a chunk's slowest view, so
-        // small chunks leave threads idle at each one's end.
-        let batch = 8 * rayon::current_num_threads().max(1);
-        let indices: Vec<usize> = range.clone().collect();
-        let written = std::thread::scope(|s| {
-            let handle = s.spawn(|| writer(&mut tar));
-            for chunk in indices.chunks(batch) {
-                let rendered: Rendered = chunk
-                    .par_iter()
-                    .map(|&i| {
-                        let r = scenes[i - range.start]
-                            .as_ref()
-                            .map_err(|e| e.clone())
-                            .and_then(|scene| {
-                                view_members(
-                                    &self.keys[i],
-                                    &self.views[i],
-                                    scene,
-                                    &self.input_dir,
-                                    &self.aovs,
-                                    &self.opts,
-                                    &self.sopts.members,
-                                )
-                                .map_err(|e| format!("{}: {e:#}", self.views[i].path.display()))
-                            });
-                        (i, r)
-                    })
-                    .collect();
-                // The helper stopped on an error: it says which.
-                if send.send(rendered).is_err() {
-                    break;
-                }
-            }
-            drop(send);
-            handle
-                .join()
-                .unwrap_or_else(|_| Err(anyhow!("the tar writer thread panicked")))
-        });
-        let (samples, failures) = written?;
+        }
         let (hashing, bytes) = tar
             .finish()
             .with_context(|| format!("writing {}", tmp.display()))?;
@@ -1041,8 +1021,12 @@ pub fn write_shards(
         index_written: false,
         elapsed: Duration::ZERO,
     };
-    for &j in &mine {
-        let (outcome, car, rendered) = plan.tar(j)?;
+    // Tars in parallel: each worker owns one tar at a time, so appending and hashing
+    // scale with the pool; every tar's bytes stay those of its views in order.
+    let written: Vec<Result<(TarOutcome, Sidecar, usize)>> =
+        mine.par_iter().map(|&j| plan.tar(j)).collect();
+    for (&j, w) in mine.iter().zip(written) {
+        let (outcome, car, rendered) = w?;
         summary.outcomes.push((j, outcome));
         if outcome == TarOutcome::Written {
             summary.rendered += rendered + car.failures.len();
