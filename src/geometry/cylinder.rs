@@ -130,6 +130,9 @@ pub struct Prepared<T: Real> {
     /// `|oc⊥|² - r²` as `(|oc⊥| - r)(|oc⊥| + r)`, from f64 (the module doc's traps: no cancellation near
     /// the surface).
     pub c_side: T,
+    /// `(o - p1)·n`, from f64: the top cap's plane measured from `p1` itself, so its `t` is
+    /// exact to the rounding of this one value rather than of `h - (o - p0)·n`.
+    pub on_top: T,
     /// Radius in `T`.
     pub r: T,
     /// Height in `T`.
@@ -166,11 +169,40 @@ impl<T: Real> Prepared<T> {
                 T::from_f64(oc64.dot(n)),
             ],
             c_side: T::from_f64((rho - cyl.radius) * (rho + cyl.radius)),
+            on_top: T::from_f64(axial_from_top(cyl, origin)),
             r: T::from_f64(cyl.radius),
             h: T::from_f64(cyl.height),
             caps: cyl.caps,
         }
     }
+}
+
+/// `(o - p1)·n` with `p1 = base + height·axis`, correctly rounded up to a few ulp of the
+/// result itself: `o - base`, its dot with `n` and the subtraction of `height` are carried
+/// exactly (two-sum, fused products) and rounded once. The plain `(o - base)·n - height` is
+/// off by ε·|o - base|, which near the top of a tall cylinder is many ulp of the cap's `t`.
+fn axial_from_top(cyl: &Cylinder, origin: DVec3) -> f64 {
+    // Error-free transforms: a + b = s + e and a·b = p + e exactly.
+    let two_sum = |a: f64, b: f64| {
+        let s = a + b;
+        let bb = s - a;
+        (s, (a - (s - bb)) + (b - bb))
+    };
+    let two_prod = |a: f64, b: f64| {
+        let p = a * b;
+        (p, a.mul_add(b, -p))
+    };
+    let (o, c, n) = (origin.to_array(), cyl.base.to_array(), cyl.axis.to_array());
+    // Sum of hi parts with compensation; low parts (each ≤ ε of its term) summed plainly.
+    let (mut hi, mut lo) = (-cyl.height, 0.0);
+    for k in 0..3 {
+        let (dh, dl) = two_sum(o[k], -c[k]);
+        let (p, pe) = two_prod(dh, n[k]);
+        let (s, e) = two_sum(hi, p);
+        hi = s;
+        lo += e + pe + dl * n[k];
+    }
+    hi + lo
 }
 
 /// Orthonormal `u`, `v` with `u × v = n` (Duff et al. 2017, branchless).
@@ -345,7 +377,7 @@ impl Formula for Stable {
             let inf = T::INFINITY;
             (-inf, inf, Surface::Bottom, Surface::Top)
         } else {
-            let (ta, tb) = (-on / dn, (p.h - on) / dn);
+            let (ta, tb) = (-on / dn, -p.on_top / dn);
             if dn > T::ZERO {
                 (ta, tb, Surface::Bottom, Surface::Top)
             } else {

@@ -182,7 +182,7 @@ pub(crate) fn stable_lanes<T: Real, W: Wide<T>>(
     let (hit, t, on_side, on_bottom) = if p.caps {
         // Slab between the cap planes (a ray parallel to them: all or nothing).
         let flat = dn.eq(zero);
-        let (ta, tb) = (s(-on) / dn, s(p.h - on) / dn);
+        let (ta, tb) = (s(-on) / dn, s(-p.on_top) / dn);
         let up = dn.gt(zero);
         let c0 = W::select(flat, -inf, W::select(up, ta, tb));
         let c1 = W::select(flat, inf, W::select(up, tb, ta));

@@ -174,7 +174,9 @@ fn cast_one<T: Real, F: Formula>(scene: &Scene, tracer: &Tracer<T, F>, r: &Ray) 
     let ph: PixelHit<T> = tracer.trace_within(d, r.t_min * len, r.t_max * len)?;
     let index = ph.index;
     Some(RayHit {
-        t: ph.hit.t.to_f64() / len,
+        // Dividing by `len` can round one ulp past a bound the scaled interval met exactly;
+        // the answer stays inside the interval the caller gave.
+        t: (ph.hit.t.to_f64() / len).clamp(r.t_min, r.t_max),
         normal: tracer.normal(d, &ph),
         index,
         id: scene.cylinders[index as usize].id,
