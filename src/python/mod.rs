@@ -52,7 +52,11 @@ type Pools = HashMap<usize, Arc<rayon::ThreadPool>>;
 /// The pool of `threads` threads (`None`: every core) of this process, made on first use.
 fn pool(threads: Option<usize>) -> PyResult<Arc<rayon::ThreadPool>> {
     let n = match threads {
-        Some(0) => return Err(PyValueError::new_err("threads: must be >= 1, got 0")),
+        Some(n) if !(1..=MAX_THREADS).contains(&n) => {
+            return Err(PyValueError::new_err(format!(
+                "threads: must be in 1..={MAX_THREADS}, got {n}"
+            )));
+        }
         Some(n) => n,
         None => cores(),
     };
@@ -67,6 +71,11 @@ fn pool(threads: Option<usize>) -> PyResult<Arc<rayon::ThreadPool>> {
     if let Some(p) = pools.get(&n) {
         return Ok(p.clone());
     }
+    if pools.len() >= MAX_POOLS {
+        // Forget the pools no call is using (their threads exit), so distinct counts do
+        // not pile up threads for the life of the process.
+        pools.retain(|_, p| Arc::strong_count(p) > 1);
+    }
     let p = rayon::ThreadPoolBuilder::new()
         .num_threads(n)
         .build()
@@ -75,6 +84,12 @@ fn pool(threads: Option<usize>) -> PyResult<Arc<rayon::ThreadPool>> {
     pools.insert(n, p.clone());
     Ok(p)
 }
+
+/// The bounds of `threads=`, those of `--threads`.
+const MAX_THREADS: usize = 1024;
+
+/// Pools kept at most (beyond those in use): one per distinct thread count asked for.
+const MAX_POOLS: usize = 4;
 
 /// The cores this process may use, asked once: the standard library reads the cgroup's
 /// files on every call, which costs more than a small view's trace gains from the pool.
@@ -87,7 +102,9 @@ fn cores() -> usize {
 /// work: parsing, validation). Whatever uses rayon outside a pool's `install` takes rayon's
 /// global pool, which after a fork is the parent's, without threads: so nothing here does.
 fn on_pool<T: Send>(threads: Option<usize>, f: impl FnOnce() -> T + Send) -> PyResult<T> {
-    Ok(pool(threads)?.install(f))
+    pool(threads)?
+        .install(|| std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)))
+        .map_err(panic_error)
 }
 
 /// Run `f` on the pool of `threads` threads with the GIL released.
@@ -97,7 +114,8 @@ fn run<T: Send>(
     f: impl FnOnce() -> T + Send,
 ) -> PyResult<T> {
     let pool = pool(threads)?;
-    Ok(py.detach(|| pool.install(f)))
+    py.detach(|| pool.install(|| std::panic::catch_unwind(std::panic::AssertUnwindSafe(f))))
+        .map_err(panic_error)
 }
 
 // ---- conversions -------------------------------------------------------------------------
@@ -141,6 +159,24 @@ fn py_to_json(obj: &Bound<'_, PyAny>, what: &str) -> PyResult<String> {
         .extract()
 }
 
+create_exception!(
+    cylaov,
+    InternalError,
+    pyo3::exceptions::PyRuntimeError,
+    "A fault inside cylaov (a Rust panic, caught): a bug to report, with the call that \
+     raised it. The process stays usable."
+);
+
+/// A caught panic's message as an `InternalError`.
+fn panic_error(p: Box<dyn std::any::Any + Send>) -> PyErr {
+    let msg = p
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| p.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "unknown panic".into());
+    InternalError::new_err(format!("internal error (please report): {msg}"))
+}
+
 fn scene_error(e: impl std::fmt::Display) -> PyErr {
     SceneError::new_err(e.to_string())
 }
@@ -178,6 +214,25 @@ fn parse_aovs(aovs: &[String]) -> PyResult<Vec<Aov>> {
         return Err(PyValueError::new_err("aovs: name at least one AOV"));
     }
     Ok(out)
+}
+
+/// The AOVs to trace for `aovs`: depth joins a lone `position`, whose zero vector is a
+/// hit at the world origin as well as a miss, so the mask is exact.
+fn traced(aovs: &[Aov]) -> Vec<Aov> {
+    let mut t = aovs.to_vec();
+    if aovs.iter().all(|&a| a == Aov::Position) {
+        t.push(Aov::Depth);
+    }
+    t
+}
+
+/// `aovs=` as a list of names: one string is one name (as `cast_rays` takes it).
+fn aov_names(obj: &Bound<'_, PyAny>) -> PyResult<Vec<String>> {
+    if let Ok(s) = obj.extract::<String>() {
+        return Ok(vec![s]);
+    }
+    obj.extract()
+        .map_err(|_| PyTypeError::new_err("aovs: an AOV name or a sequence of AOV names"))
 }
 
 fn kernel(precision: &str, formula: &str) -> PyResult<Kernel> {
@@ -223,6 +278,18 @@ struct Arrays {
 /// float32 ids of a per-AOV file become uint32) and the `mask`.
 fn arrays(mut image: AovImage, aovs: &[Aov]) -> Arrays {
     let (w, h) = (image.width, image.height);
+    // Depth traced only for the mask (see `traced`).
+    let depth_mask = match image.take_aov_buffer(Aov::Depth) {
+        Some(b) if !aovs.contains(&Aov::Depth) => match b.data {
+            ChannelData::F32(v) if v.len() == w * h => Some(v.iter().map(|&x| x > 0.0).collect()),
+            _ => None,
+        },
+        Some(b) => {
+            image.buffers.push(b);
+            None
+        }
+        None => None,
+    };
     let mut planes: Vec<(Aov, Plane)> = Vec::new();
     for &a in aovs {
         let Some(buffer) = image.take_aov_buffer(a) else {
@@ -239,7 +306,7 @@ fn arrays(mut image: AovImage, aovs: &[Aov]) -> Arrays {
         };
         planes.push((a, plane));
     }
-    let mask = mask_of(&planes, w * h);
+    let mask = depth_mask.or_else(|| mask_of(&planes, w * h));
     Arrays {
         width: w,
         height: h,
@@ -308,6 +375,9 @@ fn mask_of(planes: &[(Aov, Plane)], n: usize) -> Option<Vec<bool>> {
         Aov::Part,
         Aov::Normal,
         Aov::NormalCamera,
+        // Last: a hit exactly at the world origin reads as a miss. `render` and `Dataset`
+        // trace depth beside a lone position; only `read` of a position file relies on it.
+        Aov::Position,
     ];
     for want in order {
         let Some((_, p)) = planes.iter().find(|(a, _)| *a == want) else {
@@ -663,19 +733,22 @@ impl PyScene {
 /// `accel` "tiles" | "frustum" | "bvh"). The GIL is released while tracing; `threads`
 /// (default: every core) sizes the thread pool; use 1 inside DataLoader workers.
 #[pyfunction]
-#[pyo3(signature = (scene, aovs=vec!["depth".to_string(), "normal".to_string()], camera=0, precision="f64", formula="stable", accel="tiles", threads=None))]
+#[pyo3(signature = (scene, aovs=None, camera=0, precision="f64", formula="stable", accel="tiles", threads=None))]
 #[allow(clippy::too_many_arguments)]
 fn render<'py>(
     py: Python<'py>,
     scene: &Bound<'py, PyScene>,
-    aovs: Vec<String>,
+    aovs: Option<&Bound<'py, PyAny>>,
     camera: usize,
     precision: &str,
     formula: &str,
     accel: &str,
     threads: Option<usize>,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let aovs = parse_aovs(&aovs)?;
+    let aovs = match aovs {
+        None => vec![Aov::Depth, Aov::Normal],
+        Some(a) => parse_aovs(&aov_names(a)?)?,
+    };
     let k = kernel(precision, formula)?;
     let accel = match accel {
         "tiles" => Accel::Tiles,
@@ -689,7 +762,7 @@ fn render<'py>(
     };
     let sc = scene.get().with_camera(camera)?;
     let opts = RenderOptions {
-        aovs: aovs.clone(),
+        aovs: traced(&aovs),
         precision: k.precision,
         formula: k.formula,
         accel,
@@ -998,8 +1071,12 @@ impl _Views {
 
     /// View `i`: the arrays of `render` and `camera_info` under `"camera_info"`.
     fn item<'py>(&self, py: Python<'py>, i: i64) -> PyResult<Bound<'py, PyDict>> {
-        let n = self.length as i64;
-        let k = if i < 0 { i + n } else { i };
+        let n = i128::from(self.length);
+        let k = if i < 0 {
+            i128::from(i) + n
+        } else {
+            i128::from(i)
+        };
         if !(0..n).contains(&k) {
             return Err(PyIndexError::new_err(format!(
                 "index {i} out of range for a dataset of {n} views"
@@ -1017,7 +1094,7 @@ impl _Views {
             let mut sc = file.validate().map_err(scene_error)?;
             sc.select_camera(camera)
                 .map_err(|e| PyIndexError::new_err(format!("camera: {e}")))?;
-            let opts = RenderOptions::new(self.aovs.clone());
+            let opts = RenderOptions::new(traced(&self.aovs));
             let a = arrays(crate::render::render(&sc, &opts).image, &self.aovs);
             let text = crate::output::io::camera_json(&Camera::new(sc.camera), &self.aovs);
             let v: serde_json::Value =
@@ -1076,9 +1153,7 @@ fn header_dict<'py>(py: Python<'py>, path: &Path) -> PyResult<(Bound<'py, PyDict
 /// `"header"`. Raises FileNotFoundError (OSError) when the file cannot be read.
 #[pyfunction]
 fn read<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, PyDict>> {
-    if let Err(e) = std::fs::metadata(&path) {
-        return Err(os_error(&path, &e));
-    }
+    exr_input(&path)?;
     let (header, named) = header_dict(py, &path)?;
     let mut image = run(py, None, || AovImage::read_exr(&path))?
         .map_err(|e| PyOSError::new_err(format!("{e:#}")))?;
@@ -1102,9 +1177,55 @@ fn read<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, PyDict>> {
                 .filter(|&a| image.aov_buffer(a).is_some()),
         );
     }
+    if aovs.is_empty() {
+        let want: Vec<String> = Aov::ALL
+            .iter()
+            .map(|&a| channel_names(a).join(", "))
+            .collect();
+        return Err(PyValueError::new_err(format!(
+            "{}: not one of cylaov's EXRs: its channels are [{}]; expected the channels of at \
+             least one AOV ({}), or a per-AOV file (Y or R, G, B) with a cylaov:channel:NAME \
+             attribute",
+            path.display(),
+            image.names().join(", "),
+            want.join("; ")
+        )));
+    }
     let d = image_to_dict(py, image, &aovs)?;
     d.set_item("header", header)?;
     Ok(d)
+}
+
+/// Refuse what is not a regular EXR file that fits in memory, before reading a sample:
+/// a FIFO or a device would block with the GIL held, and a header may claim any size
+/// (the memory check of `cylaov compare`, a `MemoryError` instead of an abort).
+fn exr_input(path: &Path) -> PyResult<()> {
+    let m = std::fs::metadata(path).map_err(|e| os_error(path, &e))?;
+    if m.is_dir() {
+        return Err(PyIsADirectoryError::new_err(format!(
+            "{}: is a directory, not an EXR file",
+            path.display()
+        )));
+    }
+    if !m.is_file() {
+        return Err(PyOSError::new_err(format!(
+            "{}: not a regular file",
+            path.display()
+        )));
+    }
+    let meta = exr::meta::MetaData::read_from_file(path, false)
+        .map_err(|e| PyOSError::new_err(format!("{}: {e}", path.display())))?;
+    let Some(h) = meta.headers.first() else {
+        return Err(PyOSError::new_err(format!(
+            "{}: no image in the file",
+            path.display()
+        )));
+    };
+    let pixels = h.layer_size.0 as u64 * h.layer_size.1 as u64;
+    // 4 bytes a sample as it is read, 2 MiB for the read buffers.
+    let bytes = 4 * pixels * h.channels.list.len() as u64 + (2 << 20);
+    crate::mem::check_memory(&format!("reading {}", path.display()), bytes)
+        .map_err(|e| pyo3::exceptions::PyMemoryError::new_err(e.to_string()))
 }
 
 /// An image from a path or from a dict of arrays (as `render` or `read` return).
@@ -1132,6 +1253,12 @@ fn image_of(obj: &Bound<'_, PyAny>, which: &str) -> PyResult<(AovImage, String)>
                     )));
                 }
             };
+            if !buffers.is_empty() && (ww, hh) != (w, h) {
+                return Err(PyValueError::new_err(format!(
+                    "{which}: arrays of different sizes: {:?} is {hh} x {ww}, the AOVs before it {h} x {w}",
+                    a.name()
+                )));
+            }
             (w, h) = (ww, hh);
             let data = if a.is_u32() {
                 ChannelData::U32(arr.call_method0("ravel")?.extract()?)
@@ -1157,9 +1284,7 @@ fn image_of(obj: &Bound<'_, PyAny>, which: &str) -> PyResult<(AovImage, String)>
     let path: PathBuf = obj
         .extract()
         .map_err(|_| PyTypeError::new_err(format!("{which}: a path or a dict of arrays")))?;
-    if let Err(e) = std::fs::metadata(&path) {
-        return Err(os_error(&path, &e));
-    }
+    exr_input(&path)?;
     let img = on_pool(None, || AovImage::read_exr(&path))?
         .map_err(|e| PyOSError::new_err(format!("{e:#}")))?;
     Ok((img, path.display().to_string()))
@@ -1248,6 +1373,10 @@ fn compare<'py>(
 fn _cylaov(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add("SceneError", m.py().get_type::<SceneError>())?;
+    m.add("InternalError", m.py().get_type::<InternalError>())?;
+    // numpy's API capsule now, not in the first call that returns an array, where a
+    // signal arriving during the import would surface as a panic.
+    numpy::PyArray1::<u8>::zeros(m.py(), 0, false);
     m.add_class::<PyScene>()?;
     m.add_class::<_Views>()?;
     m.add_function(wrap_pyfunction!(render, m)?)?;

@@ -10,8 +10,14 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use std::path::PathBuf;
 
+/// A failure as Python's kind: an IO error (a full disk, a permission) as `OSError`, the
+/// rest (bad options, bad input) as `ValueError`.
 fn value_error(e: anyhow::Error) -> PyErr {
-    PyValueError::new_err(format!("{e:#}"))
+    let msg = format!("{e:#}");
+    match e.chain().find_map(|c| c.downcast_ref::<std::io::Error>()) {
+        Some(io) => pyo3::exceptions::PyOSError::new_err((io.raw_os_error().unwrap_or(0), msg)),
+        None => PyValueError::new_err(msg),
+    }
 }
 
 /// The number of tar shards the views of `input` make at `shard_size` views a tar.

@@ -25,6 +25,7 @@ import numpy as _np
 
 from . import _cylaov
 from ._cylaov import (
+    InternalError,
     Scene,
     SceneError,
     __version__,
@@ -40,6 +41,7 @@ from ._cylaov import (
 __all__ = [
     "Scene",
     "SceneError",
+    "InternalError",
     "Dataset",
     "render",
     "camera_info",

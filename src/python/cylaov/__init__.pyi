@@ -16,6 +16,9 @@ Settings = Union[None, Dict[str, Any], PathLike]
 class SceneError(ValueError):
     """A refused scene; the text is the command line's error line without `error: `."""
 
+class InternalError(RuntimeError):
+    """A fault inside cylaov (a caught Rust panic): a bug to report."""
+
 class Scene:
     """A validated cylinder scene (cylinders and one or more cameras)."""
 
@@ -43,7 +46,7 @@ class Scene:
 
 def render(
     scene: Scene,
-    aovs: Sequence[AovName] = ("depth", "normal"),
+    aovs: Union[AovName, Sequence[AovName]] = ("depth", "normal"),
     camera: int = 0,
     precision: Literal["f64", "f32"] = "f64",
     formula: Literal["stable", "literal"] = "stable",
@@ -94,7 +97,7 @@ class Dataset:
         settings: Settings,
         seed: int,
         length: int,
-        aovs: Sequence[AovName] = ("depth", "normal"),
+        aovs: Union[AovName, Sequence[AovName]] = ("depth", "normal"),
         views_per_scene: int = 1,
         threads: Optional[int] = None,
     ) -> None: ...
