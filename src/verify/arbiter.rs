@@ -145,6 +145,11 @@ pub enum PixelClass {
     /// Both within their bounds, neither exactly the exact answer (a ray through a rim or
     /// a silhouette, decided by the last bits).
     Tie,
+    /// Mitsuba is off the exact answer beyond δ, but on the exact answer for the inputs it
+    /// was given: the scene's `p0`, `p1` and `radius` as float32 (as it parses the exported
+    /// XML) and the camera ray's origin and direction as float32. The export's rounding,
+    /// not an error of either renderer; passes.
+    InputRounding,
 }
 
 impl PixelClass {
@@ -155,6 +160,7 @@ impl PixelClass {
             PixelClass::UnexplainedReferenceError => "unexplained reference error",
             PixelClass::CandidateError => "candidate error",
             PixelClass::Tie => "tie",
+            PixelClass::InputRounding => "input rounding",
         }
     }
 }
@@ -288,6 +294,9 @@ pub struct Arbitration {
     pub candidate_errors: usize,
     /// See [`PixelClass::Tie`].
     pub ties: usize,
+    /// Pixels where Mitsuba is on the exact answer for its float32 inputs
+    /// ([`PixelClass::InputRounding`]).
+    pub input_rounding: usize,
     /// Mitsuba's largest sideways ray error δ over the scene's cylinders.
     pub delta_max: f64,
     /// The scene's smallest feature (radius or height).
@@ -379,6 +388,14 @@ impl Arbitration {
                 self.ties,
                 self.kinds(PixelClass::Tie),
                 self.example(PixelClass::Tie)
+            ));
+        }
+        if self.input_rounding > 0 {
+            out.push(format!(
+                "input rounding: {} px where Mitsuba is off the exact answer beyond δ but on the exact answer for its float32 inputs (p0, p1, radius and the camera ray as float32) ({}); {}",
+                self.input_rounding,
+                self.kinds(PixelClass::InputRounding),
+                self.example(PixelClass::InputRounding)
             ));
         }
         if let Some(note) = self.note() {
@@ -716,6 +733,14 @@ pub fn arbitrate(
         boxes: scene.cylinders.iter().map(Cylinder::bounds).collect(),
         cam,
     };
+    // The inputs Mitsuba was given: every cylinder's end points and radius rounded to
+    // float32 (the axis and height follow from the rounded end points, exactly).
+    let rounded: Vec<Cylinder> = scene.cylinders.iter().map(float32_inputs).collect();
+    let tracer32 = Tracer {
+        cylinders: &rounded,
+        boxes: rounded.iter().map(Cylinder::bounds).collect(),
+        cam: Camera::new(scene.camera),
+    };
     let cam = &tracer.cam;
     let origin_len = cam.origin.length();
     let reach = |c: &Cylinder| c.base.length().max(c.top().length());
@@ -855,8 +880,19 @@ pub fn arbitrate(
             None => return None,
         };
         let (off_b, _, _) = judge(&sb, hb, b.non_finite(k), &reference_bound, delta_b);
+        // Mitsuba off beyond δ: is it on the exact answer for its own float32 inputs?
+        let on_its_inputs = || {
+            let round = |v: DVec3| v.as_vec3().as_dvec3();
+            let r = tracer32.trace(round(cam.origin), round(d), len);
+            same_identity(&rounded, &sb, hb, r.as_ref())
+                && r.as_ref().is_none_or(|r| {
+                    values_off(&sb, r, &rounded[r.index], &reference_bound, l, &axes).0 <= 1.0
+                })
+        };
         let class = if off_a > 1.0 {
             PixelClass::CandidateError
+        } else if off_b > 1.0 && !b.non_finite(k) && on_its_inputs() {
+            PixelClass::InputRounding
         } else if off_b > 1.0 {
             PixelClass::UnexplainedReferenceError
         } else if exact_a {
@@ -894,10 +930,24 @@ pub fn arbitrate(
         unexplained_reference_errors: count(PixelClass::UnexplainedReferenceError),
         candidate_errors: count(PixelClass::CandidateError),
         ties: count(PixelClass::Tie),
+        input_rounding: count(PixelClass::InputRounding),
         delta_max,
         feature_min,
         radius_max,
         cannot_discriminate: delta_max >= feature_min,
         pixels,
     })
+}
+
+/// `c` as Mitsuba parses the exported XML: `p0`, `p1` and `radius` rounded to float32.
+fn float32_inputs(c: &Cylinder) -> Cylinder {
+    let round = |v: DVec3| v.as_vec3().as_dvec3();
+    let (p0, p1) = (round(c.base), round(c.top()));
+    Cylinder {
+        base: p0,
+        axis: (p1 - p0).normalize(),
+        height: (p1 - p0).length(),
+        radius: f64::from(c.radius as f32),
+        ..*c
+    }
 }
