@@ -144,6 +144,7 @@ pub fn write_report(dir: &Path, title: &str, views: &[ReportView]) -> Result<()>
                 PixelClass::UnexplainedReferenceError => 1,
                 PixelClass::ReferenceError => 2,
                 PixelClass::Tie => 3,
+                PixelClass::InputRounding => 4,
             };
             worst.sort_by(|p, q| {
                 rank(p.class)
