@@ -18,9 +18,9 @@ pub fn run(scene_path: &Path, out: &Path) -> Result<String> {
         .with_context(|| format!("writing {}", out.display()))?;
     dirs.keep();
     Ok(format!(
-        "{}: {} cylinders as {} Mitsuba shapes",
+        "{}: {} as {} Mitsuba shapes",
         out.display(),
-        scene.cylinders.len(),
+        crate::output::console::count(scene.cylinders.len(), "cylinder"),
         shapes(&scene).len()
     ))
 }

@@ -592,8 +592,11 @@ pub fn run(args: &GenerateArgs) -> Result<String> {
         v => format!(" x {v} cameras"),
     };
     let what = format!(
-        "{count} scenes{views} (seed {seed}, {} cylinders, {}x{})",
-        options.cylinders, options.width, options.height
+        "{}{views} (seed {seed}, {}, {}x{})",
+        crate::output::console::count(count, "scene"),
+        crate::output::console::count(options.cylinders, "cylinder"),
+        options.width,
+        options.height
     );
     if work.is_empty() {
         return Ok(format!(

@@ -84,6 +84,24 @@ fn flag(member: Member) -> &'static str {
     }
 }
 
+/// `-o` names the EXR: another extension (`out/x.png`) would get EXR bytes under a name
+/// that promises something else, so it is refused with the flags that do make PNGs.
+fn check_exr_name(out: &Path) -> Result<()> {
+    let is_exr = out
+        .extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("exr"));
+    if !is_exr {
+        bail!(
+            "-o {}: the output is an OpenEXR file and its name must end in .exr; \
+             PNGs come beside it with --depth-png SCALE (16-bit depth) and --preview DIR \
+             (normal and depth previews)",
+            out.display()
+        );
+    }
+    Ok(())
+}
+
 /// Run a render and return the one-line summary.
 pub fn run(args: &RenderArgs) -> Result<String> {
     let start = Instant::now();
@@ -92,6 +110,7 @@ pub fn run(args: &RenderArgs) -> Result<String> {
     scene
         .select_camera(args.camera)
         .with_context(|| format!("--camera {}: {}", args.camera, args.scene.display()))?;
+    check_exr_name(&args.out)?;
     let aovs = args.aovs.clone().unwrap_or_else(|| scene.aovs.clone());
     let cam = Camera::new(scene.camera);
     let plan = plan(args, cam, &aovs);
@@ -155,9 +174,9 @@ pub fn run(args: &RenderArgs) -> Result<String> {
     };
     let hits = written.hits;
     Ok(format!(
-        "{}: {w}x{h}, {} cylinders, {hits} hits ({:.1}%), {}, {trace}, total {:.1} ms{peak}",
+        "{}: {w}x{h}, {}, {hits} hits ({:.1}%), {}, {trace}, total {:.1} ms{peak}",
         args.out.display(),
-        scene.cylinders.len(),
+        crate::output::console::count(scene.cylinders.len(), "cylinder"),
         100.0 * hits as f64 / (w * h) as f64,
         crate::geometry::Kernel::new(args.options.formula, args.options.precision),
         start.elapsed().as_secs_f64() * 1e3

@@ -29,3 +29,14 @@ pub fn say(text: &str) -> io::Result<()> {
 pub fn warn(text: &str) {
     let _ = writeln!(io::stderr().lock(), "{text}");
 }
+
+/// `count word` with the English plural `-s` unless `count` is one: "1 cylinder",
+/// "2 cylinders", "8..32 cylinders".
+pub fn count(n: impl std::fmt::Display, word: &str) -> String {
+    let n = n.to_string();
+    if n == "1" {
+        format!("{n} {word}")
+    } else {
+        format!("{n} {word}s")
+    }
+}
