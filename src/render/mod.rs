@@ -196,6 +196,7 @@ fn render_with<T: Simd, F: PacketFormula>(scene: &Scene, opts: &RenderOptions) -
 struct Setup<T: Real, F: Formula> {
     tracer: Tracer<T, F>,
     ids: Vec<u32>,
+    labels: Vec<u32>,
     cols_off: Vec<f64>,
     rows_off: Vec<f64>,
     build: std::time::Duration,
@@ -214,6 +215,7 @@ impl<T: Real, F: Formula> Setup<T, F> {
         let rows_off = (0..h as u32).map(|j| cam.row_offset(j)).collect();
         Setup {
             ids: scene.cylinders.iter().map(|c| c.id).collect(),
+            labels: scene.cylinders.iter().map(|c| c.label).collect(),
             tracer,
             cols_off,
             rows_off,
@@ -226,6 +228,7 @@ impl<T: Real, F: Formula> Setup<T, F> {
         BandInputs {
             tracer: &self.tracer,
             ids: &self.ids,
+            labels: &self.labels,
             cols_off: &self.cols_off,
             rows_off: &self.rows_off,
         }

@@ -33,6 +33,7 @@ pub(super) struct Samples {
     pub(super) f: Planes<Vec<f32>>,
     pub(super) id: Option<Vec<u32>>,
     pub(super) part: Option<Vec<u32>>,
+    pub(super) label: Option<Vec<u32>>,
 }
 
 /// One band's slices of every requested plane (`shape_id` and `part` as u32).
@@ -40,11 +41,12 @@ pub(super) struct Band<'a> {
     pub(super) f: Planes<&'a mut [f32]>,
     pub(super) id: Option<&'a mut [u32]>,
     pub(super) part: Option<&'a mut [u32]>,
+    pub(super) label: Option<&'a mut [u32]>,
 }
 
 /// Cut each requested plane into bands of `len` pixels.
 pub(super) fn bands<'a>(samples: &'a mut Samples, len: usize, count: usize) -> Vec<Band<'a>> {
-    let Samples { f, id, part } = samples;
+    let Samples { f, id, part, label } = samples;
     fn cut<X>(
         v: Option<&mut Vec<X>>,
         len: usize,
@@ -61,6 +63,7 @@ pub(super) fn bands<'a>(samples: &'a mut Samples, len: usize, count: usize) -> V
     let mut p = cut(f.position.as_mut(), 3 * len, count);
     let mut ids = cut(id.as_mut(), len, count);
     let mut parts = cut(part.as_mut(), len, count);
+    let mut labels = cut(label.as_mut(), len, count);
     (0..count)
         .map(|_| Band {
             f: Planes {
@@ -71,6 +74,7 @@ pub(super) fn bands<'a>(samples: &'a mut Samples, len: usize, count: usize) -> V
             },
             id: ids.next().flatten(),
             part: parts.next().flatten(),
+            label: labels.next().flatten(),
         })
         .collect()
 }
@@ -80,6 +84,8 @@ pub(super) struct BandInputs<'a, T: Real, F: Formula> {
     pub(super) tracer: &'a Tracer<T, F>,
     /// `shape_id` per cylinder.
     pub(super) ids: &'a [u32],
+    /// `label` per cylinder.
+    pub(super) labels: &'a [u32],
     /// Image-plane offset per column (padded to whole tiles) and per row.
     pub(super) cols_off: &'a [f64],
     pub(super) rows_off: &'a [f64],
@@ -128,6 +134,9 @@ pub(super) fn shade<T: Real, F: Formula>(
     }
     if let Some(s) = band.part.as_deref_mut() {
         s[k] = part_code(fr.tracer, d, &ph);
+    }
+    if let Some(s) = band.label.as_deref_mut() {
+        s[k] = fr.labels[ph.index as usize];
     }
 }
 
@@ -183,6 +192,7 @@ pub(super) fn output_planes(opts: &RenderOptions, n: usize) -> Samples {
         f: planes,
         id: want(Aov::ShapeId).then(ids),
         part: want(Aov::Part).then(ids),
+        label: want(Aov::Label).then(ids),
     }
 }
 
@@ -194,6 +204,7 @@ pub(super) fn buffers_of(opts: &RenderOptions, cam: &Camera, samples: Samples) -
         f: mut planes,
         id,
         part,
+        label,
     } = samples;
     let want = |a: Aov| opts.aovs.contains(&a);
     let normal_camera = want(Aov::NormalCamera)
@@ -210,6 +221,7 @@ pub(super) fn buffers_of(opts: &RenderOptions, cam: &Camera, samples: Samples) -
         (Aov::ShapeId, id.map(ChannelData::U32)),
         (Aov::Part, part.map(ChannelData::U32)),
         (Aov::NormalCamera, normal_camera.map(ChannelData::F32)),
+        (Aov::Label, label.map(ChannelData::U32)),
     ]
     .into_iter()
     .filter_map(|(a, data)| Some(AovBuffer::new(a.spec().channels, data?)))

@@ -97,7 +97,7 @@ impl AovSpec {
 }
 
 /// Every AOV's row, in [`Aov::ALL`] order (so `AOV_TABLE[aov as usize]` is its row).
-pub const AOV_TABLE: [AovSpec; 7] = [
+pub const AOV_TABLE: [AovSpec; 8] = [
     AovSpec {
         aov: Aov::Distance,
         name: "distance",
@@ -167,6 +167,16 @@ pub const AOV_TABLE: [AovSpec; 7] = [
         meaning: "camera-space unit outward normal, OpenCV axes (x right, y down, z forward), not flipped toward the camera",
         mitsuba: None,
         metric: CompareMetric::None,
+    },
+    AovSpec {
+        aov: Aov::Label,
+        name: "label",
+        channels: &["label"],
+        sample: SampleType::U32,
+        miss: "0",
+        meaning: "u32 label of the hit cylinder (scene 'label', the class; 0 when none)",
+        mitsuba: None,
+        metric: CompareMetric::Identity,
     },
 ];
 

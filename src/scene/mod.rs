@@ -63,11 +63,14 @@ pub enum Aov {
     /// (normal_camera.X/Y/Z).
     #[value(name = "normal_camera")]
     NormalCamera,
+    /// u32 label of the hit cylinder (its `label`, the user's class; 0 = miss or none):
+    /// class masks beside `shape_id`'s instance masks.
+    Label,
 }
 
 impl Aov {
     /// Every AOV, in the order outputs list them.
-    pub const ALL: [Aov; 7] = [
+    pub const ALL: [Aov; 8] = [
         Aov::Distance,
         Aov::Depth,
         Aov::Normal,
@@ -75,6 +78,7 @@ impl Aov {
         Aov::ShapeId,
         Aov::Part,
         Aov::NormalCamera,
+        Aov::Label,
     ];
 
     /// The AOV's name as scene files and the command line spell it.
