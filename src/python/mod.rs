@@ -216,11 +216,15 @@ fn parse_aovs(aovs: &[String]) -> PyResult<Vec<Aov>> {
     Ok(out)
 }
 
-/// The AOVs to trace for `aovs`: depth joins a lone `position`, whose zero vector is a
-/// hit at the world origin as well as a miss, so the mask is exact.
+/// The AOVs to trace for `aovs`: depth joins when none of them tells a hit from a miss
+/// exactly (`position`'s zero vector is also a hit at the world origin; `label` 0 is also a
+/// cylinder without a label), so the mask is exact.
 fn traced(aovs: &[Aov]) -> Vec<Aov> {
     let mut t = aovs.to_vec();
-    if aovs.iter().all(|&a| a == Aov::Position) {
+    if aovs
+        .iter()
+        .all(|&a| matches!(a, Aov::Position | Aov::Label))
+    {
         t.push(Aov::Depth);
     }
     t

@@ -71,6 +71,16 @@ def test_mask_beside_a_lone_position(cli, tmp_path):
     np.testing.assert_array_equal(got["mask"], want)
 
 
+def test_mask_beside_a_lone_label():
+    # label 0 is a miss and an unlabelled cylinder alike: the mask comes from depth.
+    scene = cylaov.Scene.load(SCENE)
+    want = cylaov.render(scene, aovs="depth")["mask"]
+    out = cylaov.render(scene, aovs="label")
+    assert set(out) == {"label", "mask"}
+    np.testing.assert_array_equal(out["mask"], want)
+    assert not out["label"].any()  # the scene gives no labels
+
+
 def test_threads_are_bounded_and_pools_do_not_pile_up():
     scene = cylaov.Scene.load(SCENE)
     for bad in (0, 1025, 10**9):

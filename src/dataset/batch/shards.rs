@@ -426,6 +426,9 @@ fn plan_aovs(aovs: &[Aov]) -> Vec<Aov> {
     v
 }
 
+/// A view's tar members, `(name, bytes)` in the order they are appended.
+pub type Members = Vec<(String, Vec<u8>)>;
+
 /// The members of one view, in tar order (see the module docs): the view's plan executed
 /// into a tar sink.
 pub fn view_members(
@@ -436,7 +439,7 @@ pub fn view_members(
     aovs: &[Aov],
     opts: &BatchOptions,
     members: &[Member],
-) -> Result<Vec<(String, Vec<u8>)>> {
+) -> Result<Members> {
     let arrays = array_aovs(aovs);
     let plan = ViewPlan {
         camera: Camera::new(scene.camera),
@@ -749,7 +752,7 @@ impl Plan<'_> {
         let chunk = rayon::current_num_threads().max(1);
         let indices: Vec<usize> = range.clone().collect();
         for chunk in indices.chunks(chunk) {
-            let rendered: Vec<(usize, Result<Vec<(String, Vec<u8>)>, String>)> = chunk
+            let rendered: Vec<(usize, Result<Members, String>)> = chunk
                 .par_iter()
                 .map(|&i| {
                     let r = scenes[i - range.start]
