@@ -84,7 +84,7 @@ enum Command {
     ///
     /// Example (a twentieth of a generated dataset): cylaov verify data --fraction 0.05
     Verify(VerifyCli),
-    /// Compare two AOV EXRs pixel by pixel (README, Comparing two renders); exit 1 if a
+    /// Compare two AOV EXRs pixel by pixel (docs/verification.md, "Comparing two renders"); exit 1 if a
     /// tolerance is broken.
     ///
     /// Exit status: 0 when every tolerance holds, 1 when one is broken (the report says
@@ -454,7 +454,7 @@ struct CompareCli {
 }
 
 /// The pass/fail bounds of every verifying command (defaults: what "agrees with Mitsuba"
-/// means, README "Verification against Mitsuba 3").
+/// means, docs/verification.md).
 #[derive(Args, Clone, Copy, Debug)]
 struct TolerancesCli {
     /// Largest allowed fraction of silhouette-mismatched pixels (different cylinder or hit
@@ -501,11 +501,11 @@ fn non_negative(s: &str) -> Result<f64, String> {
 struct KernelCli {
     /// Kernel precision: f64 is the default and the accuracy reference. f32 runs the kernel
     /// about 1.8x faster (eight AVX2 lanes instead of four) but a whole render only about
-    /// 1.1x (set-up and writing dominate), and shows what float32 costs (README, Accuracy).
+    /// 1.1x (set-up and writing dominate), and shows what float32 costs (docs/accuracy.md).
     #[arg(long, value_enum, default_value_t = Precision::F64)]
     precision: Precision,
     /// Kernel formulation: `stable` (default) or the textbook quadratic as written
-    /// (README, Accuracy), kept to show what the stable form fixes.
+    /// (docs/accuracy.md), kept to show what the stable form fixes.
     #[arg(long, value_enum, default_value_t = FormulaKind::Stable)]
     formula: FormulaKind,
     /// How primary rays find candidates: screen tiles (fast) or the BVH.
@@ -518,7 +518,7 @@ struct KernelCli {
 
 #[derive(Args)]
 struct RenderCli {
-    /// Scene file (JSON, see README "Scene format").
+    /// Scene file (JSON, see docs/scene-format.md).
     scene: PathBuf,
     /// Output EXR; the camera metadata goes to OUT.camera.json beside it.
     #[arg(short, long)]

@@ -913,3 +913,88 @@ fn shard_snippets_write_the_clis_bytes_and_the_readers_read_them() {
          assert len(rows) == 4, len(rows)\n"
     ));
 }
+
+/// Every cross-reference a reader follows resolves: a repository path named in the help
+/// texts, rustdoc, pages or scripts (`docs/…md`, `tests/…rs`, `scripts/…`, `src/…`) exists;
+/// a section named after a page (`docs/verification.md, "Comparing two renders"`, `README
+/// "Scene format"`, `the README's "Scene format"`) is a heading of that page.
+#[test]
+fn every_cross_reference_resolves() {
+    let mut texts: Vec<(String, String)> = Vec::new();
+    let mut stack = vec![Path::new(ROOT).join("src"), Path::new(ROOT).join("docs")];
+    stack.push(Path::new(ROOT).join("scripts"));
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else if let Ok(t) = std::fs::read_to_string(&p) {
+                texts.push((p.display().to_string(), t));
+            }
+        }
+    }
+    for f in ["README.md", "CHANGELOG.md"] {
+        texts.push((f.into(), read(f)));
+    }
+    let headings = |page: &str| -> Vec<String> {
+        read(page)
+            .lines()
+            .filter(|l| l.starts_with('#'))
+            .map(|l| l.trim_start_matches('#').trim().to_string())
+            .collect()
+    };
+    let mut bad = Vec::new();
+    let mut checked = 0;
+    for (file, text) in &texts {
+        // Repository paths.
+        for prefix in ["docs/", "tests/", "scripts/", "src/"] {
+            for (at, _) in text.match_indices(prefix) {
+                let before = text[..at].chars().last().unwrap_or(' ');
+                if before.is_alphanumeric() || before == '/' || before == '_' || before == '.' {
+                    continue;
+                }
+                let path: String = text[at..]
+                    .chars()
+                    .take_while(|c| c.is_alphanumeric() || "/_.-".contains(*c))
+                    .collect();
+                let path = path.trim_end_matches('.');
+                let named_file = [".md", ".rs", ".py", ".sh"]
+                    .iter()
+                    .any(|x| path.ends_with(x));
+                if !named_file {
+                    continue;
+                }
+                checked += 1;
+                if !Path::new(ROOT).join(path).exists() {
+                    bad.push(format!("{file}: {path} does not exist"));
+                }
+            }
+        }
+        // Sections named after a page.
+        for (page, marks) in [
+            ("README.md", &["README \"", "README's \"", "README, "][..]),
+            ("docs/verification.md", &["docs/verification.md, \""][..]),
+            ("docs/datasets.md", &["docs/datasets.md, \""][..]),
+            ("docs/accuracy.md", &["docs/accuracy.md, \""][..]),
+        ] {
+            for mark in marks {
+                for (at, _) in text.match_indices(mark) {
+                    let rest = &text[at + mark.len()..];
+                    let end = if mark.ends_with('"') { '"' } else { ')' };
+                    let Some(name) = rest.split(end).next() else {
+                        continue;
+                    };
+                    if name.contains('\n') || name.len() > 60 || name.is_empty() {
+                        continue;
+                    }
+                    checked += 1;
+                    if !headings(page).iter().any(|h| h == name) {
+                        bad.push(format!("{file}: {page} has no section {name:?}"));
+                    }
+                }
+            }
+        }
+    }
+    assert!(checked > 20, "only {checked} references found");
+    assert!(bad.is_empty(), "{}", bad.join("\n"));
+}

@@ -277,7 +277,7 @@ fn output_links_and_system_folders_are_refused() {
             if o.status.code() != Some(code)
                 || err
                     != format!(
-                        "error: {}: is inside {root}: cylaov never creates or renames files in /dev, /proc or /sys (write to a regular file and copy it from there)\n",
+                        "error: {}: is inside {root}: cylaov never creates or renames files in /proc, /sys, or in /dev outside a RAM disk such as /dev/shm (write to a regular file and copy it from there)\n",
                         flagged(&args, &target)
                     )
             {

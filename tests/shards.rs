@@ -234,7 +234,7 @@ fn resume_redoes_only_missing_stale_or_damaged_tars() {
         "--shard-size",
         "2",
     ]);
-    assert!(stdout.contains("1 tars written, 2 skipped"), "{stdout}");
+    assert!(stdout.contains("1 tar written, 2 skipped"), "{stdout}");
     let after = inodes(&out);
     assert_eq!((after[0], after[2]), (before[0], before[2]));
     assert_ne!(after[1], before[1]);

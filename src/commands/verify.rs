@@ -186,10 +186,10 @@ const CANDIDATE_AOVS: [(&str, bool); 6] = [
     ("part", false),
 ];
 
-/// `img`'s channels renamed by `--channels aov=NAME` maps: a vector AOV takes `NAME.X/Y/Z`
-/// or `NAME.R/G/B`; channels not mapped keep their names (cylaov's, if the renderer used
-/// them).
-pub fn map_channels(mut img: AovImage, maps: &[String]) -> Result<AovImage> {
+/// The `--channels aov=NAME` maps as (map, AOV, NAME, whether the AOV is a 3-vector); an
+/// AOV named twice is refused (which of the two would the check read?).
+fn channel_maps(maps: &[String]) -> Result<Vec<(&str, &str, &str, bool)>> {
+    let mut out: Vec<(&str, &str, &str, bool)> = Vec::new();
     for m in maps {
         let Some((aov, name)) = m.split_once('=') else {
             anyhow::bail!("--channels: expected AOV=NAME, got {m:?}");
@@ -198,6 +198,21 @@ pub fn map_channels(mut img: AovImage, maps: &[String]) -> Result<AovImage> {
             let names: Vec<&str> = CANDIDATE_AOVS.iter().map(|a| a.0).collect();
             anyhow::bail!("--channels: {aov:?} is not one of {}", names.join(", "));
         };
+        if let Some((first, ..)) = out.iter().find(|(_, a, ..)| *a == aov) {
+            anyhow::bail!(
+                "--channels: {aov} is mapped twice ({first} and {m}); give one map an AOV"
+            );
+        }
+        out.push((m, aov, name, vector));
+    }
+    Ok(out)
+}
+
+/// `img`'s channels renamed by `--channels aov=NAME` maps: a vector AOV takes `NAME.X/Y/Z`
+/// or `NAME.R/G/B`; channels not mapped keep their names (cylaov's, if the renderer used
+/// them).
+pub fn map_channels(mut img: AovImage, maps: &[String]) -> Result<AovImage> {
+    for (m, aov, name, vector) in channel_maps(maps)? {
         let has = |img: &AovImage, n: &str| img.has_channel(n);
         let pairs: Vec<(String, String)> = if !vector {
             vec![(name.to_string(), aov.to_string())]
@@ -402,6 +417,12 @@ pub fn run(args: &VerifyArgs) -> Result<VerifyOutcome> {
     }
     if let Some(dir) = &args.report {
         crate::output::io::check_output_dir("--report", dir)?;
+    }
+    // A candidate that is not a regular file is refused before Mitsuba is asked for
+    // anything (reading a FIFO would block).
+    channel_maps(&args.channels)?;
+    if let Some(file) = &args.candidate {
+        crate::output::files::open_input(file).map_err(|e| anyhow::anyhow!("--candidate: {e}"))?;
     }
     if args.input.join("index.json").is_file() {
         return run_written(args);

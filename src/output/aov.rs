@@ -855,13 +855,15 @@ impl AovImage {
 
     /// Read every channel of the first layer of an OpenEXR file. Half channels become f32.
     pub fn read_exr(path: &Path) -> Result<AovImage> {
+        let file = crate::output::files::open_input(path)
+            .with_context(|| format!("reading {}", path.display()))?;
         let image = read()
             .no_deep_data()
             .largest_resolution_level()
             .all_channels()
             .first_valid_layer()
             .all_attributes()
-            .from_file(path)
+            .from_buffered(std::io::BufReader::new(file))
             .with_context(|| format!("reading {}", path.display()))?;
         let layer = image.layer_data;
         let size = layer.size;

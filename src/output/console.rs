@@ -40,3 +40,14 @@ pub fn count(n: impl std::fmt::Display, word: &str) -> String {
         format!("{n} {word}s")
     }
 }
+
+/// A size as every message prints it: GiB with one decimal, MiB below 1 GiB (one line never
+/// mixes "1.9 GiB" with "1995.1 MiB").
+pub fn bytes(n: u64) -> String {
+    let b = n as f64;
+    if n >= 1 << 30 {
+        format!("{:.1} GiB", b / (1u64 << 30) as f64)
+    } else {
+        format!("{:.1} MiB", b / (1u64 << 20) as f64)
+    }
+}

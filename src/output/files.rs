@@ -9,7 +9,7 @@
 
 use std::fs::{File, OpenOptions};
 use std::io;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// What a path is, in words, for a refusal message.
 pub fn kind_name(ft: std::fs::FileType) -> &'static str {
@@ -46,6 +46,28 @@ pub fn open_regular(path: &Path) -> io::Result<File> {
     opts.read(true);
     no_follow(&mut opts);
     let file = opts.open(path).map_err(|e| explain_open(path, e))?;
+    let ft = file.metadata()?.file_type();
+    if !ft.is_file() {
+        return Err(with_path(
+            path,
+            format!("is {}, not a regular file", kind_name(ft)),
+        ));
+    }
+    Ok(file)
+}
+
+/// Open an input file for reading: links are followed (datasets are often linked in), but
+/// the open never blocks on a FIFO (`O_NONBLOCK`) and anything that is not a regular file
+/// in the end (a FIFO, a device, a folder) is an error naming the path and what it is.
+pub fn open_input(path: &Path) -> io::Result<File> {
+    let mut opts = OpenOptions::new();
+    opts.read(true);
+    #[cfg(target_os = "linux")]
+    {
+        use std::os::unix::fs::OpenOptionsExt;
+        opts.custom_flags(libc::O_NONBLOCK);
+    }
+    let file = opts.open(path)?;
     let ft = file.metadata()?.file_type();
     if !ft.is_file() {
         return Err(with_path(
@@ -116,26 +138,71 @@ pub fn refuse_non_regular(path: &Path) -> io::Result<()> {
 /// and the kernel's pseudo files (`-o /dev/stdout` would replace the machine's link).
 pub const SYSTEM_FOLDERS: [&str; 3] = ["/dev", "/proc", "/sys"];
 
-/// The system folder (see [`SYSTEM_FOLDERS`]) that `path` lies in, judged by its
-/// absolute path and by where its existing folders lead (folders on the way may be
-/// links); `resolve_last` also follows `path` itself (a folder target).
+/// The system folder (see [`SYSTEM_FOLDERS`]) that `path` would be written in, judged by
+/// where it really leads: its deepest existing folder resolved (links and `..`, as the
+/// kernel will), the missing rest normalised; `resolve_last` also follows `path` itself
+/// (a folder target). Inside `/proc` and `/sys` nothing is written. Inside `/dev` only a
+/// RAM disk is writable: a tmpfs folder below `/dev` itself (`/dev/shm`); `/dev`'s own
+/// entries (device nodes and links such as `/dev/stdout`) and other file systems mounted
+/// there (`/dev/pts`, `/dev/mqueue`) are not.
 pub fn system_folder(path: &Path, resolve_last: bool) -> Option<&'static str> {
     let abs = std::path::absolute(path).ok()?;
-    let mut seen: Vec<PathBuf> = vec![abs.clone()];
     let skip = usize::from(!resolve_last);
-    for dir in abs.ancestors().skip(skip) {
-        if let Ok(real) = dir.canonicalize() {
-            let rest = abs.strip_prefix(dir).unwrap_or(Path::new(""));
-            seen.push(if rest.as_os_str().is_empty() {
-                real
-            } else {
-                real.join(rest)
-            });
-            break;
+    // The deepest existing ancestor, canonical, and the path below it.
+    let (real, rest) = abs.ancestors().skip(skip).find_map(|dir| {
+        let real = dir.canonicalize().ok()?;
+        Some((real, abs.strip_prefix(dir).ok()?.to_path_buf()))
+    })?;
+    let mut resolved = real.clone();
+    for part in rest.components() {
+        match part {
+            std::path::Component::ParentDir => {
+                resolved.pop();
+            }
+            std::path::Component::Normal(name) => resolved.push(name),
+            _ => {}
         }
     }
-    SYSTEM_FOLDERS
+    let root = SYSTEM_FOLDERS
         .iter()
-        .find(|root| seen.iter().any(|p| p.starts_with(root)))
-        .copied()
+        .find(|root| resolved.starts_with(root))
+        .copied()?;
+    if root != "/dev" {
+        return Some(root);
+    }
+    // The folder the file (or the folders still to make) would be created in.
+    let folder = if resolve_last {
+        resolved.as_path()
+    } else {
+        resolved.parent().unwrap_or(Path::new("/"))
+    };
+    let folder = folder.ancestors().find(|d| d.is_dir())?;
+    if folder != Path::new("/dev") && is_tmpfs(folder) {
+        None
+    } else {
+        Some(root)
+    }
+}
+
+/// Whether `dir` is on a tmpfs (a RAM disk such as `/dev/shm`), by `statfs(2)`.
+fn is_tmpfs(dir: &Path) -> bool {
+    #[cfg(target_os = "linux")]
+    {
+        use std::os::unix::ffi::OsStrExt;
+        let Ok(c) = std::ffi::CString::new(dir.as_os_str().as_bytes()) else {
+            return false;
+        };
+        let mut st = std::mem::MaybeUninit::<libc::statfs>::uninit();
+        // SAFETY: `c` is a NUL-terminated path that outlives the call, and `st` points to
+        // writable memory of the size statfs(2) fills; it is read only when the call
+        // succeeded (returned 0), which initialises it.
+        let ok = unsafe { libc::statfs(c.as_ptr(), st.as_mut_ptr()) } == 0;
+        // SAFETY: initialised by the successful call above.
+        ok && unsafe { st.assume_init() }.f_type == libc::TMPFS_MAGIC
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        let _ = dir;
+        false
+    }
 }

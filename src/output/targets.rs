@@ -94,8 +94,8 @@ pub fn check_output(flag: &str, path: &Path, inputs: &[&Path]) -> io::Result<()>
 /// Why nothing is written under `root`, one of the system folders.
 fn system_refusal(root: &str) -> String {
     format!(
-        "is inside {root}: cylaov never creates or renames files in /dev, /proc or /sys \
-         (write to a regular file and copy it from there)"
+        "is inside {root}: cylaov never creates or renames files in /proc, /sys, or in /dev \
+         outside a RAM disk such as /dev/shm (write to a regular file and copy it from there)"
     )
 }
 

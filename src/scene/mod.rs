@@ -345,17 +345,25 @@ fn parse_serde(text: &str) -> Result<Scene, SceneError> {
             "invalid JSON: the file starts with a UTF-8 byte order mark (EF BB BF), which JSON does not allow; save it without one",
         ));
     }
+    // A syntax error is invalid JSON; a data error (an unknown field, a wrong type) is valid
+    // JSON that is not a scene, and says so in its own words. Both name the line.
     let invalid = |field: String, e: serde_json::Error| {
-        err(
-            strict::shorten(&field),
-            strict::shorten(&format!("invalid JSON: {e}")),
-        )
+        let what = match e.classify() {
+            serde_json::error::Category::Data => e.to_string(),
+            _ => format!("invalid JSON: {e}"),
+        };
+        err(strict::shorten(&field), strict::shorten(&what))
     };
     let mut de = serde_json::Deserializer::from_str(text);
     let file: strict::Object<SceneFile> =
         serde_path_to_error::deserialize(&mut de).map_err(|e| {
             let path = e.path().to_string();
-            let field = if path == "." { String::new() } else { path };
+            // "." is the whole file, "?" a place the tracker could not name.
+            let field = if path == "." || path == "?" {
+                String::new()
+            } else {
+                path
+            };
             invalid(field, e.into_inner())
         })?;
     de.end().map_err(|e| {

@@ -79,9 +79,27 @@ const d=t.dataset.dir==='1'?-1:1;t.dataset.dir=d===1?'1':'0';r.sort((a,b)=>{cons
 const y=b.cells[c].dataset.v||b.cells[c].textContent;const n=parseFloat(x)-parseFloat(y);return d*(isNaN(n)?x.localeCompare(y):n)});\
 r.forEach(e=>t.tBodies[0].appendChild(e));}";
 
-/// Write `dir/index.html` and its images for `views`.
+/// Write `dir/index.html` and its images for `views`. Every file is checked as an output
+/// target first (a planted link, FIFO or folder at any of them refuses the whole page before
+/// anything is written), then all are staged under temporary names and committed together,
+/// so nothing outside `dir` is touched and a failure leaves no half-written page.
 pub fn write_report(dir: &Path, title: &str, views: &[ReportView]) -> Result<()> {
+    use crate::output::io::{check_output, commit_all};
+    use crate::output::preview::stage_png;
+    // The picture files, named before anything is written so all can be checked first.
+    let pictures =
+        |i: usize| ["candidate", "mitsuba", "heatmap"].map(|what| format!("view{i}.{what}.png"));
+    let mut targets = vec![dir.join("index.html")];
+    for (i, v) in views.iter().enumerate() {
+        if v.images.is_some() {
+            targets.extend(pictures(i).iter().map(|f| dir.join(f)));
+        }
+    }
+    for t in &targets {
+        check_output("--report", t, &[])?;
+    }
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let mut staged = Vec::new();
     let mut html = format!(
         "<!DOCTYPE html><html><head><meta charset=\"utf-8\"><title>cylaov verify: {}</title><style>{STYLE}</style><script>{SCRIPT}</script></head><body><h1>cylaov verify: {}</h1>",
         esc(title),
@@ -117,24 +135,25 @@ pub fn write_report(dir: &Path, title: &str, views: &[ReportView]) -> Result<()>
             let _ = write!(html, "<p>{}</p>", esc(l));
         }
         if let Some((cand, reference, heat)) = v.images {
-            let stem = format!("view{i}");
-            for (img, label) in [(cand, "candidate"), (reference, "Mitsuba")] {
+            let [cand_file, mitsuba_file, heat_file] = pictures(i);
+            for (img, label, file) in [
+                (cand, "candidate", cand_file),
+                (reference, "Mitsuba", mitsuba_file),
+            ] {
                 if let Some((pic, lo, hi)) = depth_picture(img) {
-                    let file = format!("{stem}.{}.png", label.to_lowercase());
-                    pic.save(dir.join(&file))
-                        .with_context(|| format!("writing {}", dir.join(&file).display()))?;
+                    staged.push(stage_png(&pic, &dir.join(&file))?);
                     let _ = write!(
                         html,
                         "<figure><img src=\"{file}\" alt=\"{label} depth\"><figcaption>{label} depth: white {lo:.4} to dark {hi:.4}, black: miss</figcaption></figure>"
                     );
                 }
             }
-            let file = format!("{stem}.heatmap.png");
-            heat.save(dir.join(&file))
-                .with_context(|| format!("writing {}", dir.join(&file).display()))?;
+            staged.push(stage_png(heat, &dir.join(&heat_file))?);
             let _ = write!(
                 html,
-                "<figure><img src=\"{file}\" alt=\"difference\"><figcaption>difference</figcaption>{LEGEND}</figure>"
+                "<figure><img src=\"{heat_file}\" alt=\"difference\"><figcaption>{}: difference, candidate against Mitsuba ({})</figcaption>{LEGEND}</figure>",
+                esc(v.name),
+                v.verdict
             );
         }
         if let Some(a) = v.arbitration {
@@ -172,6 +191,12 @@ pub fn write_report(dir: &Path, title: &str, views: &[ReportView]) -> Result<()>
     }
     html += "</body></html>\n";
     let path = dir.join("index.html");
-    crate::output::io::atomic_write_bytes(&path, html.as_bytes())
-        .with_context(|| format!("writing {}", path.display()))
+    staged.push(
+        crate::output::io::stage(&path, |f| {
+            use std::io::Write;
+            f.write_all(html.as_bytes())
+        })
+        .with_context(|| format!("writing {}", path.display()))?,
+    );
+    commit_all(staged).with_context(|| format!("writing the report in {}", dir.display()))
 }

@@ -10,7 +10,7 @@
 //! bound `4ε·max(1, κ)`. Everything the kernel does after receiving its inputs (forming `oc`
 //! and the local frame in `Prepared::new`, rounding them to f32) is counted as kernel error.
 //! The rounding of the direction itself is an input error of the f32 *pipeline*: it moves
-//! the hit by up to `ε₃₂·t` sideways; see the README's "Accuracy" for what that costs.
+//! the hit by up to `ε₃₂·t` sideways; see docs/accuracy.md for what that costs.
 //!
 //! **Tangency band.** Rays whose hit/miss changes when the origin moves by
 //! [`BAND_ULPS`](crate::verify::oracle::BAND_ULPS)`·ε·(|oc| + r + h)` are not counted as wrong

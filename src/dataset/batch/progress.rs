@@ -241,14 +241,14 @@ impl SizeEstimate {
         if compression != Compression::None {
             return format!(
                 "{label}: {views}{what}: at most {} (EXRs counted uncompressed, {})",
-                gib(self.total()),
-                gib(self.exr)
+                crate::output::console::bytes(self.total()),
+                crate::output::console::bytes(self.exr)
             );
         }
         let mut line = format!(
             "{label}: {views}{what}: about {} of output ({} of it uncompressed EXRs)",
-            gib(self.total()),
-            gib(self.exr)
+            crate::output::console::bytes(self.total()),
+            crate::output::console::bytes(self.exr)
         );
         if self.total() > LARGE_OUTPUT {
             line.push_str(
@@ -257,16 +257,6 @@ impl SizeEstimate {
             );
         }
         line
-    }
-}
-
-/// Bytes in GiB with one decimal (MiB below 1 GiB).
-fn gib(bytes: u64) -> String {
-    let b = bytes as f64;
-    if bytes >= 1 << 30 {
-        format!("{:.1} GiB", b / (1u64 << 30) as f64)
-    } else {
-        format!("{:.1} MiB", b / (1u64 << 20) as f64)
     }
 }
 

@@ -163,7 +163,10 @@ pub fn run(
     let mine: Vec<usize> = (0..views.len()).filter(|&i| shard.contains(i)).collect();
     let failures_path = out.join(format!("failures.{shard}.jsonl"));
     check_targets(out, &views, &mine, &failures_path)?;
-    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    // The folders made here go again if the run fails or is interrupted before writing.
+    let mut dirs = crate::output::io::NewDirs::default();
+    dirs.create(out)
+        .with_context(|| format!("creating {}", out.display()))?;
     let (partial, lock) = clear_partial(out, shard)?;
 
     if progress != ProgressMode::Off {
@@ -171,7 +174,7 @@ pub fn run(
         eprintln!(
             "{}; as --format webdataset tar shards: about {}",
             estimate.message(&format!("batch {shard}"), opts.compression),
-            super::shards::mib(super::shards::tar_estimate(
+            crate::output::console::bytes(super::shards::tar_estimate(
                 mine.iter()
                     .filter_map(|&i| cameras[i].as_ref().ok())
                     .map(|c| (c.size(), c.aovs().collect::<Vec<_>>()))
@@ -224,6 +227,7 @@ pub fn run(
     drop(lock);
     // Other shards may still be using `.partial`; it goes when the last one leaves.
     let _ = std::fs::remove_dir(out.join(".partial"));
+    dirs.keep();
     summary.elapsed = start.elapsed();
     Ok(summary)
 }

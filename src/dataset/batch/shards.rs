@@ -41,6 +41,7 @@ use super::run::{expand_views, read_views, resource_exhausted};
 use super::shard::Shard;
 use super::views::{ViewSource, list_views};
 use crate::output::aov::{AovImage, ChannelData, ExrLayout, channel_names};
+use crate::output::console::count;
 use crate::output::files::{create_new, open_regular, read_regular};
 use crate::output::io::{atomic_write_bytes, check_outputs, record_json};
 use crate::output::npy;
@@ -148,12 +149,13 @@ impl std::fmt::Display for ShardSummary {
         let secs = self.elapsed.as_secs_f64();
         write!(
             f,
-            "webdataset: {written} tars written, {} skipped, of {} ({} views in the input); \
-             {} views rendered in {secs:.2} s",
+            "webdataset: {} written, {} skipped, of {} ({} in the input); {} rendered in \
+             {secs:.2} s",
+            count(written, "tar"),
             self.outcomes.len() - written,
             self.tars,
-            self.views,
-            self.rendered
+            count(self.views, "view"),
+            count(self.rendered, "view")
         )?;
         if self.rendered > 0 && secs > 0.0 {
             write!(f, "; {:.1} views/s", self.rendered as f64 / secs)?;
@@ -898,11 +900,6 @@ pub(super) fn tar_estimate(views: impl Iterator<Item = ((u32, u32), Vec<Aov>)>) 
     bytes + n.div_ceil(DEFAULT_SHARD_SIZE as u64) * 2 * tar::BLOCK as u64
 }
 
-/// Bytes as MiB with one decimal.
-pub(super) fn mib(bytes: u64) -> String {
-    format!("{:.1} MiB", bytes as f64 / (1u64 << 20) as f64)
-}
-
 /// The size line printed before a sharded run: the tars', and what the files format
 /// would write for the same views.
 fn estimate_line(plan: &Plan, mine: &[usize]) -> String {
@@ -920,11 +917,11 @@ fn estimate_line(plan: &Plan, mine: &[usize]) -> String {
     }
     shards += mine.len() as u64 * 2 * tar::BLOCK as u64;
     format!(
-        "batch webdataset: {} tars, {views} views: about {} of tar shards (the files format: \
-         about {})",
-        mine.len(),
-        mib(shards),
-        mib(files.total())
+        "batch webdataset: {}, {}: about {} of tar shards (the files format: about {})",
+        count(mine.len(), "tar"),
+        count(views, "view"),
+        crate::output::console::bytes(shards),
+        crate::output::console::bytes(files.total())
     )
 }
 
@@ -1006,7 +1003,10 @@ pub fn write_shards(
     }
     let refs: Vec<(&str, &Path)> = targets.iter().map(|(f, p)| (*f, p.as_path())).collect();
     check_outputs(&refs, &[])?;
-    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    // The folders made here go again if the run fails or is interrupted before writing.
+    let mut dirs = crate::output::io::NewDirs::default();
+    dirs.create(out)
+        .with_context(|| format!("creating {}", out.display()))?;
     let root = partial_root(out)?;
     let _root_reg = signals::register(Cleanup::EmptyDir, &root);
     let plan = Plan { root, ..plan };
@@ -1046,6 +1046,7 @@ pub fn write_shards(
     summary.index_written = plan.merge_index()?;
     // Other processes may still be using `.partial`; it goes when the last one leaves.
     let _ = std::fs::remove_dir(out.join(".partial"));
+    dirs.keep();
     summary.elapsed = start.elapsed();
     Ok(summary)
 }
