@@ -227,8 +227,6 @@ struct BatchCli {
     /// `cylaov verify --report`.
     #[arg(long, value_name = "DIR")]
     report: Option<PathBuf>,
-    #[command(flatten, next_help_heading = "Bounds of --verify-fraction")]
-    tolerances: TolerancesCli,
     /// Parallelise over views (default) or within one view at a time.
     #[arg(long, value_enum, default_value_t = Schedule::Views, hide = true)]
     schedule: Schedule,
@@ -245,6 +243,9 @@ struct BatchCli {
     /// (KEY.exr), `depth.png` (KEY.depth.png, at --depth-scale).
     #[arg(long, value_enum, value_delimiter = ',')]
     members: Vec<Member>,
+    // Last: every option after a heading is listed under it.
+    #[command(flatten, next_help_heading = "Bounds of --verify-fraction")]
+    tolerances: TolerancesCli,
 }
 
 /// What `batch` writes.

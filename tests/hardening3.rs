@@ -269,7 +269,7 @@ fn ram_disk_under_dev_shm_is_writable() {
         format!("/dev/cylaov-{}.exr", std::process::id()),
         format!("/dev/pts/cylaov-{}.exr", std::process::id()),
         format!(
-            "{}/../cylaov-{}.exr",
+            "{}/../../cylaov-{}.exr",
             shm.path().display(),
             std::process::id()
         ),
@@ -315,15 +315,29 @@ fn empty_folders(dir: &Path) -> (Vec<std::path::PathBuf>, usize) {
 fn interrupted_batch_leaves_no_empty_folders() {
     let d = tempfile::tempdir().unwrap();
     let data = d.path().join("data");
-    let o = cylaov(&["generate", "--count", "6", "--seed", "3", "--out", s(&data)]);
+    let o = cylaov(&[
+        "generate",
+        "--count",
+        "40",
+        "--seed",
+        "3",
+        "--out",
+        s(&data),
+    ]);
     assert!(o.status.success(), "{}", text(&o.stderr));
     let mut interrupted = 0;
-    for (k, delay) in ["0.02", "0.05", "0.1", "0.2", "0.4"].iter().enumerate() {
+    // Before, at and after the moment the output folder is made (a few ms in: reading
+    // 40 scenes, then the folder, its lock, the first view).
+    let delays = [
+        "0.002", "0.004", "0.006", "0.008", "0.012", "0.02", "0.04", "0.1",
+    ];
+    for (k, delay) in delays.iter().enumerate() {
         for format in ["files", "webdataset"] {
             let top = d.path().join(format!("new{k}{format}"));
             let out = top.join("deep");
             let o = Command::new("timeout")
-                .args(["-s", "INT", delay, env!("CARGO_BIN_EXE_cylaov"), "batch"])
+                .args(["--preserve-status", "-s", "INT", delay])
+                .args([env!("CARGO_BIN_EXE_cylaov"), "batch"])
                 .args([
                     s(&data),
                     "--out",
@@ -409,4 +423,37 @@ fn messages_say_what_is_wrong_once() {
     assert_ne!(o.status.code(), Some(0));
     let err = text(&o.stderr);
     assert!(err.contains("depth is mapped twice"), "{err}");
+}
+
+/// `batch --help` lists the tar options with the other options, not under the heading of
+/// the --verify-fraction bounds; every heading's options belong to it.
+#[test]
+fn batch_help_groups_options_under_the_right_heading() {
+    let o = cylaov(&["batch", "--help"]);
+    assert!(o.status.success());
+    let help = text(&o.stdout);
+    let (before, bounds) = help
+        .split_once("Bounds of --verify-fraction:")
+        .unwrap_or_else(|| panic!("no bounds heading in {help}"));
+    for flag in [
+        "--format",
+        "--shard-size",
+        "--members",
+        "--report",
+        "--threads",
+    ] {
+        assert!(
+            before.contains(flag),
+            "{flag} not among the options:\n{help}"
+        );
+        assert!(
+            !bounds.contains(flag),
+            "{flag} under the bounds heading:\n{help}"
+        );
+    }
+    // The bounds themselves are tolerances.
+    assert!(
+        bounds.contains("--rel-distance") || bounds.contains("--distance"),
+        "{bounds}"
+    );
 }

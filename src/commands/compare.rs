@@ -56,7 +56,10 @@ pub struct CompareOutcome {
 /// Pixels and channels of an EXR's first layer, from its header alone (nothing is
 /// allocated for the pixels).
 fn header_size(path: &Path) -> Result<(u64, u64)> {
-    let meta = exr::meta::MetaData::read_from_file(path, false)
+    // Opened as an input (a FIFO is refused, not waited on) and read once for the header.
+    let file = crate::output::files::open_input(path)
+        .with_context(|| format!("reading {}", path.display()))?;
+    let meta = exr::meta::MetaData::read_from_buffered(std::io::BufReader::new(file), false)
         .with_context(|| format!("reading {}", path.display()))?;
     let h = meta
         .headers
@@ -111,14 +114,24 @@ pub fn run(args: &CompareArgs) -> Result<CompareOutcome> {
     };
     let report = compare_with(&a, &b, cond.as_ref())
         .with_context(|| format!("comparing {} with {}", args.a.display(), args.b.display()))?;
+    let failures = report.failures(&args.tolerances);
+    let passed = failures.is_empty();
     if let Some(path) = &args.heatmap {
+        let name = |p: &Path| {
+            p.file_name()
+                .map_or_else(|| p.display().to_string(), |n| n.to_string_lossy().into())
+        };
+        let title = format!(
+            "{} VS {}: {}",
+            name(&args.a),
+            name(&args.b),
+            if passed { "PASS" } else { "FAIL" }
+        );
         write_png(
-            &heatmap_figure(&a, &b, &report, &args.tolerances, cond.as_ref()),
+            &heatmap_figure(&a, &b, &report, &args.tolerances, cond.as_ref(), &title),
             path,
         )?;
     }
-    let failures = report.failures(&args.tolerances);
-    let passed = failures.is_empty();
     let text = if args.json {
         let out = JsonOut {
             a: args.a.display().to_string(),

@@ -110,7 +110,6 @@ pub fn run(args: &RenderArgs) -> Result<String> {
     scene
         .select_camera(args.camera)
         .with_context(|| format!("--camera {}: {}", args.camera, args.scene.display()))?;
-    check_exr_name(&args.out)?;
     let aovs = args.aovs.clone().unwrap_or_else(|| scene.aovs.clone());
     let cam = Camera::new(scene.camera);
     let plan = plan(args, cam, &aovs);
@@ -125,6 +124,8 @@ pub fn run(args: &RenderArgs) -> Result<String> {
         .collect();
     let list: Vec<(&str, &Path)> = targets.iter().map(|(f, p)| (*f, p.as_path())).collect();
     check_outputs(&list, &[&args.scene])?;
+    // After the target checks: a FIFO, a link or the scene itself at -o is refused as that.
+    check_exr_name(&args.out)?;
     if let Some(s) = args.depth_png
         && !(s.is_finite() && s > 0.0)
     {

@@ -386,12 +386,23 @@ fn check_one(
         return Ok((check, None));
     }
     let cond = Conditioning::new(&scene, &ours);
+    let title = format!(
+        "{}: {} VS MITSUBA: {}",
+        view.name,
+        if args.candidate.is_some() {
+            "CANDIDATE"
+        } else {
+            "CYLAOV"
+        },
+        if check.passed() { "PASS" } else { "FAIL" }
+    );
     let img = heatmap_figure(
         &ours,
         &reference,
         &check.report,
         &args.tolerances,
         cond.as_ref(),
+        &title,
     );
     if let Some(dir) = &args.heatmap {
         let path = view.dir(dir).join(format!("{}.heatmap.png", view.name));
@@ -458,8 +469,9 @@ pub fn run(args: &VerifyArgs) -> Result<VerifyOutcome> {
         .filter(|v| view_selected(args.seed, v, args.fraction))
         .collect();
     let mitsuba = Mitsuba::find();
-    // Without the venv nothing can be checked: say how to make it before anything else.
-    if let Err(why) = &mitsuba {
+    // Without the venv nothing can be checked. The table says how to make it once, under
+    // the rows; JSON on stdout gets it on stderr as well, for the person reading the run.
+    if let (Err(why), true) = (&mitsuba, args.json) {
         crate::output::io::warn(&format!("verify: {why}"));
     }
     // Progress: one line redrawn in place, on a terminal only (the table goes to stdout).
@@ -476,7 +488,8 @@ pub fn run(args: &VerifyArgs) -> Result<VerifyOutcome> {
             ));
         }
         let outcome = match &mitsuba {
-            Err(why) => Err(anyhow::anyhow!("{why}")),
+            Err(why) if args.json => Err(anyhow::anyhow!("{why}")),
+            Err(_) => Err(anyhow::anyhow!("no Mitsuba venv (how to make one: below)")),
             Ok(m) => check_one(args, m, view, k),
         };
         let r = match outcome {

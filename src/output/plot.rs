@@ -133,7 +133,8 @@ pub fn glyph(ch: char) -> [u8; 5] {
     match ch.to_ascii_uppercase() {
         '0' => [7, 5, 5, 5, 7],
         '1' => [2, 6, 2, 2, 7],
-        '2' => [7, 1, 7, 4, 7],
+        // A rounded top, so `2` is not read as the flat-topped `Z`.
+        '2' => [2, 5, 1, 2, 7],
         '3' => [7, 1, 7, 1, 7],
         '4' => [5, 5, 7, 1, 1],
         '5' => [7, 4, 7, 1, 7],
@@ -428,6 +429,29 @@ impl Panel {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// How many of the 15 font pixels two glyphs differ in.
+    fn differ(a: char, b: char) -> u32 {
+        glyph(a)
+            .iter()
+            .zip(glyph(b))
+            .map(|(x, y)| (x ^ y).count_ones())
+            .sum()
+    }
+
+    #[test]
+    fn every_digit_and_letter_has_its_own_glyph() {
+        let chars: Vec<char> = ('0'..='9').chain('A'..='Z').collect();
+        for (i, &a) in chars.iter().enumerate() {
+            assert_ne!(glyph(a), [0; 5], "{a} has no glyph");
+            for &b in &chars[i + 1..] {
+                assert!(differ(a, b) >= 1, "{a} and {b} share a glyph");
+            }
+        }
+        // `Z` beside a digit (the depth preview's "DEPTH Z") must not read as `2`: they
+        // differ in the top row's shape and the middle, 4 pixels.
+        assert!(differ('2', 'Z') >= 4, "{}", differ('2', 'Z'));
+    }
 
     #[test]
     fn log_ticks_start_at_the_first_decade() {

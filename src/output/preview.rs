@@ -80,12 +80,31 @@ pub fn depth_colormap(img: &AovImage, channel: &str) -> Option<RgbImage> {
     let span = if hi > lo { hi - lo } else { 1.0 };
     let (w, h) = (img.width as u32, img.height as u32);
     let scale = legend_scale(w);
+    let quantity = if channel == Aov::Depth.name() {
+        "DEPTH Z"
+    } else {
+        channel
+    };
+    let title = format!("{quantity} (WORLD UNITS), BLACK = MISS");
+    let labels: Vec<String> = (0..5)
+        .map(|q| tick_label(lo + q as f32 / 4.0 * (hi - lo)))
+        .collect();
+    // The legend is never clipped: a figure narrower than its title, or than five labels
+    // with a gap each, is widened (black beside the image).
+    let widest_label = labels
+        .iter()
+        .map(|l| plot::text_width(l, scale))
+        .max()
+        .unwrap_or(0);
+    let fig_w = (w as i64)
+        .max(plot::text_width(&title, scale) + 2)
+        .max(5 * (widest_label + 2 * scale as i64)) as u32;
     // Ramp (3), tick marks (2), labels (5), title (5), in glyph rows, plus gaps.
     let (ramp_y, ramp_h) = (h + 2, 3 * scale);
     let tick_y = ramp_y + ramp_h;
     let label_y = tick_y + 2 * scale + 2;
     let title_y = label_y + 5 * scale + 3 * scale;
-    let mut out = RgbImage::new(w, title_y + 5 * scale + 3);
+    let mut out = RgbImage::new(fig_w, title_y + 5 * scale + 3);
     for j in 0..h {
         for i in 0..w {
             let x = v[(j * w + i) as usize];
@@ -94,23 +113,17 @@ pub fn depth_colormap(img: &AovImage, channel: &str) -> Option<RgbImage> {
             }
         }
     }
-    for i in 0..w {
-        let c = colormap(i as f32 / (w.max(2) - 1) as f32);
+    for i in 0..fig_w {
+        let c = colormap(i as f32 / (fig_w.max(2) - 1) as f32);
         for j in ramp_y..ramp_y + ramp_h {
             out.put_pixel(i, j, Rgb(c));
         }
     }
-    let quantity = if channel == Aov::Depth.name() {
-        "DEPTH Z"
-    } else {
-        channel
-    };
-    let title = format!("{quantity} (WORLD UNITS), BLACK = MISS");
     plot::text(&mut out, 1, title_y as i64, scale, &title, plot::WHITE);
     if lo.is_finite() {
-        for q in 0..5 {
+        for (q, label) in labels.iter().enumerate() {
             let f = q as f32 / 4.0;
-            let x = (f * (w.max(2) - 1) as f32).round() as i64;
+            let x = (f * (fig_w.max(2) - 1) as f32).round() as i64;
             plot::fill(
                 &mut out,
                 x - (scale as i64 / 2),
@@ -119,10 +132,9 @@ pub fn depth_colormap(img: &AovImage, channel: &str) -> Option<RgbImage> {
                 2 * scale,
                 plot::WHITE,
             );
-            let label = tick_label(lo + f * (hi - lo));
-            let tw = plot::text_width(&label, scale);
-            let lx = (x - tw / 2).clamp(0, (w as i64 - tw).max(0));
-            plot::text(&mut out, lx, label_y as i64, scale, &label, plot::WHITE);
+            let tw = plot::text_width(label, scale);
+            let lx = (x - tw / 2).clamp(0, (fig_w as i64 - tw).max(0));
+            plot::text(&mut out, lx, label_y as i64, scale, label, plot::WHITE);
         }
     }
     Some(out)
@@ -136,26 +148,35 @@ pub fn normal_preview(img: &AovImage) -> Option<RgbImage> {
     let (w, h) = rgb.dimensions();
     let scale = legend_scale(w);
     let row = 5 * scale + 3 * scale;
-    let mut out = RgbImage::new(w, h + 2 + 2 * row + 2);
-    image::imageops::replace(&mut out, &rgb, 0, 0);
-    let to8 = |v: f32| ((v * 0.5 + 0.5) * 255.0).round() as u8;
-    let mut x = 1i64;
-    let y = (h + 3) as i64;
-    for (label, n) in [
+    let key = "NORMAL RGB = (N+1)/2, BLACK = MISS";
+    let swatches: Vec<(&str, [f32; 3])> = vec![
         ("+X", [1.0, 0.0, 0.0]),
         ("-X", [-1.0, 0.0, 0.0]),
         ("+Y", [0.0, 1.0, 0.0]),
         ("-Y", [0.0, -1.0, 0.0]),
         ("+Z", [0.0, 0.0, 1.0]),
         ("-Z", [0.0, 0.0, -1.0]),
-    ] {
+    ];
+    // Widened, never clipped, where the key is wider than the image.
+    let swatch_w: i64 = swatches
+        .iter()
+        .map(|(l, _)| 6 * scale as i64 + plot::text_width(l, scale) + 3 * scale as i64)
+        .sum();
+    let fig_w = (w as i64)
+        .max(plot::text_width(key, scale) + 2)
+        .max(swatch_w + 2) as u32;
+    let mut out = RgbImage::new(fig_w, h + 2 + 2 * row + 2);
+    image::imageops::replace(&mut out, &rgb, 0, 0);
+    let to8 = |v: f32| ((v * 0.5 + 0.5) * 255.0).round() as u8;
+    let mut x = 1i64;
+    let y = (h + 3) as i64;
+    for (label, n) in swatches {
         let c = Rgb(n.map(to8));
         plot::fill(&mut out, x, y, 5 * scale, 5 * scale, c);
         x += 6 * scale as i64;
         plot::text(&mut out, x, y, scale, label, plot::WHITE);
         x += plot::text_width(label, scale) + 3 * scale as i64;
     }
-    let key = "NORMAL RGB = (N+1)/2, BLACK = MISS";
     plot::text(&mut out, 1, y + row as i64, scale, key, plot::WHITE);
     Some(out)
 }
@@ -210,4 +231,57 @@ where
         w.flush()
     })
     .with_context(|| format!("writing {}", path.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::output::aov::{Channel, ChannelData};
+
+    /// Whether column `x` of `img` has a white (text) pixel below row `from`.
+    fn text_in_column(img: &RgbImage, x: u32, from: u32) -> bool {
+        (from..img.height()).any(|y| *img.get_pixel(x, y) == plot::WHITE)
+    }
+
+    #[test]
+    fn a_narrow_preview_is_widened_to_its_legend_never_clipped() {
+        let depth: Vec<f32> = (0..128).map(|i| 1.0 + i as f32 * 0.01).collect();
+        let img = AovImage::from_channels(
+            16,
+            8,
+            vec![Channel {
+                name: "depth".into(),
+                data: ChannelData::F32(depth),
+            }],
+        );
+        let p = depth_colormap(&img, "depth").unwrap();
+        // The title, 35 glyphs of 4 columns at scale 1, and a column each side.
+        let title = "DEPTH Z (WORLD UNITS), BLACK = MISS";
+        assert_eq!(p.width() as i64, plot::text_width(title, 1) + 2);
+        // Below the ramp (rows 10-12) and its white tick marks (13-14): labels and title.
+        assert!(
+            !text_in_column(&p, p.width() - 1, 15),
+            "text at the right edge"
+        );
+        let normal: Vec<f32> = [0.0, 0.0, 1.0].repeat(128);
+        let img = AovImage::from_channels(
+            16,
+            8,
+            ["normal.X", "normal.Y", "normal.Z"]
+                .iter()
+                .enumerate()
+                .map(|(k, n)| Channel {
+                    name: n.to_string(),
+                    data: ChannelData::F32(normal.iter().skip(k).step_by(3).copied().collect()),
+                })
+                .collect(),
+        );
+        let p = normal_preview(&img).unwrap();
+        let key = "NORMAL RGB = (N+1)/2, BLACK = MISS";
+        assert_eq!(p.width() as i64, plot::text_width(key, 1) + 2);
+        assert!(
+            !text_in_column(&p, p.width() - 1, 8),
+            "text at the right edge"
+        );
+    }
 }

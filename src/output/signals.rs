@@ -32,6 +32,9 @@ pub enum Cleanup {
     Tree,
     /// A folder a command made for its outputs: removed if it is empty by then.
     EmptyDir,
+    /// A lock file this process may have just created and not locked yet: removed if no
+    /// process holds its lock (a held one is another run's, and stays).
+    FreeLock,
 }
 
 struct Entry {
@@ -224,10 +227,36 @@ fn remove_all(r: &Registry) -> usize {
             Cleanup::File => std::fs::remove_file(&e.path),
             Cleanup::Tree => std::fs::remove_dir_all(&e.path),
             Cleanup::EmptyDir => std::fs::remove_dir(&e.path),
+            Cleanup::FreeLock => remove_free_lock(&e.path),
         };
         removed += gone.is_ok() as usize;
     }
     removed
+}
+
+/// Remove the lock file at `path` if no process holds its lock: taken here without
+/// waiting (`flock` on a new open file description conflicts with every other holder,
+/// this process's own included), so a lock in use is never removed.
+#[cfg(target_os = "linux")]
+fn remove_free_lock(path: &Path) -> io::Result<()> {
+    use std::os::unix::io::AsRawFd;
+    let mut opts = std::fs::OpenOptions::new();
+    opts.read(true);
+    crate::output::files::no_follow(&mut opts);
+    let file = opts.open(path)?;
+    if !file.metadata()?.is_file() {
+        return Err(io::Error::other("not a regular file"));
+    }
+    // SAFETY: flock on a file descriptor `file` owns for the duration of the call.
+    if unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) } != 0 {
+        return Err(io::Error::last_os_error());
+    }
+    std::fs::remove_file(path)
+}
+
+#[cfg(not(target_os = "linux"))]
+fn remove_free_lock(_: &Path) -> io::Result<()> {
+    Ok(())
 }
 
 // ---- stale temporary files -----------------------------------------------------------------

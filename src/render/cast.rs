@@ -73,7 +73,8 @@ pub fn cast(scene: &Scene, kernel: Kernel, rays: &[Ray]) -> Result<Vec<Option<Ra
 }
 
 fn check_ray(i: usize, r: &Ray) -> Result<(), String> {
-    let v = |x: DVec3| format!("[{}, {}, {}]", x.x, x.y, x.z);
+    use crate::scene::num;
+    let v = |x: DVec3| format!("[{}, {}, {}]", num(x.x), num(x.y), num(x.z));
     if !r.origin.is_finite() || r.origin.abs().max_element() > MAX_COORD {
         return Err(format!(
             "rays[{i}].origin: must be finite with magnitude <= {MAX_COORD:e}, got {}",
@@ -90,13 +91,14 @@ fn check_ray(i: usize, r: &Ray) -> Result<(), String> {
     if !(r.t_min >= 0.0 && r.t_min.is_finite()) {
         return Err(format!(
             "rays[{i}].t_min: must be finite and >= 0, got {}",
-            r.t_min
+            num(r.t_min)
         ));
     }
     if r.t_max.is_nan() || r.t_max < r.t_min {
         return Err(format!(
             "rays[{i}].t_max: must be >= t_min ({}), got {}",
-            r.t_min, r.t_max
+            num(r.t_min),
+            num(r.t_max)
         ));
     }
     Ok(())
@@ -309,6 +311,14 @@ mod tests {
                     ..good
                 },
                 "rays[1].direction: must be finite and non-zero, got [0, 0, 0]",
+            ),
+            (
+                // Its length overflows; the numbers read as numbers, not 300 digits.
+                Ray {
+                    dir: DVec3::new(1e300, 1e300, 0.0),
+                    ..good
+                },
+                "rays[1].direction: must be finite and non-zero, got [1e300, 1e300, 0]",
             ),
             (
                 Ray {

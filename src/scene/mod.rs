@@ -381,7 +381,7 @@ fn parse_serde(text: &str) -> Result<Scene, SceneError> {
 
 /// A number as a person reads it in a message: plain, or in exponent form when plain would
 /// be a wall of digits (1e300) or zeros (1e-300).
-fn num(x: f64) -> String {
+pub(crate) fn num(x: f64) -> String {
     if x.is_finite() && x != 0.0 && !(1e-6..1e16).contains(&x.abs()) {
         format!("{x:e}")
     } else {

@@ -493,7 +493,7 @@ impl MitsubaVerifier {
             let images = check
                 .as_ref()
                 .filter(|_| pictures)
-                .map(|c| self.pictures(scene, file, reference, c));
+                .map(|c| self.pictures(&view.name, scene, file, reference, c));
             return Ok(done(verdict, check, images));
         }
         let check = check_against_with(
@@ -542,25 +542,31 @@ impl MitsubaVerifier {
                 check.text()
             },
         };
-        let images = pictures.then(|| self.pictures(scene, ours, reference, &check));
+        let images = pictures.then(|| self.pictures(&view.name, scene, ours, reference, &check));
         Ok(done(verdict, Some(check), images))
     }
 
     /// The candidate, Mitsuba's render and the difference heatmap of a check.
     fn pictures(
         &self,
+        name: &str,
         scene: &Scene,
         candidate: AovImage,
         reference: AovImage,
         check: &ViewCheck,
     ) -> (AovImage, AovImage, image::RgbImage) {
         let cond = Conditioning::new(scene, &candidate);
+        let title = format!(
+            "{name}: CYLAOV VS MITSUBA: {}",
+            if check.passed() { "PASS" } else { "FAIL" }
+        );
         let heatmap = heatmap_figure(
             &candidate,
             &reference,
             &check.report,
             &self.tolerances,
             cond.as_ref(),
+            &title,
         );
         (candidate, reference, heatmap)
     }

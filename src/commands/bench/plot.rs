@@ -83,7 +83,11 @@ pub fn plot(rows: &[Row], mitsuba: &[AnchorRow], kernels: &[Kernel]) -> RgbImage
     let legend_rows = if variants.is_empty() { 2 } else { 3 };
     let legend_h = 8 + legend_rows * LEGEND_ROW;
     let grid = Grid { legend_h, ..GRID };
-    let mut img = grid.image(if dense_rows.is_empty() { 2 } else { 3 }, 1);
+    // Time against error compares kernels: with one (`--quick`) there is nothing to
+    // compare, and the figure is the scaling panels alone.
+    let compare = kernels.len() >= 2;
+    let first_col = u32::from(compare);
+    let mut img = grid.image(first_col + if dense_rows.is_empty() { 1 } else { 2 }, 1);
     legend_row(
         &mut img,
         8,
@@ -94,16 +98,24 @@ pub fn plot(rows: &[Row], mitsuba: &[AnchorRow], kernels: &[Kernel]) -> RgbImage
         8 + LEGEND_ROW as i64,
         variants.iter().map(|v| (anchor_colour(v), anchor_label(v))),
     );
+    let key = "SOLID: BUILD+TRACE (MITSUBA, OPEN3D: WARM RENDER), DASHED: WHOLE PROCESS";
+    let key = if compare {
+        format!("(A) FILLED: MAX, OPEN: MEDIAN   (B), (C) {key}")
+    } else {
+        key.to_string()
+    };
     plot::text(
         &mut img,
         10,
         8 + (legend_rows - 1) as i64 * LEGEND_ROW as i64,
         2,
-        "(A) FILLED: MAX, OPEN: MEDIAN   (B) SOLID: BUILD+TRACE (MITSUBA, OPEN3D: WARM RENDER), DASHED: WHOLE PROCESS",
+        &key,
         NOTE,
     );
 
-    pareto(&mut img, &grid, &dn, &kernels);
+    if compare {
+        pareto(&mut img, &grid, &dn, &kernels);
+    }
     let of = |f: &str| -> Vec<AnchorRow> {
         // Rows from before families were recorded read as the first family.
         let f = f.to_string();
@@ -117,14 +129,16 @@ pub fn plot(rows: &[Row], mitsuba: &[AnchorRow], kernels: &[Kernel]) -> RgbImage
         "" => String::new(),
         f => format!("{}: ", f.to_uppercase()),
     };
-    let panels = [(&dn, first.as_str(), "(B)"), (&dense_rows, dense, "(C)")];
-    for (k, (rows, family, tag)) in panels.into_iter().enumerate() {
+    let panels = [(&dn, first.as_str()), (&dense_rows, dense)];
+    for (k, (rows, family)) in panels.into_iter().enumerate() {
         if !rows.is_empty() || k == 0 {
+            let col = first_col + k as u32;
+            let tag = ["(A)", "(B)", "(C)"][col as usize];
             let title = format!("{tag} {}MS VS CYLINDER COUNT, DEPTH+NORMAL", title(family));
             scaling(
                 &mut img,
                 &grid,
-                (k + 1) as u32,
+                col,
                 &title,
                 rows,
                 &of(family),
@@ -209,12 +223,11 @@ fn pareto(img: &mut RgbImage, grid: &Grid, dn: &[&Row], kernels: &[(Kernel, Stri
         plot::marker(img, p.pos(x, err(r.err_max)), Marker::Square, *c);
     }
     if pts.len() < 2 {
-        // One kernel (--quick): it is the reference, so there is no error to compare.
+        // Kernels were run, but fewer than two have finite errors at this count.
         let lines = [
-            "ONE KERNEL ONLY: ERRORS ARE MEASURED",
-            "AGAINST STABLE-F64, SO THERE IS NOTHING",
-            "TO COMPARE. RUN WITHOUT --QUICK FOR",
-            "EVERY KERNEL.",
+            "FEWER THAN TWO KERNELS HAVE",
+            "ERRORS AT THIS COUNT: NOTHING",
+            "TO COMPARE.",
         ];
         let y0 = p.y + p.h as i64 / 2 + 14;
         for (i, l) in lines.iter().enumerate() {
@@ -394,5 +407,14 @@ mod tests {
 
         let empty = plot(&[], &[], &Kernel::ALL);
         assert_eq!(count(&empty, colour(Kernel::ALL[0])), 0);
+        // One kernel (`--quick`): no empty time-against-error panel, the scaling one alone.
+        let one: Vec<Row> = rows
+            .iter()
+            .filter(|r| r.kernel == Kernel::ALL[0].to_string())
+            .cloned()
+            .collect();
+        let (cell_w, _) = GRID.cell();
+        assert_eq!(img.width(), 2 * cell_w);
+        assert_eq!(plot(&one, &[], &Kernel::ALL).width(), cell_w);
     }
 }

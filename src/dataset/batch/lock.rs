@@ -102,6 +102,9 @@ pub fn lock_named(out: &Path, root: &Path, name: &str) -> Result<ShardLock> {
 /// between one lock and the next of a process still working: then it is made again.
 fn lock_file(out: &Path, path: &Path, wait: bool, what: &dyn Fn() -> String) -> Result<ShardLock> {
     let path = path.to_path_buf();
+    // A signal between creating the file and holding its lock removes it if still free
+    // (it is ours, or a stale one); kept until the held lock's own registration exists.
+    let _creating = signals::register(Cleanup::FreeLock, &path);
     loop {
         let file = match open_lock(&path) {
             Err(e)

@@ -34,15 +34,17 @@ pub const OVER_TOLERANCE: Rgb<u8> = Rgb([255, 0, 255]);
 /// [`heatmap`] as the PNG `compare --heatmap` and `verify --heatmap` write: every failing
 /// pixel ringed in white (one such pixel is invisible at a glance), and under the image a
 /// legend of every colour in the words of the text report (silhouette, seam, interior,
-/// tolerance). Wider than the image when the legend needs it.
+/// tolerance), and `title` (which files, and the verdict) under that. Wider than the
+/// image when the legend needs it.
 pub fn heatmap_figure(
     a: &AovImage,
     b: &AovImage,
     report: &Report,
     tol: &Tolerances,
     cond: Option<&Conditioning>,
+    title: &str,
 ) -> RgbImage {
-    with_legend(&heatmap(a, b, report, tol, cond))
+    with_legend(&heatmap(a, b, report, tol, cond), title)
 }
 
 /// The legend's entries, top to bottom: colour and label.
@@ -55,7 +57,7 @@ pub const LEGEND: [(Rgb<u8>, &str); 6] = [
     (crate::output::plot::WHITE, "RING: FAILING PIXEL"),
 ];
 
-pub(super) fn with_legend(heat: &RgbImage) -> RgbImage {
+pub(super) fn with_legend(heat: &RgbImage, title: &str) -> RgbImage {
     use crate::output::plot;
     let (w, h) = heat.dimensions();
     let scale = (w / 160).clamp(1, 4);
@@ -66,11 +68,13 @@ pub(super) fn with_legend(heat: &RgbImage) -> RgbImage {
         .iter()
         .map(|(_, l)| 6 * s + plot::text_width(l, scale))
         .chain([plot::text_width(ramp_label, scale) + 40 * s])
+        .chain([plot::text_width(title, scale)])
         .max()
         .unwrap_or(0)
         + 2;
     let fig_w = w.max(widest as u32);
-    let rows = LEGEND.len() as i64 + 1;
+    // The legend's rows, the ramp and the title.
+    let rows = LEGEND.len() as i64 + 2;
     let mut out = RgbImage::new(fig_w, h + 2 + (rows * row) as u32);
     image::imageops::replace(&mut out, heat, 0, 0);
     let failing = |p: &Rgb<u8>| *p == INTERIOR || *p == OVER_TOLERANCE;
@@ -106,6 +110,8 @@ pub(super) fn with_legend(heat: &RgbImage) -> RgbImage {
     let mut y = h as i64 + 3;
     for (c, label) in LEGEND {
         plot::fill(&mut out, 1, y, 5 * scale, 5 * scale, c);
+        // A grey frame, so the near-black "both miss" swatch shows on the black ground.
+        plot::rect(&mut out, 1, y, 5 * scale, 5 * scale, plot::GRID);
         if c == plot::WHITE {
             plot::fill(&mut out, 1 + s, y + s, 3 * scale, 3 * scale, plot::BLACK);
         }
@@ -121,6 +127,7 @@ pub(super) fn with_legend(heat: &RgbImage) -> RgbImage {
         plot::fill(&mut out, px, y, 1, 5 * scale, error_colour(e));
     }
     plot::text(&mut out, x1 + 2 * s, y, scale, "1", plot::WHITE);
+    plot::text(&mut out, 1, y + row, scale, title, plot::WHITE);
     out
 }
 
@@ -189,4 +196,29 @@ pub fn heatmap(
         img.put_pixel((k % w) as u32, (k / w) as u32, px);
     }
     img
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::output::plot;
+
+    /// The figure ends with its title (files and verdict) drawn in full, and the near-black
+    /// "both miss" swatch has a light frame on the black ground.
+    #[test]
+    fn the_figure_names_files_and_verdict_and_frames_dark_swatches() {
+        let (w, h) = (40, 30);
+        let title = "A.EXR VS B.EXR: FAIL";
+        let fig = with_legend(&RgbImage::new(w, h), title);
+        let mut want = RgbImage::new(plot::text_width(title, 1) as u32, 5);
+        plot::text(&mut want, 0, 0, 1, title, plot::WHITE);
+        // Scale 1: 8-pixel rows; six legend rows and the ramp come first.
+        let y0 = h + 3 + 7 * 8;
+        assert!(fig.width() >= 1 + want.width() && fig.height() >= y0 + 5);
+        for (x, y, p) in want.enumerate_pixels() {
+            assert_eq!(fig.get_pixel(1 + x, y0 + y), p, "title pixel ({x}, {y})");
+        }
+        assert_eq!(*fig.get_pixel(1, h + 3), plot::GRID);
+        assert_eq!(*fig.get_pixel(3, h + 5), BOTH_MISS);
+    }
 }
