@@ -876,8 +876,9 @@ impl PyScene {
 /// `mask` (H, W) bool (True where the pixel's ray hits a cylinder), always. A miss is 0 in
 /// every AOV. The samples are, bit for bit, those of the EXR that `cylaov render` writes
 /// with the same options (`precision` "f64" | "f32", `formula` "stable" | "literal",
-/// `accel` "tiles" | "frustum" | "bvh"). The GIL is released while tracing; `threads`
-/// (default: every core) sizes the thread pool; use 1 inside DataLoader workers.
+/// `accel` "tiles" | "frustum" | "bvh"). The GIL is released while tracing (Ctrl-C raises
+/// `KeyboardInterrupt` within a fraction of a second); `threads` (default: every core)
+/// sizes the thread pool; use 1 inside DataLoader workers.
 #[pyfunction]
 #[pyo3(signature = (scene, aovs=None, camera=0, precision="f64", formula="stable", accel="tiles", threads=None))]
 #[allow(clippy::too_many_arguments)]
