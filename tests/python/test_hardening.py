@@ -142,15 +142,18 @@ def report(call):
 """
 
 
-def _interrupt(code, wait=0.5):
+def _interrupt(code, wait=0.5, until=None):
     """Run PRELUDE + `code` in a new Python; once it prints "started" and `wait` seconds
-    have passed, send SIGINT. Returns (seconds from SIGINT to KeyboardInterrupt, the
-    call's seconds, stderr)."""
+    have passed (and then `until()` holds), send SIGINT. Returns (seconds from SIGINT to
+    KeyboardInterrupt, the call's seconds, stderr)."""
     p = subprocess.Popen([sys.executable, "-c", PRELUDE + code], stdout=subprocess.PIPE,
                          stderr=subprocess.PIPE, text=True, cwd=ROOT)
     try:
         assert p.stdout.readline().strip() == "started", p.stderr.read()
         time.sleep(wait)
+        deadline = time.monotonic() + 60
+        while until is not None and not until() and time.monotonic() < deadline:
+            time.sleep(0.01)
         sent = time.monotonic()
         p.send_signal(signal.SIGINT)
         out, err = p.communicate(timeout=120)
@@ -213,13 +216,13 @@ def _files(out):
 
 
 def test_ctrl_c_stops_write_shards_leaving_a_resumable_output(tmp_path):
-    # 12 tars of 8 views: about 6 s on one core; interrupted after 1.5 s.
+    # 12 tars of 8 views: about 6 s on one core; interrupted once the first tar is done.
     data = _shard_input(tmp_path / "data", 96)
     out = tmp_path / "out"
     latency, took, err = _interrupt(f"""
 report(lambda: cylaov.write_shards({str(data)!r}, {str(out)!r}, shard_size=8, aovs="depth",
                                    threads=1))
-""", wait=1.5)
+""", until=lambda: any(out.glob("shard-*.json")))
     assert latency < LATENCY, latency
     left = sorted(p.relative_to(out).as_posix() for p in out.rglob("*"))
     # Nothing staged is left: no .partial folder, no temporary file, no lock.
