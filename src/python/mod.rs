@@ -10,10 +10,10 @@
 //! Linux) has no threads behind it, so a child builds its own on first use.
 //!
 //! **Ctrl-C**: Python runs its signal handlers only between bytecodes of the main thread,
-//! so a long call (`render`, `cast_rays`, `Dataset[i]`, `write_shards`) looks for them itself: the
-//! calling thread waits for the pool's work [`SIGNAL_POLL`] at a time and, between waits,
-//! asks Python to run its handlers; when one raises (`KeyboardInterrupt`), it sets the
-//! work's stop flag, waits for the work to wind down and raises that exception.
+//! so a long call (`render`, `cast_rays`, `Dataset[i]`, `write_shards`) looks for them
+//! itself: the calling thread waits for the pool's work 20 ms at a time (`SIGNAL_POLL`) and,
+//! between waits, asks Python to run its handlers; when one raises (`KeyboardInterrupt`), it
+//! sets the work's stop flag, waits for the work to wind down and raises that exception.
 
 use crate::dataset::generate::{ConfigFile, GenerateOptions, to_json};
 use crate::geometry::{FormulaKind, Kernel, Precision};
