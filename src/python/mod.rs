@@ -8,6 +8,12 @@
 //! **Threads**: every call runs on a rayon pool of this module's own, one per thread count
 //! and per process id: a pool inherited through `fork` (PyTorch's `DataLoader` workers on
 //! Linux) has no threads behind it, so a child builds its own on first use.
+//!
+//! **Ctrl-C**: Python runs its signal handlers only between bytecodes of the main thread,
+//! so a long call (`render`, `cast_rays`, `Dataset[i]`, `write_shards`) looks for them
+//! itself: the calling thread waits for the pool's work 20 ms at a time (`SIGNAL_POLL`) and,
+//! between waits, asks Python to run its handlers; when one raises (`KeyboardInterrupt`), it
+//! sets the work's stop flag, waits for the work to wind down and raises that exception.
 
 use crate::dataset::generate::{ConfigFile, GenerateOptions, to_json};
 use crate::geometry::{FormulaKind, Kernel, Precision};
@@ -19,7 +25,7 @@ use crate::scene::{self, Aov, CameraFile, CylinderFile, SceneFile};
 use crate::verify::compare::{self as verify, Conditioning, Tolerances};
 use glam::DVec3;
 use numpy::ndarray::{Array2, Array3, ArrayD, IxDyn};
-use numpy::{IntoPyArray, PyReadonlyArray1, PyReadonlyArray2};
+use numpy::{IntoPyArray, PyReadonlyArray1, PyReadonlyArrayDyn};
 use pyo3::create_exception;
 use pyo3::exceptions::{
     PyFileNotFoundError, PyIndexError, PyIsADirectoryError, PyOSError, PyPermissionError,
@@ -29,7 +35,9 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
+use std::time::Duration;
 
 mod shards;
 
@@ -116,6 +124,59 @@ fn run<T: Send>(
     let pool = pool(threads)?;
     py.detach(|| pool.install(|| std::panic::catch_unwind(std::panic::AssertUnwindSafe(f))))
         .map_err(panic_error)
+}
+
+/// How long the calling thread of a stoppable call waits for the work between two looks
+/// for a signal: a Ctrl-C raises `KeyboardInterrupt` within this plus the time the work
+/// takes to notice its stop flag (one band of a render, one view of a tar).
+const SIGNAL_POLL: Duration = Duration::from_millis(20);
+
+/// [`run`] for long work that takes a stop flag: the work runs on the pool while this
+/// thread, the GIL released, waits for it and looks for signals every [`SIGNAL_POLL`]. An
+/// exception from a signal handler (Ctrl-C's `KeyboardInterrupt`) sets the flag; the work
+/// is waited for (it ends at its next look at the flag, cleaning up as it goes) and the
+/// exception raised instead of its result.
+fn run_stoppable<T: Send>(
+    py: Python<'_>,
+    threads: Option<usize>,
+    f: impl FnOnce(&AtomicBool) -> T + Send,
+) -> PyResult<T> {
+    let pool = pool(threads)?;
+    let stop = AtomicBool::new(false);
+    // The work's result, and the condition variable its thread signals it on: no channel,
+    // whose receiver would spin on the cores the work needs before it sleeps.
+    let done: (Mutex<Option<std::thread::Result<T>>>, std::sync::Condvar) = Default::default();
+    pool.in_place_scope(|s| {
+        let (stop, done) = (&stop, &done);
+        s.spawn(move |_| {
+            let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| f(stop)));
+            *done.0.lock().unwrap_or_else(|e| e.into_inner()) = Some(r);
+            done.1.notify_one();
+        });
+        let mut raised: Option<PyErr> = None;
+        loop {
+            let got = py.detach(|| {
+                let guard = done.0.lock().unwrap_or_else(|e| e.into_inner());
+                let (mut guard, _) = done
+                    .1
+                    .wait_timeout_while(guard, SIGNAL_POLL, |r| r.is_none())
+                    .unwrap_or_else(|e| e.into_inner());
+                guard.take()
+            });
+            if let Some(r) = got {
+                return match raised {
+                    Some(e) => Err(e),
+                    None => r.map_err(panic_error),
+                };
+            }
+            if raised.is_none()
+                && let Err(e) = py.check_signals()
+            {
+                stop.store(true, Ordering::Relaxed);
+                raised = Some(e);
+            }
+        }
+    })
 }
 
 // ---- conversions -------------------------------------------------------------------------
@@ -232,11 +293,17 @@ fn traced(aovs: &[Aov]) -> Vec<Aov> {
 
 /// `aovs=` as a list of names: one string is one name (as `cast_rays` takes it).
 fn aov_names(obj: &Bound<'_, PyAny>) -> PyResult<Vec<String>> {
+    names(obj, "aovs: an AOV name or a sequence of AOV names")
+}
+
+/// A parameter that takes one name or a sequence of names, as a list; else a `TypeError`
+/// saying `what`.
+fn names(obj: &Bound<'_, PyAny>, what: &str) -> PyResult<Vec<String>> {
     if let Ok(s) = obj.extract::<String>() {
         return Ok(vec![s]);
     }
     obj.extract()
-        .map_err(|_| PyTypeError::new_err("aovs: an AOV name or a sequence of AOV names"))
+        .map_err(|_| PyTypeError::new_err(what.to_string()))
 }
 
 fn kernel(precision: &str, formula: &str) -> PyResult<Kernel> {
@@ -528,25 +595,37 @@ impl PyScene {
         Ok(scene.into())
     }
 
-    /// A scene from arrays: `p0`, `p1` of shape (N, 3) and `radius` of shape (N,),
-    /// float64 (the end centres and radii, world units); `caps` one bool or (N,) bools;
-    /// `ids` (N,) positive integers (default 1..N); exactly one of `camera` (a dict of the
-    /// scene file's camera keys) and `cameras` (a list of them). Validated as a scene
-    /// file is: errors name the index, `cylinders[3].radius: must be > 0 ...`.
+    /// A scene from arrays: `p0`, `p1` of shape (N, 3) and `radius` of shape (N,), any
+    /// real array-likes (lists, int or float arrays: converted to float64 as
+    /// `numpy.asarray(x, dtype=float64)` does; the end centres and radii, world units);
+    /// `caps` one bool or (N,) bools; `ids` (N,) positive integers of any dtype (float
+    /// values must be whole numbers; default 1..N); exactly one of `camera` (a dict of the
+    /// scene file's camera keys) and `cameras` (a list of them: `render(scene, camera=k)`
+    /// picks one). Validated as a scene file is: errors name the index,
+    /// `cylinders[3].radius: must be > 0 ...`.
     #[staticmethod]
     #[pyo3(signature = (p0, p1, radius, caps=None, ids=None, camera=None, cameras=None))]
     #[allow(clippy::too_many_arguments)]
     fn from_arrays(
-        p0: PyReadonlyArray2<'_, f64>,
-        p1: PyReadonlyArray2<'_, f64>,
-        radius: PyReadonlyArray1<'_, f64>,
+        p0: &Bound<'_, PyAny>,
+        p1: &Bound<'_, PyAny>,
+        radius: &Bound<'_, PyAny>,
         caps: Option<&Bound<'_, PyAny>>,
-        ids: Option<PyReadonlyArray1<'_, i64>>,
+        ids: Option<&Bound<'_, PyAny>>,
         camera: Option<&Bound<'_, PyAny>>,
         cameras: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<PyScene> {
-        let (p0, p1, radius) = (p0.as_array(), p1.as_array(), radius.as_array());
+        let radius = f64_array(radius, "radius")?;
+        let radius = radius.as_array();
+        if radius.ndim() != 1 {
+            return Err(PyValueError::new_err(format!(
+                "radius: shape must be (N,), got {:?}",
+                radius.shape()
+            )));
+        }
         let n = radius.len();
+        let (p0, p1) = (f64_array(p0, "p0")?, f64_array(p1, "p1")?);
+        let (p0, p1) = (p0.as_array(), p1.as_array());
         for (name, a) in [("p0", &p0), ("p1", &p1)] {
             if a.shape() != [n, 3] {
                 return Err(PyValueError::new_err(format!(
@@ -573,27 +652,7 @@ impl PyScene {
                 }
             },
         };
-        let ids: Option<Vec<u32>> = match ids {
-            None => None,
-            Some(a) => {
-                let a = a.as_array();
-                if a.len() != n {
-                    return Err(PyValueError::new_err(format!(
-                        "ids: {} values for {n} cylinders",
-                        a.len()
-                    )));
-                }
-                let mut v = Vec::with_capacity(n);
-                for (i, &x) in a.iter().enumerate() {
-                    v.push(u32::try_from(x).map_err(|_| {
-                        scene_error(format!(
-                            "cylinders[{i}].id: must be in 1..=4294967295, got {x}"
-                        ))
-                    })?);
-                }
-                Some(v)
-            }
-        };
+        let ids = ids.map(|a| ids_of(a, n)).transpose()?;
         let cam = |obj: &Bound<'_, PyAny>, field: &str| -> PyResult<CameraFile> {
             let text = py_to_json(obj, field)?;
             let de = &mut serde_json::Deserializer::from_str(&text);
@@ -715,6 +774,89 @@ impl PyScene {
     }
 }
 
+/// `x` as a float64 array, converted as `numpy.asarray(x, dtype=float64)` converts it;
+/// complex values (whose imaginary part that would drop) and what numpy cannot convert
+/// raise `ValueError` naming `name`.
+fn f64_array<'py>(x: &Bound<'py, PyAny>, name: &str) -> PyResult<PyReadonlyArrayDyn<'py, f64>> {
+    let np = x.py().import("numpy")?;
+    let bad =
+        |e: PyErr| PyValueError::new_err(format!("{name}: not an array of real numbers: {e}"));
+    let a = np.call_method1("asarray", (x,)).map_err(bad)?;
+    let kind: String = a.getattr("dtype")?.getattr("kind")?.extract()?;
+    if kind == "c" {
+        return Err(PyValueError::new_err(format!(
+            "{name}: complex values; the coordinates are real numbers"
+        )));
+    }
+    let a = np.call_method1("asarray", (a, "float64")).map_err(bad)?;
+    a.extract::<PyReadonlyArrayDyn<'py, f64>>().map_err(bad)
+}
+
+/// `ids=` as u32 values: a sequence of N integers of any integer dtype, or of floats with
+/// whole values, each in 0..=4294967295 (the scene's validation refuses 0, naming the
+/// cylinder); others raise `ValueError` naming `ids[i]`.
+fn ids_of(obj: &Bound<'_, PyAny>, n: usize) -> PyResult<Vec<u32>> {
+    let np = obj.py().import("numpy")?;
+    let a = np
+        .call_method1("asarray", (obj,))
+        .map_err(|e| PyValueError::new_err(format!("ids: not an array of integers: {e}")))?;
+    let shape: Vec<usize> = a.getattr("shape")?.extract()?;
+    if shape != [n] {
+        return Err(PyValueError::new_err(format!(
+            "ids: shape must be ({n},) for {n} radii, got {shape:?}"
+        )));
+    }
+    let kind: String = a.getattr("dtype")?.getattr("kind")?.extract()?;
+    let range = |i: usize, x: &dyn std::fmt::Display| {
+        PyValueError::new_err(format!(
+            "ids[{i}]: must be a whole number in 1..=4294967295, got {x}"
+        ))
+    };
+    // Every integer dtype fits i64 or u64; whole floats are compared as floats.
+    let as_u32 = |i: usize, x: i128| u32::try_from(x).map_err(|_| range(i, &x));
+    match kind.as_str() {
+        "i" => {
+            let v: PyReadonlyArray1<'_, i64> =
+                np.call_method1("asarray", (a, "int64"))?.extract()?;
+            v.as_array()
+                .iter()
+                .enumerate()
+                .map(|(i, &x)| as_u32(i, x.into()))
+                .collect()
+        }
+        "u" => {
+            let v: PyReadonlyArray1<'_, u64> =
+                np.call_method1("asarray", (a, "uint64"))?.extract()?;
+            v.as_array()
+                .iter()
+                .enumerate()
+                .map(|(i, &x)| as_u32(i, x.into()))
+                .collect()
+        }
+        "f" => {
+            let v: PyReadonlyArray1<'_, f64> =
+                np.call_method1("asarray", (a, "float64"))?.extract()?;
+            v.as_array()
+                .iter()
+                .enumerate()
+                .map(|(i, &x)| {
+                    if x.fract() == 0.0 && (0.0..=f64::from(u32::MAX)).contains(&x) {
+                        Ok(x as u32)
+                    } else {
+                        Err(range(i, &x))
+                    }
+                })
+                .collect()
+        }
+        _ => {
+            let dtype = a.getattr("dtype")?.str()?.to_string();
+            Err(PyValueError::new_err(format!(
+                "ids: whole numbers in 1..=4294967295, got an array of {dtype}"
+            )))
+        }
+    }
+}
+
 impl PyScene {
     /// The scene with camera `camera` selected.
     fn with_camera(&self, camera: usize) -> PyResult<scene::Scene> {
@@ -734,8 +876,9 @@ impl PyScene {
 /// `mask` (H, W) bool (True where the pixel's ray hits a cylinder), always. A miss is 0 in
 /// every AOV. The samples are, bit for bit, those of the EXR that `cylaov render` writes
 /// with the same options (`precision` "f64" | "f32", `formula` "stable" | "literal",
-/// `accel` "tiles" | "frustum" | "bvh"). The GIL is released while tracing; `threads`
-/// (default: every core) sizes the thread pool; use 1 inside DataLoader workers.
+/// `accel` "tiles" | "frustum" | "bvh"). The GIL is released while tracing (Ctrl-C raises
+/// `KeyboardInterrupt` within a fraction of a second); `threads` (default: every core)
+/// sizes the thread pool; use 1 inside DataLoader workers.
 #[pyfunction]
 #[pyo3(signature = (scene, aovs=None, camera=0, precision="f64", formula="stable", accel="tiles", threads=None))]
 #[allow(clippy::too_many_arguments)]
@@ -771,9 +914,12 @@ fn render<'py>(
         formula: k.formula,
         accel,
     };
-    let a = run(py, threads, || {
-        arrays(crate::render::render(&sc, &opts).image, &aovs)
+    let a = run_stoppable(py, threads, |stop| {
+        crate::render::render_until(&sc, &opts, stop).map(|r| arrays(r.image, &aovs))
     })?;
+    // `None` only when stopped, and then `run_stoppable` raised.
+    let a =
+        a.ok_or_else(|| InternalError::new_err("internal error (please report): render stopped"))?;
     arrays_to_dict(py, a)
 }
 
@@ -875,7 +1021,10 @@ fn _cast_rays<'py>(
         })
         .collect();
     let sc = &scene.get().scene;
-    let hits = run(py, threads, || cast::cast(sc, k, &rays))?.map_err(PyValueError::new_err)?;
+    let hits = run_stoppable(py, threads, |stop| cast::cast_until(sc, k, &rays, stop))?
+        .map_err(PyValueError::new_err)?
+        // `None` only when stopped, and then `run_stoppable` raised.
+        .ok_or_else(|| InternalError::new_err("internal error (please report): cast stopped"))?;
     let out = PyDict::new(py);
     let want = |a: &str| aovs.iter().any(|x| x == a);
     let dyn1 = |v| ArrayD::from_shape_vec(IxDyn(&[n]), v).map_err(shape_err);
@@ -1090,7 +1239,7 @@ impl _Views {
         let (index, camera) = (k as u64 / v, (k as u64 % v) as usize);
         // Generation, validation, the trace and the arrays in one trip to the pool, the
         // GIL released: each trip costs a hand-over to a worker and back.
-        let (a, v) = run(py, self.threads, || {
+        let (a, v) = run_stoppable(py, self.threads, |stop| {
             let file = self
                 .options
                 .scene(self.seed, index)
@@ -1099,7 +1248,10 @@ impl _Views {
             sc.select_camera(camera)
                 .map_err(|e| PyIndexError::new_err(format!("camera: {e}")))?;
             let opts = RenderOptions::new(traced(&self.aovs));
-            let a = arrays(crate::render::render(&sc, &opts).image, &self.aovs);
+            // `None` only when stopped, and then `run_stoppable` raises instead.
+            let r = crate::render::render_until(&sc, &opts, stop)
+                .ok_or_else(|| PyValueError::new_err("stopped"))?;
+            let a = arrays(r.image, &self.aovs);
             let text = crate::output::io::camera_json(&Camera::new(sc.camera), &self.aovs);
             let v: serde_json::Value =
                 serde_json::from_str(&text).map_err(|e| PyValueError::new_err(e.to_string()))?;

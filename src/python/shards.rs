@@ -2,7 +2,7 @@
 //! webdataset` from Python, so any engine (Ray, Dask, a process pool) can map tars over
 //! workers and get the command line's bytes.
 
-use super::{kernel, parse_aovs, run};
+use super::{aov_names, kernel, names, parse_aovs, run, run_stoppable};
 use crate::dataset::batch::BatchOptions;
 use crate::dataset::batch::shards::{self, Member, ShardOptions, TarOutcome, TarSelection};
 use pyo3::exceptions::PyValueError;
@@ -31,7 +31,7 @@ pub fn shard_count(py: Python<'_>, input: PathBuf, shard_size: usize) -> PyResul
 /// as `cylaov batch INPUT --out OUT --format webdataset` does; a summary dict.
 #[pyfunction]
 #[pyo3(signature = (input, out, shards = None, shard_size = shards::DEFAULT_SHARD_SIZE,
-    aovs = None, members = Vec::new(), precision = "f64", formula = "stable",
+    aovs = None, members = None, precision = "f64", formula = "stable",
     depth_scale = 1000.0, threads = None))]
 #[allow(clippy::too_many_arguments)]
 pub fn write_shards<'py>(
@@ -40,14 +40,18 @@ pub fn write_shards<'py>(
     out: PathBuf,
     shards: Option<Vec<usize>>,
     shard_size: usize,
-    aovs: Option<Vec<String>>,
-    members: Vec<String>,
+    aovs: Option<&Bound<'py, PyAny>>,
+    members: Option<&Bound<'py, PyAny>>,
     precision: &str,
     formula: &str,
     depth_scale: f64,
     threads: Option<usize>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let k = kernel(precision, formula)?;
+    let members = match members {
+        None => Vec::new(),
+        Some(m) => names(m, "members: \"exr\", \"depth.png\" or a sequence of them")?,
+    };
     let members = members
         .iter()
         .enumerate()
@@ -60,7 +64,7 @@ pub fn write_shards<'py>(
         })
         .collect::<PyResult<Vec<_>>>()?;
     let opts = BatchOptions {
-        aovs: aovs.as_deref().map(parse_aovs).transpose()?,
+        aovs: aovs.map(|a| parse_aovs(&aov_names(a)?)).transpose()?,
         precision: k.precision,
         formula: k.formula,
         depth_scale,
@@ -74,8 +78,8 @@ pub fn write_shards<'py>(
         Some(list) => TarSelection::List(list),
         None => TarSelection::Shard(crate::dataset::batch::Shard::ALL),
     };
-    let summary = run(py, threads, || {
-        shards::write_shards(&input, &out, &selection, &opts, &sopts, false)
+    let summary = run_stoppable(py, threads, |stop| {
+        shards::write_shards_until(&input, &out, &selection, &opts, &sopts, false, stop)
     })?
     .map_err(value_error)?;
     let d = PyDict::new(py);

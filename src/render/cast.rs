@@ -23,6 +23,7 @@ use crate::scene::camera::Camera;
 use crate::scene::{MAX_COORD, Scene};
 use glam::DVec3;
 use rayon::prelude::*;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 /// One ray: the points `origin + t·dir` with `t_min <= t <= t_max`.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -59,17 +60,30 @@ const BVH_MIN_RAYS: usize = 8;
 /// The nearest hit of every ray with the kernel `kernel`, on the current rayon pool; the
 /// error names the first bad ray (`rays[3].dir: ...`).
 pub fn cast(scene: &Scene, kernel: Kernel, rays: &[Ray]) -> Result<Vec<Option<RayHit>>, String> {
+    let never = AtomicBool::new(false);
+    Ok(cast_until(scene, kernel, rays, &never)?.unwrap_or_default())
+}
+
+/// [`cast`], given up once `stop` is set (by another thread: the Python package on
+/// Ctrl-C): rays not cast by then are not, and the result is `None`.
+pub fn cast_until(
+    scene: &Scene,
+    kernel: Kernel,
+    rays: &[Ray],
+    stop: &AtomicBool,
+) -> Result<Option<Vec<Option<RayHit>>>, String> {
     for (i, r) in rays.iter().enumerate() {
         check_ray(i, r)?;
     }
-    struct Run<'a>(&'a Scene, &'a [Ray]);
+    struct Run<'a>(&'a Scene, &'a [Ray], &'a AtomicBool);
     impl KernelFn for Run<'_> {
         type Output = Vec<Option<RayHit>>;
         fn call<T: Simd, F: PacketFormula>(self) -> Self::Output {
-            cast_with::<T, F>(self.0, self.1)
+            cast_with::<T, F>(self.0, self.1, self.2)
         }
     }
-    Ok(kernel.dispatch(Run(scene, rays)))
+    let hits = kernel.dispatch(Run(scene, rays, stop));
+    Ok((!stop.load(Ordering::Relaxed)).then_some(hits))
 }
 
 fn check_ray(i: usize, r: &Ray) -> Result<(), String> {
@@ -104,7 +118,11 @@ fn check_ray(i: usize, r: &Ray) -> Result<(), String> {
     Ok(())
 }
 
-fn cast_with<T: Real, F: Formula>(scene: &Scene, rays: &[Ray]) -> Vec<Option<RayHit>> {
+fn cast_with<T: Real, F: Formula>(
+    scene: &Scene,
+    rays: &[Ray],
+    stop: &AtomicBool,
+) -> Vec<Option<RayHit>> {
     // Group by origin, bit for bit: rays of one group share one prepared scene.
     let key = |r: &Ray| r.origin.to_array().map(f64::to_bits);
     let mut by_origin: Vec<u32> = (0..rays.len() as u32).collect();
@@ -116,11 +134,19 @@ fn cast_with<T: Real, F: Formula>(scene: &Scene, rays: &[Ray]) -> Vec<Option<Ray
     let found: Vec<Vec<Option<RayHit>>> = groups
         .par_iter()
         .map(|group| {
+            if stop.load(Ordering::Relaxed) {
+                return vec![None; group.len()];
+            }
             let origin = rays[group[0] as usize].origin;
             let tracer = tracer_at::<T, F>(scene, &bounds, origin, group.len());
             group
                 .par_iter()
-                .map(|&i| cast_one(scene, &tracer, &rays[i as usize]))
+                .map(|&i| {
+                    if stop.load(Ordering::Relaxed) {
+                        return None;
+                    }
+                    cast_one(scene, &tracer, &rays[i as usize])
+                })
                 .collect()
         })
         .collect();

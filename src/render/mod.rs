@@ -28,6 +28,7 @@ use crate::geometry::{FormulaKind, Precision};
 use crate::output::aov::AovImage;
 use crate::scene::{Aov, Scene};
 use rayon::prelude::*;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 pub mod cast;
 mod planes;
@@ -94,6 +95,21 @@ pub struct Render {
 /// Render `scene` with `opts` on the current rayon pool.
 pub fn render(scene: &Scene, opts: &RenderOptions) -> Render {
     render_timed(scene, opts).0
+}
+
+/// [`render`], given up once `stop` is set (by another thread: a caller that must end a
+/// long render early, as the Python package on Ctrl-C): bands not started by then are not
+/// traced, and the result is `None`. Unstopped, the same bits as [`render`].
+pub fn render_until(scene: &Scene, opts: &RenderOptions, stop: &AtomicBool) -> Option<Render> {
+    struct Run<'a>(&'a Scene, &'a RenderOptions, &'a AtomicBool);
+    impl KernelFn for Run<'_> {
+        type Output = Render;
+        fn call<T: Simd, F: PacketFormula>(self) -> Self::Output {
+            render_simd::<T, F>(self.0, self.1, true, Some(self.2)).0
+        }
+    }
+    let r = Kernel::new(opts.formula, opts.precision).dispatch(Run(scene, opts, stop));
+    (!stop.load(Ordering::Relaxed)).then_some(r)
 }
 
 /// Time spent preparing the scene: the acceleration structure (`build`: tiles or BVH,
@@ -189,7 +205,7 @@ pub const TINY_VIEW_ENTRIES: usize = 16;
 pub const WIDE_COLLAPSE: usize = 4;
 
 fn render_with<T: Simd, F: PacketFormula>(scene: &Scene, opts: &RenderOptions) -> (Render, Timing) {
-    render_simd::<T, F>(scene, opts, true)
+    render_simd::<T, F>(scene, opts, true, None)
 }
 
 /// What every band of one render reads, kept while the bands are traced.
@@ -243,11 +259,13 @@ impl<T: Real, F: Formula> Setup<T, F> {
     }
 }
 
-/// [`render_with`], with the AVX2 path allowed or not (the test of their agreement).
+/// [`render_with`], with the AVX2 path allowed or not (the test of their agreement); with
+/// `stop`, bands that start after it is set are left untraced.
 fn render_simd<T: Simd, F: PacketFormula>(
     scene: &Scene,
     opts: &RenderOptions,
     simd: bool,
+    stop: Option<&AtomicBool>,
 ) -> (Render, Timing) {
     let start = std::time::Instant::now();
     let setup = Setup::<T, F>::new(scene, opts);
@@ -260,7 +278,10 @@ fn render_simd<T: Simd, F: PacketFormula>(
     let hits: usize = bands(&mut samples, band_rows * w, h.div_ceil(band_rows))
         .into_par_iter()
         .enumerate()
-        .map(|(b, mut band)| band_fn(&inputs, b, &mut band))
+        .map(|(b, mut band)| match stop {
+            Some(s) if s.load(Ordering::Relaxed) => 0,
+            _ => band_fn(&inputs, b, &mut band),
+        })
         .sum();
     let image = AovImage {
         width: w,
@@ -377,6 +398,20 @@ mod tests {
         assert_eq!(s(Accel::Bvh, (8192, 8192), 1 << 28), PerRay { wide: true });
     }
 
+    /// Unstopped, `render_until` gives `render`'s bits; stopped (here before it starts),
+    /// nothing.
+    #[test]
+    fn render_until_gives_up_when_stopped() {
+        let sc = crate::bench::dense_scene(300, 5, 67, 45);
+        let o = RenderOptions::new(Aov::ALL.to_vec());
+        let whole = render(&sc, &o);
+        assert!(whole.hits > 0);
+        let go = render_until(&sc, &o, &AtomicBool::new(false)).expect("not stopped");
+        assert_eq!(go.hits, whole.hits);
+        assert_eq!(go.image.buffers, whole.image.buffers);
+        assert!(render_until(&sc, &o, &AtomicBool::new(true)).is_none());
+    }
+
     /// Rendered band by band, every AOV is the whole render's bits at the band's rows (an
     /// odd size: a last band of 97 mod 16 = 1 row, partial tiles), through each structure;
     /// the bands cover the image once; an error from the sink ends the render with it.
@@ -478,12 +513,12 @@ mod tests {
                 ..RenderOptions::new(Aov::ALL.to_vec())
             };
             let (a, b) = (
-                render_simd::<f32, Stable>(sc, &o, true).0,
-                render_simd::<f32, Stable>(sc, &o, false).0,
+                render_simd::<f32, Stable>(sc, &o, true, None).0,
+                render_simd::<f32, Stable>(sc, &o, false, None).0,
             );
             let (c, d) = (
-                render_simd::<f64, Stable>(sc, &o, true).0,
-                render_simd::<f64, Stable>(sc, &o, false).0,
+                render_simd::<f64, Stable>(sc, &o, true, None).0,
+                render_simd::<f64, Stable>(sc, &o, false, None).0,
             );
             for (x, y) in [(&a, &b), (&c, &d)] {
                 assert_eq!(x.hits, y.hits);

@@ -1,8 +1,10 @@
 """Bad calls raise exceptions of the package, never a panic, an abort or a hang: arrays of
 different sizes, huge headers, FIFOs, thread counts; the mask beside a lone position; one
-string for `aovs`."""
+string for `aovs`; Ctrl-C during a long call; the array-likes `Scene.from_arrays` takes."""
 
+import json
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -112,3 +114,211 @@ def test_read_of_a_foreign_exr_says_what_it_expected(tmp_path):
                  {"A": px, "Q": px}).write(str(path))
     with pytest.raises(ValueError, match=r"not one of cylaov's EXRs: its channels are \[A, Q\]; expected"):
         cylaov.read(path)
+
+
+# ---- Ctrl-C during a long call -------------------------------------------------------------
+
+# How long after SIGINT the call may take to raise KeyboardInterrupt: the calling thread
+# looks for signals every 20 ms, and the work stops at its next band (a render) or view (a
+# tar). Measured 3-50 ms (render, cast_rays, Dataset[i]) and 5-75 ms (write_shards, which also removes
+# its temporary tar) on a 2-core VM at a load average of 3: 0.5 s leaves ten times that for
+# a busy machine, and still fails a call that runs on to its end (seconds).
+LATENCY = 0.5
+
+PRELUDE = """
+import time
+import cylaov
+# A view that takes about 5 s on one core of a 2-core VM.
+BIG = {"cylinders": "20000..20000", "width": 5000, "height": 5000}
+def report(call):
+    print("started", flush=True)
+    t0 = time.monotonic()
+    try:
+        call()
+    except KeyboardInterrupt:
+        print("interrupted", time.monotonic(), time.monotonic() - t0, flush=True)
+    else:
+        print("finished", time.monotonic() - t0, flush=True)
+"""
+
+
+def _interrupt(code, wait=0.5, until=None):
+    """Run PRELUDE + `code` in a new Python; once it prints "started" and `wait` seconds
+    have passed (and then `until()` holds), send SIGINT. Returns (seconds from SIGINT to
+    KeyboardInterrupt, the call's seconds, stderr)."""
+    p = subprocess.Popen([sys.executable, "-c", PRELUDE + code], stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    try:
+        assert p.stdout.readline().strip() == "started", p.stderr.read()
+        time.sleep(wait)
+        deadline = time.monotonic() + 60
+        while until is not None and not until() and time.monotonic() < deadline:
+            time.sleep(0.01)
+        sent = time.monotonic()
+        p.send_signal(signal.SIGINT)
+        out, err = p.communicate(timeout=120)
+    finally:
+        p.kill()
+    assert p.returncode == 0, err
+    words = out.split()
+    assert words[0] == "interrupted", f"the call was not interrupted: {out}{err}"
+    latency, took = float(words[1]) - sent, float(words[2])
+    assert took > wait  # the signal came while the call ran
+    return latency, took, err
+
+
+def test_ctrl_c_stops_a_render():
+    # The first call that returns arrays in this process: numpy's API is loaded at import,
+    # so the signal is a KeyboardInterrupt, never a panic.
+    latency, took, err = _interrupt("""
+scene = cylaov.generate(BIG, 1, 0)
+report(lambda: cylaov.render(scene, aovs="depth", threads=1))
+""")
+    assert latency < LATENCY, latency
+    assert "Panic" not in err, err
+
+
+def test_ctrl_c_stops_cast_rays():
+    # One origin a ray: the scene is prepared for each (about 1 ms), 5000 times.
+    latency, took, err = _interrupt("""
+import numpy as np
+scene = cylaov.generate(BIG, 1, 0)
+origins = np.random.default_rng(0).uniform(-20, 20, (5000, 3))
+report(lambda: cylaov.cast_rays(scene, origins, -origins, threads=1))
+""")
+    assert latency < LATENCY, latency
+
+
+def test_ctrl_c_stops_a_dataset_item():
+    latency, took, err = _interrupt("""
+ds = cylaov.Dataset(BIG, 1, 4, aovs="depth", threads=1)
+report(lambda: ds[0])
+""")
+    assert latency < LATENCY, latency
+
+
+def _shard_input(path, views):
+    """A folder holding one scene of 20 000 cylinders seen by `views` cameras: a view takes
+    about 60 ms on one core (loading the scene, then the trace), its tar members 1.3 MB."""
+    path.mkdir()
+    scene = json.loads(cylaov.generate({"cylinders": "20000..20000", "width": 320,
+                                        "height": 240}, 7, 0).to_json())
+    cam = scene.pop("camera")
+    x, y, z = cam["origin"]
+    scene["cameras"] = [dict(cam, origin=[x + 0.01 * k, y, z]) for k in range(views)]
+    (path / "scene.json").write_text(json.dumps(scene))
+    return path
+
+
+def _files(out):
+    return {p.relative_to(out).as_posix(): p.read_bytes() for p in sorted(out.rglob("*"))
+            if p.is_file()}
+
+
+def test_ctrl_c_stops_write_shards_leaving_a_resumable_output(tmp_path):
+    # 12 tars of 8 views: about 6 s on one core; interrupted once the first tar is done.
+    data = _shard_input(tmp_path / "data", 96)
+    out = tmp_path / "out"
+    latency, took, err = _interrupt(f"""
+report(lambda: cylaov.write_shards({str(data)!r}, {str(out)!r}, shard_size=8, aovs="depth",
+                                   threads=1))
+""", until=lambda: any(out.glob("shard-*.json")))
+    assert latency < LATENCY, latency
+    left = sorted(p.relative_to(out).as_posix() for p in out.rglob("*"))
+    # Nothing staged is left: no .partial folder, no temporary file, no lock.
+    assert not [p for p in left if ".partial" in p or p.endswith((".tmp", ".lock"))], left
+    done = sorted(p for p in left if p.endswith(".json"))
+    assert done and len(done) < 12, left  # some tars finished, others not
+    assert left == sorted(done + [p.replace(".json", ".tar") for p in done])
+    # The rerun skips the finished tars and writes the rest: the bytes of one run.
+    again = cylaov.write_shards(data, out, shard_size=8, aovs="depth")
+    assert again["skipped"] == [int(p[6:12]) for p in done]
+    assert len(again["written"]) == 12 - len(done) and again["index_written"]
+    whole = cylaov.write_shards(data, tmp_path / "whole", shard_size=8, aovs="depth")
+    assert len(whole["written"]) == 12
+    assert _files(out) == _files(tmp_path / "whole")
+
+
+# ---- arguments -------------------------------------------------------------------------------
+
+CAM = {"origin": [3, -5, 2.5], "target": [0, 0, 0.6], "up": [0, 0, 1], "fov_deg": 40,
+       "width": 32, "height": 24}
+
+
+def test_from_arrays_takes_any_real_array_like():
+    want = cylaov.Scene.from_arrays(np.zeros((2, 3)), np.array([[0, 0, 1.0], [1, 0, 2.0]]),
+                                    np.array([0.5, 0.25]), ids=np.array([7, 9]), camera=CAM)
+    same = [
+        # lists, int arrays, float32 arrays, uint32 / int8 / float ids with whole values
+        ([[0, 0, 0], [0, 0, 0]], [[0, 0, 1], [1, 0, 2]], [0.5, 0.25], [7, 9]),
+        (np.zeros((2, 3), np.int64), np.array([[0, 0, 1], [1, 0, 2]]),
+         np.array([0.5, 0.25], np.float32), np.array([7, 9], np.uint32)),
+        (np.zeros((2, 3), np.float32), np.array([[0, 0, 1], [1, 0, 2]], np.int32),
+         (0.5, 0.25), np.array([7, 9], np.int8)),
+        (np.zeros((3, 2)).T, np.array([[0, 0, 1], [1, 0, 2]], np.uint64), [0.5, 0.25],
+         np.array([7.0, 9.0])),
+        (np.zeros((2, 3)), np.array([[0, 0, 1], [1, 0, 2]]), [0.5, 0.25],
+         np.array([7, 9], np.uint64)),
+    ]
+    for p0, p1, r, ids in same:
+        got = cylaov.Scene.from_arrays(p0, p1, r, ids=ids, camera=CAM)
+        assert got == want
+        np.testing.assert_array_equal(cylaov.render(got, aovs="shape_id")["shape_id"],
+                                      cylaov.render(want, aovs="shape_id")["shape_id"])
+    assert 9 in cylaov.render(want, aovs="shape_id")["shape_id"]
+
+
+def test_from_arrays_refuses_ids_that_are_not_whole_u32_values():
+    p0, p1, r = np.zeros((2, 3)), [[0, 0, 1], [1, 0, 2]], [0.5, 0.25]
+    for ids, at, shown in (([1, 1.5], 1, "1.5"), ([-1, 2], 0, "-1"), ([1, 2**32], 1, "4294967296"),
+                           (np.array([3, 2**40], np.int64), 1, "1099511627776"),
+                           (np.array([1, 2**64 - 1], np.uint64), 1, "18446744073709551615"),
+                           ([1, float("nan")], 1, "NaN"), ([float("inf"), 1], 0, "inf")):
+        with pytest.raises(ValueError, match=rf"^ids\[{at}\]: must be a whole number in "
+                                             rf"1\.\.=4294967295, got {shown}$"):
+            cylaov.Scene.from_arrays(p0, p1, r, ids=ids, camera=CAM)
+    for ids, msg in (([True, False], r"ids: whole numbers in 1\.\.=4294967295, got an array of bool"),
+                     (["a", "b"], r"ids: whole numbers in 1\.\.=4294967295, got an array of <U1"),
+                     ([1, 2, 3], r"ids: shape must be \(2,\) for 2 radii, got \[3\]")):
+        with pytest.raises(ValueError, match=msg):
+            cylaov.Scene.from_arrays(p0, p1, r, ids=ids, camera=CAM)
+    with pytest.raises(cylaov.SceneError, match=r"cylinders\[0\]\.id"):
+        cylaov.Scene.from_arrays(p0, p1, r, ids=[0, 2], camera=CAM)
+    with pytest.raises(ValueError, match=r"^p1: complex values"):
+        cylaov.Scene.from_arrays(p0, np.ones((2, 3), complex), r, camera=CAM)
+    with pytest.raises(ValueError, match=r"^radius: not an array of real numbers"):
+        cylaov.Scene.from_arrays(p0, p1, ["a", None], camera=CAM)
+    with pytest.raises(ValueError, match=r"^radius: shape must be \(N,\), got \[1, 2\]"):
+        cylaov.Scene.from_arrays(p0, p1, [r], camera=CAM)
+
+
+def test_from_arrays_with_several_cameras():
+    cams = [CAM, dict(CAM, origin=[-3, 5, 2.5], width=16, height=12)]
+    s = cylaov.Scene.from_arrays([[0, 0, 0]], [[0, 0, 1]], [0.5], cameras=cams)
+    assert [c["width"] for c in s.cameras] == [32, 16]
+    assert cylaov.render(s, aovs="depth", camera=1)["depth"].shape == (12, 16)
+    with pytest.raises(IndexError, match="camera"):
+        cylaov.render(s, camera=2)
+
+
+def test_every_aovs_parameter_takes_one_name(tmp_path):
+    scene = cylaov.Scene.load(SCENE)
+    assert set(cylaov.render(scene, aovs="depth")) == {"depth", "mask"}
+    assert set(cylaov.render(scene, aovs=["depth"])) == {"depth", "mask"}
+    assert set(cylaov.cast_rays(scene, [0, 0, 5], [[0, 0, -1]], aovs="t_hit")) == {"t_hit"}
+    assert cylaov.Dataset(None, 0, 1, aovs="depth").aovs == ("depth",)
+    data = _shard_input(tmp_path / "data", 2)  # one tar of two views
+    one = cylaov.write_shards(data, tmp_path / "one", aovs="depth", members="depth.png")
+    seq = cylaov.write_shards(data, tmp_path / "seq", aovs=["depth"], members=["depth.png"])
+    assert one["written"] == seq["written"] == [0]
+    assert _files(tmp_path / "one") == _files(tmp_path / "seq")
+    assert b"depth.png" in (tmp_path / "one" / "shard-000000.tar").read_bytes()
+    for bad in (3, [3], None.__class__):
+        with pytest.raises(TypeError, match="aovs: an AOV name or a sequence of AOV names"):
+            cylaov.render(scene, aovs=bad)
+        with pytest.raises(TypeError, match="aovs: an AOV name or a sequence of AOV names"):
+            cylaov.write_shards(data, tmp_path / "bad", aovs=bad)
+        with pytest.raises(TypeError, match="aovs: an AOV name or a sequence of AOV names"):
+            cylaov.Dataset(None, 0, 1, aovs=bad)
+        with pytest.raises(TypeError, match="aovs: a ray output name or a sequence of them"):
+            cylaov.cast_rays(scene, [0, 0, 5], [[0, 0, -1]], aovs=bad)

@@ -58,6 +58,7 @@ use sha2::{Digest, Sha256};
 use std::collections::HashMap;
 use std::io::{BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 /// Views a tar holds unless told otherwise.
@@ -589,9 +590,19 @@ struct Plan<'a> {
     tars: usize,
     /// Whether the files format would write PNGs (for its size estimate).
     files_png: bool,
+    /// Set by the caller to end the run early (see [`write_shards_until`]).
+    stop: &'a AtomicBool,
 }
 
 impl Plan<'_> {
+    /// An error once the caller asked to stop.
+    fn check_stop(&self) -> Result<()> {
+        if self.stop.load(Ordering::Relaxed) {
+            bail!("stopped before the run finished");
+        }
+        Ok(())
+    }
+
     fn range(&self, j: usize) -> std::ops::Range<usize> {
         let s = self.sopts.shard_size;
         j * s..((j + 1) * s).min(self.views.len())
@@ -674,6 +685,7 @@ impl Plan<'_> {
 
     /// Write tar `j` (unless its sidecar vouches for it) under its lock.
     fn tar(&self, j: usize) -> Result<(TarOutcome, Sidecar, usize)> {
+        self.check_stop()?;
         let _lock = lock_shard(
             self.out,
             &self.root,
@@ -683,8 +695,14 @@ impl Plan<'_> {
         let scenes: Vec<Result<Scene, String>> = range
             .clone()
             .into_par_iter()
-            .map(|i| self.scene(i))
+            .map(|i| {
+                if self.stop.load(Ordering::Relaxed) {
+                    return Err(String::new());
+                }
+                self.scene(i)
+            })
             .collect();
+        self.check_stop()?;
         let stamp = self.stamp(&scenes, j);
         if let Some(car) = self.vouched(j, &stamp) {
             return Ok((TarOutcome::Skipped, car, 0));
@@ -754,9 +772,13 @@ impl Plan<'_> {
         let chunk = rayon::current_num_threads().max(1);
         let indices: Vec<usize> = range.clone().collect();
         for chunk in indices.chunks(chunk) {
+            self.check_stop()?;
             let rendered: Vec<(usize, Result<Members, String>)> = chunk
                 .par_iter()
                 .map(|&i| {
+                    if self.stop.load(Ordering::Relaxed) {
+                        return (i, Err(String::new()));
+                    }
                     let r = scenes[i - range.start]
                         .as_ref()
                         .map_err(|e| e.clone())
@@ -775,6 +797,7 @@ impl Plan<'_> {
                     (i, r)
                 })
                 .collect();
+            self.check_stop()?;
             for (i, r) in rendered {
                 match r {
                     Ok(members) => {
@@ -936,6 +959,23 @@ pub fn write_shards(
     sopts: &ShardOptions,
     announce: bool,
 ) -> Result<ShardSummary> {
+    let never = AtomicBool::new(false);
+    write_shards_until(input, out, selection, opts, sopts, announce, &never)
+}
+
+/// [`write_shards`], ended early with an error once `stop` is set (by another thread: the
+/// Python package on Ctrl-C). It stops as an interrupted command does: the tars finished by
+/// then stay with their sidecars (a rerun skips them), the one in progress and its
+/// temporary file go, and so does `OUT/.partial` when no other process uses it.
+pub fn write_shards_until(
+    input: &Path,
+    out: &Path,
+    selection: &TarSelection,
+    opts: &BatchOptions,
+    sopts: &ShardOptions,
+    announce: bool,
+    stop: &AtomicBool,
+) -> Result<ShardSummary> {
     let start = Instant::now();
     opts.validate().map_err(anyhow::Error::msg)?;
     if sopts.shard_size == 0 {
@@ -992,6 +1032,7 @@ pub fn write_shards(
         sopts,
         tars,
         files_png: opts.png,
+        stop,
     };
     let mut targets: Vec<(&str, PathBuf)> = vec![
         ("--out", out.join("shards.json")),
@@ -1013,10 +1054,25 @@ pub fn write_shards(
     if announce {
         eprintln!("{}", estimate_line(&plan, &mine));
     }
+    let summary = write_planned(&plan, &mine, failures_path, start);
+    // Other processes may still be using `.partial`; it goes when the last one leaves.
+    let _ = std::fs::remove_dir(out.join(".partial"));
+    if summary.is_ok() {
+        dirs.keep();
+    }
+    summary
+}
 
+/// The tars `mine` of `plan`, the failures file and, when every tar is in place, the index.
+fn write_planned(
+    plan: &Plan,
+    mine: &[usize],
+    failures_path: PathBuf,
+    start: Instant,
+) -> Result<ShardSummary> {
     let mut summary = ShardSummary {
         views: plan.views.len(),
-        tars,
+        tars: plan.tars,
         outcomes: Vec::new(),
         rendered: 0,
         failures: Vec::new(),
@@ -1044,9 +1100,6 @@ pub fn write_shards(
     atomic_write_bytes(&summary.failures_path, lines.as_bytes())
         .with_context(|| format!("writing {}", summary.failures_path.display()))?;
     summary.index_written = plan.merge_index()?;
-    // Other processes may still be using `.partial`; it goes when the last one leaves.
-    let _ = std::fs::remove_dir(out.join(".partial"));
-    dirs.keep();
     summary.elapsed = start.elapsed();
     Ok(summary)
 }

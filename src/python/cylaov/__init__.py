@@ -90,11 +90,24 @@ def cast_rays(scene, origins, directions, t_min=0.0, t_max=float("inf"),
         hi = _np.broadcast_to(_np.asarray(t_max, dtype=_np.float64), shape)
     except ValueError as e:
         raise ValueError(f"origins, t_min, t_max must broadcast to {shape}: {e}") from None
-    aovs = (aovs,) if isinstance(aovs, str) else tuple(aovs)
+    aovs = _names(aovs, "aovs: a ray output name or a sequence of them")
     flat = lambda a, k: _np.ascontiguousarray(a.reshape((-1,) + k))
     out = _cylaov._cast_rays(scene, flat(o, (3,)), flat(d, (3,)), flat(lo, ()), flat(hi, ()),
                              list(aovs), precision, formula, threads)
     return {k: v.reshape(shape + v.shape[1:]) for k, v in out.items()}
+
+
+def _names(names, what):
+    """One name or a sequence of names as a tuple; anything else raises ``TypeError(what)``."""
+    if isinstance(names, str):
+        return (names,)
+    try:
+        names = tuple(names)
+    except TypeError:
+        raise TypeError(what) from None
+    if not all(isinstance(n, str) for n in names):
+        raise TypeError(what)
+    return names
 
 
 def _settings_json(settings):
@@ -149,7 +162,7 @@ class Dataset:
         self.settings = settings
         self.seed = int(seed)
         self.length = int(length)
-        self.aovs = (aovs,) if isinstance(aovs, str) else tuple(aovs)
+        self.aovs = _names(aovs, "aovs: an AOV name or a sequence of AOV names")
         self.views_per_scene = int(views_per_scene)
         self.threads = threads
         self._views = _cylaov._Views(_settings_json(settings), self.seed, self.length,

@@ -11,6 +11,7 @@ __version__: str
 PathLike = Union[str, "os.PathLike[str]"]
 AovName = Literal["distance", "depth", "normal", "position", "shape_id", "part", "normal_camera"]
 RayOutput = Literal["t_hit", "normal", "shape_id", "part", "position"]
+MemberName = Literal["exr", "depth.png"]
 Settings = Union[None, Dict[str, Any], PathLike]
 
 class SceneError(ValueError):
@@ -30,14 +31,30 @@ class Scene:
     def from_dict(d: Dict[str, Any]) -> "Scene": ...
     @staticmethod
     def from_arrays(
-        p0: npt.NDArray[np.float64],
-        p1: npt.NDArray[np.float64],
-        radius: npt.NDArray[np.float64],
+        p0: npt.ArrayLike,
+        p1: npt.ArrayLike,
+        radius: npt.ArrayLike,
         caps: Union[bool, Sequence[bool], None] = None,
-        ids: Optional[npt.NDArray[np.int64]] = None,
+        ids: Optional[npt.ArrayLike] = None,
         camera: Optional[Dict[str, Any]] = None,
         cameras: Optional[Sequence[Dict[str, Any]]] = None,
-    ) -> "Scene": ...
+    ) -> "Scene":
+        """A scene from arrays: `p0`, `p1` (N, 3) end centres and `radius` (N,), any real
+        array-likes (converted as `np.asarray(x, dtype=np.float64)`); `ids` N whole numbers
+        in 1..=4294967295 of any dtype; exactly one of `camera` (a dict of the scene file's
+        camera keys) and `cameras` (a list of them: `render(scene, camera=k)` picks one).
+
+        Example::
+
+            scene = cylaov.Scene.from_arrays(
+                [[0, 0, 0]], [[0, 0, 1]], [0.5],
+                cameras=[{"origin": [3, -5, 2.5], "target": [0, 0, 0.5], "up": [0, 0, 1],
+                          "fov_deg": 40, "width": 64, "height": 48},
+                         {"origin": [-3, 5, 2.5], "target": [0, 0, 0.5], "up": [0, 0, 1],
+                          "fov_deg": 40, "width": 32, "height": 24}])
+            depth = cylaov.render(scene, aovs="depth", camera=1)["depth"]   # (24, 32)
+        """
+        ...
     @property
     def cameras(self) -> list[Dict[str, Any]]: ...
     def to_json(self) -> str: ...
@@ -63,7 +80,7 @@ def cast_rays(
     directions: npt.ArrayLike,
     t_min: npt.ArrayLike = 0.0,
     t_max: npt.ArrayLike = float("inf"),
-    aovs: Sequence[RayOutput] = ("t_hit", "normal", "shape_id", "part"),
+    aovs: Union[RayOutput, Sequence[RayOutput]] = ("t_hit", "normal", "shape_id", "part"),
     precision: Literal["f64", "f32"] = "f64",
     formula: Literal["stable", "literal"] = "stable",
     threads: Optional[int] = None,
@@ -113,13 +130,14 @@ def write_shards(
     out: PathLike,
     shards: Optional[Sequence[int]] = None,
     shard_size: int = 1000,
-    aovs: Optional[Sequence[AovName]] = None,
-    members: Sequence[Literal["exr", "depth.png"]] = (),
+    aovs: Union[AovName, Sequence[AovName], None] = None,
+    members: Union[MemberName, Sequence[MemberName], None] = None,
     precision: Literal["f64", "f32"] = "f64",
     formula: Literal["stable", "literal"] = "stable",
     depth_scale: float = 1000.0,
     threads: Optional[int] = None,
 ) -> Dict[str, Any]:
     """Write tar shards `shards` (None: all) as `batch --format webdataset` does, same bytes;
-    returns {"tars", "written", "skipped", "failed", "index_written"}."""
+    returns {"tars", "written", "skipped", "failed", "index_written"}. Ctrl-C stops it with
+    KeyboardInterrupt, leaving the finished tars (a rerun skips them) and no temporary file."""
     ...
