@@ -243,6 +243,11 @@ struct BatchCli {
     /// (KEY.exr), `depth.png` (KEY.depth.png, at --depth-scale).
     #[arg(long, value_enum, value_delimiter = ',')]
     members: Vec<Member>,
+    /// With --format webdataset: replace the dataset --out holds when it was written with
+    /// other settings (its tars, sidecars, shards.json and failures files are removed
+    /// first); without it such a run is refused, naming each difference.
+    #[arg(long)]
+    force: bool,
     // Last: every option after a heading is listed under it.
     #[command(flatten, next_help_heading = "Bounds of --verify-fraction")]
     tolerances: TolerancesCli,
@@ -677,6 +682,9 @@ fn batch(a: BatchCli) -> anyhow::Result<ExitCode> {
         if !a.members.is_empty() {
             anyhow::bail!("--members: only with --format webdataset");
         }
+        if a.force {
+            anyhow::bail!("--force: only with --format webdataset");
+        }
     }
     let format = a.format;
     let sopts = ShardOptions {
@@ -686,6 +694,7 @@ fn batch(a: BatchCli) -> anyhow::Result<ExitCode> {
                 n as usize
             }),
         members: a.members.clone(),
+        force: a.force,
     };
     let args = commands::batch::BatchArgs {
         input: a.input,

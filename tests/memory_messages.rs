@@ -707,10 +707,11 @@ fn verify_heatmaps_carry_the_legend() {
     let img = image::open(dir.path().join("single.heatmap.png"))
         .unwrap()
         .to_rgb8();
-    // 320 x 240: scale 2, rows of 16 pixels under the image.
+    // 320 x 240: scale 2, rows of 16 pixels under the image: the legend, the ramp and the
+    // title (the view, what was compared, the verdict).
     assert_eq!(
         img.dimensions(),
-        (320, 240 + 2 + 16 * (LEGEND.len() as u32 + 1))
+        (320, 240 + 2 + 16 * (LEGEND.len() as u32 + 2))
     );
     for (k, (colour, label)) in LEGEND.iter().enumerate().take(5) {
         let y = 240 + 3 + 16 * k as u32 + 4;

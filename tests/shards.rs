@@ -120,7 +120,8 @@ fn shards_are_deterministic_across_runs_and_processes() {
             "shard-000002.tar",
             "shard-000003.json",
             "shard-000003.tar",
-            "shards.json"
+            "shards.json",
+            "shards.settings.json"
         ]
     );
     assert_eq!(one, shard_files(&b));
@@ -304,7 +305,7 @@ fn dotted_names_and_colliding_keys_are_refused() {
     let r = batch_wds(&data, &out, &[]);
     assert_eq!(r.status.code(), Some(1));
     let err = String::from_utf8_lossy(&r.stderr);
-    assert!(err.contains("shard key \"s_c01\""), "{err}");
+    assert!(err.contains("both have the key \"s_c01\""), "{err}");
     assert!(!out.exists(), "something was written");
 
     std::fs::remove_file(data.join("s_c01.json")).unwrap();
@@ -428,4 +429,92 @@ fn arrays_are_the_files_formats_samples() {
         "{size} bytes for {raw} of arrays: {:.2}% over",
         over * 100.0
     );
+}
+
+/// A folder holds one dataset: a rerun with another shard size or AOV set is refused before
+/// anything is written, naming each difference; `--force` replaces the dataset (no tar of
+/// the old shard size is left beside the new index); two runs with different settings at
+/// once never mix their tars; `shards.json` lists the arrays the tars hold (depth and
+/// normal always).
+#[test]
+fn one_folder_holds_one_dataset() {
+    let dir = fresh_dir("shards", "one-dataset");
+    let data = generate(dir.path(), 10);
+    let out = dir.path().join("out");
+    must(batch_wds(
+        &data,
+        &out,
+        &["--shard-size", "3", "--aov", "depth"],
+    ));
+    let before = shard_files(&out);
+    assert_eq!(before.keys().filter(|k| k.ends_with(".tar")).count(), 4);
+    let index: serde_json::Value = serde_json::from_slice(&before["shards.json"]).unwrap();
+    assert_eq!(index["aovs"], serde_json::json!(["depth", "normal"]));
+    let tar = members(&before["shard-000000.tar"]);
+    assert!(tar.iter().any(|(n, _)| n.ends_with(".normal.npy")));
+    // The same settings resume (nothing to do); others are refused, naming each.
+    must(batch_wds(
+        &data,
+        &out,
+        &["--shard-size", "3", "--aov", "depth"],
+    ));
+    let r = batch_wds(
+        &data,
+        &out,
+        &["--shard-size", "4", "--aov", "depth,shape_id"],
+    );
+    assert_eq!(r.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(
+        err.contains("shard size: 4 now, 3 in the folder")
+            && err.contains("tars: 3 now, 4 in the folder")
+            && err.contains("aovs: depth,normal,shape_id now, depth,normal in the folder")
+            && err.contains("force to replace it"),
+        "{err}"
+    );
+    assert_eq!(
+        shard_files(&out),
+        before,
+        "a refused run changed the folder"
+    );
+    // --force: the old dataset goes first; 3 tars of 4 views, nothing of the old one.
+    must(batch_wds(&data, &out, &["--shard-size", "4", "--force"]));
+    let after = shard_files(&out);
+    let tars: Vec<&String> = after.keys().filter(|k| k.ends_with(".tar")).collect();
+    assert_eq!(
+        tars,
+        ["shard-000000.tar", "shard-000001.tar", "shard-000002.tar"]
+    );
+    assert!(!out.join("shard-000003.json").exists());
+    // Two runs with different shard sizes at once into a new folder: one is refused or
+    // both agree on what is there; never tars of both sizes.
+    let both = dir.path().join("both");
+    let spawn = |size: &str| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_cylaov"))
+            .args([
+                "batch",
+                data.to_str().unwrap(),
+                "--out",
+                both.to_str().unwrap(),
+            ])
+            .args(["--format", "webdataset", "--shard-size", size])
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap()
+    };
+    let (a, b) = (spawn("2"), spawn("5"));
+    let (a, b) = (a.wait_with_output().unwrap(), b.wait_with_output().unwrap());
+    let won = [&a, &b].iter().filter(|o| o.status.success()).count();
+    assert_eq!(
+        won, 1,
+        "exactly one of two different datasets may be written"
+    );
+    let record: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(both.join("shards.settings.json")).unwrap()).unwrap();
+    let size = record["shard_size"].as_u64().unwrap();
+    let tars = shard_files(&both)
+        .keys()
+        .filter(|k| k.ends_with(".tar"))
+        .count() as u64;
+    assert_eq!(tars, 10u64.div_ceil(size));
 }

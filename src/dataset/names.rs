@@ -23,6 +23,7 @@
 //! | `shard-J.tar` | batch `--format webdataset` | tar shard J: each view's `.npy` arrays and JSON |
 //! | `shard-J.json` | batch `--format webdataset` | tar J's sidecar: samples, sha256, input stamp |
 //! | `shards.json` | batch `--format webdataset` | every shard's name, count, sha256; the settings |
+//! | `shards.settings.json` | batch `--format webdataset` | the settings the folder's one dataset is written with |
 //! | `failures.tar-J.jsonl` | Python `write_shards` | the views of tar J that failed, and why |
 //! | `scenes/NNNNNN.json` | generate | the scene files |
 //! | `manifest.jsonl`, `generate.json` | generate | the scene list; the resolved options |
@@ -67,6 +68,7 @@ pub const OUTPUT_NAMES: &[OutputName] = &[
     out("shard-J.tar", "batch --format webdataset"),
     out("shard-J.json", "batch --format webdataset"),
     out("shards.json", "batch --format webdataset"),
+    out("shards.settings.json", "batch --format webdataset"),
     out("failures.tar-J.jsonl", "Python write_shards"),
     out("scenes/NNNNNN.json", "generate"),
     out("manifest.jsonl", "generate"),
@@ -129,6 +131,7 @@ mod tests {
             "generate.json",
             "shard-000003.json",
             "shards.json",
+            "shards.settings.json",
         ] {
             assert!(is_cylaov_output(own), "{own}");
         }

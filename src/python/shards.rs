@@ -28,11 +28,12 @@ pub fn shard_count(py: Python<'_>, input: PathBuf, shard_size: usize) -> PyResul
 }
 
 /// Write the tar shards `shards` (indices; `None`: all) of the views of `input` into `out`,
-/// as `cylaov batch INPUT --out OUT --format webdataset` does; a summary dict.
+/// as `cylaov batch INPUT --out OUT --format webdataset` does; a summary dict. `force`
+/// replaces a dataset `out` holds with other settings instead of refusing.
 #[pyfunction]
 #[pyo3(signature = (input, out, shards = None, shard_size = shards::DEFAULT_SHARD_SIZE,
     aovs = None, members = None, precision = "f64", formula = "stable",
-    depth_scale = 1000.0, threads = None))]
+    depth_scale = 1000.0, threads = None, force = false))]
 #[allow(clippy::too_many_arguments)]
 pub fn write_shards<'py>(
     py: Python<'py>,
@@ -46,6 +47,7 @@ pub fn write_shards<'py>(
     formula: &str,
     depth_scale: f64,
     threads: Option<usize>,
+    force: bool,
 ) -> PyResult<Bound<'py, PyDict>> {
     let k = kernel(precision, formula)?;
     let members = match members {
@@ -73,6 +75,7 @@ pub fn write_shards<'py>(
     let sopts = ShardOptions {
         shard_size,
         members,
+        force,
     };
     let selection = match shards {
         Some(list) => TarSelection::List(list),

@@ -42,6 +42,7 @@ mod progress;
 mod resume;
 mod run;
 mod shard;
+pub mod shard_settings;
 pub mod shards;
 mod transforms;
 mod verify;

@@ -39,9 +39,10 @@ use super::progress::SizeEstimate;
 use super::resume::render_stamp;
 use super::run::{expand_views, read_views, resource_exhausted};
 use super::shard::Shard;
+use super::shard_settings;
 use super::views::{ViewSource, list_views};
 use crate::output::aov::{AovImage, ChannelData, ExrLayout, channel_names};
-use crate::output::console::count;
+use crate::output::console::{self, count};
 use crate::output::files::{create_new, open_regular, read_regular};
 use crate::output::io::{atomic_write_bytes, check_outputs, record_json};
 use crate::output::npy;
@@ -90,6 +91,9 @@ pub struct ShardOptions {
     pub shard_size: usize,
     /// Optional members of each view.
     pub members: Vec<Member>,
+    /// Replace a dataset the output folder holds with other settings (its tar-shard files
+    /// are removed first) instead of refusing (see [`super::shard_settings`]).
+    pub force: bool,
 }
 
 impl Default for ShardOptions {
@@ -97,6 +101,7 @@ impl Default for ShardOptions {
         ShardOptions {
             shard_size: DEFAULT_SHARD_SIZE,
             members: Vec::new(),
+            force: false,
         }
     }
 }
@@ -215,36 +220,93 @@ pub fn view_key(view: &ViewSource) -> String {
     }
 }
 
-/// The keys of `views`, or an error naming a dotted scene name or the views that share a
-/// key.
-fn keys(views: &[ViewSource]) -> Result<Vec<String>> {
+/// The keys of `views`, each checked against the member names it will have (`suffixes`,
+/// such as `.depth.npy`): a dotted scene name, a name a tar header cannot hold (not ASCII,
+/// or too long) and two views with one key are refused, every one of them listed, before
+/// anything renders.
+fn keys(views: &[ViewSource], suffixes: &[String]) -> Result<Vec<String>> {
+    /// Problems listed in full before "and N more".
+    const LISTED: usize = 20;
     let mut seen: HashMap<String, &ViewSource> = HashMap::new();
     let mut keys = Vec::with_capacity(views.len());
+    let mut problems: Vec<String> = Vec::new();
     for v in views {
         let key = view_key(v);
         if key.contains('.') {
-            bail!(
-                "{}: scene name {:?} has a '.': --format webdataset keys are view names \
-                 without dots (readers cut a member name at its first dot); rename the scene \
-                 file or give it a manifest name without dots",
+            problems.push(format!(
+                "{}: scene name {:?} has a '.' (readers cut a member name at its first dot)",
                 v.path.display(),
                 v.scene
-            );
+            ));
+        } else if let Some(Err(why)) = suffixes
+            .iter()
+            .map(|s| tar::header(&format!("{key}{s}"), 0).map(|_| ()))
+            .find(Result::is_err)
+        {
+            problems.push(format!("{}: {why}", v.path.display()));
         }
         if let Some(other) = seen.get(&key) {
-            bail!(
-                "views {:?} ({}) and {:?} ({}) would both have the shard key {key:?}; \
-                 rename one of the scenes",
+            problems.push(format!(
+                "views {:?} ({}) and {:?} ({}) would both have the key {key:?}",
                 other.id(),
                 other.path.display(),
                 v.id(),
                 v.path.display()
-            );
+            ));
         }
         seen.insert(key.clone(), v);
         keys.push(key);
     }
+    if !problems.is_empty() {
+        let n = problems.len();
+        let mut text = problems
+            .iter()
+            .take(LISTED)
+            .map(|p| format!("\n  {p}"))
+            .collect::<String>();
+        if n > LISTED {
+            text += &format!("\n  and {} more", n - LISTED);
+        }
+        bail!(
+            "the view names cannot all be tar shard keys ({}; a key is the view name, SCENE \
+             or SCENE_cNN: ASCII, without dots, unique, short enough for its longest member \
+             name to fit 100 bytes); rename the scene files or give them manifest names:{text}",
+            console::count(n, "problem")
+        );
+    }
     Ok(keys)
+}
+
+/// The name of the failures file of a call that writes the tars `list` (sorted, without
+/// repeats): `tar-000003` for one, `tars-000001-000003` for a few, and for many the first,
+/// the last, the count and a hash of the list, so two calls with other tars never share
+/// (and overwrite) one record.
+fn failures_label(list: &[usize]) -> String {
+    /// Tars named one by one, at most (a name stays under 80 bytes).
+    const NAMED: usize = 8;
+    match list {
+        [j] => format!("tar-{j:06}"),
+        l if l.len() <= NAMED => {
+            let ids: Vec<String> = l.iter().map(|j| format!("{j:06}")).collect();
+            format!("tars-{}", ids.join("-"))
+        }
+        l => {
+            let mut h = Sha256::new();
+            for j in l {
+                h.update(format!("{j}\n").as_bytes());
+            }
+            let hash: String = h.finalize()[..4]
+                .iter()
+                .map(|b| format!("{b:02x}"))
+                .collect();
+            format!(
+                "tars-{:06}-to-{:06}-{}-{hash}",
+                l[0],
+                l[l.len() - 1],
+                l.len()
+            )
+        }
+    }
 }
 
 /// The number of tars `input` makes at `shard_size` views a tar.
@@ -429,6 +491,17 @@ fn plan_aovs(aovs: &[Aov]) -> Vec<Aov> {
     v
 }
 
+/// The suffixes of a view's member names after its key, as [`view_members`] appends them.
+fn member_suffixes(aovs: &[Aov], members: &[Member]) -> Vec<String> {
+    let mut v: Vec<String> = array_aovs(aovs)
+        .iter()
+        .map(|a| format!(".{}.npy", a.name()))
+        .collect();
+    v.extend([".mask.npy".to_string(), ".json".to_string()]);
+    v.extend(members.iter().map(|m| format!(".{}", m.name())));
+    v
+}
+
 /// A view's tar members, `(name, bytes)` in the order they are appended.
 pub type Members = Vec<(String, Vec<u8>)>;
 
@@ -536,6 +609,13 @@ pub fn view_tar_bytes(w: usize, h: usize, aovs: &[Aov], members: &[Member]) -> u
         });
     }
     tar::archive_size(sizes) - 2 * tar::BLOCK as u64
+}
+
+/// An option value's name as the record files spell it (`f64`, `stable`).
+fn value_name(v: impl clap::ValueEnum) -> String {
+    v.to_possible_value()
+        .map(|p| p.get_name().to_string())
+        .unwrap_or_default()
 }
 
 /// A writer that hashes what passes through it.
@@ -666,6 +746,33 @@ impl Plan<'_> {
             }
         }
         hex(&h.finalize())
+    }
+
+    /// What every tar of the dataset is written with (see [`shard_settings`]).
+    fn settings(&self) -> shard_settings::Settings {
+        let mut inputs = Sha256::new();
+        for k in &self.keys {
+            inputs.update(k.as_bytes());
+            inputs.update(b"\n");
+        }
+        shard_settings::Settings {
+            shard_size: self.sopts.shard_size,
+            tars: self.tars,
+            views: self.views.len(),
+            inputs: hex(&inputs.finalize()),
+            aovs: array_aovs(&self.aovs)
+                .iter()
+                .map(|a| a.name().to_string())
+                .collect(),
+            members: self
+                .sopts
+                .members
+                .iter()
+                .map(|m| m.name().to_string())
+                .collect(),
+            precision: value_name(self.opts.precision),
+            formula: value_name(self.opts.formula),
+        }
     }
 
     /// The sidecar of tar `j` if it vouches for the tar on disk with this `stamp`.
@@ -869,11 +976,6 @@ impl Plan<'_> {
             keys_note: &'static str,
             shards: Vec<Entry<'a>>,
         }
-        fn value(v: impl clap::ValueEnum) -> String {
-            v.to_possible_value()
-                .map(|p| p.get_name().to_string())
-                .unwrap_or_default()
-        }
         let mut members: Vec<String> = array_aovs(&self.aovs)
             .iter()
             .map(|a| format!("{}.npy", a.name()))
@@ -886,10 +988,11 @@ impl Plan<'_> {
             views: self.views.len(),
             samples: cars.iter().map(|c| c.samples).sum(),
             shard_size: self.sopts.shard_size,
-            aovs: self.aovs.iter().map(|a| a.name()).collect(),
+            // What the tars hold: depth and normal are always among the arrays.
+            aovs: array_aovs(&self.aovs).iter().map(|a| a.name()).collect(),
             members,
-            precision: value(self.opts.precision),
-            formula: value(self.opts.formula),
+            precision: value_name(self.opts.precision),
+            formula: value_name(self.opts.formula),
             keys_note: "a sample's key is its view name without dots: SCENE, or SCENE_cNN for camera NN of a several-camera scene",
             shards: cars
                 .iter()
@@ -988,8 +1091,8 @@ pub fn write_shards_until(
     }
     crate::output::io::check_output_dir("--out", out)?;
     let (views, cameras) = read_views(input, out, opts, announce)?;
-    let keys = keys(&views)?;
     let aovs = dataset_aovs(opts, &views, &cameras)?;
+    let keys = keys(&views, &member_suffixes(&aovs, &sopts.members))?;
     let tars = views.len().div_ceil(sopts.shard_size);
     let mine: Vec<usize> = match selection {
         TarSelection::Shard(s) => (0..tars).filter(|&j| s.contains(j)).collect(),
@@ -1008,8 +1111,7 @@ pub fn write_shards_until(
     };
     let label = match selection {
         TarSelection::Shard(s) => s.to_string(),
-        TarSelection::List(l) if l.len() == 1 => format!("tar-{:06}", l[0]),
-        TarSelection::List(_) => "tars".to_string(),
+        TarSelection::List(l) => failures_label(l),
     };
     let failures_path = out.join(format!("failures.{label}.jsonl"));
     let input_dir = if input.is_dir() {
@@ -1036,6 +1138,7 @@ pub fn write_shards_until(
     };
     let mut targets: Vec<(&str, PathBuf)> = vec![
         ("--out", out.join("shards.json")),
+        ("--out", out.join(shard_settings::FILE)),
         ("--out", failures_path.clone()),
     ];
     for &j in &mine {
@@ -1051,6 +1154,7 @@ pub fn write_shards_until(
     let root = partial_root(out)?;
     let _root_reg = signals::register(Cleanup::EmptyDir, &root);
     let plan = Plan { root, ..plan };
+    shard_settings::hold(out, &plan.root, &plan.settings(), sopts.force)?;
     if announce {
         eprintln!("{}", estimate_line(&plan, &mine));
     }
@@ -1122,14 +1226,49 @@ mod tests {
     /// a shared key is refused naming both views.
     #[test]
     fn keys_are_view_names_without_dots() {
+        let sfx = member_suffixes(&[Aov::Depth, Aov::Normal, Aov::ShapeId], &[]);
         let views = [view("000123", false, "000123"), view("000124", true, "04")];
-        assert_eq!(keys(&views).unwrap(), ["000123", "000124_c04"]);
-        let e = keys(&[view("a.b", false, "a.b")]).unwrap_err().to_string();
+        assert_eq!(keys(&views, &sfx).unwrap(), ["000123", "000124_c04"]);
+        let e = keys(&[view("a.b", false, "a.b")], &sfx)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("\"a.b\" has a '.'"), "{e}");
         let clash = [view("s", true, "01"), view("s_c01", false, "s_c01")];
-        let e = keys(&clash).unwrap_err().to_string();
+        let e = keys(&clash, &sfx).unwrap_err().to_string();
         assert!(e.contains("\"s_c01\""), "{e}");
         assert!(e.contains("\"s/01\""), "{e}");
+        // Every bad name is listed at once: non-ASCII, and too long for its longest member
+        // (87 + ".shape_id.npy" = 100 bytes fits, 88 does not).
+        let fits = "x".repeat(87);
+        let long = "y".repeat(88);
+        let bad = [
+            view("caf\u{e9}", false, "caf\u{e9}"),
+            view(&fits, false, &fits),
+            view(&long, false, &long),
+            view("ok", false, "ok"),
+        ];
+        let e = keys(&bad, &sfx).unwrap_err().to_string();
+        assert!(
+            e.contains("cannot all be tar shard keys (2 problems;"),
+            "{e}"
+        );
+        assert!(e.contains("caf\u{e9}") && e.contains(&long), "{e}");
+        assert!(!e.contains(&format!("{fits}.")), "{e}");
+        assert_eq!(keys(&bad[1..2], &sfx).unwrap(), [fits]);
+    }
+
+    /// Calls with other tar lists keep other failures files.
+    #[test]
+    fn failures_files_are_named_by_their_tars() {
+        assert_eq!(failures_label(&[3]), "tar-000003");
+        assert_eq!(failures_label(&[1, 3]), "tars-000001-000003");
+        assert_ne!(failures_label(&[1, 3]), failures_label(&[1, 2]));
+        let many: Vec<usize> = (0..20).collect();
+        let other: Vec<usize> = (0..19).chain([21]).collect();
+        let a = failures_label(&many);
+        assert!(a.starts_with("tars-000000-to-000019-20-"), "{a}");
+        assert_ne!(a, failures_label(&other));
+        assert_eq!(a.len(), "tars-000000-to-000019-20-".len() + 8);
     }
 
     /// The raw arrays of a 320x240 depth+normal view are within 2% of its tar bytes.

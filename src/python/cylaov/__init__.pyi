@@ -136,8 +136,12 @@ def write_shards(
     formula: Literal["stable", "literal"] = "stable",
     depth_scale: float = 1000.0,
     threads: Optional[int] = None,
+    force: bool = False,
 ) -> Dict[str, Any]:
     """Write tar shards `shards` (None: all) as `batch --format webdataset` does, same bytes;
     returns {"tars", "written", "skipped", "failed", "index_written"}. Ctrl-C stops it with
-    KeyboardInterrupt, leaving the finished tars (a rerun skips them) and no temporary file."""
+    KeyboardInterrupt, leaving the finished tars (a rerun skips them) and no temporary file.
+    `out` holds one dataset (`out/shards.settings.json`): a call with other settings (shard
+    size, AOVs, members, inputs, kernel) raises ValueError naming each difference, unless
+    `force=True`, which removes that dataset's tar-shard files first."""
     ...
