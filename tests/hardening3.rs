@@ -100,15 +100,18 @@ fn report_pictures_refuse_links_and_fifos() {
     };
     let (cand, mitsuba) = (depth(2.0), depth(2.0));
     let heat = image::RgbImage::new(4, 3);
-    let view = || ReportView {
-        name: "single",
-        verdict: "PASS",
-        summary: "ok".into(),
-        worst: 0.0,
-        arbitration: None,
-        lines: Vec::new(),
-        images: Some((&cand, &mitsuba, &heat)),
-    };
+    fn page<'a>(c: &'a AovImage, m: &'a AovImage, h: &'a image::RgbImage) -> ReportView<'a> {
+        ReportView {
+            name: "single",
+            verdict: "PASS",
+            summary: "ok".into(),
+            worst: 0.0,
+            arbitration: None,
+            lines: Vec::new(),
+            images: Some((c, m, h)),
+        }
+    }
+    let view = || page(&cand, &mitsuba, &heat);
     let d = tempfile::tempdir().unwrap();
     let outside = d.path().join("precious.txt");
     std::fs::write(&outside, b"keep me").unwrap();
@@ -137,15 +140,7 @@ fn report_pictures_refuse_links_and_fifos() {
     let dir2 = dir.clone();
     let (c2, m2, h2) = (cand.clone(), mitsuba.clone(), heat.clone());
     std::thread::spawn(move || {
-        let v = ReportView {
-            name: "single",
-            verdict: "PASS",
-            summary: "ok".into(),
-            worst: 0.0,
-            arbitration: None,
-            lines: Vec::new(),
-            images: Some((&c2, &m2, &h2)),
-        };
+        let v = page(&c2, &m2, &h2);
         let _ = tx.send(write_report(&dir2, "t", &[v]).map_err(|e| format!("{e:#}")));
     });
     let got = rx

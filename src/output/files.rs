@@ -45,15 +45,7 @@ pub fn open_regular(path: &Path) -> io::Result<File> {
     let mut opts = OpenOptions::new();
     opts.read(true);
     no_follow(&mut opts);
-    let file = opts.open(path).map_err(|e| explain_open(path, e))?;
-    let ft = file.metadata()?.file_type();
-    if !ft.is_file() {
-        return Err(with_path(
-            path,
-            format!("is {}, not a regular file", kind_name(ft)),
-        ));
-    }
-    Ok(file)
+    regular(path, opts.open(path).map_err(|e| explain_open(path, e))?)
 }
 
 /// Open an input file for reading: links are followed (datasets are often linked in), but
@@ -67,7 +59,11 @@ pub fn open_input(path: &Path) -> io::Result<File> {
         use std::os::unix::fs::OpenOptionsExt;
         opts.custom_flags(libc::O_NONBLOCK);
     }
-    let file = opts.open(path)?;
+    regular(path, opts.open(path)?)
+}
+
+/// `file` (opened from `path`) if it is a regular file; else an error naming what it is.
+fn regular(path: &Path, file: File) -> io::Result<File> {
     let ft = file.metadata()?.file_type();
     if !ft.is_file() {
         return Err(with_path(

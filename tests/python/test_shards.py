@@ -123,3 +123,25 @@ def test_ray_batch_script_is_one_batch_process(dataset):
     assert r.returncode == 0, r.stdout + r.stderr
     assert "3 of 3 tars written" in r.stdout, r.stdout
     assert shard_bytes(out) == shard_bytes(dataset / "cli")
+
+
+def test_one_dataset_a_folder_and_failures_files_per_call(dataset, tmp_path):
+    """Another shard size into the same folder raises ValueError naming the difference and
+    leaves the folder as it was; force=True replaces the dataset. Calls for other tars keep
+    their own failures files."""
+    out = tmp_path / "one"
+    first = cylaov.write_shards(dataset / "data", out, shard_size=SIZE)
+    assert first["written"] == [0, 1, 2]
+    before = shard_bytes(out)
+    with pytest.raises(ValueError, match="shard size: 2 now, 3 in the folder"):
+        cylaov.write_shards(dataset / "data", out, shard_size=2)
+    assert shard_bytes(out) == before
+    again = cylaov.write_shards(dataset / "data", out, shard_size=2, force=True)
+    assert again["written"] == [0, 1, 2, 3] and again["tars"] == 4
+    assert len(tars(out)) == 4
+    assert json.loads((out / "shards.settings.json").read_text())["shard_size"] == 2
+    cylaov.write_shards(dataset / "data", out, shards=[0, 2], shard_size=2)
+    cylaov.write_shards(dataset / "data", out, shards=[1, 3], shard_size=2)
+    names = sorted(p.name for p in out.glob("failures.*.jsonl"))
+    assert "failures.tars-000000-000002.jsonl" in names
+    assert "failures.tars-000001-000003.jsonl" in names
