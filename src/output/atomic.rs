@@ -101,12 +101,14 @@ impl NewDirs {
             }
             missing.push(d.to_path_buf());
         }
-        std::fs::create_dir_all(dir).map_err(explain)?;
+        // Registered before they are made: a signal between making a folder and listing
+        // it would leave it behind; removing one not made yet is a no-op.
         for d in missing.into_iter().rev() {
             self.registered
                 .push(signals::register(Cleanup::EmptyDir, &d));
             self.made.push(d);
         }
+        std::fs::create_dir_all(dir).map_err(explain)?;
         Ok(())
     }
 
