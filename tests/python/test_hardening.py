@@ -227,9 +227,12 @@ report(lambda: cylaov.write_shards({str(data)!r}, {str(out)!r}, shard_size=8, ao
     left = sorted(p.relative_to(out).as_posix() for p in out.rglob("*"))
     # Nothing staged is left: no .partial folder, no temporary file, no lock.
     assert not [p for p in left if ".partial" in p or p.endswith((".tmp", ".lock"))], left
-    done = sorted(p for p in left if p.endswith(".json"))
+    # Beside the dataset's settings record: the finished tars and their sidecars.
+    assert "shards.settings.json" in left, left
+    done = sorted(p for p in left if p.startswith("shard-") and p.endswith(".json"))
     assert done and len(done) < 12, left  # some tars finished, others not
-    assert left == sorted(done + [p.replace(".json", ".tar") for p in done])
+    assert left == sorted(done + [p.replace(".json", ".tar") for p in done]
+                          + ["shards.settings.json"])
     # The rerun skips the finished tars and writes the rest: the bytes of one run.
     again = cylaov.write_shards(data, out, shard_size=8, aovs="depth")
     assert again["skipped"] == [int(p[6:12]) for p in done]
