@@ -27,7 +27,7 @@ use crate::output::io::atomic_write_bytes;
 use crate::render::{Accel, RenderOptions, render, render_timed};
 use crate::rng::SplitMix64;
 use crate::scene::camera::Camera;
-use crate::scene::camera::{CameraSpec, FovAxis};
+use crate::scene::camera::{CameraSpec, FovAxis, Projection};
 use crate::scene::{Aov, Scene, SceneFile};
 use anyhow::{Context, Result, bail};
 use glam::DVec3;
@@ -90,6 +90,7 @@ fn bench_scene(
         height,
         near_clip: 0.01,
         far_clip: 10000.0,
+        projection: Projection::Perspective,
     };
     Scene {
         camera,
