@@ -200,4 +200,43 @@ impl Projection {
             },
         }
     }
+
+    /// What `depth` holds under this projection, as the camera file and the EXR header
+    /// name it: `planar` (camera-space z), `euclidean` (distance from the camera centre),
+    /// or `planar_in_front` (planar for rays less than 90° from `forward`, Euclidean for
+    /// the rest: a fisheye that sees behind its image plane).
+    pub fn depth_kind(&self) -> &'static str {
+        match self {
+            Projection::Perspective
+            | Projection::Orthographic { .. }
+            | Projection::Lens(Lens::OpenCv { .. }) => "planar",
+            Projection::Lens(Lens::OpenCvFisheye { .. }) => "planar_in_front",
+            Projection::Lens(Lens::Equirectangular { .. }) => "euclidean",
+        }
+    }
+
+    /// The model's parameters by their scene-file names (none for the perspective model,
+    /// whose `fov_deg` is the camera's).
+    pub fn named_params(&self) -> serde_json::Map<String, serde_json::Value> {
+        let f = self.fields();
+        let [fx, fy, cx, cy] = f.intrinsics;
+        let [k1, k2, k3, k4] = f.k;
+        let [p1, p2] = f.p;
+        [
+            ("ortho_width", f.ortho_width),
+            ("fx", fx),
+            ("fy", fy),
+            ("cx", cx),
+            ("cy", cy),
+            ("k1", k1),
+            ("k2", k2),
+            ("p1", p1),
+            ("p2", p2),
+            ("k3", k3),
+            ("k4", k4),
+        ]
+        .into_iter()
+        .filter_map(|(n, v)| Some((n.to_string(), serde_json::Value::from(v?))))
+        .collect()
+    }
 }
