@@ -351,3 +351,85 @@ fn model_fields_are_checked_by_name() {
         assert!(!out.exists());
     }
 }
+
+/// `export-mitsuba` writes an orthographic camera as Mitsuba's `orthographic` sensor whose
+/// rays are ours: Mitsuba's own `sample_ray` at each pixel centre passes through the hit
+/// cylaov found there, along the same direction. The lens models are refused, saying why.
+#[test]
+fn mitsuba_orthographic_sensor_casts_our_rays_and_lens_models_are_refused() {
+    let Some(py) = common::venv_python() else {
+        return;
+    };
+    let dir = common::fresh_dir("camera-models", "mitsuba");
+    let exr = render(
+        dir.path(),
+        "ortho",
+        serde_json::json!({"model": "orthographic", "ortho_width": 7.5}),
+    );
+    let xml = dir.path().join("ortho.xml");
+    let scene = dir.path().join("ortho.json");
+    common::ok(&[
+        "export-mitsuba",
+        scene.to_str().unwrap(),
+        "-o",
+        xml.to_str().unwrap(),
+    ]);
+    let script = r#"
+import json, sys, numpy as np, mitsuba as mi, OpenEXR
+mi.set_variant("scalar_rgb")
+s = mi.load_file(sys.argv[1]).sensors()[0]
+ch = OpenEXR.File(sys.argv[2]).channels()
+pos = np.stack([ch[f"position.{a}"].pixels for a in "XYZ"], -1).astype(np.float64)
+ids = ch["shape_id"].pixels
+H, W = ids.shape
+off, ang = 0.0, 0.0
+for j, i in zip(*np.nonzero(ids)):
+    r, _ = s.sample_ray(0.0, 0.5, mi.Point2f((i + 0.5) / W, (j + 0.5) / H), mi.Point2f(0.5, 0.5))
+    o, d = np.array(r.o, float), np.array(r.d, float)
+    v = pos[j, i] - o
+    off = max(off, float(np.linalg.norm(v - v.dot(d) * d)))
+    ang = max(ang, float(np.linalg.norm(np.cross(d, np.array(s.world_transform() @ mi.Vector3f(0, 0, 1))))))
+print(json.dumps({"type": type(s).__name__, "hits": int((ids > 0).sum()), "off_max": off, "dir_max": ang}))
+"#;
+    let out = std::process::Command::new(&py)
+        .args(["-c", script, xml.to_str().unwrap(), exr.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: Value = serde_json::from_slice(&out.stdout).unwrap();
+    eprintln!("mitsuba orthographic: {v}");
+    assert_eq!(v["hits"], 3072);
+    // Mitsuba's rays are float32: hits a few units away lie within 2.1e-6 of them.
+    assert!(num(&v, "off_max") < 1e-5, "{v}");
+    assert!(num(&v, "dir_max") < 1e-6, "{v}");
+
+    for (name, model) in [
+        (
+            "opencv",
+            serde_json::json!({"model": "opencv", "fx": 40, "fy": 40, "cx": 31.5, "cy": 23.5}),
+        ),
+        ("equirect", serde_json::json!({"model": "equirectangular"})),
+    ] {
+        render(dir.path(), name, model.clone());
+        let scene = dir.path().join(format!("{name}.json"));
+        let xml = dir.path().join(format!("{name}.xml"));
+        let o = common::cylaov(&[
+            "export-mitsuba",
+            scene.to_str().unwrap(),
+            "-o",
+            xml.to_str().unwrap(),
+        ]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{err}");
+        let want = format!(
+            "camera.model: Mitsuba 3 has no \"{}\" sensor (only the pinhole `perspective` and `orthographic`)",
+            model["model"].as_str().unwrap()
+        );
+        assert!(err.contains(&want), "{err}");
+        assert!(!xml.exists());
+    }
+}

@@ -735,7 +735,8 @@ pub fn time_anchor(a: &Anchors, scene: &Scene, variant: &str, dir: &Path) -> Res
         let xml = dir.join(format!("mitsuba-{n}.xml"));
         std::fs::write(
             &xml,
-            crate::output::mitsuba::to_xml(scene, "cylaov bench random scene"),
+            crate::output::mitsuba::to_xml(scene, "cylaov bench random scene")
+                .map_err(std::io::Error::other)?,
         )?;
         let script = dir.join("bench_mitsuba.py");
         std::fs::write(&script, MITSUBA_SCRIPT)?;
