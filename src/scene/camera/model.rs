@@ -159,6 +159,11 @@ impl CameraModel {
 }
 
 impl Projection {
+    /// Whether this is the pinhole of `fov_deg` (the default model).
+    pub fn is_pinhole(&self) -> bool {
+        *self == Projection::Perspective
+    }
+
     /// The scene-file model of this projection.
     pub fn model(&self) -> CameraModel {
         match self {
