@@ -433,3 +433,80 @@ print(json.dumps({"type": type(s).__name__, "hits": int((ids > 0).sum()), "off_m
         assert!(!xml.exists());
     }
 }
+
+/// A batch of a scene with four camera models: `transforms.json` names camera 0's
+/// nerfstudio model at the top and each other view's model on its frame, with nerfstudio's
+/// parameter names and its half-pixel principal point; only the pinhole view has an Open3D
+/// file; a second run skips every view, and a changed coefficient renders that view again.
+#[test]
+fn batch_transforms_name_each_view_model() {
+    let dir = common::fresh_dir("camera-models", "batch");
+    let scenes = dir.path().join("scenes");
+    std::fs::create_dir(&scenes).unwrap();
+    let base = serde_json::json!({
+        "origin": [0, -4, 0.3], "target": [0, 0, 0], "up": [0, 0, 1], "width": 32, "height": 24
+    });
+    let with = |extra: Value| {
+        let mut c = base.clone();
+        for (k, v) in extra.as_object().unwrap() {
+            c[k] = v.clone();
+        }
+        c
+    };
+    let mut scene = serde_json::json!({
+        "cameras": [
+            with(serde_json::json!({"model": "opencv_fisheye", "fx": 12, "fy": 12.5, "cx": 15.5, "cy": 11.25, "k1": 0.01})),
+            with(serde_json::json!({"model": "equirectangular"})),
+            with(serde_json::json!({"fov_deg": 50})),
+            with(serde_json::json!({"model": "orthographic", "ortho_width": 5})),
+            with(serde_json::json!({"model": "opencv", "fx": 30, "fy": 30, "cx": 15.5, "cy": 11.5, "p2": 0.001})),
+        ],
+        "cylinders": [{"p0": [-1, 0, -1], "p1": [-1, 0, 1], "radius": 0.4},
+                      {"p0": [1, 0, -1], "p1": [1, 0, 1], "radius": 0.4}]
+    });
+    std::fs::write(scenes.join("multi.json"), scene.to_string()).unwrap();
+    let out = dir.path().join("out");
+    let run = || {
+        common::ok(&[
+            "batch",
+            scenes.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--threads",
+            "2",
+        ])
+    };
+    let first = run();
+    assert!(first.contains("done 5 / skipped 0"), "{first}");
+    let t: Value =
+        serde_json::from_slice(&std::fs::read(out.join("multi/transforms.json")).unwrap()).unwrap();
+    assert_eq!(t["camera_model"], "OPENCV_FISHEYE");
+    let f = &t["frames"];
+    assert!(f[0].get("camera_model").is_none());
+    assert_eq!(
+        [&f[0]["fl_x"], &f[0]["fl_y"], &f[0]["cx"], &f[0]["cy"]],
+        [12.0, 12.5, 16.0, 11.75]
+    );
+    assert_eq!([&f[0]["k1"], &f[0]["k4"]], [0.01, 0.0]);
+    assert!(f[0].get("p1").is_none());
+    assert_eq!(f[1]["camera_model"], "EQUIRECTANGULAR");
+    assert_eq!([&f[1]["fl_x"], &f[1]["fl_y"]], [16.0, 24.0]);
+    assert_eq!(f[2]["camera_model"], "OPENCV");
+    assert!(f[2].get("k1").is_none());
+    assert_eq!(f[3]["camera_model"], "ORTHOPHOTO");
+    assert_eq!([&f[3]["fl_x"], &f[3]["fl_y"]], [6.4, 6.4]);
+    assert_eq!(f[4]["camera_model"], "OPENCV");
+    assert_eq!([&f[4]["p2"], &f[4]["cx"]], [0.001, 16.0]);
+    assert!(f[4].get("k4").is_none());
+    for (k, frame) in f.as_array().unwrap().iter().enumerate() {
+        let o3d = out.join(format!("multi/{k:02}.open3d.json"));
+        assert_eq!(frame.get("open3d_file_path").is_some(), k == 2);
+        assert_eq!(o3d.exists(), k == 2);
+    }
+    let again = run();
+    assert!(again.contains("done 0 / skipped 5"), "{again}");
+    scene["cameras"][0]["k1"] = serde_json::json!(0.02);
+    std::fs::write(scenes.join("multi.json"), scene.to_string()).unwrap();
+    let changed = run();
+    assert!(changed.contains("done 1 / skipped 4"), "{changed}");
+}
