@@ -17,6 +17,7 @@ fn spec(width: u32, height: u32) -> CameraSpec {
         height,
         near_clip: 0.01,
         far_clip: 1e4,
+        projection: Projection::Perspective,
     }
 }
 

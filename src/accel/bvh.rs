@@ -402,6 +402,18 @@ impl Bvh {
         &self.order
     }
 
+    /// The padding [`Bvh::traverse_from`] needs for ray origins `o` (relative to the build
+    /// origin, f64): four f32 roundings of the largest coordinate among `o` and the boxes.
+    pub fn pad_for(&self, o: glam::DVec3) -> f32 {
+        let root = match self.nodes.first() {
+            Some(n) => n.min.abs().max(n.max.abs()).max_element(),
+            None => 0.0,
+        };
+        let root = if root.is_finite() { root } else { 0.0 };
+        let m = root.max(o.abs().max_element() as f32);
+        4.0 * f32::EPSILON * m + f32::MIN_POSITIVE
+    }
+
     /// Number of nodes (for statistics).
     pub fn node_count(&self) -> usize {
         self.nodes.len()
@@ -412,8 +424,20 @@ impl Bvh {
     /// position in [`Bvh::order`] and returns a new, smaller `tmax` when it found a closer
     /// hit, which prunes the rest.
     #[inline]
-    pub fn traverse(
+    pub fn traverse(&self, d: Vec3A, tmin: f32, tmax: f32, visit: impl FnMut(u32) -> Option<f32>) {
+        self.traverse_from(Vec3A::ZERO, 0.0, d, tmin, tmax, visit);
+    }
+
+    /// [`Bvh::traverse`] for the ray `o + t·d`, `o` relative to the build origin (parallel
+    /// rays of an orthographic camera start off it). Every box is widened by `pad` world
+    /// units on each side, which must cover the rounding of `o` to f32 and of the box
+    /// corners minus `o` (see [`Bvh::pad_for`]); with `o = 0` and `pad = 0` the same visits,
+    /// bit for bit, as [`Bvh::traverse`].
+    #[inline]
+    pub fn traverse_from(
         &self,
+        o: Vec3A,
+        pad: f32,
         d: Vec3A,
         tmin: f32,
         mut tmax: f32,
@@ -430,7 +454,9 @@ impl Bvh {
         const GROW: f32 = 1.0 + 2.0 * 3.0 * f32::EPSILON;
         let inv_far = inv * GROW;
         let tmin_v = Vec3A::splat(tmin);
+        let (lo_shift, hi_shift) = (o + Vec3A::splat(pad), o - Vec3A::splat(pad));
         let slab = |min: Vec3A, max: Vec3A, tmax: f32| -> Option<f32> {
+            let (min, max) = (min - lo_shift, max - hi_shift);
             let near = (Vec3A::select(neg, max, min) * inv)
                 .max(tmin_v)
                 .max_element();

@@ -667,6 +667,7 @@ mod tests {
                     height: h,
                     near_clip: rng.range(0.001, 0.5),
                     far_clip: rng.range(10.0, 40.0),
+                    projection: crate::scene::camera::Projection::Perspective,
                 });
                 (cam, sc.cylinders)
             })

@@ -27,7 +27,7 @@ use crate::output::io::atomic_write_bytes;
 use crate::render::{Accel, RenderOptions, render, render_timed};
 use crate::rng::SplitMix64;
 use crate::scene::camera::Camera;
-use crate::scene::camera::{CameraSpec, FovAxis};
+use crate::scene::camera::{CameraSpec, FovAxis, Projection};
 use crate::scene::{Aov, Scene, SceneFile};
 use anyhow::{Context, Result, bail};
 use glam::DVec3;
@@ -90,6 +90,7 @@ fn bench_scene(
         height,
         near_clip: 0.01,
         far_clip: 10000.0,
+        projection: Projection::Perspective,
     };
     Scene {
         camera,
@@ -734,7 +735,8 @@ pub fn time_anchor(a: &Anchors, scene: &Scene, variant: &str, dir: &Path) -> Res
         let xml = dir.join(format!("mitsuba-{n}.xml"));
         std::fs::write(
             &xml,
-            crate::output::mitsuba::to_xml(scene, "cylaov bench random scene"),
+            crate::output::mitsuba::to_xml(scene, "cylaov bench random scene")
+                .map_err(std::io::Error::other)?,
         )?;
         let script = dir.join("bench_mitsuba.py");
         std::fs::write(&script, MITSUBA_SCRIPT)?;

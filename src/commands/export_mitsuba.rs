@@ -10,7 +10,8 @@ use std::path::Path;
 pub fn run(scene_path: &Path, out: &Path) -> Result<String> {
     check_outputs(&[("-o", out)], &[scene_path])?;
     let scene = scene::load(scene_path).with_context(|| format!("{}", scene_path.display()))?;
-    let xml = to_xml(&scene, &scene_path.display().to_string());
+    let xml = to_xml(&scene, &scene_path.display().to_string())
+        .with_context(|| format!("{}", scene_path.display()))?;
     let mut dirs = NewDirs::default();
     dirs.create_parent(out)
         .with_context(|| format!("-o {}", out.display()))?;

@@ -436,12 +436,13 @@ impl GenerateOptions {
             origin: origin.to_array(),
             target: target.to_array(),
             up: up.to_array(),
-            fov_deg: self.fov,
-            fov_axis: FovAxis::X,
+            fov_deg: Some(self.fov),
+            fov_axis: Some(FovAxis::X),
             width: self.width,
             height: self.height,
             near_clip: 0.01,
             far_clip: far,
+            ..CameraFile::default()
         }
     }
 }

@@ -359,6 +359,22 @@ pub fn exr_attributes(cam: &Camera, aovs: &[Aov]) -> Vec<ExrAttr> {
         ExrAttr::Float("cylaov:cx_opencv", k_cv[0][2] as f32),
         ExrAttr::Float("cylaov:cy_opencv", k_cv[1][2] as f32),
     ];
+    if !cam.is_pinhole() {
+        // The NDC matrix and the intrinsics above are a pinhole's: another model states its
+        // name, its parameters (in the camera file) and what its depth holds instead.
+        let p = &cam.projection;
+        attrs.retain(|a| {
+            matches!(a, ExrAttr::Text(..)) || matches!(a, ExrAttr::M44f("worldToCamera", _))
+        });
+        attrs.push(ExrAttr::Text(
+            "cylaov:camera_model".into(),
+            p.model().name().into(),
+        ));
+        attrs.push(ExrAttr::Text(
+            "cylaov:depth_kind".into(),
+            format!("{}: {}", p.depth_kind(), depth_kind_text(p.depth_kind())),
+        ));
+    }
     for &a in aovs {
         attrs.push(ExrAttr::Text(
             format!("cylaov:channel:{}", a.name()),
@@ -366,6 +382,17 @@ pub fn exr_attributes(cam: &Camera, aovs: &[Aov]) -> Vec<ExrAttr> {
         ));
     }
     attrs
+}
+
+/// What a `depth_kind` means, in words.
+pub fn depth_kind_text(kind: &str) -> &'static str {
+    match kind {
+        "planar" => "depth is camera-space z, along forward from the camera's image plane",
+        "planar_in_front" => {
+            "depth is camera-space z for rays less than 90 degrees from forward, else the Euclidean distance from the camera centre"
+        }
+        _ => "depth is the Euclidean distance from the camera centre (as distance)",
+    }
 }
 
 /// The channel names of `aov` in the per-AOV layout, in order (`Y`, or `R, G, B`).

@@ -32,10 +32,9 @@ struct AovMeaning {
     miss: &'static str,
 }
 
+/// The pinhole's intrinsics, in both pixel conventions (the `perspective` model only).
 #[derive(Serialize)]
-struct CameraMeta {
-    width: u32,
-    height: u32,
+struct PinholeMeta {
     fov_deg: f64,
     fov_axis: &'static str,
     near_clip: f64,
@@ -54,6 +53,27 @@ struct CameraMeta {
     principal_point_note_opencv: &'static str,
     cx_opencv: f64,
     cy_opencv: f64,
+}
+
+/// Another model's name, depth rule and parameters (as the scene file names them).
+#[derive(Serialize)]
+struct ModelMeta {
+    model: &'static str,
+    depth_kind: &'static str,
+    #[serde(flatten)]
+    params: serde_json::Map<String, serde_json::Value>,
+    near_clip: f64,
+    far_clip: f64,
+}
+
+#[derive(Serialize)]
+struct CameraMeta {
+    width: u32,
+    height: u32,
+    #[serde(flatten)]
+    pinhole: Option<PinholeMeta>,
+    #[serde(flatten)]
+    model: Option<ModelMeta>,
     camera_to_world_opencv: [[f64; 4]; 4],
     world_to_camera_opencv: [[f64; 4]; 4],
     camera_to_world_opengl: [[f64; 4]; 4],
@@ -72,28 +92,45 @@ pub fn record_json(value: &impl serde::Serialize) -> String {
 
 /// The camera metadata JSON for a render: intrinsics, both pose conventions, AOV meanings.
 pub fn camera_json(cam: &Camera, aovs: &[Aov]) -> String {
-    let (fx, fy) = cam.focal_px();
-    let k = cam.k_matrix();
-    let k_cv = cam.k_matrix_opencv();
     let cv = cam.world_from_camera_opencv();
     let gl = cam.world_from_camera_opengl();
+    let (pinhole, model) = if cam.is_pinhole() {
+        let (fx, fy) = cam.focal_px();
+        let k = cam.k_matrix();
+        let k_cv = cam.k_matrix_opencv();
+        let meta = PinholeMeta {
+            fov_deg: cam.spec.fov_deg,
+            fov_axis: cam.spec.fov_axis.name(),
+            near_clip: cam.spec.near_clip,
+            far_clip: cam.spec.far_clip,
+            k,
+            principal_point_note: "K, cx, cy: cx = W/2, cy = H/2, pixel (i, j) has its centre at (i + 0.5, j + 0.5): nerfstudio, Mitsuba",
+            fl_x: fx,
+            fl_y: fy,
+            cx: k[0][2],
+            cy: k[1][2],
+            k_opencv: k_cv,
+            principal_point_note_opencv: "K_opencv, cx_opencv, cy_opencv: cx = W/2 - 0.5, cy = H/2 - 0.5, pixel (i, j) has its centre at (i, j): OpenCV, Open3D, COLMAP",
+            cx_opencv: k_cv[0][2],
+            cy_opencv: k_cv[1][2],
+        };
+        (Some(meta), None)
+    } else {
+        let p = &cam.projection;
+        let meta = ModelMeta {
+            model: p.model().name(),
+            depth_kind: p.depth_kind(),
+            params: p.named_params(),
+            near_clip: cam.spec.near_clip,
+            far_clip: cam.spec.far_clip,
+        };
+        (None, Some(meta))
+    };
     let meta = CameraMeta {
         width: cam.width(),
         height: cam.height(),
-        fov_deg: cam.spec.fov_deg,
-        fov_axis: cam.spec.fov_axis.name(),
-        near_clip: cam.spec.near_clip,
-        far_clip: cam.spec.far_clip,
-        k,
-        principal_point_note: "K, cx, cy: cx = W/2, cy = H/2, pixel (i, j) has its centre at (i + 0.5, j + 0.5): nerfstudio, Mitsuba",
-        fl_x: fx,
-        fl_y: fy,
-        cx: k[0][2],
-        cy: k[1][2],
-        k_opencv: k_cv,
-        principal_point_note_opencv: "K_opencv, cx_opencv, cy_opencv: cx = W/2 - 0.5, cy = H/2 - 0.5, pixel (i, j) has its centre at (i, j): OpenCV, Open3D, COLMAP",
-        cx_opencv: k_cv[0][2],
-        cy_opencv: k_cv[1][2],
+        pinhole,
+        model,
         camera_to_world_opencv: rows(cv),
         world_to_camera_opencv: rows(cv.inverse()),
         camera_to_world_opengl: rows(gl),

@@ -4,7 +4,7 @@
 //! |---|---|---|
 //! | `<scene version="3.0.0">` | Mitsuba 3 scene syntax | loads with `mitsuba.load_file` |
 //! | `integrator type="aov"` | `dd.y:depth,nn:sh_normal,pp:position,ii:shape_index` | AOVs only: with only AOVs requested the film holds just those channels |
-//! | `sensor type="perspective"`, one per camera in file order | `lookat` `to_world`, `fov`, `fov_axis`, `near_clip`, `far_clip` | the scene's look-at camera(s); `scene.sensors()[k]` is camera `k` |
+//! | `sensor type="perspective"` (`orthographic` for an orthographic camera), one per camera in file order | `lookat` `to_world` (after a `scale` by half `ortho_width`), `fov`, `fov_axis`, `near_clip`, `far_clip` | the scene's look-at camera(s); `scene.sensors()[k]` is camera `k`; the lens models have no Mitsuba sensor and are refused |
 //! | `sampler type="stratified"` | `sample_count` 1, `jitter` false | one ray through each pixel centre |
 //! | `film type="hdrfilm"` | width, height, float32, box `rfilter` | no float16 rounding, no filter blur |
 //! | `shape type="cylinder"` | `p0` = base, `p1` = top, `radius` | Mitsuba's cylinder is an open tube |
@@ -27,7 +27,7 @@
 use crate::geometry::Cylinder;
 use crate::geometry::cylinder::orthonormal_basis;
 use crate::scene::Scene;
-use crate::scene::camera::CameraSpec;
+use crate::scene::camera::{CameraSpec, Projection};
 use glam::{DMat4, DVec3};
 use quick_xml::Writer;
 use quick_xml::events::{BytesDecl, BytesText, Event};
@@ -160,15 +160,59 @@ fn comment_safe(s: &str) -> String {
     out
 }
 
+/// A camera Mitsuba 3 has no sensor for: the lens models (OpenCV, fisheye,
+/// equirectangular). Exporting such a scene is refused rather than written with a
+/// different camera.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct NoSensor {
+    /// `camera` or `cameras[K]`.
+    pub field: String,
+    /// The scene-file model name.
+    pub model: &'static str,
+}
+
+impl std::fmt::Display for NoSensor {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{}.model: Mitsuba 3 has no \"{}\" sensor (only the pinhole `perspective` and \
+             `orthographic`), so this camera cannot be exported or verified against Mitsuba",
+            self.field, self.model
+        )
+    }
+}
+
+impl std::error::Error for NoSensor {}
+
+/// Whether every camera of `scene` has a Mitsuba 3 sensor.
+pub fn check_sensors(scene: &Scene) -> Result<(), NoSensor> {
+    let several = scene.cameras.len() > 1;
+    for (k, c) in scene.cameras.iter().enumerate() {
+        if let Projection::Lens(_) = c.projection {
+            return Err(NoSensor {
+                field: if several {
+                    format!("cameras[{k}]")
+                } else {
+                    "camera".into()
+                },
+                model: c.projection.model().name(),
+            });
+        }
+    }
+    Ok(())
+}
+
 /// The Mitsuba 3 scene XML of `scene`; `source_name` (e.g. the scene file's path) is named
-/// in a comment at the top. Pure: same scene, same bytes.
-pub fn to_xml(scene: &Scene, source_name: &str) -> String {
+/// in a comment at the top. Pure: same scene, same bytes. Refused for a camera Mitsuba
+/// has no sensor for ([`check_sensors`]).
+pub fn to_xml(scene: &Scene, source_name: &str) -> Result<String, NoSensor> {
+    check_sensors(scene)?;
     let mut buf = Vec::new();
     // Writing into a Vec cannot fail; an io::Error here would be a quick-xml bug.
     write_xml(&mut buf, scene, source_name).expect("writing XML into memory");
     let mut s = String::from_utf8(buf).expect("quick-xml writes UTF-8");
     s.push('\n');
-    s
+    Ok(s)
 }
 
 fn write_xml(buf: &mut Vec<u8>, scene: &Scene, source_name: &str) -> io::Result<()> {
@@ -239,17 +283,41 @@ fn write_xml(buf: &mut Vec<u8>, scene: &Scene, source_name: &str) -> io::Result<
 /// One `perspective` sensor: the look-at camera with its own film and sampler. A scene
 /// with several cameras gets one sensor per camera, in file order, so Mitsuba's
 /// `scene.sensors()[k]` is camera `k`.
+///
+/// An orthographic camera is Mitsuba's `orthographic` sensor, which images x in [-1, 1]
+/// and y in [-1/aspect, 1/aspect] of its own frame: `to_world` scales both by half the
+/// image width before the look-at, so the film spans `ortho_width` world units.
 fn sensor(w: &mut Writer<&mut Vec<u8>>, cam: &CameraSpec) -> io::Result<()> {
+    let ortho = match cam.projection {
+        Projection::Orthographic { half_width, .. } => Some(half_width),
+        _ => None,
+    };
     w.create_element("sensor")
-        .with_attribute(("type", "perspective"))
+        .with_attribute((
+            "type",
+            if ortho.is_some() {
+                "orthographic"
+            } else {
+                "perspective"
+            },
+        ))
         .write_inner_content(|w| {
-            string(w, "fov_axis", cam.fov_axis.name())?;
-            float(w, "fov", cam.fov_deg)?;
+            if ortho.is_none() {
+                string(w, "fov_axis", cam.fov_axis.name())?;
+                float(w, "fov", cam.fov_deg)?;
+            }
             float(w, "near_clip", cam.near_clip)?;
             float(w, "far_clip", cam.far_clip)?;
             w.create_element("transform")
                 .with_attribute(("name", "to_world"))
                 .write_inner_content(|w| {
+                    if let Some(hw) = ortho {
+                        let s = num(hw);
+                        w.create_element("scale")
+                            .with_attribute(("x", s.as_str()))
+                            .with_attribute(("y", s.as_str()))
+                            .write_empty()?;
+                    }
                     w.create_element("lookat")
                         .with_attribute(("origin", vec3(cam.origin).as_str()))
                         .with_attribute(("target", vec3(cam.target).as_str()))
@@ -361,7 +429,7 @@ mod tests {
 
     #[test]
     fn xml_structure() {
-        let xml = to_xml(&scene(), "tests/example.json");
+        let xml = to_xml(&scene(), "tests/example.json").unwrap();
         assert!(xml.starts_with("<?xml version=\"1.0\" encoding=\"utf-8\"?>\n<!-- "));
         assert!(xml.contains("from tests/example.json"));
         assert!(xml.contains("<scene version=\"3.0.0\">"));
@@ -397,7 +465,7 @@ mod tests {
 
     #[test]
     fn comment_cannot_be_closed_by_source_name() {
-        let xml = to_xml(&scene(), "a-->b");
+        let xml = to_xml(&scene(), "a-->b").unwrap();
         assert!(xml.contains("a- ->b"));
     }
 
@@ -430,7 +498,7 @@ mod tests {
                 name.matches('-').count(),
                 "{name:?}"
             );
-            let xml = to_xml(&scene(), name);
+            let xml = to_xml(&scene(), name).unwrap();
             let body = comment_body(&xml);
             assert!(!body.contains("--") && !body.ends_with('-'), "{body:?}");
             // The comment closes where we meant it to: the XML has exactly one.

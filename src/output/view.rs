@@ -225,7 +225,11 @@ impl ViewPlan {
             ExrLayout::Layers => vec![Member::Exr],
             ExrLayout::PerAov => self.exr_aovs.iter().map(|&a| Member::AovExr(a)).collect(),
         };
-        m.extend([Member::Camera, Member::Open3d]);
+        m.push(Member::Camera);
+        // Open3D's camera file is a pinhole's: no other model has one.
+        if self.camera.is_pinhole() {
+            m.push(Member::Open3d);
+        }
         if self.stamp.is_some() {
             m.push(Member::Stamp);
         }
@@ -253,7 +257,10 @@ impl ViewPlan {
     pub fn member_bytes(&self, member: Member) -> Option<Vec<u8>> {
         match member {
             Member::Camera => Some(camera_json(&self.camera, &self.exr_aovs).into_bytes()),
-            Member::Open3d => Some(open3d_json(&self.camera).into_bytes()),
+            Member::Open3d => self
+                .camera
+                .is_pinhole()
+                .then(|| open3d_json(&self.camera).into_bytes()),
             Member::Stamp => self.stamp.as_ref().map(|s| s.clone().into_bytes()),
             _ => None,
         }

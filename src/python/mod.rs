@@ -725,8 +725,9 @@ impl PyScene {
     /// The scene as Mitsuba 3 XML (what `cylaov export-mitsuba` writes), for camera 0;
     /// `source_name` is named in the comment at the top.
     #[pyo3(signature = (source_name="python"))]
-    fn to_mitsuba_xml(&self, source_name: &str) -> String {
+    fn to_mitsuba_xml(&self, source_name: &str) -> PyResult<String> {
         crate::output::mitsuba::to_xml(&self.scene, source_name)
+            .map_err(|e| PyValueError::new_err(e.to_string()))
     }
 
     fn __repr__(&self) -> String {

@@ -31,6 +31,7 @@ use rayon::prelude::*;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 pub mod cast;
+mod general;
 mod planes;
 mod tracer;
 mod walk;
@@ -215,6 +216,7 @@ struct Setup<T: Real, F: Formula> {
     labels: Vec<u32>,
     cols_off: Vec<f64>,
     rows_off: Vec<f64>,
+    cylinders: Vec<crate::geometry::Cylinder>,
     build: std::time::Duration,
     prepare: std::time::Duration,
 }
@@ -229,7 +231,16 @@ impl<T: Real, F: Formula> Setup<T, F> {
         let padded = w.div_ceil(TILE as usize) * TILE as usize;
         let cols_off = (0..padded as u32).map(|i| cam.column_offset(i)).collect();
         let rows_off = (0..h as u32).map(|j| cam.row_offset(j)).collect();
+        let parallel = matches!(
+            cam.projection,
+            crate::scene::camera::Projection::Orthographic { .. }
+        );
         Setup {
+            cylinders: if parallel {
+                scene.cylinders.clone()
+            } else {
+                Vec::new()
+            },
             ids: scene.cylinders.iter().map(|c| c.id).collect(),
             labels: scene.cylinders.iter().map(|c| c.label).collect(),
             tracer,
@@ -247,6 +258,7 @@ impl<T: Real, F: Formula> Setup<T, F> {
             labels: &self.labels,
             cols_off: &self.cols_off,
             rows_off: &self.rows_off,
+            cylinders: &self.cylinders,
         }
     }
 

@@ -89,6 +89,9 @@ pub(super) struct BandInputs<'a, T: Real, F: Formula> {
     /// Image-plane offset per column (padded to whole tiles) and per row.
     pub(super) cols_off: &'a [f64],
     pub(super) rows_off: &'a [f64],
+    /// The cylinders by scene index, for rays that do not start at the camera centre
+    /// (orthographic); empty otherwise.
+    pub(super) cylinders: &'a [crate::geometry::Cylinder],
 }
 
 impl<T: Real, F: Formula> BandInputs<'_, T, F> {
@@ -150,7 +153,17 @@ pub(super) fn part_code<T: Real, F: Formula>(
     ph: &PixelHit<T>,
 ) -> u32 {
     match ph.hit.surface {
-        Surface::Side if tracer.normal(d, ph).dot(d) > 0.0 => 2,
+        Surface::Side => part_of(Surface::Side, tracer.normal(d, ph), d),
+        s => part_of(s, DVec3::ZERO, d),
+    }
+}
+
+/// [`part_code`] from the surface, the world normal `nrm` (read for the side only) and
+/// the ray direction `d`.
+#[inline(always)]
+pub(super) fn part_of(surface: Surface, nrm: DVec3, d: DVec3) -> u32 {
+    match surface {
+        Surface::Side if nrm.dot(d) > 0.0 => 2,
         Surface::Side => 1,
         Surface::Bottom => 3,
         Surface::Top => 4,

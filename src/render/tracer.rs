@@ -10,7 +10,7 @@ use crate::geometry::packet;
 use crate::geometry::wide::Slabs8;
 use crate::geometry::{BasicHit, Cylinder, Formula, Prepared, Real};
 use crate::scene::Scene;
-use crate::scene::camera::Camera;
+use crate::scene::camera::{Camera, Projection};
 use glam::{DVec3, Vec3A};
 use rayon::prelude::*;
 
@@ -92,6 +92,7 @@ pub(super) fn f32_up(x: f64) -> f32 {
     if (f as f64) < x { f.next_up() } else { f }
 }
 
+/// f64 → f32 rounded toward -inf, for BVH pruning bounds that must not cut a hit off.
 pub(super) fn f32_down(x: f64) -> f32 {
     let f = x as f32;
     if (f as f64) > x { f.next_down() } else { f }
@@ -112,7 +113,14 @@ impl<T: Real, F: Formula> Tracer<T, F> {
             Bvh::build(&bounds, origin)
         };
         let view = (camera.width(), camera.height());
-        let plan = strategy(accel, view, cylinders.len());
+        // Only the pinhole's rays pass through one image plane, as the screen tiles and
+        // the cone walk assume: every other model traces each ray through the BVH, the
+        // binary one where rays leave from their own origins (orthographic).
+        let plan = match camera.projection {
+            Projection::Perspective => strategy(accel, view, cylinders.len()),
+            Projection::Orthographic { .. } => Strategy::PerRay { wide: false },
+            Projection::Lens(_) => strategy(Accel::Bvh, view, cylinders.len()),
+        };
         let (bvh, mut tiles, projected, wide) = match plan {
             Strategy::TinyTiles { max_entries } => {
                 match Tiles::build_within(&camera, cylinders, max_entries) {

@@ -330,6 +330,9 @@ pub(super) fn render_band<T: Real, F: PacketFormula, W: Wide<T>>(
                 }
             }
         }
+        _ if !cam.is_pinhole() => {
+            hits = super::general::render_rows(tok, fr, row0, rows, band);
+        }
         _ => {
             // Pixels in groups of four, traced together; the last few of the band one
             // by one. The hint is the last hit found (through misses too: the next hit is

@@ -11,6 +11,7 @@ use glam::{DMat4, DVec2, DVec3, DVec4};
 use serde::{Deserialize, Serialize};
 
 pub mod lens;
+pub mod model;
 
 use lens::Lens;
 
@@ -102,6 +103,9 @@ pub struct CameraSpec {
     pub near_clip: f64,
     /// Far clip: largest camera-space z counted, > `near_clip` (world units).
     pub far_clip: f64,
+    /// How pixels map to rays: [`Projection::Perspective`] (the pinhole of `fov_deg`) or
+    /// another model, whose `fov_deg` is unused.
+    pub projection: Projection,
 }
 
 /// The camera frame and projection, derived once from a [`CameraSpec`].
@@ -121,8 +125,8 @@ pub struct Camera {
     pub tan_half_x: f64,
     /// Half height of the image plane at unit distance: `tan_half_x / (width / height)`.
     pub tan_half_y: f64,
-    /// How pixels map to rays; [`Projection::Perspective`] from [`Camera::new`], whose
-    /// pinhole `tan_half_x`, `tan_half_y` and the offset helpers below describe.
+    /// How pixels map to rays (the spec's); for [`Projection::Perspective`] the pinhole
+    /// `tan_half_x`, `tan_half_y` and the offset helpers below describe it.
     pub projection: Projection,
 }
 
@@ -153,7 +157,7 @@ impl Camera {
             true_up,
             tan_half_x,
             tan_half_y: tan_half_x / aspect,
-            projection: Projection::Perspective,
+            projection: spec.projection,
         }
     }
 

@@ -13,7 +13,8 @@ pub mod camera;
 pub mod strict;
 
 use crate::geometry::Cylinder;
-use crate::scene::camera::{Camera, CameraSpec, FovAxis};
+use crate::scene::camera::model::{CameraModel, ModelFields};
+use crate::scene::camera::{Camera, CameraSpec, FovAxis, Projection};
 use glam::DVec3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -151,8 +152,9 @@ fn err(field: impl Into<String>, message: impl Into<String>) -> SceneError {
 
 // ---- the file schema -------------------------------------------------------------------
 
-/// The camera as written in a scene file.
-#[derive(Clone, Debug, Serialize, Deserialize)]
+/// The camera as written in a scene file: the frame and image size every model shares,
+/// `model` (default `perspective`) and that model's parameters as flat fields.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CameraFile {
     /// Camera centre, world units.
@@ -164,11 +166,13 @@ pub struct CameraFile {
     /// Up hint, any non-zero length, not parallel to `target - origin`.
     #[serde(deserialize_with = "strict::vec3")]
     pub up: [f64; 3],
-    /// Field of view in degrees, in (0, 180), spanning the extent `fov_axis` names.
-    pub fov_deg: f64,
-    /// Which image extent `fov_deg` spans; default `x`.
-    #[serde(default)]
-    pub fov_axis: FovAxis,
+    /// Field of view in degrees, in (0, 180), spanning the extent `fov_axis` names; the
+    /// `perspective` model only (required there).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fov_deg: Option<f64>,
+    /// Which image extent `fov_deg` spans; default `x`; the `perspective` model only.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fov_axis: Option<FovAxis>,
     /// Image width in pixels, 1..=[`MAX_SIDE`].
     pub width: u32,
     /// Image height in pixels, 1..=[`MAX_SIDE`].
@@ -179,6 +183,46 @@ pub struct CameraFile {
     /// Far clip plane: largest camera-space z counted, > `near_clip`; default 10000.
     #[serde(default = "default_far")]
     pub far_clip: f64,
+    /// How pixels map to rays; default `perspective`.
+    #[serde(default, skip_serializing_if = "is_perspective")]
+    pub model: CameraModel,
+    /// `orthographic`: the image width in world units (height by the aspect ratio).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ortho_width: Option<f64>,
+    /// `opencv`, `opencv_fisheye`: focal length in pixels, x.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fx: Option<f64>,
+    /// `opencv`, `opencv_fisheye`: focal length in pixels, y.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fy: Option<f64>,
+    /// `opencv`, `opencv_fisheye`: principal point x, pixels (centres at integers).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cx: Option<f64>,
+    /// `opencv`, `opencv_fisheye`: principal point y, pixels (centres at integers).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cy: Option<f64>,
+    /// `opencv`, `opencv_fisheye`: first radial coefficient; default 0.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub k1: Option<f64>,
+    /// `opencv`, `opencv_fisheye`: second radial coefficient; default 0.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub k2: Option<f64>,
+    /// `opencv`, `opencv_fisheye`: third radial coefficient; default 0.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub k3: Option<f64>,
+    /// `opencv_fisheye`: fourth radial coefficient; default 0.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub k4: Option<f64>,
+    /// `opencv`: first tangential coefficient; default 0.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub p1: Option<f64>,
+    /// `opencv`: second tangential coefficient; default 0.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub p2: Option<f64>,
+}
+
+fn is_perspective(m: &CameraModel) -> bool {
+    *m == CameraModel::Perspective
 }
 
 fn default_near() -> f64 {
@@ -566,16 +610,41 @@ impl Scene {
 impl CameraFile {
     /// The file form of a validated camera, every field explicit.
     pub fn from_spec(c: &CameraSpec) -> CameraFile {
+        let pinhole = c.projection == Projection::Perspective;
+        let f = c.projection.fields();
         CameraFile {
             origin: c.origin.to_array(),
             target: c.target.to_array(),
             up: c.up.to_array(),
-            fov_deg: c.fov_deg,
-            fov_axis: c.fov_axis,
+            fov_deg: pinhole.then_some(c.fov_deg),
+            fov_axis: pinhole.then_some(c.fov_axis),
             width: c.width,
             height: c.height,
             near_clip: c.near_clip,
             far_clip: c.far_clip,
+            model: c.projection.model(),
+            ortho_width: f.ortho_width,
+            fx: f.intrinsics[0],
+            fy: f.intrinsics[1],
+            cx: f.intrinsics[2],
+            cy: f.intrinsics[3],
+            k1: f.k[0],
+            k2: f.k[1],
+            k3: f.k[2],
+            k4: f.k[3],
+            p1: f.p[0],
+            p2: f.p[1],
+        }
+    }
+
+    /// This camera's model parameters as the model table reads them.
+    fn model_fields(&self) -> ModelFields {
+        ModelFields {
+            fov_deg: self.fov_deg,
+            ortho_width: self.ortho_width,
+            intrinsics: [self.fx, self.fy, self.cx, self.cy],
+            k: [self.k1, self.k2, self.k3, self.k4],
+            p: [self.p1, self.p2],
         }
     }
 
@@ -584,8 +653,9 @@ impl CameraFile {
         let origin = check_vec(format!("{at}.origin"), self.origin)?;
         let target = check_vec(format!("{at}.target"), self.target)?;
         let up = check_vec(format!("{at}.up"), self.up)?;
-        let fov = self.fov_deg;
-        if !(fov.is_finite() && fov > 0.0 && fov < 180.0) {
+        if let Some(fov) = self.fov_deg
+            && !(fov.is_finite() && fov > 0.0 && fov < 180.0)
+        {
             return Err(err(
                 format!("{at}.fov_deg"),
                 format!("must be in (0, 180), got {}", num(fov)),
@@ -626,6 +696,18 @@ impl CameraFile {
                 ),
             ));
         }
+        let projection = self
+            .model
+            .projection(
+                &self.model_fields(),
+                self.fov_axis.is_some(),
+                self.width,
+                self.height,
+            )
+            .map_err(|(field, message)| err(format!("{at}.{field}"), message))?;
+        // Models with their own intrinsics have no field of view; the pinhole frame the
+        // camera still carries is a 90° one, never used for their rays.
+        let fov = self.fov_deg.unwrap_or(90.0);
         let forward = target - origin;
         if forward.length() == 0.0 {
             return Err(err(
@@ -655,11 +737,12 @@ impl CameraFile {
             target,
             up,
             fov_deg: fov,
-            fov_axis: self.fov_axis,
+            fov_axis: self.fov_axis.unwrap_or_default(),
             width: self.width,
             height: self.height,
             near_clip: near,
             far_clip: far,
+            projection,
         };
         // A field of view so small that its tangent underflows leaves no focal length
         // (an infinite one) and a pixel footprint of 0: the camera files and the EXR

@@ -713,6 +713,13 @@ pub fn arbitrate(
     candidate_bound: Bound,
 ) -> Result<Arbitration> {
     let cam = Camera::new(scene.camera);
+    // The exact answers are traced along the pinhole's pixel rays.
+    if !cam.is_pinhole() {
+        bail!(
+            "camera.model: verify checks the \"perspective\" camera only, got \"{}\"",
+            cam.projection.model().name()
+        );
+    }
     let (w, h) = (cam.width() as usize, cam.height() as usize);
     for (img, which) in [(candidate, "candidate"), (reference, "reference")] {
         if (img.width, img.height) != (w, h) {

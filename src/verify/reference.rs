@@ -84,6 +84,14 @@ impl Mitsuba {
     /// Render `scene`'s reference AOVs in `work` (a private folder) and read them back.
     /// `source_name` goes into the XML's header comment.
     pub fn render(&self, scene: &Scene, source_name: &str, work: &Path) -> Result<AovImage> {
+        // The reference script and the exact arbiter build the pinhole's rays.
+        let model = scene.camera.projection.model();
+        if model != crate::scene::camera::model::CameraModel::Perspective {
+            anyhow::bail!(
+                "camera.model: verify checks the \"perspective\" camera only, got \"{}\"",
+                model.name()
+            );
+        }
         let xml = work.join("scene.xml");
         let camera = work.join("camera.json");
         let script = work.join("mitsuba_reference.py");
@@ -98,7 +106,7 @@ impl Mitsuba {
         };
         write(
             &xml,
-            crate::output::mitsuba::to_xml(&one_camera, source_name).as_bytes(),
+            crate::output::mitsuba::to_xml(&one_camera, source_name)?.as_bytes(),
         )?;
         write(&camera, camera_file(scene).as_bytes())?;
         write(&script, SCRIPT.as_bytes())?;

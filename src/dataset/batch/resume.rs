@@ -5,6 +5,7 @@ use super::options::BatchOptions;
 use crate::output::aov::{Compression, ExrLayout, channel_names, per_aov_channel_names};
 use crate::output::files::{open_regular, read_regular};
 use crate::output::view::Member;
+use crate::scene::camera::Projection;
 use crate::scene::{Aov, Scene};
 use exr::meta::MetaData;
 use exr::meta::attribute::SampleType;
@@ -256,6 +257,14 @@ fn scene_hash(scene: &Scene) -> u64 {
         .bytes(c.fov_axis.name().as_bytes())
         .bytes(&c.width.to_le_bytes())
         .bytes(&c.height.to_le_bytes());
+    // Another model and its parameters (nothing for the pinhole, whose hash is unchanged).
+    if !matches!(c.projection, Projection::Perspective) {
+        h.bytes(c.projection.model().name().as_bytes());
+        for (name, v) in c.projection.named_params() {
+            h.bytes(name.as_bytes())
+                .f64s(&[v.as_f64().unwrap_or(f64::NAN)]);
+        }
+    }
     for y in &scene.cylinders {
         h.f64s(&y.base.to_array())
             .f64s(&y.axis.to_array())
@@ -329,7 +338,8 @@ pub fn view_is_complete(dir: &Path, name: &str, scene: &Scene, opts: &BatchOptio
         read_regular(path).is_ok_and(|b| plan.member_bytes(member).is_some_and(|want| b == want))
     };
     let others = same(&files.camera, Member::Camera)
-        && same(&files.open3d, Member::Open3d)
+        // Only a pinhole view has an Open3D camera file.
+        && (!scene.camera.projection.is_pinhole() || same(&files.open3d, Member::Open3d))
         && same(&files.stamp, Member::Stamp)
         && (!opts.png
             || [&files.normal_png, &files.depth_png, &files.mask_png]

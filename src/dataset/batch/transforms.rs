@@ -15,11 +15,12 @@ use super::options::BatchOptions;
 use super::views::ViewSource;
 use crate::output::aov::ExrLayout;
 use crate::scene::Aov;
-use crate::scene::camera::{Camera, rows};
+use crate::scene::camera::lens::Lens;
+use crate::scene::camera::{Camera, Projection, rows};
 use serde::Serialize;
 use std::path::Path;
 
-#[derive(Serialize, PartialEq, Clone, Copy, Debug)]
+#[derive(Serialize, PartialEq, Clone, Copy, Debug, Default)]
 struct Intrinsics {
     w: u32,
     h: u32,
@@ -27,10 +28,27 @@ struct Intrinsics {
     fl_y: f64,
     cx: f64,
     cy: f64,
+    /// Distortion, nerfstudio's names (`OPENCV`: k1, k2, k3, p1, p2; `OPENCV_FISHEYE`:
+    /// k1..k4); absent for the pinhole.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    k1: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    k2: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    k3: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    k4: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    p1: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    p2: Option<f64>,
 }
 
 #[derive(Serialize)]
 struct Frame {
+    /// The view's nerfstudio camera model where it differs from the file's top-level one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    camera_model: Option<&'static str>,
     file_path: String,
     #[serde(skip_serializing_if = "Option::is_none")]
     depth_file_path: Option<String>,
@@ -42,7 +60,9 @@ struct Frame {
     #[serde(skip_serializing_if = "Option::is_none")]
     exr_file_paths: Option<std::collections::BTreeMap<&'static str, String>>,
     camera_file_path: String,
-    open3d_file_path: String,
+    /// Written for pinhole views only.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    open3d_file_path: Option<String>,
     transform_matrix: [[f64; 4]; 4],
     #[serde(flatten, skip_serializing_if = "Option::is_none")]
     intrinsics: Option<Intrinsics>,
@@ -91,6 +111,10 @@ const PRINCIPAL_POINT_NOTE: &str = "cx = W/2, cy = H/2: pixel (i, j) has its cen
 #[derive(Clone, Copy, Debug)]
 pub struct FrameCamera {
     intrinsics: Intrinsics,
+    /// nerfstudio's `camera_model` for this view.
+    model: &'static str,
+    /// Whether the view is the pinhole (the only model with an Open3D camera file).
+    pinhole: bool,
     /// OpenGL camera-to-world, row-major.
     transform_matrix: [[f64; 4]; 4],
     /// The AOVs in the view's EXR (bit k: `Aov::ALL[k]`), for per-AOV file names.
@@ -102,6 +126,8 @@ impl FrameCamera {
     pub fn new(cam: &Camera, aovs: &[Aov]) -> FrameCamera {
         FrameCamera {
             intrinsics: intrinsics(cam),
+            model: nerfstudio_model(cam),
+            pinhole: cam.is_pinhole(),
             transform_matrix: rows(cam.world_from_camera_opengl()),
             aovs: Aov::ALL
                 .iter()
@@ -126,16 +152,77 @@ impl FrameCamera {
     }
 }
 
+/// nerfstudio's `camera_model` for `cam`'s projection.
+fn nerfstudio_model(cam: &Camera) -> &'static str {
+    match cam.projection {
+        Projection::Perspective | Projection::Lens(Lens::OpenCv { .. }) => "OPENCV",
+        Projection::Orthographic { .. } => "ORTHOPHOTO",
+        Projection::Lens(Lens::OpenCvFisheye { .. }) => "OPENCV_FISHEYE",
+        Projection::Lens(Lens::Equirectangular { .. }) => "EQUIRECTANGULAR",
+    }
+}
+
+/// Intrinsics as nerfstudio reads them, pixel centres at `i + 0.5` (its default
+/// `pixel_offset`): the OpenCV models' principal point moves by half a pixel; an
+/// orthophoto's focal length is pixels per world unit; an equirectangular image has
+/// `fl_x = W/2`, `fl_y = H` (longitude `π·(x − cx)/fl_x`, colatitude `π·(½ + (y − cy)/fl_y)`).
 fn intrinsics(cam: &Camera) -> Intrinsics {
-    let (fl_x, fl_y) = cam.focal_px();
     let (w, h) = (cam.width(), cam.height());
-    Intrinsics {
+    let (wf, hf) = (w as f64, h as f64);
+    let base = Intrinsics {
         w,
         h,
-        fl_x,
-        fl_y,
-        cx: w as f64 / 2.0,
-        cy: h as f64 / 2.0,
+        cx: wf / 2.0,
+        cy: hf / 2.0,
+        ..Intrinsics::default()
+    };
+    match cam.projection {
+        Projection::Perspective => {
+            let (fl_x, fl_y) = cam.focal_px();
+            Intrinsics { fl_x, fl_y, ..base }
+        }
+        Projection::Orthographic {
+            half_width,
+            half_height,
+        } => Intrinsics {
+            fl_x: wf / (2.0 * half_width),
+            fl_y: hf / (2.0 * half_height),
+            ..base
+        },
+        Projection::Lens(Lens::OpenCv {
+            fx,
+            fy,
+            cx,
+            cy,
+            dist: [k1, k2, p1, p2, k3],
+        }) => Intrinsics {
+            fl_x: fx,
+            fl_y: fy,
+            cx: cx + 0.5,
+            cy: cy + 0.5,
+            k1: Some(k1),
+            k2: Some(k2),
+            k3: Some(k3),
+            p1: Some(p1),
+            p2: Some(p2),
+            ..base
+        },
+        Projection::Lens(Lens::OpenCvFisheye { fx, fy, cx, cy, k }) => Intrinsics {
+            fl_x: fx,
+            fl_y: fy,
+            cx: cx + 0.5,
+            cy: cy + 0.5,
+            k1: Some(k[0]),
+            k2: Some(k[1]),
+            k3: Some(k[2]),
+            k4: Some(k[3]),
+            ..base
+        },
+        Projection::Lens(Lens::Equirectangular { .. }) => Intrinsics {
+            fl_x: wf / 2.0,
+            fl_y: hf,
+            ..base
+        },
     }
 }
 
@@ -145,6 +232,7 @@ fn frame(
     name: &str,
     cam: &FrameCamera,
     own_intrinsics: bool,
+    file_model: &'static str,
     opts: &BatchOptions,
 ) -> Frame {
     let p = |suffix: &str| format!("{prefix}{name}.{suffix}");
@@ -159,6 +247,7 @@ fn frame(
         .and_then(|m| m.values().next().cloned())
         .unwrap_or_else(|| p("exr"));
     Frame {
+        camera_model: (cam.model != file_model).then_some(cam.model),
         file_path: if opts.png {
             p("normal.preview.png")
         } else {
@@ -169,7 +258,7 @@ fn frame(
         exr_file_path: per_aov.is_none().then(|| p("exr")),
         exr_file_paths: per_aov,
         camera_file_path: p("camera.json"),
-        open3d_file_path: p("open3d.json"),
+        open3d_file_path: cam.pinhole.then(|| p("open3d.json")),
         transform_matrix: cam.transform_matrix,
         intrinsics: own_intrinsics.then_some(cam.intrinsics),
     }
@@ -183,12 +272,15 @@ pub fn transforms_json(views: &[(&str, FrameCamera)], opts: &BatchOptions) -> St
         .first()
         .map(|(_, c)| c.intrinsics)
         .filter(|first| views.iter().all(|(_, c)| c.intrinsics == *first));
+    // nerfstudio reads one camera model per file: camera 0's; a view of another model
+    // also names its own.
+    let model = views.first().map_or("OPENCV", |(_, c)| c.model);
     let frames = views
         .iter()
-        .map(|(name, cam)| frame("", name, cam, shared.is_none(), opts))
+        .map(|(name, cam)| frame("", name, cam, shared.is_none(), model, opts))
         .collect();
     let t = Transforms {
-        camera_model: "OPENCV",
+        camera_model: model,
         intrinsics: shared,
         depth_unit_scale_factor: opts.png.then(|| 1.0 / opts.depth_scale),
         principal_point_note: PRINCIPAL_POINT_NOTE,
@@ -223,7 +315,7 @@ pub fn index_json(
                     .display()
                     .to_string(),
                 camera: v.camera,
-                frame: frame(&prefix, &v.name, cam, true, opts),
+                frame: frame(&prefix, &v.name, cam, true, "OPENCV", opts),
             }
         })
         .collect();

@@ -75,7 +75,8 @@ pub struct Conditioning {
 impl Conditioning {
     /// The bounds of `scene`'s pixels from `img`'s `shape_id`, `distance` and `normal`
     /// (a render of `scene` with those AOVs, cylaov's or Mitsuba's), at
-    /// [`CONDITIONING_ULPS`]. `None` if a channel is missing or the size differs.
+    /// [`CONDITIONING_ULPS`]. `None` if a channel is missing, the size differs or the camera
+    /// is not the pinhole.
     pub fn new(scene: &Scene, img: &AovImage) -> Option<Conditioning> {
         Conditioning::with_ulps(scene, img, CONDITIONING_ULPS)
     }
@@ -92,7 +93,8 @@ impl Conditioning {
         let parts = id_labels(img, "part", "conditioning").ok().flatten();
         let cam = Camera::new(scene.camera);
         let (w, h) = (img.width, img.height);
-        if (w, h) != (cam.width() as usize, cam.height() as usize) {
+        // The bounds follow the pinhole's pixel rays; other models get none.
+        if (w, h) != (cam.width() as usize, cam.height() as usize) || !cam.is_pinhole() {
             return None;
         }
         // Per id: the largest |p| of its cylinders' end points and the smallest radius
