@@ -9,6 +9,7 @@ use cylaov::output::aov::{Compression, ExrLayout};
 use cylaov::output::depth_png::OutOfRange;
 use cylaov::render::{Accel, RenderOptions};
 use cylaov::scene::Aov;
+use cylaov::scene::camera::model::CameraModel;
 use cylaov::verify::compare::Tolerances;
 use cylaov::{bench, commands};
 use std::path::PathBuf;
@@ -161,6 +162,19 @@ struct GenerateCli {
     /// stepped by 360°/V) instead of drawing them at random.
     #[arg(long)]
     orbit: bool,
+    /// Camera model of every view: perspective, orthographic, opencv, opencv_fisheye or
+    /// equirectangular [default: perspective]. Its parameters are drawn per
+    /// scene from the seed (one lens for all of a scene's cameras): `opencv` has the --fov
+    /// focal length with barrel distortion k1 in -0.25..0.05, |k2| <= 0.02, |p1|, |p2| <=
+    /// 1e-3; `opencv_fisheye` spans 180° across the diagonal (fx = diagonal/π) with
+    /// |k1| <= 0.02, |k2| <= 2e-3, |k3| <= 2e-4, |k4| <= 2e-5; `orthographic` spans the scene's bounding sphere times a --distance factor
+    /// across its smaller side; `equirectangular` (the full sphere; give --width 2×
+    /// --height) has none. The cylinders and camera directions are those of the same seed
+    /// with the perspective model; the fisheye camera moves closer (by the ratio of the
+    /// fit distances), the panorama to a fifth of the distance (among the cylinders) and
+    /// the orthographic camera back to clear the scene.
+    #[arg(long, value_name = "MODEL", value_parser = camera_model)]
+    camera_model: Option<CameraModel>,
     /// Replace a dataset already in --out that has other settings or more scenes: removes
     /// generate's own files (generate.json, manifest.jsonl, scenes/NNNNNN.json) and nothing
     /// else. Without it such an --out is refused; the same settings are kept (nothing to
@@ -251,6 +265,14 @@ struct BatchCli {
     // Last: every option after a heading is listed under it.
     #[command(flatten, next_help_heading = "Bounds of --verify-fraction")]
     tolerances: TolerancesCli,
+}
+
+/// A `--camera-model` value, by the scene file's model names.
+fn camera_model(s: &str) -> Result<CameraModel, String> {
+    CameraModel::from_name(s).ok_or_else(|| {
+        let names: Vec<&str> = CameraModel::ALL.iter().map(|m| m.name()).collect();
+        format!("expected one of {}", names.join(", "))
+    })
 }
 
 /// What `batch` writes.
@@ -665,6 +687,7 @@ fn generate(a: GenerateCli) -> anyhow::Result<ExitCode> {
             distance: a.distance,
             views_per_scene: a.views_per_scene,
             orbit: a.orbit.then_some(true),
+            camera_model: a.camera_model,
         },
         force: a.force,
     };

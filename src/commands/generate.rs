@@ -226,6 +226,7 @@ fn option_fields(o: &GenerateOptions) -> serde_json::Map<String, serde_json::Val
     };
     m.entry("views_per_scene").or_insert(1.into());
     m.entry("orbit").or_insert(false.into());
+    m.entry("camera_model").or_insert("perspective".into());
     m
 }
 

@@ -29,6 +29,7 @@
 
 use crate::rng::SplitMix64;
 use crate::scene::camera::FovAxis;
+use crate::scene::camera::model::CameraModel;
 use crate::scene::{self, CameraFile, CylinderFile, SceneFile};
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
@@ -147,6 +148,14 @@ pub struct GenerateOptions {
     /// Cameras 1.. on camera 0's orbit (left out of `generate.json` when false).
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub orbit: bool,
+    /// The camera model of every view, with its parameters drawn per scene (left out of
+    /// `generate.json` when `perspective`, so that file keeps its bytes).
+    #[serde(default, skip_serializing_if = "is_perspective")]
+    pub camera_model: CameraModel,
+}
+
+fn is_perspective(m: &CameraModel) -> bool {
+    *m == CameraModel::Perspective
 }
 
 fn one() -> u32 {
@@ -174,6 +183,7 @@ impl Default for GenerateOptions {
             distance: Range::new(0.55, 0.9),
             views_per_scene: 1,
             orbit: false,
+            camera_model: CameraModel::Perspective,
         }
     }
 }
@@ -211,6 +221,8 @@ pub struct ConfigFile {
     pub views_per_scene: Option<u32>,
     /// `--orbit`: [`GenerateOptions::orbit`].
     pub orbit: Option<bool>,
+    /// `--camera-model`: [`GenerateOptions::camera_model`].
+    pub camera_model: Option<CameraModel>,
 }
 
 /// Half extents `X,Y,Z`, or one number for a cube.
@@ -273,7 +285,8 @@ impl GenerateOptions {
             elevation,
             distance,
             views_per_scene,
-            orbit
+            orbit,
+            camera_model
         );
         if let Some(v) = c.volume {
             self.volume = v.0;
@@ -380,6 +393,15 @@ impl GenerateOptions {
             };
             cameras.push(cam);
         }
+        if self.camera_model != CameraModel::Perspective {
+            // Its own stream: the cylinders and camera poses are those of the same seed
+            // with the perspective model, only the lens differs.
+            let mut lens_rng = SplitMix64::for_item(seed ^ LENS_STREAM, index);
+            let lens = self.lens(&mut lens_rng);
+            for cam in &mut cameras {
+                self.apply_lens(&lens, cam);
+            }
+        }
         let (camera, cameras) = if cameras.len() == 1 {
             (cameras.pop(), None)
         } else {
@@ -443,6 +465,123 @@ impl GenerateOptions {
             near_clip: 0.01,
             far_clip: far,
             ..CameraFile::default()
+        }
+    }
+}
+
+/// Salt of the stream the lens parameters are drawn from (so the perspective stream, and
+/// with it every perspective dataset, keeps its bytes).
+const LENS_STREAM: u64 = 0x6c65_6e73_5f76_3031;
+
+impl GenerateOptions {
+    /// The camera model's parameters for one scene, drawn from `rng` (one draw per scene:
+    /// every camera of a scene is the same lens, as on a rig). The ranges are those of
+    /// real lenses: barrel distortion `k1` in [-0.25, 0.05] with a small `k2` and decentring
+    /// `p1`, `p2` within ±1e-3 for `opencv`; for `opencv_fisheye` a full-frame fisheye whose
+    /// diagonal spans 180° (`fx = diagonal / π`, so the corners need θ_d = π/2) with
+    /// |k1| ≤ 0.02, |k2| ≤ 2e-3, |k3| ≤ 2e-4, |k4| ≤ 2e-5. Then for θ ≤ 1.9 the derivative
+    /// dθ_d/dθ = 1 + 3k1θ² + 5k2θ⁴ + 7k3θ⁶ + 9k4θ⁸ stays ≥ 1 − 0.45 > 0, and θ_d(1.9) ≥
+    /// 1.69 > π/2, so every draw is monotonic out to the corners. The `orthographic` view
+    /// spans the bounding sphere times a `--distance` factor across its smaller side.
+    fn lens(&self, rng: &mut SplitMix64) -> CameraFile {
+        let (w, h) = (self.width as f64, self.height as f64);
+        // OpenCV puts pixel centres at integers: the image centre is ((w−1)/2, (h−1)/2).
+        let (cx, cy) = ((w - 1.0) / 2.0, (h - 1.0) / 2.0);
+        let blank = CameraFile {
+            model: self.camera_model,
+            ..CameraFile::default()
+        };
+        match self.camera_model {
+            CameraModel::Perspective | CameraModel::Equirectangular => blank,
+            CameraModel::Orthographic => {
+                let aspect = w / h;
+                let across_small = 2.0 * self.bounding_radius() * uniform(rng, self.distance);
+                CameraFile {
+                    ortho_width: Some(across_small * aspect.max(1.0)),
+                    ..blank
+                }
+            }
+            CameraModel::Opencv => {
+                // The focal length of the `--fov` pinhole, so the framing is the same.
+                let f = (w / 2.0) / (self.fov.to_radians() / 2.0).tan();
+                CameraFile {
+                    fx: Some(f),
+                    fy: Some(f),
+                    cx: Some(cx),
+                    cy: Some(cy),
+                    k1: Some(rng.range(-0.25, 0.05)),
+                    k2: Some(rng.range(-0.02, 0.02)),
+                    p1: Some(rng.range(-1e-3, 1e-3)),
+                    p2: Some(rng.range(-1e-3, 1e-3)),
+                    k3: Some(0.0),
+                    ..blank
+                }
+            }
+            CameraModel::OpencvFisheye => {
+                // The corner pixel centres lie (w−1)/2, (h−1)/2 from (cx, cy).
+                let f = (w - 1.0).hypot(h - 1.0) / std::f64::consts::PI;
+                CameraFile {
+                    fx: Some(f),
+                    fy: Some(f),
+                    cx: Some(cx),
+                    cy: Some(cy),
+                    k1: Some(rng.range(-0.02, 0.02)),
+                    k2: Some(rng.range(-2e-3, 2e-3)),
+                    k3: Some(rng.range(-2e-4, 2e-4)),
+                    k4: Some(rng.range(-2e-5, 2e-5)),
+                    ..blank
+                }
+            }
+        }
+    }
+
+    /// Give `cam` (a perspective camera drawn as usual) the model and parameters of `lens`.
+    /// A fisheye camera moves closer along its view, by the ratio of the fit distances; an
+    /// equirectangular one to a fifth of its distance, among the cylinders.
+    /// An orthographic camera is moved back along its view direction to twice the
+    /// bounding radius from its target, so nothing of the scene lies behind its image
+    /// plane.
+    fn apply_lens(&self, lens: &CameraFile, cam: &mut CameraFile) {
+        cam.model = lens.model;
+        cam.fov_deg = None;
+        cam.fov_axis = None;
+        cam.ortho_width = lens.ortho_width;
+        cam.fx = lens.fx;
+        cam.fy = lens.fy;
+        cam.cx = lens.cx;
+        cam.cy = lens.cy;
+        cam.k1 = lens.k1;
+        cam.k2 = lens.k2;
+        cam.k3 = lens.k3;
+        cam.k4 = lens.k4;
+        cam.p1 = lens.p1;
+        cam.p2 = lens.p2;
+        if let (CameraModel::OpencvFisheye, Some(f)) = (lens.model, lens.fx) {
+            // The pose was drawn to fit the `--fov` pinhole; bring the camera closer by the
+            // ratio of the fit distances R / sin(a) of the two smaller half angles, so the
+            // scene fills the fisheye's view as much. The fisheye's is θ_d at the middle of
+            // the shorter side's edge (θ ≈ θ_d: the drawn k move it by under 2%).
+            let (w, h) = (self.width as f64, self.height as f64);
+            let theta = ((w.min(h) - 1.0) / 2.0 / f).min(std::f64::consts::FRAC_PI_2);
+            let tan_x = (self.fov.to_radians() / 2.0).tan();
+            let pinhole = (tan_x.min(tan_x * h / w)).atan();
+            let scale = pinhole.sin() / theta.sin();
+            let target = DVec3::from_array(cam.target);
+            cam.origin = (target + (DVec3::from_array(cam.origin) - target) * scale).to_array();
+        }
+        if lens.model == CameraModel::Equirectangular {
+            // A panorama sees every direction: taken from among the cylinders (a fifth of
+            // the drawn distance from the target) rather than from outside the scene,
+            // where the scene is a small patch of the sphere.
+            let target = DVec3::from_array(cam.target);
+            cam.origin = (target + (DVec3::from_array(cam.origin) - target) * 0.2).to_array();
+        }
+        if lens.model == CameraModel::Orthographic {
+            let r = self.bounding_radius();
+            let target = DVec3::from_array(cam.target);
+            let back = (DVec3::from_array(cam.origin) - target).normalize();
+            cam.origin = (target + back * (2.0 * r)).to_array();
+            cam.far_clip = (6.0 * r).max(10000.0);
         }
     }
 }

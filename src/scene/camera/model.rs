@@ -42,6 +42,20 @@ pub struct ModelFields {
 pub type FieldError = (&'static str, String);
 
 impl CameraModel {
+    /// Every model, the default first.
+    pub const ALL: [CameraModel; 5] = [
+        CameraModel::Perspective,
+        CameraModel::Orthographic,
+        CameraModel::Opencv,
+        CameraModel::OpencvFisheye,
+        CameraModel::Equirectangular,
+    ];
+
+    /// The model a scene file's `name` spells, if any.
+    pub fn from_name(name: &str) -> Option<CameraModel> {
+        CameraModel::ALL.into_iter().find(|m| m.name() == name)
+    }
+
     /// The name as scene files spell it.
     pub fn name(self) -> &'static str {
         match self {
