@@ -110,3 +110,81 @@ fn top_cap_t_is_measured_from_its_own_plane() {
     // The old form really was worse on these rays: the test exercises the difference.
     assert!(f64_old > 1e3 && f32_old > 1e2, "{f64_old} {f32_old}");
 }
+
+/// A one-cylinder scene (the bench's camera; `cast` reads only the cylinders).
+fn scene_of(cylinders: Vec<Cylinder>) -> cylaov::scene::Scene {
+    let mut sc = cylaov::bench::dense_scene(1, 1, 4, 4);
+    sc.cylinders = cylinders;
+    sc
+}
+
+/// `t_hit` lies in `[t_min, t_max]` exactly as given, for directions of lengths 1e-3..1e3
+/// and bounds set right at the hit (the hit's own `t`, one float either side of it, both
+/// bounds equal to it), in both precisions.
+#[test]
+fn t_hit_stays_inside_the_given_interval() {
+    use cylaov::geometry::Kernel;
+    use cylaov::render::cast::{Ray, cast};
+    let mut rng = SplitMix64::new(17);
+    let mut cyls = Vec::new();
+    let mut rays = Vec::new();
+    for i in 0..300 {
+        let c = Cylinder {
+            base: rng.unit_vector() * decades(&mut rng, -1.0, 3.0),
+            axis: rng.unit_vector(),
+            height: decades(&mut rng, -1.0, 1.0),
+            radius: decades(&mut rng, -1.0, 0.0),
+            caps: i % 3 != 0,
+            id: i + 1,
+            label: 0,
+        };
+        let origin = c.base + rng.unit_vector() * (c.height + 3.0 * c.radius);
+        let aim = c.base + c.axis * (c.height * rng.unit());
+        rays.push(Ray {
+            origin,
+            dir: (aim - origin) * decades(&mut rng, -3.0, 3.0),
+            t_min: 0.0,
+            t_max: f64::INFINITY,
+        });
+        cyls.push(c);
+    }
+    let sc = scene_of(cyls);
+    for kernel in [Kernel::STABLE_F64, Kernel::STABLE_F32] {
+        let first = cast(&sc, kernel, &rays).unwrap();
+        let (mut bounded, mut found) = (Vec::new(), 0);
+        for (r, h) in rays.iter().zip(&first) {
+            let Some(h) = h else { continue };
+            let t = h.t;
+            for (lo, hi) in [
+                (t, f64::INFINITY),
+                (0.0, t),
+                (t, t),
+                (t.next_down(), t.next_up()),
+                (t.next_up(), f64::INFINITY),
+                (0.0, t.next_down()),
+            ] {
+                bounded.push(Ray {
+                    t_min: lo,
+                    t_max: hi,
+                    ..*r
+                });
+            }
+        }
+        let again = cast(&sc, kernel, &bounded).unwrap();
+        for (r, h) in bounded.iter().zip(&again) {
+            if let Some(h) = h {
+                assert!(
+                    h.t >= r.t_min && h.t <= r.t_max,
+                    "{kernel}: t {} outside [{}, {}]",
+                    h.t,
+                    r.t_min,
+                    r.t_max
+                );
+                found += 1;
+            }
+        }
+        eprintln!("{kernel}: {} bounded rays, {found} hits", bounded.len());
+        assert!(first.iter().filter(|h| h.is_some()).count() > 250);
+        assert!(found > bounded.len() / 3, "{found}");
+    }
+}
