@@ -384,7 +384,10 @@ impl Formula for Stable {
         }
         // Slab between the cap planes; a ray parallel to them is inside it or not at all.
         let (c0, c1, enter_cap, exit_cap) = if dn == T::ZERO {
-            if on < T::ZERO || on > p.h {
+            // Each plane judged from itself: `on > h` would read the top plane to within
+            // the rounding of `(o - p0)·n`, which in f32 near the top of a long cylinder is
+            // far more than a spawned ray's offset above the cap.
+            if on < T::ZERO || p.on_top > T::ZERO {
                 return None;
             }
             let inf = T::INFINITY;
