@@ -199,7 +199,7 @@ fn spawn_case(rng: &mut SplitMix64, i: u32) -> (Cylinder, cylaov::render::cast::
         axis: rng.unit_vector(),
         height: h,
         radius: r,
-        caps: i % 5 != 0,
+        caps: !i.is_multiple_of(5),
         id: 1,
         label: 0,
     };
@@ -211,7 +211,7 @@ fn spawn_case(rng: &mut SplitMix64, i: u32) -> (Cylinder, cylaov::render::cast::
         _ => cyl.base + cyl.axis * (h * rng.unit()) + (u * a + v * b) * r,
     };
     let origin = target + rng.unit_vector() * decades(rng, -8.0, 8.0);
-    let scale = if i % 2 == 0 {
+    let scale = if i.is_multiple_of(2) {
         1.0
     } else {
         decades(rng, -3.0, 3.0)
@@ -230,7 +230,7 @@ fn spawn_case(rng: &mut SplitMix64, i: u32) -> (Cylinder, cylaov::render::cast::
 /// (every other one) within 1e-12..1e-2 radians of the tangent plane; length 1 or
 /// 1e-3..1e3.
 fn hemisphere(rng: &mut SplitMix64, n: DVec3, sign: f64, k: usize) -> DVec3 {
-    let w = if k % 2 == 0 {
+    let w = if k.is_multiple_of(2) {
         let w = rng.unit_vector();
         if w.dot(n) * sign < 0.0 { -w } else { w }
     } else {
