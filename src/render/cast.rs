@@ -9,6 +9,13 @@
 //! `[near_clip, far_clip]` is therefore the render's pixel ray, bit for bit, and its hit
 //! parameter times the direction's length is the render's `distance` before rounding.
 //!
+//! Continuing from a hit (a bounce, a shadow ray) as pbrt-v4 does: [`RayHit::position`] is
+//! the hit moved onto its surface, [`RayHit::position_error`] bounds its distance from it
+//! per axis ([`surface_point`] derives the bound), and [`RayHit::spawn`] gives the origin
+//! past that bound on the side the new direction leaves by. Cast from there with
+//! `t_min = 0` and the same kernel precision, a ray leaving outward never re-hits the
+//! surface, and one going inward finds the far wall (`tests/exact.rs`).
+//!
 //! [`Camera::pixel_vector`]: crate::scene::camera::Camera::pixel_vector
 
 use super::planes::part_code;
