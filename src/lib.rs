@@ -35,7 +35,8 @@
 //!   ([`render::render_bands`]: `cylaov render` and `batch` write an uncompressed EXR that
 //!   way, during the trace, without holding the image); [`render::strategy`] picks the
 //!   acceleration; the tracer, the tile walk and the planes (the AOV buffers being filled)
-//!   are its files `tracer.rs`, `walk.rs`, `planes.rs`; [`render::cast`], rays from any origin.
+//!   are its files `tracer.rs`, `walk.rs`, `planes.rs`; [`render::cast`], rays from any origin,
+//!   hits reprojected onto their surface with an error bound, and rays continued from them.
 //! - [`output`]: [`output::aov`] (the in-memory AOV image, one buffer per AOV in numpy's
 //!   `(H, W)` / `(H, W, 3)` layout, its EXR reading and writing,
 //!   band by band too ([`output::aov::ExrBands`]), self-describing headers, the per-AOV layout), [`output::depth_png`] (the 16-bit depth

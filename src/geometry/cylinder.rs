@@ -194,15 +194,28 @@ fn axial_from_top(cyl: &Cylinder, origin: DVec3) -> f64 {
     };
     let (o, c, n) = (origin.to_array(), cyl.base.to_array(), cyl.axis.to_array());
     // Sum of hi parts with compensation; low parts (each ≤ ε of its term) summed plainly.
+    // `nn` is |n|² - 1 the same way: the stored axis is a unit vector only to within
+    // rounding, |n| = 1 + e with |e| ≲ 2ε, and the cap's plane lies at `h` along the exact
+    // unit axis n/|n|. Left in, `e` would move the plane by e·h: for a tall cylinder seen
+    // from just above its top that is again ε·|o - p0|, not ε·|o - p1|.
     let (mut hi, mut lo) = (-cyl.height, 0.0);
+    let (mut nn, mut nn_lo) = (-1.0, 0.0);
     for k in 0..3 {
         let (dh, dl) = two_sum(o[k], -c[k]);
         let (p, pe) = two_prod(dh, n[k]);
         let (s, e) = two_sum(hi, p);
         hi = s;
         lo += e + pe + dl * n[k];
+        let (q, qe) = two_prod(n[k], n[k]);
+        let (s, e) = two_sum(nn, q);
+        nn = s;
+        nn_lo += e + qe;
     }
-    hi + lo
+    // (o - p0)·n/|n| - h = ((o - p0)·n - h·|n|)/|n| with |n| = 1 + e, e = (|n|² - 1)/2 to
+    // first order (e² ≲ 4ε² is far below the result's rounding). The final division by
+    // |n| changes the result by |e| relative, under one ulp: left out.
+    let e = (nn + nn_lo) / 2.0;
+    hi + (lo - cyl.height * e)
 }
 
 /// Orthonormal `u`, `v` with `u × v = n` (Duff et al. 2017, branchless).
@@ -371,7 +384,10 @@ impl Formula for Stable {
         }
         // Slab between the cap planes; a ray parallel to them is inside it or not at all.
         let (c0, c1, enter_cap, exit_cap) = if dn == T::ZERO {
-            if on < T::ZERO || on > p.h {
+            // Each plane judged from itself: `on > h` would read the top plane to within
+            // the rounding of `(o - p0)·n`, which in f32 near the top of a long cylinder is
+            // far more than a spawned ray's offset above the cap.
+            if on < T::ZERO || p.on_top > T::ZERO {
                 return None;
             }
             let inf = T::INFINITY;

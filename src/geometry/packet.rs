@@ -186,7 +186,7 @@ pub(crate) fn stable_lanes<T: Real, W: Wide<T>>(
         let up = dn.gt(zero);
         let c0 = W::select(flat, -inf, W::select(up, ta, tb));
         let c1 = W::select(flat, inf, W::select(up, tb, ta));
-        let slab = !flat | W::all(tok, !(on < T::ZERO || on > p.h));
+        let slab = !flat | W::all(tok, !(on < T::ZERO || p.on_top > T::ZERO));
         let (side_in, side_out) = (s0.ge(c0), s1.le(c1));
         let (enter, exit) = (W::select(side_in, s0, c0), W::select(side_out, s1, c1));
         let first = enter.ge(tmin) & enter.le(limit);

@@ -1004,7 +1004,14 @@ fn _cast_rays<'py>(
             "origins, directions, t_min, t_max: sizes differ",
         ));
     }
-    const KINDS: [&str; 5] = ["t_hit", "normal", "shape_id", "part", "position"];
+    const KINDS: [&str; 6] = [
+        "t_hit",
+        "normal",
+        "shape_id",
+        "part",
+        "position",
+        "position_error",
+    ];
     for (i, a) in aovs.iter().enumerate() {
         if !KINDS.contains(&a.as_str()) {
             return Err(PyValueError::new_err(format!(
@@ -1050,7 +1057,10 @@ fn _cast_rays<'py>(
         out.set_item("normal", vec3(&|h, _| h.normal)?)?;
     }
     if want("position") {
-        out.set_item("position", vec3(&|h, r| r.origin + r.dir * h.t)?)?;
+        out.set_item("position", vec3(&|h, _| h.position)?)?;
+    }
+    if want("position_error") {
+        out.set_item("position_error", vec3(&|h, _| h.position_error)?)?;
     }
     for (name, f) in [
         (
@@ -1072,6 +1082,37 @@ fn _cast_rays<'py>(
         }
     }
     Ok(out)
+}
+
+/// Origins of rays continuing from hits (the package's `spawn_rays` prepares the
+/// arguments): `position`, `position_error`, `normal` and `directions`, each (N, 3)
+/// float64; returns (N, 3) origins, NaN where the normal is 0 (a miss).
+#[pyfunction]
+fn _spawn_rays<'py>(
+    py: Python<'py>,
+    position: numpy::PyReadonlyArrayDyn<'py, f64>,
+    position_error: numpy::PyReadonlyArrayDyn<'py, f64>,
+    normal: numpy::PyReadonlyArrayDyn<'py, f64>,
+    directions: numpy::PyReadonlyArrayDyn<'py, f64>,
+) -> PyResult<Bound<'py, PyAny>> {
+    let p = flat(&position, "position")?;
+    let e = flat(&position_error, "position_error")?;
+    let nrm = flat(&normal, "normal")?;
+    let d = flat(&directions, "directions")?;
+    let n = p.len() / 3;
+    if p.len() != 3 * n || e.len() != 3 * n || nrm.len() != 3 * n || d.len() != 3 * n {
+        return Err(PyValueError::new_err(
+            "position, position_error, normal, directions: sizes differ",
+        ));
+    }
+    let at = |a: &[f64], i: usize| DVec3::from_slice(&a[3 * i..3 * i + 3]);
+    let v: Vec<f64> = (0..n)
+        .flat_map(|i| cast::offset_origin(at(p, i), at(e, i), at(nrm, i), at(d, i)).to_array())
+        .collect();
+    Ok(Array2::from_shape_vec((n, 3), v)
+        .map_err(shape_err)?
+        .into_pyarray(py)
+        .into_any())
 }
 
 /// The oracle's nearest hit (double-double, every cylinder tested) of each ray, for the
@@ -1540,6 +1581,7 @@ fn _cylaov(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(camera_info, m)?)?;
     m.add_function(wrap_pyfunction!(camera_rays, m)?)?;
     m.add_function(wrap_pyfunction!(_cast_rays, m)?)?;
+    m.add_function(wrap_pyfunction!(_spawn_rays, m)?)?;
     m.add_function(wrap_pyfunction!(_oracle_cast, m)?)?;
     m.add_function(wrap_pyfunction!(_scene_from_state, m)?)?;
     m.add_function(wrap_pyfunction!(_time_render, m)?)?;

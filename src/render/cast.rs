@@ -9,16 +9,24 @@
 //! `[near_clip, far_clip]` is therefore the render's pixel ray, bit for bit, and its hit
 //! parameter times the direction's length is the render's `distance` before rounding.
 //!
+//! Continuing from a hit (a bounce, a shadow ray) as pbrt-v4 does: [`RayHit::position`] is
+//! the hit moved onto its surface, [`RayHit::position_error`] bounds its distance from it
+//! per axis ([`surface_point`] derives the bound), and [`RayHit::spawn`] gives the origin
+//! past that bound on the side the new direction leaves by. Cast from there with
+//! `t_min = 0` and the same kernel precision, a ray leaving outward never re-hits the
+//! surface, and one going inward finds the far wall (`tests/exact.rs`).
+//!
 //! [`Camera::pixel_vector`]: crate::scene::camera::Camera::pixel_vector
 
 use super::planes::part_code;
 use super::{PixelHit, Tracer};
 use crate::accel::bvh::{Bvh, LEAF_SIZE};
 use crate::accel::wide_bvh::WideBvh;
+use crate::geometry::cylinder::orthonormal_basis;
 use crate::geometry::kernel::KernelFn;
 use crate::geometry::packet::PacketFormula;
 use crate::geometry::wide::Simd;
-use crate::geometry::{Formula, Kernel, Prepared, Real};
+use crate::geometry::{Cylinder, Formula, Kernel, Prepared, Real, Surface};
 use crate::scene::camera::Camera;
 use crate::scene::{MAX_COORD, Scene};
 use glam::DVec3;
@@ -51,6 +59,133 @@ pub struct RayHit {
     pub id: u32,
     /// The part hit, as the `part` AOV codes it (1-4).
     pub part: u32,
+    /// The hit point on the surface: `origin + t·dir` moved along the normal onto the
+    /// surface it hit (pbrt-v4's reprojection), in world units.
+    pub position: DVec3,
+    /// Per world axis, a bound on how far `position` may lie off that surface, and on how
+    /// far the stable kernels may misjudge which side of it a point near it is: see
+    /// [`surface_point`]. [`RayHit::spawn`] starts continuing rays past it.
+    pub position_error: DVec3,
+}
+
+impl RayHit {
+    /// Origin for a ray continuing from this hit in direction `dir`: [`offset_origin`].
+    pub fn spawn(&self, dir: DVec3) -> DVec3 {
+        offset_origin(self.position, self.position_error, self.normal, dir)
+    }
+}
+
+/// The hit at ray parameter `t` of `origin + t·dir` on `surface` of `cyl`, moved onto that
+/// surface, the per-axis bound on its distance from it (see the derivation inside), and
+/// the outward normal at that very point. `normal` is the kernel's outward normal (used
+/// only when the side hit lies on the axis in f64, where the point carries no direction);
+/// `roundoff` is the unit roundoff of the kernel that found the hit and will trace rays
+/// spawned from it.
+///
+/// Why the normal is recomputed: far from the cylinder, `o + t·d` is off along the surface
+/// by ~ε·|o - c|, so the kernel's normal (of its own point) and the normal at `position`
+/// can differ by that over `r`: up to 1e-6 rad seen from 1e8 radii away. A direction
+/// within that of the tangent plane would then leave by one normal and enter by the other.
+/// For a side hit the normal is the radial direction of the same `(x, y)` the position is
+/// built from, so the two agree to a few ε; in f64 that is the kernel's normal, bit for bit
+/// (the same operations on the same values).
+///
+/// Why reproject rather than bound `origin + t·dir`: the error of `t` grows as the ray
+/// grazes the surface (the problem's conditioning), and bounding it would need the
+/// kernel's forward error. Moving the point along the normal onto the surface leaves only
+/// an error along the surface (harmless: a ray continuing from there does not re-hit the
+/// surface for being slid along it) and the few roundings below, whatever the ray.
+pub fn surface_point(
+    cyl: &Cylinder,
+    origin: DVec3,
+    dir: DVec3,
+    t: f64,
+    surface: Surface,
+    normal: DVec3,
+    roundoff: f64,
+) -> (DVec3, DVec3, DVec3) {
+    let n = cyl.axis;
+    let (u, v) = orthonormal_basis(n);
+    let (r, h) = (cyl.radius, cyl.height);
+    // The hit in the cylinder's (u, v, n) frame, as the kernels see it.
+    let oc = origin - cyl.base;
+    let x0 = oc.dot(u) + t * dir.dot(u);
+    let y0 = oc.dot(v) + t * dir.dot(v);
+    let z0 = oc.dot(n) + t * dir.dot(n);
+    let rho = (x0 * x0 + y0 * y0).sqrt();
+    let (x, y, z, normal) = match surface {
+        // Radially onto ρ = r; along the axis only into [0, h] (a slide along the side).
+        // The normal as `Stable::normal` forms it: u·(x/ρ) + v·(y/ρ).
+        Surface::Side if rho > 0.0 => {
+            let (nx, ny) = (x0 / rho, y0 / rho);
+            (r * nx, r * ny, z0.clamp(0.0, h), u * nx + v * ny)
+        }
+        Surface::Side => {
+            let (nx, ny) = (normal.dot(u), normal.dot(v));
+            (r * nx, r * ny, z0.clamp(0.0, h), normal)
+        }
+        // Onto the cap's plane exactly, and into its disk.
+        Surface::Top | Surface::Bottom => {
+            let s = if rho > r { r / rho } else { 1.0 };
+            let (z, nrm) = if surface == Surface::Top {
+                (h, n)
+            } else {
+                (0.0, -n)
+            };
+            (x0 * s, y0 * s, z, nrm)
+        }
+    };
+    let position = cyl.base + (u * x + v * y + n * z);
+    // The bound, per world axis k, with u = 2⁻⁵³ and γ_m = m·u/(1 - m·u):
+    // - world from local: p_k = b_k + (u_k·x + v_k·y + n_k·z), three products and three
+    //   sums, off the exact value of the same expression by at most
+    //   γ_4·(|b_k| + |u_k·x| + |v_k·y| + |n_k·z|) (Higham's bound for a dot product; b_k
+    //   as a fourth term with factor 1). Taken as γ_5 for margin.
+    // - local point off the surface: on a cap z is the plane exactly; on the side
+    //   |(x, y)| = r(1 ± 5u) (ρ: two squares, a sum and a root, 2u; x0/ρ, u; times r,
+    //   u; the error of x0, y0 themselves only turns the direction).
+    // - frame: u, v, n are orthonormal to within a few u, and the stored axis is a unit
+    //   vector to within 2u, so the exact b + u·x + v·y + n·z is within ~6u·(r + |z|) of
+    //   the exact surface.
+    // - the kernel reading a point near the surface: `o - c` rounded (u per component of
+    //   the result), its dots with u, v, n (γ_3 of |o - c| ≤ r + |z|), so ρ and the
+    //   axial coordinate are off by ~6u·(r + |z|) in f64; an f32 kernel then rounds the
+    //   local coordinates and forms its discriminant in f32: a few u₃₂·r.
+    // The last three together are below 16u·(r + |z|) + 16u_T·r, added to every axis:
+    // the offset along the normal is at least that, whatever the normal's direction.
+    let u64 = f64::EPSILON / 2.0;
+    let gamma5 = 5.0 * u64 / (1.0 - 5.0 * u64);
+    let terms = cyl.base.abs() + (u * x).abs() + (v * y).abs() + (n * z).abs();
+    let iso = 16.0 * u64 * (r + z.abs()) + 16.0 * roundoff * r;
+    (position, terms * gamma5 + DVec3::splat(iso), normal)
+}
+
+/// Origin for a ray continuing from a hit at `position` (with per-axis error bound
+/// `error` and outward unit normal `normal`) in direction `dir`: `position` moved by
+/// `|normal|·error` along `normal`, toward the side `dir` leaves by (`dir·normal >= 0`:
+/// outward; `< 0`: into the solid), each coordinate then rounded one float further away
+/// so the rounding of the sum cannot bring it back into the error box (pbrt-v4's
+/// `OffsetRayOrigin`). A zero normal (a miss) gives NaN.
+pub fn offset_origin(position: DVec3, error: DVec3, normal: DVec3, dir: DVec3) -> DVec3 {
+    if normal == DVec3::ZERO {
+        return DVec3::NAN;
+    }
+    // The error box's extent along the normal: the largest |n·e| over the box's corners.
+    let reach = normal.abs().dot(error);
+    let mut offset = normal * reach;
+    if dir.dot(normal) < 0.0 {
+        offset = -offset;
+    }
+    let p = position + offset;
+    DVec3::from_array(std::array::from_fn(|k| {
+        if offset[k] > 0.0 {
+            p[k].next_up()
+        } else if offset[k] < 0.0 {
+            p[k].next_down()
+        } else {
+            p[k]
+        }
+    }))
 }
 
 /// Rays of a group with fewer than this many rays test every cylinder: a BVH costs more to
@@ -201,14 +336,29 @@ fn cast_one<T: Real, F: Formula>(scene: &Scene, tracer: &Tracer<T, F>, r: &Ray) 
     let d = r.dir * (1.0 / len);
     let ph: PixelHit<T> = tracer.trace_within(d, r.t_min * len, r.t_max * len)?;
     let index = ph.index;
+    let cyl = &scene.cylinders[index as usize];
+    // Dividing by `len` can round one ulp past a bound the scaled interval met exactly;
+    // the answer stays inside the interval the caller gave.
+    let t = (ph.hit.t.to_f64() / len).clamp(r.t_min, r.t_max);
+    // The point from the unit direction and its distance, as the kernel formed them, so
+    // that in f64 the side's normal below is the kernel's, bit for bit.
+    let (position, position_error, normal) = surface_point(
+        cyl,
+        r.origin,
+        d,
+        ph.hit.t.to_f64(),
+        ph.hit.surface,
+        tracer.normal(d, &ph),
+        T::UNIT_ROUNDOFF,
+    );
     Some(RayHit {
-        // Dividing by `len` can round one ulp past a bound the scaled interval met exactly;
-        // the answer stays inside the interval the caller gave.
-        t: (ph.hit.t.to_f64() / len).clamp(r.t_min, r.t_max),
-        normal: tracer.normal(d, &ph),
+        t,
+        normal,
         index,
-        id: scene.cylinders[index as usize].id,
+        id: cyl.id,
         part: part_code(tracer, d, &ph),
+        position,
+        position_error,
     })
 }
 

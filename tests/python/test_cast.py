@@ -94,3 +94,72 @@ def test_shapes_units_and_misses():
         cylaov.cast_rays(scene, o[:1], d[:1], t_min=-1)
     with pytest.raises(ValueError, match=r"shape must be \(\.\.\., 3\)"):
         cylaov.cast_rays(scene, o, d[:, :2])
+
+
+# `cast_rays` reads only the cylinders; a scene needs a camera all the same.
+_CAMERA = {"origin": [5, 0, 0.5], "target": [0, 0, 0.5], "up": [0, 0, 1], "fov_deg": 40,
+           "width": 8, "height": 6}
+
+
+def test_spawned_rays_leave_their_surface_and_find_the_far_wall():
+    """From hits on 200 random closed cylinders (radius and height 1e-2..1e2, up to 1e6
+    from the origin), rays into the outward hemisphere started by ``spawn_rays`` never
+    re-hit the cylinder, and rays into the inward one find its far wall (the oracle's exit
+    from the spawned origin, within half its distance): 20 each way per hit, half of them
+    within 1e-3..1e-10 rad of the tangent plane, half of the directions unnormalised."""
+    rng = np.random.default_rng(3)
+    checked = 0
+    for _ in range(200):
+        p0 = rng.normal(size=3) * 10.0 ** rng.uniform(0, 6)
+        axis = rng.normal(size=3)
+        axis /= np.linalg.norm(axis)
+        h, r = 10.0 ** rng.uniform(-2, 2, size=2)
+        scene = cylaov.Scene.from_arrays(p0[None], (p0 + h * axis)[None], [r], camera=_CAMERA)
+        side = np.cross(axis, rng.normal(size=3))
+        side /= np.linalg.norm(side)
+        aim = p0 + axis * h * rng.uniform(0.05, 0.95) + side * r
+        origin = aim + side * r * 10.0 ** rng.uniform(-1, 3) + rng.normal(size=3) * r
+        want = ("t_hit", "normal", "position", "position_error", "shape_id")
+        hit = cylaov.cast_rays(scene, origin, (aim - origin) * 10.0 ** rng.uniform(-3, 3), aovs=want)
+        if not np.isfinite(hit["t_hit"]):
+            continue
+        n = hit["normal"]
+        assert np.all(hit["position_error"] > 0) and np.all(hit["position_error"] < 1e-6 * (r + h + np.abs(p0).max()))
+        dirs = []
+        for sign in (1.0, -1.0):
+            w = rng.normal(size=(20, 3))
+            w -= np.outer(w @ n, n)  # tangent
+            w /= np.linalg.norm(w, axis=1)[:, None]
+            tilt = np.where(np.arange(20) % 2 == 0, rng.uniform(0.05, 1, 20), 10.0 ** rng.uniform(-10, -3, 20))
+            w = w + sign * tilt[:, None] * n
+            w *= np.where(np.arange(20) % 4 < 2, 1.0, 10.0 ** rng.uniform(-3, 3, 20))[:, None]
+            dirs.append(w)
+        dirs = np.concatenate(dirs)
+        hits = {k: np.broadcast_to(v, (40,) + v.shape) for k, v in hit.items()}
+        o2 = cylaov.spawn_rays(hits, dirs)
+        assert o2.shape == (40, 3) and np.all(np.isfinite(o2))
+        again = cylaov.cast_rays(scene, o2, dirs)
+        assert np.all(np.isinf(again["t_hit"][:20])), again["t_hit"][:20]
+        t_o, _ = cylaov._cylaov._oracle_cast(scene, o2[20:].tolist(), dirs[20:].tolist())
+        t_o = np.array(t_o)
+        assert np.all(np.isfinite(t_o))
+        assert np.all(np.abs(again["t_hit"][20:] - t_o) <= 0.5 * t_o), (again["t_hit"][20:], t_o)
+        checked += 1
+    assert checked > 150
+
+
+def test_spawn_rays_needs_the_error_and_marks_misses():
+    scene = cylaov.Scene.from_arrays([[0.0, 0, 0]], [[0.0, 0, 1]], [0.5], camera=_CAMERA)
+    d = np.array([[-1.0, 0, 0], [1.0, 0, 0]])
+    o = np.array([[3.0, 0, 0.5], [3.0, 0, 0.5]])
+    r = cylaov.cast_rays(scene, o, d, aovs=("t_hit", "normal", "position", "position_error"))
+    assert r["position"][0].tolist() == [0.5, 0.0, 0.5]
+    assert r["position_error"][1].tolist() == [0, 0, 0]
+    out = cylaov.spawn_rays(r, [[1.0, 0, 0], [1.0, 0, 0]])
+    # Outward along +x: one float at least past the box, y and z (normal 0 there) as they were.
+    assert out[0, 0] > 0.5 + r["position_error"][0, 0] and out[0, 1:].tolist() == [0.0, 0.5]
+    assert np.all(np.isnan(out[1]))
+    inward = cylaov.spawn_rays(r, [-1.0, 0, 0])
+    assert inward[0, 0] < 0.5 - r["position_error"][0, 0]
+    with pytest.raises(ValueError, match="position_error"):
+        cylaov.spawn_rays({"position": r["position"], "normal": r["normal"]}, d)

@@ -8,6 +8,7 @@ import subprocess
 import sys
 import textwrap
 
+import numpy as np
 import pytest
 
 import cylaov
@@ -18,12 +19,13 @@ BLOCKS = re.findall(r"```python\n(.*?)```", DOC, re.S)
 LOADER = next(i for i, b in enumerate(BLOCKS) if "DataLoader(" in b)
 
 
-def test_the_page_has_its_four_examples():
-    assert len(BLOCKS) == 4
+def test_the_page_has_its_five_examples():
+    assert len(BLOCKS) == 5
     assert "cylaov.render(" in BLOCKS[0]
     assert "Scene.from_arrays(" in BLOCKS[1] and "cameras=" in BLOCKS[1]
     assert LOADER == 2
     assert "cast_rays(" in BLOCKS[3]
+    assert "spawn_rays(" in BLOCKS[4]
 
 
 @pytest.mark.parametrize("k", [k for k in range(len(BLOCKS)) if k != LOADER])
@@ -42,6 +44,11 @@ def test_example_runs(k, monkeypatch):
     if k == 3:
         assert scope["rng"].shape == (16, 720)
         assert 100 < len(scope["cloud"]) < 16 * 720, len(scope["cloud"])
+    if k == 4:
+        # A mirror bounce leaves outward: it never finds the cylinder it bounced off.
+        hit, second = scope["hit"], scope["second"]
+        assert len(hit["t_hit"]) > 20
+        assert not np.any(second["shape_id"] == hit["shape_id"])
 
 
 def test_the_stub_example_of_from_arrays_runs():

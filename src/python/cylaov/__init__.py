@@ -12,7 +12,7 @@ A first render::
     out["normal"]     # (H, W, 3) float32, world-space unit outward normal
     out["mask"]       # (H, W) bool, True where a cylinder was hit
 
-Functions: ``render``, ``camera_info``, ``cast_rays``, ``camera_rays``, ``generate``,
+Functions: ``render``, ``camera_info``, ``cast_rays``, ``spawn_rays``, ``camera_rays``, ``generate``,
 ``read``, ``compare``, ``write_shards``, ``shard_count``; classes ``Scene``, ``Dataset``; errors ``SceneError`` (a
 ``ValueError``) and ``OSError`` subclasses for files. ``help(cylaov.render)`` and the others
 say more; the package's documentation page is ``docs/python.md`` in the repository.
@@ -46,6 +46,7 @@ __all__ = [
     "render",
     "camera_info",
     "cast_rays",
+    "spawn_rays",
     "camera_rays",
     "generate",
     "read",
@@ -70,7 +71,11 @@ def cast_rays(scene, origins, directions, t_min=0.0, t_max=float("inf"),
     Returns a dict of the requested ``aovs``: ``t_hit`` ``(...)`` float64 (``inf`` on a
     miss), ``normal`` ``(..., 3)`` float64 (world-space unit outward normal, 0 on a miss),
     ``shape_id`` and ``part`` ``(...)`` uint32 (0 on a miss, as in the EXR: part 1 side from
-    outside, 2 side from inside, 3 bottom cap, 4 top cap), ``position`` ``(..., 3)`` float64.
+    outside, 2 side from inside, 3 bottom cap, 4 top cap), ``position`` ``(..., 3)`` float64
+    (the hit moved along its normal onto the surface it hit, pbrt-v4's reprojection: within
+    the error of ``t_hit`` of ``origin + t_hit * direction``), ``position_error``
+    ``(..., 3)`` float64 (per world axis, a conservative bound on how far ``position`` lies
+    off that surface; 0 on a miss). ``spawn_rays`` uses the last two to continue from a hit.
 
     Rays sharing an origin share one prepared scene (as a render's pixel rays do); each
     distinct origin prepares it anew, so group rays by origin (a LiDAR scan: one origin).
@@ -95,6 +100,41 @@ def cast_rays(scene, origins, directions, t_min=0.0, t_max=float("inf"),
     out = _cylaov._cast_rays(scene, flat(o, (3,)), flat(d, (3,)), flat(lo, ()), flat(hi, ()),
                              list(aovs), precision, formula, threads)
     return {k: v.reshape(shape + v.shape[1:]) for k, v in out.items()}
+
+
+def spawn_rays(hits, directions):
+    """Origins for rays continuing from the hits of ``cast_rays`` in ``directions``.
+
+    ``hits`` is the dict ``cast_rays`` returned, with ``position``, ``position_error`` and
+    ``normal`` among its ``aovs``; ``directions`` broadcasts to its shape ``(..., 3)``.
+    Each origin is the hit's ``position`` moved past its error box along the normal
+    (by ``dot(|normal|, position_error)``, then each coordinate rounded one float further),
+    on the side the direction leaves by: outward where ``dot(direction, normal) >= 0``,
+    into the solid (or through a tube's wall) where it is negative, as pbrt-v4 spawns
+    rays. Cast from there with ``t_min=0`` and the same kernel precision, a ray leaving
+    outward never finds the surface it left, and one going inward finds the far wall.
+    Rows of misses (normal 0) are NaN, which ``cast_rays`` refuses: select hits first.
+
+    Example::
+
+        hit = cylaov.cast_rays(scene, o, d, aovs=("t_hit", "normal", "position", "position_error"))
+        ok = np.isfinite(hit["t_hit"])
+        sub = {k: v[ok] for k, v in hit.items()}
+        o2 = cylaov.spawn_rays(sub, d2[ok])
+        nxt = cylaov.cast_rays(scene, o2, d2[ok])
+    """
+    missing = [k for k in ("position", "position_error", "normal") if k not in hits]
+    if missing:
+        raise ValueError(f"hits: needs {', '.join(missing)} (ask cast_rays for them in aovs)")
+    p = _np.asarray(hits["position"], dtype=_np.float64)
+    try:
+        d = _np.broadcast_to(_np.asarray(directions, dtype=_np.float64), p.shape)
+        e = _np.broadcast_to(_np.asarray(hits["position_error"], dtype=_np.float64), p.shape)
+        n = _np.broadcast_to(_np.asarray(hits["normal"], dtype=_np.float64), p.shape)
+    except ValueError as err:
+        raise ValueError(f"directions and hits must broadcast to {p.shape}: {err}") from None
+    flat = lambda a: _np.ascontiguousarray(a.reshape(-1, 3))
+    return _cylaov._spawn_rays(flat(p), flat(e), flat(n), flat(d)).reshape(p.shape)
 
 
 def _names(names, what):

@@ -10,7 +10,7 @@ __version__: str
 
 PathLike = Union[str, "os.PathLike[str]"]
 AovName = Literal["distance", "depth", "normal", "position", "shape_id", "part", "normal_camera"]
-RayOutput = Literal["t_hit", "normal", "shape_id", "part", "position"]
+RayOutput = Literal["t_hit", "normal", "shape_id", "part", "position", "position_error"]
 MemberName = Literal["exr", "depth.png"]
 Settings = Union[None, Dict[str, Any], PathLike]
 
@@ -85,6 +85,7 @@ def cast_rays(
     formula: Literal["stable", "literal"] = "stable",
     threads: Optional[int] = None,
 ) -> Dict[str, np.ndarray]: ...
+def spawn_rays(hits: Dict[str, np.ndarray], directions: npt.ArrayLike) -> np.ndarray: ...
 def generate(settings: Settings, seed: int, index: int) -> Scene: ...
 def read(path: PathLike) -> Dict[str, Any]: ...
 def compare(
