@@ -45,8 +45,14 @@ impl Drop for ShardLock {
 /// `OUT/.partial`, created if needed; an error if it exists and is not a real folder.
 /// The shards of an array start together, so creating it races: a shard that finds it made
 /// by another checks it like one that was there before.
-pub fn partial_root(out: &Path) -> Result<PathBuf> {
+///
+/// The returned registration removes it, if empty, on a signal: made before the folder, so
+/// a signal between making and registering it cannot leave an empty `.partial` behind.
+/// Registered before the lock and the shard's folder, a signal's clean-up (newest first)
+/// tries it last, when it may be empty.
+pub fn partial_root(out: &Path) -> Result<(PathBuf, Registration)> {
     let root = out.join(".partial");
+    let reg = signals::register(Cleanup::EmptyDir, &root);
     if let Err(e) = std::fs::create_dir(&root)
         && e.kind() != std::io::ErrorKind::AlreadyExists
     {
@@ -68,7 +74,7 @@ pub fn partial_root(out: &Path) -> Result<PathBuf> {
             root.display()
         );
     }
-    Ok(root)
+    Ok((root, reg))
 }
 
 /// This machine's name, for the lock file.
@@ -113,7 +119,8 @@ fn lock_file(out: &Path, path: &Path, wait: bool, what: &dyn Fn() -> String) -> 
                         .is_some_and(|io| io.kind() == std::io::ErrorKind::NotFound)
                 }) && path.parent() == Some(&out.join(".partial")) =>
             {
-                partial_root(out)?;
+                // Made again; its registration is the caller's, held since the first.
+                drop(partial_root(out)?);
                 continue;
             }
             // A peer removed the file between our open and our look at it: try again.

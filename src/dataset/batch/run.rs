@@ -388,10 +388,7 @@ pub(super) fn expand_views(
 /// Lock this shard, then clear and recreate its work-in-progress folder
 /// `OUT/.partial/K-of-N` (see [`super::lock`]: a real folder inside `--out`, never a link).
 fn clear_partial(out: &Path, shard: Shard) -> Result<(Partial, ShardLock)> {
-    let root = partial_root(out)?;
-    // Registered before the lock and the shard's folder, so a signal's clean-up (newest
-    // first) tries it last, when it may be empty.
-    let root_reg = signals::register(Cleanup::EmptyDir, &root);
+    let (root, root_reg) = partial_root(out)?;
     let lock = lock_shard(out, &root, shard)?;
     let partial = root.join(shard.to_string());
     // remove_dir_all removes a symlink itself, never what it points to.

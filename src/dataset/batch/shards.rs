@@ -1151,8 +1151,7 @@ pub fn write_shards_until(
     let mut dirs = crate::output::io::NewDirs::default();
     dirs.create(out)
         .with_context(|| format!("creating {}", out.display()))?;
-    let root = partial_root(out)?;
-    let _root_reg = signals::register(Cleanup::EmptyDir, &root);
+    let (root, _root_reg) = partial_root(out)?;
     let plan = Plan { root, ..plan };
     shard_settings::hold(out, &plan.root, &plan.settings(), sopts.force)?;
     if announce {
