@@ -21,7 +21,10 @@
 //!   3-vectors, long values cut in messages); [`scene::camera`]: Mitsuba's look-at pinhole
 //!   camera, pixel rays in f64, K in both pixel conventions, pose matrices; [`scene::aov`]:
 //!   the one AOV table (channels, sample type, miss value, meaning, Mitsuba's source, the
-//!   comparison metric) every other layer reads.
+//!   comparison metric) every other layer reads; [`scene::table`]: cylinder tables (tree
+//!   QSMs from TreeQSM, SimpleForest, aRchi, and plain CSV) read into cylinders;
+//!   [`scene::framing`]: the camera distance at which a bounding sphere fills the view
+//!   (`generate`'s cameras and `import`'s).
 //! - [`geometry`]: the f32/f64 abstraction ([`geometry::real`]), the literal and stable
 //!   ray–cylinder kernels ([`geometry::cylinder`]), scalar and in packets of eight lanes, and
 //!   [`geometry::kernel`], the one type that names a kernel (formulation × precision).
@@ -83,7 +86,7 @@
 //! `dataset::batch::shards` (`write_shards`, `shard_count`).
 //!
 //! Around them: [`commands`], the IO of each subcommand (`render`, `generate`, `batch`,
-//! `export-mitsuba`, `compare`, `verify`, `stress`, `bench`, `aovs`); `main.rs` only parses
+//! `import`, `export-mitsuba`, `compare`, `verify`, `stress`, `bench`, `aovs`); `main.rs` only parses
 //! arguments and maps results to exit codes.
 //!
 //! **Invariants**: `geometry`, `accel` and `render` never do IO (`render_bands` hands its

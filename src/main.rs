@@ -9,6 +9,8 @@ use cylaov::output::aov::{Compression, ExrLayout};
 use cylaov::output::depth_png::OutOfRange;
 use cylaov::render::{Accel, RenderOptions};
 use cylaov::scene::Aov;
+use cylaov::scene::framing::Frame;
+use cylaov::scene::table::{LabelRule, TableFormat, TableOptions};
 use cylaov::verify::compare::Tolerances;
 use cylaov::{bench, commands};
 use std::path::PathBuf;
@@ -66,6 +68,34 @@ enum Command {
     ///
     /// Example: cylaov batch data --out data/render --shard 0/4
     Batch(BatchCli),
+    /// Turn a table of cylinders (a tree's QSM, or any CSV) into a framed scene file.
+    ///
+    /// The table comes from TreeQSM, SimpleForest, aRchi or any CSV; the scene file gets
+    /// one camera that frames every cylinder (its bounding sphere fills the smaller field
+    /// of view).
+    ///
+    /// Formats (--format; left out, the header says which, else the column count):
+    ///   csv           header with x0,y0,z0,x1,y1,z1,radius and optional id, label, caps;
+    ///   treeqsm       TreeQSM cyl_data: radius, length, start x y z, axis x y z, parent,
+    ///                 extension, branch, BranchOrder, PositionInBranch, added, UnmodRadius
+    ///                 (15 columns without a header in TreeQSM 2.3, 14 in older ones; later
+    ///                 versions write a header: parent, extension, branch, BranchOrder);
+    ///   simpleforest  header with ID, parentID, startX..endZ, radius, branchOrder, branchID;
+    ///   archi         header with startX..endZ, cyl_ID, parent_ID, radius_cyl,
+    ///                 branching_order.
+    /// Fields are separated by commas, else by spaces or tabs; lines starting with # are
+    /// skipped; header names match whatever their case and punctuation (start.x = startX).
+    ///
+    /// Each row is one cylinder: start → p0, end (or start + length · axis) → p1, radius; its
+    /// id is the table's own (ID, cyl_ID, id) or the row number (TreeQSM, whose parent column
+    /// counts rows). A bad row (not a number, non-finite, radius <= 0, zero length) is
+    /// refused with its line and column, and nothing is written.
+    ///
+    /// Example: cylaov import tree_cyl_data.txt -o tree.json --label branch_order
+    ///
+    /// Then: cylaov render tree.json -o tree.exr --aov depth,normal,shape_id,label
+    #[command(verbatim_doc_comment)]
+    Import(ImportCli),
     /// Write the Mitsuba 3 XML of a scene (the reference renderer's input).
     ///
     /// Example: cylaov export-mitsuba scenes/single.json -o single.xml
@@ -365,6 +395,65 @@ struct StressCli {
     /// Print the table as Markdown, as in the README (the same bytes on every run).
     #[arg(long)]
     markdown: bool,
+}
+
+#[derive(Args)]
+struct ImportCli {
+    /// The table: TreeQSM cyl_data text, SimpleForest or aRchi CSV, or a CSV with
+    /// x0,y0,z0,x1,y1,z1,radius columns.
+    table: PathBuf,
+    /// The scene file to write (JSON, docs/scene-format.md).
+    #[arg(short, long)]
+    out: PathBuf,
+    /// The table's layout; default: from the header's names, or TreeQSM when there is no
+    /// header and 14 or 15 columns.
+    #[arg(long, value_parser = table_format, value_name = "csv|treeqsm|simpleforest|archi")]
+    format: Option<TableFormat>,
+    /// Each cylinder's label (the label AOV): branch_order = BranchOrder + 1 (stem 1, its
+    /// branches 2, ...; 0 stays "no hit"), branch = branch id + 1, segment = the cylinder's
+    /// id, none = 0. Default: a csv table's label column, else none.
+    #[arg(long, value_parser = label_rule, value_name = "none|branch_order|branch|segment")]
+    label: Option<LabelRule>,
+    /// Close the cylinders' ends (default on; a csv table's caps column wins).
+    #[arg(long, value_parser = on_off, value_name = "on|off")]
+    caps: Option<bool>,
+    /// Image width of the camera, pixels.
+    #[arg(long, default_value_t = 640)]
+    width: u32,
+    /// Image height of the camera, pixels.
+    #[arg(long, default_value_t = 480)]
+    height: u32,
+    /// Horizontal field of view of the camera, degrees.
+    #[arg(long, default_value_t = 50.0)]
+    fov: f64,
+}
+
+fn table_format(s: &str) -> Result<TableFormat, String> {
+    TableFormat::parse(s).ok_or_else(|| {
+        format!(
+            "unknown format {:?}; expected one of {}",
+            shorten(s),
+            TableFormat::ALL.map(|f| f.name()).join(", ")
+        )
+    })
+}
+
+fn label_rule(s: &str) -> Result<LabelRule, String> {
+    LabelRule::parse(s).ok_or_else(|| {
+        format!(
+            "unknown label rule {:?}; expected one of {}",
+            shorten(s),
+            LabelRule::ALL.map(|f| f.name()).join(", ")
+        )
+    })
+}
+
+fn on_off(s: &str) -> Result<bool, String> {
+    match s {
+        "on" => Ok(true),
+        "off" => Ok(false),
+        _ => Err(format!("expected on or off, got {:?}", shorten(s))),
+    }
 }
 
 #[derive(Args)]
@@ -855,6 +944,42 @@ fn stress(a: StressCli) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
+fn import(a: ImportCli) -> anyhow::Result<ExitCode> {
+    if a.width == 0 || a.width > cylaov::scene::MAX_SIDE {
+        anyhow::bail!(
+            "--width: must be in 1..={}, got {}",
+            cylaov::scene::MAX_SIDE,
+            a.width
+        );
+    }
+    if a.height == 0 || a.height > cylaov::scene::MAX_SIDE {
+        anyhow::bail!(
+            "--height: must be in 1..={}, got {}",
+            cylaov::scene::MAX_SIDE,
+            a.height
+        );
+    }
+    if !(a.fov > 0.0 && a.fov < 180.0) {
+        anyhow::bail!("--fov: must be in (0, 180), got {}", a.fov);
+    }
+    let args = commands::import::ImportArgs {
+        table: a.table,
+        out: a.out,
+        options: TableOptions {
+            format: a.format,
+            label: a.label,
+            caps: a.caps,
+        },
+        frame: Frame {
+            width: a.width,
+            height: a.height,
+            fov_deg: a.fov,
+        },
+    };
+    say(&commands::import::run(&args)?)?;
+    Ok(ExitCode::SUCCESS)
+}
+
 fn export_mitsuba(a: ExportCli) -> anyhow::Result<ExitCode> {
     say(&commands::export_mitsuba::run(&a.scene, &a.out)?)?;
     Ok(ExitCode::SUCCESS)
@@ -930,6 +1055,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Batch(a) => batch(a),
         Command::Bench(b) => bench(b),
         Command::Stress(a) => stress(a),
+        Command::Import(a) => import(a),
         Command::ExportMitsuba(a) => export_mitsuba(a),
         Command::Compare(a) => Ok(compare(a)),
         Command::Verify(a) => Ok(verify(a)),

@@ -6,6 +6,7 @@ pub mod bench;
 pub mod compare;
 pub mod export_mitsuba;
 pub mod generate;
+pub mod import;
 pub mod render;
 pub mod stress;
 pub mod verify;

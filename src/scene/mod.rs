@@ -10,7 +10,9 @@
 
 pub mod aov;
 pub mod camera;
+pub mod framing;
 pub mod strict;
+pub mod table;
 
 use crate::geometry::Cylinder;
 use crate::scene::camera::model::{CameraModel, ModelFields};
@@ -324,6 +326,21 @@ pub const MAX_SCENE_BYTES: u64 = 512 << 20;
 /// Read and validate a scene file. It must be a regular file (through links; a FIFO would
 /// block, a device never end) of at most [`MAX_SCENE_BYTES`].
 pub fn load(path: &Path) -> Result<Scene, SceneError> {
+    let bytes = read_bounded(path)?;
+    let bytes = bytes.as_slice();
+    // Plain serde_json first; only a file it refuses is read again with path tracking
+    // (and checked for UTF-8), for the message that names the field.
+    if let Ok(file) = serde_json::from_slice::<strict::Object<SceneFile>>(bytes) {
+        return file.0.validate();
+    }
+    let text = std::str::from_utf8(bytes)
+        .map_err(|e| err("", format!("not UTF-8 text (byte {})", e.valid_up_to())))?;
+    parse_serde(text)
+}
+
+/// The bytes of `path`, a regular file (through links) of at most [`MAX_SCENE_BYTES`]:
+/// scene files and the tables they name are read the same way.
+pub(crate) fn read_bounded(path: &Path) -> Result<Vec<u8>, SceneError> {
     // Messages leave the path out: every caller prefixes it.
     let cannot = |e: std::io::Error| err("", format!("cannot read: {e}"));
     let meta = std::fs::metadata(path).map_err(cannot)?;
@@ -357,18 +374,10 @@ pub fn load(path: &Path) -> Result<Scene, SceneError> {
             f.take(MAX_SCENE_BYTES + 1).read_to_end(&mut bytes)
         })
         .map_err(cannot)?;
-    let bytes = bytes.as_slice();
     if bytes.len() as u64 > MAX_SCENE_BYTES {
         return Err(too_big(bytes.len() as u64));
     }
-    // Plain serde_json first; only a file it refuses is read again with path tracking
-    // (and checked for UTF-8), for the message that names the field.
-    if let Ok(file) = serde_json::from_slice::<strict::Object<SceneFile>>(bytes) {
-        return file.0.validate();
-    }
-    let text = std::str::from_utf8(bytes)
-        .map_err(|e| err("", format!("not UTF-8 text (byte {})", e.valid_up_to())))?;
-    parse_serde(text)
+    Ok(bytes)
 }
 
 /// Parse and validate scene JSON: one JSON object and nothing after it. Plain
