@@ -653,6 +653,11 @@ struct RenderCli {
     /// R,G,B in float32, which OpenCV and imageio read.
     #[arg(long, value_enum, default_value_t = ExrLayout::Layers)]
     exr_layout: ExrLayout,
+    /// Also write the view's hit points as a point cloud: binary little-endian PLY with
+    /// x y z nx ny nz (float32, world axes) and shape_id, part, label (uint), one point per
+    /// pixel that hit a cylinder, row by row.
+    #[arg(long, value_name = "OUT.ply")]
+    ply: Option<PathBuf>,
 }
 
 /// Largest `--threads`: 1024 is more hardware threads than any single node this runs on
@@ -730,6 +735,7 @@ fn render(a: RenderCli) -> anyhow::Result<ExitCode> {
         depth_png: a.depth_png.then_some(a.depth_scale),
         depth_out_of_range: a.depth_out_of_range,
         exr_layout: a.exr_layout,
+        ply: a.ply,
     };
     say(&commands::render::run(&args)?)?;
     Ok(ExitCode::SUCCESS)
