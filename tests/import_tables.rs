@@ -446,3 +446,98 @@ fn bad_rows_name_line_and_column_and_write_nothing() {
         "no branch order column",
     );
 }
+
+/// A scene whose cylinders are `{"file": ...}`: read relative to the scene file, the
+/// same cylinders as the imported scene, and a batch renders the view again once the
+/// table changes (its content is part of the view's render stamp).
+#[test]
+fn scenes_reference_tables_and_batch_notices_a_changed_table() {
+    let dir = fresh_dir("import-tables", "ref");
+    let d = dir.path();
+    let scenes = d.join("scenes");
+    std::fs::create_dir_all(scenes.join("tables")).unwrap();
+    let table = scenes.join("tables/tree.csv");
+    std::fs::write(&table, generic(&tree())).unwrap();
+    // The imported scene's camera, the cylinders by reference.
+    let imported = d.join("imported.json");
+    ok(&[
+        "import",
+        table.to_str().unwrap(),
+        "-o",
+        imported.to_str().unwrap(),
+    ]);
+    let full: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&imported).unwrap()).unwrap();
+    let scene = scenes.join("tree.json");
+    let by_ref = serde_json::json!({
+        "camera": full["camera"],
+        "cylinders": {"file": "tables/tree.csv"},
+        "aovs": ["depth", "shape_id", "label"],
+    });
+    std::fs::write(&scene, by_ref.to_string()).unwrap();
+    let a = cylaov::scene::load(&imported).unwrap();
+    let b = cylaov::scene::load(&scene).unwrap();
+    assert_eq!(a.cylinders, b.cylinders);
+    assert_eq!(b.cylinders.len(), 6);
+    assert_eq!(b.cylinders[3].id, 53);
+    assert_eq!(b.cylinders[3].label, 21);
+    // Options of the reference: segment labels are the ids (the path from another folder).
+    let seg = d.join("seg.json");
+    let mut v = by_ref.clone();
+    v["cylinders"] =
+        serde_json::json!({"file": "scenes/tables/tree.csv", "label": "segment", "caps": false});
+    std::fs::write(&seg, v.to_string()).unwrap();
+    let s = cylaov::scene::load(&seg).unwrap();
+    assert!(s.cylinders.iter().all(|c| c.label == c.id));
+    // The table's caps column wins over the reference's caps.
+    let caps: Vec<bool> = s.cylinders.iter().map(|c| c.caps).collect();
+    assert_eq!(caps, [true, false, true, false, true, false]);
+
+    let out = d.join("render");
+    let batch = || {
+        ok(&[
+            "batch",
+            scenes.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ])
+    };
+    batch();
+    let stamp = out.join("tree.render.json");
+    let first = std::fs::read_to_string(&stamp).unwrap();
+    let said = batch();
+    assert_eq!(std::fs::read_to_string(&stamp).unwrap(), first, "{said}");
+    // A label changes in the table: the view renders again with a new stamp.
+    let changed = generic(&tree()).replacen(",21,", ",22,", 1);
+    assert_ne!(changed, generic(&tree()));
+    std::fs::write(&table, changed).unwrap();
+    batch();
+    assert_ne!(std::fs::read_to_string(&stamp).unwrap(), first);
+
+    // A bad row in the table names the scene field, the table, its line and column.
+    std::fs::write(&table, generic(&tree()).replacen(",0.2,", ",0,", 1)).unwrap();
+    let o = cylaov(&[
+        "render",
+        scene.to_str().unwrap(),
+        "-o",
+        d.join("x.exr").to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("cylinders.file: ")
+            && err.contains("tree.csv: line 3, column 8 (radius): must be > 0, got 0"),
+        "{err}"
+    );
+    assert!(!d.join("x.exr").exists());
+    // A misspelt key of the reference is named.
+    std::fs::write(&scene, r#"{"camera": {"origin": [0, -5, 1], "target": [0, 0, 1], "up": [0, 0, 1], "fov_deg": 40, "width": 8, "height": 8}, "cylinders": {"fil": "x.csv"}}"#).unwrap();
+    let o = cylaov(&[
+        "render",
+        scene.to_str().unwrap(),
+        "-o",
+        d.join("x.exr").to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("unknown field `fil`"), "{err}");
+}

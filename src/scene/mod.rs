@@ -3,7 +3,8 @@
 //!
 //! A scene file has exactly one of `"camera": {…}` (one view) and `"cameras": [{…}, …]`
 //! (several views of the same cylinders, in order: camera 0, 1, …); giving both or neither
-//! is an error.
+//! is an error. Its `"cylinders"` is a list, or `{"file": "tree.csv"}`: a table file
+//! ([`table`]) beside the scene file.
 //!
 //! Serde types live here only; everything past [`Scene`] is plain validated data. Every
 //! rejection names the field and the value: `cylinders[3].radius: must be > 0, got -1`.
@@ -316,6 +317,106 @@ pub struct SceneFile {
     pub aovs: Option<Vec<Aov>>,
 }
 
+/// `"cylinders": {"file": "tree.csv", ...}`: the cylinders are a table file (see
+/// [`table`]), its path relative to the scene file's folder.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TableRef {
+    /// The table, relative to the scene file's folder (or absolute).
+    pub file: String,
+    /// `csv`, `treeqsm`, `simpleforest` or `archi`; default: told from the table.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub format: Option<String>,
+    /// `none`, `branch_order`, `branch` or `segment`; default: a csv table's `label`
+    /// column, else none.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub label: Option<String>,
+    /// Caps on every cylinder; default `true` (a csv table's `caps` column wins).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub caps: Option<bool>,
+}
+
+/// A scene file whose cylinders are a [`TableRef`].
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SceneFileRef {
+    #[serde(default, deserialize_with = "strict::opt_object")]
+    camera: Option<CameraFile>,
+    #[serde(default, deserialize_with = "strict::opt_objects")]
+    cameras: Option<Vec<CameraFile>>,
+    #[serde(deserialize_with = "strict::object")]
+    cylinders: TableRef,
+    #[serde(default)]
+    aovs: Option<Vec<Aov>>,
+}
+
+impl SceneFileRef {
+    /// The scene with the table's cylinders, the table's path taken relative to `base`.
+    fn resolve(self, base: &Path) -> Result<Scene, SceneError> {
+        use table::{LabelRule, TableFormat, TableOptions};
+        let r = &self.cylinders;
+        let format = match &r.format {
+            Some(f) => Some(TableFormat::parse(f).ok_or_else(|| {
+                err(
+                    "cylinders.format",
+                    format!(
+                        "must be one of {}, got {f:?}",
+                        TableFormat::ALL.map(|f| f.name()).join(", ")
+                    ),
+                )
+            })?),
+            None => None,
+        };
+        let label = match &r.label {
+            Some(l) => Some(LabelRule::parse(l).ok_or_else(|| {
+                err(
+                    "cylinders.label",
+                    format!(
+                        "must be one of {}, got {l:?}",
+                        LabelRule::ALL.map(|f| f.name()).join(", ")
+                    ),
+                )
+            })?),
+            None => None,
+        };
+        let path = base.join(&r.file);
+        let opts = TableOptions {
+            format,
+            label,
+            caps: r.caps,
+        };
+        let table = table::load_table(&path, &opts)
+            .map_err(|e| err("cylinders.file", format!("{}: {e}", path.display())))?;
+        SceneFile {
+            camera: self.camera,
+            cameras: self.cameras,
+            cylinders: table.cylinders,
+            aovs: self.aovs,
+        }
+        .validate()
+    }
+}
+
+/// Whether `text` is a scene whose `cylinders` is an object (a [`TableRef`]), read as
+/// such; `None` for every other text.
+fn table_scene(text: &[u8], base: &Path) -> Option<Result<Scene, SceneError>> {
+    if let Ok(file) = serde_json::from_slice::<strict::Object<SceneFileRef>>(text) {
+        return Some(file.0.resolve(base));
+    }
+    // A table reference with a mistake: the message names the field inside it.
+    let mut de = serde_json::Deserializer::from_slice(text);
+    match serde_path_to_error::deserialize::<_, strict::Object<SceneFileRef>>(&mut de) {
+        Err(e) if e.path().to_string().starts_with("cylinders.") => {
+            let field = e.path().to_string();
+            Some(Err(err(
+                strict::shorten(&field),
+                strict::shorten(&e.into_inner().to_string()),
+            )))
+        }
+        _ => None,
+    }
+}
+
 // ---- loading and validation ------------------------------------------------------------
 
 /// Largest scene file read, in bytes: 512 MiB admits a million cylinders with room to spare
@@ -332,6 +433,10 @@ pub fn load(path: &Path) -> Result<Scene, SceneError> {
     // (and checked for UTF-8), for the message that names the field.
     if let Ok(file) = serde_json::from_slice::<strict::Object<SceneFile>>(bytes) {
         return file.0.validate();
+    }
+    let base = path.parent().unwrap_or(Path::new(""));
+    if let Some(scene) = table_scene(bytes, base) {
+        return scene;
     }
     let text = std::str::from_utf8(bytes)
         .map_err(|e| err("", format!("not UTF-8 text (byte {})", e.valid_up_to())))?;
@@ -383,10 +488,15 @@ pub(crate) fn read_bounded(path: &Path) -> Result<Vec<u8>, SceneError> {
 /// Parse and validate scene JSON: one JSON object and nothing after it. Plain
 /// `serde_json` reads it; only when that fails, `parse_serde` reads it again with path
 /// tracking, whose message names the field.
+///
+/// A `"cylinders": {"file": ...}` table is read relative to the current folder.
 pub fn parse(text: &str) -> Result<Scene, SceneError> {
     match serde_json::from_str::<strict::Object<SceneFile>>(text) {
         Ok(file) => file.0.validate(),
-        Err(_) => parse_serde(text),
+        Err(_) => match table_scene(text.as_bytes(), Path::new("")) {
+            Some(scene) => scene,
+            None => parse_serde(text),
+        },
     }
 }
 
