@@ -18,17 +18,26 @@ BLOCKS = re.findall(r"```python\n(.*?)```", DOC, re.S)
 LOADER = next(i for i, b in enumerate(BLOCKS) if "DataLoader(" in b)
 
 
-def test_the_page_has_its_four_examples():
-    assert len(BLOCKS) == 4
+def test_the_page_has_its_five_examples():
+    assert len(BLOCKS) == 5
     assert "cylaov.render(" in BLOCKS[0]
     assert "Scene.from_arrays(" in BLOCKS[1] and "cameras=" in BLOCKS[1]
     assert LOADER == 2
     assert "cast_rays(" in BLOCKS[3]
+    assert "from_table(" in BLOCKS[4] and "to_ply(" in BLOCKS[4]
 
 
 @pytest.mark.parametrize("k", [k for k in range(len(BLOCKS)) if k != LOADER])
-def test_example_runs(k, monkeypatch):
-    monkeypatch.chdir(ROOT)
+def test_example_runs(k, monkeypatch, tmp_path):
+    if k == 4:
+        # It writes tree.ply: in a folder of its own holding the table it reads.
+        tables = tmp_path / "scenes" / "tables"
+        tables.mkdir(parents=True)
+        name = "tree_cyl_data.txt"
+        (tables / name).write_bytes((ROOT / "scenes" / "tables" / name).read_bytes())
+        monkeypatch.chdir(tmp_path)
+    else:
+        monkeypatch.chdir(ROOT)
     scope = {"__name__": "__main__"}
     exec(compile(BLOCKS[k], f"docs/python.md example {k}", "exec"), scope)
     if k == 0:
@@ -42,6 +51,12 @@ def test_example_runs(k, monkeypatch):
     if k == 3:
         assert scope["rng"].shape == (16, 720)
         assert 100 < len(scope["cloud"]) < 16 * 720, len(scope["cloud"])
+    if k == 4:
+        assert len(scope["scene"]) == 33
+        hits = int((scope["out"]["shape_id"] != 0).sum())
+        assert scope["points"] == hits > 1000
+        assert (tmp_path / "tree.ply").stat().st_size > 36 * hits
+        assert set(scope["out"]["label"].ravel().tolist()) == {0, 1, 2, 3}
 
 
 def test_the_stub_example_of_from_arrays_runs():
