@@ -96,6 +96,18 @@ enum Command {
     /// Then: cylaov render tree.json -o tree.exr --aov depth,normal,shape_id,label
     #[command(verbatim_doc_comment)]
     Import(ImportCli),
+    /// Put many cameras around a scene's cylinders and write the scene resolved.
+    ///
+    /// --orbit N: camera 0's direction drawn area-uniformly from the elevation band, the
+    /// others it turned about +z by k·360°/N (as generate --orbit); --sphere N: every
+    /// direction drawn area-uniformly from the band. Each camera looks at the centre of the
+    /// sphere holding the cylinders from --distance times the distance at which that sphere
+    /// fills the smaller field of view. Same options and seed, same cameras. Without
+    /// --orbit or --sphere, a scene's own "cameras": {"orbit": {...}} is resolved. The
+    /// output lists every camera and the cylinders inline (a table it names is read in).
+    ///
+    /// Example: cylaov cameras tree.json --orbit 200 -o tree200.json
+    Cameras(CamerasCli),
     /// Write the Mitsuba 3 XML of a scene (the reference renderer's input).
     ///
     /// Example: cylaov export-mitsuba scenes/single.json -o single.xml
@@ -454,6 +466,40 @@ fn on_off(s: &str) -> Result<bool, String> {
         "off" => Ok(false),
         _ => Err(format!("expected on or off, got {:?}", shorten(s))),
     }
+}
+
+#[derive(Args)]
+struct CamerasCli {
+    /// Scene file (JSON, docs/scene-format.md).
+    scene: PathBuf,
+    /// The scene file to write.
+    #[arg(short, long)]
+    out: PathBuf,
+    /// N cameras on one orbit about +z.
+    #[arg(long, value_name = "N", conflicts_with = "sphere")]
+    orbit: Option<u32>,
+    /// N cameras in directions drawn area-uniformly from the elevation band.
+    #[arg(long, value_name = "N")]
+    sphere: Option<u32>,
+    /// Elevation band above the xy plane, degrees: LOW..HIGH or one number.
+    #[arg(long, value_parser = Range::parse, allow_hyphen_values = true, value_name = "A..B", default_value = "-20..60")]
+    elevation: Range,
+    /// "fit" (the bounding sphere fills the smaller field of view) or a factor of that
+    /// distance.
+    #[arg(long, default_value = "fit")]
+    distance: String,
+    /// Seed of the drawn directions.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Image width; default: the scene's first camera's.
+    #[arg(long)]
+    width: Option<u32>,
+    /// Image height; default: the scene's first camera's.
+    #[arg(long)]
+    height: Option<u32>,
+    /// Horizontal field of view, degrees; default: the scene's first camera's, else 50.
+    #[arg(long)]
+    fov: Option<f64>,
 }
 
 #[derive(Args)]
@@ -986,6 +1032,83 @@ fn import(a: ImportCli) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
+fn cameras(a: CamerasCli) -> anyhow::Result<ExitCode> {
+    use cylaov::scene::rig::{CameraRig, Distance, RigSpec};
+    let count = a.orbit.or(a.sphere);
+    let flag = if a.orbit.is_some() {
+        "--orbit"
+    } else {
+        "--sphere"
+    };
+    let max = cylaov::scene::rig::MAX_RIG_CAMERAS;
+    if let Some(n) = count
+        && (n == 0 || n > max)
+    {
+        anyhow::bail!("{flag}: must be in 1..={max}, got {n}");
+    }
+    let e = a.elevation;
+    if e.min < -85.0 || e.max > 85.0 {
+        anyhow::bail!("--elevation: must lie in -85..85 degrees (the camera's up is +z), got {e}");
+    }
+    if let Some(f) = a.fov
+        && !(f > 0.0 && f < 180.0)
+    {
+        anyhow::bail!("--fov: must be in (0, 180), got {f}");
+    }
+    let rig = match count {
+        None => None,
+        Some(n) => {
+            // Defaults from the scene's first camera, when it is a pinhole.
+            let first = cylaov::scene::load(&a.scene)
+                .ok()
+                .map(|s| s.camera)
+                .filter(|c| c.projection == cylaov::scene::camera::Projection::Perspective);
+            let distance = match a.distance.as_str() {
+                "fit" => Distance::default(),
+                d => match d.parse::<f64>() {
+                    Ok(x) if x.is_finite() && x > 0.0 && x <= 1e6 => Distance::Factor(x),
+                    _ => anyhow::bail!(
+                        "--distance: expected fit or a factor of the fit distance in (0, 1e6], got {:?}",
+                        shorten(d)
+                    ),
+                },
+            };
+            let spec = RigSpec {
+                elevation_deg: [a.elevation.min, a.elevation.max],
+                distance,
+                seed: a.seed,
+                width: a.width.or(first.map(|c| c.width)).unwrap_or(640),
+                height: a.height.or(first.map(|c| c.height)).unwrap_or(480),
+                fov_deg: a
+                    .fov
+                    .or(first
+                        .filter(|c| c.fov_axis == cylaov::scene::camera::FovAxis::X)
+                        .map(|c| c.fov_deg))
+                    .unwrap_or(50.0),
+                ..RigSpec::new(n)
+            };
+            Some(if a.orbit.is_some() {
+                CameraRig {
+                    orbit: Some(spec),
+                    sphere: None,
+                }
+            } else {
+                CameraRig {
+                    orbit: None,
+                    sphere: Some(spec),
+                }
+            })
+        }
+    };
+    let args = commands::cameras::CamerasArgs {
+        scene: a.scene,
+        out: a.out,
+        rig,
+    };
+    say(&commands::cameras::run(&args)?)?;
+    Ok(ExitCode::SUCCESS)
+}
+
 fn export_mitsuba(a: ExportCli) -> anyhow::Result<ExitCode> {
     say(&commands::export_mitsuba::run(&a.scene, &a.out)?)?;
     Ok(ExitCode::SUCCESS)
@@ -1062,6 +1185,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Bench(b) => bench(b),
         Command::Stress(a) => stress(a),
         Command::Import(a) => import(a),
+        Command::Cameras(a) => cameras(a),
         Command::ExportMitsuba(a) => export_mitsuba(a),
         Command::Compare(a) => Ok(compare(a)),
         Command::Verify(a) => Ok(verify(a)),

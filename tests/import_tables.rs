@@ -541,3 +541,155 @@ fn scenes_reference_tables_and_batch_notices_a_changed_table() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("unknown field `fil`"), "{err}");
 }
+
+/// `"cameras": {"orbit": ...}` and `{"sphere": ...}` around a table's tree, and `cylaov
+/// cameras --orbit N`: N cameras, each framing every cylinder, the orbit's at one distance
+/// and height stepped by 360°/N, the same bytes for the same seed.
+#[test]
+fn camera_rigs_frame_any_scene_deterministically() {
+    let dir = fresh_dir("import-tables", "rig");
+    let d = dir.path();
+    let table = d.join("tree.txt");
+    std::fs::write(&table, treeqsm15(&tree())).unwrap();
+    let scene = d.join("tree.json");
+    ok(&[
+        "import",
+        table.to_str().unwrap(),
+        "-o",
+        scene.to_str().unwrap(),
+    ]);
+    let out = d.join("orbit.json");
+    let said = ok(&[
+        "cameras",
+        scene.to_str().unwrap(),
+        "--orbit",
+        "200",
+        "--seed",
+        "4",
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert!(said.contains("200 cameras and 6 cylinders"), "{said}");
+    let again = d.join("orbit2.json");
+    ok(&[
+        "cameras",
+        scene.to_str().unwrap(),
+        "--orbit",
+        "200",
+        "--seed",
+        "4",
+        "-o",
+        again.to_str().unwrap(),
+    ]);
+    assert_eq!(std::fs::read(&out).unwrap(), std::fs::read(&again).unwrap());
+    let s = cylaov::scene::load(&out).unwrap();
+    assert_eq!(s.cameras.len(), 200);
+    let t = s.cameras[0].target;
+    let r0 = s.cameras[0].origin - t;
+    for (k, c) in s.cameras.iter().enumerate() {
+        assert_eq!(c.target, t);
+        assert_eq!(
+            (c.width, c.height),
+            (640, 480),
+            "the imported camera's size"
+        );
+        let r = c.origin - t;
+        assert!(
+            (r.length() - r0.length()).abs() < 1e-9 * r0.length(),
+            "camera {k}"
+        );
+        assert!((r.z - r0.z).abs() < 1e-9, "camera {k}");
+        let turn = r0
+            .truncate()
+            .angle_to(r.truncate())
+            .to_degrees()
+            .rem_euclid(360.0);
+        let want = (k as f64 * 1.8).rem_euclid(360.0);
+        let diff = (turn - want).abs().min(360.0 - (turn - want).abs());
+        assert!(diff < 1e-6, "camera {k}: turned {turn}°, want {want}°");
+    }
+    // Every cylinder is in every view (every 20th camera checked).
+    for k in (0..200).step_by(20) {
+        let mut one = s.clone();
+        one.select_camera(k).unwrap();
+        let cam = Camera::new(one.camera);
+        for c in &one.cylinders {
+            for p in [c.base, c.top()] {
+                let q = cam.project(p).unwrap();
+                assert!(
+                    q.x > 0.0 && q.y > 0.0 && q.x < 640.0 && q.y < 480.0,
+                    "camera {k}: {q}"
+                );
+            }
+        }
+    }
+    // A rig in the scene file resolves to the same cameras as the command's.
+    let rig = d.join("rig.json");
+    std::fs::write(
+        &rig,
+        r#"{"cameras": {"orbit": {"count": 200, "seed": 4, "elevation_deg": [-20, 60]}}, "cylinders": {"file": "tree.txt"}}"#,
+    )
+    .unwrap();
+    let r = cylaov::scene::load(&rig).unwrap();
+    assert_eq!(r.cameras, s.cameras);
+    // Directions over the sphere: distinct elevations within the band, one distance.
+    std::fs::write(
+        &rig,
+        r#"{"cameras": {"sphere": {"count": 50, "seed": 1, "elevation_deg": [10, 40], "width": 64, "height": 48, "distance": 1.5}}, "cylinders": {"file": "tree.txt"}}"#,
+    )
+    .unwrap();
+    let r = cylaov::scene::load(&rig).unwrap();
+    assert_eq!(r.cameras.len(), 50);
+    let mut heights: Vec<f64> = Vec::new();
+    for c in &r.cameras {
+        let v = (c.origin - c.target).normalize();
+        let e = v.z.asin().to_degrees();
+        assert!((10.0 - 1e-9..=40.0 + 1e-9).contains(&e), "elevation {e}");
+        heights.push(e);
+    }
+    heights.sort_by(f64::total_cmp);
+    heights.dedup();
+    assert_eq!(heights.len(), 50);
+    ok(&[
+        "render",
+        rig.to_str().unwrap(),
+        "-o",
+        d.join("v.exr").to_str().unwrap(),
+        "--camera",
+        "49",
+    ]);
+    // Bad rigs name the field or the flag.
+    std::fs::write(
+        &rig,
+        r#"{"cameras": {"orbit": {"count": 0}}, "cylinders": {"file": "tree.txt"}}"#,
+    )
+    .unwrap();
+    let o = cylaov(&[
+        "render",
+        rig.to_str().unwrap(),
+        "-o",
+        d.join("w.exr").to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        o.status.code() == Some(1)
+            && err.contains("cameras.orbit.count: must be in 1..=100000, got 0"),
+        "{err}"
+    );
+    let o = cylaov(&[
+        "cameras",
+        scene.to_str().unwrap(),
+        "--sphere",
+        "3",
+        "--elevation",
+        "0..90",
+        "-o",
+        d.join("x.json").to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        o.status.code() == Some(1) && err.contains("--elevation: must lie in -85..85"),
+        "{err}"
+    );
+    assert!(!d.join("x.json").exists());
+}

@@ -3,6 +3,7 @@
 
 pub mod batch;
 pub mod bench;
+pub mod cameras;
 pub mod compare;
 pub mod export_mitsuba;
 pub mod generate;

@@ -29,7 +29,7 @@
 
 use crate::rng::SplitMix64;
 use crate::scene::camera::FovAxis;
-use crate::scene::framing::{fit_distance, up_for};
+use crate::scene::framing::{band_direction, fit_distance, orbit, up_for};
 use crate::scene::{self, CameraFile, CylinderFile, SceneFile};
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
@@ -407,15 +407,7 @@ impl GenerateOptions {
         // near the centre.
         let fit = fit_distance(self.bounding_radius(), self.fov, self.width, self.height);
         let dist = fit * uniform(rng, self.distance);
-        let (z_lo, z_hi) = (
-            self.elevation.min.to_radians().sin(),
-            self.elevation.max.to_radians().sin(),
-        );
-        // Archimedes: z uniform in the band is area-uniform on the sphere.
-        let z = z_lo + (z_hi - z_lo) * rng.unit();
-        let (cx, cy) = rng.unit_circle();
-        let s = (1.0 - z * z).max(0.0).sqrt();
-        let dir = DVec3::new(s * cx, s * cy, z);
+        let dir = band_direction(rng, self.elevation.min, self.elevation.max);
         let jitter = DVec3::new(rng.unit(), rng.unit(), rng.unit()) * 2.0 - 1.0;
         let target = jitter * volume * 0.25;
         let origin = target + dir * dist;
@@ -435,22 +427,6 @@ impl GenerateOptions {
             far_clip: far,
             ..CameraFile::default()
         }
-    }
-}
-
-/// Camera `k` of `count` on the orbit of `first`: its offset from the target turned about
-/// +z by `k · 360° / count` (same target, distance and height; the same up rule).
-fn orbit(first: &CameraFile, k: u32, count: u32) -> CameraFile {
-    let target = DVec3::from_array(first.target);
-    let v = DVec3::from_array(first.origin) - target;
-    let a = std::f64::consts::TAU * k as f64 / count as f64;
-    let (s, c) = a.sin_cos();
-    let origin = target + DVec3::new(c * v.x - s * v.y, s * v.x + c * v.y, v.z);
-    let up = up_for((target - origin).normalize());
-    CameraFile {
-        origin: origin.to_array(),
-        up: up.to_array(),
-        ..first.clone()
     }
 }
 

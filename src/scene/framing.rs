@@ -2,6 +2,7 @@
 //! its random cameras with it and `import` frames a whole table of cylinders with it, so
 //! both agree on what "the scene fills the image" means.
 
+use crate::rng::SplitMix64;
 use crate::scene::camera::FovAxis;
 use crate::scene::{CameraFile, CylinderFile};
 use glam::DVec3;
@@ -86,9 +87,26 @@ impl Default for Frame {
 /// just fills the smaller field of view: everything inside the sphere is in the image.
 /// The clip planes hold the whole sphere.
 pub fn framed_camera(centre: DVec3, radius: f64, dir: DVec3, frame: Frame) -> CameraFile {
-    let dist = fit_distance(radius, frame.fov_deg, frame.width, frame.height);
+    framed_camera_at(centre, radius, dir, frame, 1.0)
+}
+
+/// [`framed_camera`] at `factor` times the fit distance (below 1 the sphere overfills the
+/// view).
+pub fn framed_camera_at(
+    centre: DVec3,
+    radius: f64,
+    dir: DVec3,
+    frame: Frame,
+    factor: f64,
+) -> CameraFile {
+    let dist = fit_distance(radius, frame.fov_deg, frame.width, frame.height) * factor;
     let origin = centre + dir * dist;
-    let near = 0.01f64.min(0.5 * (dist - radius));
+    let gap = dist - radius;
+    let near = if gap > 0.0 {
+        0.01f64.min(0.5 * gap)
+    } else {
+        0.01
+    };
     let far = (2.0 * (dist + radius)).max(10000.0);
     CameraFile {
         origin: origin.to_array(),
@@ -115,4 +133,31 @@ pub fn default_view() -> DVec3 {
 pub fn frame_all(cylinders: &[CylinderFile], frame: Frame) -> CameraFile {
     let (centre, radius) = bounding_sphere(cylinders);
     framed_camera(centre, radius, default_view(), frame)
+}
+
+/// A unit direction drawn area-uniformly from the band of the sphere between elevations
+/// `lo_deg` and `hi_deg` (Archimedes: z uniform in the band is area-uniform), from two
+/// draws of `rng`: z, then the azimuth.
+pub fn band_direction(rng: &mut SplitMix64, lo_deg: f64, hi_deg: f64) -> DVec3 {
+    let (z_lo, z_hi) = (lo_deg.to_radians().sin(), hi_deg.to_radians().sin());
+    let z = z_lo + (z_hi - z_lo) * rng.unit();
+    let (cx, cy) = rng.unit_circle();
+    let s = (1.0 - z * z).max(0.0).sqrt();
+    DVec3::new(s * cx, s * cy, z)
+}
+
+/// Camera `k` of `count` on the orbit of `first`: its offset from the target turned about
+/// +z by `k · 360° / count` (same target, distance and height; the same up rule).
+pub fn orbit(first: &CameraFile, k: u32, count: u32) -> CameraFile {
+    let target = DVec3::from_array(first.target);
+    let v = DVec3::from_array(first.origin) - target;
+    let a = std::f64::consts::TAU * k as f64 / count as f64;
+    let (s, c) = a.sin_cos();
+    let origin = target + DVec3::new(c * v.x - s * v.y, s * v.x + c * v.y, v.z);
+    let up = up_for((target - origin).normalize());
+    CameraFile {
+        origin: origin.to_array(),
+        up: up.to_array(),
+        ..first.clone()
+    }
 }

@@ -12,6 +12,7 @@
 pub mod aov;
 pub mod camera;
 pub mod framing;
+pub mod rig;
 pub mod strict;
 pub mod table;
 
@@ -146,7 +147,7 @@ impl fmt::Display for SceneError {
 
 impl std::error::Error for SceneError {}
 
-fn err(field: impl Into<String>, message: impl Into<String>) -> SceneError {
+pub(crate) fn err(field: impl Into<String>, message: impl Into<String>) -> SceneError {
     SceneError {
         field: field.into(),
         message: message.into(),
@@ -336,65 +337,100 @@ pub struct TableRef {
     pub caps: Option<bool>,
 }
 
-/// A scene file whose cylinders are a [`TableRef`].
+/// A scene file whose cylinders are a [`TableRef`] or whose cameras are a
+/// [`rig::CameraRig`] (either or both), read only when the plain [`SceneFile`] is not.
 #[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct SceneFileRef {
     #[serde(default, deserialize_with = "strict::opt_object")]
     camera: Option<CameraFile>,
-    #[serde(default, deserialize_with = "strict::opt_objects")]
-    cameras: Option<Vec<CameraFile>>,
-    #[serde(deserialize_with = "strict::object")]
-    cylinders: TableRef,
+    #[serde(default)]
+    cameras: Option<strict::ListOr<CameraFile, rig::CameraRig>>,
+    cylinders: strict::ListOr<CylinderFile, TableRef>,
     #[serde(default)]
     aovs: Option<Vec<Aov>>,
 }
 
 impl SceneFileRef {
-    /// The scene with the table's cylinders, the table's path taken relative to `base`.
-    fn resolve(self, base: &Path) -> Result<Scene, SceneError> {
-        use table::{LabelRule, TableFormat, TableOptions};
-        let r = &self.cylinders;
-        let format = match &r.format {
-            Some(f) => Some(TableFormat::parse(f).ok_or_else(|| {
-                err(
-                    "cylinders.format",
-                    format!(
-                        "must be one of {}, got {f:?}",
-                        TableFormat::ALL.map(|f| f.name()).join(", ")
-                    ),
-                )
-            })?),
+    /// The scene file with the table's cylinders (its path taken relative to `base`) and
+    /// the rig's cameras.
+    fn resolve_file(self, base: &Path) -> Result<SceneFile, SceneError> {
+        let cylinders = match self.cylinders {
+            strict::ListOr::List(list) => list,
+            strict::ListOr::Object(r) => read_table_ref(&r, base)?,
+        };
+        let cameras = match self.cameras {
             None => None,
+            Some(strict::ListOr::List(list)) => Some(list),
+            Some(strict::ListOr::Object(rig)) => {
+                if self.camera.is_some() {
+                    return Err(err(
+                        "",
+                        "give exactly one of \"camera\" and \"cameras\", got both",
+                    ));
+                }
+                Some(rig.resolve(&cylinders, "cameras")?)
+            }
         };
-        let label = match &r.label {
-            Some(l) => Some(LabelRule::parse(l).ok_or_else(|| {
-                err(
-                    "cylinders.label",
-                    format!(
-                        "must be one of {}, got {l:?}",
-                        LabelRule::ALL.map(|f| f.name()).join(", ")
-                    ),
-                )
-            })?),
-            None => None,
-        };
-        let path = base.join(&r.file);
-        let opts = TableOptions {
-            format,
-            label,
-            caps: r.caps,
-        };
-        let table = table::load_table(&path, &opts)
-            .map_err(|e| err("cylinders.file", format!("{}: {e}", path.display())))?;
-        SceneFile {
+        Ok(SceneFile {
             camera: self.camera,
-            cameras: self.cameras,
-            cylinders: table.cylinders,
+            cameras,
+            cylinders,
             aovs: self.aovs,
-        }
-        .validate()
+        })
     }
+
+    /// [`SceneFileRef::resolve_file`], validated.
+    fn resolve(self, base: &Path) -> Result<Scene, SceneError> {
+        self.resolve_file(base)?.validate()
+    }
+}
+
+/// The cylinders of the table `r` names, relative to `base`.
+fn read_table_ref(r: &TableRef, base: &Path) -> Result<Vec<CylinderFile>, SceneError> {
+    use table::{LabelRule, TableFormat, TableOptions};
+    let format = match &r.format {
+        Some(f) => Some(TableFormat::parse(f).ok_or_else(|| {
+            err(
+                "cylinders.format",
+                format!(
+                    "must be one of {}, got {f:?}",
+                    TableFormat::ALL.map(|f| f.name()).join(", ")
+                ),
+            )
+        })?),
+        None => None,
+    };
+    let label = match &r.label {
+        Some(l) => Some(LabelRule::parse(l).ok_or_else(|| {
+            err(
+                "cylinders.label",
+                format!(
+                    "must be one of {}, got {l:?}",
+                    LabelRule::ALL.map(|f| f.name()).join(", ")
+                ),
+            )
+        })?),
+        None => None,
+    };
+    let path = base.join(&r.file);
+    let opts = TableOptions {
+        format,
+        label,
+        caps: r.caps,
+    };
+    let table = table::load_table(&path, &opts)
+        .map_err(|e| err("cylinders.file", format!("{}: {e}", path.display())))?;
+    Ok(table.cylinders)
+}
+
+/// The scene file `text` describes with its table and rig resolved (cylinders inline, every
+/// camera listed), tables relative to `base`; `None` when it uses neither.
+pub fn resolve_file(text: &[u8], base: &Path) -> Option<Result<SceneFile, SceneError>> {
+    let file = serde_json::from_slice::<strict::Object<SceneFileRef>>(text).ok()?;
+    let plain = matches!(file.0.cylinders, strict::ListOr::List(_))
+        && !matches!(file.0.cameras, Some(strict::ListOr::Object(_)));
+    (!plain).then(|| file.0.resolve_file(base))
 }
 
 /// Whether `text` is a scene whose `cylinders` is an object (a [`TableRef`]), read as
@@ -406,7 +442,10 @@ fn table_scene(text: &[u8], base: &Path) -> Option<Result<Scene, SceneError>> {
     // A table reference with a mistake: the message names the field inside it.
     let mut de = serde_json::Deserializer::from_slice(text);
     match serde_path_to_error::deserialize::<_, strict::Object<SceneFileRef>>(&mut de) {
-        Err(e) if e.path().to_string().starts_with("cylinders.") => {
+        Err(e)
+            if e.path().to_string().starts_with("cylinders.")
+                || e.path().to_string().starts_with("cameras.") =>
+        {
             let field = e.path().to_string();
             Some(Err(err(
                 strict::shorten(&field),
@@ -441,6 +480,26 @@ pub fn load(path: &Path) -> Result<Scene, SceneError> {
     let text = std::str::from_utf8(bytes)
         .map_err(|e| err("", format!("not UTF-8 text (byte {})", e.valid_up_to())))?;
     parse_serde(text)
+}
+
+/// Read the scene file at `path` with its table and rig resolved (cylinders inline, every
+/// camera listed), validated: the file `cylaov cameras` writes.
+pub fn load_resolved(path: &Path) -> Result<SceneFile, SceneError> {
+    let bytes = read_bounded(path)?;
+    let base = path.parent().unwrap_or(Path::new(""));
+    let file = match serde_json::from_slice::<strict::Object<SceneFile>>(&bytes) {
+        Ok(file) => file.0,
+        Err(_) => match resolve_file(&bytes, base) {
+            Some(file) => file?,
+            None => {
+                // Not a scene: the loader's message names the field.
+                let e = load(path).err();
+                return Err(e.unwrap_or_else(|| err("", "not a scene file")));
+            }
+        },
+    };
+    file.validate()?;
+    Ok(file)
 }
 
 /// The bytes of `path`, a regular file (through links) of at most [`MAX_SCENE_BYTES`]:
