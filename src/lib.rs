@@ -24,7 +24,8 @@
 //!   comparison metric) every other layer reads; [`scene::table`]: cylinder tables (tree
 //!   QSMs from TreeQSM, SimpleForest, aRchi, and plain CSV) read into cylinders;
 //!   [`scene::framing`]: the camera distance at which a bounding sphere fills the view
-//!   (`generate`'s cameras and `import`'s).
+//!   (`generate`'s cameras and `import`'s); [`scene::rig`]: orbits and spheres of cameras
+//!   around any scene, drawn as `generate` draws them.
 //! - [`geometry`]: the f32/f64 abstraction ([`geometry::real`]), the literal and stable
 //!   ray–cylinder kernels ([`geometry::cylinder`]), scalar and in packets of eight lanes, and
 //!   [`geometry::kernel`], the one type that names a kernel (formulation × precision).
@@ -86,7 +87,7 @@
 //! `dataset::batch::shards` (`write_shards`, `shard_count`).
 //!
 //! Around them: [`commands`], the IO of each subcommand (`render`, `generate`, `batch`,
-//! `import`, `export-mitsuba`, `compare`, `verify`, `stress`, `bench`, `aovs`); `main.rs` only parses
+//! `import`, `cameras`, `export-mitsuba`, `compare`, `verify`, `stress`, `bench`, `aovs`); `main.rs` only parses
 //! arguments and maps results to exit codes.
 //!
 //! **Invariants**: `geometry`, `accel` and `render` never do IO (`render_bands` hands its
