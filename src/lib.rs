@@ -21,7 +21,11 @@
 //!   3-vectors, long values cut in messages); [`scene::camera`]: Mitsuba's look-at pinhole
 //!   camera, pixel rays in f64, K in both pixel conventions, pose matrices; [`scene::aov`]:
 //!   the one AOV table (channels, sample type, miss value, meaning, Mitsuba's source, the
-//!   comparison metric) every other layer reads.
+//!   comparison metric) every other layer reads; [`scene::table`]: cylinder tables (tree
+//!   QSMs from TreeQSM, SimpleForest, aRchi, and plain CSV) read into cylinders;
+//!   [`scene::framing`]: the camera distance at which a bounding sphere fills the view
+//!   (`generate`'s cameras and `import`'s); [`scene::rig`]: orbits and spheres of cameras
+//!   around any scene, drawn as `generate` draws them.
 //! - [`geometry`]: the f32/f64 abstraction ([`geometry::real`]), the literal and stable
 //!   ray–cylinder kernels ([`geometry::cylinder`]), scalar and in packets of eight lanes, and
 //!   [`geometry::kernel`], the one type that names a kernel (formulation × precision).
@@ -84,7 +88,7 @@
 //! `dataset::batch::shards` (`write_shards`, `shard_count`).
 //!
 //! Around them: [`commands`], the IO of each subcommand (`render`, `generate`, `batch`,
-//! `export-mitsuba`, `compare`, `verify`, `stress`, `bench`, `aovs`); `main.rs` only parses
+//! `import`, `cameras`, `export-mitsuba`, `compare`, `verify`, `stress`, `bench`, `aovs`); `main.rs` only parses
 //! arguments and maps results to exit codes.
 //!
 //! **Invariants**: `geometry`, `accel` and `render` never do IO (`render_bands` hands its

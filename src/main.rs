@@ -10,6 +10,8 @@ use cylaov::output::depth_png::OutOfRange;
 use cylaov::render::{Accel, RenderOptions};
 use cylaov::scene::Aov;
 use cylaov::scene::camera::model::CameraModel;
+use cylaov::scene::framing::Frame;
+use cylaov::scene::table::{LabelRule, TableFormat, TableOptions};
 use cylaov::verify::compare::Tolerances;
 use cylaov::{bench, commands};
 use std::path::PathBuf;
@@ -67,6 +69,46 @@ enum Command {
     ///
     /// Example: cylaov batch data --out data/render --shard 0/4
     Batch(BatchCli),
+    /// Turn a table of cylinders (a tree's QSM, or any CSV) into a framed scene file.
+    ///
+    /// The table comes from TreeQSM, SimpleForest, aRchi or any CSV; the scene file gets
+    /// one camera that frames every cylinder (its bounding sphere fills the smaller field
+    /// of view).
+    ///
+    /// Formats (--format; left out, the header says which, else the column count):
+    ///   csv           header with x0,y0,z0,x1,y1,z1,radius and optional id, label, caps;
+    ///   treeqsm       TreeQSM cyl_data: radius, length, start x y z, axis x y z, parent,
+    ///                 extension, branch, BranchOrder, PositionInBranch, added, UnmodRadius
+    ///                 (15 columns without a header in TreeQSM 2.3, 14 in older ones; later
+    ///                 versions write a header: parent, extension, branch, BranchOrder);
+    ///   simpleforest  header with ID, parentID, startX..endZ, radius, branchOrder, branchID;
+    ///   archi         header with startX..endZ, cyl_ID, parent_ID, radius_cyl,
+    ///                 branching_order.
+    /// Fields are separated by commas, else by spaces or tabs; lines starting with # are
+    /// skipped; header names match whatever their case and punctuation (start.x = startX).
+    ///
+    /// Each row is one cylinder: start → p0, end (or start + length · axis) → p1, radius; its
+    /// id is the table's own (ID, cyl_ID, id) or the row number (TreeQSM, whose parent column
+    /// counts rows). A bad row (not a number, non-finite, radius <= 0, zero length) is
+    /// refused with its line and column, and nothing is written.
+    ///
+    /// Example: cylaov import tree_cyl_data.txt -o tree.json --label branch_order
+    ///
+    /// Then: cylaov render tree.json -o tree.exr --aov depth,normal,shape_id,label
+    #[command(verbatim_doc_comment)]
+    Import(ImportCli),
+    /// Put many cameras around a scene's cylinders and write the scene resolved.
+    ///
+    /// --orbit N: camera 0's direction drawn area-uniformly from the elevation band, the
+    /// others it turned about +z by k·360°/N (as generate --orbit); --sphere N: every
+    /// direction drawn area-uniformly from the band. Each camera looks at the centre of the
+    /// sphere holding the cylinders from --distance times the distance at which that sphere
+    /// fills the smaller field of view. Same options and seed, same cameras. Without
+    /// --orbit or --sphere, a scene's own "cameras": {"orbit": {...}} is resolved. The
+    /// output lists every camera and the cylinders inline (a table it names is read in).
+    ///
+    /// Example: cylaov cameras tree.json --orbit 200 -o tree200.json
+    Cameras(CamerasCli),
     /// Write the Mitsuba 3 XML of a scene (the reference renderer's input).
     ///
     /// Example: cylaov export-mitsuba scenes/single.json -o single.xml
@@ -390,6 +432,99 @@ struct StressCli {
 }
 
 #[derive(Args)]
+struct ImportCli {
+    /// The table: TreeQSM cyl_data text, SimpleForest or aRchi CSV, or a CSV with
+    /// x0,y0,z0,x1,y1,z1,radius columns.
+    table: PathBuf,
+    /// The scene file to write (JSON, docs/scene-format.md).
+    #[arg(short, long)]
+    out: PathBuf,
+    /// The table's layout; default: from the header's names, or TreeQSM when there is no
+    /// header and 14 or 15 columns.
+    #[arg(long, value_parser = table_format, value_name = "csv|treeqsm|simpleforest|archi")]
+    format: Option<TableFormat>,
+    /// Each cylinder's label (the label AOV): branch_order = BranchOrder + 1 (stem 1, its
+    /// branches 2, ...; 0 stays "no hit"), branch = branch id + 1, segment = the cylinder's
+    /// id, none = 0. Default: a csv table's label column, else none.
+    #[arg(long, value_parser = label_rule, value_name = "none|branch_order|branch|segment")]
+    label: Option<LabelRule>,
+    /// Close the cylinders' ends (default on; a csv table's caps column wins).
+    #[arg(long, value_parser = on_off, value_name = "on|off")]
+    caps: Option<bool>,
+    /// Image width of the camera, pixels.
+    #[arg(long, default_value_t = 640)]
+    width: u32,
+    /// Image height of the camera, pixels.
+    #[arg(long, default_value_t = 480)]
+    height: u32,
+    /// Horizontal field of view of the camera, degrees.
+    #[arg(long, default_value_t = 50.0)]
+    fov: f64,
+}
+
+fn table_format(s: &str) -> Result<TableFormat, String> {
+    TableFormat::parse(s).ok_or_else(|| {
+        format!(
+            "unknown format {:?}; expected one of {}",
+            shorten(s),
+            TableFormat::ALL.map(|f| f.name()).join(", ")
+        )
+    })
+}
+
+fn label_rule(s: &str) -> Result<LabelRule, String> {
+    LabelRule::parse(s).ok_or_else(|| {
+        format!(
+            "unknown label rule {:?}; expected one of {}",
+            shorten(s),
+            LabelRule::ALL.map(|f| f.name()).join(", ")
+        )
+    })
+}
+
+fn on_off(s: &str) -> Result<bool, String> {
+    match s {
+        "on" => Ok(true),
+        "off" => Ok(false),
+        _ => Err(format!("expected on or off, got {:?}", shorten(s))),
+    }
+}
+
+#[derive(Args)]
+struct CamerasCli {
+    /// Scene file (JSON, docs/scene-format.md).
+    scene: PathBuf,
+    /// The scene file to write.
+    #[arg(short, long)]
+    out: PathBuf,
+    /// N cameras on one orbit about +z.
+    #[arg(long, value_name = "N", conflicts_with = "sphere")]
+    orbit: Option<u32>,
+    /// N cameras in directions drawn area-uniformly from the elevation band.
+    #[arg(long, value_name = "N")]
+    sphere: Option<u32>,
+    /// Elevation band above the xy plane, degrees: LOW..HIGH or one number.
+    #[arg(long, value_parser = Range::parse, allow_hyphen_values = true, value_name = "A..B", default_value = "-20..60")]
+    elevation: Range,
+    /// "fit" (the bounding sphere fills the smaller field of view) or a factor of that
+    /// distance.
+    #[arg(long, default_value = "fit")]
+    distance: String,
+    /// Seed of the drawn directions.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Image width; default: the scene's first camera's.
+    #[arg(long)]
+    width: Option<u32>,
+    /// Image height; default: the scene's first camera's.
+    #[arg(long)]
+    height: Option<u32>,
+    /// Horizontal field of view, degrees; default: the scene's first camera's, else 50.
+    #[arg(long)]
+    fov: Option<f64>,
+}
+
+#[derive(Args)]
 struct ExportCli {
     /// Scene file (JSON).
     scene: PathBuf,
@@ -586,6 +721,11 @@ struct RenderCli {
     /// R,G,B in float32, which OpenCV and imageio read.
     #[arg(long, value_enum, default_value_t = ExrLayout::Layers)]
     exr_layout: ExrLayout,
+    /// Also write the view's hit points as a point cloud: binary little-endian PLY with
+    /// x y z nx ny nz (float32, world axes) and shape_id, part, label (uint), one point per
+    /// pixel that hit a cylinder, row by row.
+    #[arg(long, value_name = "OUT.ply")]
+    ply: Option<PathBuf>,
 }
 
 /// Largest `--threads`: 1024 is more hardware threads than any single node this runs on
@@ -663,6 +803,7 @@ fn render(a: RenderCli) -> anyhow::Result<ExitCode> {
         depth_png: a.depth_png.then_some(a.depth_scale),
         depth_out_of_range: a.depth_out_of_range,
         exr_layout: a.exr_layout,
+        ply: a.ply,
     };
     say(&commands::render::run(&args)?)?;
     Ok(ExitCode::SUCCESS)
@@ -878,6 +1019,119 @@ fn stress(a: StressCli) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
+fn import(a: ImportCli) -> anyhow::Result<ExitCode> {
+    if a.width == 0 || a.width > cylaov::scene::MAX_SIDE {
+        anyhow::bail!(
+            "--width: must be in 1..={}, got {}",
+            cylaov::scene::MAX_SIDE,
+            a.width
+        );
+    }
+    if a.height == 0 || a.height > cylaov::scene::MAX_SIDE {
+        anyhow::bail!(
+            "--height: must be in 1..={}, got {}",
+            cylaov::scene::MAX_SIDE,
+            a.height
+        );
+    }
+    if !(a.fov > 0.0 && a.fov < 180.0) {
+        anyhow::bail!("--fov: must be in (0, 180), got {}", a.fov);
+    }
+    let args = commands::import::ImportArgs {
+        table: a.table,
+        out: a.out,
+        options: TableOptions {
+            format: a.format,
+            label: a.label,
+            caps: a.caps,
+        },
+        frame: Frame {
+            width: a.width,
+            height: a.height,
+            fov_deg: a.fov,
+        },
+    };
+    say(&commands::import::run(&args)?)?;
+    Ok(ExitCode::SUCCESS)
+}
+
+fn cameras(a: CamerasCli) -> anyhow::Result<ExitCode> {
+    use cylaov::scene::rig::{CameraRig, Distance, RigSpec};
+    let count = a.orbit.or(a.sphere);
+    let flag = if a.orbit.is_some() {
+        "--orbit"
+    } else {
+        "--sphere"
+    };
+    let max = cylaov::scene::rig::MAX_RIG_CAMERAS;
+    if let Some(n) = count
+        && (n == 0 || n > max)
+    {
+        anyhow::bail!("{flag}: must be in 1..={max}, got {n}");
+    }
+    let e = a.elevation;
+    if e.min < -85.0 || e.max > 85.0 {
+        anyhow::bail!("--elevation: must lie in -85..85 degrees (the camera's up is +z), got {e}");
+    }
+    if let Some(f) = a.fov
+        && !(f > 0.0 && f < 180.0)
+    {
+        anyhow::bail!("--fov: must be in (0, 180), got {f}");
+    }
+    let rig = match count {
+        None => None,
+        Some(n) => {
+            // Defaults from the scene's first camera, when it is a pinhole.
+            let first = cylaov::scene::load(&a.scene)
+                .ok()
+                .map(|s| s.camera)
+                .filter(|c| c.projection == cylaov::scene::camera::Projection::Perspective);
+            let distance = match a.distance.as_str() {
+                "fit" => Distance::default(),
+                d => match d.parse::<f64>() {
+                    Ok(x) if x.is_finite() && x > 0.0 && x <= 1e6 => Distance::Factor(x),
+                    _ => anyhow::bail!(
+                        "--distance: expected fit or a factor of the fit distance in (0, 1e6], got {:?}",
+                        shorten(d)
+                    ),
+                },
+            };
+            let spec = RigSpec {
+                elevation_deg: [a.elevation.min, a.elevation.max],
+                distance,
+                seed: a.seed,
+                width: a.width.or(first.map(|c| c.width)).unwrap_or(640),
+                height: a.height.or(first.map(|c| c.height)).unwrap_or(480),
+                fov_deg: a
+                    .fov
+                    .or(first
+                        .filter(|c| c.fov_axis == cylaov::scene::camera::FovAxis::X)
+                        .map(|c| c.fov_deg))
+                    .unwrap_or(50.0),
+                ..RigSpec::new(n)
+            };
+            Some(if a.orbit.is_some() {
+                CameraRig {
+                    orbit: Some(spec),
+                    sphere: None,
+                }
+            } else {
+                CameraRig {
+                    orbit: None,
+                    sphere: Some(spec),
+                }
+            })
+        }
+    };
+    let args = commands::cameras::CamerasArgs {
+        scene: a.scene,
+        out: a.out,
+        rig,
+    };
+    say(&commands::cameras::run(&args)?)?;
+    Ok(ExitCode::SUCCESS)
+}
+
 fn export_mitsuba(a: ExportCli) -> anyhow::Result<ExitCode> {
     say(&commands::export_mitsuba::run(&a.scene, &a.out)?)?;
     Ok(ExitCode::SUCCESS)
@@ -953,6 +1207,8 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Batch(a) => batch(a),
         Command::Bench(b) => bench(b),
         Command::Stress(a) => stress(a),
+        Command::Import(a) => import(a),
+        Command::Cameras(a) => cameras(a),
         Command::ExportMitsuba(a) => export_mitsuba(a),
         Command::Compare(a) => Ok(compare(a)),
         Command::Verify(a) => Ok(verify(a)),

@@ -73,6 +73,7 @@ fn render_args(scene: &Path, out: &Path, compression: Compression) -> RenderArgs
         depth_png: None,
         depth_out_of_range: OutOfRange::Fail,
         exr_layout: ExrLayout::Layers,
+        ply: None,
     }
 }
 

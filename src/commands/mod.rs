@@ -3,9 +3,11 @@
 
 pub mod batch;
 pub mod bench;
+pub mod cameras;
 pub mod compare;
 pub mod export_mitsuba;
 pub mod generate;
+pub mod import;
 pub mod render;
 pub mod stress;
 pub mod verify;

@@ -9,12 +9,16 @@
 use crate::mem::check_memory;
 use crate::output::aov::{Compression, ExrLayout};
 use crate::output::depth_png::OutOfRange;
-use crate::output::io::{NewDirs, camera_json_path, check_output_dir, check_outputs};
+use crate::output::io::{
+    NewDirs, Staged, camera_json_path, check_output_dir, check_outputs, stage,
+};
+use crate::output::ply::{PLY_AOVS, encode, hits};
 use crate::output::view::{DepthOutOfRange, DepthPngPlan, FileSink, Member, ViewPlan};
 use crate::render::RenderOptions;
 use crate::scene::camera::Camera;
 use crate::scene::{self, Aov};
 use anyhow::{Context, Result, bail};
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -41,6 +45,8 @@ pub struct RenderArgs {
     pub depth_out_of_range: OutOfRange,
     /// One layered `OUT.exr`, or `OUT.<aov>.exr` per AOV.
     pub exr_layout: ExrLayout,
+    /// `--ply FILE`: also write the view's hit points as a PLY point cloud.
+    pub ply: Option<PathBuf>,
 }
 
 /// The view plan of a render.
@@ -122,10 +128,16 @@ pub fn run(args: &RenderArgs) -> Result<String> {
         .into_iter()
         .map(|m| (flag(m), member_path(&args.out, args.preview.as_deref(), m)))
         .collect();
-    let list: Vec<(&str, &Path)> = targets.iter().map(|(f, p)| (*f, p.as_path())).collect();
+    let mut list: Vec<(&str, &Path)> = targets.iter().map(|(f, p)| (*f, p.as_path())).collect();
+    if let Some(ply) = &args.ply {
+        list.push(("--ply", ply.as_path()));
+    }
     check_outputs(&list, &[&args.scene])?;
     // After the target checks: a FIFO, a link or the scene itself at -o is refused as that.
     check_exr_name(&args.out)?;
+    if let Some(ply) = &args.ply {
+        check_ply_name(ply)?;
+    }
     if let Some(s) = args.depth_png
         && !(s.is_finite() && s > 0.0)
     {
@@ -145,6 +157,11 @@ pub fn run(args: &RenderArgs) -> Result<String> {
         plan.memory(),
     )?;
     let dirs = make_dirs(args)?;
+    // The point cloud waits under a temporary name until the EXR is written too.
+    let ply = match &args.ply {
+        Some(path) => Some(stage_ply(args, &scene, path)?),
+        None => None,
+    };
     let (out, preview) = (args.out.clone(), args.preview.clone());
     let mut sink = FileSink::beside(move |m| member_path(&out, preview.as_deref(), m));
     let written = plan
@@ -161,6 +178,12 @@ pub fn run(args: &RenderArgs) -> Result<String> {
             args.out.display(),
             written.depth_zeroed
         ));
+    }
+    if let Some(staged) = ply {
+        let path = staged.path().to_path_buf();
+        staged
+            .commit()
+            .with_context(|| format!("writing {}", path.display()))?;
     }
     dirs.keep();
     let trace_ms = written.trace.as_secs_f64() * 1e3;
@@ -182,6 +205,42 @@ pub fn run(args: &RenderArgs) -> Result<String> {
         crate::geometry::Kernel::new(args.options.formula, args.options.precision),
         start.elapsed().as_secs_f64() * 1e3
     ))
+}
+
+/// `--ply` names a PLY file: another extension would promise another format.
+fn check_ply_name(ply: &Path) -> Result<()> {
+    let is_ply = ply
+        .extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("ply"));
+    if !is_ply {
+        bail!(
+            "--ply {}: the point cloud is a PLY file and its name must end in .ply",
+            ply.display()
+        );
+    }
+    Ok(())
+}
+
+/// Trace the AOVs of a point cloud (position, normal, ids) and stage the PLY of the hits.
+fn stage_ply(args: &RenderArgs, scene: &scene::Scene, path: &Path) -> Result<Staged> {
+    let options = RenderOptions {
+        aovs: PLY_AOVS.to_vec(),
+        ..args.options.clone()
+    };
+    let image = crate::render::render(scene, &options).image;
+    let points = hits(&image).context("--ply: the render lacks a point-cloud AOV")?;
+    let comment = format!(
+        "cylaov {} hit points of {} camera {}",
+        env!("CARGO_PKG_VERSION"),
+        args.scene.display(),
+        args.camera
+    );
+    let bytes = encode(&points, &comment);
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("--ply {}", path.display()))?;
+    }
+    stage(path, |f| f.write_all(&bytes)).with_context(|| format!("writing {}", path.display()))
 }
 
 /// The output's parent folder and the preview folder, made now and removed again unless

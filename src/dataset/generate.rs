@@ -30,6 +30,7 @@
 use crate::rng::SplitMix64;
 use crate::scene::camera::FovAxis;
 use crate::scene::camera::model::CameraModel;
+use crate::scene::framing::{band_direction, fit_distance, orbit, up_for};
 use crate::scene::{self, CameraFile, CylinderFile, SceneFile};
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
@@ -426,33 +427,15 @@ impl GenerateOptions {
         // Place the camera: on a sphere around the scene, far enough that the bounding
         // sphere fits the smaller field of view at distance factor 1, looking at a point
         // near the centre.
-        let aspect = self.width as f64 / self.height as f64;
-        let tan_x = (self.fov.to_radians() / 2.0).tan();
-        let tan_small = tan_x.min(tan_x / aspect);
-        // A sphere of radius R fills a half angle a from distance R / sin(a).
-        let sin_small = tan_small / (1.0 + tan_small * tan_small).sqrt();
-        let fit = self.bounding_radius() / sin_small;
+        let fit = fit_distance(self.bounding_radius(), self.fov, self.width, self.height);
         let dist = fit * uniform(rng, self.distance);
-        let (z_lo, z_hi) = (
-            self.elevation.min.to_radians().sin(),
-            self.elevation.max.to_radians().sin(),
-        );
-        // Archimedes: z uniform in the band is area-uniform on the sphere.
-        let z = z_lo + (z_hi - z_lo) * rng.unit();
-        let (cx, cy) = rng.unit_circle();
-        let s = (1.0 - z * z).max(0.0).sqrt();
-        let dir = DVec3::new(s * cx, s * cy, z);
+        let dir = band_direction(rng, self.elevation.min, self.elevation.max);
         let jitter = DVec3::new(rng.unit(), rng.unit(), rng.unit()) * 2.0 - 1.0;
         let target = jitter * volume * 0.25;
         let origin = target + dir * dist;
         // The elevation bound keeps +z usable; fall back to +y if the jitter ever tilts
         // the view within ~6 degrees of it.
-        let forward = (target - origin).normalize();
-        let up = if forward.cross(DVec3::Z).length() > 0.1 {
-            DVec3::Z
-        } else {
-            DVec3::Y
-        };
+        let up = up_for((target - origin).normalize());
         let far = (2.0 * (dist + self.bounding_radius())).max(10000.0);
         CameraFile {
             origin: origin.to_array(),
@@ -583,27 +566,6 @@ impl GenerateOptions {
             cam.origin = (target + back * (2.0 * r)).to_array();
             cam.far_clip = (6.0 * r).max(10000.0);
         }
-    }
-}
-
-/// Camera `k` of `count` on the orbit of `first`: its offset from the target turned about
-/// +z by `k · 360° / count` (same target, distance and height; the same up rule).
-fn orbit(first: &CameraFile, k: u32, count: u32) -> CameraFile {
-    let target = DVec3::from_array(first.target);
-    let v = DVec3::from_array(first.origin) - target;
-    let a = std::f64::consts::TAU * k as f64 / count as f64;
-    let (s, c) = a.sin_cos();
-    let origin = target + DVec3::new(c * v.x - s * v.y, s * v.x + c * v.y, v.z);
-    let forward = (target - origin).normalize();
-    let up = if forward.cross(DVec3::Z).length() > 0.1 {
-        DVec3::Z
-    } else {
-        DVec3::Y
-    };
-    CameraFile {
-        origin: origin.to_array(),
-        up: up.to_array(),
-        ..first.clone()
     }
 }
 

@@ -1,6 +1,6 @@
 //! Output files: the AOV EXR, PNG previews and figures, the Mitsuba 3 XML export, and one
 //! view's files written as one plan (`view`); `.npy` arrays (`npy`) and ustar archives
-//! (`tar`) for tar shards; files never half-written (`atomic`), output targets checked
+//! (`tar`) for tar shards; hit points as PLY point clouds (`ply`); files never half-written (`atomic`), output targets checked
 //! before any work (`targets`), camera metadata and record encoding (`camera_files`),
 //! console output (`console`), files opened in place without following links (`files`) and
 //! the clean-up of staged files on a signal (`signals`). The last stage of the pipeline;
@@ -16,6 +16,7 @@ pub mod io;
 pub mod mitsuba;
 pub mod npy;
 pub mod plot;
+pub mod ply;
 pub mod preview;
 pub mod signals;
 pub mod tar;

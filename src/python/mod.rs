@@ -569,6 +569,65 @@ impl PyScene {
         Ok(scene.into())
     }
 
+    /// A scene from a cylinder table, as `cylaov import` makes it: a TreeQSM `cyl_data`
+    /// text, a SimpleForest or aRchi CSV, or a CSV with `x0,y0,z0,x1,y1,z1,radius` (and
+    /// optional `id`, `label`, `caps`) columns, with one 640 × 480 camera framing every
+    /// cylinder. `format` is one of `"csv"`, `"treeqsm"`, `"simpleforest"`, `"archi"`
+    /// (default: from the header or the column count); `label` one of `"none"`,
+    /// `"branch_order"` (BranchOrder + 1), `"branch"` (branch id + 1), `"segment"` (the
+    /// cylinder's id) (default: a csv table's `label` column, else none); `caps` closes
+    /// every cylinder's ends (default True; a csv `caps` column wins).
+    ///
+    /// Raises OSError when the file cannot be read, SceneError naming the line and column
+    /// of a bad row, ValueError for an unknown `format` or `label`.
+    #[staticmethod]
+    #[pyo3(signature = (path, format=None, label=None, caps=None))]
+    fn from_table(
+        path: PathBuf,
+        format: Option<&str>,
+        label: Option<&str>,
+        caps: Option<bool>,
+    ) -> PyResult<PyScene> {
+        use crate::scene::table::{LabelRule, TableFormat, TableOptions, load_table};
+        let format = format
+            .map(|f| {
+                TableFormat::parse(f).ok_or_else(|| {
+                    PyValueError::new_err(format!(
+                        "format: expected one of {}, got {f:?}",
+                        TableFormat::ALL.map(|f| f.name()).join(", ")
+                    ))
+                })
+            })
+            .transpose()?;
+        let label = label
+            .map(|l| {
+                LabelRule::parse(l).ok_or_else(|| {
+                    PyValueError::new_err(format!(
+                        "label: expected one of {}, got {l:?}",
+                        LabelRule::ALL.map(|f| f.name()).join(", ")
+                    ))
+                })
+            })
+            .transpose()?;
+        if let Err(e) = std::fs::metadata(&path) {
+            return Err(os_error(&path, &e));
+        }
+        let opts = TableOptions {
+            format,
+            label,
+            caps,
+        };
+        let table = on_pool(None, || load_table(&path, &opts))?
+            .map_err(|e| scene_error(format!("{}: {e}", path.display())))?;
+        let file = table.scene_file(crate::scene::framing::Frame::default());
+        let scene = on_pool(None, || file.validate())?
+            .map_err(|e| scene_error(format!("{}: {e}", path.display())))?;
+        Ok(PyScene {
+            scene,
+            file: Some(file),
+        })
+    }
+
     /// Parse and validate scene JSON (`str`, or `bytes` of UTF-8 text).
     #[staticmethod]
     fn from_json(text: &Bound<'_, PyAny>) -> PyResult<PyScene> {
@@ -1564,6 +1623,46 @@ fn compare<'py>(
     json_to_py(py, &v)
 }
 
+/// Write hit points as a PLY point cloud (`cylaov.to_ply` prepares the flat arrays): the
+/// file is refused where `render --ply` refuses it (a link, a FIFO) and written whole or
+/// not at all. Returns the number of points.
+#[pyfunction]
+fn _write_ply(
+    py: Python<'_>,
+    position: PyReadonlyArray1<'_, f32>,
+    normal: PyReadonlyArray1<'_, f32>,
+    ids: PyReadonlyArray1<'_, u32>,
+    path: PathBuf,
+) -> PyResult<usize> {
+    use crate::output::ply::{Hit, encode};
+    let (p, n, ids) = (position.as_slice()?, normal.as_slice()?, ids.as_slice()?);
+    let count = ids.len() / 3;
+    if p.len() != 3 * count || n.len() != 3 * count || ids.len() != 3 * count {
+        return Err(PyValueError::new_err(
+            "to_ply: position, normal and the ids must describe the same points",
+        ));
+    }
+    let hits: Vec<Hit> = (0..count)
+        .map(|i| Hit {
+            position: [p[3 * i], p[3 * i + 1], p[3 * i + 2]],
+            normal: [n[3 * i], n[3 * i + 1], n[3 * i + 2]],
+            shape_id: ids[3 * i],
+            part: ids[3 * i + 1],
+            label: ids[3 * i + 2],
+        })
+        .collect();
+    py.detach(|| {
+        crate::output::io::check_output("path", &path, &[])?;
+        let bytes = encode(
+            &hits,
+            &format!("cylaov {} hit points", env!("CARGO_PKG_VERSION")),
+        );
+        crate::output::io::atomic_write_bytes(&path, &bytes)
+    })
+    .map_err(|e| os_error(&path, &e))?;
+    Ok(count)
+}
+
 // ---- the module --------------------------------------------------------------------------
 
 /// The compiled half of the `cylaov` package (import `cylaov`, not this).
@@ -1588,6 +1687,7 @@ fn _cylaov(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(_generate, m)?)?;
     m.add_function(wrap_pyfunction!(read, m)?)?;
     m.add_function(wrap_pyfunction!(compare, m)?)?;
+    m.add_function(wrap_pyfunction!(_write_ply, m)?)?;
     shards::register(m)?;
     Ok(())
 }

@@ -3,14 +3,18 @@
 //!
 //! A scene file has exactly one of `"camera": {…}` (one view) and `"cameras": [{…}, …]`
 //! (several views of the same cylinders, in order: camera 0, 1, …); giving both or neither
-//! is an error.
+//! is an error. Its `"cylinders"` is a list, or `{"file": "tree.csv"}`: a table file
+//! ([`table`]) beside the scene file.
 //!
 //! Serde types live here only; everything past [`Scene`] is plain validated data. Every
 //! rejection names the field and the value: `cylinders[3].radius: must be > 0, got -1`.
 
 pub mod aov;
 pub mod camera;
+pub mod framing;
+pub mod rig;
 pub mod strict;
+pub mod table;
 
 use crate::geometry::Cylinder;
 use crate::scene::camera::model::{CameraModel, ModelFields};
@@ -143,7 +147,7 @@ impl fmt::Display for SceneError {
 
 impl std::error::Error for SceneError {}
 
-fn err(field: impl Into<String>, message: impl Into<String>) -> SceneError {
+pub(crate) fn err(field: impl Into<String>, message: impl Into<String>) -> SceneError {
     SceneError {
         field: field.into(),
         message: message.into(),
@@ -314,6 +318,144 @@ pub struct SceneFile {
     pub aovs: Option<Vec<Aov>>,
 }
 
+/// `"cylinders": {"file": "tree.csv", ...}`: the cylinders are a table file (see
+/// [`table`]), its path relative to the scene file's folder.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TableRef {
+    /// The table, relative to the scene file's folder (or absolute).
+    pub file: String,
+    /// `csv`, `treeqsm`, `simpleforest` or `archi`; default: told from the table.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub format: Option<String>,
+    /// `none`, `branch_order`, `branch` or `segment`; default: a csv table's `label`
+    /// column, else none.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub label: Option<String>,
+    /// Caps on every cylinder; default `true` (a csv table's `caps` column wins).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub caps: Option<bool>,
+}
+
+/// A scene file whose cylinders are a [`TableRef`] or whose cameras are a
+/// [`rig::CameraRig`] (either or both), read only when the plain [`SceneFile`] is not.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SceneFileRef {
+    #[serde(default, deserialize_with = "strict::opt_object")]
+    camera: Option<CameraFile>,
+    #[serde(default)]
+    cameras: Option<strict::ListOr<CameraFile, rig::CameraRig>>,
+    cylinders: strict::ListOr<CylinderFile, TableRef>,
+    #[serde(default)]
+    aovs: Option<Vec<Aov>>,
+}
+
+impl SceneFileRef {
+    /// The scene file with the table's cylinders (its path taken relative to `base`) and
+    /// the rig's cameras.
+    fn resolve_file(self, base: &Path) -> Result<SceneFile, SceneError> {
+        let cylinders = match self.cylinders {
+            strict::ListOr::List(list) => list,
+            strict::ListOr::Object(r) => read_table_ref(&r, base)?,
+        };
+        let cameras = match self.cameras {
+            None => None,
+            Some(strict::ListOr::List(list)) => Some(list),
+            Some(strict::ListOr::Object(rig)) => {
+                if self.camera.is_some() {
+                    return Err(err(
+                        "",
+                        "give exactly one of \"camera\" and \"cameras\", got both",
+                    ));
+                }
+                Some(rig.resolve(&cylinders, "cameras")?)
+            }
+        };
+        Ok(SceneFile {
+            camera: self.camera,
+            cameras,
+            cylinders,
+            aovs: self.aovs,
+        })
+    }
+
+    /// [`SceneFileRef::resolve_file`], validated.
+    fn resolve(self, base: &Path) -> Result<Scene, SceneError> {
+        self.resolve_file(base)?.validate()
+    }
+}
+
+/// The cylinders of the table `r` names, relative to `base`.
+fn read_table_ref(r: &TableRef, base: &Path) -> Result<Vec<CylinderFile>, SceneError> {
+    use table::{LabelRule, TableFormat, TableOptions};
+    let format = match &r.format {
+        Some(f) => Some(TableFormat::parse(f).ok_or_else(|| {
+            err(
+                "cylinders.format",
+                format!(
+                    "must be one of {}, got {f:?}",
+                    TableFormat::ALL.map(|f| f.name()).join(", ")
+                ),
+            )
+        })?),
+        None => None,
+    };
+    let label = match &r.label {
+        Some(l) => Some(LabelRule::parse(l).ok_or_else(|| {
+            err(
+                "cylinders.label",
+                format!(
+                    "must be one of {}, got {l:?}",
+                    LabelRule::ALL.map(|f| f.name()).join(", ")
+                ),
+            )
+        })?),
+        None => None,
+    };
+    let path = base.join(&r.file);
+    let opts = TableOptions {
+        format,
+        label,
+        caps: r.caps,
+    };
+    let table = table::load_table(&path, &opts)
+        .map_err(|e| err("cylinders.file", format!("{}: {e}", path.display())))?;
+    Ok(table.cylinders)
+}
+
+/// The scene file `text` describes with its table and rig resolved (cylinders inline, every
+/// camera listed), tables relative to `base`; `None` when it uses neither.
+pub fn resolve_file(text: &[u8], base: &Path) -> Option<Result<SceneFile, SceneError>> {
+    let file = serde_json::from_slice::<strict::Object<SceneFileRef>>(text).ok()?;
+    let plain = matches!(file.0.cylinders, strict::ListOr::List(_))
+        && !matches!(file.0.cameras, Some(strict::ListOr::Object(_)));
+    (!plain).then(|| file.0.resolve_file(base))
+}
+
+/// Whether `text` is a scene whose `cylinders` is an object (a [`TableRef`]), read as
+/// such; `None` for every other text.
+fn table_scene(text: &[u8], base: &Path) -> Option<Result<Scene, SceneError>> {
+    if let Ok(file) = serde_json::from_slice::<strict::Object<SceneFileRef>>(text) {
+        return Some(file.0.resolve(base));
+    }
+    // A table reference with a mistake: the message names the field inside it.
+    let mut de = serde_json::Deserializer::from_slice(text);
+    match serde_path_to_error::deserialize::<_, strict::Object<SceneFileRef>>(&mut de) {
+        Err(e)
+            if e.path().to_string().starts_with("cylinders.")
+                || e.path().to_string().starts_with("cameras.") =>
+        {
+            let field = e.path().to_string();
+            Some(Err(err(
+                strict::shorten(&field),
+                strict::shorten(&e.into_inner().to_string()),
+            )))
+        }
+        _ => None,
+    }
+}
+
 // ---- loading and validation ------------------------------------------------------------
 
 /// Largest scene file read, in bytes: 512 MiB admits a million cylinders with room to spare
@@ -324,6 +466,45 @@ pub const MAX_SCENE_BYTES: u64 = 512 << 20;
 /// Read and validate a scene file. It must be a regular file (through links; a FIFO would
 /// block, a device never end) of at most [`MAX_SCENE_BYTES`].
 pub fn load(path: &Path) -> Result<Scene, SceneError> {
+    let bytes = read_bounded(path)?;
+    let bytes = bytes.as_slice();
+    // Plain serde_json first; only a file it refuses is read again with path tracking
+    // (and checked for UTF-8), for the message that names the field.
+    if let Ok(file) = serde_json::from_slice::<strict::Object<SceneFile>>(bytes) {
+        return file.0.validate();
+    }
+    let base = path.parent().unwrap_or(Path::new(""));
+    if let Some(scene) = table_scene(bytes, base) {
+        return scene;
+    }
+    let text = std::str::from_utf8(bytes)
+        .map_err(|e| err("", format!("not UTF-8 text (byte {})", e.valid_up_to())))?;
+    parse_serde(text)
+}
+
+/// Read the scene file at `path` with its table and rig resolved (cylinders inline, every
+/// camera listed), validated: the file `cylaov cameras` writes.
+pub fn load_resolved(path: &Path) -> Result<SceneFile, SceneError> {
+    let bytes = read_bounded(path)?;
+    let base = path.parent().unwrap_or(Path::new(""));
+    let file = match serde_json::from_slice::<strict::Object<SceneFile>>(&bytes) {
+        Ok(file) => file.0,
+        Err(_) => match resolve_file(&bytes, base) {
+            Some(file) => file?,
+            None => {
+                // Not a scene: the loader's message names the field.
+                let e = load(path).err();
+                return Err(e.unwrap_or_else(|| err("", "not a scene file")));
+            }
+        },
+    };
+    file.validate()?;
+    Ok(file)
+}
+
+/// The bytes of `path`, a regular file (through links) of at most [`MAX_SCENE_BYTES`]:
+/// scene files and the tables they name are read the same way.
+pub(crate) fn read_bounded(path: &Path) -> Result<Vec<u8>, SceneError> {
     // Messages leave the path out: every caller prefixes it.
     let cannot = |e: std::io::Error| err("", format!("cannot read: {e}"));
     let meta = std::fs::metadata(path).map_err(cannot)?;
@@ -357,27 +538,24 @@ pub fn load(path: &Path) -> Result<Scene, SceneError> {
             f.take(MAX_SCENE_BYTES + 1).read_to_end(&mut bytes)
         })
         .map_err(cannot)?;
-    let bytes = bytes.as_slice();
     if bytes.len() as u64 > MAX_SCENE_BYTES {
         return Err(too_big(bytes.len() as u64));
     }
-    // Plain serde_json first; only a file it refuses is read again with path tracking
-    // (and checked for UTF-8), for the message that names the field.
-    if let Ok(file) = serde_json::from_slice::<strict::Object<SceneFile>>(bytes) {
-        return file.0.validate();
-    }
-    let text = std::str::from_utf8(bytes)
-        .map_err(|e| err("", format!("not UTF-8 text (byte {})", e.valid_up_to())))?;
-    parse_serde(text)
+    Ok(bytes)
 }
 
 /// Parse and validate scene JSON: one JSON object and nothing after it. Plain
 /// `serde_json` reads it; only when that fails, `parse_serde` reads it again with path
 /// tracking, whose message names the field.
+///
+/// A `"cylinders": {"file": ...}` table is read relative to the current folder.
 pub fn parse(text: &str) -> Result<Scene, SceneError> {
     match serde_json::from_str::<strict::Object<SceneFile>>(text) {
         Ok(file) => file.0.validate(),
-        Err(_) => parse_serde(text),
+        Err(_) => match table_scene(text.as_bytes(), Path::new("")) {
+            Some(scene) => scene,
+            None => parse_serde(text),
+        },
     }
 }
 

@@ -67,6 +67,37 @@ where
     Ok(Option::<Vec<Object<T>>>::deserialize(d)?.map(|v| v.into_iter().map(|o| o.0).collect()))
 }
 
+/// A list of [`object`]s, or one object of another kind `R` in its place (a scene's
+/// `"cylinders": {"file": ...}`, `"cameras": {"orbit": ...}`).
+#[derive(Clone, Debug)]
+pub enum ListOr<T, R> {
+    /// The list, every element read with [`object`].
+    List(Vec<T>),
+    /// The object.
+    Object(R),
+}
+
+impl<'de, T: Deserialize<'de>, R: Deserialize<'de>> Deserialize<'de> for ListOr<T, R> {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct V<T, R>(PhantomData<(T, R)>);
+        impl<'de, T: Deserialize<'de>, R: Deserialize<'de>> Visitor<'de> for V<T, R> {
+            type Value = ListOr<T, R>;
+            fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+                f.write_str("a list [{...}, ...] or an object {...}")
+            }
+            fn visit_seq<A: SeqAccess<'de>>(self, seq: A) -> Result<Self::Value, A::Error> {
+                let v: Vec<Object<T>> =
+                    Vec::deserialize(de::value::SeqAccessDeserializer::new(seq))?;
+                Ok(ListOr::List(v.into_iter().map(|o| o.0).collect()))
+            }
+            fn visit_map<A: MapAccess<'de>>(self, map: A) -> Result<Self::Value, A::Error> {
+                R::deserialize(de::value::MapAccessDeserializer::new(map)).map(ListOr::Object)
+            }
+        }
+        d.deserialize_any(V(PhantomData))
+    }
+}
+
 /// Exactly three numbers; the message counts what was there.
 pub fn vec3<'de, D: Deserializer<'de>>(d: D) -> Result<[f64; 3], D::Error> {
     struct Three;

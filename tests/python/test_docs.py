@@ -26,11 +26,20 @@ def test_the_page_has_its_five_examples():
     assert LOADER == 2
     assert "cast_rays(" in BLOCKS[3]
     assert "spawn_rays(" in BLOCKS[4]
+    assert "from_table(" in BLOCKS[5] and "to_ply(" in BLOCKS[5]
 
 
 @pytest.mark.parametrize("k", [k for k in range(len(BLOCKS)) if k != LOADER])
-def test_example_runs(k, monkeypatch):
-    monkeypatch.chdir(ROOT)
+def test_example_runs(k, monkeypatch, tmp_path):
+    if k == 5:
+        # It writes tree.ply: in a folder of its own holding the table it reads.
+        tables = tmp_path / "scenes" / "tables"
+        tables.mkdir(parents=True)
+        name = "tree_cyl_data.txt"
+        (tables / name).write_bytes((ROOT / "scenes" / "tables" / name).read_bytes())
+        monkeypatch.chdir(tmp_path)
+    else:
+        monkeypatch.chdir(ROOT)
     scope = {"__name__": "__main__"}
     exec(compile(BLOCKS[k], f"docs/python.md example {k}", "exec"), scope)
     if k == 0:
@@ -49,6 +58,12 @@ def test_example_runs(k, monkeypatch):
         hit, second = scope["hit"], scope["second"]
         assert len(hit["t_hit"]) > 20
         assert not np.any(second["shape_id"] == hit["shape_id"])
+    if k == 5:
+        assert len(scope["scene"]) == 33
+        hits = int((scope["out"]["shape_id"] != 0).sum())
+        assert scope["points"] == hits > 1000
+        assert (tmp_path / "tree.ply").stat().st_size > 36 * hits
+        assert set(scope["out"]["label"].ravel().tolist()) == {0, 1, 2, 3}
 
 
 def test_the_stub_example_of_from_arrays_runs():

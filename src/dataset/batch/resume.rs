@@ -271,6 +271,10 @@ fn scene_hash(scene: &Scene) -> u64 {
             .f64s(&[y.height, y.radius])
             .bytes(&[y.caps as u8])
             .bytes(&y.id.to_le_bytes());
+        // Only when set, so the stamps of scenes without labels keep their value.
+        if y.label != 0 {
+            h.bytes(b"label").bytes(&y.label.to_le_bytes());
+        }
     }
     h.0
 }

@@ -13,7 +13,7 @@ A first render::
     out["mask"]       # (H, W) bool, True where a cylinder was hit
 
 Functions: ``render``, ``camera_info``, ``cast_rays``, ``spawn_rays``, ``camera_rays``, ``generate``,
-``read``, ``compare``, ``write_shards``, ``shard_count``; classes ``Scene``, ``Dataset``; errors ``SceneError`` (a
+``read``, ``compare``, ``write_shards``, ``shard_count``, ``to_ply``; classes ``Scene``, ``Dataset``; errors ``SceneError`` (a
 ``ValueError``) and ``OSError`` subclasses for files. ``help(cylaov.render)`` and the others
 say more; the package's documentation page is ``docs/python.md`` in the repository.
 """
@@ -53,6 +53,7 @@ __all__ = [
     "compare",
     "write_shards",
     "shard_count",
+    "to_ply",
     "__version__",
 ]
 
@@ -232,3 +233,53 @@ def _index(i):
         return i.__index__()
     except AttributeError:
         raise TypeError(f"Dataset indices must be integers, got {type(i).__name__}") from None
+
+
+def to_ply(arrays, path):
+    """Write a render's hit points as a PLY point cloud, as ``cylaov render --ply`` does.
+
+    ``arrays`` is what ``render`` returns with at least ``position``, ``normal`` and
+    ``shape_id`` (``part`` and ``label`` are written as 0 when absent): one point per pixel
+    whose ``shape_id`` is not 0, row by row. The file is binary little-endian PLY with
+    ``x y z nx ny nz`` (float32, world axes) and ``shape_id part label`` (uint32), which
+    Open3D's ``read_point_cloud`` reads. A link or FIFO at ``path`` is refused; the file is
+    written whole or not at all. Returns the number of points.
+
+    Example::
+
+        out = cylaov.render(scene, aovs=("position", "normal", "shape_id", "part", "label"))
+        cylaov.to_ply(out, "view.ply")
+    """
+    for key in ("position", "normal", "shape_id"):
+        if key not in arrays:
+            raise ValueError(
+                "to_ply: arrays lacks %r; render with aovs including position, normal, "
+                "shape_id" % key
+            )
+    ids = _np.asarray(arrays["shape_id"], dtype=_np.uint32)
+    hit = ids != 0
+    pos = _np.asarray(arrays["position"], dtype=_np.float32)
+    nrm = _np.asarray(arrays["normal"], dtype=_np.float32)
+    if pos.shape != ids.shape + (3,) or nrm.shape != ids.shape + (3,):
+        raise ValueError(
+            "to_ply: position and normal must have shape %r, got %r and %r"
+            % (ids.shape + (3,), pos.shape, nrm.shape)
+        )
+
+    def extra(key):
+        if key not in arrays:
+            return _np.zeros(ids.shape, dtype=_np.uint32)
+        a = _np.asarray(arrays[key], dtype=_np.uint32)
+        if a.shape != ids.shape:
+            raise ValueError(
+                "to_ply: %s must have shape %r, got %r" % (key, ids.shape, a.shape)
+            )
+        return a
+
+    table = _np.stack([ids[hit], extra("part")[hit], extra("label")[hit]], axis=-1)
+    return _cylaov._write_ply(
+        _np.ascontiguousarray(pos[hit]).reshape(-1),
+        _np.ascontiguousarray(nrm[hit]).reshape(-1),
+        _np.ascontiguousarray(table, dtype=_np.uint32).reshape(-1),
+        _os.fspath(path),
+    )

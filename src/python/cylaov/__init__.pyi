@@ -30,6 +30,16 @@ class Scene:
     @staticmethod
     def from_dict(d: Dict[str, Any]) -> "Scene": ...
     @staticmethod
+    def from_table(
+        path: PathLike,
+        format: Optional[Literal["csv", "treeqsm", "simpleforest", "archi"]] = None,
+        label: Optional[Literal["none", "branch_order", "branch", "segment"]] = None,
+        caps: Optional[bool] = None,
+    ) -> "Scene":
+        """A scene from a cylinder table (TreeQSM, SimpleForest, aRchi or plain CSV), as
+        `cylaov import` makes it, with one camera framing every cylinder."""
+        ...
+    @staticmethod
     def from_arrays(
         p0: npt.ArrayLike,
         p1: npt.ArrayLike,
@@ -88,6 +98,7 @@ def cast_rays(
 def spawn_rays(hits: Dict[str, np.ndarray], directions: npt.ArrayLike) -> np.ndarray: ...
 def generate(settings: Settings, seed: int, index: int) -> Scene: ...
 def read(path: PathLike) -> Dict[str, Any]: ...
+def to_ply(arrays: Dict[str, Any], path: PathLike) -> int: ...
 def compare(
     a: Union[PathLike, Dict[str, np.ndarray]],
     b: Union[PathLike, Dict[str, np.ndarray]],

@@ -1,0 +1,747 @@
+//! Cylinder tables: the cylinders of a quantitative structure model (QSM) of a tree, or of
+//! any plain CSV, read into scene cylinders. `cylaov import`, `Scene.from_table` and a
+//! scene's `"cylinders": {"file": ...}` read tables through [`read_table`].
+//!
+//! | format | how it is recognised | start → `p0` | `p1` | radius | `id` |
+//! |---|---|---|---|---|---|
+//! | `csv` | header with `x0,y0,z0,x1,y1,z1,radius` | `x0,y0,z0` | `x1,y1,z1` | `radius` | `id`, else the row number |
+//! | `treeqsm` | header with `parent, extension, branch, BranchOrder`, or no header and 14 or 15 columns | `start` | `start + length · axis` | `radius` | the row number (TreeQSM's `parent` counts rows) |
+//! | `simpleforest` | header with `ID, parentID, branchID, branchOrder` | `startX..Z` | `endX..Z` | `radius` | `ID` |
+//! | `archi` | header with `cyl_ID, parent_ID, branching_order` | `startX..Z` | `endX..Z` | `radius_cyl` | `cyl_ID` |
+//!
+//! Header names match whatever their case and punctuation (`start.x`, `start_x`, `startX`;
+//! a unit in brackets, `radius (m)`, is dropped). A format with axis and length but no end
+//! columns (or the other way round) is read either way. Ids of a table that counts from 0
+//! are all moved up by one (0 is a miss in `shape_id`).
+//!
+//! Every rejected row names its line (1-based, as an editor counts) and column.
+
+use crate::scene::{CylinderFile, MAX_COORD, SceneFile, num};
+use glam::DVec3;
+use std::fmt;
+
+/// A table layout.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TableFormat {
+    /// Named columns `x0,y0,z0,x1,y1,z1,radius`, optional `id`, `label`, `caps`.
+    Csv,
+    /// TreeQSM's `cyl_data`: radius, length, start, axis, parent, extension, branch,
+    /// BranchOrder, PositionInBranch, added, UnmodRadius.
+    TreeQsm,
+    /// SimpleForest's cylinder CSV.
+    SimpleForest,
+    /// aRchi's cylinder CSV.
+    Archi,
+}
+
+impl TableFormat {
+    /// Every format, as `--format` lists them.
+    pub const ALL: [TableFormat; 4] = [
+        TableFormat::Csv,
+        TableFormat::TreeQsm,
+        TableFormat::SimpleForest,
+        TableFormat::Archi,
+    ];
+
+    /// The name `--format` and `format=` take.
+    pub fn name(self) -> &'static str {
+        match self {
+            TableFormat::Csv => "csv",
+            TableFormat::TreeQsm => "treeqsm",
+            TableFormat::SimpleForest => "simpleforest",
+            TableFormat::Archi => "archi",
+        }
+    }
+
+    /// The format named `s`, or `None`.
+    pub fn parse(s: &str) -> Option<TableFormat> {
+        TableFormat::ALL.into_iter().find(|f| f.name() == s)
+    }
+}
+
+/// What a cylinder's `label` (the `label` AOV) is made of.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LabelRule {
+    /// No label (0).
+    None,
+    /// Branch order + 1: the stem is 1, its branches 2, ... (0 stays "no hit").
+    BranchOrder,
+    /// Branch id + 1.
+    Branch,
+    /// The cylinder's own id (the `shape_id` it renders to).
+    Segment,
+}
+
+impl LabelRule {
+    /// Every rule, as `--label` lists them.
+    pub const ALL: [LabelRule; 4] = [
+        LabelRule::None,
+        LabelRule::BranchOrder,
+        LabelRule::Branch,
+        LabelRule::Segment,
+    ];
+
+    /// The name `--label` and `label=` take.
+    pub fn name(self) -> &'static str {
+        match self {
+            LabelRule::None => "none",
+            LabelRule::BranchOrder => "branch_order",
+            LabelRule::Branch => "branch",
+            LabelRule::Segment => "segment",
+        }
+    }
+
+    /// The rule named `s`, or `None`.
+    pub fn parse(s: &str) -> Option<LabelRule> {
+        LabelRule::ALL.into_iter().find(|f| f.name() == s)
+    }
+}
+
+/// How to read a table; `None` fields take the defaults.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct TableOptions {
+    /// The layout; default: told from the header or the column count.
+    pub format: Option<TableFormat>,
+    /// The label rule; default: a `csv` table's `label` column, else no label.
+    pub label: Option<LabelRule>,
+    /// Caps on every cylinder (a `csv` table's `caps` column wins); default on.
+    pub caps: Option<bool>,
+}
+
+/// A table read into cylinders.
+#[derive(Clone, Debug)]
+pub struct Table {
+    /// The layout it was read as.
+    pub format: TableFormat,
+    /// One cylinder per row, in row order, `p0`/`p1` form.
+    pub cylinders: Vec<CylinderFile>,
+    /// Whether the table counted ids from 0, so every id was moved up by one.
+    pub ids_shifted: bool,
+}
+
+/// A table that could not be read: where and why.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TableError {
+    /// 1-based line of the file; 0 for the whole file.
+    pub line: usize,
+    /// 1-based column and its name, when one column is at fault.
+    pub column: Option<(usize, String)>,
+    /// Why, naming the value.
+    pub message: String,
+}
+
+impl fmt::Display for TableError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match (&self.column, self.line) {
+            (_, 0) => f.write_str(&self.message),
+            (Some((k, name)), line) => {
+                write!(f, "line {line}, column {k} ({name}): {}", self.message)
+            }
+            (None, line) => write!(f, "line {line}: {}", self.message),
+        }
+    }
+}
+
+impl std::error::Error for TableError {}
+
+fn line_err(line: usize, message: impl Into<String>) -> TableError {
+    TableError {
+        line,
+        column: None,
+        message: message.into(),
+    }
+}
+
+/// A header name as matched: lower case, letters and digits only, a bracketed unit
+/// dropped (`"Radius (m)"` → `radius`, `start.x` → `startx`).
+fn normalise(name: &str) -> String {
+    let name = name.trim().trim_matches('"');
+    let name = name.split('(').next().unwrap_or("");
+    name.chars()
+        .filter(|c| c.is_ascii_alphanumeric())
+        .map(|c| c.to_ascii_lowercase())
+        .collect()
+}
+
+/// TreeQSM's columns in file order, for tables without a header.
+const TREEQSM_COLUMNS: [&str; 15] = [
+    "radius",
+    "length",
+    "start.x",
+    "start.y",
+    "start.z",
+    "axis.x",
+    "axis.y",
+    "axis.z",
+    "parent",
+    "extension",
+    "branch",
+    "BranchOrder",
+    "PositionInBranch",
+    "added",
+    "UnmodRadius",
+];
+
+/// The columns each role may have, by normalised name, first match wins.
+struct Names {
+    start: [&'static [&'static str]; 3],
+    end: [&'static [&'static str]; 3],
+    axis: [&'static [&'static str]; 3],
+    length: &'static [&'static str],
+    radius: &'static [&'static str],
+    id: &'static [&'static str],
+    branch: &'static [&'static str],
+    order: &'static [&'static str],
+}
+
+const QSM_NAMES: Names = Names {
+    start: [
+        &["startx", "startpointx", "sx"],
+        &["starty", "startpointy", "sy"],
+        &["startz", "startpointz", "sz"],
+    ],
+    end: [
+        &["endx", "endpointx", "ex"],
+        &["endy", "endpointy", "ey"],
+        &["endz", "endpointz", "ez"],
+    ],
+    axis: [
+        &["axisx", "axisdirectionx", "ax"],
+        &["axisy", "axisdirectiony", "ay"],
+        &["axisz", "axisdirectionz", "az"],
+    ],
+    length: &["length"],
+    radius: &["radius"],
+    id: &[],
+    branch: &["branch"],
+    order: &["branchorder"],
+};
+
+fn names(format: TableFormat) -> Names {
+    match format {
+        TableFormat::Csv => Names {
+            start: [&["x0"], &["y0"], &["z0"]],
+            end: [&["x1"], &["y1"], &["z1"]],
+            axis: [&[], &[], &[]],
+            length: &[],
+            radius: &["radius"],
+            id: &["id"],
+            branch: &[],
+            order: &[],
+        },
+        TableFormat::TreeQsm => QSM_NAMES,
+        TableFormat::SimpleForest => Names {
+            id: &["id"],
+            branch: &["branchid"],
+            order: &["branchorder"],
+            ..QSM_NAMES
+        },
+        TableFormat::Archi => Names {
+            radius: &["radiuscyl", "radius"],
+            id: &["cylid"],
+            branch: &["branchid"],
+            order: &["branchingorder"],
+            ..QSM_NAMES
+        },
+    }
+}
+
+/// The format a header's normalised names say, as rTwig's signatures tell them apart.
+fn detect(names: &[String]) -> Option<TableFormat> {
+    let has = |list: &[&str]| list.iter().all(|n| names.iter().any(|h| h == n));
+    if has(&["x0", "y0", "z0", "x1", "y1", "z1", "radius"]) {
+        Some(TableFormat::Csv)
+    } else if has(&["cylid", "parentid", "branchingorder"]) {
+        Some(TableFormat::Archi)
+    } else if has(&["id", "parentid", "branchid", "branchorder"]) {
+        Some(TableFormat::SimpleForest)
+    } else if has(&["parent", "extension", "branch", "branchorder"]) {
+        Some(TableFormat::TreeQsm)
+    } else {
+        None
+    }
+}
+
+/// How a file separates its fields: commas when its first line has one, else runs of
+/// spaces and tabs (TreeQSM's text export).
+#[derive(Clone, Copy)]
+enum Separator {
+    Comma,
+    Space,
+}
+
+fn split(line: &str, sep: Separator) -> Vec<&str> {
+    match sep {
+        Separator::Comma => line
+            .split(',')
+            .map(|f| f.trim().trim_matches('"'))
+            .collect(),
+        Separator::Space => line.split_whitespace().collect(),
+    }
+}
+
+/// A header's names. Separated by spaces and tabs, a name may hold spaces
+/// (`radius (m)`) when tabs separate the names; else a bracketed unit is its own token and
+/// is dropped.
+fn header_names(line: &str, sep: Separator) -> Vec<&str> {
+    match sep {
+        Separator::Comma => split(line, sep),
+        Separator::Space if line.contains('\t') => line
+            .split('\t')
+            .map(str::trim)
+            .filter(|f| !f.is_empty())
+            .collect(),
+        Separator::Space => line
+            .split_whitespace()
+            .filter(|f| !f.starts_with('('))
+            .collect(),
+    }
+}
+
+/// Where each role's value sits in a row (0-based field index).
+#[derive(Default)]
+struct Columns {
+    /// Field names for messages, one per field.
+    names: Vec<String>,
+    start: [usize; 3],
+    end: Option<[usize; 3]>,
+    axis: Option<[usize; 3]>,
+    length: Option<usize>,
+    radius: usize,
+    id: Option<usize>,
+    branch: Option<usize>,
+    order: Option<usize>,
+    label: Option<usize>,
+    caps: Option<usize>,
+}
+
+impl Columns {
+    fn needed(&self) -> usize {
+        let mut all = vec![self.radius];
+        all.extend(self.start);
+        all.extend(self.end.into_iter().flatten());
+        all.extend(self.axis.into_iter().flatten());
+        all.extend(
+            [
+                self.length,
+                self.id,
+                self.branch,
+                self.order,
+                self.label,
+                self.caps,
+            ]
+            .into_iter()
+            .flatten(),
+        );
+        all.into_iter().max().unwrap_or(0) + 1
+    }
+}
+
+/// The header's names with a bare vector name (`start_point`, `axis`) spread over the
+/// three columns it heads, as TreeQSM writes them.
+fn spread(header: &[&str]) -> (Vec<String>, Vec<String>) {
+    let mut norm = Vec::new();
+    let mut shown = Vec::new();
+    for h in header {
+        let n = normalise(h);
+        match n.as_str() {
+            "start" | "startpoint" | "end" | "endpoint" | "axis" | "axisdirection" => {
+                for c in ["x", "y", "z"] {
+                    norm.push(format!("{n}{c}"));
+                    shown.push(format!("{}.{c}", h.trim()));
+                }
+            }
+            _ => {
+                norm.push(n);
+                shown.push(h.trim().to_string());
+            }
+        }
+    }
+    (norm, shown)
+}
+
+fn columns_from_header(
+    format: TableFormat,
+    norm: &[String],
+    shown: Vec<String>,
+    line: usize,
+) -> Result<Columns, TableError> {
+    let find = |list: &[&str]| list.iter().find_map(|n| norm.iter().position(|h| h == n));
+    let n = names(format);
+    let missing = |what: &str| {
+        line_err(
+            line,
+            format!(
+                "the header of this {} table has no {what} column (columns: {})",
+                format.name(),
+                shown.join(", ")
+            ),
+        )
+    };
+    let triple = |lists: [&[&str]; 3]| -> Option<[usize; 3]> {
+        Some([find(lists[0])?, find(lists[1])?, find(lists[2])?])
+    };
+    let start = triple(n.start).ok_or_else(|| {
+        missing(&format!(
+            "start ({})",
+            n.start.map(|l| l.first().copied().unwrap_or("")).join(", ")
+        ))
+    })?;
+    let radius = find(n.radius).ok_or_else(|| missing(n.radius[0]))?;
+    let end = triple(n.end);
+    let axis = triple(n.axis);
+    let length = find(n.length);
+    if end.is_none() && (axis.is_none() || length.is_none()) {
+        return Err(missing(&format!(
+            "end ({}) and no axis and length",
+            n.end.map(|l| l.first().copied().unwrap_or("")).join(", ")
+        )));
+    }
+    let csv = format == TableFormat::Csv;
+    Ok(Columns {
+        names: shown,
+        start,
+        end,
+        axis,
+        length,
+        radius,
+        id: find(n.id),
+        branch: find(n.branch),
+        order: find(n.order),
+        label: if csv { find(&["label"]) } else { None },
+        caps: if csv { find(&["caps"]) } else { None },
+    })
+}
+
+/// TreeQSM without a header: the columns by position.
+fn treeqsm_positional() -> Columns {
+    Columns {
+        names: TREEQSM_COLUMNS.iter().map(|s| s.to_string()).collect(),
+        start: [2, 3, 4],
+        end: None,
+        axis: Some([5, 6, 7]),
+        length: Some(1),
+        radius: 0,
+        id: None,
+        branch: Some(10),
+        order: Some(11),
+        label: None,
+        caps: None,
+    }
+}
+
+/// One data row being read: its line and fields, for values and messages.
+struct Row<'a> {
+    line: usize,
+    fields: Vec<&'a str>,
+    names: &'a [String],
+}
+
+impl Row<'_> {
+    fn fail(&self, k: usize, message: impl Into<String>) -> TableError {
+        TableError {
+            line: self.line,
+            column: Some((
+                k + 1,
+                self.names.get(k).cloned().unwrap_or_else(|| "?".into()),
+            )),
+            message: message.into(),
+        }
+    }
+
+    /// Field `k` as a finite number of magnitude at most [`MAX_COORD`].
+    fn number(&self, k: usize) -> Result<f64, TableError> {
+        let text = self.fields[k];
+        let x: f64 = text.parse().map_err(|_| {
+            self.fail(
+                k,
+                format!(
+                    "not a number, got {:?}",
+                    crate::scene::strict::shorten(text)
+                ),
+            )
+        })?;
+        if !x.is_finite() || x.abs() > MAX_COORD {
+            return Err(self.fail(
+                k,
+                format!(
+                    "must be finite with magnitude <= {MAX_COORD:e}, got {}",
+                    num(x)
+                ),
+            ));
+        }
+        Ok(x)
+    }
+
+    fn point(&self, ks: [usize; 3]) -> Result<DVec3, TableError> {
+        Ok(DVec3::new(
+            self.number(ks[0])?,
+            self.number(ks[1])?,
+            self.number(ks[2])?,
+        ))
+    }
+
+    /// Field `k` as a whole number in `0..=max`.
+    fn whole(&self, k: usize, max: u32) -> Result<u32, TableError> {
+        let x = self.number(k)?;
+        if x < 0.0 || x.fract() != 0.0 || x > max as f64 {
+            return Err(self.fail(
+                k,
+                format!("must be a whole number in 0..={max}, got {}", num(x)),
+            ));
+        }
+        Ok(x as u32)
+    }
+
+    fn flag(&self, k: usize) -> Result<bool, TableError> {
+        match self.fields[k].to_ascii_lowercase().as_str() {
+            "1" | "true" | "yes" | "on" => Ok(true),
+            "0" | "false" | "no" | "off" => Ok(false),
+            other => Err(self.fail(
+                k,
+                format!(
+                    "must be 1/0, true/false, yes/no or on/off, got {:?}",
+                    crate::scene::strict::shorten(other)
+                ),
+            )),
+        }
+    }
+}
+
+/// Read a table's text into cylinders (see the module's table for the formats).
+pub fn read_table(text: &str, opts: &TableOptions) -> Result<Table, TableError> {
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    let mut lines = text
+        .lines()
+        .enumerate()
+        .map(|(i, l)| (i + 1, l))
+        .filter(|(_, l)| !l.trim().is_empty() && !l.trim_start().starts_with('#'))
+        .peekable();
+    let Some(&(first_line, first)) = lines.peek() else {
+        return Err(line_err(0, "the table has no rows"));
+    };
+    let sep = if first.contains(',') {
+        Separator::Comma
+    } else {
+        Separator::Space
+    };
+    let first_fields = split(first, sep);
+    let is_header = first_fields
+        .iter()
+        .any(|f| !f.is_empty() && f.parse::<f64>().is_err());
+    let (format, cols) = if is_header {
+        lines.next();
+        let (norm, shown) = spread(&header_names(first, sep));
+        let format = match opts.format {
+            Some(f) => f,
+            None => detect(&norm).ok_or_else(|| {
+                line_err(
+                    first_line,
+                    format!(
+                        "cannot tell the table format from the header ({}): expected x0,y0,z0,x1,y1,z1,radius (csv), \
+                         parent, extension, branch, BranchOrder (treeqsm), ID, parentID, branchID, branchOrder \
+                         (simpleforest) or cyl_ID, parent_ID, branching_order (archi); give --format",
+                        crate::scene::strict::shorten(&shown.join(", "))
+                    ),
+                )
+            })?,
+        };
+        (
+            format,
+            columns_from_header(format, &norm, shown, first_line)?,
+        )
+    } else {
+        let n = first_fields.len();
+        match opts.format {
+            Some(TableFormat::TreeQsm) | None if n >= 14 && (opts.format.is_some() || n <= 15) => {
+                (TableFormat::TreeQsm, treeqsm_positional())
+            }
+            Some(TableFormat::TreeQsm) => {
+                return Err(line_err(
+                    first_line,
+                    format!("a TreeQSM table without a header has 14 or 15 columns, got {n}"),
+                ));
+            }
+            Some(f) => {
+                return Err(line_err(
+                    first_line,
+                    format!(
+                        "a {} table starts with a header naming its columns, got numbers",
+                        f.name()
+                    ),
+                ));
+            }
+            None => {
+                return Err(line_err(
+                    first_line,
+                    format!(
+                        "cannot tell the table format: no header and {n} columns (a TreeQSM cyl_data file without a \
+                         header has 14 or 15); give the table a header or --format"
+                    ),
+                ));
+            }
+        }
+    };
+
+    let label = opts.label.unwrap_or(LabelRule::None);
+    let label_source = match label {
+        LabelRule::BranchOrder => Some(cols.order.ok_or((
+            "branch order",
+            "BranchOrder, branchOrder or branching_order",
+        ))),
+        LabelRule::Branch => Some(
+            cols.branch
+                .ok_or(("branch", "branch, branchID or branch_ID")),
+        ),
+        _ => None,
+    };
+    if let Some(Err((what, names))) = label_source {
+        return Err(line_err(
+            first_line,
+            format!(
+                "--label {}: this {} table has no {what} column ({names})",
+                label.name(),
+                format.name()
+            ),
+        ));
+    }
+    let default_caps = opts.caps.unwrap_or(true);
+    let needed = cols.needed();
+    let mut cylinders = Vec::new();
+    let mut ids = Vec::new();
+    for (line, text) in lines {
+        let row = Row {
+            line,
+            fields: split(text, sep),
+            names: &cols.names,
+        };
+        if row.fields.len() < needed {
+            return Err(line_err(
+                line,
+                format!(
+                    "has {} fields, the table needs at least {needed} ({})",
+                    row.fields.len(),
+                    cols.names
+                        .iter()
+                        .take(needed)
+                        .cloned()
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            ));
+        }
+        let p0 = row.point(cols.start)?;
+        let radius = row.number(cols.radius)?;
+        if radius <= 0.0 {
+            return Err(row.fail(cols.radius, format!("must be > 0, got {}", num(radius))));
+        }
+        let p1 = match (cols.end, cols.axis, cols.length) {
+            (Some(end), ..) => {
+                let p1 = row.point(end)?;
+                if p1 == p0 {
+                    return Err(row.fail(
+                        end[0],
+                        format!("zero length: the end equals the start {:?}", p0.to_array()),
+                    ));
+                }
+                p1
+            }
+            (None, Some(axis), Some(length)) => {
+                let h = row.number(length)?;
+                if h <= 0.0 {
+                    return Err(row.fail(length, format!("must be > 0, got {}", num(h))));
+                }
+                let a = row.point(axis)?;
+                let len = a.length();
+                if len == 0.0 || !len.is_finite() {
+                    return Err(row.fail(
+                        axis[0],
+                        format!("the axis must be non-zero, got {:?}", a.to_array()),
+                    ));
+                }
+                p0 + a / len * h
+            }
+            _ => unreachable!("columns_from_header requires end, or axis and length"),
+        };
+        if p1.abs().max_element() > MAX_COORD {
+            return Err(row.fail(
+                cols.length.unwrap_or(cols.start[0]),
+                format!("puts the end at {:?}, beyond {MAX_COORD:e}", p1.to_array()),
+            ));
+        }
+        let id = match cols.id {
+            Some(k) => row.whole(k, u32::MAX - 1)?,
+            None => u32::try_from(cylinders.len() + 1)
+                .map_err(|_| line_err(line, "more than 4294967295 rows"))?,
+        };
+        let own_label = match (opts.label, cols.label) {
+            (None, Some(k)) => row.whole(k, u32::MAX)?,
+            _ => 0,
+        };
+        let by_rule = match (label, label_source) {
+            (LabelRule::BranchOrder | LabelRule::Branch, Some(Ok(k))) => {
+                row.whole(k, u32::MAX - 1)? + 1
+            }
+            _ => own_label,
+        };
+        let caps = match cols.caps {
+            Some(k) => row.flag(k)?,
+            None => default_caps,
+        };
+        ids.push(id);
+        cylinders.push(CylinderFile {
+            p0: Some(p0.to_array()),
+            p1: Some(p1.to_array()),
+            radius,
+            caps,
+            id: Some(id),
+            label: by_rule,
+            ..CylinderFile::default()
+        });
+    }
+    if cylinders.is_empty() {
+        return Err(line_err(0, "the table has no cylinder rows"));
+    }
+    let ids_shifted = ids.contains(&0);
+    for c in &mut cylinders {
+        if ids_shifted {
+            c.id = c.id.map(|i| i + 1);
+        }
+        if label == LabelRule::Segment {
+            c.label = c.id.unwrap_or(0);
+        }
+    }
+    Ok(Table {
+        format,
+        cylinders,
+        ids_shifted,
+    })
+}
+
+/// Read the table file at `path` (a regular file of at most
+/// [`MAX_SCENE_BYTES`](crate::scene::MAX_SCENE_BYTES), UTF-8).
+pub fn load_table(path: &std::path::Path, opts: &TableOptions) -> Result<Table, TableError> {
+    let bytes = crate::scene::read_bounded(path).map_err(|e| line_err(0, e.to_string()))?;
+    let text = std::str::from_utf8(&bytes)
+        .map_err(|e| line_err(0, format!("not UTF-8 text (byte {})", e.valid_up_to())))?;
+    read_table(text, opts)
+}
+
+impl Table {
+    /// A complete scene file of these cylinders with one camera framing all of them
+    /// ([`crate::scene::framing::frame_all`]); the AOVs are depth, normal and shape_id,
+    /// and label when any cylinder has one.
+    pub fn scene_file(&self, frame: crate::scene::framing::Frame) -> SceneFile {
+        use crate::scene::Aov;
+        let mut aovs = vec![Aov::Depth, Aov::Normal, Aov::ShapeId];
+        if self.cylinders.iter().any(|c| c.label != 0) {
+            aovs.push(Aov::Label);
+        }
+        SceneFile {
+            camera: Some(crate::scene::framing::frame_all(&self.cylinders, frame)),
+            cameras: None,
+            cylinders: self.cylinders.clone(),
+            aovs: Some(aovs),
+        }
+    }
+}

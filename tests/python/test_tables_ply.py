@@ -1,0 +1,106 @@
+"""Tables in, point clouds out: ``Scene.from_table`` reads a TreeQSM table as ``cylaov
+import`` does, and the hit points of a view (``to_ply``, ``render --ply``) are what Open3D
+reads back: points and normals equal to the position and normal AOVs."""
+
+import json
+
+import numpy as np
+import pytest
+
+import cylaov
+
+# radius, length, start x y z, axis x y z, parent, extension, branch, BranchOrder,
+# PositionInBranch, added, UnmodRadius: TreeQSM 2.3 without a header.
+TREE = """\
+0.2 1.5 1 2 0 0 0 1 0 2 1 0 1 0 0.2
+0.15 1.25 1 2 1.5 0 0 1 1 3 1 0 2 0 0.15
+0.06 0.8 1 2 1.5 0.6 0 0.8 1 0 2 1 1 0 0.06
+0.04 0.6 1 2 2.75 -0.8 0.6 0 2 0 3 2 1 0 0.04
+"""
+
+PLY_AOVS = ("position", "normal", "shape_id", "part", "label")
+
+
+def _tree(tmp_path):
+    path = tmp_path / "cyl_data.txt"
+    path.write_text(TREE)
+    return path
+
+
+def test_from_table_reads_treeqsm_like_import(cli, tmp_path):
+    table = _tree(tmp_path)
+    scene = cylaov.Scene.from_table(table, label="branch_order")
+    assert len(scene) == 4
+    d = json.loads(scene.to_json())
+    cyl = d["cylinders"]
+    assert [c["id"] for c in cyl] == [1, 2, 3, 4]
+    assert [c.get("label", 0) for c in cyl] == [1, 1, 2, 3]
+    assert [c["radius"] for c in cyl] == [0.2, 0.15, 0.06, 0.04]
+    # p1 = start + length * unit axis: (0.6, 0, 0.8) is a unit vector.
+    np.testing.assert_allclose(cyl[2]["p1"], [1 + 0.48, 2, 1.5 + 0.64], rtol=0, atol=1e-12)
+    # The same scene as the command line's.
+    out = tmp_path / "tree.json"
+    cli("import", table, "-o", out, "--label", "branch_order")
+    assert cylaov.Scene.load(out) == scene
+    # A bad row names its line and column.
+    bad = tmp_path / "bad.txt"
+    bad.write_text(TREE.replace("0.06 0.8", "0.06 -0.8"))
+    with pytest.raises(cylaov.SceneError, match=r"line 3, column 2 \(length\): must be > 0"):
+        cylaov.Scene.from_table(bad)
+    with pytest.raises(ValueError, match="format"):
+        cylaov.Scene.from_table(table, format="xls")
+
+
+def _read_ply_ids(path):
+    """The uint properties of our PLY, read with numpy from the header's vertex count."""
+    data = path.read_bytes()
+    end = data.index(b"end_header\n") + len(b"end_header\n")
+    n = int(next(l for l in data[:end].decode().splitlines() if l.startswith("element vertex")).split()[2])
+    rec = np.dtype([("p", "<f4", 3), ("n", "<f4", 3), ("shape_id", "<u4"), ("part", "<u4"), ("label", "<u4")])
+    assert len(data) - end == n * rec.itemsize
+    return np.frombuffer(data[end:], dtype=rec)
+
+
+def test_to_ply_is_what_open3d_reads(tmp_path):
+    o3d = pytest.importorskip("open3d")
+    scene = cylaov.Scene.from_table(_tree(tmp_path), label="branch_order")
+    out = cylaov.render(scene, aovs=PLY_AOVS)
+    path = tmp_path / "view.ply"
+    n = cylaov.to_ply(out, path)
+    hit = out["shape_id"] != 0
+    assert n == int(hit.sum()) and n > 10000, n
+    pc = o3d.io.read_point_cloud(str(path))
+    assert np.array_equal(np.asarray(pc.points), out["position"][hit].astype(np.float64))
+    assert np.array_equal(np.asarray(pc.normals), out["normal"][hit].astype(np.float64))
+    rec = _read_ply_ids(path)
+    assert np.array_equal(rec["shape_id"], out["shape_id"][hit])
+    assert np.array_equal(rec["part"], out["part"][hit])
+    assert np.array_equal(rec["label"], out["label"][hit])
+    assert set(np.unique(rec["label"])) == {1, 2, 3}
+    with pytest.raises(ValueError, match="position"):
+        cylaov.to_ply({"shape_id": out["shape_id"]}, tmp_path / "x.ply")
+    assert not (tmp_path / "x.ply").exists()
+
+
+def test_render_ply_matches_the_exr(cli, tmp_path):
+    o3d = pytest.importorskip("open3d")
+    scene = tmp_path / "tree.json"
+    cli("import", _tree(tmp_path), "-o", scene, "--label", "branch")
+    exr, ply = tmp_path / "v.exr", tmp_path / "v.ply"
+    cli("render", scene, "-o", exr, "--aov", ",".join(PLY_AOVS), "--ply", ply)
+    img = cylaov.read(exr)
+    hit = img["shape_id"] != 0
+    pc = o3d.io.read_point_cloud(str(ply))
+    assert len(pc.points) == int(hit.sum()) > 10000
+    assert np.array_equal(np.asarray(pc.points), img["position"][hit].astype(np.float64))
+    assert np.array_equal(np.asarray(pc.normals), img["normal"][hit].astype(np.float64))
+    rec = _read_ply_ids(ply)
+    assert np.array_equal(rec["label"], img["label"][hit])
+    # A name that is not .ply, or a link at the target, is refused before any work.
+    r = cli("render", scene, "-o", tmp_path / "w.exr", "--ply", tmp_path / "w.xyz", check=False)
+    assert r.returncode == 1 and "must end in .ply" in r.stderr
+    assert not (tmp_path / "w.exr").exists()
+    (tmp_path / "link.ply").symlink_to(tmp_path / "elsewhere.ply")
+    r = cli("render", scene, "-o", tmp_path / "w.exr", "--ply", tmp_path / "link.ply", check=False)
+    assert r.returncode == 1 and "--ply" in r.stderr, r.stderr
+    assert not (tmp_path / "elsewhere.ply").exists()
