@@ -19,8 +19,8 @@ BLOCKS = re.findall(r"```python\n(.*?)```", DOC, re.S)
 LOADER = next(i for i, b in enumerate(BLOCKS) if "DataLoader(" in b)
 
 
-def test_the_page_has_its_five_examples():
-    assert len(BLOCKS) == 5
+def test_the_page_has_its_six_examples():
+    assert len(BLOCKS) == 6
     assert "cylaov.render(" in BLOCKS[0]
     assert "Scene.from_arrays(" in BLOCKS[1] and "cameras=" in BLOCKS[1]
     assert LOADER == 2
