@@ -2,8 +2,7 @@
 //! directions over the sphere, [`crate::scene::rig`]), written resolved: every camera
 //! listed and the cylinders inline, a scene file any tool reads.
 
-use crate::dataset::generate::to_json;
-use crate::output::io::{NewDirs, atomic_write_bytes, check_outputs};
+use crate::output::io::check_outputs;
 use crate::scene::rig::CameraRig;
 use crate::scene::{self, SceneFile};
 use anyhow::{Context, Result};
@@ -47,13 +46,7 @@ pub fn run(args: &CamerasArgs) -> Result<String> {
         file.camera = list.pop();
         file.cameras = None;
     }
-    let json = to_json(&file).context("encoding the scene")?;
-    let mut dirs = NewDirs::default();
-    dirs.create_parent(out)
-        .with_context(|| format!("-o {}", out.display()))?;
-    atomic_write_bytes(out, format!("{json}\n").as_bytes())
-        .with_context(|| format!("writing {}", out.display()))?;
-    dirs.keep();
+    super::write_scene_file(out, &file)?;
     Ok(format!(
         "{}: {} and {}",
         out.display(),

@@ -1,8 +1,7 @@
 //! `cylaov import`: a cylinder table (a tree's QSM, or plain CSV) → a complete scene file
 //! with one camera that frames every cylinder (see [`crate::scene::table`]).
 
-use crate::dataset::generate::to_json;
-use crate::output::io::{NewDirs, atomic_write_bytes, check_outputs};
+use crate::output::io::check_outputs;
 use crate::scene::framing::Frame;
 use crate::scene::table::{LabelRule, TableOptions, load_table};
 use anyhow::{Context, Result, anyhow};
@@ -31,13 +30,7 @@ pub fn run(args: &ImportArgs) -> Result<String> {
     let file = table.scene_file(args.frame);
     file.validate()
         .with_context(|| format!("{}: the imported scene", table_path.display()))?;
-    let json = to_json(&file).context("encoding the scene")?;
-    let mut dirs = NewDirs::default();
-    dirs.create_parent(out)
-        .with_context(|| format!("-o {}", out.display()))?;
-    atomic_write_bytes(out, format!("{json}\n").as_bytes())
-        .with_context(|| format!("writing {}", out.display()))?;
-    dirs.keep();
+    super::write_scene_file(out, &file)?;
     let label = args.options.label.unwrap_or(LabelRule::None);
     let labels = if file.cylinders.iter().any(|c| c.label != 0) {
         match args.options.label {

@@ -29,7 +29,7 @@
 
 use crate::rng::SplitMix64;
 use crate::scene::camera::FovAxis;
-use crate::scene::camera::model::CameraModel;
+use crate::scene::camera::model::{CameraModel, ModelFields};
 use crate::scene::framing::{band_direction, fit_distance, orbit, up_for};
 use crate::scene::{self, CameraFile, CylinderFile, SceneFile};
 use glam::DVec3;
@@ -466,20 +466,17 @@ impl GenerateOptions {
     /// dθ_d/dθ = 1 + 3k1θ² + 5k2θ⁴ + 7k3θ⁶ + 9k4θ⁸ stays ≥ 1 − 0.45 > 0, and θ_d(1.9) ≥
     /// 1.69 > π/2, so every draw is monotonic out to the corners. The `orthographic` view
     /// spans the bounding sphere times a `--distance` factor across its smaller side.
-    fn lens(&self, rng: &mut SplitMix64) -> CameraFile {
+    fn lens(&self, rng: &mut SplitMix64) -> ModelFields {
         let (w, h) = (self.width as f64, self.height as f64);
         // OpenCV puts pixel centres at integers: the image centre is ((w−1)/2, (h−1)/2).
         let (cx, cy) = ((w - 1.0) / 2.0, (h - 1.0) / 2.0);
-        let blank = CameraFile {
-            model: self.camera_model,
-            ..CameraFile::default()
-        };
+        let blank = ModelFields::default();
         match self.camera_model {
             CameraModel::Perspective | CameraModel::Equirectangular => blank,
             CameraModel::Orthographic => {
                 let aspect = w / h;
                 let across_small = 2.0 * self.bounding_radius() * uniform(rng, self.distance);
-                CameraFile {
+                ModelFields {
                     ortho_width: Some(across_small * aspect.max(1.0)),
                     ..blank
                 }
@@ -487,59 +484,49 @@ impl GenerateOptions {
             CameraModel::Opencv => {
                 // The focal length of the `--fov` pinhole, so the framing is the same.
                 let f = (w / 2.0) / (self.fov.to_radians() / 2.0).tan();
-                CameraFile {
-                    fx: Some(f),
-                    fy: Some(f),
-                    cx: Some(cx),
-                    cy: Some(cy),
-                    k1: Some(rng.range(-0.25, 0.05)),
-                    k2: Some(rng.range(-0.02, 0.02)),
-                    p1: Some(rng.range(-1e-3, 1e-3)),
-                    p2: Some(rng.range(-1e-3, 1e-3)),
-                    k3: Some(0.0),
+                // Drawn in this order: k1, k2, p1, p2.
+                let (k1, k2) = (rng.range(-0.25, 0.05), rng.range(-0.02, 0.02));
+                let (p1, p2) = (rng.range(-1e-3, 1e-3), rng.range(-1e-3, 1e-3));
+                ModelFields {
+                    intrinsics: [Some(f), Some(f), Some(cx), Some(cy)],
+                    k: [Some(k1), Some(k2), Some(0.0), None],
+                    p: [Some(p1), Some(p2)],
                     ..blank
                 }
             }
             CameraModel::OpencvFisheye => {
                 // The corner pixel centres lie (w−1)/2, (h−1)/2 from (cx, cy).
                 let f = (w - 1.0).hypot(h - 1.0) / std::f64::consts::PI;
-                CameraFile {
-                    fx: Some(f),
-                    fy: Some(f),
-                    cx: Some(cx),
-                    cy: Some(cy),
-                    k1: Some(rng.range(-0.02, 0.02)),
-                    k2: Some(rng.range(-2e-3, 2e-3)),
-                    k3: Some(rng.range(-2e-4, 2e-4)),
-                    k4: Some(rng.range(-2e-5, 2e-5)),
+                ModelFields {
+                    intrinsics: [Some(f), Some(f), Some(cx), Some(cy)],
+                    k: [
+                        Some(rng.range(-0.02, 0.02)),
+                        Some(rng.range(-2e-3, 2e-3)),
+                        Some(rng.range(-2e-4, 2e-4)),
+                        Some(rng.range(-2e-5, 2e-5)),
+                    ],
                     ..blank
                 }
             }
         }
     }
 
-    /// Give `cam` (a perspective camera drawn as usual) the model and parameters of `lens`.
+    /// Give `cam` (a perspective camera drawn as usual) this run's model and the
+    /// parameters `lens`.
     /// A fisheye camera moves closer along its view, by the ratio of the fit distances; an
     /// equirectangular one to a fifth of its distance, among the cylinders.
     /// An orthographic camera is moved back along its view direction to twice the
     /// bounding radius from its target, so nothing of the scene lies behind its image
     /// plane.
-    fn apply_lens(&self, lens: &CameraFile, cam: &mut CameraFile) {
-        cam.model = lens.model;
-        cam.fov_deg = None;
-        cam.fov_axis = None;
-        cam.ortho_width = lens.ortho_width;
-        cam.fx = lens.fx;
-        cam.fy = lens.fy;
-        cam.cx = lens.cx;
-        cam.cy = lens.cy;
-        cam.k1 = lens.k1;
-        cam.k2 = lens.k2;
-        cam.k3 = lens.k3;
-        cam.k4 = lens.k4;
-        cam.p1 = lens.p1;
-        cam.p2 = lens.p2;
-        if let (CameraModel::OpencvFisheye, Some(f)) = (lens.model, lens.fx) {
+    fn apply_lens(&self, lens: &ModelFields, cam: &mut CameraFile) {
+        let model = self.camera_model;
+        *cam = CameraFile {
+            fov_deg: None,
+            fov_axis: None,
+            ..cam.clone()
+        }
+        .with_model(model, lens);
+        if let (CameraModel::OpencvFisheye, Some(f)) = (model, lens.intrinsics[0]) {
             // The pose was drawn to fit the `--fov` pinhole; bring the camera closer by the
             // ratio of the fit distances R / sin(a) of the two smaller half angles, so the
             // scene fills the fisheye's view as much. The fisheye's is θ_d at the middle of
@@ -552,14 +539,14 @@ impl GenerateOptions {
             let target = DVec3::from_array(cam.target);
             cam.origin = (target + (DVec3::from_array(cam.origin) - target) * scale).to_array();
         }
-        if lens.model == CameraModel::Equirectangular {
+        if model == CameraModel::Equirectangular {
             // A panorama sees every direction: taken from among the cylinders (a fifth of
             // the drawn distance from the target) rather than from outside the scene,
             // where the scene is a small patch of the sphere.
             let target = DVec3::from_array(cam.target);
             cam.origin = (target + (DVec3::from_array(cam.origin) - target) * 0.2).to_array();
         }
-        if lens.model == CameraModel::Orthographic {
+        if model == CameraModel::Orthographic {
             let r = self.bounding_radius();
             let target = DVec3::from_array(cam.target);
             let back = (DVec3::from_array(cam.origin) - target).normalize();

@@ -800,7 +800,16 @@ impl CameraFile {
             height: c.height,
             near_clip: c.near_clip,
             far_clip: c.far_clip,
-            model: c.projection.model(),
+            ..CameraFile::default()
+        }
+        .with_model(c.projection.model(), &f)
+    }
+
+    /// This camera with `model` and the parameters `f` gives it (every model field
+    /// replaced; `fov_deg` and `fov_axis` are the caller's).
+    pub fn with_model(self, model: CameraModel, f: &ModelFields) -> CameraFile {
+        CameraFile {
+            model,
             ortho_width: f.ortho_width,
             fx: f.intrinsics[0],
             fy: f.intrinsics[1],
@@ -812,6 +821,7 @@ impl CameraFile {
             k4: f.k[3],
             p1: f.p[0],
             p2: f.p[1],
+            ..self
         }
     }
 
