@@ -145,3 +145,38 @@ def test_one_dataset_a_folder_and_failures_files_per_call(dataset, tmp_path):
     names = sorted(p.name for p in out.glob("failures.*.jsonl"))
     assert "failures.tars-000000-000002.jsonl" in names
     assert "failures.tars-000001-000003.jsonl" in names
+
+
+def test_write_shards_takes_scene_objects(dataset, tmp_path):
+    """Scenes in memory make the same tars as the same scenes as files in a folder."""
+    files = sorted((dataset / "data" / "scenes").glob("*.json"))
+    assert len(files) == VIEWS
+    scenes = [cylaov.Scene.load(p) for p in files]
+    folder = tmp_path / "folder"
+    folder.mkdir()
+    for i, s in enumerate(scenes):
+        (folder / ("scene_%06d.json" % i)).write_text(s.to_json(), encoding="utf-8")
+    r = cylaov.write_shards(folder, tmp_path / "from-files", shard_size=SIZE)
+    assert r["written"] == [0, 1, 2]
+    r = cylaov.write_shards(scenes, tmp_path / "from-list", shard_size=SIZE)
+    assert r["written"] == [0, 1, 2] and r["failed"] == [] and r["index_written"]
+    assert shard_bytes(tmp_path / "from-list") == shard_bytes(tmp_path / "from-files")
+    # A rerun with equal scenes (new objects, a new temporary folder) skips every tar.
+    again = cylaov.write_shards([cylaov.Scene.load(p) for p in files], tmp_path / "from-list",
+                                shard_size=SIZE)
+    assert again["skipped"] == [0, 1, 2] and again["written"] == []
+    # A dict names the samples by its keys; one Scene is one scene.
+    r = cylaov.write_shards({"left": scenes[0], "right": scenes[1]}, tmp_path / "dict",
+                            shard_size=SIZE)
+    wds = need("webdataset")
+    keys = [s["__key__"] for s in wds.WebDataset(tars(tmp_path / "dict"), shardshuffle=False)]
+    assert keys == ["left", "right"]
+    one = cylaov.write_shards(scenes[0], tmp_path / "one", shard_size=SIZE)
+    assert one["written"] == [0]
+    with pytest.raises(TypeError, match=r"input\['x'\]: a Scene, got int"):
+        cylaov.write_shards({"x": 3}, tmp_path / "bad")
+    with pytest.raises(ValueError, match="cannot name a scene file"):
+        cylaov.write_shards({"a/b": scenes[0]}, tmp_path / "bad")
+    with pytest.raises(ValueError, match="no scenes"):
+        cylaov.write_shards([], tmp_path / "bad")
+    assert not (tmp_path / "bad").exists()

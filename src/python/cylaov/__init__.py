@@ -20,6 +20,7 @@ say more; the package's documentation page is ``docs/python.md`` in the reposito
 
 import json as _json
 import os as _os
+import tempfile as _tempfile
 
 import numpy as _np
 
@@ -35,7 +36,6 @@ from ._cylaov import (
     read,
     render,
     shard_count,
-    write_shards,
 )
 
 __all__ = [
@@ -136,6 +136,70 @@ def spawn_rays(hits, directions):
         raise ValueError(f"directions and hits must broadcast to {p.shape}: {err}") from None
     flat = lambda a: _np.ascontiguousarray(a.reshape(-1, 3))
     return _cylaov._spawn_rays(flat(p), flat(e), flat(n), flat(d)).reshape(p.shape)
+
+
+def write_shards(input, out, shards=None, shard_size=1000, aovs=None, members=None,
+                 precision="f64", formula="stable", depth_scale=1000.0, threads=None,
+                 force=False):
+    """Write tar shards ``shards`` (indices; None: all) as ``cylaov batch INPUT --out OUT
+    --format webdataset`` does, the same bytes; returns ``{"tars", "written", "skipped",
+    "failed", "index_written"}``.
+
+    ``input`` is what ``batch`` takes (a scene file, a folder of them, a ``generate``
+    output), or scenes in memory: one ``Scene``, a list of them (keys ``scene_000000``,
+    ``scene_000001``, ... in order) or a dict ``{key: Scene}`` (each key names its views'
+    samples, as a scene file's stem does). Scenes in memory are written as scene files to a
+    temporary folder for the call, removed afterwards; a rerun with equal scenes skips the
+    tars already finished, as a rerun of ``batch`` does.
+
+    Ctrl-C stops it with ``KeyboardInterrupt``, leaving the finished tars and no temporary
+    file. ``out`` holds one dataset (``out/shards.settings.json``): a call with other
+    settings (shard size, AOVs, members, inputs, kernel) raises ``ValueError`` naming each
+    difference, unless ``force=True``, which removes that dataset's tar-shard files first.
+
+    Example::
+
+        scenes = [cylaov.generate(None, seed=7, index=i) for i in range(100)]
+        cylaov.write_shards(scenes, "shards", shard_size=25, aovs=("depth", "normal"))
+    """
+    named = _scene_files(input)
+    if named is None:
+        return _cylaov.write_shards(input, out, shards, shard_size, aovs, members, precision,
+                                    formula, depth_scale, threads, force)
+    with _tempfile.TemporaryDirectory(prefix="cylaov-scenes-") as tmp:
+        for key, scene in named.items():
+            with open(_os.path.join(tmp, key + ".json"), "w", encoding="utf-8") as f:
+                f.write(scene.to_json())
+        return _cylaov.write_shards(tmp, out, shards, shard_size, aovs, members, precision,
+                                    formula, depth_scale, threads, force)
+
+
+def _scene_files(input):
+    """``{key: Scene}`` for scenes in memory (one, a list, a dict); None for a path."""
+    if isinstance(input, Scene):
+        return {"scene_000000": input}
+    if isinstance(input, (str, bytes, _os.PathLike)):
+        return None
+    if isinstance(input, dict):
+        items = list(input.items())
+    else:
+        try:
+            items = [("scene_%06d" % i, s) for i, s in enumerate(input)]
+        except TypeError:
+            raise TypeError(
+                "input: a path, a Scene, a list of Scenes or a dict of them, got "
+                f"{type(input).__name__}"
+            ) from None
+    if not items:
+        raise ValueError("input: no scenes (an empty list or dict)")
+    for key, scene in items:
+        if not isinstance(key, str):
+            raise TypeError(f"input: keys must be str, got {type(key).__name__} {key!r}")
+        if not isinstance(scene, Scene):
+            raise TypeError(f"input[{key!r}]: a Scene, got {type(scene).__name__}")
+        if not key or key in (".", "..") or "/" in key or "\\" in key or "\0" in key:
+            raise ValueError(f"input: key {key!r} cannot name a scene file")
+    return dict(items)
 
 
 def _names(names, what):

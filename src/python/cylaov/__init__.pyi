@@ -1,7 +1,7 @@
 """Type stub of the cylaov package (see help(cylaov) and docs/python.md)."""
 
 import os
-from typing import Any, Dict, Iterator, Literal, Optional, Sequence, Tuple, Union
+from typing import Any, Dict, Iterator, Literal, Mapping, Optional, Sequence, Tuple, Union
 
 import numpy as np
 import numpy.typing as npt
@@ -138,7 +138,7 @@ def shard_count(input: PathLike, shard_size: int = 1000) -> int:
     """The number of tar shards `cylaov batch INPUT --format webdataset` makes."""
     ...
 def write_shards(
-    input: PathLike,
+    input: Union[PathLike, Scene, Sequence[Scene], Mapping[str, Scene]],
     out: PathLike,
     shards: Optional[Sequence[int]] = None,
     shard_size: int = 1000,
@@ -151,7 +151,9 @@ def write_shards(
     force: bool = False,
 ) -> Dict[str, Any]:
     """Write tar shards `shards` (None: all) as `batch --format webdataset` does, same bytes;
-    returns {"tars", "written", "skipped", "failed", "index_written"}. Ctrl-C stops it with
+    returns {"tars", "written", "skipped", "failed", "index_written"}. `input` is a path as
+    `batch` takes, or scenes in memory: a Scene, a list (keys scene_000000, ...) or a dict
+    {key: Scene}. Ctrl-C stops it with
     KeyboardInterrupt, leaving the finished tars (a rerun skips them) and no temporary file.
     `out` holds one dataset (`out/shards.settings.json`): a call with other settings (shard
     size, AOVs, members, inputs, kernel) raises ValueError naming each difference, unless
