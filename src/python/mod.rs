@@ -1325,6 +1325,39 @@ impl _Views {
 
     /// View `i`: the arrays of `render` and `camera_info` under `"camera_info"`.
     fn item<'py>(&self, py: Python<'py>, i: i64) -> PyResult<Bound<'py, PyDict>> {
+        let k = self.position(i)?;
+        // Generation, validation, the trace and the arrays in one trip to the pool, the
+        // GIL released: each trip costs a hand-over to a worker and back.
+        let (a, v) = run_stoppable(py, self.threads, |stop| self.view(k, stop))??;
+        view_dict(py, a, &v)
+    }
+
+    /// Views `indices` in one trip to the pool (`Dataset.__getitems__`, which PyTorch's
+    /// `DataLoader` calls once a batch): the views render side by side, each one also on
+    /// the pool, so small views fill the cores that one alone leaves idle. Each item is the
+    /// same as `item(i)`: a render is a pure function of its view.
+    fn items<'py>(&self, py: Python<'py>, indices: Vec<i64>) -> PyResult<Bound<'py, PyList>> {
+        let ks = indices
+            .iter()
+            .map(|&i| self.position(i))
+            .collect::<PyResult<Vec<_>>>()?;
+        let views = run_stoppable(py, self.threads, |stop| {
+            use rayon::prelude::*;
+            ks.par_iter()
+                .map(|&k| self.view(k, stop))
+                .collect::<PyResult<Vec<_>>>()
+        })??;
+        let out = PyList::empty(py);
+        for (a, v) in views {
+            out.append(view_dict(py, a, &v)?)?;
+        }
+        Ok(out)
+    }
+}
+
+impl _Views {
+    /// Index `i` (negative counts from the end) as a view number, or `IndexError`.
+    fn position(&self, i: i64) -> PyResult<u64> {
         let n = i128::from(self.length);
         let k = if i < 0 {
             i128::from(i) + n
@@ -1336,32 +1369,41 @@ impl _Views {
                 "index {i} out of range for a dataset of {n} views"
             )));
         }
-        let v = self.options.views_per_scene as u64;
-        let (index, camera) = (k as u64 / v, (k as u64 % v) as usize);
-        // Generation, validation, the trace and the arrays in one trip to the pool, the
-        // GIL released: each trip costs a hand-over to a worker and back.
-        let (a, v) = run_stoppable(py, self.threads, |stop| {
-            let file = self
-                .options
-                .scene(self.seed, index)
-                .map_err(PyValueError::new_err)?;
-            let mut sc = file.validate().map_err(scene_error)?;
-            sc.select_camera(camera)
-                .map_err(|e| PyIndexError::new_err(format!("camera: {e}")))?;
-            let opts = RenderOptions::new(traced(&self.aovs));
-            // `None` only when stopped, and then `run_stoppable` raises instead.
-            let r = crate::render::render_until(&sc, &opts, stop)
-                .ok_or_else(|| PyValueError::new_err("stopped"))?;
-            let a = arrays(r.image, &self.aovs);
-            let text = crate::output::io::camera_json(&Camera::new(sc.camera), &self.aovs);
-            let v: serde_json::Value =
-                serde_json::from_str(&text).map_err(|e| PyValueError::new_err(e.to_string()))?;
-            Ok::<_, PyErr>((a, v))
-        })??;
-        let d = arrays_to_dict(py, a)?;
-        d.set_item("camera_info", json_to_py(py, &v)?)?;
-        Ok(d)
+        Ok(k as u64)
     }
+
+    /// View `k` rendered, with its `camera_info` as JSON (on a pool thread, no GIL).
+    fn view(&self, k: u64, stop: &AtomicBool) -> PyResult<(Arrays, serde_json::Value)> {
+        let v = self.options.views_per_scene as u64;
+        let (index, camera) = (k / v, (k % v) as usize);
+        let file = self
+            .options
+            .scene(self.seed, index)
+            .map_err(PyValueError::new_err)?;
+        let mut sc = file.validate().map_err(scene_error)?;
+        sc.select_camera(camera)
+            .map_err(|e| PyIndexError::new_err(format!("camera: {e}")))?;
+        let opts = RenderOptions::new(traced(&self.aovs));
+        // `None` only when stopped, and then `run_stoppable` raises instead.
+        let r = crate::render::render_until(&sc, &opts, stop)
+            .ok_or_else(|| PyValueError::new_err("stopped"))?;
+        let a = arrays(r.image, &self.aovs);
+        let text = crate::output::io::camera_json(&Camera::new(sc.camera), &self.aovs);
+        let v: serde_json::Value =
+            serde_json::from_str(&text).map_err(|e| PyValueError::new_err(e.to_string()))?;
+        Ok((a, v))
+    }
+}
+
+/// A view's dict: its arrays and `"camera_info"`.
+fn view_dict<'py>(
+    py: Python<'py>,
+    a: Arrays,
+    info: &serde_json::Value,
+) -> PyResult<Bound<'py, PyDict>> {
+    let d = arrays_to_dict(py, a)?;
+    d.set_item("camera_info", json_to_py(py, info)?)?;
+    Ok(d)
 }
 
 // ---- files -------------------------------------------------------------------------------

@@ -78,3 +78,38 @@ def test_dataset_views_and_info():
     back = pickle.loads(pickle.dumps(ds))
     _same({k: v for k, v in back[2].items() if k != "camera_info"},
           {k: v for k, v in ds[2].items() if k != "camera_info"})
+
+
+def test_getitems_is_a_batch_of_items():
+    """`__getitems__` (one call a DataLoader batch) gives exactly the items one by one."""
+    ds = cylaov.Dataset(SETTINGS, seed=3, length=9, views_per_scene=2, aovs=("depth", "shape_id"))
+    batch = ds.__getitems__([8, 0, -1, 3, 3])
+    assert len(batch) == 5
+    for got, i in zip(batch, [8, 0, -1, 3, 3]):
+        one = ds[i]
+        assert got["camera_info"] == one["camera_info"]
+        _same({k: v for k, v in got.items() if k != "camera_info"},
+              {k: v for k, v in one.items() if k != "camera_info"})
+    assert ds.__getitems__([]) == []
+    with pytest.raises(IndexError, match="index 9 out of range for a dataset of 9 views"):
+        ds.__getitems__([0, 9])
+
+
+def test_dataloader_fetches_a_batch_in_one_call():
+    """PyTorch's DataLoader calls `__getitems__` once a batch, and collates its items."""
+    torch = pytest.importorskip("torch")  # scripts/test's venv has it; under CI a skip fails
+
+    calls = []
+
+    class Counted(cylaov.Dataset):
+        def __getitems__(self, indices):
+            calls.append(list(indices))
+            return super().__getitems__(indices)
+
+    ds = Counted(SETTINGS, seed=3, length=10, aovs=("depth",), threads=1)
+    loader = torch.utils.data.DataLoader(ds, batch_size=4, num_workers=0,
+                                         collate_fn=lambda items: items)
+    batches = list(loader)
+    assert calls == [[0, 1, 2, 3], [4, 5, 6, 7], [8, 9]]
+    assert [len(b) for b in batches] == [4, 4, 2]
+    assert np.array_equal(batches[2][1]["depth"], ds[9]["depth"])

@@ -279,6 +279,12 @@ class Dataset:
     def __getitem__(self, i):
         return self._views.item(_index(i))
 
+    def __getitems__(self, indices):
+        """Items ``indices`` as a list, rendered in one call on the pool: PyTorch's
+        ``DataLoader`` calls this once per batch, so a batch costs one trip, and its small
+        views render side by side. Each item equals ``self[i]``."""
+        return self._views.items([_index(i) for i in indices])
+
     def __iter__(self):
         for i in range(self.length):
             yield self._views.item(i)
