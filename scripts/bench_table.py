@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Print a timing table of the docs, as Markdown, from the committed bench CSVs.
 
-    python3 scripts/bench_table.py --table cylaov|anchors|kernel|formats|python|exr_writer [--csv PATH]
+    python3 scripts/bench_table.py --table cylaov|anchors|kernel|formats|python|exr_writer|scaling [--csv PATH]
 
 `cylaov`, `anchors`, `kernel` (docs/performance.md): the CSVs one `cylaov bench --csv
 reference/bench/bench.csv` run writes (`bench.csv`, `bench.kernel.csv`,
@@ -9,7 +9,8 @@ reference/bench/bench.csv` run writes (`bench.csv`, `bench.kernel.csv`,
 the tables, the figure and the CSVs always come from one run. `formats`
 (docs/performance.md): `reference/bench/batch_formats.csv`, from `cylaov bench
 --batch-formats --csv`; `exr_writer` (docs/performance.md): `reference/bench/exr_writer.csv`,
-from `cylaov bench --exr-writer --csv`. `python` (docs/python.md): `reference/bench/python.csv`, from
+from `cylaov bench --exr-writer --csv`; `scaling` (docs/performance.md):
+`reference/bench/scaling.csv`, from `cylaov bench --scaling --csv`. `python` (docs/python.md): `reference/bench/python.csv`, from
 `cylaov bench --python --csv`. Timings cannot be re-measured in CI: tests/docs.rs checks that
 the pages' tables are what this script prints from the committed CSVs. Needs only the
 standard library.
@@ -75,7 +76,11 @@ DEFAULT_CSV = {
     "formats": "batch_formats.csv",
     "python": "python.csv",
     "exr_writer": "exr_writer.csv",
+    "scaling": "scaling.csv",
 }
+
+# The workloads of `cylaov bench --scaling`, in the table's order.
+SCALING = ["render", "batch files", "batch webdataset", "DataLoader"]
 
 # The Python measures, in the order of the table, and how each reads.
 PYTHON_ROWS = {
@@ -121,6 +126,24 @@ def main():
                 f"| {int(r['bytes']) / 2**20:.1f} | {float(r['buffers_ms']):.2f} "
                 f"| {float(r['planes_ms']):.2f} | {float(r['speed_ratio']):.2f} |"
             )
+        sys.stdout.write("\n".join(out) + "\n")
+        return
+    if a.table == "scaling":
+        got = rows(base)
+        present = [w for w in SCALING if any(r["workload"] == w for r in got)]
+        head = " | ".join(f"{w}, views/s (efficiency)" for w in present)
+        out.append(f"| threads | {head} | webdataset / files |")
+        out.append("|--:|" + "--:|" * (len(present) + 1))
+        for n in sorted({int(r["threads"]) for r in got}):
+            at = {r["workload"]: r for r in got if int(r["threads"]) == n}
+            cells = [
+                f"{count(round(float(at[w]['views_per_s'])))} ({float(at[w]['efficiency']):.2f})"
+                if w in at else "–"
+                for w in present
+            ]
+            tw, fi = at.get("batch webdataset"), at.get("batch files")
+            r = f"{float(tw['views_per_s']) / float(fi['views_per_s']):.2f}×" if tw and fi else "–"
+            out.append(f"| {n} | " + " | ".join(cells) + f" | {r} |")
         sys.stdout.write("\n".join(out) + "\n")
         return
     if a.table == "python":

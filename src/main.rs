@@ -404,7 +404,15 @@ struct BenchCli {
     /// keeps the rows.
     #[arg(long)]
     exr_writer: bool,
-    /// Views of the --batch-formats dataset.
+    /// Only scaling with the threads: views/s of `render` (in memory, a view at a time),
+    /// `batch` to files (--no-png) and as tar shards (25 views a tar), and, when the
+    /// reference venv has the package and torch, `Dataset` through a PyTorch DataLoader
+    /// (that many workers, threads=1 each, batches of 32), at 1, 2, 4, ... threads up to
+    /// the cores (or --threads), with the parallel efficiency of each; 320x240,
+    /// depth+normal, 100 cylinders a scene, --batch-views views.
+    #[arg(long)]
+    scaling: bool,
+    /// Views of the --batch-formats and --scaling datasets.
     #[arg(long, default_value_t = 2000, value_parser = clap::value_parser!(u64).range(1..))]
     batch_views: u64,
     /// Worker threads, 1 to 1024 (default: all cores).
@@ -951,6 +959,13 @@ fn bench(b: BenchCli) -> anyhow::Result<ExitCode> {
     }
     if b.batch_formats {
         commands::bench::batch_formats(b.batch_views, b.csv.as_deref())?;
+        return Ok(ExitCode::SUCCESS);
+    }
+    if b.scaling {
+        let cores = b.threads.unwrap_or_else(|| {
+            std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get)
+        });
+        commands::bench::scaling(b.batch_views, cores, b.csv.as_deref())?;
         return Ok(ExitCode::SUCCESS);
     }
     if b.python {

@@ -37,7 +37,7 @@ pub const WRITE_ONLY: &str = "tar bytes: write only";
 /// The row of hashing the webdataset run's tar bytes alone.
 pub const SHA256_ONLY: &str = "tar bytes: sha256 only";
 
-fn folder_bytes(dir: &Path) -> u64 {
+pub(crate) fn folder_bytes(dir: &Path) -> u64 {
     let Ok(entries) = std::fs::read_dir(dir) else {
         return 0;
     };
@@ -54,7 +54,7 @@ fn folder_bytes(dir: &Path) -> u64 {
 /// starts with no dirty pages ahead of it, where a gigabyte left by the one before would make
 /// Linux throttle its writes. The files stay in the page cache, so no format writes into
 /// memory another one has just freed.
-fn sync_tree(dir: &Path) -> Result<()> {
+pub(crate) fn sync_tree(dir: &Path) -> Result<()> {
     for e in std::fs::read_dir(dir).with_context(|| format!("listing {}", dir.display()))? {
         let path = e?.path();
         if path.is_dir() {

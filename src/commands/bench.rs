@@ -199,3 +199,59 @@ pub fn batch_formats(views: u64, csv: Option<&Path>) -> Result<()> {
     }
     Ok(())
 }
+
+/// `cylaov bench --scaling`: each way of making views at 1, 2, 4, … threads up to `cores`,
+/// printed as a table (see [`bench::scaling`]); with `csv`, the rows written there. The
+/// `DataLoader` rows run in the reference venv's Python when it has the package and torch;
+/// otherwise the first line says why they are left out.
+pub fn scaling(views: u64, cores: usize, csv: Option<&Path>) -> Result<()> {
+    if let Some(p) = csv {
+        check_parent(p, "--csv")?;
+        check_outputs(&[("--csv", p)], &[])?;
+    }
+    let python = match crate::verify::reference::Mitsuba::find() {
+        Ok(m) => {
+            let probe = std::process::Command::new(&m.python)
+                .args(["-c", "import cylaov, torch"])
+                .output();
+            match probe {
+                Ok(o) if o.status.success() => Ok(m.python),
+                Ok(o) => Err(format!(
+                    "{} cannot import cylaov and torch ({}; pip install . there)",
+                    m.python.display(),
+                    String::from_utf8_lossy(&o.stderr)
+                        .trim()
+                        .lines()
+                        .last()
+                        .unwrap_or("")
+                )),
+                Err(e) => Err(format!("running {}: {e}", m.python.display())),
+            }
+        }
+        Err(why) => Err(why),
+    };
+    let threads = bench::scaling::thread_counts(cores);
+    say(&format!(
+        "cylaov bench --scaling: {views} views, {}x{}, depth+normal, {} cylinders a scene, threads {threads:?}",
+        bench::scaling::WIDTH,
+        bench::scaling::HEIGHT,
+        bench::scaling::CYLINDERS,
+    ))?;
+    if let Err(why) = &python {
+        say(&format!("DataLoader rows left out: {why}"))?;
+    }
+    let rows = bench::scaling::run(views, &threads, python.as_deref().ok(), |r| {
+        say(&format!(
+            "  {} threads, {}: {:.1} views/s (efficiency {:.2})",
+            r.threads, r.workload, r.views_per_s, r.efficiency
+        ))
+        .map_err(anyhow::Error::from)
+    })?;
+    say(&bench::scaling::table(&rows))?;
+    if let Some(path) = csv {
+        atomic_write_bytes(path, &csv_bytes(&rows)?)
+            .with_context(|| format!("writing {}", path.display()))?;
+        say(&format!("wrote {}", path.display()))?;
+    }
+    Ok(())
+}
