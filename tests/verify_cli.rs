@@ -590,3 +590,100 @@ fn verify_checks_the_files_a_batch_wrote() {
         text(&o)
     );
 }
+
+/// `verify OUT` of a `--format webdataset` folder: each sample's arrays are judged as the
+/// files format's EXR is; a depth sample changed inside a tar fails, named by its pixel.
+#[test]
+fn verify_checks_the_samples_of_tar_shards() {
+    use cylaov::output::npy::{self, Dtype};
+    use cylaov::output::tar::{TarReader, TarWriter};
+    let Some(py) = venv_python() else { return };
+    let dir_tmp = common::fresh_dir("verify", "shards");
+    let dir = dir_tmp.path();
+    let scenes = dir.join("scenes");
+    std::fs::create_dir_all(&scenes).expect("scenes dir");
+    std::fs::copy(root().join("scenes/single.json"), scenes.join("one.json")).expect("copy");
+    std::fs::copy(root().join("scenes/cluster.json"), scenes.join("two.json")).expect("copy");
+    let out = dir.join("shards");
+    let o = cylaov(
+        &py,
+        &[
+            "batch",
+            s(&scenes),
+            "--out",
+            s(&out),
+            "--format",
+            "webdataset",
+            "--shard-size",
+            "1",
+            "--aov",
+            "depth,shape_id",
+        ],
+    );
+    assert!(o.status.success(), "{}", text(&o));
+    let index: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("shards.json")).expect("shards.json"))
+            .expect("json");
+    assert_eq!(
+        index["scenes_dir"],
+        s(&scenes),
+        "the scenes' folder, absolute"
+    );
+    let verify = || cylaov(&py, &["verify", s(&out)]);
+    let o = verify();
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o));
+    let table = String::from_utf8_lossy(&o.stdout).to_string();
+    assert!(table.contains("one                      PASS"), "{table}");
+    assert!(table.contains("two                      PASS"), "{table}");
+    assert!(
+        table.contains("2 of 2 written views checked: 2 passed"),
+        "{table}"
+    );
+    // Sample `two`'s depth, one hit pixel times (1 + 1e-6), in a rewritten tar.
+    let tar = out.join("shard-000001.tar");
+    let bytes = std::fs::read(&tar).expect("tar");
+    let mut r = TarReader::new(&bytes[..]);
+    let mut w = TarWriter::new(Vec::new());
+    let mut at = None;
+    while let Some((name, data)) = r.next_member().expect("member") {
+        let data = if name == "two.depth.npy" {
+            let a = npy::parse(&data).expect("npy");
+            let (h, wd) = (a.shape[0], a.shape[1]);
+            let mut v: Vec<f32> = a
+                .data
+                .chunks_exact(4)
+                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                .collect();
+            let hits: Vec<usize> = (0..v.len()).filter(|&k| v[k] > 0.0).collect();
+            let k = hits[hits.len() / 2];
+            v[k] *= 1.0 + 1e-6;
+            at = Some(format!("at [{}, {}]", k % wd, k / wd));
+            npy::array(Dtype::F32, &[h, wd], &v)
+        } else {
+            data
+        };
+        w.append(&name, &data).expect("append");
+    }
+    std::fs::write(&tar, w.finish().expect("finish").0).expect("write");
+    let at = at.expect("two.depth.npy in shard 1");
+    let o = verify();
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o));
+    let table = String::from_utf8_lossy(&o.stdout).to_string();
+    assert!(table.contains("one                      PASS"), "{table}");
+    assert!(table.contains("two                      FAIL"), "{table}");
+    assert!(table.contains(&format!("depth {at}")), "{table}");
+    assert!(table.contains("candidate error: 1 px"), "{table}");
+    // The scenes moved: `--scenes` says where they are now.
+    let moved = dir.join("moved");
+    std::fs::rename(&scenes, &moved).expect("move");
+    let o = verify();
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+    assert!(text(&o).contains("--scenes DIR"), "{}", text(&o));
+    let o = cylaov(&py, &["verify", s(&out), "--scenes", s(&moved)]);
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o));
+    // A damaged tar is an error naming it, not a verdict.
+    std::fs::write(&tar, b"not a tar, just some bytes").expect("write");
+    let o = cylaov(&py, &["verify", s(&out), "--scenes", s(&moved)]);
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+    assert!(text(&o).contains("shard-000001.tar"), "{}", text(&o));
+}

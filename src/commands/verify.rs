@@ -152,27 +152,156 @@ fn run_written(args: &VerifyArgs) -> Result<VerifyOutcome> {
     if let Some(dir) = &args.report {
         write_page(dir, &args.input.display().to_string(), &results, &images)?;
     }
-    outcome(args, results, |results, (passed, failed, unchecked)| {
-        let mut s = format!("{:<24} {:<9} result\n", "view", "verdict");
-        for r in results {
-            let lines = r
-                .failures
-                .iter()
-                .chain(&r.accepted)
-                .cloned()
-                .collect::<Vec<_>>();
-            s += &format!(
-                "{:<24} {:<9} {}\n",
-                r.name,
-                verdict_word(r.status),
-                lines.join("\n  ")
+    outcome(args, results, |results, counts| {
+        written_table(results, all, counts)
+    })
+}
+
+/// The table of `verify OUT`: a line per checked view, then the counts.
+fn written_table(
+    results: &[ViewResult],
+    all: usize,
+    (passed, failed, unchecked): (usize, usize, usize),
+) -> String {
+    let mut s = format!("{:<24} {:<9} result\n", "view", "verdict");
+    for r in results {
+        let lines = r
+            .failures
+            .iter()
+            .chain(&r.accepted)
+            .cloned()
+            .collect::<Vec<_>>();
+        s += &format!(
+            "{:<24} {:<9} {}\n",
+            r.name,
+            verdict_word(r.status),
+            lines.join("\n  ")
+        );
+    }
+    s += &format!(
+        "verify: {} of {all} written views checked: {passed} passed, {failed} failed, {unchecked} could not be checked",
+        results.len()
+    );
+    s
+}
+
+/// `verify OUT/` of a tar-shard dataset (`batch --format webdataset`): the samples in the
+/// tars `shards.json` lists, each one's arrays judged against Mitsuba and the exact answer
+/// as the EXR of the files format is (written to a scratch EXR for the check), its scene
+/// read from `shards.json`'s `scenes_dir` (or `--scenes`). The tars are read one sample at
+/// a time; nothing is written beside them.
+fn run_shards(args: &VerifyArgs) -> Result<VerifyOutcome> {
+    use crate::dataset::batch::samples::Samples;
+    let index_path = args.input.join("shards.json");
+    #[derive(serde::Deserialize)]
+    struct Entry {
+        name: String,
+        samples: usize,
+    }
+    #[derive(serde::Deserialize)]
+    struct Index {
+        /// Absent in the records of older versions.
+        scenes_dir: Option<PathBuf>,
+        shards: Vec<Entry>,
+    }
+    let text = std::fs::read_to_string(&index_path)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", index_path.display()))?;
+    let index: Index = serde_json::from_str(&text)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", index_path.display()))?;
+    let scene_dir = match (&args.scenes, &index.scenes_dir) {
+        (Some(s), _) if s.is_file() => s.parent().unwrap_or(Path::new(".")).to_path_buf(),
+        (Some(s), _) => s.clone(),
+        (None, Some(d)) if d.is_dir() => d.clone(),
+        (None, Some(d)) => anyhow::bail!(
+            "{}: the scenes' folder {} is gone; give the folder its scenes are in now with --scenes DIR",
+            index_path.display(),
+            d.display()
+        ),
+        (None, None) => anyhow::bail!(
+            "{}: a dataset that does not record its scenes' folder; give it with --scenes DIR",
+            index_path.display()
+        ),
+    };
+    let verifier = crate::verify::reference::MitsubaVerifier::find(
+        args.tolerances,
+        args.precision,
+        args.formula,
+    )
+    .map(|v| crate::verify::reference::MitsubaVerifier { log: false, ..v });
+    if let Err(why) = &verifier {
+        crate::output::io::warn(&format!("verify: {why}"));
+    }
+    let pictures = args.report.is_some();
+    let (mut results, mut images, mut all) = (Vec::new(), Vec::new(), 0);
+    for entry in &index.shards {
+        // A name that is not a plain file name would lead out of OUT.
+        if entry.name.contains(['/', '\\']) || entry.name.starts_with('.') {
+            anyhow::bail!(
+                "{}: shard name {:?} is not a file name",
+                index_path.display(),
+                entry.name
             );
         }
-        s += &format!(
-            "verify: {} of {all} written views checked: {passed} passed, {failed} failed, {unchecked} could not be checked",
-            results.len()
-        );
-        s
+        let path = args.input.join(&entry.name);
+        let file = crate::output::files::open_input(&path)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        let mut samples = Samples::new(std::io::BufReader::with_capacity(1 << 20, file));
+        let mut read = 0;
+        loop {
+            let sample = samples
+                .next_sample()
+                .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+            let Some(sample) = sample else {
+                if read != entry.samples {
+                    anyhow::bail!(
+                        "{}: {read} samples, where shards.json lists {}",
+                        path.display(),
+                        entry.samples
+                    );
+                }
+                break;
+            };
+            read += 1;
+            let info = &sample.info;
+            let view = ViewSource {
+                name: info.key.clone(),
+                path: scene_dir.join(&info.scene_file),
+                scene: info.scene.clone(),
+                camera: info.camera_index,
+                folder: None,
+            };
+            all += 1;
+            if !view_selected(args.seed, &view, args.fraction) {
+                continue;
+            }
+            let k = results.len();
+            let outcome = (|| -> Result<crate::verify::reference::Checked> {
+                let verifier = verifier.as_ref().map_err(|why| anyhow::anyhow!("{why}"))?;
+                let mut scene = crate::scene::load(&view.path)
+                    .map_err(|e| anyhow::anyhow!("{}: {e}", view.path.display()))?;
+                scene
+                    .select_camera(view.camera)
+                    .map_err(|e| anyhow::anyhow!("{}: {e}", view.path.display()))?;
+                let work = work_dir(k)?;
+                let exr = work.path().join(format!("{}.exr", info.key));
+                sample
+                    .image
+                    .write_exr(&exr, crate::output::aov::Compression::None)?;
+                verifier.check_file(&view, &scene, &exr, work.path(), true, pictures)
+            })();
+            let (result, pics) = match outcome {
+                Ok(c) => checked_result(c),
+                Err(e) => (ViewResult::unchecked(&view, &e), None),
+            };
+            results.push(result);
+            images.push(pics);
+        }
+    }
+    if let Some(dir) = &args.report {
+        write_page(dir, &args.input.display().to_string(), &results, &images)?;
+    }
+    outcome(args, results, |results, counts| {
+        written_table(results, all, counts)
     })
 }
 
@@ -437,6 +566,9 @@ pub fn run(args: &VerifyArgs) -> Result<VerifyOutcome> {
     }
     if args.input.join("index.json").is_file() {
         return run_written(args);
+    }
+    if args.input.join("shards.json").is_file() {
+        return run_shards(args);
     }
     let mut all = views(&args.input)?;
     if let Some(file) = &args.candidate {

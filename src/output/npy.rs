@@ -89,6 +89,82 @@ pub fn bool_plane(height: usize, width: usize, hit: impl Iterator<Item = bool>) 
     out
 }
 
+/// An array read from `.npy` bytes: its element type, shape and samples' bytes (C order,
+/// little-endian).
+#[derive(Debug, PartialEq)]
+pub struct Array<'a> {
+    /// The element type.
+    pub dtype: Dtype,
+    /// The shape.
+    pub shape: Vec<usize>,
+    /// The samples' bytes, `shape.product() * dtype.size()` of them.
+    pub data: &'a [u8],
+}
+
+/// Parse `.npy` (format 1.0 or 2.0) bytes of one of the [`Dtype`]s in C order, as
+/// [`array`] writes them and `numpy.save` writes such arrays; anything else (another
+/// dtype, Fortran order, a size that does not match the shape) is an error saying what.
+pub fn parse(bytes: &[u8]) -> Result<Array<'_>, String> {
+    let (len, start) = match bytes {
+        [0x93, b'N', b'U', b'M', b'P', b'Y', 1, _, a, b, ..] => {
+            (u16::from_le_bytes([*a, *b]) as usize, 10)
+        }
+        [0x93, b'N', b'U', b'M', b'P', b'Y', 2, _, a, b, c, d, ..] => {
+            (u32::from_le_bytes([*a, *b, *c, *d]) as usize, 12)
+        }
+        _ => return Err("not a .npy array (no \\x93NUMPY magic of version 1 or 2)".into()),
+    };
+    let dict = bytes
+        .get(start..start + len)
+        .and_then(|h| std::str::from_utf8(h).ok())
+        .ok_or("a .npy header cut short or not text")?;
+    // The header is a Python dict literal with three keys; read each value's text.
+    let value = |key: &str| -> Result<&str, String> {
+        let at = dict
+            .find(&format!("'{key}':"))
+            .ok_or(format!("a .npy header without '{key}': {dict:?}"))?;
+        Ok(dict[at + key.len() + 3..].trim_start())
+    };
+    let descr = value("descr")?;
+    let dtype = [Dtype::F32, Dtype::U32, Dtype::Bool]
+        .into_iter()
+        .find(|d| descr.starts_with(&format!("'{}'", d.descr())))
+        .ok_or(format!(
+            "a .npy array of dtype {}, not float32, uint32 or bool",
+            descr.split(',').next().unwrap_or(descr)
+        ))?;
+    if !value("fortran_order")?.starts_with("False") {
+        return Err("a .npy array in Fortran order".into());
+    }
+    let shape_text = value("shape")?;
+    let shape_text = shape_text
+        .strip_prefix('(')
+        .and_then(|t| t.split_once(')'))
+        .map(|(inner, _)| inner)
+        .ok_or(format!("a .npy header's shape reads {shape_text:?}"))?;
+    let shape = shape_text
+        .split(',')
+        .map(str::trim)
+        .filter(|t| !t.is_empty())
+        .map(|t| {
+            t.parse::<usize>()
+                .map_err(|_| format!("a .npy shape of {shape_text:?}"))
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let data = &bytes[(start + len).min(bytes.len())..];
+    let want = shape
+        .iter()
+        .try_fold(dtype.size(), |n, &d| n.checked_mul(d))
+        .ok_or(format!("a .npy shape of {shape:?} overflows"))?;
+    if data.len() != want {
+        return Err(format!(
+            "a .npy array of shape {shape:?} holds {} bytes of samples, not {want}",
+            data.len()
+        ));
+    }
+    Ok(Array { dtype, shape, data })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -136,5 +212,26 @@ mod tests {
         assert_eq!(&m[128..], &[1, 0, 1]);
         let u = array(Dtype::U32, &[1, 1], &[0x0102_0304u32]);
         assert_eq!(&u[128..], &[4, 3, 2, 1]);
+    }
+
+    /// What [`array`] writes, [`parse`] reads back; damaged arrays are refused saying how.
+    #[test]
+    fn parse_reads_what_array_writes() {
+        let samples = [1.5f32, -2.0, 0.0, 7.25, 1e-30, 3.0];
+        let bytes = array(Dtype::F32, &[2, 3], &samples);
+        let a = parse(&bytes).unwrap();
+        assert_eq!((a.dtype, a.shape.clone()), (Dtype::F32, vec![2, 3]));
+        assert_eq!(a.data, bytemuck::cast_slice::<f32, u8>(&samples));
+        let v = array(Dtype::U32, &[4], &[1u32, 2, 3, 4]);
+        assert_eq!(parse(&v).unwrap().shape, [4]);
+        let b = bool_plane(1, 2, [true, false].into_iter());
+        assert_eq!(parse(&b).unwrap().data, [1, 0]);
+        let e = parse(&bytes[..bytes.len() - 1]).unwrap_err();
+        assert!(e.contains("holds 23 bytes of samples, not 24"), "{e}");
+        let mut other = bytes.clone();
+        let at = other.windows(3).position(|w| w == b"<f4").unwrap();
+        other[at + 2] = b'8';
+        assert!(parse(&other).unwrap_err().contains("dtype '<f8'"));
+        assert!(parse(b"PK\x03\x04").unwrap_err().contains("magic"));
     }
 }

@@ -10,7 +10,7 @@
 //! the format is a few fields of fixed width, and owning them means no builder default
 //! (mtime, owner, GNU or PAX headers) can change a shard's bytes.
 
-use std::io::{self, Write};
+use std::io::{self, Read, Write};
 
 /// Bytes of a tar block.
 pub const BLOCK: usize = 512;
@@ -128,6 +128,92 @@ impl<W: Write> TarWriter<W> {
     }
 }
 
+/// Reads the members of a ustar archive (the ones [`TarWriter`] writes) one at a time, so
+/// a tar of a thousand views is never held whole. Only regular files are returned; other
+/// entries are skipped.
+pub struct TarReader<R: Read> {
+    input: R,
+}
+
+impl<R: Read> TarReader<R> {
+    /// A reader of the archive in `input`.
+    pub fn new(input: R) -> Self {
+        TarReader { input }
+    }
+
+    /// The next regular file's name (with its ustar prefix) and bytes; `None` at the
+    /// closing zero block. A header whose checksum or size field does not parse is an
+    /// `InvalidData` error (a truncated or foreign file), never a guess.
+    pub fn next_member(&mut self) -> io::Result<Option<(String, Vec<u8>)>> {
+        let bad = |what: String| io::Error::new(io::ErrorKind::InvalidData, what);
+        loop {
+            let mut h = [0u8; BLOCK];
+            match self.input.read_exact(&mut h) {
+                Ok(()) => {}
+                // Every archive ends with zero blocks: one cut short, even at a member's
+                // end, is not taken for a whole one.
+                Err(e) if e.kind() == io::ErrorKind::UnexpectedEof => {
+                    return Err(bad(
+                        "the archive ends without its closing zero blocks: cut short, or not a tar"
+                            .into(),
+                    ));
+                }
+                Err(e) => return Err(e),
+            }
+            if h.iter().all(|&b| b == 0) {
+                return Ok(None);
+            }
+            let text = |r: std::ops::Range<usize>| {
+                let f = &h[r];
+                let end = f.iter().position(|&b| b == 0).unwrap_or(f.len());
+                String::from_utf8_lossy(&f[..end]).into_owned()
+            };
+            let number = |r: std::ops::Range<usize>, what: &str| {
+                let t = text(r);
+                u64::from_str_radix(t.trim_matches(' '), 8)
+                    .map_err(|_| bad(format!("a tar header's {what} field reads {t:?}")))
+            };
+            // The checksum: the byte sum with its own field read as spaces.
+            let want = number(148..156, "checksum")?;
+            let sum: u64 = h
+                .iter()
+                .enumerate()
+                .map(|(i, &b)| {
+                    if (148..156).contains(&i) {
+                        32
+                    } else {
+                        b as u64
+                    }
+                })
+                .sum();
+            if sum != want {
+                return Err(bad(format!(
+                    "a tar header's checksum is {want}, its bytes sum to {sum}: not a tar, or damaged"
+                )));
+            }
+            let size = number(124..136, "size")?;
+            let name = match text(345..500) {
+                p if !p.is_empty() && &h[257..262] == b"ustar" => format!("{p}/{}", text(0..100)),
+                _ => text(0..100),
+            };
+            let mut data = Vec::new();
+            (&mut self.input).take(size).read_to_end(&mut data)?;
+            if (data.len() as u64) < size {
+                return Err(bad(format!(
+                    "tar member {name:?}: {} of its {size} bytes, the archive ends early",
+                    data.len()
+                )));
+            }
+            let pad = (size.next_multiple_of(BLOCK as u64) - size) as usize;
+            self.input.read_exact(&mut [0u8; BLOCK][..pad])?;
+            // '0' and NUL are regular files; directories, links and the rest are skipped.
+            if h[156] == b'0' || h[156] == 0 {
+                return Ok(Some((name, data)));
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -192,5 +278,39 @@ mod tests {
         let mut t = TarWriter::new(Vec::new());
         assert!(t.append(&"x".repeat(101), b"").is_err());
         assert!(t.finish().unwrap().0.len() == 1024);
+    }
+
+    /// The reader gives back what the writer wrote, long (prefixed) names included; a
+    /// damaged header or a cut member is an error naming it, not a short read.
+    #[test]
+    fn reader_reads_what_the_writer_wrote() {
+        let long = format!("{}/{}", "d".repeat(120), "f".repeat(90));
+        let mut t = TarWriter::new(Vec::new());
+        t.append("a.json", b"{}").unwrap();
+        t.append(&long, &[7u8; 513]).unwrap();
+        t.append("empty", b"").unwrap();
+        let (bytes, _) = t.finish().unwrap();
+        let mut r = TarReader::new(&bytes[..]);
+        assert_eq!(
+            r.next_member().unwrap(),
+            Some(("a.json".into(), b"{}".to_vec()))
+        );
+        assert_eq!(r.next_member().unwrap(), Some((long, vec![7u8; 513])));
+        assert_eq!(r.next_member().unwrap(), Some(("empty".into(), Vec::new())));
+        assert_eq!(r.next_member().unwrap(), None);
+        let mut damaged = bytes.clone();
+        damaged[0] = b'b';
+        let e = TarReader::new(&damaged[..]).next_member().unwrap_err();
+        assert!(e.to_string().contains("checksum"), "{e}");
+        // Cut after the first member: that member, then an error, not the end.
+        let mut r = TarReader::new(&bytes[..512 * 2]);
+        assert!(r.next_member().unwrap().is_some());
+        let e = r.next_member().unwrap_err();
+        assert!(e.to_string().contains("closing zero blocks"), "{e}");
+        let cut = &bytes[..512 * 3 + 100];
+        let mut r = TarReader::new(cut);
+        r.next_member().unwrap();
+        let e = r.next_member().unwrap_err();
+        assert!(e.to_string().contains("100 of its 513 bytes"), "{e}");
     }
 }

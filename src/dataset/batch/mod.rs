@@ -34,13 +34,15 @@
 //! folder), `options`, `resume` (output paths, render stamp, completeness
 //! checks), `write` (one view rendered and moved into place), `verify` (the reference check
 //! interface), `transforms` (`transforms.json`), `progress`, and `run` (the loop tying them
-//! together); `shards` writes the same views as tar shards (`--format webdataset`).
+//! together); `shards` writes the same views as tar shards (`--format webdataset`), and
+//! `samples` reads them back (`cylaov verify OUT`).
 
 mod lock;
 mod options;
 mod progress;
 mod resume;
 mod run;
+pub mod samples;
 mod shard;
 pub mod shard_settings;
 pub mod shards;

@@ -309,6 +309,19 @@ fn failures_label(list: &[usize]) -> String {
     }
 }
 
+/// `dir` made absolute for a record (`""`, a scene file's folder given bare, is `.`).
+fn absolute_dir(dir: &Path) -> String {
+    let dir = if dir.as_os_str().is_empty() {
+        Path::new(".")
+    } else {
+        dir
+    };
+    std::path::absolute(dir)
+        .unwrap_or_else(|_| dir.to_path_buf())
+        .display()
+        .to_string()
+}
+
 /// The number of tars `input` makes at `shard_size` views a tar.
 pub fn shard_count(input: &Path, shard_size: usize) -> Result<usize> {
     if shard_size == 0 {
@@ -974,6 +987,7 @@ impl Plan<'_> {
             precision: String,
             formula: String,
             keys_note: &'static str,
+            scenes_dir: String,
             shards: Vec<Entry<'a>>,
         }
         let mut members: Vec<String> = array_aovs(&self.aovs)
@@ -994,6 +1008,9 @@ impl Plan<'_> {
             precision: value_name(self.opts.precision),
             formula: value_name(self.opts.formula),
             keys_note: "a sample's key is its view name without dots: SCENE, or SCENE_cNN for camera NN of a several-camera scene",
+            // Where the samples' `scene_file` paths start (`cylaov verify OUT` reads the
+            // scenes from there); absolute, so the record holds wherever OUT is read from.
+            scenes_dir: absolute_dir(&self.input_dir),
             shards: cars
                 .iter()
                 .map(|c| Entry {
