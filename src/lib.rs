@@ -53,7 +53,8 @@
 //!   [`output::console`] (console output that survives a closed pipe), [`output::io`] (one
 //!   import path for those four), [`output::files`] (opening in place without following
 //!   links), [`output::signals`] (the clean-up on a signal), [`output::tar`] and
-//!   [`output::npy`] (deterministic ustar members and `.npy` arrays of tar shards),
+//!   [`output::npy`] (deterministic ustar members and `.npy` arrays of tar shards, and both
+//!   read back),
 //!   [`output::mitsuba`] (the scene as Mitsuba 3 XML).
 //!
 //! Checking tools:
@@ -67,14 +68,16 @@
 //!   [`verify::stress`] (the hard ray families of `cylaov stress`).
 //! - [`bench`](mod@bench): run time against error per kernel, AOV set, cylinder count and
 //!   scene family, with Mitsuba's and Open3D's times on the same scenes ([`bench::Anchors`]),
-//!   and the two dataset formats side by side (`--batch-formats`).
+//!   the two dataset formats side by side (`--batch-formats`), and every way of making
+//!   views at 1, 2, 4, … threads (`--scaling`).
 //!
 //! Datasets:
 //! - [`dataset`]: [`dataset::generate`] (seeded procedural scenes, several cameras each if
 //!   asked), [`dataset::batch`] (views of (scene, camera), shards and their locks, resumable
 //!   kill-safe rendering, `index.json` and per-scene `transforms.json`, and
 //!   [`dataset::batch::shards`], `--format webdataset`: tar shards, sidecars and
-//!   `shards.json`, resumable per tar), [`dataset::names`]
+//!   `shards.json`, resumable per tar; [`dataset::batch::samples`], the tars read back a
+//!   sample at a time for `cylaov verify`), [`dataset::names`]
 //!   (every file name cylaov writes).
 //! - [`rng`]: SplitMix64, written out so generated data never changes under us.
 //! - [`mem`]: the memory check before a command allocates, the fallible reservation of
