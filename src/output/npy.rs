@@ -102,7 +102,7 @@ pub struct Array<'a> {
 }
 
 /// Parse `.npy` (format 1.0 or 2.0) bytes of one of the [`Dtype`]s in C order, as
-/// [`array`] writes them and `numpy.save` writes such arrays; anything else (another
+/// [`array()`] writes them and `numpy.save` writes such arrays; anything else (another
 /// dtype, Fortran order, a size that does not match the shape) is an error saying what.
 pub fn parse(bytes: &[u8]) -> Result<Array<'_>, String> {
     let (len, start) = match bytes {
@@ -214,7 +214,7 @@ mod tests {
         assert_eq!(&u[128..], &[4, 3, 2, 1]);
     }
 
-    /// What [`array`] writes, [`parse`] reads back; damaged arrays are refused saying how.
+    /// What [`array()`] writes, [`parse`] reads back; damaged arrays are refused saying how.
     #[test]
     fn parse_reads_what_array_writes() {
         let samples = [1.5f32, -2.0, 0.0, 7.25, 1e-30, 3.0];
