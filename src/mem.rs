@@ -523,6 +523,20 @@ pub fn try_zeroed<T: bytemuck::Zeroable>(n: usize, what: &str) -> io::Result<Vec
     Ok(unsafe { Vec::from_raw_parts(p.cast::<T>(), n, n) })
 }
 
+/// `n` values not yet written, reserved fallibly as [`zeroed_or_exit`] reserves them (a
+/// refusal exits the same way): for a buffer whose users write it all before reading it,
+/// on the threads that will read it.
+pub fn uninit_or_exit<T>(n: usize, what: &str) -> Vec<std::mem::MaybeUninit<T>> {
+    let mut v = Vec::new();
+    if let Err(e) = try_reserve(&mut v, n, what) {
+        exit_after(|_| crate::output::io::warn(&format!("error: {e}")));
+    }
+    // SAFETY: the capacity is at least `n` (reserved above), and a `MaybeUninit` needs no
+    // initialisation.
+    unsafe { v.set_len(n) };
+    v
+}
+
 /// [`try_zeroed`] where the caller cannot return an error (the planes of `render::render`,
 /// whose callers' memory check has passed): a refusal is reported as [`Guarded`] reports
 /// one, naming `what`, and the process exits with the status of

@@ -36,7 +36,7 @@ mod planes;
 mod tracer;
 mod walk;
 
-use planes::{BandInputs, bands, buffers_of, output_planes};
+use planes::{BandInputs, bands, buffers_of, output_planes, uninit_planes};
 pub use tracer::{PixelHit, Tracer};
 use walk::band_renderer;
 
@@ -284,17 +284,25 @@ fn render_simd<T: Simd, F: PacketFormula>(
     let cam = &setup.tracer.camera;
     let (w, h) = (cam.width() as usize, cam.height() as usize);
     let band_rows = TILE as usize;
-    let mut samples = output_planes(opts, w * h);
+    // The planes are zeroed band by band by the threads that trace them: zeroed up front,
+    // memory the allocator reuses would be cleared by this one thread while the pool waits.
+    let mut samples = uninit_planes(opts, w * h);
     let inputs = setup.inputs();
     let band_fn = band_renderer::<T, F>(simd);
     let hits: usize = bands(&mut samples, band_rows * w, h.div_ceil(band_rows))
         .into_par_iter()
         .enumerate()
-        .map(|(b, mut band)| match stop {
-            Some(s) if s.load(Ordering::Relaxed) => 0,
-            _ => band_fn(&inputs, b, &mut band),
+        .map(|(b, band)| {
+            let mut band = band.zeroed();
+            match stop {
+                Some(s) if s.load(Ordering::Relaxed) => 0,
+                _ => band_fn(&inputs, b, &mut band),
+            }
         })
         .sum();
+    // SAFETY: the bands cover every sample of every plane (`bands` cuts each whole) and
+    // each was zeroed above, stopped or not; a panic in a band never reaches here.
+    let samples = unsafe { samples.assume_init() };
     let image = AovImage {
         width: w,
         height: h,

@@ -8,6 +8,7 @@ use crate::output::aov::{AovBuffer, ChannelData};
 use crate::scene::Aov;
 use crate::scene::camera::Camera;
 use glam::DVec3;
+use std::mem::MaybeUninit;
 
 /// A zeroed output plane of `n` samples, in huge pages where the system has them (the
 /// hint covers whole 2 MiB pages inside the plane only, so a band's few rows stay in
@@ -19,6 +20,31 @@ pub(super) fn zeroed<X: bytemuck::Zeroable>(n: usize) -> Vec<X> {
     v
 }
 
+/// A plane of `n` samples not yet written (see [`UninitSamples`]), in huge pages where the
+/// system has them, as [`zeroed`]; reserved fallibly, as [`zeroed`].
+fn uninit<X>(n: usize) -> Vec<MaybeUninit<X>> {
+    let v = crate::mem::uninit_or_exit(n, "an output plane of the render");
+    crate::mem::huge_pages(&v);
+    v
+}
+
+/// [`output_planes`] not yet written: the whole image's planes, which the bands of the
+/// render zero as they start ([`Band::zeroed`]).
+pub(super) fn uninit_planes(opts: &RenderOptions, n: usize) -> UninitSamples {
+    let want = |a: Aov| opts.aovs.contains(&a);
+    Samples {
+        f: Planes {
+            distance: want(Aov::Distance).then(|| uninit(n)),
+            depth: want(Aov::Depth).then(|| uninit(n)),
+            normal: (want(Aov::Normal) || want(Aov::NormalCamera)).then(|| uninit(3 * n)),
+            position: want(Aov::Position).then(|| uninit(3 * n)),
+        },
+        id: want(Aov::ShapeId).then(|| uninit(n)),
+        part: want(Aov::Part).then(|| uninit(n)),
+        label: want(Aov::Label).then(|| uninit(n)),
+    }
+}
+
 /// Output planes of the requested AOVs; `None` for the rest. A vector AOV's plane holds
 /// its pixels' `(x, y, z)` side by side (the layout of [`AovBuffer`]).
 pub(super) struct Planes<P> {
@@ -28,24 +54,95 @@ pub(super) struct Planes<P> {
     pub(super) position: Option<P>,
 }
 
-/// The requested planes of an image or a band (`shape_id` and `part` as u32).
-pub(super) struct Samples {
-    pub(super) f: Planes<Vec<f32>>,
-    pub(super) id: Option<Vec<u32>>,
-    pub(super) part: Option<Vec<u32>>,
-    pub(super) label: Option<Vec<u32>>,
+/// The requested planes of an image or a band (`shape_id` and `part` as u32); with
+/// `F`, `U` the [`MaybeUninit`] of those, planes not yet written ([`UninitSamples`]).
+pub(super) struct Samples<F = f32, U = u32> {
+    pub(super) f: Planes<Vec<F>>,
+    pub(super) id: Option<Vec<U>>,
+    pub(super) part: Option<Vec<U>>,
+    pub(super) label: Option<Vec<U>>,
 }
 
+/// Planes allocated but not written: each band zeroes its own slices on the thread that
+/// traces it ([`Band::zeroed`]), so the whole image is never zeroed by one thread first.
+pub(super) type UninitSamples = Samples<MaybeUninit<f32>, MaybeUninit<u32>>;
+
 /// One band's slices of every requested plane (`shape_id` and `part` as u32).
-pub(super) struct Band<'a> {
-    pub(super) f: Planes<&'a mut [f32]>,
-    pub(super) id: Option<&'a mut [u32]>,
-    pub(super) part: Option<&'a mut [u32]>,
-    pub(super) label: Option<&'a mut [u32]>,
+pub(super) struct Band<'a, F = f32, U = u32> {
+    pub(super) f: Planes<&'a mut [F]>,
+    pub(super) id: Option<&'a mut [U]>,
+    pub(super) part: Option<&'a mut [U]>,
+    pub(super) label: Option<&'a mut [U]>,
+}
+
+/// `s` with every sample written 0 and read as initialised.
+fn zero<X: bytemuck::Zeroable>(s: &mut [MaybeUninit<X>]) -> &mut [X] {
+    // SAFETY: the bytes of `s` are all written (zero) before it is reborrowed as `[X]`,
+    // and all-zero bytes are a valid `X` (`Zeroable`); `MaybeUninit<X>` has `X`'s layout.
+    unsafe {
+        std::ptr::write_bytes(s.as_mut_ptr(), 0, s.len());
+        std::slice::from_raw_parts_mut(s.as_mut_ptr().cast::<X>(), s.len())
+    }
+}
+
+impl<'a> Band<'a, MaybeUninit<f32>, MaybeUninit<u32>> {
+    /// The band with every sample zero (a miss), ready to be traced.
+    pub(super) fn zeroed(self) -> Band<'a> {
+        Band {
+            f: Planes {
+                distance: self.f.distance.map(zero),
+                depth: self.f.depth.map(zero),
+                normal: self.f.normal.map(zero),
+                position: self.f.position.map(zero),
+            },
+            id: self.id.map(zero),
+            part: self.part.map(zero),
+            label: self.label.map(zero),
+        }
+    }
+}
+
+/// `v` read as initialised.
+///
+/// # Safety
+/// Every element of `v` has been written.
+unsafe fn assume_init<X>(v: Vec<MaybeUninit<X>>) -> Vec<X> {
+    let mut v = std::mem::ManuallyDrop::new(v);
+    // SAFETY: `MaybeUninit<X>` has `X`'s layout, so the allocation is a valid `Vec<X>` of
+    // the same length and capacity, and the caller promises every element is written.
+    unsafe { Vec::from_raw_parts(v.as_mut_ptr().cast::<X>(), v.len(), v.capacity()) }
+}
+
+impl UninitSamples {
+    /// The planes, read as written.
+    ///
+    /// # Safety
+    /// Every sample has been written: each band of [`bands`] over all of them made
+    /// [`Band::zeroed`] (which writes its whole band).
+    pub(super) unsafe fn assume_init(self) -> Samples {
+        // SAFETY: the caller's promise, plane by plane.
+        let init = |v: Option<Vec<MaybeUninit<f32>>>| v.map(|v| unsafe { assume_init(v) });
+        let init_u = |v: Option<Vec<MaybeUninit<u32>>>| v.map(|v| unsafe { assume_init(v) });
+        Samples {
+            f: Planes {
+                distance: init(self.f.distance),
+                depth: init(self.f.depth),
+                normal: init(self.f.normal),
+                position: init(self.f.position),
+            },
+            id: init_u(self.id),
+            part: init_u(self.part),
+            label: init_u(self.label),
+        }
+    }
 }
 
 /// Cut each requested plane into bands of `len` pixels.
-pub(super) fn bands<'a>(samples: &'a mut Samples, len: usize, count: usize) -> Vec<Band<'a>> {
+pub(super) fn bands<'a, F, U>(
+    samples: &'a mut Samples<F, U>,
+    len: usize,
+    count: usize,
+) -> Vec<Band<'a, F, U>> {
     let Samples { f, id, part, label } = samples;
     fn cut<X>(
         v: Option<&mut Vec<X>>,
