@@ -53,6 +53,14 @@
 //! the double-double oracle that on such pixels cylaov agrees with the exact answer and
 //! Mitsuba does not.
 //!
+//! The same bound covers Mitsuba's `orthographic` sensor, whose rays start on the near plane
+//! at the pixel's lateral offset `(x, y)` instead of at the camera centre: the rounded
+//! origin coordinates are then of size `|o| + |x| + |y| + near` in place of `|o|`, and the
+//! direction, the same for every pixel, is the look-at's forward axis rounded to float32
+//! ([`ray_origin_size`] derives it). The lens models (`opencv`, `opencv_fisheye`,
+//! `equirectangular`) have no Mitsuba sensor: no conditioning; they are checked against the
+//! exact answer alone ([`crate::verify::reference`]).
+//!
 //! `shape_id` and `part` may be u32 (cylaov) or float32 (Mitsuba references: one component
 //! type per bitmap), in either image and mixed: they are compared as ids, and float ids
 //! must be whole numbers below 2^24. Any other channel both images have with different
@@ -61,7 +69,7 @@
 
 use crate::output::aov::{AovImage, ChannelRef};
 use crate::scene::Scene;
-use crate::scene::camera::Camera;
+use crate::scene::camera::{Camera, Projection};
 use anyhow::{Result, bail};
 use glam::DVec3;
 use image::{Rgb, RgbImage};
