@@ -31,6 +31,14 @@
 //! `K` = [`CONDITIONING_ULPS`]; another renderer's file (`--candidate`) is allowed `K` float32
 //! ulps of storage and of ray error.
 //!
+//! **Cameras.** The exact answer is traced along the camera's own pixel ray
+//! ([`Camera::pixel_ray`], the ray cylaov renders): from the camera centre for the pinhole,
+//! from the image plane along `forward` for the orthographic camera, whose sideways ray
+//! error `δ` has the wider origin term of [`ray_origin_size`] (Mitsuba's orthographic rays
+//! start on the near plane at the pixel's lateral offset). The lens models have no Mitsuba
+//! camera: their reference is the exact answer's own image ([`exact_render`],
+//! [`Reference::Exact`]), so every disagreement is the candidate's.
+//!
 //! **Where Mitsuba cannot discriminate.** When Mitsuba's `δ` is as large as the scene's
 //! features (its smallest radius or height), every disagreement is "within δ": the report
 //! says so ([`Arbitration::cannot_discriminate`]), and the verdict rests on the candidate
