@@ -539,7 +539,7 @@ impl Tracer<'_> {
     /// `[r.tmin, r.tmax]` (the clip range the render uses along that ray).
     fn trace(&self, r: &PixelRay) -> Option<Exact> {
         let (o, d, tmax) = (r.origin, r.dir, r.tmax);
-        if !(r.tmin <= r.tmax) {
+        if r.tmin > r.tmax || r.tmin.is_nan() || r.tmax.is_nan() {
             // A pixel without a ray (a lens model outside its image): nothing is seen.
             return None;
         }
