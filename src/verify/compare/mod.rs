@@ -517,6 +517,40 @@ mod tests {
         assert_eq!(e.to_string(), "image sizes differ: A is 6x5, B is 5x6");
     }
 
+    /// The orthographic ray origin's rounded coordinates add the pixel's lateral offset and
+    /// the near distance to `|o|`; the pinhole's and the lens models' are `|o|`. Conditioning
+    /// follows Mitsuba's two sensors and is absent for a lens model.
+    #[test]
+    fn orthographic_rays_widen_the_origin_term() {
+        use crate::geometry::{FormulaKind, Precision};
+        let scene = |camera: &str| {
+            crate::scene::parse(&format!(
+                r#"{{"camera": {{"origin": [3, -4, 0], "target": [0, 0, 0], "up": [0, 0, 1],
+                    "width": 4, "height": 2, "near_clip": 0.5, {camera}}},
+                    "cylinders": [{{"p0": [0, 0, -2], "p1": [0, 0, 2], "radius": 1.5}}]}}"#
+            ))
+            .expect("valid scene")
+        };
+        let ortho = scene(r#""model": "orthographic", "ortho_width": 8"#);
+        let cam = Camera::new(ortho.camera);
+        // |o| = 5; half extents 4 × 2; pixel (0, 0) is at x = -3, y = 1; (1, 1) at -1, -1.
+        assert_eq!(ray_origin_size(&cam, 0, 0), 5.0 + 3.0 + 1.0 + 0.5);
+        assert_eq!(ray_origin_size(&cam, 1, 1), 5.0 + 1.0 + 1.0 + 0.5);
+        for other in [r#""fov_deg": 40"#, r#""model": "equirectangular""#] {
+            let cam = Camera::new(scene(other).camera);
+            assert_eq!(ray_origin_size(&cam, 0, 0), 5.0, "{other}");
+        }
+        let render = |s: &Scene| {
+            crate::verify::reference::check_render(s, Precision::F64, FormulaKind::Stable)
+        };
+        let cond = Conditioning::new(&ortho, &render(&ortho)).expect("orthographic");
+        // The cylinder (radius 1.5) fills the two middle columns (at x = ±1): hit pixels
+        // get a bound, the outer columns (x = ±3) miss and get none.
+        assert!(cond.rel.iter().any(|&b| b > 0.0) && cond.rel.contains(&0.0));
+        let lens = scene(r#""model": "equirectangular""#);
+        assert!(Conditioning::new(&lens, &render(&lens)).is_none());
+    }
+
     #[test]
     fn angle_is_accurate_for_tiny_angles() {
         let t = 1e-7f64;
