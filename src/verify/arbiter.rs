@@ -1056,14 +1056,6 @@ pub fn exact_render(scene: &Scene) -> Result<AovImage> {
         boxes: scene.cylinders.iter().map(Cylinder::bounds).collect(),
         cam,
     };
-    let rows: Vec<Vec<Option<Exact>>> = (0..h)
-        .into_par_iter()
-        .map(|y| {
-            (0..w)
-                .map(|x| tracer.trace(&cam.pixel_ray(x as u32, y as u32)))
-                .collect()
-        })
-        .collect();
     let n = w * h;
     let what = "the exact answer's image";
     let mut f: Vec<Vec<f32>> = (0..8)
@@ -1071,23 +1063,36 @@ pub fn exact_render(scene: &Scene) -> Result<AovImage> {
         .collect();
     let mut ids = crate::mem::zeroed_or_exit::<u32>(n, what);
     let mut parts = crate::mem::zeroed_or_exit::<u32>(n, what);
-    for (k, e) in rows.iter().flatten().enumerate() {
-        let Some(e) = e else { continue };
-        let values = [
-            e.t,
-            e.depth,
-            e.normal.x,
-            e.normal.y,
-            e.normal.z,
-            e.position.x,
-            e.position.y,
-            e.position.z,
-        ];
-        for (c, v) in f.iter_mut().zip(values) {
-            c[k] = v as f32;
+    // Bands of rows traced in parallel, so only one band's answers are held at a time.
+    const BAND: usize = 32;
+    for y0 in (0..h).step_by(BAND) {
+        let rows: Vec<Vec<Option<Exact>>> = (y0..(y0 + BAND).min(h))
+            .into_par_iter()
+            .map(|y| {
+                (0..w)
+                    .map(|x| tracer.trace(&cam.pixel_ray(x as u32, y as u32)))
+                    .collect()
+            })
+            .collect();
+        for (k, e) in rows.iter().flatten().enumerate() {
+            let Some(e) = e else { continue };
+            let k = y0 * w + k;
+            let values = [
+                e.t,
+                e.depth,
+                e.normal.x,
+                e.normal.y,
+                e.normal.z,
+                e.position.x,
+                e.position.y,
+                e.position.z,
+            ];
+            for (c, v) in f.iter_mut().zip(values) {
+                c[k] = v as f32;
+            }
+            ids[k] = scene.cylinders[e.index].id;
+            parts[k] = e.part;
         }
-        ids[k] = scene.cylinders[e.index].id;
-        parts[k] = e.part;
     }
     let names = [
         "distance",
