@@ -4,8 +4,8 @@
 //!   the float32 bound of `verify::compare::ray_origin_size`; `scenes/orthographic.json`
 //!   passes against Mitsuba with the pinhole's rule (identity, conditioning, the exact
 //!   answer as arbiter), and a candidate whose distances are 0.1% long fails on every hit.
-//!   Needs the reference venv (skipped, saying so, without it, unless
-//!   `CYLAOV_REQUIRE_VENV=1`).
+//!   These need the reference venv (skipped, saying so, without it, unless
+//!   `CYLAOV_REQUIRE_VENV=1`); `compare --scene` against the committed reference does not.
 //! - **Lens models** (`opencv`, `opencv_fisheye`, `equirectangular`: no Mitsuba camera):
 //!   checked against the exact answer alone, with no venv at all, and the verdict says so;
 //!   cylaov's f64 and f32 renders pass with measured errors, a planted 0.1% fails.
@@ -183,6 +183,39 @@ fn orthographic_scene_verifies_against_mitsuba_and_a_planted_error_fails() {
         "{out}"
     );
     assert!(!out.contains("exact answer alone"), "{out}");
+}
+
+/// `compare --scene` against the committed reference applies the float32 bounds to the
+/// orthographic camera as to the pinhole (no venv needed: the reference is committed), and
+/// the render agrees: the same 11 333 hits, no mismatch, errors as measured.
+#[test]
+fn orthographic_compare_applies_the_float32_bounds() {
+    let dir = common::fresh_dir("verify-models", "ortho-compare");
+    let scene = root().join("scenes/orthographic.json");
+    let exr = dir.path().join("ortho.exr");
+    common::ok(&[
+        "render",
+        s(&scene),
+        "-o",
+        s(&exr),
+        "--aov",
+        "distance,depth,normal,shape_id,part",
+    ]);
+    let reference = root().join("reference/orthographic.exr");
+    let out = common::ok(&["compare", s(&exr), s(&reference), "--scene", s(&scene)]);
+    assert!(
+        out.contains("float32 conditioning bounds applied (ray error 4 ulps)"),
+        "{out}"
+    );
+    assert!(
+        out.contains("hits: A 11333, B 11333, same cylinder and part 11333"),
+        "{out}"
+    );
+    assert!(
+        out.contains("mismatches: 0 (0.0000%) silhouette, 0 (0.0000%) seam"),
+        "{out}"
+    );
+    assert!(out.trim_end().ends_with("PASS"), "{out}");
 }
 
 /// Each lens model, with no venv at all: cylaov's f64 and f32 renders pass against the
