@@ -976,11 +976,25 @@ pub fn arbitrate_against(
         // Mitsuba off beyond δ: is it on the exact answer for its own float32 inputs?
         let on_its_inputs = || {
             let round = |v: DVec3| v.as_vec3().as_dvec3();
-            let r = tracer32.trace(&PixelRay {
-                origin: round(ray.origin),
-                dir: round(ray.dir),
-                ..ray
-            });
+            // Mitsuba's orthographic ray starts on the near plane (the float32 point there is
+            // its input) and its `t` from there; the reference script adds `near` back.
+            let shift = match cam.projection {
+                Projection::Orthographic { .. } => cam.spec.near_clip,
+                _ => 0.0,
+            };
+            let r = tracer32
+                .trace(&PixelRay {
+                    origin: round(ray.origin + ray.dir * shift),
+                    dir: round(ray.dir),
+                    tmin: ray.tmin - shift,
+                    tmax: ray.tmax - shift,
+                    ..ray
+                })
+                .map(|mut r| {
+                    r.t += shift;
+                    r.depth += shift;
+                    r
+                });
             same_identity(&rounded, &sb, hb, r.as_ref())
                 && r.as_ref().is_none_or(|r| {
                     values_off(&sb, r, &rounded[r.index], &reference_bound, l, &axes).0 <= 1.0
