@@ -282,6 +282,10 @@ fn lens_models_are_checked_against_the_exact_answer_alone() {
         assert_eq!(o.status.code(), Some(0), "{out}");
         assert!(out.contains(&format!("{name} accepted: {words}")), "{out}");
         assert!(
+            out.contains("candidate errors 0, ties 0 (against the exact answer alone)"),
+            "{out}"
+        );
+        assert!(
             out.contains("1 passed, 0 failed, 0 could not be checked"),
             "{out}"
         );

@@ -670,6 +670,14 @@ fn verdict_word(s: Status) -> &'static str {
 fn row(r: &ViewResult) -> String {
     let verdict = verdict_word(r.status);
     match (&r.report, &r.arbitration) {
+        // Against the exact answer alone there is no reference to be in error.
+        (Some(rep), Some(a)) if a.reference == Reference::Exact => format!(
+            "{:<24} {verdict:<9} {}; candidate errors {}, ties {} (against the exact answer alone)",
+            r.name,
+            summary_line(rep),
+            a.candidate_errors,
+            a.ties
+        ),
         (Some(rep), Some(a)) => format!(
             "{:<24} {verdict:<9} {}; reference errors {}, unexplained {}, candidate errors {}, ties {}",
             r.name,
