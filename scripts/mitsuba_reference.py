@@ -10,7 +10,9 @@ cylinder quadratic is solved in float64, and the render is deterministic) and wr
 (float32, lossless PIZ) with cylaov's channel names:
 
   distance    = Mitsuba depth + near_clip / cos(theta)   (Mitsuba's ray starts on the near
-                plane; theta = angle between the pixel ray and the view direction)
+                plane; theta = angle between the pixel ray and the view direction; 0 for
+                the orthographic camera, whose rays start on the near plane too and are
+                measured from the image plane through the camera origin, as cylaov does)
   depth       = distance * cos(theta)                    (planar depth)
   normal.X/Y/Z, position.X/Y/Z  = Mitsuba sh_normal and position
   shape_id    = our cylinder id of Mitsuba's shape_index (float32; 0 = miss)
@@ -25,7 +27,8 @@ src/output/mitsuba.rs), and Mitsuba's shape_index is 1 + the shape's position in
 only the side's facing is computed, from Mitsuba's outward normal and the pixel ray.
 
 cos(theta) and the pixel ray come from the pixel-centre ray built exactly as cylaov's camera
-(src/scene/camera.rs) builds it, in float64. Every channel of a missed pixel is 0.
+(src/scene/camera.rs) builds it, in float64 (`"model": "orthographic"`: every ray along the
+view direction, cos(theta) = 1). Every channel of a missed pixel is 0.
 """
 
 import json
@@ -71,6 +74,13 @@ def pixel_rays(cam):
     up = np.array(cam["up"], dtype=np.float64)
     w, h = int(cam["width"]), int(cam["height"])
     forward = normalize(target - origin)
+    model = cam.get("model", "perspective")
+    if model == "orthographic":
+        # Parallel rays: every pixel looks along `forward`.
+        d = np.broadcast_to(forward, (h, w, 3)).copy()
+        return d, np.ones((h, w))
+    if model != "perspective":
+        fail(f"camera.model: Mitsuba has no {model!r} camera")
     left = normalize(np.cross(up, forward))
     true_up = np.cross(forward, left)
     aspect = w / h

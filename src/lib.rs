@@ -60,11 +60,13 @@
 //! Checking tools:
 //! - [`verify`]: [`verify::compare`] (the per-pixel rule: identity by cylinder and part,
 //!   silhouette and seam mismatches, float32 conditioning bounds; its report and wording;
-//!   the heatmap), [`verify::arbiter`] (the exact answer judging each pixel: reference
-//!   error, candidate error, tie), [`verify::report`] (the HTML page of `--report`),
-//!   [`verify::reference`](mod@verify::reference) (the one check against Mitsuba 3 behind
-//!   `cylaov verify`, `batch --verify-fraction` and the reference tests; the script is
-//!   compiled in), [`verify::oracle`] (double-double reference answer, κ and tangency band),
+//!   the heatmap), [`verify::arbiter`] (the exact answer judging each pixel on the camera's
+//!   own pixel ray: reference error, candidate error, tie; and the exact answer's image,
+//!   the reference of the lens models Mitsuba has no camera for), [`verify::report`] (the
+//!   HTML page of `--report`), [`verify::reference`](mod@verify::reference) (the one check
+//!   against Mitsuba 3, perspective and orthographic, or against the exact answer alone for
+//!   the lens models, behind `cylaov verify`, `batch --verify-fraction` and the reference
+//!   tests; the script is compiled in), [`verify::oracle`] (double-double reference answer, κ and tangency band),
 //!   [`verify::stress`] (the hard ray families of `cylaov stress`).
 //! - [`bench`](mod@bench): run time against error per kernel, AOV set, cylinder count and
 //!   scene family, with Mitsuba's and Open3D's times on the same scenes ([`bench::Anchors`]),

@@ -10,40 +10,10 @@ mod common;
 use serde_json::Value;
 use std::path::Path;
 
-/// A closed tube of radius 6 around the camera (every ray of every model hits its inner
-/// wall or a cap) with a ring of twelve closed cylinders inside it and a crossbar: hits at
-/// many depths, angles and parts.
-fn cylinders() -> Value {
-    let mut cyl = vec![serde_json::json!({
-        "p0": [0, 0, -4], "p1": [0, 0, 4], "radius": 6, "id": 100
-    })];
-    for k in 0..12 {
-        let a = std::f64::consts::TAU * k as f64 / 12.0;
-        let (s, c) = a.sin_cos();
-        cyl.push(serde_json::json!({
-            "p0": [3.0 * c, 3.0 * s, -1.5 + 0.1 * k as f64],
-            "p1": [3.0 * c, 3.0 * s, 1.0 + 0.1 * k as f64],
-            "radius": 0.35 + 0.03 * k as f64,
-            "id": k + 1
-        }));
-    }
-    cyl.push(
-        serde_json::json!({"p0": [-2, 1.2, 0.6], "p1": [2, 1.5, 0.4], "radius": 0.25, "id": 50}),
-    );
-    Value::Array(cyl)
-}
-
 /// Render `model` (its fields merged into the camera) at 64×48 with every AOV; returns
 /// the output folder's EXR path.
 fn render(dir: &Path, name: &str, model: Value) -> std::path::PathBuf {
-    let mut cam = serde_json::json!({
-        "origin": [0.2, -0.4, 0.3], "target": [1.0, 3.0, 0.0], "up": [0, 0, 1],
-        "width": 64, "height": 48, "near_clip": 0.01
-    });
-    for (k, v) in model.as_object().unwrap() {
-        cam[k] = v.clone();
-    }
-    let scene = serde_json::json!({"camera": cam, "cylinders": cylinders()});
+    let scene = common::lens_test_scene(&model);
     let path = dir.join(format!("{name}.json"));
     std::fs::write(&path, scene.to_string()).unwrap();
     let exr = dir.join(format!("{name}.exr"));
@@ -183,12 +153,8 @@ fn opencv_positions_project_onto_their_pixel_centres() {
         return;
     };
     let dir = common::fresh_dir("camera-models", "opencv");
-    let exr = render(
-        dir.path(),
-        "opencv",
-        serde_json::json!({"model": "opencv", "fx": 40, "fy": 42, "cx": 31.2, "cy": 23.7,
-            "k1": -0.21, "k2": 0.04, "p1": 0.0012, "p2": -0.0017, "k3": 0.005}),
-    );
+    let [(_, opencv), ..] = common::lens_models();
+    let exr = render(dir.path(), "opencv", opencv);
     let v = check(&py, &exr);
     common_checks(&exr, &v, "opencv", "planar", 3072);
     assert_eq!(v["cv2_points"], v["hits"]);
@@ -205,12 +171,8 @@ fn fisheye_positions_project_onto_their_pixel_centres_and_see_behind() {
     };
     let dir = common::fresh_dir("camera-models", "fisheye");
     // fx = 18 on 64 px: the corners ask for θ_d = 2.2, rays about 125° off the axis.
-    let exr = render(
-        dir.path(),
-        "fisheye",
-        serde_json::json!({"model": "opencv_fisheye", "fx": 18, "fy": 18.5, "cx": 31.6,
-            "cy": 23.4, "k1": 0.03, "k2": -0.004, "k3": 0.0006, "k4": -0.00003}),
-    );
+    let [_, (_, fisheye), _] = common::lens_models();
+    let exr = render(dir.path(), "fisheye", fisheye);
     let v = check(&py, &exr);
     // Every ray meets the tube, but a few within a hair of 90° meet it at a camera-space z
     // below near_clip (planar clips bound z): 3 of 3072 pixels.

@@ -48,7 +48,7 @@ fn committed_references_pass_as_float32_candidates() {
         })
         .collect();
     names.sort();
-    assert_eq!(names.len(), 15, "{names:?}");
+    assert_eq!(names.len(), 16, "{names:?}");
     let dir_tmp = common::fresh_dir("verify_float32", "moved");
     for name in &names {
         let scene = root().join(format!("scenes/{name}.json"));

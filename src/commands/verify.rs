@@ -2,7 +2,9 @@
 //! selected view is rendered by cylaov (in memory) and by Mitsuba 3 and compared by
 //! [`crate::verify::reference::verify_scene`], the code path of `batch --verify-fraction`
 //! and the reference tests: where they disagree, the exact answer decides who is wrong
-//! ([`crate::verify::arbiter`]). Prints a per-view table and a summary (or JSON with every
+//! ([`crate::verify::arbiter`]). Perspective and orthographic cameras are checked against
+//! Mitsuba; the lens models, which Mitsuba has no camera for, against the exact answer
+//! alone (no venv needed), and their rows say so. Prints a per-view table and a summary (or JSON with every
 //! disagreeing pixel's class); the exit status is 1 if any view fails (a candidate error or
 //! an unexplained reference error), else 2 if any could not be checked, else 0.
 
@@ -10,10 +12,10 @@ use crate::dataset::batch::{ViewSource, list_views, view_selected};
 use crate::geometry::{FormulaKind, Precision};
 use crate::output::aov::AovImage;
 use crate::output::preview::write_png;
-use crate::verify::arbiter::{Arbitration, Bound};
+use crate::verify::arbiter::{Arbitration, Bound, Reference};
 use crate::verify::compare::{Conditioning, Report, Tolerances, heatmap_figure};
 use crate::verify::reference::{
-    Mitsuba, ViewCheck, check_against_with, summary_line, verify_scene,
+    Mitsuba, ViewCheck, check_against_with, reference_image, summary_line, verify_scene,
 };
 use crate::verify::report::{ReportView, write_report};
 use anyhow::Result;
@@ -470,9 +472,11 @@ fn work_dir(k: usize) -> Result<tempfile::TempDir> {
         .tempdir()?)
 }
 
+/// Check one view against its reference: Mitsuba (`mitsuba`, or why there is none) for a
+/// perspective or orthographic camera, the exact answer alone for a lens model.
 fn check_one(
     args: &VerifyArgs,
-    mitsuba: &Mitsuba,
+    mitsuba: Result<&Mitsuba, &str>,
     view: &ViewSource,
     k: usize,
 ) -> Result<(ViewCheck, Option<Images>)> {
@@ -496,8 +500,12 @@ fn check_one(
             let theirs = AovImage::read_exr(file)
                 .map_err(|e| anyhow::anyhow!("--candidate {}: {e:#}", file.display()))?;
             let theirs = map_channels(theirs, &args.channels)?;
-            let reference =
-                mitsuba.render(&scene, &view.path.display().to_string(), work.path())?;
+            let reference = reference_image(
+                mitsuba,
+                &scene,
+                &view.path.display().to_string(),
+                work.path(),
+            )?;
             let check = check_against_with(
                 &scene,
                 &theirs,
@@ -516,12 +524,16 @@ fn check_one(
     }
     let cond = Conditioning::new(&scene, &ours);
     let title = format!(
-        "{}: {} VS MITSUBA: {}",
+        "{}: {} VS {}: {}",
         view.name,
         if args.candidate.is_some() {
             "CANDIDATE"
         } else {
             "CYLAOV"
+        },
+        match check.arbitration.reference {
+            Reference::Mitsuba => "MITSUBA",
+            Reference::Exact => "EXACT ANSWER",
         },
         if check.passed() { "PASS" } else { "FAIL" }
     );
@@ -619,11 +631,13 @@ pub fn run(args: &VerifyArgs) -> Result<VerifyOutcome> {
                 view.id()
             ));
         }
-        let outcome = match &mitsuba {
-            Err(why) if args.json => Err(anyhow::anyhow!("{why}")),
-            Err(_) => Err(anyhow::anyhow!("no Mitsuba venv (how to make one: below)")),
-            Ok(m) => check_one(args, m, view, k),
+        // A lens model needs no venv: its reference is the exact answer alone.
+        let m = match &mitsuba {
+            Ok(m) => Ok(m),
+            Err(why) if args.json => Err(why.as_str()),
+            Err(_) => Err("no Mitsuba venv (how to make one: below)"),
         };
+        let outcome = check_one(args, m, view, k);
         let r = match outcome {
             Ok((check, images)) => {
                 pictures.push(images);
@@ -788,6 +802,14 @@ fn verdict_word(s: Status) -> &'static str {
 fn row(r: &ViewResult) -> String {
     let verdict = verdict_word(r.status);
     match (&r.report, &r.arbitration) {
+        // Against the exact answer alone there is no reference to be in error.
+        (Some(rep), Some(a)) if a.reference == Reference::Exact => format!(
+            "{:<24} {verdict:<9} {}; candidate errors {}, ties {} (against the exact answer alone)",
+            r.name,
+            summary_line(rep),
+            a.candidate_errors,
+            a.ties
+        ),
         (Some(rep), Some(a)) => format!(
             "{:<24} {verdict:<9} {}; reference errors {}, unexplained {}, candidate errors {}, ties {}",
             r.name,
@@ -826,7 +848,10 @@ fn table(
     }
     s += &crate::verify::compare::tolerance_line(&args.tolerances);
     s.push('\n');
-    if let Err(why) = mitsuba {
+    // Said only where it kept a view from being checked: the lens models need no venv.
+    if let Err(why) = mitsuba
+        && unchecked > 0
+    {
         s += &format!("verify: {why}\n");
     }
     s += &format!(

@@ -20,7 +20,7 @@ use crate::geometry::{FormulaKind, Kernel, Precision};
 use crate::output::aov::{AovBuffer, AovImage, ChannelData, channel_names, per_aov_channel_names};
 use crate::render::cast::{self, Ray};
 use crate::render::{Accel, RenderOptions};
-use crate::scene::camera::Camera;
+use crate::scene::camera::{Camera, Projection};
 use crate::scene::{self, Aov, CameraFile, CylinderFile, SceneFile};
 use crate::verify::compare::{self as verify, Conditioning, Tolerances};
 use glam::DVec3;
@@ -1004,7 +1004,10 @@ fn camera_info<'py>(
 /// The camera's own pixel rays, `(origins, directions)`, each (H, W, 3) float64: the
 /// direction through pixel (i, j)'s centre, scaled so its camera-space z is 1 (so `t` along
 /// it is planar depth). Cast with `t_min=near_clip, t_max=far_clip`, they are the rays a
-/// render traces, bit for bit.
+/// render traces, bit for bit. Every model's own rays ([`Camera::pixel_ray`]): the
+/// orthographic camera's start on its image plane at the pixel's offset; a lens model's
+/// rays whose depth is Euclidean (equirectangular, a fisheye at or beyond 90°) are unit,
+/// so `t` is their distance and the clips bound it, as the render counts them.
 #[pyfunction]
 #[pyo3(signature = (scene, camera=0))]
 fn camera_rays<'py>(
@@ -1020,9 +1023,21 @@ fn camera_rays<'py>(
     for j in 0..h as u32 {
         let y = cam.row_offset(j);
         for i in 0..w as u32 {
-            let v = cam.pixel_vector(cam.column_offset(i), y);
-            o.extend(cam.origin.to_array());
-            d.extend(v.to_array());
+            if cam.is_pinhole() {
+                let v = cam.pixel_vector(cam.column_offset(i), y);
+                o.extend(cam.origin.to_array());
+                d.extend(v.to_array());
+                continue;
+            }
+            let r = cam.pixel_ray(i, j);
+            // Orthographic rays run along `forward` itself (camera-space z 1 as given); a
+            // lens model's planar rays are scaled to z = 1, its Euclidean ones stay unit.
+            let scale = match cam.projection {
+                Projection::Lens(_) if r.planar_depth => 1.0 / r.dir.dot(cam.forward),
+                _ => 1.0,
+            };
+            o.extend(r.origin.to_array());
+            d.extend((r.dir * scale).to_array());
         }
     }
     let o = Array3::from_shape_vec((h, w, 3), o).map_err(shape_err)?;

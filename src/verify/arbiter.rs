@@ -31,6 +31,14 @@
 //! `K` = [`CONDITIONING_ULPS`]; another renderer's file (`--candidate`) is allowed `K` float32
 //! ulps of storage and of ray error.
 //!
+//! **Cameras.** The exact answer is traced along the camera's own pixel ray
+//! ([`Camera::pixel_ray`], the ray cylaov renders): from the camera centre for the pinhole,
+//! from the image plane along `forward` for the orthographic camera, whose sideways ray
+//! error `δ` has the wider origin term of [`ray_origin_size`] (Mitsuba's orthographic rays
+//! start on the near plane at the pixel's lateral offset). The lens models have no Mitsuba
+//! camera: their reference is the exact answer's own image ([`exact_render`],
+//! [`Reference::Exact`]), so every disagreement is the candidate's.
+//!
 //! **Where Mitsuba cannot discriminate.** When Mitsuba's `δ` is as large as the scene's
 //! features (its smallest radius or height), every disagreement is "within δ": the report
 //! says so ([`Arbitration::cannot_discriminate`]), and the verdict rests on the candidate
@@ -39,8 +47,8 @@
 use crate::geometry::{Cylinder, Precision, Surface};
 use crate::output::aov::{AovImage, Strided};
 use crate::scene::Scene;
-use crate::scene::camera::Camera;
-use crate::verify::compare::{CONDITIONING_ULPS, Tolerances, id_channel};
+use crate::scene::camera::{Camera, PixelRay, Projection};
+use crate::verify::compare::{CONDITIONING_ULPS, Tolerances, id_channel, ray_origin_size};
 use crate::verify::oracle::{DD, intersect};
 use crate::verify::oracle::{DV3, Problem};
 use anyhow::{Result, bail};
@@ -127,6 +135,37 @@ impl Bound {
     /// The sideways ray error at coordinate size `l`.
     fn delta(&self, l: f64) -> f64 {
         self.ray_ulps * self.ray_eps * l
+    }
+}
+
+/// What a candidate is compared with before the exact answer judges the pixels.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Reference {
+    /// Mitsuba 3's render: the cameras it has a sensor for (perspective, orthographic).
+    Mitsuba,
+    /// The exact answer's own image ([`exact_render`]): the lens models, which Mitsuba has
+    /// no sensor for. Every candidate hit is still judged against the exact answer; the
+    /// image adds the pixels the candidate misses and the statistics of the report.
+    Exact,
+}
+
+impl Reference {
+    /// How the reference is named in the failure and accepted lines.
+    pub fn name(self) -> &'static str {
+        match self {
+            Reference::Mitsuba => "Mitsuba",
+            Reference::Exact => "exact image",
+        }
+    }
+
+    /// The reference's bound: Mitsuba's float32 ([`Bound::mitsuba`]); the exact image is
+    /// the double-double answer stored in float32, one ulp ([`Bound::cylaov`] at f64).
+    pub fn bound(self) -> Bound {
+        match self {
+            Reference::Mitsuba => Bound::mitsuba(),
+            Reference::Exact => Bound::cylaov(Precision::F64),
+        }
     }
 }
 
@@ -306,6 +345,8 @@ pub struct Arbitration {
     /// Whether `delta_max` is at least `feature_min`: Mitsuba cannot tell right from wrong
     /// there, the verdict rests on the exact answer alone.
     pub cannot_discriminate: bool,
+    /// What the candidate was compared with: Mitsuba, or the exact answer alone.
+    pub reference: Reference,
     /// The pixels, in image order.
     pub pixels: Vec<Pixel>,
 }
@@ -427,8 +468,15 @@ impl Arbitration {
             return String::new();
         };
         format!(
-            "e.g. at [{}, {}] ({:?}): candidate {}, Mitsuba {}, exact {} (δ {:.2e})",
-            p.at[0], p.at[1], p.kind, p.candidate, p.reference, p.exact, p.delta
+            "e.g. at [{}, {}] ({:?}): candidate {}, {} {}, exact {} (δ {:.2e})",
+            p.at[0],
+            p.at[1],
+            p.kind,
+            p.candidate,
+            self.reference.name(),
+            p.reference,
+            p.exact,
+            p.delta
         )
         .replace("(Silhouette)", "(silhouette)")
         .replace("(Seam)", "(seam)")
@@ -487,10 +535,15 @@ fn meets_box(o: DVec3, d: DVec3, tmax: f64, (lo, hi): (DVec3, DVec3), pad: f64) 
 }
 
 impl Tracer<'_> {
-    /// The nearest exact hit of the ray `o + t·d` (`d` unit) with `t` in the clip range.
-    fn trace(&self, o: DVec3, d: DVec3, len: f64) -> Option<Exact> {
-        let (tmin, tmax) = self.cam.clip_range(len);
-        let (lo, hi) = (DD::new(tmin), DD::new(tmax));
+    /// The nearest exact hit of the pixel ray `r` (`r.dir` unit) with `t` in
+    /// `[r.tmin, r.tmax]` (the clip range the render uses along that ray).
+    fn trace(&self, r: &PixelRay) -> Option<Exact> {
+        let (o, d, tmax) = (r.origin, r.dir, r.tmax);
+        if r.tmin > r.tmax || r.tmin.is_nan() || r.tmax.is_nan() {
+            // A pixel without a ray (a lens model outside its image): nothing is seen.
+            return None;
+        }
+        let (lo, hi) = (DD::new(r.tmin), DD::new(r.tmax));
         let mut best: Option<(DD, usize, crate::verify::oracle::Hit)> = None;
         for (k, c) in self.cylinders.iter().enumerate() {
             // Padded so that rounding in the box test never drops a hit.
@@ -514,7 +567,13 @@ impl Tracer<'_> {
             Surface::Top => 4,
         };
         let t = h.t.to_f64();
-        let depth = (h.t * DV3::from_f64(d).dot(DV3::from_f64(self.cam.forward))).to_f64();
+        // Planar depth is camera-space z (`t · d·forward`); where the model says depth is
+        // Euclidean (equirectangular, a fisheye at or beyond 90°) it is `t` itself.
+        let depth = if r.planar_depth {
+            (h.t * DV3::from_f64(d).dot(DV3::from_f64(self.cam.forward))).to_f64()
+        } else {
+            t
+        };
         let position = (DV3::from_f64(o) + DV3::from_f64(d).scale(h.t)).to_f64();
         Some(Exact {
             index,
@@ -529,12 +588,15 @@ impl Tracer<'_> {
 
     /// The exact identities seen by rays displaced sideways by up to `delta` (1, 1/4, 1/16,
     /// 1/64 of it, in 8 directions, so a thin feature is not jumped over).
-    fn nearby(&self, o: DVec3, d: DVec3, len: f64, delta: f64) -> Vec<Option<Exact>> {
-        let dirs = crate::verify::oracle::sideways(d);
+    fn nearby(&self, r: &PixelRay, delta: f64) -> Vec<Option<Exact>> {
+        let dirs = crate::verify::oracle::sideways(r.dir);
         let mut out = Vec::with_capacity(32);
         for f in [1.0, 0.25, 0.0625, 0.015625] {
             for e in &dirs {
-                out.push(self.trace(o + *e * (delta * f), d, len));
+                out.push(self.trace(&PixelRay {
+                    origin: r.origin + *e * (delta * f),
+                    ..*r
+                }));
             }
         }
         out
@@ -705,6 +767,9 @@ fn values_off(
 
 /// Classify every pixel where `candidate` and `reference` (Mitsuba's render of `scene`'s
 /// camera) disagree beyond `tol`, with the exact answer as arbiter (see the module docs).
+/// The exact answers are traced along the camera's own pixel rays ([`Camera::pixel_ray`],
+/// the rays cylaov renders): the pinhole's from the camera centre, the orthographic
+/// camera's parallel rays from its image plane.
 pub fn arbitrate(
     scene: &Scene,
     candidate: &AovImage,
@@ -712,11 +777,31 @@ pub fn arbitrate(
     tol: &Tolerances,
     candidate_bound: Bound,
 ) -> Result<Arbitration> {
+    arbitrate_against(
+        scene,
+        candidate,
+        reference,
+        tol,
+        candidate_bound,
+        Reference::Mitsuba,
+    )
+}
+
+/// [`arbitrate`] against `against`: Mitsuba's render, or the exact answer's own image
+/// ([`exact_render`]) for a camera Mitsuba has no sensor for. Refused for a lens model
+/// against Mitsuba.
+pub fn arbitrate_against(
+    scene: &Scene,
+    candidate: &AovImage,
+    reference: &AovImage,
+    tol: &Tolerances,
+    candidate_bound: Bound,
+    against: Reference,
+) -> Result<Arbitration> {
     let cam = Camera::new(scene.camera);
-    // The exact answers are traced along the pinhole's pixel rays.
-    if !cam.is_pinhole() {
+    if against == Reference::Mitsuba && !has_mitsuba_sensor(&cam.projection) {
         bail!(
-            "camera.model: verify checks the \"perspective\" camera only, got \"{}\"",
+            "camera.model: Mitsuba 3 has no \"{}\" camera to check against",
             cam.projection.model().name()
         );
     }
@@ -734,7 +819,7 @@ pub fn arbitrate(
         Side::new(candidate, "candidate", true)?,
         Side::new(reference, "reference", false)?,
     );
-    let reference_bound = Bound::mitsuba();
+    let reference_bound = against.bound();
     let tracer = Tracer {
         cylinders: &scene.cylinders,
         boxes: scene.cylinders.iter().map(Cylinder::bounds).collect(),
@@ -749,7 +834,8 @@ pub fn arbitrate(
         cam: Camera::new(scene.camera),
     };
     let cam = &tracer.cam;
-    let origin_len = cam.origin.length();
+    // The largest ray-origin size over the pixels (a corner's, for the orthographic camera).
+    let origin_len = ray_origin_size(cam, 0, 0);
     let reach = |c: &Cylinder| c.base.length().max(c.top().length());
     let (mut delta_max, mut feature_min, mut radius_max) = (0.0f64, f64::INFINITY, 0.0f64);
     for c in &scene.cylinders {
@@ -798,8 +884,8 @@ pub fn arbitrate(
         if kind.is_none() && !ha {
             return None;
         }
-        let (d, len) = cam.dir_and_length(cam.column_offset(x as u32), cam.row_offset(y as u32));
-        let e = tracer.trace(cam.origin, d, len);
+        let ray = cam.pixel_ray(x as u32, y as u32);
+        let e = tracer.trace(&ray);
         let exact = match &e {
             None => Sample {
                 id: Some(0),
@@ -842,7 +928,7 @@ pub fn arbitrate(
                 l_t = l_t.max(v);
             }
         }
-        let l = origin_len + l_reach + l_t;
+        let l = ray_origin_size(cam, x as u32, y as u32) + l_reach + l_t;
         let delta_a = candidate_bound.delta(l);
         let delta_b = reference_bound.delta(l);
         // Each side against the exact answer: identity first, then values. Gives the
@@ -858,7 +944,7 @@ pub fn arbitrate(
                 });
                 (off, true, kind)
             } else {
-                let nearby = tracer.nearby(cam.origin, d, len, delta);
+                let nearby = tracer.nearby(&ray, delta);
                 // Another part of the exact answer's cylinder (a rim): within δ when the
                 // exact ray passes within δ of a part boundary of what it hits. Another
                 // cylinder or hit vs miss: when a ray within δ sees that identity.
@@ -890,7 +976,25 @@ pub fn arbitrate(
         // Mitsuba off beyond δ: is it on the exact answer for its own float32 inputs?
         let on_its_inputs = || {
             let round = |v: DVec3| v.as_vec3().as_dvec3();
-            let r = tracer32.trace(round(cam.origin), round(d), len);
+            // Mitsuba's orthographic ray starts on the near plane (the float32 point there is
+            // its input) and its `t` from there; the reference script adds `near` back.
+            let shift = match cam.projection {
+                Projection::Orthographic { .. } => cam.spec.near_clip,
+                _ => 0.0,
+            };
+            let r = tracer32
+                .trace(&PixelRay {
+                    origin: round(ray.origin + ray.dir * shift),
+                    dir: round(ray.dir),
+                    tmin: ray.tmin - shift,
+                    tmax: ray.tmax - shift,
+                    ..ray
+                })
+                .map(|mut r| {
+                    r.t += shift;
+                    r.depth += shift;
+                    r
+                });
             same_identity(&rounded, &sb, hb, r.as_ref())
                 && r.as_ref().is_none_or(|r| {
                     values_off(&sb, r, &rounded[r.index], &reference_bound, l, &axes).0 <= 1.0
@@ -942,8 +1046,95 @@ pub fn arbitrate(
         feature_min,
         radius_max,
         cannot_discriminate: delta_max >= feature_min,
+        reference: against,
         pixels,
     })
+}
+
+/// Whether Mitsuba 3 has a sensor for this projection: the pinhole (`perspective`) and the
+/// `orthographic` camera. The lens models have none.
+pub fn has_mitsuba_sensor(p: &Projection) -> bool {
+    matches!(p, Projection::Perspective | Projection::Orthographic { .. })
+}
+
+/// The exact answer on every pixel ray of `scene`'s camera ([`Camera::pixel_ray`], the rays
+/// cylaov renders), as an image with the reference's channels: `distance`, `depth`,
+/// `normal`, `position` (each rounded once to float32), `shape_id` and `part` (u32; every
+/// channel 0 where the ray misses). The reference of a camera Mitsuba has no sensor for.
+pub fn exact_render(scene: &Scene) -> Result<AovImage> {
+    use crate::output::aov::{Channel, ChannelData};
+    let cam = Camera::new(scene.camera);
+    let (w, h) = (cam.width() as usize, cam.height() as usize);
+    let tracer = Tracer {
+        cylinders: &scene.cylinders,
+        boxes: scene.cylinders.iter().map(Cylinder::bounds).collect(),
+        cam,
+    };
+    let n = w * h;
+    let what = "the exact answer's image";
+    let mut f: Vec<Vec<f32>> = (0..8)
+        .map(|_| crate::mem::zeroed_or_exit::<f32>(n, what))
+        .collect();
+    let mut ids = crate::mem::zeroed_or_exit::<u32>(n, what);
+    let mut parts = crate::mem::zeroed_or_exit::<u32>(n, what);
+    // Bands of rows traced in parallel, so only one band's answers are held at a time.
+    const BAND: usize = 32;
+    for y0 in (0..h).step_by(BAND) {
+        let rows: Vec<Vec<Option<Exact>>> = (y0..(y0 + BAND).min(h))
+            .into_par_iter()
+            .map(|y| {
+                (0..w)
+                    .map(|x| tracer.trace(&cam.pixel_ray(x as u32, y as u32)))
+                    .collect()
+            })
+            .collect();
+        for (k, e) in rows.iter().flatten().enumerate() {
+            let Some(e) = e else { continue };
+            let k = y0 * w + k;
+            let values = [
+                e.t,
+                e.depth,
+                e.normal.x,
+                e.normal.y,
+                e.normal.z,
+                e.position.x,
+                e.position.y,
+                e.position.z,
+            ];
+            for (c, v) in f.iter_mut().zip(values) {
+                c[k] = v as f32;
+            }
+            ids[k] = scene.cylinders[e.index].id;
+            parts[k] = e.part;
+        }
+    }
+    let names = [
+        "distance",
+        "depth",
+        "normal.X",
+        "normal.Y",
+        "normal.Z",
+        "position.X",
+        "position.Y",
+        "position.Z",
+    ];
+    let mut channels: Vec<Channel> = names
+        .iter()
+        .zip(f)
+        .map(|(name, v)| Channel {
+            name: (*name).into(),
+            data: ChannelData::F32(v),
+        })
+        .collect();
+    channels.push(Channel {
+        name: "shape_id".into(),
+        data: ChannelData::U32(ids),
+    });
+    channels.push(Channel {
+        name: "part".into(),
+        data: ChannelData::U32(parts),
+    });
+    Ok(AovImage::from_channels(w, h, channels))
 }
 
 /// `c` as Mitsuba parses the exported XML: `p0`, `p1` and `radius` rounded to float32.

@@ -5,7 +5,12 @@
 //!    all of them, `shape_id` and `part` included), whatever the dataset stores.
 //! 2. Mitsuba renders the reference ([`Mitsuba::render`]): the scene goes through
 //!    `output::mitsuba::to_xml`, and the reference script, compiled into this binary
-//!    ([`SCRIPT`]), runs in the pinned venv's Python (mitsuba 3.9.1, `scalar_rgb`).
+//!    ([`SCRIPT`]), runs in the pinned venv's Python (mitsuba 3.9.1, `scalar_rgb`). That
+//!    is the perspective and the orthographic camera; the lens models (`opencv`,
+//!    `opencv_fisheye`, `equirectangular`), which Mitsuba has no sensor for, are checked
+//!    against the exact answer alone: their reference is the double-double answer on every
+//!    pixel ray ([`exact_render`]), no venv needed, and the verdict says so
+//!    ([`exact_alone_line`]).
 //! 3. [`check_against`] compares them with the rule of [`crate::verify::compare`]: identity
 //!    by (cylinder, part), the flat [`Tolerances`], and per-pixel float32 conditioning
 //!    bounds from the scene.
@@ -34,7 +39,9 @@ use crate::output::io::atomic_write_bytes;
 use crate::output::signals::{self, Cleanup};
 use crate::render::{RenderOptions, render};
 use crate::scene::{Aov, Scene};
-use crate::verify::arbiter::{Arbitration, Bound, arbitrate};
+use crate::verify::arbiter::{
+    Arbitration, Bound, Reference, arbitrate_against, exact_render, has_mitsuba_sensor,
+};
 use crate::verify::compare::{Conditioning, Report, Tolerances, compare_with, heatmap_figure};
 use anyhow::{Context, Result, bail};
 use serde::{Deserialize, Serialize};
@@ -84,12 +91,12 @@ impl Mitsuba {
     /// Render `scene`'s reference AOVs in `work` (a private folder) and read them back.
     /// `source_name` goes into the XML's header comment.
     pub fn render(&self, scene: &Scene, source_name: &str, work: &Path) -> Result<AovImage> {
-        // The reference script and the exact arbiter build the pinhole's rays.
-        let model = scene.camera.projection.model();
-        if model != crate::scene::camera::model::CameraModel::Perspective {
+        // The reference script converts the rays of Mitsuba's two sensors; the lens models
+        // have none (their reference is the exact answer alone, see `reference_image`).
+        if !has_mitsuba_sensor(&scene.camera.projection) {
             anyhow::bail!(
-                "camera.model: verify checks the \"perspective\" camera only, got \"{}\"",
-                model.name()
+                "camera.model: Mitsuba 3 has no \"{}\" camera",
+                scene.camera.projection.model().name()
             );
         }
         let xml = work.join("scene.xml");
@@ -134,23 +141,53 @@ impl Mitsuba {
 }
 
 /// The script's camera input: `{"camera": {...}}` of the validated camera, so a scene with
-/// several cameras or defaults left out still gives the script every field.
+/// several cameras or defaults left out still gives the script every field (the
+/// orthographic camera's `model` and `ortho_width` too).
 fn camera_file(scene: &Scene) -> String {
     let c = &scene.camera;
-    serde_json::json!({
-        "camera": {
-            "origin": c.origin.to_array(),
-            "target": c.target.to_array(),
-            "up": c.up.to_array(),
-            "fov_deg": c.fov_deg,
-            "fov_axis": c.fov_axis.name(),
-            "width": c.width,
-            "height": c.height,
-            "near_clip": c.near_clip,
-            "far_clip": c.far_clip,
-        }
-    })
-    .to_string()
+    let mut cam = serde_json::json!({
+        "origin": c.origin.to_array(),
+        "target": c.target.to_array(),
+        "up": c.up.to_array(),
+        "fov_deg": c.fov_deg,
+        "fov_axis": c.fov_axis.name(),
+        "width": c.width,
+        "height": c.height,
+        "near_clip": c.near_clip,
+        "far_clip": c.far_clip,
+        "model": c.projection.model().name(),
+    });
+    if let (Some(map), crate::scene::camera::Projection::Orthographic { half_width, .. }) =
+        (cam.as_object_mut(), c.projection)
+    {
+        map.insert("ortho_width".into(), serde_json::json!(2.0 * half_width));
+    }
+    serde_json::json!({ "camera": cam }).to_string()
+}
+
+/// The words of a view checked against the exact answer alone (a lens model).
+pub fn exact_alone_line(scene: &Scene) -> String {
+    format!(
+        "checked against the exact answer alone: Mitsuba has no {} camera",
+        scene.camera.projection.model().name()
+    )
+}
+
+/// The reference `scene`'s view is checked against: Mitsuba's render for the cameras it has
+/// a sensor for (`mitsuba` is then needed: its error says why there is none), the exact
+/// answer's own image ([`exact_render`]) for the lens models, which need no venv.
+pub fn reference_image(
+    mitsuba: Result<&Mitsuba, &str>,
+    scene: &Scene,
+    source_name: &str,
+    work: &Path,
+) -> Result<AovImage> {
+    if !has_mitsuba_sensor(&scene.camera.projection) {
+        return exact_render(scene);
+    }
+    mitsuba
+        .map_err(|why| anyhow::anyhow!("{why}"))?
+        .render(scene, source_name, work)
 }
 
 /// cylaov's render for a check: every AOV (identity and the channels conditioning needs).
@@ -219,6 +256,10 @@ pub fn check_against(
 /// conditioning in the statistics), and classify every pixel where they disagree beyond
 /// `tol` with the exact answer as arbiter ([`crate::verify::arbiter`]): the view fails on
 /// a candidate error or an unexplained reference error, or a non-finite sample.
+///
+/// `reference` is Mitsuba's render for a perspective or orthographic camera, and the exact
+/// answer's image ([`reference_image`]) for a lens model: that check is against the exact
+/// answer alone, and its first accepted line says so ([`exact_alone_line`]).
 pub fn check_against_with(
     scene: &Scene,
     candidate: &AovImage,
@@ -226,21 +267,34 @@ pub fn check_against_with(
     tol: &Tolerances,
     bound: Bound,
 ) -> Result<ViewCheck> {
-    let cond = Conditioning::new(scene, candidate);
+    let exact_alone = !has_mitsuba_sensor(&scene.camera.projection);
+    let against = if exact_alone {
+        Reference::Exact
+    } else {
+        Reference::Mitsuba
+    };
+    // No float32 conditioning against the exact answer: nothing there is float32 but the
+    // storage, which the candidate's bound covers.
+    let cond = Conditioning::new(scene, candidate).filter(|_| !exact_alone);
     let report = compare_with(candidate, reference, cond.as_ref())?;
-    let arbitration = arbitrate(scene, candidate, reference, tol, bound)?;
+    let arbitration = arbitrate_against(scene, candidate, reference, tol, bound, against)?;
+    let mut accepted = arbitration.accepted_lines();
+    if exact_alone {
+        accepted.insert(0, exact_alone_line(scene));
+    }
     Ok(ViewCheck {
         failures: arbitration.failure_lines(),
-        accepted: arbitration.accepted_lines(),
+        accepted,
         tolerances: *tol,
         arbitration,
         report,
     })
 }
 
-/// Render `scene` with cylaov and with Mitsuba (in `work`) and check them.
+/// Render `scene` with cylaov and its reference ([`reference_image`]: Mitsuba in `work`,
+/// or the exact answer for a lens model) and check them.
 pub fn verify_scene(
-    mitsuba: &Mitsuba,
+    mitsuba: Result<&Mitsuba, &str>,
     scene: &Scene,
     source_name: &str,
     precision: Precision,
@@ -250,7 +304,7 @@ pub fn verify_scene(
 ) -> Result<(ViewCheck, AovImage, AovImage)> {
     let _scratch = signals::register(Cleanup::Tree, work);
     let ours = check_render(scene, precision, formula);
-    let reference = mitsuba.render(scene, source_name, work)?;
+    let reference = reference_image(mitsuba, scene, source_name, work)?;
     let check = check_against_with(scene, &ours, &reference, tol, Bound::cylaov(precision))?;
     Ok((check, ours, reference))
 }
@@ -471,9 +525,12 @@ impl MitsubaVerifier {
         let file = AovImage::read_exr(exr)?;
         let differ = differing_samples(&file, &ours);
         let _scratch = signals::register(Cleanup::Tree, work);
-        let reference = self
-            .mitsuba
-            .render(scene, &view.path.display().to_string(), work)?;
+        let reference = reference_image(
+            Ok(&self.mitsuba),
+            scene,
+            &view.path.display().to_string(),
+            work,
+        )?;
         if !differ.is_empty() {
             // The file on disk is what is judged: its samples against Mitsuba and the exact
             // answer name the pixels at fault. Not cached: a file that does not match its

@@ -122,3 +122,55 @@ pub fn tree(dir: &Path) -> BTreeMap<String, Vec<u8>> {
     walk(dir, dir, &mut out);
     out
 }
+
+/// The scene the camera-model tests render: a closed tube of radius 6 around the camera
+/// (every ray of every model hits its inner wall or a cap) with a ring of twelve closed
+/// cylinders inside it and a crossbar (hits at many depths, angles and parts), seen by a
+/// 64×48 camera at `[0.2, -0.4, 0.3]` looking at `[1, 3, 0]` with `model`'s fields
+/// (`{"model": "opencv", "fx": ...}`) merged into it.
+pub fn lens_test_scene(model: &serde_json::Value) -> serde_json::Value {
+    use serde_json::json;
+    let mut cyl = vec![json!({
+        "p0": [0, 0, -4], "p1": [0, 0, 4], "radius": 6, "id": 100
+    })];
+    for k in 0..12 {
+        let a = std::f64::consts::TAU * k as f64 / 12.0;
+        let (s, c) = a.sin_cos();
+        cyl.push(json!({
+            "p0": [3.0 * c, 3.0 * s, -1.5 + 0.1 * k as f64],
+            "p1": [3.0 * c, 3.0 * s, 1.0 + 0.1 * k as f64],
+            "radius": 0.35 + 0.03 * k as f64,
+            "id": k + 1
+        }));
+    }
+    cyl.push(json!({"p0": [-2, 1.2, 0.6], "p1": [2, 1.5, 0.4], "radius": 0.25, "id": 50}));
+    let mut cam = json!({
+        "origin": [0.2, -0.4, 0.3], "target": [1.0, 3.0, 0.0], "up": [0, 0, 1],
+        "width": 64, "height": 48, "near_clip": 0.01
+    });
+    if let Some(fields) = model.as_object() {
+        for (k, v) in fields {
+            cam[k] = v.clone();
+        }
+    }
+    json!({"camera": cam, "cylinders": cyl})
+}
+
+/// The lens models with the parameters the camera-model tests use: `(name, fields)`.
+pub fn lens_models() -> [(&'static str, serde_json::Value); 3] {
+    use serde_json::json;
+    [
+        (
+            "opencv",
+            json!({"model": "opencv", "fx": 40, "fy": 42, "cx": 31.2, "cy": 23.7,
+                "k1": -0.21, "k2": 0.04, "p1": 0.0012, "p2": -0.0017, "k3": 0.005}),
+        ),
+        (
+            "opencv_fisheye",
+            // fx = 18 on 64 px: the corners ask for θ_d = 2.2, rays about 125° off the axis.
+            json!({"model": "opencv_fisheye", "fx": 18, "fy": 18.5, "cx": 31.6,
+                "cy": 23.4, "k1": 0.03, "k2": -0.004, "k3": 0.0006, "k4": -0.00003}),
+        ),
+        ("equirectangular", json!({"model": "equirectangular"})),
+    ]
+}

@@ -53,6 +53,14 @@
 //! the double-double oracle that on such pixels cylaov agrees with the exact answer and
 //! Mitsuba does not.
 //!
+//! The same bound covers Mitsuba's `orthographic` sensor, whose rays start on the near plane
+//! at the pixel's lateral offset `(x, y)` instead of at the camera centre: the rounded
+//! origin coordinates are then of size `|o| + |x| + |y| + near` in place of `|o|`, and the
+//! direction, the same for every pixel, is the look-at's forward axis rounded to float32
+//! ([`ray_origin_size`] derives it). The lens models (`opencv`, `opencv_fisheye`,
+//! `equirectangular`) have no Mitsuba sensor: no conditioning; they are checked against the
+//! exact answer alone ([`crate::verify::reference`]).
+//!
 //! `shape_id` and `part` may be u32 (cylaov) or float32 (Mitsuba references: one component
 //! type per bitmap), in either image and mixed: they are compared as ids, and float ids
 //! must be whole numbers below 2^24. Any other channel both images have with different
@@ -61,7 +69,7 @@
 
 use crate::output::aov::{AovImage, ChannelRef};
 use crate::scene::Scene;
-use crate::scene::camera::Camera;
+use crate::scene::camera::{Camera, Projection};
 use anyhow::{Result, bail};
 use glam::DVec3;
 use image::{Rgb, RgbImage};
@@ -507,6 +515,40 @@ mod tests {
         small.height = 6;
         let e = compare(&a, &small).expect_err("size");
         assert_eq!(e.to_string(), "image sizes differ: A is 6x5, B is 5x6");
+    }
+
+    /// The orthographic ray origin's rounded coordinates add the pixel's lateral offset and
+    /// the near distance to `|o|`; the pinhole's and the lens models' are `|o|`. Conditioning
+    /// follows Mitsuba's two sensors and is absent for a lens model.
+    #[test]
+    fn orthographic_rays_widen_the_origin_term() {
+        use crate::geometry::{FormulaKind, Precision};
+        let scene = |camera: &str| {
+            crate::scene::parse(&format!(
+                r#"{{"camera": {{"origin": [3, -4, 0], "target": [0, 0, 0], "up": [0, 0, 1],
+                    "width": 4, "height": 2, "near_clip": 0.5, {camera}}},
+                    "cylinders": [{{"p0": [0, 0, -2], "p1": [0, 0, 2], "radius": 1.5}}]}}"#
+            ))
+            .expect("valid scene")
+        };
+        let ortho = scene(r#""model": "orthographic", "ortho_width": 8"#);
+        let cam = Camera::new(ortho.camera);
+        // |o| = 5; half extents 4 × 2; pixel (0, 0) is at x = -3, y = 1; (1, 1) at -1, -1.
+        assert_eq!(ray_origin_size(&cam, 0, 0), 5.0 + 3.0 + 1.0 + 0.5);
+        assert_eq!(ray_origin_size(&cam, 1, 1), 5.0 + 1.0 + 1.0 + 0.5);
+        for other in [r#""fov_deg": 40"#, r#""model": "equirectangular""#] {
+            let cam = Camera::new(scene(other).camera);
+            assert_eq!(ray_origin_size(&cam, 0, 0), 5.0, "{other}");
+        }
+        let render = |s: &Scene| {
+            crate::verify::reference::check_render(s, Precision::F64, FormulaKind::Stable)
+        };
+        let cond = Conditioning::new(&ortho, &render(&ortho)).expect("orthographic");
+        // The cylinder (radius 1.5) fills the two middle columns (at x = ±1): hit pixels
+        // get a bound, the outer columns (x = ±3) miss and get none.
+        assert!(cond.rel.iter().any(|&b| b > 0.0) && cond.rel.contains(&0.0));
+        let lens = scene(r#""model": "equirectangular""#);
+        assert!(Conditioning::new(&lens, &render(&lens)).is_none());
     }
 
     #[test]
