@@ -289,19 +289,30 @@ fn render_simd<T: Simd, F: PacketFormula>(
     let mut samples = uninit_planes(opts, w * h);
     let inputs = setup.inputs();
     let band_fn = band_renderer::<T, F>(simd);
+    // A stopped render skips its remaining bands, zeroing included (a large view's pages
+    // would take longer to fault in than the caller wants to wait), and so has no image.
+    let skipped = AtomicBool::new(false);
     let hits: usize = bands(&mut samples, band_rows * w, h.div_ceil(band_rows))
         .into_par_iter()
         .enumerate()
-        .map(|(b, band)| {
-            let mut band = band.zeroed();
-            match stop {
-                Some(s) if s.load(Ordering::Relaxed) => 0,
-                _ => band_fn(&inputs, b, &mut band),
+        .map(|(b, band)| match stop {
+            Some(s) if s.load(Ordering::Relaxed) => {
+                skipped.store(true, Ordering::Relaxed);
+                0
             }
+            _ => band_fn(&inputs, b, &mut band.zeroed()),
         })
         .sum();
-    // SAFETY: the bands cover every sample of every plane (`bands` cuts each whole) and
-    // each was zeroed above, stopped or not; a panic in a band never reaches here.
+    if skipped.into_inner() {
+        let image = AovImage {
+            width: 0,
+            height: 0,
+            buffers: Vec::new(),
+        };
+        return (Render { image, hits }, setup.timing(start));
+    }
+    // SAFETY: the bands cover every sample of every plane (`bands` cuts each whole) and,
+    // none skipped, each was zeroed above; a panic in a band never reaches here.
     let samples = unsafe { samples.assume_init() };
     let image = AovImage {
         width: w,
