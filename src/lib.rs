@@ -108,5 +108,6 @@ pub mod output;
 pub mod python;
 pub mod render;
 pub mod rng;
+pub mod scan;
 pub mod scene;
 pub mod verify;
