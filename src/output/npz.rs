@@ -64,7 +64,7 @@ pub fn zip_stored(members: &[(String, Vec<u8>)]) -> Result<Vec<u8>, String> {
         central.extend_from_slice(&20u16.to_le_bytes()); // made by: 2.0, MS-DOS
         fixed(&mut central, crc, data.len() as u32, name);
         // Comment length, disk number, internal and external attributes, local offset.
-        central.extend_from_slice(&[0; 8]);
+        central.extend_from_slice(&[0; 10]);
         central.extend_from_slice(&(offset as u32).to_le_bytes());
         central.extend_from_slice(name.as_bytes());
     }

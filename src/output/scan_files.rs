@@ -107,11 +107,12 @@ pub fn ply(scan: &Scan, comment: &str) -> Vec<u8> {
 }
 
 /// The extra bytes of each LAS point, in order: `(name, LAS data type, size, description)`.
-/// Data types (LAS 1.4 table 24): 3 = u16, 5 = u32, 9 = f32, 10 = f64.
+/// Data types (LAS 1.4 table 24): 3 = u16, 5 = u32, 9 = f32, 10 = f64. Names and
+/// descriptions fit the descriptor's 32 bytes (a test checks).
 const LAS_EXTRA: [(&str, u8, usize, &str); 10] = [
     ("ring", 3, 2, "beam sorted by elevation"),
     ("shape_id", 5, 4, "cylinder id"),
-    ("part", 3, 2, "1 side out 2 side in 3 bottom 4 top"),
+    ("part", 3, 2, "1 side out,2 in,3 bottom,4 top"),
     ("label", 5, 4, "cylinder label (unclipped)"),
     ("range", 10, 8, "range along the beam, noisy"),
     ("range_exact", 10, 8, "range without noise"),
@@ -212,4 +213,17 @@ pub fn las(scan: &Scan) -> Result<Vec<u8>, String> {
         w.write_point(p).map_err(e)?;
     }
     Ok(w.into_inner().map_err(e)?.into_inner())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn extra_byte_names_fit_their_fields() {
+        for (name, _, _, description) in LAS_EXTRA {
+            assert!(name.len() <= 32 && description.len() <= 32, "{name}");
+        }
+        assert_eq!(extra_bytes_vlr().data.len(), 192 * LAS_EXTRA.len());
+    }
 }
