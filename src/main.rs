@@ -467,7 +467,12 @@ struct ScanCli {
     #[arg(short, long, value_name = "OUT.{las,ply,npz}")]
     out: PathBuf,
     /// The sensor's position and (optional) yaw, pitch, roll in degrees.
-    #[arg(long, value_name = "X,Y,Z[,YAW,PITCH,ROLL]", default_value = "0,0,0")]
+    #[arg(
+        long,
+        value_name = "X,Y,Z[,YAW,PITCH,ROLL]",
+        default_value = "0,0,0",
+        allow_hyphen_values = true
+    )]
     pose: String,
     /// Poses over time (CSV: time,x,y,z,yaw,pitch,roll), interpolated at each beam's time
     /// (position linearly, rotation by slerp); replaces --pose.

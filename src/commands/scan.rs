@@ -74,8 +74,11 @@ pub fn run(args: &ScanArgs) -> Result<String> {
     let sensor = load_sensor(&args.sensor)?;
     let motion = match &args.trajectory {
         Some(path) => {
-            let text = read_small(path).with_context(|| format!("--trajectory {}", path.display()))?;
-            Motion::Path(Trajectory::from_csv(&text).map_err(|e| anyhow!("{}: {e}", path.display()))?)
+            let text =
+                read_small(path).with_context(|| format!("--trajectory {}", path.display()))?;
+            Motion::Path(
+                Trajectory::from_csv(&text).map_err(|e| anyhow!("{}: {e}", path.display()))?,
+            )
         }
         None => Motion::Fixed(args.pose),
     };
@@ -85,9 +88,9 @@ pub fn run(args: &ScanArgs) -> Result<String> {
         returns: args.returns,
         noise: args.noise,
     };
-    opts.validate().map_err(|e| anyhow!("--{}", e.replace('_', "-")))?;
-    let scene =
-        scene::load(&args.scene).with_context(|| format!("{}", args.scene.display()))?;
+    opts.validate()
+        .map_err(|e| anyhow!("--{}", e.replace('_', "-")))?;
+    let scene = scene::load(&args.scene).with_context(|| format!("{}", args.scene.display()))?;
     let points = crate::scan::scan(&scene, &opts).map_err(|e| anyhow!(e))?;
     let comment = format!(
         "cylaov {} scan of {} by {}",

@@ -14,7 +14,11 @@ pub fn crc32(bytes: &[u8]) -> u32 {
             let mut c = i as u32;
             let mut k = 0;
             while k < 8 {
-                c = if c & 1 != 0 { 0xEDB8_8320 ^ (c >> 1) } else { c >> 1 };
+                c = if c & 1 != 0 {
+                    0xEDB8_8320 ^ (c >> 1)
+                } else {
+                    c >> 1
+                };
                 k += 1;
             }
             t[i] = c;
@@ -32,7 +36,10 @@ pub fn crc32(bytes: &[u8]) -> u32 {
 pub fn zip_stored(members: &[(String, Vec<u8>)]) -> Result<Vec<u8>, String> {
     let limit = u32::MAX as usize;
     if members.len() > u16::MAX as usize {
-        return Err(format!("{} members is more than a zip holds", members.len()));
+        return Err(format!(
+            "{} members is more than a zip holds",
+            members.len()
+        ));
     }
     let mut out = Vec::new();
     let mut central = Vec::new();

@@ -161,7 +161,9 @@ pub fn las(scan: &Scan) -> Result<Vec<u8>, String> {
     let centre = |v: &[f64]| {
         let (lo, hi) = v
             .iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+                (a.min(x), b.max(x))
+            });
         if lo.is_finite() {
             ((lo + hi) / 2.0).round()
         } else {

@@ -412,25 +412,20 @@ impl<'a> AnyOrigin<'a> {
         // Each cylinder met is prepared for this origin, as `tracer_at` prepares all of
         // them for a camera; a closer hit (ties: lower index) prunes the walk, the bound
         // rounded up so a tie is still visited.
-        self.bvh.traverse_from(
-            o32,
-            pad,
-            d32,
-            f32_down(t_min),
-            f32_up(t_max),
-            |pos| {
+        self.bvh
+            .traverse_from(o32, pad, d32, f32_down(t_min), f32_up(t_max), |pos| {
                 let index = order[pos as usize];
                 let p = Prepared::<f64>::new(&cylinders[index as usize], origin, Stable::CENTRED);
                 let limit = best.map_or(t_max, |b| b.0.t);
                 let hit = Stable::intersect(&p, dir, t_min, limit)?;
-                let closer = best.is_none_or(|(b, i, _)| hit.t < b.t || (hit.t == b.t && index < i));
+                let closer =
+                    best.is_none_or(|(b, i, _)| hit.t < b.t || (hit.t == b.t && index < i));
                 if !closer {
                     return None;
                 }
                 best = Some((hit, index, p));
                 Some(f32_up(hit.t))
-            },
-        );
+            });
         let (hit, index, p) = best?;
         let cyl = &cylinders[index as usize];
         let kernel_normal = Stable::normal(&p, dir, hit);

@@ -182,8 +182,14 @@ mod tests {
         assert_eq!(t.at(5.0).position.x, 2.0);
         let e = Trajectory::from_csv("time,x,y,z,yaw,pitch,roll\n0,0,0,0,0,0,0\n0,1,0,0,0,0,0")
             .unwrap_err();
-        assert_eq!(e, "trajectory line 3: time 0 must be after the previous line's 0");
+        assert_eq!(
+            e,
+            "trajectory line 3: time 0 must be after the previous line's 0"
+        );
         let e = Trajectory::from_csv("time,x,y,z,yaw,pitch,roll\n0,0,zz,0,0,0,0").unwrap_err();
-        assert_eq!(e, "trajectory line 2: value 3 (\"zz\") is not a finite number");
+        assert_eq!(
+            e,
+            "trajectory line 2: value 3 (\"zz\") is not a finite number"
+        );
     }
 }

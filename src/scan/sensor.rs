@@ -126,18 +126,21 @@ impl Sensor {
     /// Read and validate a sensor JSON text; every error names its field under `sensor.`.
     pub fn from_json(text: &str) -> Result<Sensor, SensorError> {
         let mut de = serde_json::Deserializer::from_str(text);
-        let file: SensorFile = serde_path_to_error::deserialize(&mut de).map_err(|e| {
-            let path = e.path().to_string();
-            let field = if path == "." || path == "?" {
-                "sensor".to_string()
-            } else {
-                format!("sensor.{path}")
-            };
-            SensorError(format!("{field}: {}", e.into_inner()))
-        })?;
+        // Read as an object only: an array of the fields in order would be accepted by
+        // serde's derive.
+        let file: crate::scene::strict::Object<SensorFile> =
+            serde_path_to_error::deserialize(&mut de).map_err(|e| {
+                let path = e.path().to_string();
+                let field = if path == "." || path == "?" {
+                    "sensor".to_string()
+                } else {
+                    format!("sensor.{path}")
+                };
+                SensorError(format!("{field}: {}", e.into_inner()))
+            })?;
         de.end()
             .map_err(|e| SensorError(format!("sensor: text after the JSON object: {e}")))?;
-        file.validate()
+        file.0.validate()
     }
 
     /// Beams (rings).
@@ -293,7 +296,10 @@ mod tests {
         let e = Sensor::from_json(r#"{"elevations_deg": [0], "rotation_hz": 10}"#).unwrap_err();
         assert!(e.0.starts_with("sensor: missing field"), "{e}");
         let e = Sensor::from_json(r#"{"elevations_deg": ["a"]}"#).unwrap_err();
-        assert!(e.0.starts_with("sensor.elevations_deg[0]: invalid type"), "{e}");
+        assert!(
+            e.0.starts_with("sensor.elevations_deg[0]: invalid type"),
+            "{e}"
+        );
     }
 
     #[test]
