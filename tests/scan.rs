@@ -420,42 +420,45 @@ fn returns_are_the_oracles_kth_intersections() {
     let s = scan(&sc, &opts).unwrap();
     assert!(s.len() > 1000, "{}", s.len());
     let (mut worst, mut skipped, mut beams) = (0.0f64, 0, 0);
+    // Points are ordered by step, then ring: each beam's points are consecutive, and
+    // a beam that hit nothing has none (which the oracle must agree with).
     let mut i = 0;
-    while i < s.len() {
-        let dir = (pose.rotation * beam_dir(s.elevation[i], s.azimuth[i])).normalize();
-        let mut all: Vec<f64> = Vec::new();
-        for c in &sc.cylinders {
-            let p = Problem::new(c, pose.position, dir);
-            let mut tmin = DD::new(sensor.min_range);
-            while let Some(h) = oracle::intersect(&p, tmin, DD::new(sensor.max_range)) {
-                all.push(h.t.to_f64());
-                // Past this hit (1e-13 relative: far below any gap we compare).
-                tmin = DD::new(h.t.to_f64() * (1.0 + 1e-13) + 1e-300);
+    for step in 0..sensor.steps_per_rotation {
+        for ring in 0..sensor.beams() {
+            let azimuth = step as f64 * 360.0 / sensor.steps_per_rotation as f64;
+            let elevation = sensor.elevations_deg[ring];
+            let dir = (pose.rotation * beam_dir(elevation, azimuth)).normalize();
+            let mut all: Vec<f64> = Vec::new();
+            for c in &sc.cylinders {
+                let p = Problem::new(c, pose.position, dir);
+                let mut tmin = DD::new(sensor.min_range);
+                while let Some(h) = oracle::intersect(&p, tmin, DD::new(sensor.max_range)) {
+                    all.push(h.t.to_f64());
+                    // Past this hit (1e-13 relative: far below any gap compared here).
+                    tmin = DD::new(h.t.to_f64() * (1.0 + 1e-13) + 1e-300);
+                }
             }
-        }
-        all.sort_by(f64::total_cmp);
-        let n = s.num_returns[i] as usize;
-        beams += 1;
-        if all.windows(2).any(|w| w[1] - w[0] < 1e-9 * w[1]) {
-            skipped += 1;
+            all.sort_by(f64::total_cmp);
+            let here = i < s.len() && s.ring[i] as usize == ring && s.azimuth[i] == azimuth;
+            let n = if here { s.num_returns[i] as usize } else { 0 };
+            beams += 1;
+            if all.windows(2).any(|w| w[1] - w[0] < 1e-9 * w[1]) {
+                skipped += 1;
+                i += n;
+                continue;
+            }
+            assert_eq!(n, all.len().min(3), "step {step} ring {ring}: {all:?}");
+            for k in 0..n {
+                let want = all[k];
+                let rel = (s.range_exact[i + k] - want).abs() / want;
+                worst = worst.max(rel);
+                assert!(rel < 1e-12, "point {}: {} vs {want}", i + k, s.range_exact[i + k]);
+                assert_eq!(s.return_index[i + k] as usize, k + 1);
+            }
             i += n;
-            continue;
         }
-        assert_eq!(n, all.len().min(3), "beam at point {i}: {all:?}");
-        for k in 0..n {
-            let want = all[k];
-            let rel = (s.range_exact[i + k] - want).abs() / want;
-            worst = worst.max(rel);
-            assert!(
-                rel < 1e-12,
-                "point {}: {} vs {want}",
-                i + k,
-                s.range_exact[i + k]
-            );
-            assert_eq!(s.return_index[i + k] as usize, k + 1);
-        }
-        i += n;
     }
+    assert_eq!(i, s.len());
     eprintln!("worst relative range error {worst:e} over {beams} beams ({skipped} skipped)");
     assert!(skipped * 100 < beams, "{skipped} of {beams} skipped");
 }
