@@ -452,7 +452,12 @@ fn returns_are_the_oracles_kth_intersections() {
                 let want = all[k];
                 let rel = (s.range_exact[i + k] - want).abs() / want;
                 worst = worst.max(rel);
-                assert!(rel < 1e-12, "point {}: {} vs {want}", i + k, s.range_exact[i + k]);
+                assert!(
+                    rel < 1e-12,
+                    "point {}: {} vs {want}",
+                    i + k,
+                    s.range_exact[i + k]
+                );
                 assert_eq!(s.return_index[i + k] as usize, k + 1);
             }
             i += n;

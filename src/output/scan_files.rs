@@ -122,6 +122,14 @@ const LAS_EXTRA: [(&str, u8, usize, &str); 10] = [
     ("normal_z", 9, 4, "world unit normal z"),
 ];
 
+/// The beam's elevation as the `las` crate's scan angle, which it stores as
+/// `(angle / 0.006) as i16`, truncating toward zero: half a step (0.003 degrees) added
+/// away from zero first makes that the nearest step (a truncated -13 degrees would read
+/// back as -12.996). LAS 1.4 allows -180..180 degrees; elevations are within -90..90.
+fn scan_angle(elevation_deg: f64) -> f32 {
+    (elevation_deg + 0.003f64.copysign(elevation_deg)) as f32
+}
+
 /// The LAS "extra bytes" VLR (LASF_Spec record 4): one 192-byte descriptor per extra field.
 fn extra_bytes_vlr() -> las::Vlr {
     let mut data = Vec::with_capacity(192 * LAS_EXTRA.len());
@@ -206,7 +214,7 @@ pub fn las(scan: &Scan) -> Result<Vec<u8>, String> {
             number_of_returns: scan.num_returns[i] as u8,
             classification,
             is_overlap,
-            scan_angle: scan.elevation[i] as f32,
+            scan_angle: scan_angle(scan.elevation[i]),
             point_source_id: scan.ring[i] as u16,
             gps_time: Some(scan.time[i]),
             extra_bytes: extra,
