@@ -417,6 +417,11 @@ struct BenchCli {
     /// depth+normal, 100 cylinders, and `render()`'s overhead on a 16x16 view.
     #[arg(long)]
     python: bool,
+    /// Only the LiDAR scan: a VLP-16 rotation at 0.2 degrees (28 800 beams), three returns,
+    /// 10 000 cylinders, in beams/s; with --open3d also Open3D's cast_rays of the same beams
+    /// on 16-segment meshes (first hits only), warm, and the ratio.
+    #[arg(long)]
+    scan: bool,
     /// Only the dataset formats side by side: `batch` of one generated dataset (320x240,
     /// depth+normal, 100 cylinders a scene) in the files format with pictures, EXR-only,
     /// and as webdataset tar shards, in views/s, on the --threads given; then the tar
@@ -1010,6 +1015,33 @@ fn bench(b: BenchCli) -> anyhow::Result<ExitCode> {
         say(&bench::exr_writer::table(&rows))?;
         if let Some(p) = &b.csv {
             cylaov::output::io::atomic_write_bytes(p, &cylaov::output::io::csv_bytes(&rows)?)?;
+        }
+        return Ok(ExitCode::SUCCESS);
+    }
+    if b.scan {
+        let python = if b.open3d {
+            let found = cylaov::verify::reference::Mitsuba::find()
+                .map_err(|why| anyhow::anyhow!("--open3d: {why}"))?;
+            Some(found.python)
+        } else {
+            None
+        };
+        let r = bench::scan::run(python.as_deref())?;
+        let rate = r.beams as f64 / r.seconds;
+        say(&format!(
+            "scan: vlp16 0.2 deg, {} beams, 10000 cylinders, 3 returns: {} points in {:.4} s, {:.0} beams/s ({} threads)",
+            r.beams,
+            r.points,
+            r.seconds,
+            rate,
+            rayon::current_num_threads()
+        ))?;
+        if let Some(o) = r.open3d_seconds {
+            let o3d = r.beams as f64 / o;
+            say(&format!(
+                "open3d cast_rays (first hits, warm): {o:.4} s, {o3d:.0} rays/s; cylaov / open3d = {:.2}",
+                rate / o3d
+            ))?;
         }
         return Ok(ExitCode::SUCCESS);
     }

@@ -14,6 +14,7 @@
 
 pub mod batch_formats;
 pub mod exr_writer;
+pub mod scan;
 
 use crate::accel::tiles;
 use crate::geometry::Kernel;
