@@ -1,6 +1,9 @@
 //! `cylaov scan`: presets, sensor errors, poses, multiple returns, noise, trajectories,
 //! and every return against the double-double oracle's k-th intersection along its beam.
 
+// Points are parallel columns (`d["x"][i]`, `d["range"][i]`, ...) read at one index.
+#![allow(clippy::needless_range_loop)]
+
 mod common;
 
 use common::{cylaov, fresh_dir, ok};

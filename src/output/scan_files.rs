@@ -153,7 +153,7 @@ fn extra_bytes_vlr() -> las::Vlr {
 /// (degrees; LAS stores 0.006 degree steps), classification = label clipped to 255 (label
 /// 12, which LAS 1.4 reserves for the overlap flag, is written as class 1 with the overlap
 /// bit set: the `las` crate's rule), point source id = ring, and every other field as
-/// extra bytes ([`LAS_EXTRA`]).
+/// extra bytes (ring, shape_id, part, label, range, range_exact, azimuth, normal_x/y/z).
 pub fn las(scan: &Scan) -> Result<Vec<u8>, String> {
     use las::point::{Classification, Format};
     use las::{Builder, Point, Transform, Vector, Writer};
