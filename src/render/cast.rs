@@ -368,8 +368,9 @@ fn cast_one<T: Real, F: Formula>(scene: &Scene, tracer: &Tracer<T, F>, r: &Ray) 
 /// met. What a scan needs: every beam of a moving sensor, and every ray continued past a
 /// hit, starts somewhere new, and [`cast`]'s grouping by origin would prepare the whole
 /// scene for each (a loop over every cylinder per ray). In f64 with the stable kernel:
-/// the same hit, bit for bit, as [`cast`] with [`Kernel::STABLE_F64`] when no cylinder
-/// ties (a tie goes to the lower index in both).
+/// the same cylinder as [`cast`] with [`Kernel::STABLE_F64`] (a tie goes to the lower
+/// index in both), and `t` to a few ulp ([`cast`] divides the direction by its length,
+/// which moves a unit direction by an ulp).
 pub struct AnyOrigin<'a> {
     scene: &'a Scene,
     bvh: Bvh,
@@ -556,6 +557,49 @@ mod tests {
         }
         assert!(compared > 380, "{compared} compared");
         assert!(hits.iter().filter(|h| h.is_some()).count() > 300);
+    }
+
+    /// [`AnyOrigin`] finds what [`cast`] finds (stable f64): the same cylinder and part,
+    /// `t` to 4 ulp, and the same point and normal to 1e-14, from random origins in
+    /// and around the scene.
+    #[test]
+    fn any_origin_is_cast() {
+        let sc = crate::bench::dense_scene(200, 7, 9, 9);
+        let walker = AnyOrigin::new(&sc);
+        let mut rng = SplitMix64::new(5);
+        let mut hits = 0;
+        for _ in 0..300 {
+            let origin = DVec3::new(
+                rng.range(-12.0, 12.0),
+                rng.range(-12.0, 12.0),
+                rng.range(-12.0, 12.0),
+            );
+            let dir = rng.unit_vector();
+            let ray = Ray {
+                origin,
+                dir,
+                t_min: 0.0,
+                t_max: f64::INFINITY,
+            };
+            let want = cast(&sc, Kernel::STABLE_F64, &[ray]).unwrap()[0];
+            let got = walker.nearest(origin, dir, 0.0, f64::INFINITY);
+            // `cast` divides the direction by its length (1 to an ulp here), so the
+            // derived vectors may differ in the last bit; `t`, cylinder and part may not.
+            match (got, want) {
+                (None, None) => {}
+                (Some(g), Some(w)) => {
+                    assert_eq!((g.index, g.part), (w.index, w.part), "{ray:?}");
+                    assert!((g.t - w.t).abs() <= 4.0 * f64::EPSILON * w.t, "{ray:?}");
+                    assert!((g.position - w.position).length() < 1e-14, "{ray:?}");
+                    assert!((g.normal - w.normal).length() < 1e-14, "{ray:?}");
+                    let e = (g.position_error - w.position_error).abs().max_element();
+                    assert!(e <= 1e-3 * w.position_error.min_element(), "{ray:?}");
+                    hits += 1;
+                }
+                (g, w) => panic!("{ray:?}: any origin {g:?}, cast {w:?}"),
+            }
+        }
+        assert!(hits > 30, "{hits} hits");
     }
 
     /// Bad rays are refused with the ray's index and field.
