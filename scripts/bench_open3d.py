@@ -1,6 +1,6 @@
 """Time Open3D's ray caster (Embree) on a cylaov scene, for `cylaov bench --open3d`.
 
-usage: bench_open3d.py SCENE.json OUT.npy
+usage: bench_open3d.py SCENE.json OUT.npy [RAYS.npy]
 
 The anchor of how fast a general triangle ray tracer is on the same scene: each cylinder
 becomes a 16-segment triangle mesh (32 side triangles, and 32 cap triangles when capped),
@@ -13,6 +13,9 @@ Prints one JSON line: seconds for `import open3d` (import_s), building the meshe
 adding them (load_s), the first `cast_rays` (render1_s: Embree builds its BVH here),
 saving the distances with numpy (write_s), and a second, warm `cast_rays` (render2_s).
 The whole process time is measured by the caller around this process.
+
+With RAYS.npy ((N, 6) float32: origin, unit direction), those rays are cast instead of the
+camera's: `cylaov bench --scan` times a LiDAR rotation's beams (first hits) this way.
 """
 import json
 import sys
@@ -67,7 +70,7 @@ rs.add_triangles(
     o3d.core.Tensor(tris.astype(np.uint32)),
 )
 cam = scene["camera"]
-rays = o3d.t.geometry.RaycastingScene.create_rays_pinhole(
+rays = o3d.core.Tensor(np.load(sys.argv[3])) if len(sys.argv) > 3 else o3d.t.geometry.RaycastingScene.create_rays_pinhole(
     fov_deg=float(cam["fov_deg"]),
     center=cam["target"],
     eye=cam["origin"],

@@ -40,7 +40,14 @@
 //!   way, during the trace, without holding the image); [`render::strategy`] picks the
 //!   acceleration; the tracer, the tile walk and the planes (the AOV buffers being filled)
 //!   are its files `tracer.rs`, `walk.rs`, `planes.rs`; [`render::cast`], rays from any origin,
-//!   hits reprojected onto their surface with an error bound, and rays continued from them.
+//!   hits reprojected onto their surface with an error bound, and rays continued from them;
+//!   [`render::cast::AnyOrigin`], one BVH for rays from any origin (a scan's beams and returns).
+//! - [`scan`]: simulated rotating LiDAR: [`scan::sensor`] (beam tables, the `vlp16`,
+//!   `hdl32`, `os1-64` presets, sensor JSON with field-naming errors), [`scan::pose`]
+//!   (poses, trajectories interpolated by lerp and slerp), and [`scan::scan`], every beam
+//!   of one rotation with up to N returns, each continued past the last hit through
+//!   [`render::cast::AnyOrigin`] (one BVH walked from any origin), with seeded noise and
+//!   dropout.
 //! - [`output`]: [`output::aov`] (the in-memory AOV image, one buffer per AOV in numpy's
 //!   `(H, W)` / `(H, W, 3)` layout, its EXR reading and writing,
 //!   band by band too ([`output::aov::ExrBands`]), self-describing headers, the per-AOV layout), [`output::depth_png`] (the 16-bit depth
@@ -54,8 +61,8 @@
 //!   import path for those four), [`output::files`] (opening in place without following
 //!   links), [`output::signals`] (the clean-up on a signal), [`output::tar`] and
 //!   [`output::npy`] (deterministic ustar members and `.npy` arrays of tar shards, and both
-//!   read back),
-//!   [`output::mitsuba`] (the scene as Mitsuba 3 XML).
+//!   read back), [`output::mitsuba`] (the scene as Mitsuba 3 XML), [`output::scan_files`] (a
+//!   scan's points as LAS, PLY or NPZ) and [`output::npz`] (the stored zip of `.npy` members).
 //!
 //! Checking tools:
 //! - [`verify`]: [`verify::compare`] (the per-pixel rule: identity by cylinder and part,
@@ -70,8 +77,8 @@
 //!   [`verify::stress`] (the hard ray families of `cylaov stress`).
 //! - [`bench`](mod@bench): run time against error per kernel, AOV set, cylinder count and
 //!   scene family, with Mitsuba's and Open3D's times on the same scenes ([`bench::Anchors`]),
-//!   the two dataset formats side by side (`--batch-formats`), and every way of making
-//!   views at 1, 2, 4, … threads (`--scaling`).
+//!   the two dataset formats side by side (`--batch-formats`), every way of making views
+//!   at 1, 2, 4, … threads (`--scaling`), and a LiDAR scan's beams a second (`--scan`).
 //!
 //! Datasets:
 //! - [`dataset`]: [`dataset::generate`] (seeded procedural scenes, several cameras each if
@@ -89,14 +96,14 @@
 //!
 //! Python: `python` (cargo feature `python`), the extension module of the `cylaov`
 //! package: thin bindings over `scene`, `render` (with [`render::cast`], rays from any
-//! origin), `output::aov`, `verify::compare`, `dataset::generate` and the tar shards of
+//! origin), `scan`, `output::aov`, `verify::compare`, `dataset::generate` and the tar shards of
 //! `dataset::batch::shards` (`write_shards`, `shard_count`).
 //!
 //! Around them: [`commands`], the IO of each subcommand (`render`, `generate`, `batch`,
-//! `import`, `cameras`, `export-mitsuba`, `compare`, `verify`, `stress`, `bench`, `aovs`); `main.rs` only parses
+//! `import`, `scan`, `cameras`, `export-mitsuba`, `compare`, `verify`, `stress`, `bench`, `aovs`); `main.rs` only parses
 //! arguments and maps results to exit codes.
 //!
-//! **Invariants**: `geometry`, `accel` and `render` never do IO (`render_bands` hands its
+//! **Invariants**: `geometry`, `accel`, `render` and `scan` never do IO (`render_bands` hands its
 //! bands to the caller's sink); a render is a pure function of scene + options; `output::mitsuba` knows Mitsuba's XML, not how to run it
 //! (`verify::reference` does).
 
@@ -113,5 +120,6 @@ pub mod output;
 pub mod python;
 pub mod render;
 pub mod rng;
+pub mod scan;
 pub mod scene;
 pub mod verify;

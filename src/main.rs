@@ -97,6 +97,31 @@ enum Command {
     /// Then: cylaov render tree.json -o tree.exr --aov depth,normal,shape_id,label
     #[command(verbatim_doc_comment)]
     Import(ImportCli),
+    /// Simulate a rotating LiDAR: one rotation's points (exact multiple returns) as LAS, PLY or NPZ.
+    ///
+    /// Every beam of the sensor (a preset or a JSON table: docs/scan.md) is cast from its
+    /// pose into the scene; up to --returns surfaces a beam, each the exact next one along it
+    /// (a closed cylinder crossed gives 2). Points are in world coordinates; per point: x y z,
+    /// range, range_exact, ring, azimuth, time, return_index, num_returns, shape_id, part,
+    /// label, normal. The output's extension picks the format: .las (LAS 1.4, point format
+    /// 6), .ply (binary, Open3D reads it), .npz (numpy.load).
+    ///
+    /// Presets: vlp16 (16 beams, -15..15 deg), hdl32 (32, -30.67..10.67), os1-64 (64, +-16.6).
+    /// Sensor axes: x forward, z up; azimuth 0 along +x, counter-clockwise seen from above;
+    /// pose yaw about world z, then pitch, then roll (degrees).
+    ///
+    /// Example: cylaov scan scene.json --sensor vlp16 --pose 0,0,1.8 -o scan.las
+    ///
+    /// Example (three returns, 2 cm noise, 5% dropout):
+    /// cylaov scan scene.json --sensor vlp16 --pose 0,0,1.8,90,0,0 --returns 3
+    ///     --range-noise 0.02 --dropout 0.05 --seed 7 -o scan.npz
+    ///
+    /// Example (moving sensor, motion skew): cylaov scan scene.json --sensor os1-64
+    ///     --trajectory path.csv -o scan.ply
+    ///   where path.csv is `time,x,y,z,yaw,pitch,roll` then one pose a line (seconds from
+    ///   the rotation's start, degrees).
+    #[command(verbatim_doc_comment)]
+    Scan(ScanCli),
     /// Put many cameras around a scene's cylinders and write the scene resolved.
     ///
     /// --orbit N: camera 0's direction drawn area-uniformly from the elevation band, the
@@ -392,6 +417,11 @@ struct BenchCli {
     /// depth+normal, 100 cylinders, and `render()`'s overhead on a 16x16 view.
     #[arg(long)]
     python: bool,
+    /// Only the LiDAR scan: a VLP-16 rotation at 0.2 degrees (28 800 beams), three returns,
+    /// 10 000 cylinders, in beams/s; with --open3d also Open3D's cast_rays of the same beams
+    /// on 16-segment meshes (first hits only), warm, and the ratio.
+    #[arg(long)]
+    scan: bool,
     /// Only the dataset formats side by side: `batch` of one generated dataset (320x240,
     /// depth+normal, 100 cylinders a scene) in the files format with pictures, EXR-only,
     /// and as webdataset tar shards, in views/s, on the --threads given; then the tar
@@ -437,6 +467,45 @@ struct StressCli {
     /// Print the table as Markdown, as in the README (the same bytes on every run).
     #[arg(long)]
     markdown: bool,
+}
+
+#[derive(Args)]
+struct ScanCli {
+    /// Scene file (JSON, see docs/scene-format.md); its cameras are not used.
+    scene: PathBuf,
+    /// A preset (vlp16, hdl32, os1-64) or a sensor JSON file (docs/scan.md).
+    #[arg(long, value_name = "NAME|SENSOR.json")]
+    sensor: String,
+    /// The point file: .las, .ply or .npz.
+    #[arg(short, long, value_name = "OUT.{las,ply,npz}")]
+    out: PathBuf,
+    /// The sensor's position and (optional) yaw, pitch, roll in degrees.
+    #[arg(
+        long,
+        value_name = "X,Y,Z[,YAW,PITCH,ROLL]",
+        default_value = "0,0,0",
+        allow_hyphen_values = true
+    )]
+    pose: String,
+    /// Poses over time (CSV: time,x,y,z,yaw,pitch,roll), interpolated at each beam's time
+    /// (position linearly, rotation by slerp); replaces --pose.
+    #[arg(long, value_name = "FILE", conflicts_with = "pose")]
+    trajectory: Option<PathBuf>,
+    /// Most returns per beam, 1 to 15.
+    #[arg(long, default_value_t = 1, value_name = "N")]
+    returns: u32,
+    /// Standard deviation of Gaussian noise on the range, world units (along the beam).
+    #[arg(long, default_value_t = 0.0, value_name = "SIGMA")]
+    range_noise: f64,
+    /// Probability that a return is dropped, 0 to 1.
+    #[arg(long, default_value_t = 0.0, value_name = "P")]
+    dropout: f64,
+    /// Seed of the noise and dropout (same seed, same points, any thread count).
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Worker threads, 1 to 1024 (default: all cores).
+    #[arg(long, value_parser = threads)]
+    threads: Option<usize>,
 }
 
 #[derive(Args)]
@@ -957,6 +1026,33 @@ fn bench(b: BenchCli) -> anyhow::Result<ExitCode> {
         }
         return Ok(ExitCode::SUCCESS);
     }
+    if b.scan {
+        let python = if b.open3d {
+            let found = cylaov::verify::reference::Mitsuba::find()
+                .map_err(|why| anyhow::anyhow!("--open3d: {why}"))?;
+            Some(found.python)
+        } else {
+            None
+        };
+        let r = bench::scan::run(python.as_deref())?;
+        let rate = r.beams as f64 / r.seconds;
+        say(&format!(
+            "scan: vlp16 0.2 deg, {} beams, 10000 cylinders, 3 returns: {} points in {:.4} s, {:.0} beams/s ({} threads)",
+            r.beams,
+            r.points,
+            r.seconds,
+            rate,
+            rayon::current_num_threads()
+        ))?;
+        if let Some(o) = r.open3d_seconds {
+            let o3d = r.beams as f64 / o;
+            say(&format!(
+                "open3d cast_rays (first hits, warm): {o:.4} s, {o3d:.0} rays/s; cylaov / open3d = {:.2}",
+                rate / o3d
+            ))?;
+        }
+        return Ok(ExitCode::SUCCESS);
+    }
     if b.batch_formats {
         commands::bench::batch_formats(b.batch_views, b.csv.as_deref())?;
         return Ok(ExitCode::SUCCESS);
@@ -1031,6 +1127,26 @@ fn stress(a: StressCli) -> anyhow::Result<ExitCode> {
         markdown: a.markdown,
     };
     say(&commands::stress::run(&args)?)?;
+    Ok(ExitCode::SUCCESS)
+}
+
+fn scan(a: ScanCli) -> anyhow::Result<ExitCode> {
+    set_threads(a.threads)?;
+    let pose = cylaov::scan::Pose::parse(&a.pose, "--pose").map_err(|e| anyhow::anyhow!(e))?;
+    let args = commands::scan::ScanArgs {
+        scene: a.scene,
+        sensor: a.sensor,
+        out: a.out,
+        pose,
+        trajectory: a.trajectory,
+        returns: a.returns,
+        noise: cylaov::scan::Noise {
+            range_sigma: a.range_noise,
+            dropout: a.dropout,
+            seed: a.seed,
+        },
+    };
+    say(&commands::scan::run(&args)?)?;
     Ok(ExitCode::SUCCESS)
 }
 
@@ -1223,6 +1339,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Bench(b) => bench(b),
         Command::Stress(a) => stress(a),
         Command::Import(a) => import(a),
+        Command::Scan(a) => scan(a),
         Command::Cameras(a) => cameras(a),
         Command::ExportMitsuba(a) => export_mitsuba(a),
         Command::Compare(a) => Ok(compare(a)),

@@ -441,6 +441,11 @@ fn performance_page_runs_as_written() {
 }
 
 #[test]
+fn scan_page_runs_as_written() {
+    check_page("docs/scan.md");
+}
+
+#[test]
 fn development_page_runs_as_written() {
     check_page("docs/development.md");
 }
@@ -463,6 +468,7 @@ fn every_page_is_checked_and_linked() {
         "docs/accuracy.md",
         "docs/performance.md",
         "docs/development.md",
+        "docs/scan.md",
     ];
     let me = read("tests/docs.rs");
     let readme = read("README.md");

@@ -15,6 +15,7 @@
 pub mod batch_formats;
 pub mod exr_writer;
 pub mod scaling;
+pub mod scan;
 
 use crate::accel::tiles;
 use crate::geometry::Kernel;

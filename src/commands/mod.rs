@@ -9,6 +9,7 @@ pub mod export_mitsuba;
 pub mod generate;
 pub mod import;
 pub mod render;
+pub mod scan;
 pub mod stress;
 pub mod verify;
 

@@ -1,6 +1,6 @@
 //! Output files: the AOV EXR, PNG previews and figures, the Mitsuba 3 XML export, and one
 //! view's files written as one plan (`view`); `.npy` arrays (`npy`) and ustar archives
-//! (`tar`) for tar shards; hit points as PLY point clouds (`ply`); files never half-written (`atomic`), output targets checked
+//! (`tar`) for tar shards; hit points as PLY point clouds (`ply`); a scan's points as LAS, PLY or `.npz` (`scan_files`, `npz`); files never half-written (`atomic`), output targets checked
 //! before any work (`targets`), camera metadata and record encoding (`camera_files`),
 //! console output (`console`), files opened in place without following links (`files`) and
 //! the clean-up of staged files on a signal (`signals`). The last stage of the pipeline;
@@ -15,9 +15,11 @@ pub mod files;
 pub mod io;
 pub mod mitsuba;
 pub mod npy;
+pub mod npz;
 pub mod plot;
 pub mod ply;
 pub mod preview;
+pub mod scan_files;
 pub mod signals;
 pub mod tar;
 pub mod targets;

@@ -1,5 +1,6 @@
 //! NumPy `.npy` (format 1.0) encoding of the arrays of a tar shard: `(H, W)` or
-//! `(H, W, C)`, C order, little-endian float32, uint32 or bool, which `numpy.load` and
+//! `(H, W, C)`, C order, little-endian float32, uint32 or bool (and float64, for a scan's
+//! `.npz`), which `numpy.load` and
 //! `webdataset`'s decoder read as they are.
 //!
 //! A file is the magic `\x93NUMPY`, version 1.0, a little-endian u16 header length, the
@@ -15,6 +16,8 @@ pub enum Dtype {
     U32,
     /// `|b1`: one byte, 0 or 1.
     Bool,
+    /// `<f8` (a scan's coordinates and ranges).
+    F64,
 }
 
 impl Dtype {
@@ -23,6 +26,7 @@ impl Dtype {
             Dtype::F32 => "<f4",
             Dtype::U32 => "<u4",
             Dtype::Bool => "|b1",
+            Dtype::F64 => "<f8",
         }
     }
 
@@ -31,6 +35,7 @@ impl Dtype {
         match self {
             Dtype::F32 | Dtype::U32 => 4,
             Dtype::Bool => 1,
+            Dtype::F64 => 8,
         }
     }
 }

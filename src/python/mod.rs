@@ -39,6 +39,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
+mod scan;
 mod shards;
 
 create_exception!(
@@ -1746,5 +1747,6 @@ fn _cylaov(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(compare, m)?)?;
     m.add_function(wrap_pyfunction!(_write_ply, m)?)?;
     shards::register(m)?;
+    scan::register(m)?;
     Ok(())
 }

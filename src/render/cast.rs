@@ -362,6 +362,95 @@ fn cast_one<T: Real, F: Formula>(scene: &Scene, tracer: &Tracer<T, F>, r: &Ray) 
     })
 }
 
+/// The scene prepared once for rays from anywhere: one BVH over the cylinders' boxes,
+/// built around `centre`, that every ray walks from its own origin
+/// ([`Bvh::traverse_from`]), each cylinder it reaches prepared for that origin as it is
+/// met. What a scan needs: every beam of a moving sensor, and every ray continued past a
+/// hit, starts somewhere new, and [`cast`]'s grouping by origin would prepare the whole
+/// scene for each (a loop over every cylinder per ray). In f64 with the stable kernel:
+/// the same cylinder as [`cast`] with [`Kernel::STABLE_F64`] (a tie goes to the lower
+/// index in both), and `t` to a few ulp ([`cast`] divides the direction by its length,
+/// which moves a unit direction by an ulp).
+pub struct AnyOrigin<'a> {
+    scene: &'a Scene,
+    bvh: Bvh,
+    centre: DVec3,
+}
+
+impl<'a> AnyOrigin<'a> {
+    /// The BVH of `scene`, around the centre of its cylinders' bounds (box coordinates
+    /// relative to it stay small, so their f32 rounding is small).
+    pub fn new(scene: &'a Scene) -> Self {
+        let bounds: Vec<_> = scene.cylinders.par_iter().map(|c| c.bounds()).collect();
+        let (lo, hi) = bounds.iter().fold(
+            (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+            |(lo, hi), (a, b)| (lo.min(*a), hi.max(*b)),
+        );
+        let centre = if lo.is_finite() && hi.is_finite() {
+            (lo + hi) * 0.5
+        } else {
+            DVec3::ZERO
+        };
+        AnyOrigin {
+            scene,
+            bvh: Bvh::build(&bounds, centre),
+            centre,
+        }
+    }
+
+    /// The nearest hit of `origin + t·dir` with `t` in `[t_min, t_max]`; `dir` must be a
+    /// unit vector (so `t` is a distance) and the ray valid as [`cast`] checks it.
+    pub fn nearest(&self, origin: DVec3, dir: DVec3, t_min: f64, t_max: f64) -> Option<RayHit> {
+        use super::tracer::{f32_down, f32_up};
+        use crate::geometry::{BasicHit, Stable};
+        let cylinders = &self.scene.cylinders;
+        let order = self.bvh.order();
+        let rel = origin - self.centre;
+        let o32 = glam::Vec3A::new(rel.x as f32, rel.y as f32, rel.z as f32);
+        let pad = self.bvh.pad_for(rel);
+        let d32 = glam::Vec3A::new(dir.x as f32, dir.y as f32, dir.z as f32);
+        let mut best: Option<(BasicHit<f64>, u32, Prepared<f64>)> = None;
+        // Each cylinder met is prepared for this origin, as `tracer_at` prepares all of
+        // them for a camera; a closer hit (ties: lower index) prunes the walk, the bound
+        // rounded up so a tie is still visited.
+        self.bvh
+            .traverse_from(o32, pad, d32, f32_down(t_min), f32_up(t_max), |pos| {
+                let index = order[pos as usize];
+                let p = Prepared::<f64>::new(&cylinders[index as usize], origin, Stable::CENTRED);
+                let limit = best.map_or(t_max, |b| b.0.t);
+                let hit = Stable::intersect(&p, dir, t_min, limit)?;
+                let closer =
+                    best.is_none_or(|(b, i, _)| hit.t < b.t || (hit.t == b.t && index < i));
+                if !closer {
+                    return None;
+                }
+                best = Some((hit, index, p));
+                Some(f32_up(hit.t))
+            });
+        let (hit, index, p) = best?;
+        let cyl = &cylinders[index as usize];
+        let kernel_normal = Stable::normal(&p, dir, hit);
+        let (position, position_error, normal) = surface_point(
+            cyl,
+            origin,
+            dir,
+            hit.t,
+            hit.surface,
+            kernel_normal,
+            f64::UNIT_ROUNDOFF,
+        );
+        Some(RayHit {
+            t: hit.t,
+            normal,
+            index,
+            id: cyl.id,
+            part: super::planes::part_of(hit.surface, kernel_normal, dir),
+            position,
+            position_error,
+        })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -468,6 +557,49 @@ mod tests {
         }
         assert!(compared > 380, "{compared} compared");
         assert!(hits.iter().filter(|h| h.is_some()).count() > 300);
+    }
+
+    /// [`AnyOrigin`] finds what [`cast`] finds (stable f64): the same cylinder and part,
+    /// `t` to 4 ulp, and the same point and normal to 1e-14, from random origins in
+    /// and around the scene.
+    #[test]
+    fn any_origin_is_cast() {
+        let sc = crate::bench::dense_scene(200, 7, 9, 9);
+        let walker = AnyOrigin::new(&sc);
+        let mut rng = SplitMix64::new(5);
+        let mut hits = 0;
+        for _ in 0..300 {
+            let origin = DVec3::new(
+                rng.range(-12.0, 12.0),
+                rng.range(-12.0, 12.0),
+                rng.range(-12.0, 12.0),
+            );
+            let dir = rng.unit_vector();
+            let ray = Ray {
+                origin,
+                dir,
+                t_min: 0.0,
+                t_max: f64::INFINITY,
+            };
+            let want = cast(&sc, Kernel::STABLE_F64, &[ray]).unwrap()[0];
+            let got = walker.nearest(origin, dir, 0.0, f64::INFINITY);
+            // `cast` divides the direction by its length (1 to an ulp here), so the
+            // derived vectors may differ in the last bit; `t`, cylinder and part may not.
+            match (got, want) {
+                (None, None) => {}
+                (Some(g), Some(w)) => {
+                    assert_eq!((g.index, g.part), (w.index, w.part), "{ray:?}");
+                    assert!((g.t - w.t).abs() <= 4.0 * f64::EPSILON * w.t, "{ray:?}");
+                    assert!((g.position - w.position).length() < 1e-14, "{ray:?}");
+                    assert!((g.normal - w.normal).length() < 1e-14, "{ray:?}");
+                    let e = (g.position_error - w.position_error).abs().max_element();
+                    assert!(e <= 1e-3 * w.position_error.min_element(), "{ray:?}");
+                    hits += 1;
+                }
+                (g, w) => panic!("{ray:?}: any origin {g:?}, cast {w:?}"),
+            }
+        }
+        assert!(hits > 30, "{hits} hits");
     }
 
     /// Bad rays are refused with the ray's index and field.

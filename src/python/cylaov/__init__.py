@@ -12,8 +12,8 @@ A first render::
     out["normal"]     # (H, W, 3) float32, world-space unit outward normal
     out["mask"]       # (H, W) bool, True where a cylinder was hit
 
-Functions: ``render``, ``camera_info``, ``cast_rays``, ``spawn_rays``, ``camera_rays``, ``generate``,
-``read``, ``compare``, ``write_shards``, ``shard_count``, ``to_ply``; classes ``Scene``, ``Dataset``; errors ``SceneError`` (a
+Functions: ``render``, ``camera_info``, ``cast_rays``, ``spawn_rays``, ``camera_rays``, ``scan``,
+``generate``, ``read``, ``compare``, ``write_shards``, ``shard_count``, ``to_ply``; classes ``Scene``, ``Dataset``; errors ``SceneError`` (a
 ``ValueError``) and ``OSError`` subclasses for files. ``help(cylaov.render)`` and the others
 say more; the package's documentation page is ``docs/python.md`` in the repository.
 """
@@ -48,6 +48,7 @@ __all__ = [
     "cast_rays",
     "spawn_rays",
     "camera_rays",
+    "scan",
     "generate",
     "read",
     "compare",
@@ -101,6 +102,54 @@ def cast_rays(scene, origins, directions, t_min=0.0, t_max=float("inf"),
     out = _cylaov._cast_rays(scene, flat(o, (3,)), flat(d, (3,)), flat(lo, ()), flat(hi, ()),
                              list(aovs), precision, formula, threads)
     return {k: v.reshape(shape + v.shape[1:]) for k, v in out.items()}
+
+
+def scan(scene, sensor, pose=(0.0, 0.0, 0.0), trajectory=None, returns=1, range_noise=0.0,
+         dropout=0.0, seed=0, threads=None):
+    """One rotation of a simulated LiDAR: the points as a dict of numpy arrays.
+
+    The same points as ``cylaov scan`` (docs/scan.md), and the same arrays as the ``.npz``
+    it writes: ``x``, ``y``, ``z``, ``range``, ``range_exact``, ``azimuth``, ``elevation``,
+    ``time`` (float64), ``ring``, ``return_index``, ``num_returns``, ``shape_id``, ``part``,
+    ``label`` (uint32), each ``(N,)``, and ``normal`` ``(N, 3)`` float32; points in world
+    coordinates, ordered by azimuth step, then ring, then return.
+
+    ``scene``: a ``Scene`` or a scene file's path. ``sensor``: a preset (``"vlp16"``,
+    ``"hdl32"``, ``"os1-64"``), a sensor JSON file's path, or that JSON as a dict.
+    ``pose``: ``(x, y, z)`` or ``(x, y, z, yaw, pitch, roll)`` in degrees. ``trajectory``:
+    a CSV file's path (``time,x,y,z,yaw,pitch,roll``) or an ``(M, 7)`` array of those rows,
+    replacing ``pose``. ``returns``: most returns per beam (1 to 15). ``range_noise``
+    (sigma, along the beam), ``dropout`` (probability) and ``seed``: the same seed gives
+    the same points on any number of ``threads``.
+
+    Example::
+
+        pts = cylaov.scan("scenes/cluster.json", "vlp16", pose=(0, 0, 1.8), returns=3)
+        xyz = np.stack([pts["x"], pts["y"], pts["z"]], axis=1)
+    """
+    if not isinstance(scene, Scene):
+        scene = Scene.load(_os.fspath(scene))
+    if isinstance(sensor, dict):
+        sensor = _json.dumps(sensor)
+    elif isinstance(sensor, (str, _os.PathLike)) and _os.path.isfile(sensor):
+        with open(sensor, encoding="utf-8") as f:
+            sensor = f.read()
+    elif not isinstance(sensor, str):
+        raise TypeError(f"sensor: a preset name, a JSON file's path or a dict, got {type(sensor).__name__}")
+    csv = None
+    if trajectory is not None:
+        if isinstance(trajectory, (str, _os.PathLike)):
+            with open(trajectory, encoding="utf-8") as f:
+                csv = f.read()
+        else:
+            rows = _np.asarray(trajectory, dtype=_np.float64)
+            if rows.ndim != 2 or rows.shape[1] != 7:
+                raise ValueError(f"trajectory: shape must be (M, 7), got {rows.shape}")
+            csv = "time,x,y,z,yaw,pitch,roll\n" + "".join(
+                ",".join(repr(float(v)) for v in r) + "\n" for r in rows)
+    pose = [float(v) for v in pose]
+    return _cylaov._scan(scene, sensor, pose, csv, int(returns), float(range_noise),
+                         float(dropout), int(seed), threads)
 
 
 def spawn_rays(hits, directions):
