@@ -1,9 +1,8 @@
-"""`cylaov scan`'s files read by their real consumers: laspy (LAS), Open3D (PLY), numpy (NPZ),
-PDAL where installed; and `cylaov.scan`'s dict equal to the NPZ."""
+"""`cylaov scan`'s files read by their real consumers: laspy (LAS), Open3D (PLY), numpy (NPZ);
+and `cylaov.scan`'s dict equal to the NPZ. (PDAL is not tested: the test machines' Debian has
+no package of it and PyPI's `pdal` needs the C++ library.)"""
 
 import json
-import shutil
-import subprocess
 
 import numpy as np
 import pytest
@@ -120,12 +119,3 @@ def test_python_scan_sensor_dict_and_errors():
     rows = np.array([[0, 0, 0, 1.5, 0, 0, 0], [1, 0, 0, 1.5, 0, 0, 0]], dtype=float)
     still = cylaov.scan(scene, sensor, trajectory=rows)
     np.testing.assert_allclose(still["x"], got["x"], rtol=1e-12)
-
-
-def test_pdal_reads_the_las(scanned):
-    if shutil.which("pdal") is None:
-        pytest.skip("pdal is not on PATH (optional: the LAS is checked with laspy)")
-    d, z = scanned
-    r = subprocess.run(["pdal", "info", "--summary", str(d / "scan.las")],
-                       capture_output=True, text=True, check=True)
-    assert json.loads(r.stdout)["summary"]["num_points"] == len(z["x"])
