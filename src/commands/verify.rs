@@ -134,20 +134,8 @@ fn run_written(args: &VerifyArgs) -> Result<VerifyOutcome> {
             continue;
         }
         let exr = args.input.join(&v.exr_file_path);
-        let outcome = (|| -> Result<crate::verify::reference::Checked> {
-            let verifier = verifier.as_ref().map_err(|why| anyhow::anyhow!("{why}"))?;
-            let mut scene = crate::scene::load(&view.path)
-                .map_err(|e| anyhow::anyhow!("{}: {e}", view.path.display()))?;
-            scene
-                .select_camera(view.camera)
-                .map_err(|e| anyhow::anyhow!("{}: {e}", view.path.display()))?;
-            let work = work_dir(k)?;
-            verifier.check_file(&view, &scene, &exr, work.path(), fresh, pictures)
-        })();
-        let (result, pics) = match outcome {
-            Ok(c) => checked_result(c),
-            Err(e) => (ViewResult::unchecked(&view, &e), None),
-        };
+        let (result, pics) =
+            check_written(&verifier, &view, k, fresh, pictures, |_| Ok(exr.clone()));
         results.push(result);
         images.push(pics);
     }
@@ -157,6 +145,36 @@ fn run_written(args: &VerifyArgs) -> Result<VerifyOutcome> {
     outcome(args, results, |results, counts| {
         written_table(results, all, counts)
     })
+}
+
+/// One written view checked (see [`MitsubaVerifier::check_file`]): its scene loaded, its
+/// EXR (the file itself, or a sample written to the scratch folder by `exr`) judged; a view
+/// that could not be checked says why in its row.
+///
+/// [`MitsubaVerifier::check_file`]: crate::verify::reference::MitsubaVerifier::check_file
+fn check_written(
+    verifier: &std::result::Result<crate::verify::reference::MitsubaVerifier, String>,
+    view: &ViewSource,
+    k: usize,
+    fresh: bool,
+    pictures: bool,
+    exr: impl FnOnce(&Path) -> Result<PathBuf>,
+) -> (ViewResult, Option<Images>) {
+    let outcome = (|| -> Result<crate::verify::reference::Checked> {
+        let verifier = verifier.as_ref().map_err(|why| anyhow::anyhow!("{why}"))?;
+        let mut scene = crate::scene::load(&view.path)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", view.path.display()))?;
+        scene
+            .select_camera(view.camera)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", view.path.display()))?;
+        let work = work_dir(k)?;
+        let exr = exr(work.path())?;
+        verifier.check_file(view, &scene, &exr, work.path(), fresh, pictures)
+    })();
+    match outcome {
+        Ok(c) => checked_result(c),
+        Err(e) => (ViewResult::unchecked(view, &e), None),
+    }
 }
 
 /// The table of `verify OUT`: a line per checked view, then the counts.
@@ -276,25 +294,15 @@ fn run_shards(args: &VerifyArgs) -> Result<VerifyOutcome> {
             if !view_selected(args.seed, &view, args.fraction) {
                 continue;
             }
-            let k = results.len();
-            let outcome = (|| -> Result<crate::verify::reference::Checked> {
-                let verifier = verifier.as_ref().map_err(|why| anyhow::anyhow!("{why}"))?;
-                let mut scene = crate::scene::load(&view.path)
-                    .map_err(|e| anyhow::anyhow!("{}: {e}", view.path.display()))?;
-                scene
-                    .select_camera(view.camera)
-                    .map_err(|e| anyhow::anyhow!("{}: {e}", view.path.display()))?;
-                let work = work_dir(k)?;
-                let exr = work.path().join(format!("{}.exr", info.key));
+            let exr = |work: &Path| -> Result<PathBuf> {
+                let exr = work.join(format!("{}.exr", sample.info.key));
                 sample
                     .image
                     .write_exr(&exr, crate::output::aov::Compression::None)?;
-                verifier.check_file(&view, &scene, &exr, work.path(), true, pictures)
-            })();
-            let (result, pics) = match outcome {
-                Ok(c) => checked_result(c),
-                Err(e) => (ViewResult::unchecked(&view, &e), None),
+                Ok(exr)
             };
+            let (result, pics) =
+                check_written(&verifier, &view, results.len(), true, pictures, exr);
             results.push(result);
             images.push(pics);
         }
