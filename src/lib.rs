@@ -59,9 +59,8 @@
 //!   [`output::camera_files`] (the camera and Open3D JSON, record encoding),
 //!   [`output::console`] (console output that survives a closed pipe), [`output::io`] (one
 //!   import path for those four), [`output::files`] (opening in place without following
-//!   links), [`output::signals`] (the clean-up on a signal), [`output::tar`] and
-//!   [`output::npy`] (deterministic ustar members and `.npy` arrays of tar shards, and both
-//!   read back), [`output::mitsuba`] (the scene as Mitsuba 3 XML), [`output::scan_files`] (a
+//!   links), [`output::signals`] (the clean-up on a signal), [`output::tar`] (deterministic
+//!   ustar members of tar shards, and read back), [`output::mitsuba`] (the scene as Mitsuba 3 XML), [`output::scan_files`] (a
 //!   scan's points as LAS, PLY or NPZ) and [`output::npz`] (the stored zip of `.npy` members).
 //!
 //! Checking tools:
@@ -88,6 +87,8 @@
 //!   `shards.json`, resumable per tar; [`dataset::batch::samples`], the tars read back a
 //!   sample at a time for `cylaov verify`), [`dataset::names`]
 //!   (every file name cylaov writes).
+//! - [`npy`]: NumPy's `.npy` arrays as bytes, written (tar shards, a scan's NPZ) and read
+//!   (tar samples for `verify`, cylinder tables from NPZ), below every layer that uses it.
 //! - [`rng`]: SplitMix64, written out so generated data never changes under us.
 //! - [`mem`]: the memory check before a command allocates, the fallible reservation of
 //!   our large buffers, the process's allocator (a refused allocation is one error line
@@ -115,6 +116,7 @@ pub mod commands;
 pub mod dataset;
 pub mod geometry;
 pub mod mem;
+pub mod npy;
 pub mod output;
 #[cfg(feature = "python")]
 pub mod python;

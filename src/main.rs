@@ -69,14 +69,17 @@ enum Command {
     ///
     /// Example: cylaov batch data --out data/render --shard 0/4
     Batch(BatchCli),
-    /// Turn a table of cylinders (a tree's QSM, or any CSV) into a framed scene file.
+    /// Turn a table of cylinders (a tree's QSM, any CSV, or NumPy arrays) into a framed scene file.
     ///
-    /// The table comes from TreeQSM, SimpleForest, aRchi or any CSV; the scene file gets
+    /// The table comes from TreeQSM, SimpleForest, aRchi, any CSV or an .npz; the scene file gets
     /// one camera that frames every cylinder (its bounding sphere fills the smaller field
     /// of view).
     ///
     /// Formats (--format; left out, the header says which, else the column count):
     ///   csv           header with x0,y0,z0,x1,y1,z1,radius and optional id, label, caps;
+    ///   npz           numpy.savez or savez_compressed arrays p0 (N, 3), p1 (N, 3),
+    ///                 radius (N,), optional id, label, caps (N,) (and branch_order or
+    ///                 branch for --label); told by its zip signature, whatever its name;
     ///   treeqsm       TreeQSM cyl_data: radius, length, start x y z, axis x y z, parent,
     ///                 extension, branch, BranchOrder, PositionInBranch, added, UnmodRadius
     ///                 (15 columns without a header in TreeQSM 2.3, 14 in older ones; later
@@ -90,7 +93,8 @@ enum Command {
     /// Each row is one cylinder: start → p0, end (or start + length · axis) → p1, radius; its
     /// id is the table's own (ID, cyl_ID, id) or the row number (TreeQSM, whose parent column
     /// counts rows). A bad row (not a number, non-finite, radius <= 0, zero length) is
-    /// refused with its line and column, and nothing is written.
+    /// refused with its line and column (an .npz value with its array and index, radius[16]),
+    /// and nothing is written.
     ///
     /// Example: cylaov import tree_cyl_data.txt -o tree.json --label branch_order
     ///
@@ -518,7 +522,7 @@ struct ImportCli {
     out: PathBuf,
     /// The table's layout; default: from the header's names, or TreeQSM when there is no
     /// header and 14 or 15 columns.
-    #[arg(long, value_parser = table_format, value_name = "csv|treeqsm|simpleforest|archi")]
+    #[arg(long, value_parser = table_format, value_name = "csv|npz|treeqsm|simpleforest|archi")]
     format: Option<TableFormat>,
     /// Each cylinder's label (the label AOV): branch_order = BranchOrder + 1 (stem 1, its
     /// branches 2, ...; 0 stays "no hit"), branch = branch id + 1, segment = the cylinder's

@@ -564,6 +564,66 @@ fn snippet_code(name: &str, rel: &str) -> String {
     page[start..start + page[start..].find("```").unwrap()].to_string()
 }
 
+/// docs/scene-format.md's NumPy table, written by numpy as the snippet says and read by
+/// `cylaov import`: the three cylinders, their ids and labels as the arrays hold them.
+#[test]
+fn npz_table_snippet_imports() {
+    let code = snippet_code("npz-table", "docs/scene-format.md");
+    let Some(py) = common::venv_python() else {
+        return;
+    };
+    let dir = common::fresh_dir("docs", "npz");
+    let o = Command::new(&py)
+        .args(["-c", &code])
+        .current_dir(dir.path())
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let scene = dir.path().join("tree.json");
+    common::ok(&[
+        "import",
+        &dir.path().join("tree.npz").to_string_lossy(),
+        "-o",
+        &scene.to_string_lossy(),
+    ]);
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&scene).unwrap()).unwrap();
+    let cyl = json["cylinders"].as_array().unwrap();
+    let field = |k: &str| cyl.iter().map(|c| c[k].clone()).collect::<Vec<_>>();
+    assert_eq!(
+        field("p1"),
+        [
+            serde_json::json!([0.0, 0.0, 1.5]),
+            serde_json::json!([0.0, 0.0, 2.8]),
+            serde_json::json!([0.6, 0.0, 2.3])
+        ]
+    );
+    assert_eq!(
+        field("radius"),
+        [
+            serde_json::json!(0.2),
+            serde_json::json!(0.15),
+            serde_json::json!(0.06)
+        ]
+    );
+    assert_eq!(
+        field("id"),
+        [
+            serde_json::json!(1),
+            serde_json::json!(2),
+            serde_json::json!(3)
+        ]
+    );
+    assert_eq!(
+        field("label"),
+        [
+            serde_json::json!(1),
+            serde_json::json!(1),
+            serde_json::json!(2)
+        ]
+    );
+}
+
 /// The README's Python block, run as written from the repository root in the venv where
 /// `scripts/test` installs the package: its depth is bitwise the depth of the EXR that
 /// `cylaov render` writes. Skipped, saying so, where the package is not installed, unless

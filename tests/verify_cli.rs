@@ -595,7 +595,7 @@ fn verify_checks_the_files_a_batch_wrote() {
 /// files format's EXR is; a depth sample changed inside a tar fails, named by its pixel.
 #[test]
 fn verify_checks_the_samples_of_tar_shards() {
-    use cylaov::output::npy::{self, Dtype};
+    use cylaov::npy::{self, Dtype};
     use cylaov::output::tar::{TarReader, TarWriter};
     let Some(py) = venv_python() else { return };
     let dir_tmp = common::fresh_dir("verify", "shards");

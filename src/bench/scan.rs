@@ -68,8 +68,7 @@ pub fn run(python: Option<&Path>) -> Result<ScanBench> {
                 }
             }
             let npy = dir.path().join("rays.npy");
-            let bytes =
-                crate::output::npy::array(crate::output::npy::Dtype::F32, &[beams, 6], &rays);
+            let bytes = crate::npy::array(crate::npy::Dtype::F32, &[beams, 6], &rays);
             std::fs::write(&npy, bytes)?;
             let o = Command::new(py)
                 .arg(&script)

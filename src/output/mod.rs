@@ -14,7 +14,6 @@ pub mod depth_png;
 pub mod files;
 pub mod io;
 pub mod mitsuba;
-pub mod npy;
 pub mod npz;
 pub mod plot;
 pub mod ply;

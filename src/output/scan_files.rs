@@ -2,7 +2,7 @@
 //! extension. Each encoder returns the file's bytes; the command stages them
 //! ([`super::atomic`]). `docs/scan.md` lists the fields of each format.
 
-use super::npy::{self, Dtype};
+use crate::npy::{self, Dtype};
 use crate::scan::{Column, Scan};
 use std::path::Path;
 

@@ -572,8 +572,10 @@ impl PyScene {
 
     /// A scene from a cylinder table, as `cylaov import` makes it: a TreeQSM `cyl_data`
     /// text, a SimpleForest or aRchi CSV, or a CSV with `x0,y0,z0,x1,y1,z1,radius` (and
-    /// optional `id`, `label`, `caps`) columns, with one 640 × 480 camera framing every
-    /// cylinder. `format` is one of `"csv"`, `"treeqsm"`, `"simpleforest"`, `"archi"`
+    /// optional `id`, `label`, `caps`) columns, or an `.npz` of arrays `p0 (N, 3)`,
+    /// `p1 (N, 3)`, `radius (N,)` (optional `id`, `label`, `caps`), with one 640 × 480 camera
+    /// framing every cylinder. `format` is one of `"csv"`, `"npz"`, `"treeqsm"`,
+    /// `"simpleforest"`, `"archi"`
     /// (default: from the header or the column count); `label` one of `"none"`,
     /// `"branch_order"` (BranchOrder + 1), `"branch"` (branch id + 1), `"segment"` (the
     /// cylinder's id) (default: a csv table's `label` column, else none); `caps` closes

@@ -15,6 +15,7 @@ pub mod framing;
 pub mod rig;
 pub mod strict;
 pub mod table;
+pub mod table_npz;
 
 use crate::geometry::Cylinder;
 use crate::scene::camera::model::{CameraModel, ModelFields};

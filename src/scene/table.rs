@@ -8,6 +8,7 @@
 //! | `treeqsm` | header with `parent, extension, branch, BranchOrder`, or no header and 14 or 15 columns | `start` | `start + length · axis` | `radius` | the row number (TreeQSM's `parent` counts rows) |
 //! | `simpleforest` | header with `ID, parentID, branchID, branchOrder` | `startX..Z` | `endX..Z` | `radius` | `ID` |
 //! | `archi` | header with `cyl_ID, parent_ID, branching_order` | `startX..Z` | `endX..Z` | `radius_cyl` | `cyl_ID` |
+//! | `npz` | a zip archive (NumPy's `savez`), see [`super::table_npz`] | array `p0` | array `p1` | array `radius` | array `id`, else the row number |
 //!
 //! Header names match whatever their case and punctuation (`start.x`, `start_x`, `startX`;
 //! a unit in brackets, `radius (m)`, is dropped). A format with axis and length but no end
@@ -32,12 +33,16 @@ pub enum TableFormat {
     SimpleForest,
     /// aRchi's cylinder CSV.
     Archi,
+    /// NumPy's `.npz` of arrays `p0`, `p1`, `radius`, optional `id`, `label`, `caps`
+    /// ([`super::table_npz`]).
+    Npz,
 }
 
 impl TableFormat {
     /// Every format, as `--format` lists them.
-    pub const ALL: [TableFormat; 4] = [
+    pub const ALL: [TableFormat; 5] = [
         TableFormat::Csv,
+        TableFormat::Npz,
         TableFormat::TreeQsm,
         TableFormat::SimpleForest,
         TableFormat::Archi,
@@ -50,6 +55,7 @@ impl TableFormat {
             TableFormat::TreeQsm => "treeqsm",
             TableFormat::SimpleForest => "simpleforest",
             TableFormat::Archi => "archi",
+            TableFormat::Npz => "npz",
         }
     }
 
@@ -219,7 +225,8 @@ const QSM_NAMES: Names = Names {
 
 fn names(format: TableFormat) -> Names {
     match format {
-        TableFormat::Csv => Names {
+        // An `.npz` never reaches the text reader; its arrays are named like the csv columns.
+        TableFormat::Csv | TableFormat::Npz => Names {
             start: [&["x0"], &["y0"], &["z0"]],
             end: [&["x1"], &["y1"], &["z1"]],
             axis: [&[], &[], &[]],
@@ -510,6 +517,12 @@ impl Row<'_> {
 
 /// Read a table's text into cylinders (see the module's table for the formats).
 pub fn read_table(text: &str, opts: &TableOptions) -> Result<Table, TableError> {
+    if opts.format == Some(TableFormat::Npz) {
+        return Err(line_err(
+            0,
+            "an npz table is a zip archive of NumPy arrays (numpy.savez), this is text",
+        ));
+    }
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let mut lines = text
         .lines()
@@ -608,7 +621,6 @@ pub fn read_table(text: &str, opts: &TableOptions) -> Result<Table, TableError> 
     let default_caps = opts.caps.unwrap_or(true);
     let needed = cols.needed();
     let mut cylinders = Vec::new();
-    let mut ids = Vec::new();
     for (line, text) in lines {
         let row = Row {
             line,
@@ -688,7 +700,6 @@ pub fn read_table(text: &str, opts: &TableOptions) -> Result<Table, TableError> 
             Some(k) => row.flag(k)?,
             None => default_caps,
         };
-        ids.push(id);
         cylinders.push(CylinderFile {
             p0: Some(p0.to_array()),
             p1: Some(p1.to_array()),
@@ -702,7 +713,17 @@ pub fn read_table(text: &str, opts: &TableOptions) -> Result<Table, TableError> 
     if cylinders.is_empty() {
         return Err(line_err(0, "the table has no cylinder rows"));
     }
-    let ids_shifted = ids.contains(&0);
+    Ok(finish(format, cylinders, label))
+}
+
+/// The table of these rows: ids moved up by one if the table counted from 0 (0 is a miss
+/// in `shape_id`), then the `segment` label rule applied to the final ids.
+pub(super) fn finish(
+    format: TableFormat,
+    mut cylinders: Vec<CylinderFile>,
+    label: LabelRule,
+) -> Table {
+    let ids_shifted = cylinders.iter().any(|c| c.id == Some(0));
     for c in &mut cylinders {
         if ids_shifted {
             c.id = c.id.map(|i| i + 1);
@@ -711,17 +732,21 @@ pub fn read_table(text: &str, opts: &TableOptions) -> Result<Table, TableError> 
             c.label = c.id.unwrap_or(0);
         }
     }
-    Ok(Table {
+    Table {
         format,
         cylinders,
         ids_shifted,
-    })
+    }
 }
 
 /// Read the table file at `path` (a regular file of at most
-/// [`MAX_SCENE_BYTES`](crate::scene::MAX_SCENE_BYTES), UTF-8).
+/// [`MAX_SCENE_BYTES`](crate::scene::MAX_SCENE_BYTES)): an `.npz` when it is a zip
+/// archive, else UTF-8 text.
 pub fn load_table(path: &std::path::Path, opts: &TableOptions) -> Result<Table, TableError> {
     let bytes = crate::scene::read_bounded(path).map_err(|e| line_err(0, e.to_string()))?;
+    if super::table_npz::is_zip(&bytes) {
+        return super::table_npz::read_npz(&bytes, opts);
+    }
     let text = std::str::from_utf8(&bytes)
         .map_err(|e| line_err(0, format!("not UTF-8 text (byte {})", e.valid_up_to())))?;
     read_table(text, opts)

@@ -51,6 +51,77 @@ def test_from_table_reads_treeqsm_like_import(cli, tmp_path):
         cylaov.Scene.from_table(table, format="xls")
 
 
+def _arrays(n=40, seed=3):
+    rng = np.random.default_rng(seed)
+    p0 = rng.uniform(-2, 2, (n, 3))
+    p1 = p0 + rng.uniform(0.2, 1.0, (n, 3))
+    return p0, p1, rng.uniform(0.02, 0.2, n)
+
+
+@pytest.mark.parametrize("save", ["savez", "savez_compressed"])
+def test_from_table_reads_numpy_npz(cli, tmp_path, save):
+    """Whatever numpy writes (stored or deflated members, float32 or float64, C or Fortran
+    order, int64 ids counted from 0) reads back to the same numbers."""
+    p0, p1, radius = _arrays()
+    n = len(radius)
+    path = tmp_path / "tree.npz"
+    getattr(np, save)(
+        path,
+        p0=np.asfortranarray(p0),
+        p1=p1.astype(np.float32),
+        radius=radius,
+        id=np.arange(n, dtype=np.int64),
+        label=(np.arange(n) % 4).astype(np.uint8),
+        caps=np.arange(n) % 2 == 0,
+        notes=np.zeros(3),
+    )
+    scene = cylaov.Scene.from_table(path)
+    cyl = json.loads(scene.to_json())["cylinders"]
+    assert len(cyl) == n
+    np.testing.assert_array_equal([c["p0"] for c in cyl], p0)
+    np.testing.assert_array_equal([c["p1"] for c in cyl], p1.astype(np.float32).astype(np.float64))
+    np.testing.assert_array_equal([c["radius"] for c in cyl], radius)
+    assert [c["id"] for c in cyl] == list(range(1, n + 1))
+    assert [c.get("label", 0) for c in cyl] == [k % 4 for k in range(n)]
+    assert [c["caps"] for c in cyl] == [k % 2 == 0 for k in range(n)]
+    # The command line reads the same file to the same scene, and so does a scene that
+    # names the table.
+    out = tmp_path / "tree.json"
+    cli("import", path, "-o", out)
+    assert cylaov.Scene.load(out) == scene
+    ref = tmp_path / "ref.json"
+    ref.write_text(json.dumps({"camera": json.loads(out.read_text())["camera"], "cylinders": {"file": "tree.npz"}}))
+    assert [c["p0"] for c in json.loads(cylaov.Scene.load(ref).to_json())["cylinders"]] == [c["p0"] for c in cyl]
+
+
+def test_a_bad_npz_names_its_array_and_index(tmp_path):
+    p0, p1, radius = _arrays()
+    bad = radius.copy()
+    bad[16] = -1.0
+    cases = {
+        "radius": (dict(p0=p0, p1=p1, radius=bad), r"radius\[16\]: must be > 0, got -1"),
+        "shape": (dict(p0=p0, p1=p1[:10], radius=radius), r"array p1 must have shape \(N, 3\) with N = 40, the rows of p0, got \(10, 3\)"),
+        "missing": (dict(p0=p0, p1=p1), r"no array radius; .* it holds \[p0, p1\]"),
+        "float ids": (dict(p0=p0, p1=p1, radius=radius, id=np.arange(40.0)), r"array id: must hold integers or bools, got dtype <f8"),
+        "nan": (dict(p0=p0, p1=np.where(np.arange(40)[:, None] == 7, np.nan, p1), radius=radius), r"p1\[7, 0\]: must be finite"),
+        "zero length": (dict(p0=p0, p1=np.where(np.arange(40)[:, None] == 5, p0, p1), radius=radius), r"p1\[5\]: zero length"),
+    }
+    for name, (arrays, message) in cases.items():
+        path = tmp_path / f"{name.replace(' ', '_')}.npz"
+        np.savez(path, **arrays)
+        with pytest.raises(cylaov.SceneError, match=message):
+            cylaov.Scene.from_table(path)
+    # A text table told to be npz, and an npz told to be csv, say what each is.
+    text = tmp_path / "t.csv"
+    text.write_text("x0,y0,z0,x1,y1,z1,radius\n0,0,0,0,0,1,1\n")
+    with pytest.raises(cylaov.SceneError, match="an npz table is a zip archive"):
+        cylaov.Scene.from_table(text, format="npz")
+    good = tmp_path / "good.npz"
+    np.savez(good, p0=p0, p1=p1, radius=radius)
+    with pytest.raises(cylaov.SceneError, match="not a csv text table"):
+        cylaov.Scene.from_table(good, format="csv")
+
+
 def _read_ply_ids(path):
     """The uint properties of our PLY, read with numpy from the header's vertex count."""
     data = path.read_bytes()

@@ -4,8 +4,8 @@
 //! [`AovImage`] with the channel names of an EXR, so every check of an EXR applies to it.
 //! One sample is in memory at a time.
 
+use crate::npy::{self, Dtype};
 use crate::output::aov::{AovBuffer, AovImage, ChannelData, channel_names};
-use crate::output::npy::{self, Dtype};
 use crate::output::tar::TarReader;
 use crate::scene::Aov;
 use std::io::Read;
