@@ -325,7 +325,8 @@ struct BatchCli {
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
     shard_size: Option<u64>,
     /// Extra members per view in each tar (--format webdataset), comma-separated: `exr`
-    /// (KEY.exr), `depth.png` (KEY.depth.png, at --depth-scale).
+    /// (KEY.exr), `depth.png` (KEY.depth.png, at --depth-scale), `ply` (KEY.ply, the hit
+    /// points with normals and ids, as render --ply writes them).
     #[arg(long, value_enum, value_delimiter = ',')]
     members: Vec<Member>,
     /// With --format webdataset: replace the dataset --out holds when it was written with

@@ -52,7 +52,10 @@ pub fn write_shards<'py>(
     let k = kernel(precision, formula)?;
     let members = match members {
         None => Vec::new(),
-        Some(m) => names(m, "members: \"exr\", \"depth.png\" or a sequence of them")?,
+        Some(m) => names(
+            m,
+            "members: \"exr\", \"depth.png\", \"ply\" or a sequence of them",
+        )?,
     };
     let members = members
         .iter()
@@ -60,8 +63,9 @@ pub fn write_shards<'py>(
         .map(|(i, m)| match m.as_str() {
             "exr" => Ok(Member::Exr),
             "depth.png" => Ok(Member::DepthPng),
+            "ply" => Ok(Member::Ply),
             _ => Err(PyValueError::new_err(format!(
-                "members[{i}]: \"exr\" or \"depth.png\", got {m:?}"
+                "members[{i}]: \"exr\", \"depth.png\" or \"ply\", got {m:?}"
             ))),
         })
         .collect::<PyResult<Vec<_>>>()?;

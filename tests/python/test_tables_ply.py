@@ -175,3 +175,33 @@ def test_render_ply_matches_the_exr(cli, tmp_path):
     r = cli("render", scene, "-o", tmp_path / "w.exr", "--ply", tmp_path / "link.ply", check=False)
     assert r.returncode == 1 and "--ply" in r.stderr, r.stderr
     assert not (tmp_path / "elsewhere.ply").exists()
+
+
+def test_tar_ply_member_is_what_open3d_reads(cli, tmp_path):
+    """``--members ply`` puts ``KEY.ply`` in the tar: the bytes ``render --ply`` writes for
+    the view, which Open3D reads to the position and normal of every hit pixel."""
+    import tarfile
+
+    o3d = pytest.importorskip("open3d")
+    data = tmp_path / "data"
+    data.mkdir()
+    cli("import", _tree(tmp_path), "-o", data / "tree.json", "--label", "branch", "--width", "160", "--height", "120")
+    out = tmp_path / "shards"
+    cli("batch", data, "--out", out, "--format", "webdataset", "--members", "ply", "--aov", "depth")
+    with tarfile.open(out / "shard-000000.tar") as tar:
+        names = tar.getnames()
+        ply_bytes = tar.extractfile("tree.ply").read()
+    assert names == ["tree.depth.npy", "tree.normal.npy", "tree.mask.npy", "tree.json", "tree.ply"]
+    ply = tmp_path / "tree.ply"
+    ply.write_bytes(ply_bytes)
+    exr, alone = tmp_path / "v.exr", tmp_path / "alone.ply"
+    cli("render", data / "tree.json", "-o", exr, "--aov", ",".join(PLY_AOVS), "--ply", alone)
+    body = lambda b: b[b.index(b"end_header\n"):]
+    assert body(ply_bytes) == body(alone.read_bytes())
+    img = cylaov.read(exr)
+    hit = img["shape_id"] != 0
+    pc = o3d.io.read_point_cloud(str(ply))
+    assert len(pc.points) == int(hit.sum()) > 1000
+    assert np.array_equal(np.asarray(pc.points), img["position"][hit].astype(np.float64))
+    assert np.array_equal(np.asarray(pc.normals), img["normal"][hit].astype(np.float64))
+    assert np.array_equal(_read_ply_ids(ply)["label"], img["label"][hit])

@@ -46,6 +46,7 @@ use crate::output::aov::{AovImage, ChannelData, ExrLayout, channel_names};
 use crate::output::console::{self, count};
 use crate::output::files::{create_new, open_regular, read_regular};
 use crate::output::io::{atomic_write_bytes, check_outputs, record_json};
+use crate::output::ply;
 use crate::output::signals::{self, Cleanup};
 use crate::output::tar::{self, TarWriter};
 use crate::output::view::{DepthPngPlan, Fill, Member as ViewMember, ViewPlan, ViewSink};
@@ -73,6 +74,9 @@ pub enum Member {
     /// `KEY.depth.png`: the 16-bit depth PNG the files format writes.
     #[value(name = "depth.png")]
     DepthPng,
+    /// `KEY.ply`: the view's hit points as a PLY point cloud (position, normal, ids),
+    /// as `render --ply` writes it.
+    Ply,
 }
 
 impl Member {
@@ -80,6 +84,7 @@ impl Member {
         match self {
             Member::Exr => "exr",
             Member::DepthPng => "depth.png",
+            Member::Ply => "ply",
         }
     }
 }
@@ -595,7 +600,28 @@ pub fn view_members(
         ..RenderOptions::new(plan.traced_aovs())
     };
     plan.execute(scene, &render_opts, &mut sink)?;
+    if members.contains(&Member::Ply) {
+        sink.members
+            .push((format!("{key}.ply"), view_ply(key, scene, &render_opts)));
+    }
     Ok(sink.members)
+}
+
+/// `KEY.ply`: the view traced again with the point cloud's AOVs (position, normal and
+/// ids, whatever the dataset's AOVs), the bytes `render --ply` writes for the view.
+fn view_ply(key: &str, scene: &Scene, opts: &RenderOptions) -> Vec<u8> {
+    let opts = RenderOptions {
+        aovs: ply::PLY_AOVS.to_vec(),
+        ..opts.clone()
+    };
+    let image = crate::render::render(scene, &opts).image;
+    // The image holds every PLY AOV, so `hits` finds them all.
+    let points = ply::hits(&image).unwrap_or_default();
+    let comment = format!(
+        "cylaov {} hit points of sample {key}",
+        env!("CARGO_PKG_VERSION")
+    );
+    ply::encode(&points, &comment)
 }
 
 /// Bytes a tar of views of `w`×`h` with `aovs` and `members` takes per view, the JSON
@@ -619,6 +645,8 @@ pub fn view_tar_bytes(w: usize, h: usize, aovs: &[Aov], members: &[Member]) -> u
         sizes.push(match m {
             Member::Exr => (w * h * 4 * channels + h * 16 + 2048) as u64,
             Member::DepthPng => (w * h * 2) as u64,
+            // At most one 36-byte vertex a pixel, and the header.
+            Member::Ply => (w * h * 36 + 1024) as u64,
         });
     }
     tar::archive_size(sizes) - 2 * tar::BLOCK as u64
