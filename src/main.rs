@@ -293,6 +293,11 @@ struct BatchCli {
     /// Skip the PNGs (the indexes then point at the EXRs).
     #[arg(long)]
     no_png: bool,
+    /// Also write NAME.ply per view: its hit points as a binary PLY point cloud (position,
+    /// normal, shape_id, part, label), as render --ply writes them (with --format
+    /// webdataset: --members ply).
+    #[arg(long)]
+    ply: bool,
     /// EXR compression.
     #[arg(long, value_enum, default_value_t = Compression::None)]
     compression: Compression,
@@ -921,6 +926,9 @@ fn generate(a: GenerateCli) -> anyhow::Result<ExitCode> {
 /// Exit 1 when any view failed (the summary names the failures file).
 fn batch(a: BatchCli) -> anyhow::Result<ExitCode> {
     set_threads(a.kernel.threads)?;
+    if a.format == Format::Webdataset && a.ply {
+        anyhow::bail!("--ply: with --format webdataset, ask for --members ply");
+    }
     if a.format == Format::Files {
         if a.shard_size.is_some() {
             anyhow::bail!("--shard-size: only with --format webdataset");
@@ -954,6 +962,7 @@ fn batch(a: BatchCli) -> anyhow::Result<ExitCode> {
             depth_scale: a.depth_scale,
             png: !a.no_png,
             depth_out_of_range: a.depth_out_of_range,
+            ply: a.ply,
             compression: a.compression,
             exr_layout: a.exr_layout,
             schedule: a.schedule,

@@ -793,3 +793,64 @@ fn changed_options_are_rendered_again() {
     let stdout = batch(&["--no-png", "--depth-scale", "7"]);
     assert!(stdout.contains("done 0 / skipped 3"), "{stdout}");
 }
+
+/// `--ply` writes `NAME.ply` per view: the points `render --ply` writes for the view (one
+/// vertex per hit pixel of the EXR's depth), whatever `--aov` holds. Turning it on renders
+/// the views again; turning it off renders them again and removes the point clouds.
+#[test]
+fn ply_writes_each_views_hit_points() {
+    let (tmp, data) = generated("ply", "21", "2", SMALL);
+    let out = tmp.path().join("out");
+    let stdout = batch_ok(&data, &out, &["--aov", "depth"]);
+    assert!(stdout.contains("done 2 / skipped 0"), "{stdout}");
+    assert!(!out.join("000000.ply").exists());
+    let stdout = batch_ok(&data, &out, &["--aov", "depth", "--ply"]);
+    assert!(stdout.contains("done 2 / skipped 0"), "{stdout}");
+    let stdout = batch_ok(&data, &out, &["--aov", "depth", "--ply"]);
+    assert!(stdout.contains("done 0 / skipped 2"), "{stdout}");
+    let body = |b: &[u8]| {
+        let end = b.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
+        let head = String::from_utf8(b[..end].to_vec()).unwrap();
+        let n: usize = head
+            .lines()
+            .find_map(|l| l.strip_prefix("element vertex "))
+            .unwrap()
+            .parse()
+            .unwrap();
+        (n, b[end..].to_vec())
+    };
+    for name in ["000000", "000001"] {
+        let (n, points) = body(&std::fs::read(out.join(format!("{name}.ply"))).unwrap());
+        let img = AovImage::read_exr(&out.join(format!("{name}.exr"))).unwrap();
+        let hits = img
+            .f32_channel("depth")
+            .unwrap()
+            .iter()
+            .filter(|&&z| z > 0.0)
+            .count();
+        assert!(hits > 20, "{name}: {hits} hits");
+        assert_eq!(n, hits, "{name}");
+        assert_eq!(points.len(), n * 36, "{name}");
+        let alone = tmp.path().join(format!("{name}.ply"));
+        ok(&[
+            "render",
+            &data.join(format!("scenes/{name}.json")).to_string_lossy(),
+            "-o",
+            &tmp.path().join(format!("{name}.exr")).to_string_lossy(),
+            "--ply",
+            &alone.to_string_lossy(),
+        ]);
+        assert_eq!(body(&std::fs::read(&alone).unwrap()).1, points, "{name}");
+    }
+    let stdout = batch_ok(&data, &out, &["--aov", "depth"]);
+    assert!(stdout.contains("done 2 / skipped 0"), "{stdout}");
+    assert!(!out.join("000000.ply").exists());
+    let o = run_batch(&data, &out, &["--format", "webdataset", "--ply"]);
+    assert!(!o.status.success());
+    assert!(
+        String::from_utf8_lossy(&o.stderr)
+            .contains("--ply: with --format webdataset, ask for --members ply"),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}

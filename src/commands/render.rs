@@ -64,6 +64,7 @@ fn plan(args: &RenderArgs, cam: Camera, aovs: &[Aov]) -> ViewPlan {
         normal_picture: false,
         previews: args.preview.is_some(),
         stamp: None,
+        ply: false,
     }
 }
 

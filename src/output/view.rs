@@ -60,6 +60,8 @@ pub enum Member {
     DepthPreview(Aov),
     /// What made the files (a batch's render stamp).
     Stamp,
+    /// The hit points as a PLY point cloud ([`crate::output::ply`]).
+    Ply,
 }
 
 impl Member {
@@ -75,6 +77,7 @@ impl Member {
             Member::NormalPicture | Member::NormalPreview => "normal.preview.png".into(),
             Member::DepthPreview(a) => format!("{}.preview.png", a.name()),
             Member::Stamp => "render.json".into(),
+            Member::Ply => "ply".into(),
         }
     }
 
@@ -114,6 +117,9 @@ pub struct ViewPlan {
     pub previews: bool,
     /// Extra metadata written as it is (a batch's render stamp).
     pub stamp: Option<String>,
+    /// The hit points as a PLY point cloud (traced with the point cloud's AOVs, whatever
+    /// the EXR stores).
+    pub ply: bool,
 }
 
 /// A depth PNG that cannot hold the view's depths ([`OutOfRange::Fail`]): the message
@@ -194,12 +200,15 @@ impl ViewPlan {
         if self.normal_picture {
             need(Aov::Normal);
         }
+        if self.ply {
+            crate::output::ply::PLY_AOVS.into_iter().for_each(need);
+        }
         aovs
     }
 
     /// Whether any PNG is written (then the whole image is needed).
     pub fn pictures(&self) -> bool {
-        self.depth_png.is_some() || self.mask || self.normal_picture || self.previews
+        self.depth_png.is_some() || self.mask || self.normal_picture || self.previews || self.ply
     }
 
     /// Whether the EXR is written band by band while the view is traced (see [`streams`]).
@@ -241,6 +250,9 @@ impl ViewPlan {
         }
         if self.normal_picture {
             m.push(Member::NormalPicture);
+        }
+        if self.ply {
+            m.push(Member::Ply);
         }
         if self.previews {
             m.extend([
@@ -349,6 +361,14 @@ impl ViewPlan {
             true => Some(depth_png::mask(image).context("no depth AOV")?),
             false => None,
         };
+        let ply = match self.ply {
+            true => {
+                let hits = crate::output::ply::hits(image).context("no point-cloud AOV")?;
+                let comment = format!("cylaov {} hit points", env!("CARGO_PKG_VERSION"));
+                Some(crate::output::ply::encode(&hits, &comment))
+            }
+            false => None,
+        };
         let keep: Vec<&str> = self
             .exr_aovs
             .iter()
@@ -378,6 +398,9 @@ impl ViewPlan {
         }
         if let Some(mask) = &mask {
             add_png(sink, Member::MaskPng, mask)?;
+        }
+        if let Some(ply) = &ply {
+            sink.add(Member::Ply, &mut |w| w.write_all(ply))?;
         }
         // The previews show what the EXR stores.
         if self.previews {

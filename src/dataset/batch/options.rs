@@ -31,6 +31,8 @@ pub struct BatchOptions {
     pub png: bool,
     /// What the depth PNG does with a hit beyond 16 bits at `depth_scale`.
     pub depth_out_of_range: OutOfRange,
+    /// Write `NAME.ply`, the view's hit points (files format).
+    pub ply: bool,
     /// EXR compression.
     pub compression: Compression,
     /// One layered `NAME.exr`, or `NAME.<aov>.exr` per AOV.
@@ -53,6 +55,7 @@ impl Default for BatchOptions {
             depth_scale: 1000.0,
             png: true,
             depth_out_of_range: OutOfRange::Fail,
+            ply: false,
             compression: Compression::None,
             exr_layout: ExrLayout::Layers,
             schedule: Schedule::default(),

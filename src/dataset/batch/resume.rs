@@ -29,6 +29,8 @@ pub struct ViewFiles {
     pub mask_png: PathBuf,
     /// The [`render_stamp`].
     pub stamp: PathBuf,
+    /// The hit points (`NAME.ply`, with `--ply`).
+    pub ply: PathBuf,
     /// Where versions before 0.2 put the normal picture; removed when the view is rendered.
     pub legacy_normal_png: PathBuf,
     dir: PathBuf,
@@ -46,6 +48,7 @@ impl ViewFiles {
             depth_png: dir.join(format!("{name}.depth.png")),
             mask_png: dir.join(format!("{name}.mask.png")),
             stamp: dir.join(format!("{name}.render.json")),
+            ply: dir.join(format!("{name}.ply")),
             legacy_normal_png: dir.join(format!("{name}.normal.png")),
             dir: dir.to_path_buf(),
             name: name.to_string(),
@@ -302,6 +305,9 @@ struct RenderStamp {
     /// What the depth PNG does with depths beyond 16 bits; only with PNGs.
     #[serde(skip_serializing_if = "Option::is_none")]
     depth_out_of_range: Option<String>,
+    /// Whether the view has its PLY; only when it has (older stamps stay valid).
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    ply: bool,
 }
 
 /// The `NAME.render.json` this run writes for `scene`: the scene's hash and every option
@@ -324,6 +330,7 @@ pub fn render_stamp(scene: &Scene, opts: &BatchOptions) -> String {
         png: opts.png,
         depth_scale: opts.png.then_some(opts.depth_scale),
         depth_out_of_range: opts.png.then(|| name(opts.depth_out_of_range)),
+        ply: opts.ply,
     };
     let mut s = crate::output::io::record_json(&stamp);
     s.push('\n');
@@ -348,7 +355,9 @@ pub fn view_is_complete(dir: &Path, name: &str, scene: &Scene, opts: &BatchOptio
         && (!opts.png
             || [&files.normal_png, &files.depth_png, &files.mask_png]
                 .iter()
-                .all(|p| file_ends_with(p, PNG_END)));
+                .all(|p| file_ends_with(p, PNG_END)))
+        // Committed before the EXR, so whole when the EXR is.
+        && (!opts.ply || files.ply.is_file());
     let (w, h) = (scene.camera.width as usize, scene.camera.height as usize);
     others
         && match opts.exr_layout {

@@ -548,6 +548,7 @@ pub fn view_members(
         normal_picture: false,
         previews: false,
         stamp: None,
+        ply: false,
     };
     let (w, h) = (scene.camera.width as usize, scene.camera.height as usize);
     let mut miss = serde_json::Map::new();

@@ -39,6 +39,7 @@ pub fn view_plan(scene: &Scene, opts: &BatchOptions) -> ViewPlan {
         normal_picture: opts.png,
         previews: false,
         stamp: Some(render_stamp(scene, opts)),
+        ply: opts.ply,
     }
 }
 
@@ -54,13 +55,14 @@ fn member_path(dir: &Path, name: &str, member: Member) -> PathBuf {
 }
 
 /// What a commit of view `done` removes before renaming: every EXR of either layout (each
-/// is a "done" marker), the normal picture under its pre-0.2 name and, without PNGs, the
-/// pictures already there (they would not match the stamp).
+/// is a "done" marker), the normal picture under its pre-0.2 name and, without PNGs (or
+/// without `--ply`), the pictures (or point cloud) already there (they would not match
+/// the stamp).
 ///
 /// An EXR in place is the view's "done" marker, so an older one goes before any new file
 /// of the view replaces its sibling: a re-render killed between the renames leaves no
 /// EXR (the view is rendered again), never a new camera beside old PNGs and an old EXR.
-fn stale(done: &ViewFiles, png: bool) -> Vec<PathBuf> {
+fn stale(done: &ViewFiles, png: bool, ply: bool) -> Vec<PathBuf> {
     let mut stale: Vec<PathBuf> = vec![done.exr.clone()];
     stale.extend(Aov::ALL.iter().map(|&a| done.per_aov(a)));
     stale.push(done.legacy_normal_png.clone());
@@ -70,6 +72,9 @@ fn stale(done: &ViewFiles, png: bool) -> Vec<PathBuf> {
             done.depth_png.clone(),
             done.mask_png.clone(),
         ]);
+    }
+    if !ply {
+        stale.push(done.ply.clone());
     }
     stale
 }
@@ -94,7 +99,7 @@ pub fn render_view(
     };
     let (d, n) = (dir.to_path_buf(), name.to_string());
     let mut sink = FileSink::in_work_folder(move |m| member_path(&d, &n, m), partial, tmp_stem)
-        .replacing(stale(&ViewFiles::new(dir, name), opts.png));
+        .replacing(stale(&ViewFiles::new(dir, name), opts.png, opts.ply));
     let written = plan.execute(scene, &render_opts, &mut sink)?;
     Ok(ViewCost {
         trace: written.trace,
