@@ -96,6 +96,7 @@ fn memory_and_files_hold_the_same_members() {
         normal_picture: false,
         previews: true,
         stamp: Some("stamp\n".into()),
+        ply: true,
     };
     let opts = RenderOptions::new(plan.traced_aovs());
     let mut memory = MemorySink::new("v");
@@ -112,6 +113,7 @@ fn memory_and_files_hold_the_same_members() {
             "v.camera.json",
             "v.open3d.json",
             "v.render.json",
+            "v.ply",
             "v.normal.preview.png",
             "v.depth.preview.png",
             "v.depth.exr",
