@@ -431,6 +431,12 @@ impl Arbitration {
                 self.example(PixelClass::ReferenceError)
             ));
         }
+        if self.proven_reference_errors > 0 {
+            out.push(format!(
+                "proven reference error: {} px where Mitsuba's shape is not the exact answer's on its own float32 inputs (p0, p1, radius and the ray as float32); the report writes a script reproducing each",
+                self.proven_reference_errors
+            ));
+        }
         if self.ties > 0 {
             out.push(format!(
                 "tie: {} px where both are within their bounds of the exact answer ({}); {}",

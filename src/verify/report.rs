@@ -1,7 +1,9 @@
 //! `verify --report DIR`: one self-contained page, `DIR/index.html`, with its images beside
 //! it (no network): a per-view table sortable by worst error, and per view the candidate's
 //! and Mitsuba's depth, the difference heatmap with its legend and colour bar, and the worst
-//! disagreeing pixels with their three answers (candidate, Mitsuba, exact) and class.
+//! disagreeing pixels with their three answers (candidate, Mitsuba, exact) and class. Each
+//! proven reference error gets a script beside the page ([`crate::verify::repro`]), linked
+//! from it and listed in `DIR/README.md` with how to check one before filing it upstream.
 
 use crate::output::aov::AovImage;
 use crate::verify::arbiter::{Arbitration, Pixel, PixelClass};

@@ -149,7 +149,11 @@ fn py_hit(h: &Option<ReproHit>) -> String {
 /// Mitsuba's answer beside the exact one, then `REPRODUCED` (another shape than the exact
 /// answer's) or `NOT REPRODUCED`, its exit status 0 either way.
 pub fn script(r: &Repro, what: &str) -> String {
-    let what = what.replace(['\n', '\r'], " ");
+    // Inside the docstring: no line break, backslash or quote of the view's name ends it.
+    let what = what
+        .replace(['\n', '\r'], " ")
+        .replace('\\', "\\\\")
+        .replace('"', "\\\"");
     format!(
         r#"#!/usr/bin/env python3
 """{what}
@@ -212,4 +216,62 @@ print("NOT REPRODUCED: Mitsuba gives the exact answer's shape on this ray" if sa
         exact = py_hit(&r.exact),
         render = py_hit(&r.reference),
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn repro() -> Repro {
+        let c = Cylinder {
+            base: glam::DVec3::new(0.1, 0.0, 0.0),
+            axis: glam::DVec3::Z,
+            height: 2.0,
+            radius: 0.5,
+            caps: true,
+            id: 7,
+            label: 0,
+        };
+        Repro {
+            origin: [0.1, -5.0, 1.0],
+            dir: [0.0, 1.0, 0.0],
+            tmax: 1e4,
+            cylinders: vec![ReproCylinder::new(3, &c)],
+            reference: None,
+            exact: Some(ReproHit {
+                id: 7,
+                shape: "side",
+                t: 4.5,
+            }),
+        }
+    }
+
+    /// The shapes carry the export's ids and exact float32 decimals; the answers are
+    /// embedded as Python literals.
+    #[test]
+    fn script_holds_the_shapes_the_ray_and_both_answers() {
+        let s = script(&repro(), "a view");
+        for want in [
+            "<shape type=\"cylinder\" id=\"c3_id7_side\">",
+            "<shape type=\"disk\" id=\"c3_id7_bottom\">",
+            "<shape type=\"disk\" id=\"c3_id7_top\">",
+            // 0.1 as float32, exactly.
+            "<point name=\"p0\" value=\"0.10000000149011612, 0.0, 0.0\"/>",
+            "ORIGIN = np.array([0.10000000149011612, -5.0, 1.0], dtype=np.float32)",
+            "EXACT = (7, \"side\", 4.5)",
+            "RENDER = None",
+            "mi.set_variant(\"scalar_rgb\")",
+        ] {
+            assert!(s.contains(want), "{want} missing from:\n{s}");
+        }
+        assert_eq!(ReproHit::describe(&repro().exact), "id 7 side t 4.5");
+    }
+
+    /// A view name with quotes, backslashes or a line break stays inside the docstring.
+    #[test]
+    fn a_view_name_cannot_end_the_docstring() {
+        let s = script(&repro(), "a\"\"\"b\\\nimport os");
+        let doc = s.lines().nth(1).expect("the docstring's first line");
+        assert_eq!(doc, "\"\"\"a\\\"\\\"\\\"b\\\\ import os");
+    }
 }
