@@ -66,6 +66,20 @@ fn the_sweep_counts_the_stress_scenes() {
         .expect("running scripts/verify-sweep");
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success(), "{err}");
+    // A stress scene that does not exist is refused by name before anything runs.
+    let bad = Command::new("bash")
+        .arg("scripts/verify-sweep")
+        .args(["--only", "stress", "--stress", "grazing,nope"])
+        .current_dir(root())
+        .env("CYLAOV_VENV", venv)
+        .env("CYLAOV_BIN", env!("CARGO_BIN_EXE_cylaov"))
+        .output()
+        .expect("running scripts/verify-sweep");
+    assert_eq!(bad.status.code(), Some(2));
+    assert_eq!(
+        String::from_utf8_lossy(&bad.stderr),
+        "scripts/verify-sweep: --stress: no scenes/stress/nope.json\n"
+    );
     let (header, rows) = read_csv(&csv);
     let (committed, _) = read_csv(&root().join("reference/bench/verify_sweep.csv"));
     assert_eq!(
