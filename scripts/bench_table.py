@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Print a timing table of the docs, as Markdown, from the committed bench CSVs.
 
-    python3 scripts/bench_table.py --table cylaov|anchors|kernel|formats|python|exr_writer|scaling [--csv PATH]
+    python3 scripts/bench_table.py --table cylaov|anchors|kernel|formats|python|exr_writer|scaling|verify-sweep [--csv PATH]
 
 `cylaov`, `anchors`, `kernel` (docs/performance.md): the CSVs one `cylaov bench --csv
 reference/bench/bench.csv` run writes (`bench.csv`, `bench.kernel.csv`,
@@ -11,7 +11,8 @@ the tables, the figure and the CSVs always come from one run. `formats`
 --batch-formats --csv`; `exr_writer` (docs/performance.md): `reference/bench/exr_writer.csv`,
 from `cylaov bench --exr-writer --csv`; `scaling` (docs/performance.md):
 `reference/bench/scaling.csv`, from `cylaov bench --scaling --csv`. `python` (docs/python.md): `reference/bench/python.csv`, from
-`cylaov bench --python --csv`. Timings cannot be re-measured in CI: tests/docs.rs checks that
+`cylaov bench --python --csv`. `verify-sweep` (docs/verification.md):
+`reference/bench/verify_sweep.csv`, from `scripts/verify-sweep --csv`. Timings cannot be re-measured in CI: tests/docs.rs checks that
 the pages' tables are what this script prints from the committed CSVs. Needs only the
 standard library.
 """
@@ -77,6 +78,7 @@ DEFAULT_CSV = {
     "python": "python.csv",
     "exr_writer": "exr_writer.csv",
     "scaling": "scaling.csv",
+    "verify-sweep": "verify_sweep.csv",
 }
 
 # The workloads of `cylaov bench --scaling`, in the table's order.
@@ -144,6 +146,22 @@ def main():
             tw, fi = at.get("batch webdataset"), at.get("batch files")
             r = f"{float(tw['views_per_s']) / float(fi['views_per_s']):.2f}×" if tw and fi else "–"
             out.append(f"| {n} | " + " | ".join(cells) + f" | {r} |")
+        sys.stdout.write("\n".join(out) + "\n")
+        return
+    if a.table == "verify-sweep":
+        out.append(
+            "| setting | scenes | views checked | failed | hit pixels judged | reference errors "
+            "| proven reference errors | their scripts reproduced | input rounding | unexplained "
+            "| candidate errors |"
+        )
+        out.append("|---|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|")
+        for r in rows(base):
+            cells = [count(r[k]) for k in ["views", "failed", "hit_pixels_judged",
+                                            "reference_errors", "proven_reference_errors"]]
+            run = int(r["scripts_run"])
+            cells.append(f"{count(r['scripts_reproduced'])} of {count(run)}" if run else "–")
+            cells += [count(r[k]) for k in ["input_rounding", "unexplained", "candidate_errors"]]
+            out.append(f"| {r['setting']} | `{r['options']}` | " + " | ".join(cells) + " |")
         sys.stdout.write("\n".join(out) + "\n")
         return
     if a.table == "python":

@@ -51,6 +51,7 @@ use crate::scene::camera::{Camera, PixelRay, Projection};
 use crate::verify::compare::{CONDITIONING_ULPS, Tolerances, id_channel, ray_origin_size};
 use crate::verify::oracle::{DD, intersect};
 use crate::verify::oracle::{DV3, Problem};
+use crate::verify::repro::{Repro, ReproCylinder, ReproHit, shape_word};
 use anyhow::{Result, bail};
 use glam::DVec3;
 use rayon::prelude::*;
@@ -310,6 +311,10 @@ pub struct Pixel {
     pub candidate_off: f64,
     /// The same for Mitsuba.
     pub reference_off: f64,
+    /// Where Mitsuba is off (a reference error, explained or not) with another shape than
+    /// the exact answer's on its own float32 inputs: the reproduction of that proven
+    /// reference error ([`crate::verify::repro`]).
+    pub repro: Option<Repro>,
 }
 
 /// Every disagreeing pixel of a view, classified.
@@ -336,6 +341,9 @@ pub struct Arbitration {
     /// Pixels where Mitsuba is on the exact answer for its float32 inputs
     /// ([`PixelClass::InputRounding`]).
     pub input_rounding: usize,
+    /// Reference errors (explained or not) where Mitsuba's shape is not the exact answer's
+    /// on its own float32 inputs: each has a reproduction ([`Pixel::repro`]).
+    pub proven_reference_errors: usize,
     /// Mitsuba's largest sideways ray error δ over the scene's cylinders.
     pub delta_max: f64,
     /// The scene's smallest feature (radius or height).
@@ -421,6 +429,12 @@ impl Arbitration {
                 self.reference_errors,
                 self.kinds(PixelClass::ReferenceError),
                 self.example(PixelClass::ReferenceError)
+            ));
+        }
+        if self.proven_reference_errors > 0 {
+            out.push(format!(
+                "proven reference error: {} px where Mitsuba's shape is not the exact answer's on its own float32 inputs (p0, p1, radius and the ray as float32); the report writes a script reproducing each",
+                self.proven_reference_errors
             ));
         }
         if self.ties > 0 {
@@ -1011,6 +1025,12 @@ pub fn arbitrate_against(
         } else {
             PixelClass::Tie
         };
+        let repro = matches!(
+            class,
+            PixelClass::ReferenceError | PixelClass::UnexplainedReferenceError
+        )
+        .then(|| reproduce(scene, &rounded, &tracer32, &ray, &sb, hb))
+        .flatten();
         Some(Pixel {
             at: [x, y],
             class,
@@ -1022,6 +1042,7 @@ pub fn arbitrate_against(
             delta: delta_b,
             candidate_off: off_a,
             reference_off: off_b,
+            repro,
         })
     };
     // Rows in parallel, kept in image order.
@@ -1042,6 +1063,7 @@ pub fn arbitrate_against(
         candidate_errors: count(PixelClass::CandidateError),
         ties: count(PixelClass::Tie),
         input_rounding: count(PixelClass::InputRounding),
+        proven_reference_errors: pixels.iter().filter(|p| p.repro.is_some()).count(),
         delta_max,
         feature_min,
         radius_max,
@@ -1135,6 +1157,67 @@ pub fn exact_render(scene: &Scene) -> Result<AovImage> {
         data: ChannelData::U32(parts),
     });
     Ok(AovImage::from_channels(w, h, channels))
+}
+
+/// The reproduction of Mitsuba's answer `sb` (`hb`: a hit) at the pixel ray `ray`, when its
+/// shape is not the exact answer's on Mitsuba's own inputs: the cylinders `rounded` (as
+/// float32) and the ray rounded to float32 with its origin moved to the near plane (where
+/// Mitsuba's camera rays start; `t` then counts from there). `None` when the shapes agree
+/// or Mitsuba's shape is not stored.
+fn reproduce(
+    scene: &Scene,
+    rounded: &[Cylinder],
+    tracer32: &Tracer,
+    ray: &PixelRay,
+    sb: &Sample,
+    hb: bool,
+) -> Option<Repro> {
+    let (id, part) = (sb.id?, sb.part?);
+    let shift = ray.tmin.max(0.0);
+    let origin = (ray.origin + ray.dir * shift).as_vec3();
+    let dir = ray.dir.as_vec3();
+    let tmax = (ray.tmax - shift) as f32;
+    let e = tracer32.trace(&PixelRay {
+        origin: origin.as_dvec3(),
+        dir: dir.as_dvec3(),
+        tmin: 0.0,
+        tmax: f64::from(tmax),
+        ..*ray
+    });
+    let exact = e.as_ref().map(|e| ReproHit {
+        id: rounded[e.index].id,
+        shape: shape_word(e.part),
+        t: e.t,
+    });
+    let reference = hb.then(|| ReproHit {
+        id,
+        shape: shape_word(part),
+        t: sb.distance.unwrap_or(f64::NAN) - shift,
+    });
+    let same = match (&exact, &reference) {
+        (None, None) => true,
+        (Some(a), Some(b)) => (a.id, a.shape) == (b.id, b.shape),
+        _ => false,
+    };
+    if same {
+        return None;
+    }
+    // The exact answer's cylinder and every cylinder with Mitsuba's id (ids may repeat).
+    let cylinders = scene
+        .cylinders
+        .iter()
+        .enumerate()
+        .filter(|(k, c)| e.as_ref().is_some_and(|e| e.index == *k) || (hb && c.id == id))
+        .map(|(k, c)| ReproCylinder::new(k, c))
+        .collect();
+    Some(Repro {
+        origin: origin.to_array(),
+        dir: dir.to_array(),
+        tmax,
+        cylinders,
+        reference,
+        exact,
+    })
 }
 
 /// `c` as Mitsuba parses the exported XML: `p0`, `p1` and `radius` rounded to float32.

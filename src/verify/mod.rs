@@ -9,4 +9,5 @@ pub mod compare;
 pub mod oracle;
 pub mod reference;
 pub mod report;
+pub mod repro;
 pub mod stress;

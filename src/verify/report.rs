@@ -1,10 +1,13 @@
 //! `verify --report DIR`: one self-contained page, `DIR/index.html`, with its images beside
 //! it (no network): a per-view table sortable by worst error, and per view the candidate's
 //! and Mitsuba's depth, the difference heatmap with its legend and colour bar, and the worst
-//! disagreeing pixels with their three answers (candidate, Mitsuba, exact) and class.
+//! disagreeing pixels with their three answers (candidate, Mitsuba, exact) and class. Each
+//! proven reference error gets a script beside the page ([`crate::verify::repro`]), linked
+//! from it and listed in `DIR/README.md` with how to check one before filing it upstream.
 
 use crate::output::aov::AovImage;
-use crate::verify::arbiter::{Arbitration, PixelClass};
+use crate::verify::arbiter::{Arbitration, Pixel, PixelClass};
+use crate::verify::repro::{ReproHit, script};
 use anyhow::{Context, Result};
 use image::{Luma, RgbImage};
 use std::fmt::Write as _;
@@ -95,6 +98,16 @@ pub fn write_report(dir: &Path, title: &str, views: &[ReportView]) -> Result<()>
             targets.extend(pictures(i).iter().map(|f| dir.join(f)));
         }
     }
+    let repros: Vec<Vec<(String, &Pixel)>> = views
+        .iter()
+        .enumerate()
+        .map(|(i, v)| repro_files(i, v))
+        .collect();
+    targets.extend(repros.iter().flatten().map(|(f, _)| dir.join(f)));
+    let any_repro = repros.iter().any(|r| !r.is_empty());
+    if any_repro {
+        targets.push(dir.join("README.md"));
+    }
     for t in &targets {
         check_output("--report", t, &[])?;
     }
@@ -123,6 +136,12 @@ pub fn write_report(dir: &Path, title: &str, views: &[ReportView]) -> Result<()>
         );
     }
     html += "</tbody></table>";
+    if any_repro {
+        let _ = write!(
+            html,
+            "<p>Proven reference errors: Mitsuba's shape differs from the exact answer on its own float32 inputs. Each has a script below; see <a href=\"README.md\">README.md</a> before filing one upstream.</p>"
+        );
+    }
     for (i, v) in views.iter().enumerate() {
         let _ = write!(
             html,
@@ -188,15 +207,101 @@ pub fn write_report(dir: &Path, title: &str, views: &[ReportView]) -> Result<()>
                 html += "</table>";
             }
         }
+        if !repros[i].is_empty() {
+            html += "<h3>Proven reference errors: reproductions</h3><ul>";
+            for (file, p) in &repros[i] {
+                let r = p.repro.as_ref().expect("a reproduction");
+                staged.push(stage_text(&dir.join(file), &script(r, &repro_title(v, p)))?);
+                let _ = write!(
+                    html,
+                    "<li><a href=\"{file}\">{file}</a>: pixel [{}, {}], Mitsuba {}, exact {}</li>",
+                    p.at[0],
+                    p.at[1],
+                    esc(&ReproHit::describe(&r.reference)),
+                    esc(&ReproHit::describe(&r.exact))
+                );
+            }
+            html += "</ul>";
+        }
+    }
+    if any_repro {
+        let readme = readme(title, views, &repros);
+        staged.push(stage_text(&dir.join("README.md"), &readme)?);
     }
     html += "</body></html>\n";
-    let path = dir.join("index.html");
-    staged.push(
-        crate::output::io::stage(&path, |f| {
-            use std::io::Write;
-            f.write_all(html.as_bytes())
-        })
-        .with_context(|| format!("writing {}", path.display()))?,
-    );
+    staged.push(stage_text(&dir.join("index.html"), &html)?);
     commit_all(staged).with_context(|| format!("writing the report in {}", dir.display()))
+}
+
+/// How many reproductions a view writes at most (the first in image order).
+const REPROS: usize = 20;
+
+/// A text file staged for [`write_report`]'s commit.
+fn stage_text(path: &Path, text: &str) -> Result<crate::output::atomic::Staged> {
+    crate::output::io::stage(path, |f| {
+        use std::io::Write;
+        f.write_all(text.as_bytes())
+    })
+    .with_context(|| format!("writing {}", path.display()))
+}
+
+/// View `i`'s pixels with a reproduction and their script files, `view{i}.repro{n}.py`.
+fn repro_files<'a>(i: usize, v: &ReportView<'a>) -> Vec<(String, &'a Pixel)> {
+    v.arbitration
+        .into_iter()
+        .flat_map(|a| a.pixels.iter())
+        .filter(|p| p.repro.is_some())
+        .take(REPROS)
+        .enumerate()
+        .map(|(n, p)| (format!("view{i}.repro{n}.py"), p))
+        .collect()
+}
+
+/// The docstring's first line of a reproduction.
+fn repro_title(v: &ReportView, p: &Pixel) -> String {
+    format!(
+        "{}, pixel [{}, {}]: {} where Mitsuba's shape is not the exact answer's on its float32 inputs",
+        v.name,
+        p.at[0],
+        p.at[1],
+        p.class.label()
+    )
+}
+
+/// `README.md` of a report with reproductions: how to check one before filing it, and the
+/// list of scripts with the answers each should print.
+fn readme(title: &str, views: &[ReportView], repros: &[Vec<(String, &Pixel)>]) -> String {
+    let mut s = format!(
+        "# Proven reference errors: {title}\n\n\
+At these pixels Mitsuba's shape (another cylinder, another part, or hit vs miss) is not the \
+exact answer's on the inputs Mitsuba was given: the cylinders' p0, p1 and radius rounded to \
+float32, and the pixel ray rounded to float32 with its origin on the near plane. Each \
+`*.py` script holds the one or two cylinders involved, written as the Mitsuba export writes \
+them, and that one ray; it prints Mitsuba's answer (shape id, part, t) beside the exact one, \
+computed by cylaov in double-double on the same float32 inputs.\n\n\
+Before filing one upstream:\n\n\
+1. Run the script with the pinned Mitsuba: `pip install mitsuba==3.9.1 numpy`, then \
+`python view0.repro0.py`.\n\
+2. The finding stands only if the script prints `REPRODUCED`: Mitsuba's shape differs from \
+the exact answer's on that ray. `NOT REPRODUCED` means Mitsuba's render used a ray that \
+differs from this one in its last bits; there is nothing to file.\n\
+3. File the script, not the dataset: it needs nothing else.\n\n\
+| script | view | pixel | class | Mitsuba in the render | exact |\n|---|---|---|---|---|---|\n"
+    );
+    for (v, files) in views.iter().zip(repros) {
+        for (file, p) in files {
+            let r = p.repro.as_ref().expect("a reproduction");
+            let _ = writeln!(
+                s,
+                "| [{file}]({file}) | {} | [{}, {}] | {} | {} | {} |",
+                v.name.replace('|', "\\|"),
+                p.at[0],
+                p.at[1],
+                p.class.label(),
+                ReproHit::describe(&r.reference),
+                ReproHit::describe(&r.exact)
+            );
+        }
+    }
+    s
 }
