@@ -72,7 +72,9 @@
 //!   HTML page of `--report`), [`verify::reference`](mod@verify::reference) (the one check
 //!   against Mitsuba 3, perspective and orthographic, or against the exact answer alone for
 //!   the lens models, behind `cylaov verify`, `batch --verify-fraction` and the reference
-//!   tests; the script is compiled in), [`verify::oracle`] (double-double reference answer, κ and tangency band),
+//!   tests; the script is compiled in), [`verify::repro`] (for each proven reference error,
+//!   a standalone Mitsuba script that casts the one ray at the shapes involved, written by
+//!   `--report`), [`verify::oracle`] (double-double reference answer, κ and tangency band),
 //!   [`verify::stress`] (the hard ray families of `cylaov stress`).
 //! - [`bench`](mod@bench): run time against error per kernel, AOV set, cylinder count and
 //!   scene family, with Mitsuba's and Open3D's times on the same scenes ([`bench::Anchors`]),
