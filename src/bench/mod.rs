@@ -14,6 +14,7 @@
 
 pub mod batch_formats;
 pub mod exr_writer;
+pub mod load;
 pub mod scaling;
 pub mod scan;
 

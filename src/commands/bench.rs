@@ -91,6 +91,23 @@ pub fn run(
             k.kernel, k.form, k.mtests_per_s
         ))?;
     }
+    // The load table: with the processes timed, and the dense 1 000 and 100 000 in the run.
+    if let Some(exe) = &opts.exe
+        && opts.families.contains(&bench::Family::Dense)
+        && [1000, 100_000].iter().all(|n| opts.counts.contains(n))
+    {
+        say(
+            "\nLoading at scale: whole `cylaov render` processes, dense family, depth+normal; ratio = time / 1 000 cylinders at 1920x1080:",
+        )?;
+        say(&format!("{:<28} {:>10} {:>6}", "case", "process", "ratio"))?;
+        let scratch = tempfile::Builder::new().prefix("cylaov-load-").tempdir()?;
+        for r in bench::load::run(exe, opts.seed, opts.repeats, scratch.path())? {
+            say(&format!(
+                "{:<28} {:>10.1} {:>6.2}",
+                r.case, r.process_ms, r.ratio
+            ))?;
+        }
+    }
     let mut mi_rows = Vec::new();
     if let Some(a) = &anchors {
         say(

@@ -1,0 +1,615 @@
+//! Reading a plain scene file's cylinders on every core.
+//!
+//! `serde_json` reads a document on one thread, and at 100 000 cylinders nearly all of a
+//! scene file's 18 MB is its `"cylinders"` array. [`load`] finds where the array starts
+//! with a scan that follows strings, escapes and nesting (only up to the array: the camera
+//! comes first in the files `generate` and `bench` write), then cuts the rest of the text
+//! into chunks, one task each, and each task reads and validates the elements that start
+//! in its chunk straight into [`Cylinder`]s (no list of [`CylinderFile`]s is held beside
+//! the text). The tasks' results are joined in chunk order, so the list is in file order
+//! whatever the threads do. The rest of the file, the *skeleton* (the text with the array
+//! written `[]`), is read with `serde_json` as before.
+//!
+//! It is a fast path only: it returns a scene or nothing. Whatever it does not accept (an
+//! error anywhere, a key written with escapes, `"cylinders"` twice, a table reference) the
+//! caller reads again the one-thread way, which names the field in its message; so every
+//! message, and which of several errors is reported, stays what it was.
+//!
+//! Why a scene it returns is the one-thread read's, bit for bit, whatever the threads do:
+//! - the start scan agrees with `serde_json` on every string's extent (a `"` opens and
+//!   closes one, `\` takes the next byte with it) and so on the nesting; it takes the array
+//!   only as the value of a key spelled exactly `"cylinders"` directly in the top-level
+//!   object;
+//! - a task starts at the first `{` of its chunk; in a valid array that opens an element (a
+//!   [`CylinderFile`] nests no object, and its only strings are keys, whose raw bytes hold
+//!   no brace: a key with one is an unknown field). Each element is read from its first
+//!   byte by [`plain`] when it is written plainly (as `generate` and `bench` write them;
+//!   its numbers by `str::parse`, correctly rounded like `serde_json`'s with
+//!   `float_roundtrip`; the unit tests hold it to `serde_json` on 20 000 numbers), else by
+//!   the same `serde_json` code as before ([`strict::Object`] of [`CylinderFile`]); either
+//!   says where the element ends;
+//! - the elements are then chained in text order: each must be followed by whitespace and
+//!   a comma and whitespace and the next element's `{` (the first of the next chunk's, for
+//!   a chunk's last), or by whitespace and the array's `]`. Elements that each read as a
+//!   whole object, so joined, are exactly a JSON array of them (JSON's grammar composes),
+//!   so a wrong guess in a task (a `{` inside a string of an invalid file) breaks the chain
+//!   and the fast path gives up;
+//! - the skeleton is the same text before the array and after it, so `serde_json`
+//!   accepting it means it accepts the whole file with the same structure, and a second
+//!   `"cylinders"` key (however spelled) is still its "duplicate field" error;
+//! - validation is [`CylinderFile`]'s own; a cylinder without an `id` gets its 1-based
+//!   index in the file once the chain has numbered them, as the one-thread read gives it.
+
+use super::{Cylinder, CylinderFile, Scene, SceneFile, strict, validate_scene};
+use rayon::prelude::*;
+
+/// The scene in `bytes`, read with its cylinders in parallel; `None` when it is not a
+/// plain, valid scene file (the caller reads it again for the message).
+pub fn load(bytes: &[u8]) -> Option<Scene> {
+    let (start, end, cylinders) = cylinders(bytes)?;
+    let mut skeleton = Vec::with_capacity(bytes.len() - (end - start) + 2);
+    skeleton.extend_from_slice(&bytes[..start]);
+    skeleton.extend_from_slice(b"[]");
+    skeleton.extend_from_slice(&bytes[end..]);
+    let file = serde_json::from_slice::<strict::Object<SceneFile>>(&skeleton)
+        .ok()?
+        .0;
+    validate_scene(&file.camera, &file.cameras, &file.aovs, || Ok(cylinders)).ok()
+}
+
+/// JSON's whitespace (RFC 8259: space, tab, line feed, carriage return).
+fn is_ws(b: u8) -> bool {
+    matches!(b, b' ' | b'\t' | b'\n' | b'\r')
+}
+
+fn skip_ws(bytes: &[u8], mut i: usize) -> usize {
+    while i < bytes.len() && is_ws(bytes[i]) {
+        i += 1;
+    }
+    i
+}
+
+/// The index just past the string whose opening `"` is at `i`.
+fn string_end(bytes: &[u8], mut i: usize) -> Option<usize> {
+    i += 1;
+    while i < bytes.len() {
+        match bytes[i] {
+            b'"' => return Some(i + 1),
+            b'\\' => i += 2,
+            _ => i += 1,
+        }
+    }
+    None
+}
+
+/// The index just past the value starting at `i` (not whitespace): a string, an object or
+/// array with everything nested in it, or a number or literal up to the next delimiter.
+/// Only extents are found; `serde_json` judges the contents.
+fn value_end(bytes: &[u8], i: usize) -> Option<usize> {
+    match bytes.get(i)? {
+        b'"' => string_end(bytes, i),
+        b'{' | b'[' => nested_end(bytes, i),
+        _ => {
+            let mut j = i;
+            while j < bytes.len() && !matches!(bytes[j], b',' | b'}' | b']') && !is_ws(bytes[j]) {
+                j += 1;
+            }
+            (j > i).then_some(j)
+        }
+    }
+}
+
+/// The index just past the object or array whose opening bracket is at `i`. Brackets are
+/// counted, not matched by kind: a span `serde_json` then accepts has them matched.
+fn nested_end(bytes: &[u8], mut i: usize) -> Option<usize> {
+    let mut depth = 0usize;
+    while i < bytes.len() {
+        match bytes[i] {
+            b'"' => {
+                i = string_end(bytes, i)?;
+                continue;
+            }
+            b'{' | b'[' => depth += 1,
+            b'}' | b']' => {
+                depth -= 1;
+                if depth == 0 {
+                    return Some(i + 1);
+                }
+            }
+            _ => {}
+        }
+        i += 1;
+    }
+    None
+}
+
+/// The top-level `"cylinders"` array's extent (its `[` to just past its `]`) and its
+/// elements, read and validated; `None` for any other shape or any refusal.
+fn cylinders(bytes: &[u8]) -> Option<(usize, usize, Vec<Cylinder>)> {
+    let mut i = skip_ws(bytes, 0);
+    if bytes.get(i) != Some(&b'{') {
+        return None;
+    }
+    i += 1;
+    loop {
+        i = skip_ws(bytes, i);
+        if bytes.get(i) != Some(&b'"') {
+            return None;
+        }
+        let key_end = string_end(bytes, i)?;
+        let key = &bytes[i..key_end];
+        i = skip_ws(bytes, key_end);
+        if bytes.get(i) != Some(&b':') {
+            return None;
+        }
+        i = skip_ws(bytes, i + 1);
+        if key == b"\"cylinders\"" {
+            let (end, list) = array(bytes, i)?;
+            return Some((i, end, list));
+        }
+        i = value_end(bytes, i)?;
+        i = skip_ws(bytes, i);
+        match bytes.get(i) {
+            Some(b',') => i += 1,
+            _ => return None,
+        }
+    }
+}
+
+/// Where a chunk's last element says the array goes on.
+#[derive(Clone, Copy)]
+enum Next {
+    /// The next element's `{` is here.
+    Element(usize),
+    /// The array's `]` ends just before here.
+    End(usize),
+}
+
+/// What one task read of its chunk.
+enum Read {
+    /// No `{` in the chunk.
+    Empty,
+    /// An element that does not read or validate, or something else than whitespace and a
+    /// comma after one: fatal only if the chain reaches the chunk.
+    Failed,
+    /// The text position of the chunk's first `{`, the elements from there on (those
+    /// without an `id` carry 0, which no valid `id` is), and what follows the last.
+    Elements(usize, Vec<Cylinder>, Next),
+}
+
+/// The elements of the array whose `[` is at `i`, read and validated, and the index just
+/// past its `]`.
+fn array(bytes: &[u8], i: usize) -> Option<(usize, Vec<Cylinder>)> {
+    if bytes.get(i) != Some(&b'[') {
+        return None;
+    }
+    let first = skip_ws(bytes, i + 1);
+    if bytes.get(first) == Some(&b']') {
+        return Some((first + 1, Vec::new()));
+    }
+    // Chunks of the text from the first element on (what follows the array is small); a
+    // few per thread, so one slow thread does not hold the rest up.
+    let rest = bytes.len() - first;
+    let size = rest.div_ceil(8 * rayon::current_num_threads()).max(1 << 16);
+    let chunks: Vec<Read> = (0..rest.div_ceil(size))
+        .into_par_iter()
+        .map(|k| {
+            let lo = first + k * size;
+            read_chunk(bytes, lo, (lo + size).min(bytes.len()))
+        })
+        .collect();
+    // The chain, in text order; chunks past the array's end are not looked at.
+    let mut next = Next::Element(first);
+    let mut parts = Vec::new();
+    for chunk in chunks {
+        let Next::Element(at) = next else { break };
+        match chunk {
+            Read::Empty => {}
+            Read::Elements(start, list, after) if start == at => {
+                parts.push(list);
+                next = after;
+            }
+            _ => return None,
+        }
+    }
+    let Next::End(end) = next else {
+        return None;
+    };
+    let mut cylinders = Vec::with_capacity(parts.iter().map(Vec::len).sum());
+    for part in parts {
+        cylinders.extend(part);
+    }
+    // A missing `id` is the 1-based index in the file, as `CylinderFile::validate` has it.
+    for (k, c) in cylinders.iter_mut().enumerate() {
+        if c.id == 0 {
+            c.id = u32::try_from(k + 1).ok()?;
+        }
+    }
+    Some((end, cylinders))
+}
+
+/// The elements that start in `bytes[lo..hi]`, the last one read to its end wherever that
+/// is.
+fn read_chunk(bytes: &[u8], lo: usize, hi: usize) -> Read {
+    let Some(first) = bytes[lo..hi].iter().position(|&b| b == b'{') else {
+        return Read::Empty;
+    };
+    let first = lo + first;
+    let mut list = Vec::with_capacity((hi - lo) / 128);
+    let mut at = first;
+    loop {
+        let Some((file, end)) = element(bytes, at) else {
+            return Read::Failed;
+        };
+        let given = file.id.is_some();
+        // Validated as element 0: the index only names the field in a message, or gives
+        // the default `id`, set once the chain has numbered the elements.
+        let Ok(mut c) = file.validate(0) else {
+            return Read::Failed;
+        };
+        if !given {
+            c.id = 0;
+        }
+        list.push(c);
+        let after = skip_ws(bytes, end);
+        let next = match bytes.get(after) {
+            Some(b',') => {
+                let open = skip_ws(bytes, after + 1);
+                if bytes.get(open) != Some(&b'{') {
+                    return Read::Failed;
+                }
+                Next::Element(open)
+            }
+            Some(b']') => Next::End(after + 1),
+            _ => return Read::Failed,
+        };
+        match next {
+            Next::Element(open) if open < hi => at = open,
+            _ => return Read::Elements(first, list, next),
+        }
+    }
+}
+
+/// The element whose `{` is at `at` and the index just past its `}`: read by [`plain`]
+/// when it is written plainly, else by `serde_json` (which then also says where it ended).
+fn element(bytes: &[u8], at: usize) -> Option<(CylinderFile, usize)> {
+    if let Some(read) = plain(bytes, at) {
+        return Some(read);
+    }
+    let mut stream = serde_json::Deserializer::from_slice(&bytes[at..])
+        .into_iter::<strict::Object<CylinderFile>>();
+    let file = stream.next()?.ok()?.0;
+    Some((file, at + stream.byte_offset()))
+}
+
+/// A cylinder object written plainly, as `generate` and `bench` write them: keys without
+/// escapes, each once, vectors of three numbers, `radius` and `height` numbers, `caps` a
+/// literal, `id` and `label` plain integers. `None` for anything else, which `serde_json`
+/// then reads (and refuses with its message where it must).
+///
+/// What it returns is what `serde_json` gives for the same text: a number is parsed with
+/// `str::parse::<f64>`, correctly rounded, as `serde_json` with `float_roundtrip` is (and
+/// an integer it keeps as u64 or i64 converts to the nearest f64, the same value; `-0` is
+/// -0.0 in both); a value out of f64's range (which `serde_json` refuses) is left to it.
+fn plain(bytes: &[u8], at: usize) -> Option<(CylinderFile, usize)> {
+    // A plain element holds no `}` but its last byte: the text up to the first one,
+    // checked as UTF-8 once, for the numbers' `str::parse`.
+    let close = find(bytes, at, b'}')?;
+    let text = std::str::from_utf8(&bytes[at..=close]).ok()?;
+    let (file, end) = plain_object(text)?;
+    (end == text.len()).then_some((file, at + end))
+}
+
+/// The first `needle` in `bytes` from `from` on, sixteen bytes a step (a comparison the
+/// compiler makes one SIMD instruction of) and then byte by byte within the block.
+fn find(bytes: &[u8], from: usize, needle: u8) -> Option<usize> {
+    let mut i = from;
+    while let Some(block) = bytes.get(i..i + 16) {
+        if block.iter().fold(false, |any, &b| any | (b == needle)) {
+            break;
+        }
+        i += 16;
+    }
+    Some(i + bytes.get(i..)?.iter().position(|&b| b == needle)?)
+}
+
+/// [`plain`] of `text`, an object from its `{`.
+fn plain_object(text: &str) -> Option<(CylinderFile, usize)> {
+    let bytes = text.as_bytes();
+    let mut file = CylinderFile {
+        caps: true,
+        ..CylinderFile::default()
+    };
+    // Bit k: key k of KEYS seen (serde refuses a repeat; so does this, by giving up).
+    const KEYS: [&[u8]; 9] = [
+        b"p0", b"p1", b"center", b"axis", b"height", b"radius", b"caps", b"id", b"label",
+    ];
+    let mut seen = 0u32;
+    let mut i = skip_ws(bytes, 1);
+    if bytes.get(i) == Some(&b'}') {
+        return None;
+    }
+    loop {
+        if bytes.get(i) != Some(&b'"') {
+            return None;
+        }
+        let close = i
+            + 1
+            + bytes
+                .get(i + 1..)?
+                .iter()
+                .take(8)
+                .position(|&b| b == b'"')?;
+        let key = KEYS.iter().position(|k| *k == &bytes[i + 1..close])?;
+        if seen & (1 << key) != 0 {
+            return None;
+        }
+        seen |= 1 << key;
+        i = skip_ws(bytes, close + 1);
+        if bytes.get(i) != Some(&b':') {
+            return None;
+        }
+        i = skip_ws(bytes, i + 1);
+        match key {
+            0..=3 => {
+                let (v, next) = vec3(text, i)?;
+                *[&mut file.p0, &mut file.p1, &mut file.center, &mut file.axis][key] = Some(v);
+                i = next;
+            }
+            4 | 5 => {
+                let (x, next) = number(text, i)?;
+                if key == 4 {
+                    file.height = Some(x);
+                } else {
+                    file.radius = x;
+                }
+                i = next;
+            }
+            6 => {
+                let rest = bytes.get(i..)?;
+                (file.caps, i) = if rest.starts_with(b"true") {
+                    (true, i + 4)
+                } else if rest.starts_with(b"false") {
+                    (false, i + 5)
+                } else {
+                    return None;
+                };
+                if !bytes.get(i).is_some_and(|&b| is_delimiter(b)) {
+                    return None;
+                }
+            }
+            _ => {
+                let (n, next) = integer(bytes, i)?;
+                if key == 7 {
+                    file.id = Some(n);
+                } else {
+                    file.label = n;
+                }
+                i = next;
+            }
+        }
+        i = skip_ws(bytes, i);
+        match bytes.get(i) {
+            Some(b',') => i = skip_ws(bytes, i + 1),
+            // `radius` has no default: without it serde refuses the element.
+            Some(b'}') if seen & (1 << 5) != 0 => return Some((file, i + 1)),
+            _ => return None,
+        }
+    }
+}
+
+/// What may follow a number or literal in a valid text.
+fn is_delimiter(b: u8) -> bool {
+    is_ws(b) || matches!(b, b',' | b']' | b'}')
+}
+
+/// `[x, y, z]` at `i`, and the index past its `]`.
+fn vec3(text: &str, mut i: usize) -> Option<([f64; 3], usize)> {
+    let bytes = text.as_bytes();
+    if bytes.get(i) != Some(&b'[') {
+        return None;
+    }
+    let mut v = [0.0; 3];
+    for (k, x) in v.iter_mut().enumerate() {
+        i = skip_ws(bytes, i + 1);
+        (*x, i) = number(text, i)?;
+        i = skip_ws(bytes, i);
+        let want = if k == 2 { b']' } else { b',' };
+        if bytes.get(i) != Some(&want) {
+            return None;
+        }
+    }
+    Some((v, i + 1))
+}
+
+/// A JSON number at `i` (`-?(0|[1-9][0-9]*)(.[0-9]+)?([eE][+-]?[0-9]+)?`), finite as an
+/// f64, and the index past it.
+fn number(text: &str, i: usize) -> Option<(f64, usize)> {
+    let bytes = text.as_bytes();
+    let digits = |mut j: usize| {
+        let from = j;
+        while bytes.get(j).is_some_and(u8::is_ascii_digit) {
+            j += 1;
+        }
+        (j > from).then_some(j)
+    };
+    let mut j = i + usize::from(bytes.get(i) == Some(&b'-'));
+    j = match bytes.get(j)? {
+        b'0' => j + 1,
+        b'1'..=b'9' => digits(j)?,
+        _ => return None,
+    };
+    if bytes.get(j) == Some(&b'.') {
+        j = digits(j + 1)?;
+    }
+    if matches!(bytes.get(j), Some(b'e' | b'E')) {
+        j += 1;
+        if matches!(bytes.get(j), Some(b'+' | b'-')) {
+            j += 1;
+        }
+        j = digits(j)?;
+    }
+    if !bytes.get(j).is_some_and(|&b| is_delimiter(b)) {
+        return None;
+    }
+    let text = text.get(i..j)?;
+    let x: f64 = text.parse().ok()?;
+    // Subnormal results and underflows to zero are left to serde_json too: rare, and
+    // where the two readers' handling is least alike in code (not in the value it must be).
+    let underflow = x == 0.0 && text.bytes().any(|b| matches!(b, b'1'..=b'9'));
+    (x.is_finite() && !x.is_subnormal() && !underflow).then_some((x, j))
+}
+
+/// A non-negative JSON integer at `i` that fits a u32, and the index past it.
+fn integer(bytes: &[u8], i: usize) -> Option<(u32, usize)> {
+    let mut j = i;
+    while bytes.get(j).is_some_and(u8::is_ascii_digit) {
+        j += 1;
+    }
+    if j == i || (bytes[i] == b'0' && j > i + 1) || !bytes.get(j).is_some_and(|&b| is_delimiter(b))
+    {
+        return None;
+    }
+    let mut n = 0u64;
+    for &b in &bytes[i..j] {
+        n = n * 10 + u64::from(b - b'0');
+        if n > u64::from(u32::MAX) {
+            return None;
+        }
+    }
+    Some((n as u32, j))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rng::SplitMix64;
+
+    /// What serde_json reads from `text`, one cylinder object.
+    fn serde(text: &str) -> Option<CylinderFile> {
+        serde_json::from_str::<strict::Object<CylinderFile>>(text)
+            .ok()
+            .map(|o| o.0)
+    }
+
+    fn same(a: &CylinderFile, b: &CylinderFile) -> bool {
+        let bits = |v: Option<[f64; 3]>| v.map(|v| v.map(f64::to_bits));
+        bits(a.p0) == bits(b.p0)
+            && bits(a.p1) == bits(b.p1)
+            && bits(a.center) == bits(b.center)
+            && bits(a.axis) == bits(b.axis)
+            && a.height.map(f64::to_bits) == b.height.map(f64::to_bits)
+            && a.radius.to_bits() == b.radius.to_bits()
+            && (a.caps, a.id, a.label) == (b.caps, b.id, b.label)
+    }
+
+    /// Every text the plain reader accepts, serde_json reads to the same bits and ends at
+    /// the same byte; whatever serde_json refuses, the plain reader refuses.
+    fn check(text: &str) -> bool {
+        let mine = plain(text.as_bytes(), 0);
+        match (mine, serde(text)) {
+            (Some((a, end)), Some(b)) => {
+                assert!(same(&a, &b), "{text}");
+                assert_eq!(end, text.len(), "{text}");
+                true
+            }
+            (Some(_), None) => panic!("plain reader accepts what serde_json refuses: {text}"),
+            (None, _) => false,
+        }
+    }
+
+    #[test]
+    fn plain_numbers_are_serde_json_numbers() {
+        let mut rng = SplitMix64::new(7);
+        let mut accepted = 0;
+        for k in 0..20_000 {
+            // Shortest round-trip forms, long digit strings, integers, exponents, signs.
+            let x = (rng.unit() - 0.5) * 10f64.powi((rng.unit() * 40.0) as i32 - 20);
+            let lit = match k % 6 {
+                0 => format!("{x:?}"),
+                1 => format!("{x:.25}"),
+                2 => format!("{}", (x * 1e6) as i64),
+                3 => format!("{x:e}"),
+                4 => format!("{:E}", x * 1e280),
+                _ => format!("-{}", format!("{x:.3}").trim_start_matches('-')),
+            };
+            let text = format!(
+                "{{ \"p0\": [{lit}, 0, -0], \"p1\":[1,2,{lit}],\n\"radius\" : {lit}, \"caps\": false, \"id\": {}, \"label\": 4294967295 }}",
+                k + 1
+            );
+            accepted += check(&text) as usize;
+        }
+        assert!(accepted > 19_000, "{accepted}");
+    }
+
+    #[test]
+    fn plain_refuses_what_it_does_not_read_as_serde_does() {
+        for text in [
+            r#"{"p0":[1,2,3],"p1":[1,2,4],"radius":1}"#,
+            r#"{"center":[1,2,3],"axis":[0,0,1],"height":2,"radius":0.5,"caps":true}"#,
+            r#"{"p0":[1,2,3],"p1":[1,2,4],"radius":1,"radius":2}"#,
+            r#"{"p0":[1,2,3],"p1":[1,2,4]}"#,
+            r#"{"p0":[1,2,3,4],"p1":[1,2,4],"radius":1}"#,
+            r#"{"p0":[1,2],"p1":[1,2,4],"radius":1}"#,
+            r#"{"p\u0030":[1,2,3],"p1":[1,2,4],"radius":1}"#,
+            r#"{"p0":[01,2,3],"p1":[1,2,4],"radius":1}"#,
+            r#"{"p0":[1.,2,3],"p1":[1,2,4],"radius":1}"#,
+            r#"{"p0":[.5,2,3],"p1":[1,2,4],"radius":1}"#,
+            r#"{"p0":[1e400,2,3],"p1":[1,2,4],"radius":1}"#,
+            r#"{"p0":[1e-400,2,3],"p1":[1,2,4],"radius":1}"#,
+            r#"{"p0":[5e-324,2,3],"p1":[1,2,4],"radius":1}"#,
+            r#"{"p0":[1,2,3],"p1":[1,2,4],"radius":1,"id":1.0}"#,
+            r#"{"p0":[1,2,3],"p1":[1,2,4],"radius":1,"id":-1}"#,
+            r#"{"p0":[1,2,3],"p1":[1,2,4],"radius":1,"id":4294967296}"#,
+            r#"{"p0":[1,2,3],"p1":[1,2,4],"radius":1,"label":null}"#,
+            r#"{"p0":null,"p1":[1,2,4],"radius":1}"#,
+            r#"{"p0":[1,2,3],"p1":[1,2,4],"radius":1,"caps":1}"#,
+            r#"{"p0":[1,2,3],"p1":[1,2,4],"radius":1,"caps":truex}"#,
+            r#"{"p0":[1,2,3],"p1":[1,2,4],"radius":1,"colour":2}"#,
+            r#"{"p0":[1,2,3],"p1":[1,2,4],"radius":1,}"#,
+            r#"{"p0":[1,2,3] "p1":[1,2,4],"radius":1}"#,
+            r#"{"p0":[1,2,3],"p1":[1,2,4],"radius":1e5x}"#,
+            r#"{"p0":[+1,2,3],"p1":[1,2,4],"radius":1}"#,
+            r#"{"p0":[1,2,3],"p1":[1,2,4],"radius":-0}"#,
+            r#"{"p0":[1,2,3],"p1":[1,2,4],"radius":12345678901234567890123}"#,
+            r#"{}"#,
+        ] {
+            check(text);
+        }
+    }
+
+    /// The whole fast path against the one-thread read: chunks as small as the element
+    /// count allows, elements with and without ids, odd whitespace.
+    #[test]
+    fn parallel_load_is_the_serde_json_load() {
+        let mut rng = SplitMix64::new(3);
+        let mut text = String::from(
+            r#"{"camera":{"origin":[0,0,10],"target":[0,0,0],"up":[0,1,0],"fov_deg":40,"width":8,"height":6},"cylinders": [ "#,
+        );
+        for k in 0..3000 {
+            if k > 0 {
+                text.push_str(if k % 7 == 0 { " ,\n\t" } else { "," });
+            }
+            let (a, b, r) = (rng.unit(), rng.unit(), rng.unit() + 0.01);
+            text.push_str(&match k % 3 {
+                0 => format!(r#"{{"p0":[{a},{b},0],"p1":[{b},{a},1],"radius":{r},"id":{}}}"#, 5 * k + 1),
+                1 => format!(r#"{{"center":[{a},{b},0],"axis":[0,{a},1],"height":{b},"radius":{r}, "label": 3}}"#),
+                // Escaped key: serde_json reads it.
+                _ => format!(r#"{{"p\u0030":[{a},{b},0],"p1":[{b},{a},1],"radius":{r},"caps":false}}"#),
+            });
+        }
+        text.push_str("] , \"aovs\": [\"depth\"]}");
+        let fast = load(text.as_bytes()).expect("fast path");
+        let file = serde_json::from_str::<strict::Object<SceneFile>>(&text)
+            .unwrap()
+            .0;
+        assert_eq!(fast, file.validate().unwrap());
+        // A second "cylinders" key, an error in the last element, text after the object:
+        // the fast path gives up.
+        let twice = text.replacen("\"aovs\"", "\"cylinders\": [], \"aovs\"", 1);
+        assert!(load(twice.as_bytes()).is_none());
+        let bad = text.replacen("] , \"aovs\"", ",{\"radius\":1}] , \"aovs\"", 1);
+        assert!(load(bad.as_bytes()).is_none());
+        assert!(load(format!("{text} {{}}").as_bytes()).is_none());
+    }
+}
