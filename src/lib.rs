@@ -22,7 +22,10 @@
 //!   camera, pixel rays in f64, K in both pixel conventions, pose matrices; [`scene::aov`]:
 //!   the one AOV table (channels, sample type, miss value, meaning, Mitsuba's source, the
 //!   comparison metric) every other layer reads; [`scene::table`]: cylinder tables (tree
-//!   QSMs from TreeQSM, SimpleForest, aRchi, and plain CSV) read into cylinders;
+//!   QSMs from TreeQSM, SimpleForest, aRchi, plain CSV) read into cylinders, and
+//!   [`scene::table_npz`] (the same from NumPy's `.npz`); [`scene::parallel`]: a big scene
+//!   file's cylinder list read on every core (a fast path that falls back to the one-thread
+//!   read for every message);
 //!   [`scene::framing`]: the camera distance at which a bounding sphere fills the view
 //!   (`generate`'s cameras and `import`'s); [`scene::rig`]: orbits and spheres of cameras
 //!   around any scene, drawn as `generate` draws them.
@@ -79,7 +82,8 @@
 //! - [`bench`](mod@bench): run time against error per kernel, AOV set, cylinder count and
 //!   scene family, with Mitsuba's and Open3D's times on the same scenes ([`bench::Anchors`]),
 //!   the two dataset formats side by side (`--batch-formats`), every way of making views
-//!   at 1, 2, 4, … threads (`--scaling`), and a LiDAR scan's beams a second (`--scan`).
+//!   at 1, 2, 4, … threads (`--scaling`), a LiDAR scan's beams a second (`--scan`), and
+//!   whole-process load of a dense 100 000-cylinder scene against 1 000 ([`bench::load`]).
 //!
 //! Datasets:
 //! - [`dataset`]: [`dataset::generate`] (seeded procedural scenes, several cameras each if
