@@ -23,7 +23,7 @@
 //!   the one AOV table (channels, sample type, miss value, meaning, Mitsuba's source, the
 //!   comparison metric) every other layer reads; [`scene::table`]: cylinder tables (tree
 //!   QSMs from TreeQSM, SimpleForest, aRchi, plain CSV) read into cylinders, and
-//!   [`scene::table_npz`] (the same from NumPy's `.npz`); [`scene::parallel`]: a big scene
+//!   [`scene::table_npz`] (the same from NumPy's `.npz`); `scene::parallel`: a big scene
 //!   file's cylinder list read on every core (a fast path that falls back to the one-thread
 //!   read for every message);
 //!   [`scene::framing`]: the camera distance at which a bounding sphere fills the view
