@@ -46,7 +46,6 @@ use crate::output::aov::{AovImage, ChannelData, ExrLayout, channel_names};
 use crate::output::console::{self, count};
 use crate::output::files::{create_new, open_regular, read_regular};
 use crate::output::io::{atomic_write_bytes, check_outputs, record_json};
-use crate::output::ply;
 use crate::output::signals::{self, Cleanup};
 use crate::output::tar::{self, TarWriter};
 use crate::output::view::{DepthPngPlan, Fill, Member as ViewMember, ViewPlan, ViewSink};
@@ -420,7 +419,7 @@ struct SampleMeta<'a> {
 
 /// A view's tar members: a [`ViewSink`] of the view's [`ViewPlan`]. The arrays come from
 /// the traced image ([`ViewSink::image`]); `KEY.json` from the plan's camera member and the
-/// sample's fields; `KEY.exr` and `KEY.depth.png` are the plan's own members when asked
+/// sample's fields; `KEY.exr`, `KEY.depth.png` and `KEY.ply` are the plan's own members when asked
 /// for (the others are never encoded). Committed in tar order (see the module docs).
 struct TarSink<'a> {
     key: &'a str,
@@ -431,6 +430,7 @@ struct TarSink<'a> {
     camera: Option<Vec<u8>>,
     exr: Option<Vec<u8>>,
     depth_png: Option<Vec<u8>>,
+    ply: Option<Vec<u8>>,
     members: Vec<(String, Vec<u8>)>,
 }
 
@@ -452,6 +452,7 @@ impl ViewSink for TarSink<'_> {
             ViewMember::DepthPng if self.keep.contains(&Member::DepthPng) => {
                 self.depth_png = Some(Self::fill(member, fill)?)
             }
+            ViewMember::Ply => self.ply = Some(Self::fill(member, fill)?),
             _ => {}
         }
         Ok(())
@@ -493,6 +494,9 @@ impl ViewSink for TarSink<'_> {
         }
         if let Some(png) = self.depth_png.take() {
             self.members.push((format!("{}.depth.png", self.key), png));
+        }
+        if let Some(ply) = self.ply.take() {
+            self.members.push((format!("{}.ply", self.key), ply));
         }
         Ok(())
     }
@@ -548,7 +552,7 @@ pub fn view_members(
         normal_picture: false,
         previews: false,
         stamp: None,
-        ply: false,
+        ply: members.contains(&Member::Ply),
     };
     let (w, h) = (scene.camera.width as usize, scene.camera.height as usize);
     let mut miss = serde_json::Map::new();
@@ -593,6 +597,7 @@ pub fn view_members(
         camera: None,
         exr: None,
         depth_png: None,
+        ply: None,
         members: Vec::new(),
     };
     let render_opts = RenderOptions {
@@ -601,28 +606,7 @@ pub fn view_members(
         ..RenderOptions::new(plan.traced_aovs())
     };
     plan.execute(scene, &render_opts, &mut sink)?;
-    if members.contains(&Member::Ply) {
-        sink.members
-            .push((format!("{key}.ply"), view_ply(key, scene, &render_opts)));
-    }
     Ok(sink.members)
-}
-
-/// `KEY.ply`: the view traced again with the point cloud's AOVs (position, normal and
-/// ids, whatever the dataset's AOVs), the bytes `render --ply` writes for the view.
-fn view_ply(key: &str, scene: &Scene, opts: &RenderOptions) -> Vec<u8> {
-    let opts = RenderOptions {
-        aovs: ply::PLY_AOVS.to_vec(),
-        ..opts.clone()
-    };
-    let image = crate::render::render(scene, &opts).image;
-    // The image holds every PLY AOV, so `hits` finds them all.
-    let points = ply::hits(&image).unwrap_or_default();
-    let comment = format!(
-        "cylaov {} hit points of sample {key}",
-        env!("CARGO_PKG_VERSION")
-    );
-    ply::encode(&points, &comment)
 }
 
 /// Bytes a tar of views of `w`×`h` with `aovs` and `members` takes per view, the JSON
