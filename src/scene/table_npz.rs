@@ -175,6 +175,9 @@ pub fn read_npz(bytes: &[u8], opts: &TableOptions) -> Result<Table, TableError> 
             "the table has no cylinder rows (p0 has shape (0, 3))",
         ));
     }
+    if u32::try_from(n).is_err() {
+        return Err(whole_err(format!("{n} rows: more than 4294967295")));
+    }
     let p1 = need("p1", Some(n), 3)?;
     let radius = need("radius", Some(n), 1)?;
     let id = Column::read(&members, "id", Some(n), 1)?;
@@ -237,9 +240,6 @@ pub fn read_npz(bytes: &[u8], opts: &TableOptions) -> Result<Table, TableError> 
             label,
             ..CylinderFile::default()
         });
-    }
-    if u32::try_from(n).is_err() {
-        return Err(whole_err(format!("{n} rows: more than 4294967295")));
     }
     Ok(super::table::finish(TableFormat::Npz, cylinders, rule))
 }
