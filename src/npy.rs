@@ -256,7 +256,7 @@ impl RawArray<'_> {
     }
 
     /// Every element in C order (the last index fastest, whatever the file's order), as
-    /// numbers; an error names the dtype numpy would call it when it is not numeric.
+    /// numbers; an error names the dtype when it is not one [`RawArray::element`] reads.
     pub fn elements(&self) -> Result<Vec<Element>, String> {
         let size = self.element_size()?;
         let count: usize = self.shape.iter().product();
@@ -275,7 +275,7 @@ impl RawArray<'_> {
                 c * size
             };
             out.push(self.element(at).ok_or(format!(
-                "an array of dtype {:?}, not a number type",
+                "an array of dtype {:?}; readable are float32, float64, (u)int8 to (u)int64 and bool",
                 self.descr
             ))?);
             for k in (0..index.len()).rev() {
