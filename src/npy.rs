@@ -256,7 +256,8 @@ impl RawArray<'_> {
     }
 
     /// Every element in C order (the last index fastest, whatever the file's order), as
-    /// numbers; an error names the dtype when it is not one [`RawArray::element`] reads.
+    /// numbers; an error names the dtype when it is not one of those read (float32, float64,
+    /// integers of 1 to 8 bytes, bool).
     pub fn elements(&self) -> Result<Vec<Element>, String> {
         let size = self.element_size()?;
         let count: usize = self.shape.iter().product();
