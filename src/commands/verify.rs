@@ -67,6 +67,14 @@ struct IndexView {
     exr_file_path: String,
 }
 
+/// A record file a batch wrote (`index.json`, `shards.json`), read as `T`; an error names
+/// the file.
+fn read_record<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    serde_json::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+}
+
 /// `verify OUT/` of a batch's output: the EXR files on disk, each judged against Mitsuba
 /// and the exact answer (the check of `batch --verify-fraction`, its verdict kept beside
 /// the file keyed on the file's sha256).
@@ -78,10 +86,7 @@ fn run_written(args: &VerifyArgs) -> Result<VerifyOutcome> {
         input: Option<PathBuf>,
         views: Vec<IndexView>,
     }
-    let text = std::fs::read_to_string(&index_path)
-        .map_err(|e| anyhow::anyhow!("{}: {e}", index_path.display()))?;
-    let index: Index = serde_json::from_str(&text)
-        .map_err(|e| anyhow::anyhow!("{}: {e}", index_path.display()))?;
+    let index: Index = read_record(&index_path)?;
     // `--scenes` overrides the recorded input (a dataset whose scenes moved).
     let scenes = match (&args.scenes, &index.input) {
         (Some(scenes), _) => scenes.clone(),
@@ -224,10 +229,7 @@ fn run_shards(args: &VerifyArgs) -> Result<VerifyOutcome> {
         scenes_dir: Option<PathBuf>,
         shards: Vec<Entry>,
     }
-    let text = std::fs::read_to_string(&index_path)
-        .map_err(|e| anyhow::anyhow!("{}: {e}", index_path.display()))?;
-    let index: Index = serde_json::from_str(&text)
-        .map_err(|e| anyhow::anyhow!("{}: {e}", index_path.display()))?;
+    let index: Index = read_record(&index_path)?;
     let scene_dir = match (&args.scenes, &index.scenes_dir) {
         (Some(s), _) if s.is_file() => s.parent().unwrap_or(Path::new(".")).to_path_buf(),
         (Some(s), _) => s.clone(),

@@ -132,6 +132,18 @@ def _read_ply_ids(path):
     return np.frombuffer(data[end:], dtype=rec)
 
 
+def _assert_ply_holds_the_hits(o3d, ply, exr, more_than):
+    """Open3D reads `ply` to the position and normal of every hit pixel of `exr` (which
+    holds the PLY AOVs), in pixel order, and the labels ride along."""
+    img = cylaov.read(exr)
+    hit = img["shape_id"] != 0
+    pc = o3d.io.read_point_cloud(str(ply))
+    assert len(pc.points) == int(hit.sum()) > more_than
+    assert np.array_equal(np.asarray(pc.points), img["position"][hit].astype(np.float64))
+    assert np.array_equal(np.asarray(pc.normals), img["normal"][hit].astype(np.float64))
+    assert np.array_equal(_read_ply_ids(ply)["label"], img["label"][hit])
+
+
 def test_to_ply_is_what_open3d_reads(tmp_path):
     o3d = pytest.importorskip("open3d")
     scene = cylaov.Scene.from_table(_tree(tmp_path), label="branch_order")
@@ -159,14 +171,7 @@ def test_render_ply_matches_the_exr(cli, tmp_path):
     cli("import", _tree(tmp_path), "-o", scene, "--label", "branch")
     exr, ply = tmp_path / "v.exr", tmp_path / "v.ply"
     cli("render", scene, "-o", exr, "--aov", ",".join(PLY_AOVS), "--ply", ply)
-    img = cylaov.read(exr)
-    hit = img["shape_id"] != 0
-    pc = o3d.io.read_point_cloud(str(ply))
-    assert len(pc.points) == int(hit.sum()) > 10000
-    assert np.array_equal(np.asarray(pc.points), img["position"][hit].astype(np.float64))
-    assert np.array_equal(np.asarray(pc.normals), img["normal"][hit].astype(np.float64))
-    rec = _read_ply_ids(ply)
-    assert np.array_equal(rec["label"], img["label"][hit])
+    _assert_ply_holds_the_hits(o3d, ply, exr, more_than=10000)
     # A name that is not .ply, or a link at the target, is refused before any work.
     r = cli("render", scene, "-o", tmp_path / "w.exr", "--ply", tmp_path / "w.xyz", check=False)
     assert r.returncode == 1 and "must end in .ply" in r.stderr
@@ -198,10 +203,4 @@ def test_tar_ply_member_is_what_open3d_reads(cli, tmp_path):
     cli("render", data / "tree.json", "-o", exr, "--aov", ",".join(PLY_AOVS), "--ply", alone)
     body = lambda b: b[b.index(b"end_header\n"):]
     assert body(ply_bytes) == body(alone.read_bytes())
-    img = cylaov.read(exr)
-    hit = img["shape_id"] != 0
-    pc = o3d.io.read_point_cloud(str(ply))
-    assert len(pc.points) == int(hit.sum()) > 1000
-    assert np.array_equal(np.asarray(pc.points), img["position"][hit].astype(np.float64))
-    assert np.array_equal(np.asarray(pc.normals), img["normal"][hit].astype(np.float64))
-    assert np.array_equal(_read_ply_ids(ply)["label"], img["label"][hit])
+    _assert_ply_holds_the_hits(o3d, ply, exr, more_than=1000)
