@@ -279,10 +279,12 @@ fn ram_disk_under_dev_shm_is_writable() {
     }
 }
 
-/// Files and folders under `dir` (recursively): the empty folders and the number of files.
-fn empty_folders(dir: &Path) -> (Vec<std::path::PathBuf>, usize) {
+/// Files and folders under `dir` (recursively): the empty folders, the number of files,
+/// and the unfinished ones (temporary files, lock files) among them.
+fn empty_folders(dir: &Path) -> (Vec<std::path::PathBuf>, usize, Vec<std::path::PathBuf>) {
     let mut empty = Vec::new();
     let mut files = 0;
+    let mut unfinished = Vec::new();
     let mut stack = vec![dir.to_path_buf()];
     while let Some(d) = stack.pop() {
         let entries: Vec<_> = match std::fs::read_dir(&d) {
@@ -297,15 +299,21 @@ fn empty_folders(dir: &Path) -> (Vec<std::path::PathBuf>, usize) {
                 stack.push(e.path());
             } else {
                 files += 1;
+                let name = e.file_name().to_string_lossy().into_owned();
+                if name.ends_with(".tmp") || name.ends_with(".lock") {
+                    unfinished.push(e.path());
+                }
             }
         }
     }
-    (empty, files)
+    (empty, files, unfinished)
 }
 
 /// A batch interrupted early (SIGINT, as `timeout -s INT` sends) removes the output
-/// folders it made: no empty `new/deep` is left behind, in either format. Interrupted
-/// after views were written, those stay (the run resumes from them).
+/// folders it made: no empty `new/deep` is left behind, in either format, and no temporary
+/// or lock file. Interrupted after views were written, those stay (the run resumes from
+/// them). Every folder and file is made while the signal registry is held, so this holds
+/// at any moment, whatever the other threads do between the clean-up and the exit.
 #[test]
 fn interrupted_batch_leaves_no_empty_folders() {
     let d = tempfile::tempdir().unwrap();
@@ -348,10 +356,14 @@ fn interrupted_batch_leaves_no_empty_folders() {
                 continue;
             }
             interrupted += 1;
-            let (empty, files) = empty_folders(&top);
+            let (empty, files, unfinished) = empty_folders(&top);
             assert!(
                 empty.is_empty(),
                 "{format} after {delay} s: empty folders left: {empty:?}"
+            );
+            assert!(
+                unfinished.is_empty(),
+                "{format} after {delay} s: unfinished files left: {unfinished:?}"
             );
             assert!(
                 !top.exists() || files > 0,

@@ -238,9 +238,6 @@ fn stage_ply(args: &RenderArgs, scene: &scene::Scene, path: &Path) -> Result<Sta
         args.camera
     );
     let bytes = encode(&points, &comment);
-    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).with_context(|| format!("--ply {}", path.display()))?;
-    }
     stage(path, |f| f.write_all(&bytes)).with_context(|| format!("writing {}", path.display()))
 }
 

@@ -559,7 +559,7 @@ fn check_one(
         let path = view.dir(dir).join(format!("{}.heatmap.png", view.name));
         crate::output::io::check_output("--heatmap", &path, &[&view.path])?;
         if let Some(parent) = path.parent() {
-            std::fs::create_dir_all(parent)?;
+            crate::output::io::make_dir_all(parent)?;
         }
         write_png(&img, &path)?;
     }

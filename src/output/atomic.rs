@@ -92,7 +92,9 @@ pub struct NewDirs {
 }
 
 impl NewDirs {
-    /// Create `dir` and its missing parents, remembering the ones this call made.
+    /// Create `dir` and its missing parents, remembering the ones this call made. Each is
+    /// made and registered while the signal registry is held (see
+    /// [`signals::hold`]): a signal's clean-up either sees it or runs before it exists.
     pub fn create(&mut self, dir: &Path) -> io::Result<()> {
         let mut missing: Vec<PathBuf> = Vec::new();
         for d in dir.ancestors() {
@@ -101,14 +103,22 @@ impl NewDirs {
             }
             missing.push(d.to_path_buf());
         }
-        // Registered before they are made: a signal between making a folder and listing
-        // it would leave it behind; removing one not made yet is a no-op.
+        let mut held = signals::hold();
         for d in missing.into_iter().rev() {
-            self.registered
-                .push(signals::register(Cleanup::EmptyDir, &d));
-            self.made.push(d);
+            match std::fs::create_dir(&d) {
+                Ok(()) => {
+                    self.registered.push(held.register(Cleanup::EmptyDir, &d));
+                    self.made.push(d);
+                }
+                // Made meanwhile by another thread or process: not ours to remove.
+                Err(e) if e.kind() == io::ErrorKind::AlreadyExists && d.is_dir() => {}
+                Err(e) => return Err(explain(e)),
+            }
         }
+        // A file in the way of `dir` itself is refused here, as create_dir_all refuses it;
+        // still held, so nothing is made after a clean-up looked.
         std::fs::create_dir_all(dir).map_err(explain)?;
+        drop(held);
         Ok(())
     }
 
@@ -139,6 +149,15 @@ impl Drop for NewDirs {
             let _ = std::fs::remove_dir(d);
         }
     }
+}
+
+/// `create_dir_all` while the signal registry is held ([`signals::hold`]): never after a
+/// signal's clean-up looked. The folders it makes are not registered: for folders inside
+/// one a command made with [`NewDirs`] or registered itself, or where a left-over empty
+/// folder is harmless.
+pub fn make_dir_all(dir: &Path) -> io::Result<()> {
+    let _held = signals::hold();
+    std::fs::create_dir_all(dir)
 }
 
 /// Add the advice a person needs to an IO error: a full disk, the file size limit and
@@ -182,7 +201,7 @@ pub struct Staged {
 pub fn stage(path: &Path, fill: impl FnOnce(&mut File) -> io::Result<()>) -> io::Result<Staged> {
     let dir = match path.parent().filter(|d| !d.as_os_str().is_empty()) {
         Some(dir) => {
-            std::fs::create_dir_all(dir)?;
+            make_dir_all(dir)?;
             dir
         }
         None => Path::new("."),

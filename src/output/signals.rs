@@ -11,10 +11,11 @@
 //! in children) and starts one thread that waits for them with `sigwait`. That thread runs
 //! ordinary code, not a signal handler, so it may lock, allocate and remove folders: it
 //! takes the registry's lock and keeps it until `_exit`, kills the registered process
-//! groups, removes the registered paths (newest first) and exits. Files are registered by
-//! [`create_registered`], which holds the same lock while the file is created, so a signal
-//! never finds a staged file that is not listed yet, and no file is staged after the
-//! clean-up looked. A signal ignored when cylaov starts (`nohup` ignores SIGHUP) stays
+//! groups, removes the registered paths (newest first) and exits. Every file and folder a
+//! command may leave unfinished is created and registered under that same lock ([`hold`],
+//! [`create_registered`]): the other threads keep running until `_exit`, so a path made
+//! first and registered after, or registered first and made after, could appear after the
+//! clean-up looked and stay behind. A signal ignored when cylaov starts (`nohup` ignores SIGHUP) stays
 //! ignored.
 
 use std::io;
@@ -85,7 +86,26 @@ fn add(r: &mut Registry, cleanup: Cleanup, path: PathBuf) -> Registration {
 
 /// Register `path` (which exists already) for the clean-up of a signal.
 pub fn register(cleanup: Cleanup, path: &Path) -> Registration {
-    add(&mut registry(), cleanup, absolute(path))
+    hold().register(cleanup, path)
+}
+
+/// The registry held: while this lives no clean-up runs, and once a clean-up has begun
+/// [`hold`] never returns (the clean-up keeps the lock until `_exit`). A file system change
+/// made while holding it is therefore either seen by the clean-up or never made: make a
+/// path and register it under one `Held`, never the one after the other.
+pub struct Held(MutexGuard<'static, Registry>);
+
+impl Held {
+    /// Register `path` for the clean-up of a signal.
+    pub fn register(&mut self, cleanup: Cleanup, path: &Path) -> Registration {
+        add(&mut self.0, cleanup, absolute(path))
+    }
+}
+
+/// Take the registry (see [`Held`]). Not reentrant: nothing called while it is held may
+/// register or create a registered path itself.
+pub fn hold() -> Held {
+    Held(registry())
 }
 
 /// Create something with `create` and register the path `path_of` names, under the
@@ -95,10 +115,9 @@ pub fn create_registered<T>(
     create: impl FnOnce() -> io::Result<T>,
     path_of: impl FnOnce(&T) -> PathBuf,
 ) -> io::Result<(T, Registration)> {
-    let mut r = registry();
+    let mut held = hold();
     let made = create()?;
-    let path = absolute(&path_of(&made));
-    let reg = add(&mut r, cleanup, path);
+    let reg = held.register(cleanup, &path_of(&made));
     Ok((made, reg))
 }
 
@@ -107,8 +126,9 @@ pub fn create_registered<T>(
 pub fn spawn_in_group(cmd: &mut Command) -> io::Result<(Child, Registration)> {
     use std::os::unix::process::CommandExt;
     cmd.process_group(0);
-    let mut r = registry();
+    let mut held = hold();
     let child = cmd.spawn()?;
+    let r = &mut held.0;
     r.next += 1;
     let id = r.next;
     r.groups.push((id, child.id() as i32));

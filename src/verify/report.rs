@@ -111,7 +111,7 @@ pub fn write_report(dir: &Path, title: &str, views: &[ReportView]) -> Result<()>
     for t in &targets {
         check_output("--report", t, &[])?;
     }
-    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    crate::output::io::make_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     let mut staged = Vec::new();
     let mut html = format!(
         "<!DOCTYPE html><html><head><meta charset=\"utf-8\"><title>cylaov verify: {}</title><style>{STYLE}</style><script>{SCRIPT}</script></head><body><h1>cylaov verify: {}</h1>",

@@ -46,18 +46,20 @@ impl Drop for ShardLock {
 /// The shards of an array start together, so creating it races: a shard that finds it made
 /// by another checks it like one that was there before.
 ///
-/// The returned registration removes it, if empty, on a signal: made before the folder, so
-/// a signal between making and registering it cannot leave an empty `.partial` behind.
-/// Registered before the lock and the shard's folder, a signal's clean-up (newest first)
+/// The returned registration removes it, if empty, on a signal: made and registered while
+/// the signal registry is held ([`signals::hold`]), so a signal's clean-up either sees it
+/// or runs before it exists. Registered before the lock and the shard's folder, a signal's clean-up (newest first)
 /// tries it last, when it may be empty.
 pub fn partial_root(out: &Path) -> Result<(PathBuf, Registration)> {
     let root = out.join(".partial");
-    let reg = signals::register(Cleanup::EmptyDir, &root);
+    let mut held = signals::hold();
+    let reg = held.register(Cleanup::EmptyDir, &root);
     if let Err(e) = std::fs::create_dir(&root)
         && e.kind() != std::io::ErrorKind::AlreadyExists
     {
         return Err(e).with_context(|| format!("creating {}", root.display()));
     }
+    drop(held);
     let m = root
         .symlink_metadata()
         .with_context(|| format!("reading {}", root.display()))?;
@@ -106,12 +108,19 @@ pub fn lock_named(out: &Path, root: &Path, name: &str) -> Result<ShardLock> {
 /// Lock `path` (in `OUT/.partial`), refusing when another process holds it, or waiting for
 /// it when `wait`. `.partial` is removed by the last process to leave it, so it can vanish
 /// between one lock and the next of a process still working: then it is made again.
+///
+/// The file is created, locked and registered for a signal's clean-up in one hold of the
+/// signal registry ([`signals::hold`]): a clean-up never meets a lock file this process
+/// created but did not list, nor one it holds but listed only as free (which the clean-up
+/// must leave, as it may be another run's). So the lock is only ever tried, never waited
+/// for inside `flock`: waiting polls every [`LOCK_POLL`] with the registry let go.
 fn lock_file(out: &Path, path: &Path, wait: bool, what: &dyn Fn() -> String) -> Result<ShardLock> {
     let path = path.to_path_buf();
     // A signal between creating the file and holding its lock removes it if still free
     // (it is ours, or a stale one); kept until the held lock's own registration exists.
     let _creating = signals::register(Cleanup::FreeLock, &path);
     loop {
+        let mut held = signals::hold();
         let file = match open_lock(&path) {
             Err(e)
                 if e.chain().any(|c| {
@@ -120,6 +129,7 @@ fn lock_file(out: &Path, path: &Path, wait: bool, what: &dyn Fn() -> String) -> 
                 }) && path.parent() == Some(&out.join(".partial")) =>
             {
                 // Made again; its registration is the caller's, held since the first.
+                drop(held);
                 drop(partial_root(out)?);
                 continue;
             }
@@ -128,7 +138,13 @@ fn lock_file(out: &Path, path: &Path, wait: bool, what: &dyn Fn() -> String) -> 
             Ok(Some(file)) => file,
             Err(e) => return Err(e),
         };
-        if !lock(&file, wait).with_context(|| path.display().to_string())? {
+        if !try_lock(&file).with_context(|| path.display().to_string())? {
+            drop(held);
+            if wait {
+                drop(file);
+                std::thread::sleep(LOCK_POLL);
+                continue;
+            }
             let mut holder = String::new();
             let _ = std::io::Read::read_to_string(&mut &file, &mut holder);
             let holder = holder.trim();
@@ -150,7 +166,7 @@ fn lock_file(out: &Path, path: &Path, wait: bool, what: &dyn Fn() -> String) -> 
             f.set_len(0)?;
             write!(f, "host {}, pid {}", host(), std::process::id())
                 .with_context(|| format!("writing {}", path.display()))?;
-            let registered = signals::register(Cleanup::File, &path);
+            let registered = held.register(Cleanup::File, &path);
             return Ok(ShardLock {
                 path,
                 _file: file,
@@ -160,6 +176,10 @@ fn lock_file(out: &Path, path: &Path, wait: bool, what: &dyn Fn() -> String) -> 
         // The holder removed the file between our open and our lock: try again.
     }
 }
+
+/// How often a process waiting for a named lock ([`lock_named`]) tries it again: its
+/// holders keep it for one small file's write.
+const LOCK_POLL: std::time::Duration = std::time::Duration::from_millis(5);
 
 /// Open (or create) the lock file at `path` in place: a regular file with one link, not
 /// followed if it is a link, not waited on if it is a FIFO (see the module docs). `None`
@@ -205,18 +225,12 @@ fn open_lock(path: &Path) -> Result<Option<File>> {
     }
 }
 
-/// Take `file`'s exclusive lock: at once or not at all (`false` when another holds it), or,
-/// when `wait`, once the holder lets go.
+/// Take `file`'s exclusive lock at once, or not at all (`false`: another holds it).
 #[cfg(target_os = "linux")]
-fn lock(file: &File, wait: bool) -> Result<bool> {
+fn try_lock(file: &File) -> Result<bool> {
     use std::os::fd::AsRawFd;
-    let how = if wait {
-        libc::LOCK_EX
-    } else {
-        libc::LOCK_EX | libc::LOCK_NB
-    };
     // SAFETY: flock on a file descriptor this function borrows; no memory is involved.
-    let rc = unsafe { libc::flock(file.as_raw_fd(), how) };
+    let rc = unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) };
     if rc == 0 {
         return Ok(true);
     }
@@ -229,7 +243,7 @@ fn lock(file: &File, wait: bool) -> Result<bool> {
 }
 
 #[cfg(not(target_os = "linux"))]
-fn lock(_file: &File, _wait: bool) -> Result<bool> {
+fn try_lock(_file: &File) -> Result<bool> {
     Ok(true)
 }
 

@@ -523,15 +523,20 @@ impl ShardWork<'_> {
                 let bytes = view_memory(scene, self.opts);
                 let _memory = self.memory.acquire(bytes);
                 // A view that does not fit what is left fails alone, before it allocates.
+                // The scene's folder, if this view makes it, stays registered for a
+                // signal's clean-up until the view's files are in it; kept either way
+                // after (other views of the scene may be writing into it).
+                let mut dirs = crate::output::io::NewDirs::default();
                 let rendered = crate::mem::check_memory(&format!("rendering {}", view.id()), bytes)
                     .map_err(anyhow::Error::from)
                     .and_then(|()| {
-                        std::fs::create_dir_all(&dir)
+                        dirs.create(&dir)
                             .with_context(|| format!("creating {}", dir.display()))
                     })
                     .and_then(|()| {
                         render_view(&dir, self.partial, &view.name, &tmp_stem, scene, self.opts)
                     });
+                dirs.keep();
                 match rendered {
                     Ok(cost) => {
                         if cost.depth_zeroed > 0 {
@@ -577,7 +582,7 @@ impl ShardWork<'_> {
         let work = self
             .partial
             .join(format!("{}.verify.tmp", view.id().replace('/', ".")));
-        let checked = std::fs::create_dir_all(&work)
+        let checked = crate::output::io::make_dir_all(&work)
             .map_err(anyhow::Error::from)
             .and_then(|()| verifier.check(view, scene, &exr, &work));
         let _ = std::fs::remove_dir_all(&work);
@@ -710,7 +715,8 @@ fn write_index(
         let frames: Vec<(&str, FrameCamera)> =
             scene.iter().map(|(v, c)| (v.name.as_str(), *c)).collect();
         let dir = out.join(folder);
-        std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+        crate::output::io::make_dir_all(&dir)
+            .with_context(|| format!("creating {}", dir.display()))?;
         let path = dir.join("transforms.json");
         atomic_write_bytes(&path, transforms_json(&frames, opts).as_bytes())
             .with_context(|| format!("writing {}", path.display()))?;
