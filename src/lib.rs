@@ -106,6 +106,10 @@
 //! origin), `scan`, `output::aov`, `verify::compare`, `dataset::generate` and the tar shards of
 //! `dataset::batch::shards` (`write_shards`, `shard_count`).
 //!
+//! Front-end neutral: [`choice`] (each option's named values, with `FromStr`, `Display` and
+//! the list both front ends show and check against), [`spelling`] (library messages name an
+//! option neutrally, `shard_size`; the binary has it spelled `--shard-size`).
+//!
 //! Around them: [`commands`], the IO of each subcommand (`render`, `generate`, `batch`,
 //! `import`, `scan`, `cameras`, `export-mitsuba`, `compare`, `verify`, `stress`, `bench`, `aovs`); `main.rs` only parses
 //! arguments and maps results to exit codes.
@@ -118,6 +122,7 @@
 
 pub mod accel;
 pub mod bench;
+pub mod choice;
 pub mod commands;
 pub mod dataset;
 pub mod geometry;
@@ -130,4 +135,5 @@ pub mod render;
 pub mod rng;
 pub mod scan;
 pub mod scene;
+pub mod spelling;
 pub mod verify;

@@ -17,6 +17,8 @@ use cylaov::{bench, commands};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+mod cli;
+
 /// A failed allocation anywhere (inside crates too) is one error line and the command's
 /// status for too little memory (1; 2 in `compare` and `verify`), never an abort with
 /// status 134.
@@ -266,7 +268,7 @@ struct BatchCli {
     #[arg(long)]
     out: PathBuf,
     /// AOVs in each EXR, comma-separated. Default: each scene's `aovs`.
-    #[arg(long, value_enum, value_delimiter = ',')]
+    #[arg(long, value_parser = cli::choice::<Aov>(), value_delimiter = ',')]
     aov: Vec<Aov>,
     #[command(flatten)]
     kernel: KernelCli,
@@ -284,11 +286,11 @@ struct BatchCli {
     depth_scale: f64,
     /// A view with a hit whose depth × scale does not fit 16 bits: fail it (default; the
     /// message gives the largest scale that fits), or store those pixels as 0 and count them.
-    #[arg(long, value_enum, default_value_t = OutOfRange::Fail, value_name = "fail|zero")]
+    #[arg(long, value_parser = cli::choice::<OutOfRange>(), default_value_t = OutOfRange::Fail, value_name = "fail|zero")]
     depth_out_of_range: OutOfRange,
     /// `layers`: one NAME.exr with every AOV; `per-aov`: NAME.<aov>.exr each, channels Y or
     /// R,G,B in float32, which OpenCV and imageio read.
-    #[arg(long, value_enum, default_value_t = ExrLayout::Layers)]
+    #[arg(long, value_parser = cli::choice::<ExrLayout>(), default_value_t = ExrLayout::Layers)]
     exr_layout: ExrLayout,
     /// Skip the PNGs (the indexes then point at the EXRs).
     #[arg(long)]
@@ -299,7 +301,7 @@ struct BatchCli {
     #[arg(long)]
     ply: bool,
     /// EXR compression.
-    #[arg(long, value_enum, default_value_t = Compression::None)]
+    #[arg(long, value_parser = cli::choice::<Compression>(), default_value_t = Compression::None)]
     compression: Compression,
     /// Also render this fraction of the views (chosen from --verify-seed and the view
     /// names) with Mitsuba, when the reference venv exists, and fail views that disagree.
@@ -318,7 +320,7 @@ struct BatchCli {
     #[arg(long, value_name = "DIR")]
     report: Option<PathBuf>,
     /// Parallelise over views (default) or within one view at a time.
-    #[arg(long, value_enum, default_value_t = Schedule::Views, hide = true)]
+    #[arg(long, value_parser = cli::choice::<Schedule>(), default_value_t = Schedule::Views, hide = true)]
     schedule: Schedule,
     /// `files`: the files above per view; `webdataset`: tar shards OUT/shard-000000.tar, ...
     /// (KEY.depth.npy, KEY.normal.npy, one KEY.<aov>.npy per other AOV, KEY.mask.npy,
@@ -332,7 +334,7 @@ struct BatchCli {
     /// Extra members per view in each tar (--format webdataset), comma-separated: `exr`
     /// (KEY.exr), `depth.png` (KEY.depth.png, at --depth-scale), `ply` (KEY.ply, the hit
     /// points with normals and ids, as render --ply writes them).
-    #[arg(long, value_enum, value_delimiter = ',')]
+    #[arg(long, value_parser = cli::choice::<Member>(), value_delimiter = ',')]
     members: Vec<Member>,
     /// With --format webdataset: replace the dataset --out holds when it was written with
     /// other settings (its tars, sidecars, shards.json and failures files are removed
@@ -365,7 +367,7 @@ enum Format {
 struct BenchCli {
     /// Scene families, comma-separated: `sparse` (sizes shrink as the count grows, the
     /// same depth complexity at every count) and `dense` (the same sizes at every count).
-    #[arg(long, value_enum, value_delimiter = ',', default_values_t = [bench::Family::Sparse, bench::Family::Dense])]
+    #[arg(long, value_parser = cli::choice::<bench::Family>(), value_delimiter = ',', default_values_t = [bench::Family::Sparse, bench::Family::Dense])]
     family: Vec<bench::Family>,
     /// Cylinder counts, comma-separated.
     #[arg(long, value_delimiter = ',', default_values_t = [1usize, 100, 1000, 10000, 100000])]
@@ -388,7 +390,7 @@ struct BenchCli {
     seed: u64,
     /// How rays find their cylinders in the timed renders: `bvh` shows what the screen
     /// tiles save (both give the same image, bit for bit).
-    #[arg(long, value_enum, default_value_t = Accel::Tiles)]
+    #[arg(long, value_parser = cli::choice::<Accel>(), default_value_t = Accel::Tiles)]
     accel: Accel,
     /// Also write the table as CSV (the kernel-alone rows to OUT.kernel.csv, Mitsuba's and
     /// Open3D's to OUT.anchors.csv); with --batch-formats, its rows; with --python, its
@@ -645,10 +647,10 @@ struct VerifyCli {
     #[arg(long)]
     json: bool,
     /// Kernel precision of cylaov's side.
-    #[arg(long, value_enum, default_value_t = Precision::F64)]
+    #[arg(long, value_parser = cli::choice::<Precision>(), default_value_t = Precision::F64)]
     precision: Precision,
     /// Kernel formulation of cylaov's side.
-    #[arg(long, value_enum, default_value_t = FormulaKind::Stable)]
+    #[arg(long, value_parser = cli::choice::<FormulaKind>(), default_value_t = FormulaKind::Stable)]
     formula: FormulaKind,
     /// Check another renderer's AOV EXR of the scene file instead of cylaov's render:
     /// against the exact answer, with Mitsuba as a second opinion.
@@ -752,14 +754,14 @@ struct KernelCli {
     /// Kernel precision: f64 is the default and the accuracy reference. f32 runs the kernel
     /// about 1.8x faster (eight AVX2 lanes instead of four) but a whole render only about
     /// 1.1x (set-up and writing dominate), and shows what float32 costs (docs/accuracy.md).
-    #[arg(long, value_enum, default_value_t = Precision::F64)]
+    #[arg(long, value_parser = cli::choice::<Precision>(), default_value_t = Precision::F64)]
     precision: Precision,
     /// Kernel formulation: `stable` (default) or the textbook quadratic as written
     /// (docs/accuracy.md), kept to show what the stable form fixes.
-    #[arg(long, value_enum, default_value_t = FormulaKind::Stable)]
+    #[arg(long, value_parser = cli::choice::<FormulaKind>(), default_value_t = FormulaKind::Stable)]
     formula: FormulaKind,
     /// How primary rays find candidates: screen tiles (fast) or the BVH.
-    #[arg(long, value_enum, default_value_t = Accel::Tiles)]
+    #[arg(long, value_parser = cli::choice::<Accel>(), default_value_t = Accel::Tiles)]
     accel: Accel,
     /// Worker threads, 1 to 1024 (default: all cores).
     #[arg(long, value_parser = threads)]
@@ -775,7 +777,7 @@ struct RenderCli {
     out: PathBuf,
     /// AOVs to compute and store, comma-separated (e.g. depth,normal,shape_id).
     /// Default: the scene's `aovs`, else depth,normal.
-    #[arg(long, value_enum, value_delimiter = ',')]
+    #[arg(long, value_parser = cli::choice::<Aov>(), value_delimiter = ',')]
     aov: Vec<Aov>,
     #[command(flatten)]
     kernel: KernelCli,
@@ -784,7 +786,7 @@ struct RenderCli {
     #[arg(long, value_name = "DIR")]
     preview: Option<PathBuf>,
     /// EXR compression.
-    #[arg(long, value_enum, default_value_t = Compression::None)]
+    #[arg(long, value_parser = cli::choice::<Compression>(), default_value_t = Compression::None)]
     compression: Compression,
     /// Which camera of a `"cameras"` scene to render (0-based, file order).
     #[arg(long, value_name = "K", default_value_t = 0)]
@@ -802,11 +804,11 @@ struct RenderCli {
     depth_scale: f64,
     /// With --depth-png, a hit whose depth × scale does not fit 16 bits: fail (default) or
     /// store 0 and count.
-    #[arg(long, value_enum, default_value_t = OutOfRange::Fail, value_name = "fail|zero")]
+    #[arg(long, value_parser = cli::choice::<OutOfRange>(), default_value_t = OutOfRange::Fail, value_name = "fail|zero")]
     depth_out_of_range: OutOfRange,
     /// `layers`: one OUT.exr with every AOV; `per-aov`: OUT.<aov>.exr each, channels Y or
     /// R,G,B in float32, which OpenCV and imageio read.
-    #[arg(long, value_enum, default_value_t = ExrLayout::Layers)]
+    #[arg(long, value_parser = cli::choice::<ExrLayout>(), default_value_t = ExrLayout::Layers)]
     exr_layout: ExrLayout,
     /// Also write the view's hit points as a point cloud: binary little-endian PLY with
     /// x y z nx ny nz (float32, world axes) and shape_id, part, label (uint), one point per
@@ -1388,6 +1390,7 @@ fn main() -> ExitCode {
     use clap::FromArgMatches;
     // First, before any thread starts: see `output::signals`.
     cylaov::output::signals::install();
+    cylaov::spelling::set(cylaov::spelling::as_flag);
     cylaov::mem::keep_freed_memory();
     cylaov::mem::init_from_env();
     // Usage errors exit 2 (clap's own code); `--help` and `--version` exit 0.

@@ -76,3 +76,85 @@ fn the_scan_sees_imports() {
     assert!(!uses("commands", "output").is_empty());
     assert!(!uses("render", "accel").is_empty());
 }
+
+/// The library knows no command line: `clap` is named only by the binary (`src/main.rs`
+/// and the `src/cli/` tree it declares). The library's option enums list their names
+/// through `cylaov::choice`, which both front ends read.
+#[test]
+fn only_the_binary_names_clap() {
+    let src = Path::new(ROOT).join("src");
+    let mut hits = Vec::new();
+    for f in sources(&src) {
+        let rel = f.strip_prefix(&src).unwrap();
+        if rel == Path::new("main.rs") || rel.starts_with("cli") {
+            continue;
+        }
+        let text = std::fs::read_to_string(&f).unwrap();
+        for (k, l) in text.lines().enumerate() {
+            if l.contains("clap::") || l.contains("use clap") || l.contains("#[value(") {
+                hits.push(format!("src/{}:{}: {}", rel.display(), k + 1, l.trim()));
+            }
+        }
+    }
+    assert!(
+        hits.is_empty(),
+        "the library names clap:\n{}",
+        hits.join("\n")
+    );
+    // The probe sees what it looks for.
+    let main = std::fs::read_to_string(src.join("main.rs")).unwrap();
+    assert!(main.contains("use clap"));
+}
+
+/// **The library never names a flag**: its messages name an option through
+/// `cylaov::spelling::opt`, so each front end spells it its own way. Outside the front
+/// ends (`main.rs`, `cli/`, `commands/`, `bench/`), no line before a file's tests holds a
+/// `--word`, except the few that quote another program's or a command's own invocation.
+#[test]
+fn the_library_never_names_a_flag() {
+    let src = Path::new(ROOT).join("src");
+    // (file, text on the line): an invocation quoted as a whole, not an option named.
+    let quoted = [
+        ("dataset/names.rs", "out(\""),
+        ("dataset/batch/transforms.rs", "ns-train ... --data"),
+        ("verify/repro.rs", "`cylaov verify --report`"),
+    ];
+    let mut hits = Vec::new();
+    for f in sources(&src) {
+        let rel = f.strip_prefix(&src).unwrap();
+        let front = rel == Path::new("main.rs")
+            || rel.starts_with("cli")
+            || rel.starts_with("commands")
+            || rel.starts_with("bench");
+        if front {
+            continue;
+        }
+        let text = std::fs::read_to_string(&f).unwrap();
+        for (k, l) in text.lines().enumerate() {
+            if l.contains("#[cfg(test)]") {
+                break;
+            }
+            let code = l.trim_start();
+            if code.starts_with("//") {
+                continue;
+            }
+            let flag = code
+                .match_indices("--")
+                .any(|(i, _)| code[i + 2..].starts_with(|c: char| c.is_ascii_lowercase()));
+            let allowed = quoted
+                .iter()
+                .any(|(file, text)| rel == Path::new(file) && l.contains(text));
+            if flag && !allowed {
+                hits.push(format!("src/{}:{}: {}", rel.display(), k + 1, code));
+            }
+        }
+    }
+    assert!(
+        hits.is_empty(),
+        "library lines name a flag (use crate::spelling::opt):\n{}",
+        hits.join("\n")
+    );
+    // The probe sees what it looks for: the command line's own sources name flags.
+    let main = std::fs::read_to_string(src.join("main.rs")).unwrap();
+    assert!(main.contains("--"));
+}

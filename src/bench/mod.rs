@@ -135,13 +135,15 @@ pub fn dense_scene(n: usize, seed: u64, width: u32, height: u32) -> Scene {
     )
 }
 
-/// A bench scene family (see the module doc).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum Family {
-    /// Sizes shrink as the count grows: the same depth complexity at every count.
-    Sparse,
-    /// The same sizes at every count: denser and denser.
-    Dense,
+crate::choice_enum! {
+    /// A bench scene family (see the module doc).
+    #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+    pub enum Family {
+        /// Sizes shrink as the count grows: the same depth complexity at every count.
+        Sparse = "sparse",
+        /// The same sizes at every count: denser and denser.
+        Dense = "dense",
+    }
 }
 
 impl Family {
@@ -448,11 +450,9 @@ fn aov_names(aovs: &[Aov]) -> String {
     aovs.iter().map(|a| a.name()).collect::<Vec<_>>().join("+")
 }
 
-/// How the command line spells `v` (clap's own name for it, not a guess from `Debug`).
-fn cli_value<V: clap::ValueEnum>(v: V) -> String {
-    v.to_possible_value()
-        .map(|p| p.get_name().to_owned())
-        .unwrap_or_default()
+/// How the command line spells `v` (its listed name, not a guess from `Debug`).
+fn cli_value<V: crate::choice::Choice>(v: V) -> String {
+    v.choice_name().to_owned()
 }
 
 /// Time a whole `cylaov render` process; parse `peak N MiB` from its summary line.

@@ -294,18 +294,22 @@ impl GenerateOptions {
         }
     }
 
-    /// Check every option; the error names the flag and the value.
+    /// Check every option; the error names the option (see [`crate::spelling`]) and the
+    /// value.
     pub fn validate(&self) -> Result<(), String> {
+        use crate::spelling::opt;
         let c = self.cylinders;
         if c.min < 1.0 || c.max > MAX_CYLINDERS || c.min.fract() != 0.0 || c.max.fract() != 0.0 {
             return Err(format!(
-                "--cylinders: must be whole numbers in 1..={MAX_CYLINDERS}, got {c}"
+                "{}: must be whole numbers in 1..={MAX_CYLINDERS}, got {c}",
+                opt("cylinders")
             ));
         }
-        for (flag, r) in [("--radius", self.radius), ("--length", self.length)] {
+        for (key, r) in [("radius", self.radius), ("length", self.length)] {
             if r.min <= 0.0 || r.max > scene::MAX_COORD {
                 return Err(format!(
-                    "{flag}: must be > 0 and <= {:e}, got {r}",
+                    "{}: must be > 0 and <= {:e}, got {r}",
+                    opt(key),
                     scene::MAX_COORD
                 ));
             }
@@ -316,41 +320,53 @@ impl GenerateOptions {
             .any(|v| !v.is_finite() || *v < 0.0 || *v > scene::MAX_COORD)
         {
             return Err(format!(
-                "--volume: half extents must be >= 0 and finite, got {:?}",
+                "{}: half extents must be >= 0 and finite, got {:?}",
+                opt("volume"),
                 self.volume
             ));
         }
         if !(0.0..=1.0).contains(&self.caps_prob) {
             return Err(format!(
-                "--caps-prob: must be in [0, 1], got {}",
+                "{}: must be in [0, 1], got {}",
+                opt("caps_prob"),
                 self.caps_prob
             ));
         }
-        for (flag, v) in [("--width", self.width), ("--height", self.height)] {
+        for (key, v) in [("width", self.width), ("height", self.height)] {
             if v == 0 || v > scene::MAX_SIDE {
                 return Err(format!(
-                    "{flag}: must be in 1..={}, got {v}",
+                    "{}: must be in 1..={}, got {v}",
+                    opt(key),
                     scene::MAX_SIDE
                 ));
             }
         }
         if !(self.fov > 0.0 && self.fov < 180.0) {
-            return Err(format!("--fov: must be in (0, 180), got {}", self.fov));
+            return Err(format!(
+                "{}: must be in (0, 180), got {}",
+                opt("fov"),
+                self.fov
+            ));
         }
         let e = self.elevation;
         if e.min < -85.0 || e.max > 85.0 {
             return Err(format!(
-                "--elevation: must lie in -85..85 degrees (the camera's up is +z), got {e}"
+                "{}: must lie in -85..85 degrees (the camera's up is +z), got {e}",
+                opt("elevation")
             ));
         }
         let d = self.distance;
         if d.min <= 0.0 || d.max > 1e6 {
-            return Err(format!("--distance: must be > 0 and <= 1e6, got {d}"));
+            return Err(format!(
+                "{}: must be > 0 and <= 1e6, got {d}",
+                opt("distance")
+            ));
         }
         let v = self.views_per_scene;
         if v == 0 || v > MAX_VIEWS_PER_SCENE {
             return Err(format!(
-                "--views-per-scene: must be in 1..={MAX_VIEWS_PER_SCENE}, got {v}"
+                "{}: must be in 1..={MAX_VIEWS_PER_SCENE}, got {v}",
+                opt("views_per_scene")
             ));
         }
         Ok(())
@@ -815,10 +831,10 @@ mod tests {
             f(&mut o);
             o.validate().unwrap_err()
         };
-        assert!(bad(|o| o.radius = Range::new(-1.0, 1.0)).starts_with("--radius"));
-        assert!(bad(|o| o.caps_prob = 2.0).starts_with("--caps-prob"));
-        assert!(bad(|o| o.cylinders = Range::new(0.0, 3.0)).starts_with("--cylinders"));
-        assert!(bad(|o| o.elevation = Range::new(0.0, 90.0)).starts_with("--elevation"));
-        assert!(bad(|o| o.fov = 180.0).starts_with("--fov"));
+        assert!(bad(|o| o.radius = Range::new(-1.0, 1.0)).starts_with("radius"));
+        assert!(bad(|o| o.caps_prob = 2.0).starts_with("caps_prob"));
+        assert!(bad(|o| o.cylinders = Range::new(0.0, 3.0)).starts_with("cylinders"));
+        assert!(bad(|o| o.elevation = Range::new(0.0, 90.0)).starts_with("elevation"));
+        assert!(bad(|o| o.fov = 180.0).starts_with("fov"));
     }
 }

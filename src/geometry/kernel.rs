@@ -9,24 +9,26 @@ use super::real::Real;
 use super::wide::Simd;
 use std::fmt;
 
-/// Kernel precision.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, clap::ValueEnum)]
-pub enum Precision {
-    /// IEEE single precision: eight lanes to an AVX register.
-    F32,
-    /// IEEE double precision: the accuracy reference.
-    #[default]
-    F64,
+crate::choice_enum! {
+    /// Kernel precision.
+    #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+    pub enum Precision default F64 {
+        /// IEEE single precision: eight lanes to an AVX register.
+        F32 = "f32",
+        /// IEEE double precision: the accuracy reference.
+        F64 = "f64",
+    }
 }
 
-/// Kernel formulation (see [`crate::geometry::cylinder`]).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, clap::ValueEnum)]
-pub enum FormulaKind {
-    /// The textbook formulas as written: textbook roots, axis-point normal quadratic.
-    Literal,
-    /// Lagrange discriminant, citardauq roots, projected normal, gap-free rims.
-    #[default]
-    Stable,
+crate::choice_enum! {
+    /// Kernel formulation (see [`crate::geometry::cylinder`]).
+    #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+    pub enum FormulaKind default Stable {
+        /// The textbook formulas as written: textbook roots, axis-point normal quadratic.
+        Literal = "literal",
+        /// Lagrange discriminant, citardauq roots, projected normal, gap-free rims.
+        Stable = "stable",
+    }
 }
 
 impl Precision {

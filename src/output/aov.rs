@@ -258,20 +258,21 @@ pub struct AovImage {
     pub buffers: Vec<AovBuffer>,
 }
 
-/// EXR compression for written files.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
-pub enum Compression {
-    /// Uncompressed: fastest to write and read.
-    #[default]
-    None,
-    /// ZIP, 16 scanlines per block: lossless, good for depth.
-    Zip,
-    /// ZIP, one scanline per block.
-    Zips,
-    /// PIZ wavelet: lossless, strong on noisy float data.
-    Piz,
-    /// RLE: cheap, weak.
-    Rle,
+crate::choice_enum! {
+    /// EXR compression for written files.
+    #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+    pub enum Compression default None {
+        /// Uncompressed: fastest to write and read.
+        None = "none",
+        /// ZIP, 16 scanlines per block: lossless, good for depth.
+        Zip = "zip",
+        /// ZIP, one scanline per block.
+        Zips = "zips",
+        /// PIZ wavelet: lossless, strong on noisy float data.
+        Piz = "piz",
+        /// RLE: cheap, weak.
+        Rle = "rle",
+    }
 }
 
 impl Compression {
@@ -304,14 +305,15 @@ pub enum ExrAttr {
     Float(&'static str, f32),
 }
 
-/// How the AOVs of a render go to disk.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
-pub enum ExrLayout {
-    /// One EXR with every AOV as named channels (`depth`, `normal.X`, …).
-    #[default]
-    Layers,
-    /// One EXR per AOV (`OUT.<aov>.exr`), channels `Y` or `R, G, B`, float32.
-    PerAov,
+crate::choice_enum! {
+    /// How the AOVs of a render go to disk.
+    #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+    pub enum ExrLayout default Layers {
+        /// One EXR with every AOV as named channels (`depth`, `normal.X`, …).
+        Layers = "layers",
+        /// One EXR per AOV (`OUT.<aov>.exr`), channels `Y` or `R, G, B`, float32.
+        PerAov = "per-aov",
+    }
 }
 
 /// The header attributes of a view rendered from `cam` holding `aovs` (see the module
@@ -481,9 +483,10 @@ pub fn per_aov_image(img: &AovImage, aov: Aov) -> Result<AovImage> {
         }
         Some(ChannelData::U32(v)) => {
             if let Some(&big) = v.iter().find(|&&id| id > MAX_FLOAT_ID) {
+                let layout = crate::spelling::opt("exr_layout");
                 bail!(
-                    "--exr-layout per-aov: {} {big} does not fit a float32 channel \
-                     exactly (ids up to 2^24 = {MAX_FLOAT_ID} do); use --exr-layout layers, \
+                    "{layout} per-aov: {} {big} does not fit a float32 channel \
+                     exactly (ids up to 2^24 = {MAX_FLOAT_ID} do); use {layout} layers, \
                      which stores ids as u32",
                     names[0]
                 );

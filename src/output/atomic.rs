@@ -164,13 +164,18 @@ pub fn make_dir_all(dir: &Path) -> io::Result<()> {
 /// the open-file limit say so.
 pub fn explain(e: io::Error) -> io::Error {
     let advice = match e.raw_os_error() {
-        Some(28) => "the disk is full; free space and run again",
-        Some(122) => "the disk quota is exceeded; free space and run again",
-        Some(27) => "the file size limit is reached (ulimit -f); raise it and run again",
-        Some(24) | Some(23) => {
-            "too many open files (ulimit -n); raise the limit or use fewer --threads"
+        Some(28) => "the disk is full; free space and run again".to_string(),
+        Some(122) => "the disk quota is exceeded; free space and run again".to_string(),
+        Some(27) => {
+            "the file size limit is reached (ulimit -f); raise it and run again".to_string()
         }
-        _ if e.kind() == io::ErrorKind::StorageFull => "the disk is full; free space and run again",
+        Some(24) | Some(23) => format!(
+            "too many open files (ulimit -n); raise the limit or use fewer {}",
+            crate::spelling::opt("threads")
+        ),
+        _ if e.kind() == io::ErrorKind::StorageFull => {
+            "the disk is full; free space and run again".to_string()
+        }
         _ => return e,
     };
     io::Error::new(e.kind(), format!("{e}: {advice}"))

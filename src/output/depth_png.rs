@@ -18,14 +18,15 @@ use image::{GrayImage, ImageBuffer, Luma};
 /// A 16-bit grey image.
 pub type DepthPng = ImageBuffer<Luma<u16>, Vec<u16>>;
 
-/// What to do with a hit whose depth does not fit the 16-bit PNG at the chosen scale.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
-pub enum OutOfRange {
-    /// Fail the view, naming its depth range and the largest scale that fits.
-    #[default]
-    Fail,
-    /// Store 0 (no depth) and count the pixels.
-    Zero,
+crate::choice_enum! {
+    /// What to do with a hit whose depth does not fit the 16-bit PNG at the chosen scale.
+    #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+    pub enum OutOfRange default Fail {
+        /// Fail the view, naming its depth range and the largest scale that fits.
+        Fail = "fail",
+        /// Store 0 (no depth) and count the pixels.
+        Zero = "zero",
+    }
 }
 
 /// A depth PNG and how many hits it could not hold (always 0 under [`OutOfRange::Fail`]).
@@ -68,15 +69,17 @@ pub fn encode(img: &AovImage, scale: f64, policy: OutOfRange) -> Option<Result<E
         // 0.5 / lo rounds the nearest hit to 0.
         let largest = ((65535.5 / hi) * 1e6 * (1.0 - 1e-12)).floor() / 1e6;
         let smallest = 0.5 / lo;
+        let depth_scale = crate::spelling::opt("depth_scale");
         let hint = if largest >= smallest {
-            format!("the largest --depth-scale that fits is {largest:.6}")
+            format!("the largest {depth_scale} that fits is {largest:.6}")
         } else {
-            "no single --depth-scale fits both ends".to_string()
+            format!("no single {depth_scale} fits both ends")
         };
         return Some(Err(format!(
-            "depth PNG: {zeroed} hit pixels do not fit 16 bits at --depth-scale {scale} \
+            "depth PNG: {zeroed} hit pixels do not fit 16 bits at {depth_scale} {scale} \
              (planar depth {lo:.6} to {hi:.6} world units, stored as round(depth × scale) in \
-             1..=65535); {hint}, or pass --depth-out-of-range zero to store them as 0"
+             1..=65535); {hint}, or pass {} zero to store them as 0",
+            crate::spelling::opt("depth_out_of_range")
         )));
     }
     let png = ImageBuffer::from_raw(img.width as u32, img.height as u32, data)?;

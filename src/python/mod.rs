@@ -16,7 +16,7 @@
 //! sets the work's stop flag, waits for the work to wind down and raises that exception.
 
 use crate::dataset::generate::{ConfigFile, GenerateOptions, to_json};
-use crate::geometry::{FormulaKind, Kernel, Precision};
+use crate::geometry::Kernel;
 use crate::output::aov::{AovBuffer, AovImage, ChannelData, channel_names, per_aov_channel_names};
 use crate::render::cast::{self, Ray};
 use crate::render::{Accel, RenderOptions};
@@ -307,26 +307,17 @@ fn names(obj: &Bound<'_, PyAny>, what: &str) -> PyResult<Vec<String>> {
         .map_err(|_| PyTypeError::new_err(what.to_string()))
 }
 
+/// The value of keyword `keyword` named `name`; the library's refusal under Python's
+/// spelling of the option (`precision: unknown value "f16": expected one of f32, f64`).
+pub(crate) fn choice<T: crate::choice::Choice>(name: &str, keyword: &str) -> PyResult<T> {
+    T::parse(name).map_err(|e| PyValueError::new_err(format!("{keyword}: {e}")))
+}
+
 fn kernel(precision: &str, formula: &str) -> PyResult<Kernel> {
-    let precision = match precision {
-        "f64" => Precision::F64,
-        "f32" => Precision::F32,
-        p => {
-            return Err(PyValueError::new_err(format!(
-                "precision: \"f64\" or \"f32\", got {p:?}"
-            )));
-        }
-    };
-    let formula = match formula {
-        "stable" => FormulaKind::Stable,
-        "literal" => FormulaKind::Literal,
-        f => {
-            return Err(PyValueError::new_err(format!(
-                "formula: \"stable\" or \"literal\", got {f:?}"
-            )));
-        }
-    };
-    Ok(Kernel::new(formula, precision))
+    Ok(Kernel::new(
+        choice(formula, "formula")?,
+        choice(precision, "precision")?,
+    ))
 }
 
 /// AOV name and its array: the AOV's buffer, `(H, W)` or `(H, W, 3)` as the render
@@ -960,16 +951,7 @@ fn render<'py>(
         Some(a) => parse_aovs(&aov_names(a)?)?,
     };
     let k = kernel(precision, formula)?;
-    let accel = match accel {
-        "tiles" => Accel::Tiles,
-        "frustum" => Accel::Frustum,
-        "bvh" => Accel::Bvh,
-        a => {
-            return Err(PyValueError::new_err(format!(
-                "accel: \"tiles\", \"frustum\" or \"bvh\", got {a:?}"
-            )));
-        }
-    };
+    let accel: Accel = choice(accel, "accel")?;
     let sc = scene.get().with_camera(camera)?;
     let opts = RenderOptions {
         aovs: traced(&aovs),

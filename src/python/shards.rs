@@ -60,14 +60,7 @@ pub fn write_shards<'py>(
     let members = members
         .iter()
         .enumerate()
-        .map(|(i, m)| match m.as_str() {
-            "exr" => Ok(Member::Exr),
-            "depth.png" => Ok(Member::DepthPng),
-            "ply" => Ok(Member::Ply),
-            _ => Err(PyValueError::new_err(format!(
-                "members[{i}]: \"exr\", \"depth.png\" or \"ply\", got {m:?}"
-            ))),
-        })
+        .map(|(i, m)| super::choice::<Member>(m, &format!("members[{i}]")))
         .collect::<PyResult<Vec<_>>>()?;
     let opts = BatchOptions {
         aovs: aovs.map(|a| parse_aovs(&aov_names(a)?)).transpose()?,

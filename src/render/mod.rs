@@ -43,20 +43,21 @@ use walk::band_renderer;
 // A band the writer receives is one row of tiles.
 const _: () = assert!(crate::output::aov::BAND_ROWS == TILE as usize);
 
-/// How primary rays find their candidate cylinders.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
-pub enum Accel {
-    /// Screen tiles of projected cylinder boxes, nearest first (primary rays only); when
-    /// the tile lists would be crowded, the BVH walked tile by tile (`frustum`), unless the
-    /// view is tiny (under one pixel per 16 cylinders): then the lists however crowded.
-    #[default]
-    Tiles,
-    /// The BVH walked once per tile with the tile's view cone, nearest first, stopping
-    /// when everything left is behind the tile's hits (primary rays only).
-    Frustum,
-    /// The BVH, one traversal per ray through its eight-wide form (works for any ray;
-    /// kept to compare).
-    Bvh,
+crate::choice_enum! {
+    /// How primary rays find their candidate cylinders.
+    #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+    pub enum Accel default Tiles {
+        /// Screen tiles of projected cylinder boxes, nearest first (primary rays only); when
+        /// the tile lists would be crowded, the BVH walked tile by tile (`frustum`), unless the
+        /// view is tiny (under one pixel per 16 cylinders): then the lists however crowded.
+        Tiles = "tiles",
+        /// The BVH walked once per tile with the tile's view cone, nearest first, stopping
+        /// when everything left is behind the tile's hits (primary rays only).
+        Frustum = "frustum",
+        /// The BVH, one traversal per ray through its eight-wide form (works for any ray;
+        /// kept to compare).
+        Bvh = "bvh",
+    }
 }
 
 /// What to render.

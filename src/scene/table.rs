@@ -553,8 +553,9 @@ pub fn read_table(text: &str, opts: &TableOptions) -> Result<Table, TableError> 
                     format!(
                         "cannot tell the table format from the header ({}): expected x0,y0,z0,x1,y1,z1,radius (csv), \
                          parent, extension, branch, BranchOrder (treeqsm), ID, parentID, branchID, branchOrder \
-                         (simpleforest) or cyl_ID, parent_ID, branching_order (archi); give --format",
-                        crate::scene::strict::shorten(&shown.join(", "))
+                         (simpleforest) or cyl_ID, parent_ID, branching_order (archi); give {}",
+                        crate::scene::strict::shorten(&shown.join(", ")),
+                        crate::spelling::opt("format")
                     ),
                 )
             })?,
@@ -589,7 +590,8 @@ pub fn read_table(text: &str, opts: &TableOptions) -> Result<Table, TableError> 
                     first_line,
                     format!(
                         "cannot tell the table format: no header and {n} columns (a TreeQSM cyl_data file without a \
-                         header has 14 or 15); give the table a header or --format"
+                         header has 14 or 15); give the table a header or {}",
+                        crate::spelling::opt("format")
                     ),
                 ));
             }
@@ -612,7 +614,8 @@ pub fn read_table(text: &str, opts: &TableOptions) -> Result<Table, TableError> 
         return Err(line_err(
             first_line,
             format!(
-                "--label {}: this {} table has no {what} column ({names})",
+                "{} {}: this {} table has no {what} column ({names})",
+                crate::spelling::opt("label"),
                 label.name(),
                 format.name()
             ),

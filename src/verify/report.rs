@@ -109,7 +109,7 @@ pub fn write_report(dir: &Path, title: &str, views: &[ReportView]) -> Result<()>
         targets.push(dir.join("README.md"));
     }
     for t in &targets {
-        check_output("--report", t, &[])?;
+        check_output(&crate::spelling::opt("report"), t, &[])?;
     }
     crate::output::io::make_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     let mut staged = Vec::new();

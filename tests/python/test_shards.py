@@ -185,3 +185,13 @@ def test_write_shards_takes_scene_objects(dataset, tmp_path):
     with pytest.raises(ValueError, match="no scenes"):
         cylaov.write_shards([], tmp_path / "bad")
     assert not (tmp_path / "bad").exists()
+
+
+def test_errors_name_the_keyword_not_the_flag(dataset, tmp_path):
+    """The library's messages name options neutrally; Python spells them as its keywords."""
+    for call in (lambda: cylaov.shard_count(dataset / "data", 0),
+                 lambda: cylaov.write_shards(dataset / "data", tmp_path / "out", shard_size=0)):
+        with pytest.raises(ValueError, match=r"shard_size: must be >= 1, got 0") as e:
+            call()
+        assert "--" not in str(e.value)
+    assert not (tmp_path / "out").exists()

@@ -66,8 +66,9 @@ pub fn partial_root(out: &Path) -> Result<(PathBuf, Registration)> {
     if m.file_type().is_symlink() {
         bail!(
             "{} is a symbolic link: the work-in-progress folder must be a real folder inside \
-             --out (it is cleared and written to); remove the link",
-            root.display()
+             {} (it is cleared and written to); remove the link",
+            root.display(),
+            crate::spelling::opt("out")
         );
     }
     if !m.is_dir() {
@@ -155,9 +156,10 @@ fn lock_file(out: &Path, path: &Path, wait: bool, what: &dyn Fn() -> String) -> 
             };
             bail!(
                 "another batch is writing {} in {} ({holder}); wait for it, or give this one \
-                 another --out",
+                 another {}",
                 what(),
-                out.display()
+                out.display(),
+                crate::spelling::opt("out")
             );
         }
         if same_file(&file, &path) {

@@ -5,15 +5,16 @@ use crate::output::aov::{Compression, ExrLayout};
 use crate::output::depth_png::OutOfRange;
 use crate::scene::{Aov, Scene};
 
-/// How the pool's threads share the work.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
-pub enum Schedule {
-    /// Views in parallel (each view's rows also in parallel): writing one view overlaps
-    /// tracing another: the faster schedule for small views, whose write is as long as their trace.
-    #[default]
-    Views,
-    /// One view at a time, its rows in parallel; the pool idles while a view is written.
-    Pixels,
+crate::choice_enum! {
+    /// How the pool's threads share the work.
+    #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+    pub enum Schedule default Views {
+        /// Views in parallel (each view's rows also in parallel): writing one view overlaps
+        /// tracing another: the faster schedule for small views, whose write is as long as their trace.
+        Views = "views",
+        /// One view at a time, its rows in parallel; the pool idles while a view is written.
+        Pixels = "pixels",
+    }
 }
 
 /// What a batch renders and writes.
@@ -67,21 +68,30 @@ impl Default for BatchOptions {
 
 impl BatchOptions {
     /// Check the values the command line cannot range-check: `depth_scale` finite and > 0,
-    /// `verify_fraction` in [0, 1] and 0 unless the EXR is layered; the error names the flag.
+    /// `verify_fraction` in [0, 1] and 0 unless the EXR is layered; the error names the
+    /// option (see [`crate::spelling`]).
     pub fn validate(&self) -> Result<(), String> {
+        use crate::spelling::opt;
         let s = self.depth_scale;
         if !(s.is_finite() && s > 0.0) {
-            return Err(format!("--depth-scale: must be finite and > 0, got {s}"));
+            return Err(format!(
+                "{}: must be finite and > 0, got {s}",
+                opt("depth_scale")
+            ));
         }
         let f = self.verify_fraction;
         if !(0.0..=1.0).contains(&f) {
-            return Err(format!("--verify-fraction: must be in [0, 1], got {f}"));
+            return Err(format!(
+                "{}: must be in [0, 1], got {f}",
+                opt("verify_fraction")
+            ));
         }
         if f > 0.0 && self.exr_layout == ExrLayout::PerAov {
-            return Err(
-                "--verify-fraction: needs --exr-layout layers (the check reads the layered EXR)"
-                    .into(),
-            );
+            return Err(format!(
+                "{}: needs {} layers (the check reads the layered EXR)",
+                opt("verify_fraction"),
+                opt("exr_layout")
+            ));
         }
         Ok(())
     }

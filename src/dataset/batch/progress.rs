@@ -251,10 +251,11 @@ impl SizeEstimate {
             crate::output::console::bytes(self.exr)
         );
         if self.total() > LARGE_OUTPUT {
-            line.push_str(
-                "; --compression zip (lossless) stores the EXRs in a fraction of that, at \
-                 some cost in write time",
-            );
+            line.push_str(&format!(
+                "; {} zip (lossless) stores the EXRs in a fraction of that, at some cost in \
+                 write time",
+                crate::spelling::opt("compression")
+            ));
         }
         line
     }
@@ -279,7 +280,7 @@ mod tests {
         assert_eq!(
             line,
             "batch 0-of-1: 2000 views at 640x480, depth+normal: about 9.4 GiB of output (9.2 \
-             GiB of it uncompressed EXRs); --compression zip (lossless) stores the EXRs in a \
+             GiB of it uncompressed EXRs); compression zip (lossless) stores the EXRs in a \
              fraction of that, at some cost in write time"
         );
         assert!(e.message("b", Compression::Zip).contains("at most 9.4 GiB"));
@@ -291,7 +292,7 @@ mod tests {
         assert!(
             !small
                 .message("b", Compression::None)
-                .contains("--compression")
+                .contains("zip (lossless)")
         );
         small.add((64, 48), &[Aov::Depth], 1, false);
         assert!(small.mixed);

@@ -314,10 +314,8 @@ struct RenderStamp {
 /// that changes the view's output bytes. Resume compares it byte for byte, so a view made
 /// with other options (or from another scene under the same name) is rendered again.
 pub fn render_stamp(scene: &Scene, opts: &BatchOptions) -> String {
-    fn name(v: impl clap::ValueEnum) -> String {
-        v.to_possible_value()
-            .map(|p| p.get_name().to_string())
-            .unwrap_or_default()
+    fn name(v: impl crate::choice::Choice) -> String {
+        v.choice_name().to_string()
     }
     let stamp = RenderStamp {
         cylaov: env!("CARGO_PKG_VERSION"),

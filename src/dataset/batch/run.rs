@@ -172,8 +172,9 @@ pub fn run(
     if progress != ProgressMode::Off {
         let estimate = estimate(&mine, &cameras, opts);
         eprintln!(
-            "{}; as --format webdataset tar shards: about {}",
+            "{}; as {} webdataset tar shards: about {}",
             estimate.message(&format!("batch {shard}"), opts.compression),
+            crate::spelling::opt("format"),
             crate::output::console::bytes(super::shards::tar_estimate(
                 mine.iter()
                     .filter_map(|&i| cameras[i].as_ref().ok())
@@ -258,7 +259,8 @@ fn check_targets(
     failures_path: &Path,
 ) -> Result<()> {
     let index = out.join("index.json");
-    check_outputs(&[("--out", &index), ("--out", failures_path)], &[])?;
+    let out_opt = crate::spelling::opt("out");
+    check_outputs(&[(&out_opt, &index), (&out_opt, failures_path)], &[])?;
     // A folder in a file's place cannot block or be written through: the rename onto it
     // fails, and so does that view alone.
     let check = |path: &Path| match path.symlink_metadata() {
@@ -541,10 +543,11 @@ impl ShardWork<'_> {
                     Ok(cost) => {
                         if cost.depth_zeroed > 0 {
                             crate::output::io::warn(&format!(
-                                "{}: depth PNG: {} hit pixels beyond 16 bits at --depth-scale {} \
+                                "{}: depth PNG: {} hit pixels beyond 16 bits at {} {} \
                                  stored as 0",
                                 view.id(),
                                 cost.depth_zeroed,
+                                crate::spelling::opt("depth_scale"),
                                 self.opts.depth_scale
                             ));
                         }

@@ -1,6 +1,7 @@
 //! Shards: which views of the list one process renders, from `--shard K/N`, `--shards N` or
 //! the scheduler's environment (Slurm job arrays, Kubernetes Indexed Jobs).
 
+use crate::spelling::opt;
 use std::fmt;
 
 /// Shard `index` of `count` (0-based) holds the views whose position `i` in the view list
@@ -84,17 +85,25 @@ pub fn resolve_shard(
         })
     };
     match (shard, shards) {
-        (Some(_), Some(_)) => Err("give --shard K/N or --shards N, not both".into()),
+        (Some(_), Some(_)) => Err(format!(
+            "give {} K/N or {} N, not both",
+            opt("shard"),
+            opt("shards")
+        )),
         (Some(s), None) => Ok(s),
         (None, Some(n)) => {
             let index = match var("JOB_COMPLETION_INDEX")? {
                 Some(i) => i,
-                None => slurm_index()?.ok_or(
-                    "--shards N needs JOB_COMPLETION_INDEX (Kubernetes Indexed Job) or \
-                     SLURM_ARRAY_TASK_ID in the environment; or give --shard K/N",
-                )?,
+                None => slurm_index()?.ok_or_else(|| {
+                    format!(
+                        "{} N needs JOB_COMPLETION_INDEX (Kubernetes Indexed Job) or \
+                         SLURM_ARRAY_TASK_ID in the environment; or give {} K/N",
+                        opt("shards"),
+                        opt("shard")
+                    )
+                })?,
             };
-            Shard::new(index, n).map_err(|e| format!("--shards {n}: {e}"))
+            Shard::new(index, n).map_err(|e| format!("{} {n}: {e}", opt("shards")))
         }
         (None, None) => match slurm_index()? {
             None => Ok(Shard::ALL),

@@ -52,6 +52,7 @@ use crate::output::view::{DepthPngPlan, Fill, Member as ViewMember, ViewPlan, Vi
 use crate::render::RenderOptions;
 use crate::scene::camera::Camera;
 use crate::scene::{self, Aov, Scene};
+use crate::spelling::opt;
 use anyhow::{Context, Result, anyhow, bail};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -65,17 +66,18 @@ use std::time::{Duration, Instant};
 /// Views a tar holds unless told otherwise.
 pub const DEFAULT_SHARD_SIZE: usize = 1000;
 
-/// An optional member of each view.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, clap::ValueEnum)]
-pub enum Member {
-    /// `KEY.exr`: the layered EXR the files format writes.
-    Exr,
-    /// `KEY.depth.png`: the 16-bit depth PNG the files format writes.
-    #[value(name = "depth.png")]
-    DepthPng,
-    /// `KEY.ply`: the view's hit points as a PLY point cloud (position, normal, ids),
-    /// as `render --ply` writes it.
-    Ply,
+crate::choice_enum! {
+    /// An optional member of each view.
+    #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+    pub enum Member {
+        /// `KEY.exr`: the layered EXR the files format writes.
+        Exr = "exr",
+        /// `KEY.depth.png`: the 16-bit depth PNG the files format writes.
+        DepthPng = "depth.png",
+        /// `KEY.ply`: the view's hit points as a PLY point cloud (position, normal, ids),
+        /// as `render --ply` writes it.
+        Ply = "ply",
+    }
 }
 
 impl Member {
@@ -329,7 +331,7 @@ fn absolute_dir(dir: &Path) -> String {
 /// The number of tars `input` makes at `shard_size` views a tar.
 pub fn shard_count(input: &Path, shard_size: usize) -> Result<usize> {
     if shard_size == 0 {
-        bail!("--shard-size: must be >= 1, got 0");
+        bail!("{}: must be >= 1, got 0", opt("shard_size"));
     }
     let (scenes, _) = list_views(input, None)?;
     let (views, _) = expand_views(&scenes, &BatchOptions::default());
@@ -352,12 +354,14 @@ fn dataset_aovs(
         match &found {
             None => found = Some((aovs, v)),
             Some((first, fv)) if *first != aovs => bail!(
-                "--format webdataset stores one AOV set for every view, but {} lists {} and \
-                 {} lists {}: give --aov",
+                "{} webdataset stores one AOV set for every view, but {} lists {} and \
+                 {} lists {}: give {}",
+                opt("format"),
                 fv.path.display(),
                 names(first),
                 v.path.display(),
-                names(&aovs)
+                names(&aovs),
+                opt("aov")
             ),
             Some(_) => {}
         }
@@ -638,10 +642,8 @@ pub fn view_tar_bytes(w: usize, h: usize, aovs: &[Aov], members: &[Member]) -> u
 }
 
 /// An option value's name as the record files spell it (`f64`, `stable`).
-fn value_name(v: impl clap::ValueEnum) -> String {
-    v.to_possible_value()
-        .map(|p| p.get_name().to_string())
-        .unwrap_or_default()
+fn value_name(v: impl crate::choice::Choice) -> String {
+    v.choice_name().to_string()
 }
 
 /// A writer that hashes what passes through it.
@@ -1112,14 +1114,17 @@ pub fn write_shards_until(
     let start = Instant::now();
     opts.validate().map_err(anyhow::Error::msg)?;
     if sopts.shard_size == 0 {
-        bail!("--shard-size: must be >= 1, got 0");
+        bail!("{}: must be >= 1, got 0", opt("shard_size"));
     }
     if opts.verify_fraction > 0.0 {
         bail!(
-            "--verify-fraction: not with --format webdataset (the check reads the files format's EXRs)"
+            "{}: not with {} webdataset (the check reads the files format's EXRs)",
+            opt("verify_fraction"),
+            opt("format")
         );
     }
-    crate::output::io::check_output_dir("--out", out)?;
+    let out_opt = opt("out");
+    crate::output::io::check_output_dir(&out_opt, out)?;
     let (views, cameras) = read_views(input, out, opts, announce)?;
     let aovs = dataset_aovs(opts, &views, &cameras)?;
     let keys = keys(&views, &member_suffixes(&aovs, &sopts.members))?;
@@ -1167,13 +1172,13 @@ pub fn write_shards_until(
         stop,
     };
     let mut targets: Vec<(&str, PathBuf)> = vec![
-        ("--out", out.join("shards.json")),
-        ("--out", out.join(shard_settings::FILE)),
-        ("--out", failures_path.clone()),
+        (&out_opt, out.join("shards.json")),
+        (&out_opt, out.join(shard_settings::FILE)),
+        (&out_opt, failures_path.clone()),
     ];
     for &j in &mine {
-        targets.push(("--out", plan.tar_path(j)));
-        targets.push(("--out", plan.sidecar_path(j)));
+        targets.push((&out_opt, plan.tar_path(j)));
+        targets.push((&out_opt, plan.sidecar_path(j)));
     }
     let refs: Vec<(&str, &Path)> = targets.iter().map(|(f, p)| (*f, p.as_path())).collect();
     check_outputs(&refs, &[])?;

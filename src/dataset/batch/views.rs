@@ -165,9 +165,10 @@ pub fn list_views(input: &Path, exclude: Option<&Path>) -> Result<(Vec<ViewSourc
             .flatten()
             .collect();
             bail!(
-                "INPUT {}: no scene files outside --out {}: skipped {} under it (outputs \
+                "INPUT {}: no scene files outside {} {}: skipped {} under it (outputs \
                  are not read as input; give an output folder outside the input)",
                 input.display(),
+                crate::spelling::opt("out"),
                 exclude.map_or(String::new(), |p| p.display().to_string()),
                 what.join(" and ")
             );
@@ -258,7 +259,11 @@ impl std::fmt::Display for Skipped {
         );
         list(&self.special, "special files (not regular files)");
         if self.under_out > 0 {
-            parts.push(format!("{} entries under --out", self.under_out));
+            parts.push(format!(
+                "{} entries under {}",
+                self.under_out,
+                crate::spelling::opt("out")
+            ));
         }
         write!(f, "{}", parts.join("; "))
     }
