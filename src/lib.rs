@@ -111,8 +111,10 @@
 //! option neutrally, `shard_size`; the binary has it spelled `--shard-size`).
 //!
 //! Around them: [`commands`], the IO of each subcommand (`render`, `generate`, `batch`,
-//! `import`, `scan`, `cameras`, `export-mitsuba`, `compare`, `verify`, `stress`, `bench`, `aovs`); `main.rs` only parses
-//! arguments and maps results to exit codes.
+//! `import`, `scan`, `cameras`, `export-mitsuba`, `compare`, `verify`, `stress`, `bench`,
+//! `aovs`), taking plain option structs. The binary is `main.rs` (the command list, exit
+//! codes, error reporting) and `src/cli/`, one file a command: its clap arguments, checked
+//! and turned into those structs; no clap type reaches the library.
 //!
 //! **Invariants**: `geometry`, `accel`, `render` and `scan` never do IO (`render_bands` hands its
 //! bands to the caller's sink); a render is a pure function of scene + options; `output::mitsuba` knows Mitsuba's XML, not how to run it

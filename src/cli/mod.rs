@@ -1,5 +1,20 @@
-//! The command line's own pieces beside `main.rs`: how the library's named choices become
-//! clap's possible values.
+//! The command line beside `main.rs`: each command's arguments (clap derives) and the
+//! function that turns them into the library's options and calls it, one file a command;
+//! [`common`] holds what several share; here, how the library's named choices become
+//! clap's possible values, and how an error is reported.
+
+pub mod batch;
+pub mod bench;
+pub mod cameras;
+pub mod common;
+pub mod compare;
+pub mod export_mitsuba;
+pub mod generate;
+pub mod import;
+pub mod render;
+pub mod scan;
+pub mod stress;
+pub mod verify;
 
 use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
 use cylaov::choice::Choice;
@@ -19,4 +34,9 @@ pub fn choice<T: Choice + Clone + Send + Sync>() -> impl TypedValueParser<Value 
     });
     // Only listed names reach the map: clap refused every other first.
     PossibleValuesParser::new(values).try_map(|name| T::parse(&name))
+}
+
+/// Print an error as the one `error: ...` line every command ends with on failure.
+pub fn report(e: &anyhow::Error) {
+    cylaov::output::io::warn(&format!("error: {e:#}"));
 }

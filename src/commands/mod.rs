@@ -1,5 +1,5 @@
 //! The work behind each CLI subcommand: IO orchestration around the pure library.
-//! `main.rs` only parses arguments and calls these.
+//! The binary's `src/cli/` parses each command's arguments and calls these.
 
 pub mod batch;
 pub mod bench;
