@@ -7,7 +7,7 @@
 //! Depth is camera-space z where the ray's [`PixelRay::planar_depth`] says so, else the
 //! Euclidean distance; `distance` is always the Euclidean distance from the ray's origin.
 
-use super::planes::{Band, BandInputs, part_of};
+use super::planes::{Band, BandInputs, Shaded, fill};
 use super::tracer::{PixelHit, Tracer, f32_down, f32_up};
 use crate::accel::wide_bvh::Stack;
 use crate::geometry::packet::nearer;
@@ -102,7 +102,8 @@ fn trace_from<T: Real, F: Formula>(
     best
 }
 
-/// Write the requested AOVs of `hit` along `ray` (world normal `nrm`) into sample `k`.
+/// Write the requested AOVs of `hit` along `ray` (world normal `nrm`) into sample `k`:
+/// depth as the ray's model says (planar or Euclidean).
 fn write<T: Real, F: Formula>(
     fr: &BandInputs<T, F>,
     band: &mut Band,
@@ -113,34 +114,21 @@ fn write<T: Real, F: Formula>(
 ) {
     let cam = &fr.tracer.camera;
     let t = hit.hit.t.to_f64();
-    let f = &mut band.f;
-    if let Some(s) = f.distance.as_deref_mut() {
-        s[k] = t as f32;
-    }
-    if let Some(s) = f.depth.as_deref_mut() {
-        let z = if ray.planar_depth {
+    let shaded = Shaded {
+        origin: ray.origin,
+        dir: ray.dir,
+        t,
+        index: hit.index,
+        surface: hit.hit.surface,
+    };
+    let depth = || {
+        if ray.planar_depth {
             (ray.origin - cam.origin).dot(cam.forward) + t * ray.dir.dot(cam.forward)
         } else {
             t
-        };
-        s[k] = z as f32;
-    }
-    if let Some(s) = f.normal.as_deref_mut() {
-        s[3 * k..3 * k + 3].copy_from_slice(&[nrm.x as f32, nrm.y as f32, nrm.z as f32]);
-    }
-    if let Some(s) = f.position.as_deref_mut() {
-        let p = ray.origin + ray.dir * t;
-        s[3 * k..3 * k + 3].copy_from_slice(&[p.x as f32, p.y as f32, p.z as f32]);
-    }
-    if let Some(s) = band.id.as_deref_mut() {
-        s[k] = fr.ids[hit.index as usize];
-    }
-    if let Some(s) = band.part.as_deref_mut() {
-        s[k] = part_of(hit.hit.surface, nrm, ray.dir);
-    }
-    if let Some(s) = band.label.as_deref_mut() {
-        s[k] = fr.labels[hit.index as usize];
-    }
+        }
+    };
+    fill(fr, band, k, &shaded, depth, || nrm);
 }
 
 #[cfg(test)]

@@ -203,7 +203,8 @@ impl<T: Real, F: Formula> BandInputs<'_, T, F> {
     }
 }
 
-/// Write the requested AOVs of a hit along `d` into sample `k` of `band`.
+/// Write the requested AOVs of a pinhole hit along `d` (from the camera centre) into
+/// sample `k` of `band`.
 #[inline(always)]
 pub(super) fn shade<T: Real, F: Formula>(
     fr: &BandInputs<T, F>,
@@ -214,29 +215,73 @@ pub(super) fn shade<T: Real, F: Formula>(
 ) {
     let cam = &fr.tracer.camera;
     let t = ph.hit.t.to_f64();
+    let hit = Shaded {
+        origin: cam.origin,
+        dir: d,
+        t,
+        index: ph.index,
+        surface: ph.hit.surface,
+    };
+    fill(
+        fr,
+        band,
+        k,
+        &hit,
+        || t * d.dot(cam.forward),
+        || fr.tracer.normal(d, &ph),
+    );
+}
+
+/// A hit as every camera path hands it on: the ray's origin and unit direction, the
+/// hit's ray parameter, the cylinder (scene index) and the surface.
+pub(super) struct Shaded {
+    pub(super) origin: DVec3,
+    pub(super) dir: DVec3,
+    pub(super) t: f64,
+    pub(super) index: u32,
+    pub(super) surface: Surface,
+}
+
+/// Write the requested AOVs of `hit` into sample `k` of `band`: the one place each AOV's
+/// value is made from a hit. `depth` and `normal` are asked for only when a plane needs
+/// them (the normal twice at most: its plane and a side's facing).
+#[inline(always)]
+pub(super) fn fill<T: Real, F: Formula>(
+    fr: &BandInputs<T, F>,
+    band: &mut Band,
+    k: usize,
+    hit: &Shaded,
+    depth: impl FnOnce() -> f64,
+    normal: impl Fn() -> DVec3,
+) {
+    let t = hit.t;
     let f = &mut band.f;
     if let Some(s) = f.distance.as_deref_mut() {
         s[k] = t as f32;
     }
     if let Some(s) = f.depth.as_deref_mut() {
-        s[k] = (t * d.dot(cam.forward)) as f32;
+        s[k] = depth() as f32;
     }
     if let Some(s) = f.normal.as_deref_mut() {
-        let nrm = fr.tracer.normal(d, &ph);
+        let nrm = normal();
         s[3 * k..3 * k + 3].copy_from_slice(&[nrm.x as f32, nrm.y as f32, nrm.z as f32]);
     }
     if let Some(s) = f.position.as_deref_mut() {
-        let p = cam.origin + d * t;
+        let p = hit.origin + hit.dir * t;
         s[3 * k..3 * k + 3].copy_from_slice(&[p.x as f32, p.y as f32, p.z as f32]);
     }
     if let Some(s) = band.id.as_deref_mut() {
-        s[k] = fr.ids[ph.index as usize];
+        s[k] = fr.ids[hit.index as usize];
     }
     if let Some(s) = band.part.as_deref_mut() {
-        s[k] = part_code(fr.tracer, d, &ph);
+        let nrm = match hit.surface {
+            Surface::Side => normal(),
+            _ => DVec3::ZERO,
+        };
+        s[k] = part_of(hit.surface, nrm, hit.dir);
     }
     if let Some(s) = band.label.as_deref_mut() {
-        s[k] = fr.labels[ph.index as usize];
+        s[k] = fr.labels[hit.index as usize];
     }
 }
 

@@ -5,7 +5,63 @@
 //! Adding an AOV means one [`Aov`] variant, one row of [`AOV_TABLE`], its computation in
 //! the tracer and its test.
 
-use super::Aov;
+use serde::{Deserialize, Serialize};
+
+crate::choice_enum! {
+    /// One AOV ([`AOV_TABLE`] says what each stores).
+    #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+    #[serde(rename_all = "snake_case")]
+    pub enum Aov {
+        /// Euclidean distance from the camera origin to the hit.
+        Distance = "distance",
+        /// Planar depth: camera-space z of the hit.
+        Depth = "depth",
+        /// World-space unit outward normal (normal.X/Y/Z).
+        Normal = "normal",
+        /// World-space hit point (position.X/Y/Z).
+        Position = "position",
+        /// u32 id of the hit cylinder (0 = miss).
+        ShapeId = "shape_id",
+        /// u32 part of the hit cylinder: 0 miss, 1 side seen from outside, 2 side seen from
+        /// inside (the wall's inner face, e.g. through an open end), 3 bottom cap (at `p0`),
+        /// 4 top cap (at `p1`). With `shape_id` it is the pixel identity verification uses.
+        Part = "part",
+        /// Camera-space unit outward normal, OpenCV axes: x right, y down, z forward
+        /// (normal_camera.X/Y/Z).
+        NormalCamera = "normal_camera",
+        /// u32 label of the hit cylinder (its `label`, the user's class; 0 = miss or none):
+        /// class masks beside `shape_id`'s instance masks.
+        Label = "label",
+    }
+}
+
+impl Aov {
+    /// Every AOV, in the order outputs list them: the table's order.
+    pub const ALL: [Aov; AOV_TABLE.len()] = {
+        let mut all = [Aov::Distance; AOV_TABLE.len()];
+        let mut i = 0;
+        while i < all.len() {
+            all[i] = AOV_TABLE[i].aov;
+            i += 1;
+        }
+        all
+    };
+
+    /// The AOV's name as scene files and the command line spell it.
+    pub fn name(self) -> &'static str {
+        self.spec().name
+    }
+
+    /// Whether the AOV is stored as u32 samples (ids), not float32.
+    pub fn is_u32(self) -> bool {
+        self.spec().sample == SampleType::U32
+    }
+
+    /// The AOV named `s` (as [`Aov::name`] spells it), or `None`.
+    pub fn parse(s: &str) -> Option<Aov> {
+        Aov::ALL.into_iter().find(|a| a.name() == s)
+    }
+}
 
 /// How an AOV's samples are stored in the layered EXR and handed to Python.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -61,7 +117,8 @@ pub struct AovSpec {
     pub aov: Aov,
     /// Its name in scene files, on the command line and as a Python key.
     pub name: &'static str,
-    /// Its channels in the layered EXR, in order (one, or three `NAME.X/Y/Z`).
+    /// Its channels in the layered EXR, in order: one (`NAME`) or two or three
+    /// (`NAME.X/Y/Z`, `NAME.U/V`); one to three, as the per-AOV layout can store them.
     pub channels: &'static [&'static str],
     /// Its sample type in the layered EXR.
     pub sample: SampleType,
@@ -77,11 +134,15 @@ pub struct AovSpec {
 }
 
 impl AovSpec {
-    /// Its channel names in the per-AOV layout (`Y`, or `R, G, B`).
-    pub fn per_aov_channels(&self) -> &'static [&'static str] {
-        match self.channels {
-            [_] => &["Y"],
-            _ => &["R", "G", "B"],
+    /// Its channel names in the per-AOV layout, by channel count: `Y`; `R, G`; `R, G, B`
+    /// (the names OpenCV and imageio map to grey, two-channel and colour images).
+    pub const fn per_aov_channels(&self) -> &'static [&'static str] {
+        match self.channels.len() {
+            1 => &["Y"],
+            2 => &["R", "G"],
+            3 => &["R", "G", "B"],
+            // `AOV_TABLE` holds no other row: checked when it is compiled (below).
+            _ => &[],
         }
     }
 
@@ -97,7 +158,7 @@ impl AovSpec {
 }
 
 /// Every AOV's row, in [`Aov::ALL`] order (so `AOV_TABLE[aov as usize]` is its row).
-pub const AOV_TABLE: [AovSpec; 8] = [
+pub const AOV_TABLE: &[AovSpec] = &[
     AovSpec {
         aov: Aov::Distance,
         name: "distance",
@@ -180,6 +241,18 @@ pub const AOV_TABLE: [AovSpec; 8] = [
     },
 ];
 
+/// Every row stores one to three channels, each named `NAME` (one) or `NAME.SUFFIX`
+/// (several): what the per-AOV layout, numpy's `(H, W)` / `(H, W, C)` arrays and the
+/// channel lookups rely on. Checked when the crate compiles.
+const _: () = {
+    let mut i = 0;
+    while i < AOV_TABLE.len() {
+        let n = AOV_TABLE[i].channels.len();
+        assert!(n >= 1 && n <= 3, "an AOV has one to three channels");
+        i += 1;
+    }
+};
+
 impl Aov {
     /// This AOV's row of [`AOV_TABLE`].
     pub fn spec(self) -> &'static AovSpec {
@@ -211,11 +284,17 @@ pub fn markdown_table() -> String {
         "| AOV | EXR channels | per-AOV file (f32) | type | meaning | on a miss | Mitsuba reference | compared by |\n\
          |---|---|---|---|---|---|---|---|\n",
     );
-    for a in &AOV_TABLE {
+    for a in AOV_TABLE {
+        // `normal.X/Y/Z`: the shared prefix once, then each channel's suffix.
         let channels = match a.channels {
             [one] => format!("`{one}`"),
-            [first, ..] => format!("`{}.X/Y/Z`", first.trim_end_matches(".X")),
-            [] => String::new(),
+            many => {
+                let suffixes: Vec<&str> = many
+                    .iter()
+                    .map(|c| c.rsplit_once('.').map_or(*c, |(_, s)| s))
+                    .collect();
+                format!("`{}.{}`", a.name, suffixes.join("/"))
+            }
         };
         s.push_str(&format!(
             "| `{}` | {channels} | `{}` | {} | {} | {} | {} | {} |\n",

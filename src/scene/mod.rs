@@ -35,62 +35,7 @@ pub const MAX_SIDE: u32 = 16384;
 /// buffers; 16384 × 16384 would be 9.7 GB.
 pub const MAX_PIXELS: u64 = 1 << 26;
 
-crate::choice_enum! {
-    /// One AOV ([`aov::AOV_TABLE`] says what each stores).
-    #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
-    #[serde(rename_all = "snake_case")]
-    pub enum Aov {
-        /// Euclidean distance from the camera origin to the hit.
-        Distance = "distance",
-        /// Planar depth: camera-space z of the hit.
-        Depth = "depth",
-        /// World-space unit outward normal (normal.X/Y/Z).
-        Normal = "normal",
-        /// World-space hit point (position.X/Y/Z).
-        Position = "position",
-        /// u32 id of the hit cylinder (0 = miss).
-        ShapeId = "shape_id",
-        /// u32 part of the hit cylinder: 0 miss, 1 side seen from outside, 2 side seen from
-        /// inside (the wall's inner face, e.g. through an open end), 3 bottom cap (at `p0`),
-        /// 4 top cap (at `p1`). With `shape_id` it is the pixel identity verification uses.
-        Part = "part",
-        /// Camera-space unit outward normal, OpenCV axes: x right, y down, z forward
-        /// (normal_camera.X/Y/Z).
-        NormalCamera = "normal_camera",
-        /// u32 label of the hit cylinder (its `label`, the user's class; 0 = miss or none):
-        /// class masks beside `shape_id`'s instance masks.
-        Label = "label",
-    }
-}
-
-impl Aov {
-    /// Every AOV, in the order outputs list them.
-    pub const ALL: [Aov; 8] = [
-        Aov::Distance,
-        Aov::Depth,
-        Aov::Normal,
-        Aov::Position,
-        Aov::ShapeId,
-        Aov::Part,
-        Aov::NormalCamera,
-        Aov::Label,
-    ];
-
-    /// The AOV's name as scene files and the command line spell it.
-    pub fn name(self) -> &'static str {
-        self.spec().name
-    }
-
-    /// Whether the AOV is stored as u32 samples (ids), not float32.
-    pub fn is_u32(self) -> bool {
-        self.spec().sample == aov::SampleType::U32
-    }
-
-    /// The AOV named `s` (as [`Aov::name`] spells it), or `None`.
-    pub fn parse(s: &str) -> Option<Aov> {
-        Aov::ALL.into_iter().find(|a| a.name() == s)
-    }
-}
+pub use aov::Aov;
 
 /// The default AOV set, when neither the scene nor the command line names one.
 pub fn default_aovs() -> Vec<Aov> {
