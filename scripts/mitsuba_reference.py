@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Render the Mitsuba 3 reference AOVs of a cylaov scene.
 
-Usage: mitsuba_reference.py SCENE.xml SCENE.json OUT.exr [SENSOR]
+Usage: mitsuba_reference.py SCENE.xml SCENE.json OUT.exr [SENSOR] [--aov uv]
 
 SCENE.xml comes from `cylaov export-mitsuba SCENE.json`; SCENE.json gives the camera for
 the depth conversion. SENSOR (default 0) picks the camera of a scene with several
@@ -25,6 +25,11 @@ shape has the XML id `c<file index>_id<shape_id>_<side|bottom|top>` (see
 src/output/mitsuba.rs), and Mitsuba's shape_index is 1 + the shape's position in
 `scene.shapes()`. Side, bottom and top are separate Mitsuba shapes, so the part is exact;
 only the side's facing is computed, from Mitsuba's outward normal and the pixel ray.
+
+--aov uv adds Mitsuba's `uv` AOV as uv.U, uv.V (0 on a miss): the integrator of the
+loaded scene gets `uv:uv` after the exported list (the XML file is not changed). On a side,
+u = angle / 2pi in [0, 1) in the frame Mitsuba builds from p0 to p1, v = axial fraction;
+the caps are Mitsuba disks, whose uv is their own (cylaov compares side pixels).
 
 cos(theta) and the pixel ray come from the pixel-centre ray built exactly as cylaov's camera
 (src/scene/camera.rs) builds it, in float64 (`"model": "orthographic"`: every ray along the
@@ -53,6 +58,7 @@ CHANNELS = [
     "part",
 ]
 MITSUBA_AOVS = ["dd.y.T", "nn.X", "nn.Y", "nn.Z", "pp.X", "pp.Y", "pp.Z", "ii.I"]
+AOVS_RE = re.compile(r'(<string name="aovs" value=")([^"]*)(")')
 SHAPE_ID_RE = re.compile(r"^c(\d+)_id(\d+)_(side|bottom|top)$")
 # The part AOV of each exported shape kind (the side's 1 becomes 2 when seen from inside).
 PART = {"side": 1, "bottom": 3, "top": 4}
@@ -130,8 +136,16 @@ def shape_lut(scene):
 
 
 def main(argv):
+    argv = list(argv)
+    extra = []
+    while "--aov" in argv:
+        i = argv.index("--aov")
+        if argv[i + 1:i + 2] != ["uv"]:
+            fail("--aov: only uv is rendered on request (every other AOV always is)")
+        extra.append("uv")
+        del argv[i:i + 2]
     if len(argv) not in (4, 5):
-        fail("usage: mitsuba_reference.py SCENE.xml SCENE.json OUT.exr [SENSOR]")
+        fail("usage: mitsuba_reference.py SCENE.xml SCENE.json OUT.exr [SENSOR] [--aov uv]")
     xml_path, json_path, out_path = argv[1:4]
     try:
         sensor = int(argv[4]) if len(argv) == 5 else 0
@@ -149,7 +163,15 @@ def main(argv):
     near = float(cam.get("near_clip", 0.01))
 
     mi.set_variant("scalar_rgb")
-    scene = mi.load_file(xml_path)
+    if extra:
+        with open(xml_path) as f:
+            xml = f.read()
+        xml, n = AOVS_RE.subn(lambda m: m.group(1) + m.group(2) + ",uv:uv" + m.group(3), xml)
+        if n != 1:
+            fail(f"{xml_path}: no aov integrator list to add uv to")
+        scene = mi.load_string(xml)
+    else:
+        scene = mi.load_file(xml_path)
     if len(scene.sensors()) != len(cams):
         fail(f"{xml_path}: {len(scene.sensors())} sensors, {json_path} has {len(cams)} cameras")
     film = scene.sensors()[sensor].film()
@@ -157,8 +179,9 @@ def main(argv):
     if size != (int(cam["width"]), int(cam["height"])):
         fail(f"{xml_path}: film {size} differs from {json_path} camera size")
     img = np.array(mi.render(scene, sensor=sensor), dtype=np.float32)
-    if img.shape[2] != len(MITSUBA_AOVS):
-        fail(f"expected {len(MITSUBA_AOVS)} AOV channels {MITSUBA_AOVS}, got {img.shape[2]}")
+    want = MITSUBA_AOVS + (["uv.U", "uv.V"] if extra else [])
+    if img.shape[2] != len(want):
+        fail(f"expected {len(want)} AOV channels {want}, got {img.shape[2]}")
 
     t = img[..., 0].astype(np.float64)
     index = img[..., 7]
@@ -170,7 +193,8 @@ def main(argv):
     distance = np.where(hit, t + near / cos, 0.0)
     depth = distance * cos
 
-    out = np.zeros(img.shape[:2] + (len(CHANNELS),), dtype=np.float32)
+    channels = CHANNELS + (["uv.U", "uv.V"] if extra else [])
+    out = np.zeros(img.shape[:2] + (len(channels),), dtype=np.float32)
     out[..., 0] = distance
     out[..., 1] = depth
     out[..., 2:8] = np.where(hit[..., None], img[..., 1:7], 0.0)
@@ -179,8 +203,10 @@ def main(argv):
     facing = np.sum(img[..., 1:4].astype(np.float64) * rays, axis=-1)
     part = np.where((part == 1) & (facing > 0.0), 2.0, part)
     out[..., 9] = part
+    if extra:
+        out[..., 10:12] = np.where(hit[..., None], img[..., 8:10], 0.0)
 
-    bitmap = mi.Bitmap(out, mi.Bitmap.PixelFormat.MultiChannel, channel_names=CHANNELS)
+    bitmap = mi.Bitmap(out, mi.Bitmap.PixelFormat.MultiChannel, channel_names=channels)
     out_dir = os.path.dirname(os.path.abspath(out_path))
     os.makedirs(out_dir, exist_ok=True)
     tmp = os.path.join(out_dir, f".{os.path.basename(out_path)}.{os.getpid()}.tmp")

@@ -5,7 +5,7 @@
 //! names a flag or a keyword: an [`UnknownChoice`] says what was given and what is known,
 //! and each front end puts its own spelling of the option in front.
 //!
-//! An enum becomes a choice through [`choice_enum!`]: its variants are written
+//! An enum becomes a choice through [`choice_enum!`](crate::choice_enum): its variants are written
 //! `Variant = "name"`, their doc comments become the descriptions, `default Variant`
 //! after the enum's name gives its `Default`, and `Display` and `FromStr` use the names.
 

@@ -237,7 +237,7 @@ impl<T: Real, F: Formula> Setup<T, F> {
             crate::scene::camera::Projection::Orthographic { .. }
         );
         Setup {
-            cylinders: if parallel {
+            cylinders: if parallel || opts.aovs.contains(&crate::scene::Aov::Uv) {
                 scene.cylinders.clone()
             } else {
                 Vec::new()

@@ -38,6 +38,7 @@ pub(super) fn uninit_planes(opts: &RenderOptions, n: usize) -> UninitSamples {
             depth: want(Aov::Depth).then(|| uninit(n)),
             normal: (want(Aov::Normal) || want(Aov::NormalCamera)).then(|| uninit(3 * n)),
             position: want(Aov::Position).then(|| uninit(3 * n)),
+            uv: want(Aov::Uv).then(|| uninit(2 * n)),
         },
         id: want(Aov::ShapeId).then(|| uninit(n)),
         part: want(Aov::Part).then(|| uninit(n)),
@@ -52,6 +53,7 @@ pub(super) struct Planes<P> {
     pub(super) depth: Option<P>,
     pub(super) normal: Option<P>,
     pub(super) position: Option<P>,
+    pub(super) uv: Option<P>,
 }
 
 /// The requested planes of an image or a band (`shape_id` and `part` as u32); with
@@ -94,6 +96,7 @@ impl<'a> Band<'a, MaybeUninit<f32>, MaybeUninit<u32>> {
                 depth: self.f.depth.map(zero),
                 normal: self.f.normal.map(zero),
                 position: self.f.position.map(zero),
+                uv: self.f.uv.map(zero),
             },
             id: self.id.map(zero),
             part: self.part.map(zero),
@@ -129,6 +132,7 @@ impl UninitSamples {
                 depth: init(self.f.depth),
                 normal: init(self.f.normal),
                 position: init(self.f.position),
+                uv: init(self.f.uv),
             },
             id: init_u(self.id),
             part: init_u(self.part),
@@ -158,6 +162,7 @@ pub(super) fn bands<'a, F, U>(
     let mut z = cut(f.depth.as_mut(), len, count);
     let mut n = cut(f.normal.as_mut(), 3 * len, count);
     let mut p = cut(f.position.as_mut(), 3 * len, count);
+    let mut uv = cut(f.uv.as_mut(), 2 * len, count);
     let mut ids = cut(id.as_mut(), len, count);
     let mut parts = cut(part.as_mut(), len, count);
     let mut labels = cut(label.as_mut(), len, count);
@@ -168,6 +173,7 @@ pub(super) fn bands<'a, F, U>(
                 depth: z.next().flatten(),
                 normal: n.next().flatten(),
                 position: p.next().flatten(),
+                uv: uv.next().flatten(),
             },
             id: ids.next().flatten(),
             part: parts.next().flatten(),
@@ -187,7 +193,7 @@ pub(super) struct BandInputs<'a, T: Real, F: Formula> {
     pub(super) cols_off: &'a [f64],
     pub(super) rows_off: &'a [f64],
     /// The cylinders by scene index, for rays that do not start at the camera centre
-    /// (orthographic); empty otherwise.
+    /// (orthographic) and for the `uv` AOV; empty otherwise.
     pub(super) cylinders: &'a [crate::geometry::Cylinder],
 }
 
@@ -283,6 +289,46 @@ pub(super) fn fill<T: Real, F: Formula>(
     if let Some(s) = band.label.as_deref_mut() {
         s[k] = fr.labels[hit.index as usize];
     }
+    if let Some(s) = f.uv.as_deref_mut() {
+        let p = hit.origin + hit.dir * t;
+        s[2 * k..2 * k + 2].copy_from_slice(&uv(&fr.cylinders[hit.index as usize], p, hit.surface));
+    }
+}
+
+/// The `uv` AOV of a hit at `p` on `surface` of `c`, as Mitsuba 3's `cylinder` reports it
+/// on the side: `u = φ / 2π` in `[0, 1)`, φ the angle around the axis in the frame
+/// Mitsuba builds for a cylinder from `p0` to `p1`, and `v` the axial fraction from `p0`
+/// in `[0, 1]`. On a cap `u` is the same angle and `v` the distance from the axis over the
+/// radius.
+///
+/// Mitsuba's frame is its `coordinate_system(n)` for the unit axis `n` (Duff et al.,
+/// "Building an Orthonormal Basis, Revisited", JCGT 2017): with `σ = sign(n.z)`,
+/// `a = -1 / (σ + n.z)` and `b = n.x·n.y·a`, the local x axis is
+/// `s = (1 + σ·n.x²·a, σ·b, -σ·n.x)` and the local y axis `t = (b, σ + n.y²·a, -n.y)`.
+/// Mitsuba computes it in float32 from the exported `p0`, `p1`; this is the same frame in
+/// f64, so `u` agrees to float32 rounding except within a rounding of the seam `u = 0`,
+/// where one side reads `u ≈ 1` (compare `u` modulo 1).
+pub(super) fn uv(c: &crate::geometry::Cylinder, p: DVec3, surface: Surface) -> [f32; 2] {
+    let n = c.axis;
+    let sign = 1f64.copysign(n.z);
+    let a = -1.0 / (sign + n.z);
+    let b = n.x * n.y * a;
+    let s_axis = DVec3::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x);
+    let t_axis = DVec3::new(b, sign + n.y * n.y * a, -n.y);
+    let local = p - c.base;
+    let (x, y) = (local.dot(s_axis), local.dot(t_axis));
+    let turn = y.atan2(x) / std::f64::consts::TAU;
+    let turn = if turn < 0.0 { turn + 1.0 } else { turn };
+    // A turn just below 1 can round up to 1 in float32: that is the seam, u = 0.
+    let u = match turn as f32 {
+        u if u >= 1.0 => 0.0,
+        u => u,
+    };
+    let v = match surface {
+        Surface::Side => local.dot(n) / c.height,
+        Surface::Bottom | Surface::Top => x.hypot(y) / c.radius,
+    };
+    [u, v.clamp(0.0, 1.0) as f32]
 }
 
 /// The `part` AOV of a hit: 1 side from outside, 2 side from inside, 3 bottom cap, 4 top
@@ -342,6 +388,7 @@ pub(super) fn output_planes(opts: &RenderOptions, n: usize) -> Samples {
         // Camera-frame normals are the world normals rotated: both need these planes.
         normal: (want(Aov::Normal) || want(Aov::NormalCamera)).then(|| zeroed::<f32>(3 * n)),
         position: want(Aov::Position).then(|| zeroed::<f32>(3 * n)),
+        uv: want(Aov::Uv).then(|| zeroed::<f32>(2 * n)),
     };
     Samples {
         f: planes,
@@ -377,6 +424,7 @@ pub(super) fn buffers_of(opts: &RenderOptions, cam: &Camera, samples: Samples) -
         (Aov::Part, part.map(ChannelData::U32)),
         (Aov::NormalCamera, normal_camera.map(ChannelData::F32)),
         (Aov::Label, label.map(ChannelData::U32)),
+        (Aov::Uv, planes.uv.map(ChannelData::F32)),
     ]
     .into_iter()
     .filter_map(|(a, data)| Some(AovBuffer::new(a.spec().channels, data?)))

@@ -32,6 +32,10 @@ crate::choice_enum! {
         /// u32 label of the hit cylinder (its `label`, the user's class; 0 = miss or none):
         /// class masks beside `shape_id`'s instance masks.
         Label = "label",
+        /// Surface coordinates as Mitsuba 3's cylinder reports them (uv.U, uv.V): on the
+        /// side the turn around the axis in `[0, 1)` and the axial fraction from `p0`; on a
+        /// cap the same turn and the distance from the axis over the radius.
+        Uv = "uv",
     }
 }
 
@@ -93,6 +97,9 @@ pub enum CompareMetric {
     PointDistance,
     /// Pixel identity: equal labels or a classified mismatch (silhouette, seam, interior).
     Identity,
+    /// Absolute error of `u` modulo 1 (a turn: 0.999 and 0.001 are 0.002 apart) and of
+    /// `v`, on pixels both images hit on the same cylinder's side.
+    Periodic,
     /// Not compared (it follows from another AOV that is).
     None,
 }
@@ -105,7 +112,32 @@ impl CompareMetric {
             CompareMetric::AngleDeg => "angle (degrees)",
             CompareMetric::PointDistance => "point distance, relative to `distance`",
             CompareMetric::Identity => "pixel identity",
+            CompareMetric::Periodic => "u modulo 1 and v, absolute, side pixels",
             CompareMetric::None => "not compared",
+        }
+    }
+}
+
+/// Where a Mitsuba reference takes an AOV from: an entry of the `aov` integrator
+/// (`prefix:mitsuba_aov`), always or only when a check asks for the AOV, or derived from
+/// other AOVs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MitsubaSource {
+    /// Every reference renders this entry (the exported scene's integrator lists it).
+    Rendered(&'static str),
+    /// Rendered when a check asks for the AOV: the reference script adds the entry to the
+    /// integrator's list (the exported XML and the committed references stay as they are).
+    OnRequest(&'static str),
+    /// Computed from the other AOVs and the scene.
+    Derived,
+}
+
+impl MitsubaSource {
+    /// The integrator entry, if Mitsuba renders one.
+    pub fn entry(self) -> Option<&'static str> {
+        match self {
+            MitsubaSource::Rendered(e) | MitsubaSource::OnRequest(e) => Some(e),
+            MitsubaSource::Derived => None,
         }
     }
 }
@@ -126,9 +158,8 @@ pub struct AovSpec {
     pub miss: &'static str,
     /// What it holds, as the EXR header (`cylaov:channel:NAME`) and camera JSON write it.
     pub meaning: &'static str,
-    /// The Mitsuba `aov` integrator entry it is taken from in a reference
-    /// (`prefix:mitsuba_aov`), or `None` when the reference derives it from another.
-    pub mitsuba: Option<&'static str>,
+    /// Where a Mitsuba reference takes it from.
+    pub mitsuba: MitsubaSource,
     /// What `compare` judges it by.
     pub metric: CompareMetric,
 }
@@ -166,7 +197,7 @@ pub const AOV_TABLE: &[AovSpec] = &[
         sample: SampleType::F32,
         miss: "0",
         meaning: "Euclidean distance from the camera origin to the hit, world units",
-        mitsuba: None,
+        mitsuba: MitsubaSource::Derived,
         metric: CompareMetric::Relative,
     },
     AovSpec {
@@ -176,7 +207,7 @@ pub const AOV_TABLE: &[AovSpec] = &[
         sample: SampleType::F32,
         miss: "0",
         meaning: "planar depth: camera-space z of the hit (distance * cos theta), world units",
-        mitsuba: Some("dd.y:depth"),
+        mitsuba: MitsubaSource::Rendered("dd.y:depth"),
         metric: CompareMetric::Relative,
     },
     AovSpec {
@@ -186,7 +217,7 @@ pub const AOV_TABLE: &[AovSpec] = &[
         sample: SampleType::F32,
         miss: "[0,0,0]",
         meaning: "world-space unit outward normal, not flipped toward the camera",
-        mitsuba: Some("nn:sh_normal"),
+        mitsuba: MitsubaSource::Rendered("nn:sh_normal"),
         metric: CompareMetric::AngleDeg,
     },
     AovSpec {
@@ -196,7 +227,7 @@ pub const AOV_TABLE: &[AovSpec] = &[
         sample: SampleType::F32,
         miss: "[0,0,0]",
         meaning: "world-space hit point",
-        mitsuba: Some("pp:position"),
+        mitsuba: MitsubaSource::Rendered("pp:position"),
         metric: CompareMetric::PointDistance,
     },
     AovSpec {
@@ -206,7 +237,7 @@ pub const AOV_TABLE: &[AovSpec] = &[
         sample: SampleType::U32,
         miss: "0",
         meaning: "u32 id of the hit cylinder (scene 'id', default 1-based index)",
-        mitsuba: Some("ii:shape_index"),
+        mitsuba: MitsubaSource::Rendered("ii:shape_index"),
         metric: CompareMetric::Identity,
     },
     AovSpec {
@@ -216,7 +247,7 @@ pub const AOV_TABLE: &[AovSpec] = &[
         sample: SampleType::U32,
         miss: "0",
         meaning: "u32 part of the hit cylinder: 1 side seen from outside, 2 side seen from inside, 3 bottom cap (at p0), 4 top cap (at p1)",
-        mitsuba: None,
+        mitsuba: MitsubaSource::Derived,
         metric: CompareMetric::Identity,
     },
     AovSpec {
@@ -226,7 +257,7 @@ pub const AOV_TABLE: &[AovSpec] = &[
         sample: SampleType::F32,
         miss: "[0,0,0]",
         meaning: "camera-space unit outward normal, OpenCV axes (x right, y down, z forward), not flipped toward the camera",
-        mitsuba: None,
+        mitsuba: MitsubaSource::Derived,
         metric: CompareMetric::None,
     },
     AovSpec {
@@ -236,8 +267,18 @@ pub const AOV_TABLE: &[AovSpec] = &[
         sample: SampleType::U32,
         miss: "0",
         meaning: "u32 label of the hit cylinder (scene 'label', the class; 0 when none)",
-        mitsuba: None,
+        mitsuba: MitsubaSource::Derived,
         metric: CompareMetric::Identity,
+    },
+    AovSpec {
+        aov: Aov::Uv,
+        name: "uv",
+        channels: &["uv.U", "uv.V"],
+        sample: SampleType::F32,
+        miss: "[0,0]",
+        meaning: "surface coordinates as Mitsuba's cylinder: u = angle around the axis / 2pi in [0, 1) (Mitsuba's frame from p0 to p1), v = axial fraction from p0 on the side, distance from the axis / radius on a cap",
+        mitsuba: MitsubaSource::OnRequest("uv:uv"),
+        metric: CompareMetric::Periodic,
     },
 ];
 
@@ -273,7 +314,10 @@ impl Aov {
 pub fn mitsuba_aov_list() -> String {
     AOV_TABLE
         .iter()
-        .filter_map(|s| s.mitsuba)
+        .filter_map(|s| match s.mitsuba {
+            MitsubaSource::Rendered(e) => Some(e),
+            _ => None,
+        })
         .collect::<Vec<_>>()
         .join(",")
 }
@@ -303,9 +347,13 @@ pub fn markdown_table() -> String {
             a.sample.name(),
             a.meaning,
             a.miss,
-            a.mitsuba.map_or("derived".to_string(), |m| {
-                format!("`{}`", m.split(':').next_back().unwrap_or(m))
-            }),
+            match a.mitsuba {
+                MitsubaSource::Derived => "derived".to_string(),
+                MitsubaSource::Rendered(e) =>
+                    format!("`{}`", e.split(':').next_back().unwrap_or(e)),
+                MitsubaSource::OnRequest(e) =>
+                    format!("`{}` (when checked)", e.split(':').next_back().unwrap_or(e)),
+            },
             a.metric.describe(),
         ));
     }
@@ -328,7 +376,16 @@ mod tests {
             for c in s.channels {
                 assert_eq!(Aov::of_channel(c), Some(a), "{c}");
             }
-            assert!(matches!(s.channels.len(), 1 | 3), "{}", s.name);
+            // One channel is the AOV's name; several are NAME.SUFFIX, one per-AOV name each.
+            match s.channels {
+                [one] => assert_eq!(*one, s.name),
+                many => {
+                    assert_eq!(s.per_aov_channels().len(), many.len(), "{}", s.name);
+                    for c in many {
+                        assert!(c.starts_with(&format!("{}.", s.name)), "{c}");
+                    }
+                }
+            }
         }
         assert_eq!(Aov::of_channel("Y"), None);
     }
@@ -362,5 +419,7 @@ mod tests {
             "| `normal` | `normal.X/Y/Z` | `R, G, B` | f32 | world-space unit outward normal, \
              not flipped toward the camera | [0,0,0] | `sh_normal` | angle (degrees) |\n"
         ));
+        assert!(t.contains("| `uv` | `uv.U/V` | `R, G` | f32 |"));
+        assert!(t.contains("| `uv` (when checked) | u modulo 1 and v, absolute, side pixels |\n"));
     }
 }

@@ -91,6 +91,19 @@ impl Mitsuba {
     /// Render `scene`'s reference AOVs in `work` (a private folder) and read them back.
     /// `source_name` goes into the XML's header comment.
     pub fn render(&self, scene: &Scene, source_name: &str, work: &Path) -> Result<AovImage> {
+        self.render_with(scene, source_name, work, &[])
+    }
+
+    /// [`Mitsuba::render`], with the AOVs of `on_request` (those whose
+    /// [`MitsubaSource`](crate::scene::aov::MitsubaSource) is `OnRequest`: `uv`) rendered
+    /// too.
+    pub fn render_with(
+        &self,
+        scene: &Scene,
+        source_name: &str,
+        work: &Path,
+        on_request: &[Aov],
+    ) -> Result<AovImage> {
         // The reference script converts the rays of Mitsuba's two sensors; the lens models
         // have none (their reference is the exact answer alone, see `reference_image`).
         if !has_mitsuba_sensor(&scene.camera.projection) {
@@ -118,11 +131,17 @@ impl Mitsuba {
         write(&camera, camera_file(scene).as_bytes())?;
         write(&script, SCRIPT.as_bytes())?;
         let mut cmd = Command::new(&self.python);
-        cmd.arg(&script)
-            .arg(&xml)
-            .arg(&camera)
-            .arg(&out)
-            .stdin(Stdio::null())
+        cmd.arg(&script).arg(&xml).arg(&camera).arg(&out);
+        for a in on_request {
+            if !matches!(
+                a.spec().mitsuba,
+                crate::scene::aov::MitsubaSource::OnRequest(_)
+            ) {
+                bail!("{}: not an AOV a reference renders on request", a.name());
+            }
+            cmd.arg("--aov").arg(a.name());
+        }
+        cmd.stdin(Stdio::null())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped());
         let (child, _group) = signals::spawn_in_group(&mut cmd)
@@ -190,12 +209,22 @@ pub fn reference_image(
         .render(scene, source_name, work)
 }
 
-/// cylaov's render for a check: every AOV (identity and the channels conditioning needs).
+/// cylaov's render for a check: every AOV a reference renders by default (identity and
+/// the channels conditioning needs; not those a reference renders only on request).
 pub fn check_render(scene: &Scene, precision: Precision, formula: FormulaKind) -> AovImage {
+    let aovs = Aov::ALL
+        .into_iter()
+        .filter(|a| {
+            !matches!(
+                a.spec().mitsuba,
+                crate::scene::aov::MitsubaSource::OnRequest(_)
+            )
+        })
+        .collect();
     let opts = RenderOptions {
         precision,
         formula,
-        ..RenderOptions::new(Aov::ALL.to_vec())
+        ..RenderOptions::new(aovs)
     };
     render(scene, &opts).image
 }

@@ -65,6 +65,11 @@ pub struct Report {
     pub position_abs: Option<Stat>,
     /// `|Δposition| / distance` (needs `distance` in both).
     pub position_rel: Option<Stat>,
+    /// On pixels both images hit on the same cylinder's side (`part` 1 or 2): the larger of
+    /// `|Δu|` modulo 1 (a turn) and `|Δv|` (needs `uv` in both; absent from `--json`
+    /// otherwise).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub uv_side: Option<Stat>,
     /// Non-finite samples in A's compared float channels (any is a failure).
     pub non_finite_a: usize,
     /// Non-finite samples in B's compared float channels (any is a failure).
@@ -225,6 +230,7 @@ impl fmt::Display for Report {
         for (name, s) in [
             ("position (abs)", &self.position_abs),
             ("position / distance", &self.position_rel),
+            ("uv (side, u mod 1)", &self.uv_side),
         ] {
             if let Some(s) = s {
                 row(f, name, s)?;

@@ -616,6 +616,7 @@ pub(super) struct Errors {
     normal_deg: Option<Metric>,
     position_abs: Option<Stat>,
     position_rel: Option<Stat>,
+    uv_side: Option<Stat>,
 }
 
 pub(super) fn errors(
@@ -689,7 +690,30 @@ pub(super) fn errors(
         }
         _ => None,
     };
+    let uv_side = match (both_f32("uv.U"), both_f32("uv.V")) {
+        (Some((ua, ub)), Some((va, vb))) => {
+            // Side pixels only (part 1 or 2 in A; `same` pixels have B's part too): a
+            // cap's uv is cylaov's own, Mitsuba's disk has another.
+            let side: Vec<u32> = id_labels(a, "part", "A")?.unwrap_or_default();
+            let mut vals = room()?;
+            vals.extend(
+                same.iter()
+                    .filter(|&&k| matches!(side.get(k), Some(1 | 2)))
+                    .map(|&k| {
+                        // u is a turn: 0.999 and 0.001 are 0.002 apart.
+                        let du = (f64::from(ua[k]) - f64::from(ub[k])).rem_euclid(1.0);
+                        let du = du.min(1.0 - du);
+                        let dv = (f64::from(va[k]) - f64::from(vb[k])).abs();
+                        (du.max(dv), k)
+                    })
+                    .filter(|(e, _)| e.is_finite()),
+            );
+            Some(Stat::from_values(vals, w))
+        }
+        _ => None,
+    };
     Ok(Errors {
+        uv_side,
         rel_distance: scalar("distance")?,
         rel_depth: scalar("depth")?,
         normal_deg,
@@ -776,6 +800,7 @@ pub fn compare_with(a: &AovImage, b: &AovImage, cond: Option<&Conditioning>) -> 
         normal_deg: e.normal_deg,
         position_abs: e.position_abs,
         position_rel: e.position_rel,
+        uv_side: e.uv_side,
         non_finite_a: non_finite(a, &sets.compared),
         non_finite_b: non_finite(b, &sets.compared),
         channels: sets.compared,
