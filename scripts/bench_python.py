@@ -25,6 +25,7 @@ import time
 import numpy as np
 
 import cylaov
+from cylaov._cylaov import _testing
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SETTINGS = {"cylinders": 100, "width": 320, "height": 240}
@@ -107,7 +108,7 @@ def main():
                                            camera=dict(json.loads(cylaov.generate(SETTINGS, 0, 0).to_json())["camera"], width=16, height=16)))
         calls = 2000
         t_call = best(lambda: [cylaov.render(tiny) for _ in range(calls)], args.repeats) / calls
-        t_rust = min(cylaov._cylaov._time_render(tiny, calls) for _ in range(args.repeats))
+        t_rust = min(_testing._time_render(tiny, calls) for _ in range(args.repeats))
         rays = cylaov.camera_rays(tiny)
         cam = tiny.cameras[0]
         t_cast = best(lambda: [cylaov._cylaov._cast_rays(tiny, rays[0].reshape(-1, 3), rays[1].reshape(-1, 3),

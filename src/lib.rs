@@ -101,10 +101,7 @@
 //!   and exit 1, never an abort), the 2 MiB-page hint for the large buffers of every stage,
 //!   and the allocator policy `main.rs` sets so freed memory is reused.
 //!
-//! Python: `python` (cargo feature `python`), the extension module of the `cylaov`
-//! package: thin bindings over `scene`, `render` (with [`render::cast`], rays from any
-//! origin), `scan`, `output::aov`, `verify::compare`, `dataset::generate` and the tar shards of
-//! `dataset::batch::shards` (`write_shards`, `shard_count`).
+//! Python: the package `cylaov` is the separate crate in `python/`, using this library's public API.
 //!
 //! Front-end neutral: [`choice`] (each option's named values, with `FromStr`, `Display` and
 //! the list both front ends show and check against), [`spelling`] (library messages name an
@@ -131,8 +128,6 @@ pub mod geometry;
 pub mod mem;
 pub mod npy;
 pub mod output;
-#[cfg(feature = "python")]
-pub mod python;
 pub mod render;
 pub mod rng;
 pub mod scan;

@@ -981,14 +981,18 @@ fn shard_snippets_write_the_clis_bytes_and_the_readers_read_them() {
 }
 
 /// Every cross-reference a reader follows resolves: a repository path named in the help
-/// texts, rustdoc, pages or scripts (`docs/…md`, `tests/…rs`, `scripts/…`, `src/…`) exists;
-/// a section named after a page (`docs/verification.md, "Comparing two renders"`, `README
-/// "Scene format"`, `the README's "Scene format"`) is a heading of that page.
+/// texts, rustdoc, pages or scripts (`docs/…md`, `tests/…rs`, `scripts/…`, `src/…`,
+/// `python/…`) exists; a section named after a page (`docs/verification.md, "Comparing two
+/// renders"`, `README "Scene format"`, `the README's "Scene format"`) is a heading of that
+/// page.
 #[test]
 fn every_cross_reference_resolves() {
     let mut texts: Vec<(String, String)> = Vec::new();
     let mut stack = vec![Path::new(ROOT).join("src"), Path::new(ROOT).join("docs")];
     stack.push(Path::new(ROOT).join("scripts"));
+    // The Python crate's sources and the package's Python files.
+    stack.push(Path::new(ROOT).join("python/src"));
+    stack.push(Path::new(ROOT).join("python/cylaov"));
     while let Some(d) = stack.pop() {
         for e in std::fs::read_dir(&d).unwrap() {
             let p = e.unwrap().path();
@@ -1013,7 +1017,7 @@ fn every_cross_reference_resolves() {
     let mut checked = 0;
     for (file, text) in &texts {
         // Repository paths.
-        for prefix in ["docs/", "tests/", "scripts/", "src/"] {
+        for prefix in ["docs/", "tests/", "scripts/", "src/", "python/"] {
             for (at, _) in text.match_indices(prefix) {
                 let before = text[..at].chars().last().unwrap_or(' ');
                 if before.is_alphanumeric() || before == '/' || before == '_' || before == '.' {

@@ -1,7 +1,9 @@
 //! The layers stay apart: `output` (files and pictures) never reaches into `accel` (how
 //! rays find cylinders), and `verify` (the check against Mitsuba) never calls up into
 //! `commands` (the CLI). A lower layer that imports a higher one makes every change to the
-//! higher one a change to the lower one's tests.
+//! higher one a change to the lower one's tests. The Python bindings (`python/src`, their
+//! own crate) are held to the library's rules on clap and flags, and are the only place
+//! that names PyO3.
 
 use std::path::{Path, PathBuf};
 
@@ -22,6 +24,20 @@ fn sources(dir: &Path) -> Vec<PathBuf> {
         }
     }
     out.sort();
+    out
+}
+
+/// The sources the front-end rules read: the root crate's `src/` and the Python crate's
+/// `python/src/`, each with its path from the repository root.
+fn crate_sources() -> Vec<(PathBuf, String)> {
+    let mut out = Vec::new();
+    for dir in ["src", "python/src"] {
+        let base = Path::new(ROOT).join(dir);
+        for f in sources(&base) {
+            let rel = Path::new(dir).join(f.strip_prefix(&base).unwrap());
+            out.push((f, rel.display().to_string()));
+        }
+    }
     out
 }
 
@@ -78,21 +94,20 @@ fn the_scan_sees_imports() {
 }
 
 /// The library knows no command line: `clap` is named only by the binary (`src/main.rs`
-/// and the `src/cli/` tree it declares). The library's option enums list their names
-/// through `cylaov::choice`, which both front ends read.
+/// and the `src/cli/` tree it declares), not by the library nor the Python crate. The
+/// library's option enums list their names through `cylaov::choice`, which both front
+/// ends read.
 #[test]
 fn only_the_binary_names_clap() {
-    let src = Path::new(ROOT).join("src");
     let mut hits = Vec::new();
-    for f in sources(&src) {
-        let rel = f.strip_prefix(&src).unwrap();
-        if rel == Path::new("main.rs") || rel.starts_with("cli") {
+    for (f, rel) in crate_sources() {
+        if rel == "src/main.rs" || Path::new(&rel).starts_with("src/cli") {
             continue;
         }
         let text = std::fs::read_to_string(&f).unwrap();
         for (k, l) in text.lines().enumerate() {
             if l.contains("clap::") || l.contains("use clap") || l.contains("#[value(") {
-                hits.push(format!("src/{}:{}: {}", rel.display(), k + 1, l.trim()));
+                hits.push(format!("{rel}:{}: {}", k + 1, l.trim()));
             }
         }
     }
@@ -102,17 +117,43 @@ fn only_the_binary_names_clap() {
         hits.join("\n")
     );
     // The probe sees what it looks for.
-    let main = std::fs::read_to_string(src.join("main.rs")).unwrap();
+    let main = std::fs::read_to_string(Path::new(ROOT).join("src/main.rs")).unwrap();
     assert!(main.contains("use clap"));
 }
 
+/// Only the Python crate names PyO3 and numpy's bindings: the library under `src/` has no
+/// Python in it, so it builds and tests without one.
+#[test]
+fn only_the_python_crate_names_pyo3() {
+    let mut hits = Vec::new();
+    let mut seen = false;
+    for (f, rel) in crate_sources() {
+        let python = rel.starts_with("python/");
+        let text = std::fs::read_to_string(&f).unwrap();
+        for (k, l) in text.lines().enumerate() {
+            let names = l.contains("pyo3") || l.contains("numpy::") || l.contains("#[py");
+            seen |= python && names;
+            if names && !python {
+                hits.push(format!("{rel}:{}: {}", k + 1, l.trim()));
+            }
+        }
+    }
+    assert!(
+        hits.is_empty(),
+        "the library names PyO3:\n{}",
+        hits.join("\n")
+    );
+    // The probe sees what it looks for.
+    assert!(seen, "no python/src line names pyo3");
+}
+
 /// **The library never names a flag**: its messages name an option through
-/// `cylaov::spelling::opt`, so each front end spells it its own way. Outside the front
-/// ends (`main.rs`, `cli/`, `commands/`, `bench/`), no line before a file's tests holds a
-/// `--word`, except the few that quote another program's or a command's own invocation.
+/// `cylaov::spelling::opt`, so each front end spells it its own way. Outside the command
+/// line's front ends (`main.rs`, `cli/`, `commands/`, `bench/`), in the library and in the
+/// Python crate, no line before a file's tests holds a `--word`, except the few that quote
+/// another program's or a command's own invocation.
 #[test]
 fn the_library_never_names_a_flag() {
-    let src = Path::new(ROOT).join("src");
     // (file, text on the line): an invocation quoted as a whole, not an option named.
     let quoted = [
         ("dataset/names.rs", "out(\""),
@@ -120,8 +161,11 @@ fn the_library_never_names_a_flag() {
         ("verify/repro.rs", "`cylaov verify --report`"),
     ];
     let mut hits = Vec::new();
-    for f in sources(&src) {
-        let rel = f.strip_prefix(&src).unwrap();
+    for (f, path) in crate_sources() {
+        // Under `src/`, as `quoted` names them; the Python crate's files have no quotes.
+        let rel = Path::new(&path)
+            .strip_prefix("src")
+            .unwrap_or(Path::new(""));
         let front = rel == Path::new("main.rs")
             || rel.starts_with("cli")
             || rel.starts_with("commands")
@@ -145,7 +189,7 @@ fn the_library_never_names_a_flag() {
                 .iter()
                 .any(|(file, text)| rel == Path::new(file) && l.contains(text));
             if flag && !allowed {
-                hits.push(format!("src/{}:{}: {}", rel.display(), k + 1, code));
+                hits.push(format!("{path}:{}: {}", k + 1, code));
             }
         }
     }
@@ -155,6 +199,6 @@ fn the_library_never_names_a_flag() {
         hits.join("\n")
     );
     // The probe sees what it looks for: the command line's own sources name flags.
-    let batch = std::fs::read_to_string(src.join("cli/batch.rs")).unwrap();
+    let batch = std::fs::read_to_string(Path::new(ROOT).join("src/cli/batch.rs")).unwrap();
     assert!(batch.contains("\"--shard-size: only with --format webdataset\""));
 }

@@ -67,7 +67,7 @@ def test_example_runs(k, monkeypatch, tmp_path):
 
 
 def test_the_stub_example_of_from_arrays_runs():
-    stub = (ROOT / "src" / "python" / "cylaov" / "__init__.pyi").read_text()
+    stub = (ROOT / "python" / "cylaov" / "__init__.pyi").read_text()
     m = re.search(r"def from_arrays\(.*?Example::\n\n(.*?)\n\s*\"\"\"", stub, re.S)
     scope = {"cylaov": cylaov}
     exec(compile(textwrap.dedent(m.group(1)), "from_arrays example", "exec"), scope)

@@ -17,6 +17,19 @@ def test_version_is_the_crate_version():
     assert cylaov.__version__ == re.search(r'^version = "(.*)"', toml, re.M).group(1)
 
 
+def test_internal_hooks_stay_out_of_the_public_module():
+    """The tests' and the bench's hooks live in the private submodule `_testing` only."""
+    import importlib
+
+    assert not hasattr(cylaov._cylaov, "_oracle_cast")
+    assert not hasattr(cylaov._cylaov, "_time_render")
+    assert not [n for n in dir(cylaov) if n.startswith(("_oracle", "_time"))]
+    assert not [n for n in dir(cylaov._cylaov) if n.startswith(("_oracle", "_time"))]
+    from cylaov._cylaov import _testing
+    assert importlib.import_module("cylaov._cylaov._testing") is _testing
+    assert callable(_testing._oracle_cast) and callable(_testing._time_render)
+
+
 def test_help_teaches():
     for f in (cylaov.render, cylaov.cast_rays, cylaov.camera_rays, cylaov.camera_info,
               cylaov.generate, cylaov.read, cylaov.compare, cylaov.Dataset, cylaov.Scene,
@@ -27,7 +40,7 @@ def test_help_teaches():
     assert "threads=1" in cylaov.Dataset.__doc__
     assert cylaov.render.__text_signature__.startswith("(scene, aovs=")
     assert issubclass(cylaov.SceneError, ValueError)
-    stub = (ROOT / "src" / "python" / "cylaov" / "__init__.pyi").read_text()
+    stub = (ROOT / "python" / "cylaov" / "__init__.pyi").read_text()
     for name in cylaov.__all__:
         assert re.search(rf"^(def|class) {re.escape(name)}\b|^{re.escape(name)}:", stub, re.M), name
 

@@ -3,8 +3,10 @@
 //! `scan` prepares the arguments (sensor as a preset name or JSON text, trajectory as CSV
 //! text).
 
-use super::{PyScene, run_stoppable, shape_err};
-use crate::scan::{self, Column, Motion, Noise, Pose, ScanOptions, Sensor, Trajectory};
+use crate::arrays::shape_err;
+use crate::pool::run_stoppable;
+use crate::scene::PyScene;
+use cylaov::scan::{self, Column, Motion, Noise, Pose, ScanOptions, Sensor, Trajectory};
 use numpy::IntoPyArray;
 use numpy::ndarray::Array2;
 use pyo3::exceptions::PyValueError;
@@ -37,7 +39,7 @@ fn _scan<'py>(
             let names: Vec<&str> = scan::sensor::PRESETS.iter().map(|p| p.0).collect();
             return Err(PyValueError::new_err(format!(
                 "sensor: {:?} is not a preset ({}), a JSON file or a dict",
-                crate::scene::strict::shorten(sensor),
+                cylaov::scene::strict::shorten(sensor),
                 names.join(", ")
             )));
         }
@@ -67,7 +69,7 @@ fn _scan<'py>(
     let points = run_stoppable(py, threads, |stop| scan::scan_until(sc, &opts, stop))?
         .map_err(PyValueError::new_err)?
         .ok_or_else(|| {
-            super::InternalError::new_err("internal error (please report): scan stopped")
+            crate::errors::InternalError::new_err("internal error (please report): scan stopped")
         })?;
     let out = PyDict::new(py);
     let n = points.len();
@@ -87,7 +89,7 @@ fn _scan<'py>(
 }
 
 /// Add `_scan` to the module.
-pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(_scan, m)?)?;
     Ok(())
 }

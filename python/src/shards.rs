@@ -2,23 +2,14 @@
 //! webdataset` from Python, so any engine (Ray, Dask, a process pool) can map tars over
 //! workers and get the command line's bytes.
 
-use super::{aov_names, kernel, names, parse_aovs, run, run_stoppable};
-use crate::dataset::batch::BatchOptions;
-use crate::dataset::batch::shards::{self, Member, ShardOptions, TarOutcome, TarSelection};
-use pyo3::exceptions::PyValueError;
+use crate::convert::{aov_names, choice, kernel, names, parse_aovs};
+use crate::errors::value_error;
+use crate::pool::{run, run_stoppable};
+use cylaov::dataset::batch::BatchOptions;
+use cylaov::dataset::batch::shards::{self, Member, ShardOptions, TarOutcome, TarSelection};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use std::path::PathBuf;
-
-/// A failure as Python's kind: an IO error (a full disk, a permission) as `OSError`, the
-/// rest (bad options, bad input) as `ValueError`.
-fn value_error(e: anyhow::Error) -> PyErr {
-    let msg = format!("{e:#}");
-    match e.chain().find_map(|c| c.downcast_ref::<std::io::Error>()) {
-        Some(io) => pyo3::exceptions::PyOSError::new_err((io.raw_os_error().unwrap_or(0), msg)),
-        None => PyValueError::new_err(msg),
-    }
-}
 
 /// The number of tar shards the views of `input` make at `shard_size` views a tar.
 #[pyfunction]
@@ -60,7 +51,7 @@ pub fn write_shards<'py>(
     let members = members
         .iter()
         .enumerate()
-        .map(|(i, m)| super::choice::<Member>(m, &format!("members[{i}]")))
+        .map(|(i, m)| choice::<Member>(m, &format!("members[{i}]")))
         .collect::<PyResult<Vec<_>>>()?;
     let opts = BatchOptions {
         aovs: aovs.map(|a| parse_aovs(&aov_names(a)?)).transpose()?,
@@ -76,7 +67,7 @@ pub fn write_shards<'py>(
     };
     let selection = match shards {
         Some(list) => TarSelection::List(list),
-        None => TarSelection::Shard(crate::dataset::batch::Shard::ALL),
+        None => TarSelection::Shard(cylaov::dataset::batch::Shard::ALL),
     };
     let summary = run_stoppable(py, threads, |stop| {
         shards::write_shards_until(&input, &out, &selection, &opts, &sopts, false, stop)
@@ -105,7 +96,7 @@ pub fn write_shards<'py>(
 }
 
 /// Add this file's functions to the module.
-pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(shard_count, m)?)?;
     m.add_function(wrap_pyfunction!(write_shards, m)?)?;
     Ok(())

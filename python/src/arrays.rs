@@ -1,0 +1,159 @@
+//! An image's AOV buffers as numpy arrays (no copy), with the hit `mask`.
+
+use crate::pool::on_pool;
+use cylaov::output::aov::{AovImage, ChannelData, channel_names};
+use cylaov::scene::Aov;
+use numpy::IntoPyArray;
+use numpy::ndarray::{Array2, Array3};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+/// The AOVs to trace for `aovs`: depth joins when none of them tells a hit from a miss
+/// exactly (`position`'s zero vector is also a hit at the world origin; `label` 0 is also a
+/// cylinder without a label), so the mask is exact.
+pub(crate) fn traced(aovs: &[Aov]) -> Vec<Aov> {
+    let mut t = aovs.to_vec();
+    if aovs
+        .iter()
+        .all(|&a| matches!(a, Aov::Position | Aov::Label))
+    {
+        t.push(Aov::Depth);
+    }
+    t
+}
+
+/// AOV name and its array: the AOV's buffer, `(H, W)` or `(H, W, 3)` as the render
+/// filled it.
+enum Plane {
+    F32(Vec<f32>),
+    U32(Vec<u32>),
+    Vec3(Vec<f32>),
+}
+
+/// An image's arrays before they become Python objects: built with the GIL released, on
+/// the call's pool.
+pub(crate) struct Arrays {
+    width: usize,
+    height: usize,
+    planes: Vec<(Aov, Plane)>,
+    mask: Option<Vec<bool>>,
+}
+
+/// The image's requested AOVs (owned: the arrays take the buffers as they are, no copy;
+/// float32 ids of a per-AOV file become uint32) and the `mask`.
+pub(crate) fn arrays(mut image: AovImage, aovs: &[Aov]) -> Arrays {
+    let (w, h) = (image.width, image.height);
+    // Depth traced only for the mask (see `traced`).
+    let depth_mask = match image.take_aov_buffer(Aov::Depth) {
+        Some(b) if !aovs.contains(&Aov::Depth) => match b.data {
+            ChannelData::F32(v) if v.len() == w * h => Some(v.iter().map(|&x| x > 0.0).collect()),
+            _ => None,
+        },
+        Some(b) => {
+            image.buffers.push(b);
+            None
+        }
+        None => None,
+    };
+    let mut planes: Vec<(Aov, Plane)> = Vec::new();
+    for &a in aovs {
+        let Some(buffer) = image.take_aov_buffer(a) else {
+            continue;
+        };
+        let plane = match (buffer.data, channel_names(a).len()) {
+            (ChannelData::F32(v), 1) if a.is_u32() => {
+                Plane::U32(v.into_iter().map(|x| x as u32).collect())
+            }
+            (ChannelData::F32(v), 1) => Plane::F32(v),
+            (ChannelData::U32(v), 1) => Plane::U32(v),
+            (ChannelData::F32(v), 3) => Plane::Vec3(v),
+            _ => continue,
+        };
+        planes.push((a, plane));
+    }
+    let mask = depth_mask.or_else(|| mask_of(&planes, w * h));
+    Arrays {
+        width: w,
+        height: h,
+        planes,
+        mask,
+    }
+}
+
+/// The arrays as a dict keyed by AOV name, `mask` beside them; numpy takes the buffers.
+pub(crate) fn arrays_to_dict<'py>(py: Python<'py>, arrays: Arrays) -> PyResult<Bound<'py, PyDict>> {
+    let Arrays {
+        width: w,
+        height: h,
+        planes,
+        mask,
+    } = arrays;
+    let d = PyDict::new(py);
+    for (a, plane) in planes {
+        let arr = match plane {
+            Plane::F32(v) => Array2::from_shape_vec((h, w), v)
+                .map_err(shape_err)?
+                .into_pyarray(py)
+                .into_any(),
+            Plane::U32(v) => Array2::from_shape_vec((h, w), v)
+                .map_err(shape_err)?
+                .into_pyarray(py)
+                .into_any(),
+            Plane::Vec3(v) => Array3::from_shape_vec((h, w, 3), v)
+                .map_err(shape_err)?
+                .into_pyarray(py)
+                .into_any(),
+        };
+        d.set_item(a.name(), arr)?;
+    }
+    if let Some(m) = mask {
+        d.set_item(
+            "mask",
+            Array2::from_shape_vec((h, w), m)
+                .map_err(shape_err)?
+                .into_pyarray(py),
+        )?;
+    }
+    Ok(d)
+}
+
+/// The image's AOVs by name (owned: the arrays take the buffers), the `mask` beside them.
+pub(crate) fn image_to_dict<'py>(
+    py: Python<'py>,
+    image: AovImage,
+    aovs: &[Aov],
+) -> PyResult<Bound<'py, PyDict>> {
+    arrays_to_dict(py, on_pool(None, || arrays(image, aovs))?)
+}
+
+pub(crate) fn shape_err(e: impl std::fmt::Display) -> PyErr {
+    PyValueError::new_err(format!("image size: {e}"))
+}
+
+/// Hit or miss per pixel, from the first AOV that tells: a miss is 0 in every channel, a
+/// hit has depth, distance, id and part > 0 and a unit normal.
+fn mask_of(planes: &[(Aov, Plane)], n: usize) -> Option<Vec<bool>> {
+    let order = [
+        Aov::Depth,
+        Aov::Distance,
+        Aov::ShapeId,
+        Aov::Part,
+        Aov::Normal,
+        Aov::NormalCamera,
+        // Last: a hit exactly at the world origin reads as a miss. `render` and `Dataset`
+        // trace depth beside a lone position; only `read` of a position file relies on it.
+        Aov::Position,
+    ];
+    for want in order {
+        let Some((_, p)) = planes.iter().find(|(a, _)| *a == want) else {
+            continue;
+        };
+        return Some(match p {
+            Plane::F32(v) => v.iter().map(|&x| x > 0.0).collect(),
+            Plane::U32(v) => v.iter().map(|&x| x != 0).collect(),
+            Plane::Vec3(v) => v.chunks_exact(3).map(|c| c != [0.0; 3]).collect(),
+        });
+    }
+    (n == 0).then(Vec::new)
+}

@@ -1,0 +1,203 @@
+//! `cylaov.generate` and `cylaov.Dataset`: `cylaov generate`'s scenes and their views,
+//! rendered on demand.
+
+use crate::arrays::{Arrays, arrays, arrays_to_dict, traced};
+use crate::convert::{json_to_py, parse_aovs};
+use crate::errors::scene_error;
+use crate::pool::{on_pool, run_stoppable};
+use crate::scene::PyScene;
+use cylaov::dataset::generate::{ConfigFile, GenerateOptions};
+use cylaov::render::RenderOptions;
+use cylaov::scene::Aov;
+use cylaov::scene::camera::Camera;
+use pyo3::exceptions::{PyIndexError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyList};
+use std::sync::atomic::AtomicBool;
+
+/// The options of `cylaov generate` from the keys of `generate.json` (JSON text; `None`:
+/// the defaults) and the seed; the settings' `count` is ignored, a different `seed` refused.
+fn options(settings: Option<&str>, seed: u64) -> PyResult<(GenerateOptions, ConfigFile)> {
+    let config: ConfigFile = match settings {
+        None => ConfigFile::default(),
+        Some(text) => {
+            let de = &mut serde_json::Deserializer::from_str(text);
+            serde_path_to_error::deserialize(de).map_err(|e| {
+                let path = e.path().to_string();
+                PyValueError::new_err(format!("settings.{path}: {}", e.into_inner()))
+            })?
+        }
+    };
+    if let Some(s) = config.seed
+        && s != seed
+    {
+        return Err(PyValueError::new_err(format!(
+            "settings.seed: {s} differs from the seed argument {seed}"
+        )));
+    }
+    let mut o = GenerateOptions::default();
+    o.apply(&config);
+    o.validate()
+        .map_err(|e| PyValueError::new_err(format!("settings: {e}")))?;
+    Ok((o, config))
+}
+
+fn generated(
+    o: &GenerateOptions,
+    seed: u64,
+    index: u64,
+    threads: Option<usize>,
+) -> PyResult<PyScene> {
+    let (file, scene) = on_pool(threads, || {
+        let file = o.scene(seed, index)?;
+        let scene = file.validate().map_err(|e| e.to_string());
+        Ok::<_, String>((file, scene))
+    })?
+    .map_err(PyValueError::new_err)?;
+    Ok(PyScene {
+        scene: scene.map_err(scene_error)?,
+        file: Some(file),
+    })
+}
+
+/// Scene `index` of `seed` with the options `settings` (JSON text of `generate.json`'s
+/// keys, or None), as `cylaov generate` writes it.
+#[pyfunction]
+#[pyo3(signature = (settings, seed, index))]
+pub(crate) fn _generate(settings: Option<&str>, seed: u64, index: u64) -> PyResult<PyScene> {
+    let (o, _) = options(settings, seed)?;
+    generated(&o, seed, index, None)
+}
+
+/// The dataset's state (the package's `Dataset` wraps it): options, seed, length, AOVs.
+#[pyclass(module = "cylaov", frozen)]
+pub(crate) struct _Views {
+    options: GenerateOptions,
+    seed: u64,
+    length: u64,
+    aovs: Vec<Aov>,
+    threads: Option<usize>,
+}
+
+#[pymethods]
+impl _Views {
+    #[new]
+    #[pyo3(signature = (settings, seed, length, aovs, views_per_scene, threads))]
+    fn new(
+        settings: Option<&str>,
+        seed: u64,
+        length: u64,
+        aovs: Vec<String>,
+        views_per_scene: u32,
+        threads: Option<usize>,
+    ) -> PyResult<Self> {
+        let (mut options, config) = options(settings, seed)?;
+        if let Some(v) = config.views_per_scene
+            && v != views_per_scene
+        {
+            return Err(PyValueError::new_err(format!(
+                "settings.views_per_scene: {v} differs from the views_per_scene argument {views_per_scene}"
+            )));
+        }
+        options.views_per_scene = views_per_scene;
+        options
+            .validate()
+            .map_err(|e| PyValueError::new_err(format!("views_per_scene: {e}")))?;
+        if threads == Some(0) {
+            return Err(PyValueError::new_err("threads: must be >= 1, got 0"));
+        }
+        // Each view allocates its planes afresh: kept by the allocator, their pages are
+        // reused warm instead of faulted in again (`cylaov bench --python` times a 320x240
+        // depth+normal view with it). A process-wide policy, taken by streaming datasets only.
+        cylaov::mem::keep_freed_memory();
+        Ok(_Views {
+            options,
+            seed,
+            length,
+            aovs: parse_aovs(&aovs)?,
+            threads,
+        })
+    }
+
+    /// View `i`: the arrays of `render` and `camera_info` under `"camera_info"`.
+    fn item<'py>(&self, py: Python<'py>, i: i64) -> PyResult<Bound<'py, PyDict>> {
+        let k = self.position(i)?;
+        // Generation, validation, the trace and the arrays in one trip to the pool, the
+        // GIL released: each trip costs a hand-over to a worker and back.
+        let (a, v) = run_stoppable(py, self.threads, |stop| self.view(k, stop))??;
+        view_dict(py, a, &v)
+    }
+
+    /// Views `indices` in one trip to the pool (`Dataset.__getitems__`, which PyTorch's
+    /// `DataLoader` calls once a batch): the views render side by side, each one also on
+    /// the pool, so small views fill the cores that one alone leaves idle. Each item is the
+    /// same as `item(i)`: a render is a pure function of its view.
+    fn items<'py>(&self, py: Python<'py>, indices: Vec<i64>) -> PyResult<Bound<'py, PyList>> {
+        let ks = indices
+            .iter()
+            .map(|&i| self.position(i))
+            .collect::<PyResult<Vec<_>>>()?;
+        let views = run_stoppable(py, self.threads, |stop| {
+            use rayon::prelude::*;
+            ks.par_iter()
+                .map(|&k| self.view(k, stop))
+                .collect::<PyResult<Vec<_>>>()
+        })??;
+        let out = PyList::empty(py);
+        for (a, v) in views {
+            out.append(view_dict(py, a, &v)?)?;
+        }
+        Ok(out)
+    }
+}
+
+impl _Views {
+    /// Index `i` (negative counts from the end) as a view number, or `IndexError`.
+    fn position(&self, i: i64) -> PyResult<u64> {
+        let n = i128::from(self.length);
+        let k = if i < 0 {
+            i128::from(i) + n
+        } else {
+            i128::from(i)
+        };
+        if !(0..n).contains(&k) {
+            return Err(PyIndexError::new_err(format!(
+                "index {i} out of range for a dataset of {n} views"
+            )));
+        }
+        Ok(k as u64)
+    }
+
+    /// View `k` rendered, with its `camera_info` as JSON (on a pool thread, no GIL).
+    fn view(&self, k: u64, stop: &AtomicBool) -> PyResult<(Arrays, serde_json::Value)> {
+        let v = self.options.views_per_scene as u64;
+        let (index, camera) = (k / v, (k % v) as usize);
+        let file = self
+            .options
+            .scene(self.seed, index)
+            .map_err(PyValueError::new_err)?;
+        let mut sc = file.validate().map_err(scene_error)?;
+        sc.select_camera(camera)
+            .map_err(|e| PyIndexError::new_err(format!("camera: {e}")))?;
+        let opts = RenderOptions::new(traced(&self.aovs));
+        // `None` only when stopped, and then `run_stoppable` raises instead.
+        let r = cylaov::render::render_until(&sc, &opts, stop)
+            .ok_or_else(|| PyValueError::new_err("stopped"))?;
+        let a = arrays(r.image, &self.aovs);
+        let text = cylaov::output::io::camera_json(&Camera::new(sc.camera), &self.aovs);
+        let v: serde_json::Value =
+            serde_json::from_str(&text).map_err(|e| PyValueError::new_err(e.to_string()))?;
+        Ok((a, v))
+    }
+}
+
+/// A view's dict: its arrays and `"camera_info"`.
+fn view_dict<'py>(
+    py: Python<'py>,
+    a: Arrays,
+    info: &serde_json::Value,
+) -> PyResult<Bound<'py, PyDict>> {
+    let d = arrays_to_dict(py, a)?;
+    d.set_item("camera_info", json_to_py(py, info)?)?;
+    Ok(d)
+}
