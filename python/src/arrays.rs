@@ -11,24 +11,25 @@ use pyo3::types::PyDict;
 
 /// The AOVs to trace for `aovs`: depth joins when none of them tells a hit from a miss
 /// exactly (`position`'s zero vector is also a hit at the world origin; `label` 0 is also a
-/// cylinder without a label), so the mask is exact.
+/// cylinder without a label; `uv` is (0, 0) on a seam at `p0`), so the mask is exact.
 pub(crate) fn traced(aovs: &[Aov]) -> Vec<Aov> {
     let mut t = aovs.to_vec();
     if aovs
         .iter()
-        .all(|&a| matches!(a, Aov::Position | Aov::Label))
+        .all(|&a| matches!(a, Aov::Position | Aov::Label | Aov::Uv))
     {
         t.push(Aov::Depth);
     }
     t
 }
 
-/// AOV name and its array: the AOV's buffer, `(H, W)` or `(H, W, 3)` as the render
+/// AOV name and its array: the AOV's buffer, `(H, W)` or `(H, W, C)` as the render
 /// filled it.
 enum Plane {
     F32(Vec<f32>),
     U32(Vec<u32>),
-    Vec3(Vec<f32>),
+    /// `C` float32 channels a pixel, side by side (C from the AOV table: 2 or 3).
+    Channels(Vec<f32>, usize),
 }
 
 /// An image's arrays before they become Python objects: built with the GIL released, on
@@ -67,7 +68,7 @@ pub(crate) fn arrays(mut image: AovImage, aovs: &[Aov]) -> Arrays {
             }
             (ChannelData::F32(v), 1) => Plane::F32(v),
             (ChannelData::U32(v), 1) => Plane::U32(v),
-            (ChannelData::F32(v), 3) => Plane::Vec3(v),
+            (ChannelData::F32(v), c) if c > 1 => Plane::Channels(v, c),
             _ => continue,
         };
         planes.push((a, plane));
@@ -100,7 +101,7 @@ pub(crate) fn arrays_to_dict<'py>(py: Python<'py>, arrays: Arrays) -> PyResult<B
                 .map_err(shape_err)?
                 .into_pyarray(py)
                 .into_any(),
-            Plane::Vec3(v) => Array3::from_shape_vec((h, w, 3), v)
+            Plane::Channels(v, c) => Array3::from_shape_vec((h, w, c), v)
                 .map_err(shape_err)?
                 .into_pyarray(py)
                 .into_any(),
@@ -152,7 +153,10 @@ fn mask_of(planes: &[(Aov, Plane)], n: usize) -> Option<Vec<bool>> {
         return Some(match p {
             Plane::F32(v) => v.iter().map(|&x| x > 0.0).collect(),
             Plane::U32(v) => v.iter().map(|&x| x != 0).collect(),
-            Plane::Vec3(v) => v.chunks_exact(3).map(|c| c != [0.0; 3]).collect(),
+            Plane::Channels(v, c) => v
+                .chunks_exact(*c)
+                .map(|p| p.iter().any(|&x| x != 0.0))
+                .collect(),
         });
     }
     (n == 0).then(Vec::new)

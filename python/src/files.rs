@@ -60,7 +60,7 @@ pub(crate) fn read<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, P
     let (header, named) = header_dict(py, &path)?;
     let mut image = run(py, None, || AovImage::read_exr(&path))?
         .map_err(|e| PyOSError::new_err(format!("{e:#}")))?;
-    // Per-AOV files name their channels Y or R, G, B: rename to the AOV's channels.
+    // Per-AOV files name their channels Y; R, G; or R, G, B: rename to the AOV's channels.
     let per_aov = image
         .names()
         .iter()
@@ -87,7 +87,7 @@ pub(crate) fn read<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, P
             .collect();
         return Err(PyValueError::new_err(format!(
             "{}: not one of cylaov's EXRs: its channels are [{}]; expected the channels of at \
-             least one AOV ({}), or a per-AOV file (Y or R, G, B) with a cylaov:channel:NAME \
+             least one AOV ({}), or a per-AOV file (Y; R, G; or R, G, B) with a cylaov:channel:NAME \
              attribute",
             path.display(),
             image.names().join(", "),
