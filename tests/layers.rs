@@ -159,6 +159,7 @@ fn the_library_never_names_a_flag() {
         ("dataset/names.rs", "out(\""),
         ("dataset/batch/transforms.rs", "ns-train ... --data"),
         ("verify/repro.rs", "`cylaov verify --report`"),
+        ("verify/reference.rs", "cmd.arg(\"--aov\")"),
     ];
     let mut hits = Vec::new();
     for (f, path) in crate_sources() {

@@ -690,7 +690,10 @@ pub(super) fn errors(
         }
         _ => None,
     };
-    let uv_side = match (both_f32("uv.U"), both_f32("uv.V")) {
+    let [u_name, v_name] = crate::scene::Aov::Uv.spec().channels else {
+        unreachable!("uv has two channels")
+    };
+    let uv_side = match (both_f32(u_name), both_f32(v_name)) {
         (Some((ua, ub)), Some((va, vb))) => {
             // Side pixels only (part 1 or 2 in A; `same` pixels have B's part too): a
             // cap's uv is cylaov's own, Mitsuba's disk has another.
