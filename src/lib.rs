@@ -125,6 +125,7 @@ pub mod choice;
 pub mod commands;
 pub mod dataset;
 pub mod geometry;
+pub mod image;
 pub mod mem;
 pub mod npy;
 pub mod output;

@@ -1,6 +1,6 @@
-//! The layers stay apart: `output` (files and pictures) never reaches into `accel` (how
-//! rays find cylinders), and `verify` (the check against Mitsuba) never calls up into
-//! `commands` (the CLI). A lower layer that imports a higher one makes every change to the
+//! The layers stay apart: nothing a render runs through imports `output` (files and
+//! pictures), `output` never reaches into `accel` (how rays find cylinders), and `verify`
+//! (the check against Mitsuba) never calls up into `commands` (the CLI). A lower layer that imports a higher one makes every change to the
 //! higher one a change to the lower one's tests. The Python bindings (`python/src`, their
 //! own crate) are held to the library's rules on clap and flags, and are the only place
 //! that names PyO3.
@@ -45,7 +45,12 @@ fn crate_sources() -> Vec<(PathBuf, String)> {
 /// `crate::<forbidden>`, as `path:line: text`.
 fn uses(layer: &str, forbidden: &str) -> Vec<String> {
     let src = Path::new(ROOT).join("src");
-    let mut files = sources(&src.join(layer));
+    let dir = src.join(layer);
+    let mut files = if dir.is_dir() {
+        sources(&dir)
+    } else {
+        Vec::new()
+    };
     let flat = src.join(format!("{layer}.rs"));
     if flat.is_file() {
         files.push(flat);
@@ -63,6 +68,24 @@ fn uses(layer: &str, forbidden: &str) -> Vec<String> {
         }
     }
     hits
+}
+
+/// **The trace knows no file**: the layers a render runs through (`scene`, `geometry`,
+/// `accel`, `image`, `render`, `scan`) never import `output`. `render` fills an
+/// image (`src/image.rs`) and hands bands to its caller's sink; `output` writes them.
+#[test]
+fn the_trace_never_imports_output() {
+    let mut hits = Vec::new();
+    for layer in ["scene", "geometry", "accel", "image", "render", "scan"] {
+        hits.extend(uses(layer, "output"));
+    }
+    assert!(
+        hits.is_empty(),
+        "a layer below output imports it:\n{}",
+        hits.join("\n")
+    );
+    // The probe sees what it looks for: output itself names the image model.
+    assert!(!uses("output", "image").is_empty());
 }
 
 #[test]

@@ -394,6 +394,12 @@ mod tests {
     use super::*;
     use crate::scene;
 
+    /// The export renders exactly the AOVs the AOV table says every reference takes.
+    #[test]
+    fn the_aov_list_is_the_tables() {
+        assert_eq!(crate::scene::aov::mitsuba_aov_list(), AOV_LIST);
+    }
+
     const SCENE: &str = r#"{
       "camera": { "origin": [3, -5, 2.5], "target": [0, 0, 0.6], "up": [0, 0, 1],
                   "fov_deg": 40, "fov_axis": "y", "width": 64, "height": 48, "near_clip": 0.5 },

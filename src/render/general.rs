@@ -134,7 +134,7 @@ fn write<T: Real, F: Formula>(
 #[cfg(test)]
 mod tests {
     use crate::geometry::{Formula, Prepared, Stable};
-    use crate::output::aov::ChannelData;
+    use crate::image::ChannelData;
     use crate::render::{Accel, RenderOptions, render};
     use crate::scene::Aov;
     use crate::scene::camera::{Camera, Projection};

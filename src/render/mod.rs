@@ -25,7 +25,7 @@ use crate::geometry::packet::PacketFormula;
 use crate::geometry::wide::Simd;
 use crate::geometry::{Formula, Kernel, Real};
 use crate::geometry::{FormulaKind, Precision};
-use crate::output::aov::AovImage;
+use crate::image::AovImage;
 use crate::scene::{Aov, Scene};
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -41,7 +41,7 @@ pub use tracer::{PixelHit, Tracer};
 use walk::band_renderer;
 
 // A band the writer receives is one row of tiles.
-const _: () = assert!(crate::output::aov::BAND_ROWS == TILE as usize);
+const _: () = assert!(crate::image::BAND_ROWS == TILE as usize);
 
 crate::choice_enum! {
     /// How primary rays find their candidate cylinders.
@@ -389,7 +389,7 @@ mod tests {
     use crate::accel::wide_bvh::Stack;
     use crate::geometry::Stable;
     use crate::geometry::wide::Avx2;
-    use crate::output::aov::ChannelData;
+    use crate::image::ChannelData;
     use glam::DVec3;
 
     /// Each threshold of the strategy, on both sides: the tiny view (16 cylinders per

@@ -4,7 +4,7 @@
 use super::RenderOptions;
 use super::tracer::{PixelHit, Tracer};
 use crate::geometry::{Formula, Real, Surface};
-use crate::output::aov::{AovBuffer, ChannelData};
+use crate::image::{AovBuffer, ChannelData};
 use crate::scene::Aov;
 use crate::scene::camera::Camera;
 use glam::DVec3;

@@ -405,12 +405,6 @@ mod tests {
         );
     }
 
-    /// The Mitsuba export renders exactly the AOVs the table says a reference takes.
-    #[test]
-    fn the_mitsuba_list_is_the_exports() {
-        assert_eq!(mitsuba_aov_list(), crate::output::mitsuba::AOV_LIST);
-    }
-
     #[test]
     fn the_markdown_table_has_a_row_per_aov() {
         let t = markdown_table();
