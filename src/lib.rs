@@ -1,17 +1,48 @@
 //! cylaov: cylinder scenes to per-pixel AOVs, verified against Mitsuba 3.
 //!
+//! # Bird's-eye view
+//!
+//! A scene (cylinders and cameras) goes in; for each camera, every pixel's ray is traced
+//! exactly against the cylinders and the requested AOVs (depth, normal, ids, uv, …) come
+//! out as one image, written as EXR, PNG, `.npy` members of tar shards or numpy arrays. The
+//! same scene exported as Mitsuba 3 XML, rendered by Mitsuba and judged pixel by pixel with
+//! the exact answer as arbiter, is the proof.
+//!
 //! # Data flow
 //!
 //! One way, one stage per folder:
 //!
 //! ```text
 //! scene JSON ─parse, validate─▶ scene::Scene ─accelerate─▶ accel::{Tiles, Bvh, WideBvh}
-//!            ─trace (geometry kernels)─▶ output::aov::AovImage ─write─▶ EXR, PNG, JSON
+//!            ─trace (geometry kernels)─▶ image::AovImage ─write (output)─▶ EXR, PNG, JSON, tar
 //! ```
 //!
 //! A render ([`render::render`]) is a pure function of scene + options: no global state, no
 //! IO. Everything that reads or writes files sits at the two ends (`scene` reads, `output`
 //! writes) or in [`commands`].
+//!
+//! # Entry points
+//!
+//! - The command line: `src/main.rs` (the command list, exit codes) and `src/cli/<command>.rs`
+//!   (each command's arguments), which call [`commands`]`::<command>::run`.
+//! - The Python package: the crate in `python/` (`python/src/lib.rs` registers the module),
+//!   on this library's public API: [`scene::load`], [`render::render`], [`render::cast`],
+//!   [`dataset::batch::shards::write_shards`], [`scan::scan`], [`verify::compare`].
+//! - A render: [`render::render`] (the whole image) and [`render::render_bands`] (bands
+//!   handed to the caller as they are traced).
+//!
+//! # Seams
+//!
+//! - **An AOV** is one variant and one row of [`scene::aov::AOV_TABLE`] (channels, per-AOV
+//!   channel names by count, sample type, miss value, meaning, Mitsuba's source, the compare
+//!   metric) and its value in `render/planes.rs`'s `fill`, the one place a hit becomes
+//!   every AOV; the EXR writers, the per-AOV files, the Python arrays, the tar members and
+//!   the README's table follow the row (`uv` was added that way).
+//! - **A camera model** is a [`scene::camera::Projection`] variant: a pixel's ray
+//!   ([`scene::camera::Camera::pixel_ray`]) and a point's pixel (`project`), its scene-file
+//!   fields in `scene/camera/model.rs`.
+//! - **A front end** spells options its own way: the library names them through
+//!   [`spelling::opt`] and lists each choice's values through [`choice::Choice`].
 //!
 //! # Code map
 //!
@@ -51,9 +82,11 @@
 //!   of one rotation with up to N returns, each continued past the last hit through
 //!   [`render::cast::AnyOrigin`] (one BVH walked from any origin), with seeded noise and
 //!   dropout.
-//! - [`output`]: [`output::aov`] (the in-memory AOV image, one buffer per AOV in numpy's
-//!   `(H, W)` / `(H, W, 3)` layout, its EXR reading and writing,
-//!   band by band too ([`output::aov::ExrBands`]), self-describing headers, the per-AOV layout), [`output::depth_png`] (the 16-bit depth
+//! - [`image`]: the AOV image a render fills, one buffer per AOV in numpy's `(H, W)` /
+//!   `(H, W, C)` layout, read channel by channel; no file format.
+//! - [`output`]: [`output::aov`] (the image's EXR reading and writing, band by band too
+//!   ([`output::aov::ExrBands`]), self-describing headers, the per-AOV layout, the memory
+//!   a render needs), [`output::depth_png`] (the 16-bit depth
 //!   PNG that fails rather than drop far pixels, and the hit mask), [`output::preview`] (PNG
 //!   previews with legends), [`output::plot`] (the pixel font and axis panels of every
 //!   figure), [`output::view`] (one view's files as a plan executed into a sink: `render`
@@ -113,9 +146,18 @@
 //! codes, error reporting) and `src/cli/`, one file a command: its clap arguments, checked
 //! and turned into those structs; no clap type reaches the library.
 //!
-//! **Invariants**: `geometry`, `accel`, `render` and `scan` never do IO (`render_bands` hands its
-//! bands to the caller's sink); a render is a pure function of scene + options; `output::mitsuba` knows Mitsuba's XML, not how to run it
-//! (`verify::reference` does).
+//! # Invariants
+//!
+//! Held by `tests/layers.rs` where it says so:
+//! - **The trace knows no file**: `scene`, `geometry`, `accel`, `image`, `render` and `scan`
+//!   never import `output` (`render_bands` hands its bands to the caller's sink) (layers).
+//! - **A render is a pure function of scene + options**: the same inputs give the same bits
+//!   on any thread count and acceleration (`tests/core.rs` compares every channel).
+//! - **The library never names a flag**: messages name options through [`spelling::opt`]
+//!   (layers); **only the binary names clap** and **only `python/` names PyO3** (layers).
+//! - **`output` never reaches into `accel`**, and **`verify` never calls up into
+//!   `commands`** (layers).
+//! - `output::mitsuba` knows Mitsuba's XML, not how to run it (`verify::reference` does).
 
 #![warn(missing_docs)]
 
