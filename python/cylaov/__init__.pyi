@@ -9,7 +9,7 @@ import numpy.typing as npt
 __version__: str
 
 PathLike = Union[str, "os.PathLike[str]"]
-AovName = Literal["distance", "depth", "normal", "position", "shape_id", "part", "normal_camera"]
+AovName = Literal["distance", "depth", "normal", "position", "shape_id", "part", "normal_camera", "label", "uv"]
 RayOutput = Literal["t_hit", "normal", "shape_id", "part", "position", "position_error"]
 MemberName = Literal["exr", "depth.png"]
 Settings = Union[None, Dict[str, Any], PathLike]

@@ -113,3 +113,17 @@ def test_uv_values_arrays_and_files(cli, tmp_path):
         arr = np.load(io.BytesIO(t.extractfile(members[0]).read()))
     assert arr.shape == (30, 40, 2) and arr.dtype == np.float32
     assert "uv" in json.loads((out / "shards.json").read_text())["aovs"]
+
+
+def test_the_stub_lists_every_aov():
+    """`__init__.pyi`'s `AovName` names exactly the AOVs `render` accepts (its error lists
+    them), so type checkers know every AOV, `uv` and `label` included."""
+    import re
+
+    with pytest.raises(ValueError) as e:
+        cylaov.render(cylaov.Scene.load(ROOT / "scenes" / "single.json"), aovs=("nope",))
+    accepted = str(e.value).split("one of ")[1].split(", ")
+    stub = (ROOT / "python" / "cylaov" / "__init__.pyi").read_text()
+    named = re.findall(r'"(\w+)"', re.search(r"AovName = Literal\[(.*)\]", stub).group(1))
+    assert named == accepted
+    assert "uv" in accepted
