@@ -143,8 +143,8 @@
 //! Around them: [`commands`], the IO of each subcommand (`render`, `generate`, `batch`,
 //! `import`, `scan`, `cameras`, `export-mitsuba`, `compare`, `verify`, `stress`, `bench`,
 //! `aovs`), taking plain option structs. The binary is `main.rs` (the command list, exit
-//! codes, error reporting) and `src/cli/`, one file a command: its clap arguments, checked
-//! and turned into those structs; no clap type reaches the library.
+//! codes, error reporting) and `src/cli/`, one file a command: its parsed arguments, checked
+//! and turned into those structs; no parser type reaches the library.
 //!
 //! # Invariants
 //!
@@ -154,7 +154,8 @@
 //! - **A render is a pure function of scene + options**: the same inputs give the same bits
 //!   on any thread count and acceleration (`tests/core.rs` compares every channel).
 //! - **The library never names a flag**: messages name options through [`spelling::opt`]
-//!   (layers); **only the binary names clap** and **only `python/` names PyO3** (layers).
+//!   (layers); **only the binary names the argument parser** and **only `python/` names
+//!   PyO3** (layers).
 //! - **`output` never reaches into `accel`**, and **`verify` never calls up into
 //!   `commands`** (layers).
 //! - `output::mitsuba` knows Mitsuba's XML, not how to run it (`verify::reference` does).

@@ -1,7 +1,7 @@
 //! `cylaov compare`: two EXRs compared by the per-pixel rule.
 
 use crate::cli;
-use crate::cli::common::{TolerancesCli, non_negative, say};
+use crate::cli::common::{TolerancesCli, non_negative};
 use clap::Args;
 use cylaov::commands;
 use std::path::PathBuf;
@@ -46,16 +46,5 @@ pub fn run(a: CompareCli) -> ExitCode {
         json: a.json,
         tolerances: a.tolerances.get(),
     };
-    let outcome = commands::compare::run(&args).and_then(|out| {
-        say(&out.text)?;
-        Ok(out.passed)
-    });
-    match outcome {
-        Ok(true) => ExitCode::SUCCESS,
-        Ok(false) => ExitCode::from(1),
-        Err(e) => {
-            cli::report(&e);
-            ExitCode::from(2)
-        }
-    }
+    cli::check_status(commands::compare::run(&args).map(|out| (out.text, u8::from(!out.passed))))
 }

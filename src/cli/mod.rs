@@ -36,6 +36,22 @@ pub fn choice<T: Choice + Clone + Send + Sync>() -> impl TypedValueParser<Value 
     PossibleValuesParser::new(values).try_map(|name| T::parse(&name))
 }
 
+/// The exit status of a check (`compare`, `verify`): its own status once its text is
+/// printed, else 2 (the check could not be made; the error is reported here).
+pub fn check_status(outcome: anyhow::Result<(String, u8)>) -> std::process::ExitCode {
+    let printed = outcome.and_then(|(text, code)| {
+        common::say(&text)?;
+        Ok(code)
+    });
+    match printed {
+        Ok(code) => std::process::ExitCode::from(code),
+        Err(e) => {
+            report(&e);
+            std::process::ExitCode::from(2)
+        }
+    }
+}
+
 /// Print an error as the one `error: ...` line every command ends with on failure.
 pub fn report(e: &anyhow::Error) {
     cylaov::output::io::warn(&format!("error: {e:#}"));

@@ -1,7 +1,7 @@
 //! `cylaov verify`: views checked against Mitsuba or a candidate, pixel by pixel.
 
 use crate::cli;
-use crate::cli::common::{TolerancesCli, say};
+use crate::cli::common::TolerancesCli;
 use clap::Args;
 use cylaov::commands;
 use cylaov::geometry::{FormulaKind, Precision};
@@ -87,15 +87,5 @@ pub fn run(a: VerifyCli) -> ExitCode {
         report: a.report,
         scenes: a.scenes,
     };
-    let outcome = commands::verify::run(&args).and_then(|out| {
-        say(&out.text)?;
-        Ok(out.code)
-    });
-    match outcome {
-        Ok(code) => ExitCode::from(code),
-        Err(e) => {
-            cli::report(&e);
-            ExitCode::from(2)
-        }
-    }
+    cli::check_status(commands::verify::run(&args).map(|out| (out.text, out.code)))
 }

@@ -37,6 +37,19 @@ def cli():
     return run
 
 
+def need(module):
+    """Import a test-venv module (a reader the tests check files with); missing, the test
+    fails under scripts/test or CI and skips elsewhere."""
+    import importlib
+
+    try:
+        return importlib.import_module(module)
+    except ImportError as e:
+        if os.environ.get("CYLAOV_REQUIRE_VENV") == "1" or os.environ.get("CI") == "true":
+            pytest.fail(f"{module} is not installed in the test venv (scripts/setup-venv): {e}")
+        pytest.skip(f"{module} is not installed (scripts/setup-venv installs it)")
+
+
 def exr_channels(path):
     """Every channel of an EXR as a flat numpy array, read by the OpenEXR package (not by
     cylaov), keyed by channel name."""

@@ -2,7 +2,6 @@
 Face `datasets` and Ray Data; `write_shards` and `scripts/ray_batch.py` write the bytes of
 one `batch` process."""
 
-import importlib
 import io
 import json
 import os
@@ -14,19 +13,10 @@ import numpy as np
 import pytest
 
 import cylaov
+from conftest import need
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 VIEWS, SIZE = 7, 3  # three tars: 3 + 3 + 1 views
-
-
-def need(module):
-    """Import a reader; missing, the test fails under scripts/test or CI and skips elsewhere."""
-    try:
-        return importlib.import_module(module)
-    except ImportError as e:
-        if os.environ.get("CYLAOV_REQUIRE_VENV") == "1" or os.environ.get("CI") == "true":
-            pytest.fail(f"{module} is not installed in the test venv (scripts/setup-venv): {e}")
-        pytest.skip(f"{module} is not installed (scripts/setup-venv installs it)")
 
 
 @pytest.fixture(scope="module")

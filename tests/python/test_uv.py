@@ -2,10 +2,8 @@
 and arrays its two channels become (layered and per-AOV EXR read by OpenEXR and OpenCV,
 numpy arrays, tar shard members)."""
 
-import importlib
 import io
 import json
-import os
 import subprocess
 import sys
 import tarfile
@@ -14,23 +12,13 @@ import numpy as np
 import pytest
 
 import cylaov
-from conftest import ROOT, exr_channels
+from conftest import ROOT, exr_channels, need
 
 # Scenes with side pixels of every kind: outside and inside walls, rims, grazing rows, a
 # far camera, the orthographic sensor.
 MITSUBA_SCENES = ["single", "asymmetric", "cluster", "tube_inside", "rims", "grazing_fence",
                   "axis_view", "far_camera", "mixed_caps", "rim_seam", "near_clip",
                   "orthographic"]
-
-
-def need(module):
-    """Import a test-venv module; missing, the test fails under scripts/test or CI."""
-    try:
-        return importlib.import_module(module)
-    except ImportError as e:
-        if os.environ.get("CYLAOV_REQUIRE_VENV") == "1" or os.environ.get("CI") == "true":
-            pytest.fail(f"{module} is not installed in the test venv (scripts/setup-venv): {e}")
-        pytest.skip(f"{module} is not installed (scripts/setup-venv installs it)")
 
 
 def test_side_uv_agrees_with_mitsuba(cli, tmp_path):
@@ -63,7 +51,7 @@ def test_side_uv_agrees_with_mitsuba(cli, tmp_path):
     assert total > 190_000
 
 
-def test_uv_values_arrays_and_files(cli, tmp_path):
+def test_uv_values_arrays_and_files(cli, tmp_path, monkeypatch):
     """One scene, every container: the numpy array is the EXR's two channels bit for bit;
     u lies in [0, 1), v in [0, 1], a miss is (0, 0); a cap's v is the hit's distance from
     the axis over the radius (from `position`, by numpy); OpenCV reads the per-AOV file
@@ -94,7 +82,7 @@ def test_uv_values_arrays_and_files(cli, tmp_path):
     assert np.array_equal(ch["uv.V"].view(np.uint32), uv[..., 1].view(np.uint32))
 
     cli("render", path, "-o", tmp_path / "p.exr", "--aov", "uv", "--exr-layout", "per-aov")
-    os.environ["OPENCV_IO_ENABLE_OPENEXR"] = "1"
+    monkeypatch.setenv("OPENCV_IO_ENABLE_OPENEXR", "1")
     cv2 = need("cv2")
     img = cv2.imread(str(tmp_path / "p.uv.exr"), cv2.IMREAD_UNCHANGED)
     assert img.shape == (240, 320, 3) and img.dtype == np.float32
