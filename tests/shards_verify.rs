@@ -113,7 +113,8 @@ fn shards_check_selected_views_and_fail_disagreements() {
     let mut checked = verifier.checked.lock().unwrap().clone();
     checked.sort();
     assert_eq!(checked, ["000000", "000001", "000002", "000003"]);
-    assert_eq!(s.failures.len(), 1, "{s}");
+    assert_eq!((s.verified, s.failures.len()), (4, 1), "{s}");
+    assert!(s.to_string().contains("4 views verified"), "{s}");
     assert_eq!(s.failures[0].key, "000001");
     assert!(
         s.failures[0]
@@ -209,6 +210,10 @@ fn webdataset_verify_fraction_and_report_with_mitsuba() {
         String::from_utf8_lossy(&o.stderr)
     );
     assert!(o.status.success(), "{text}");
+    assert!(
+        text.contains("4 views verified against the reference"),
+        "{text}"
+    );
     let html = std::fs::read_to_string(page.join("index.html")).expect("index.html");
     assert_eq!(html.matches("<tr class=\"view\">").count(), 4, "{html}");
     for name in ["000000", "000001", "000002", "000003"] {

@@ -72,7 +72,7 @@ use sha2::{Digest, Sha256};
 use std::collections::HashMap;
 use std::io::{BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
 /// Views a tar holds unless told otherwise.
@@ -157,6 +157,8 @@ pub struct ShardSummary {
     pub failures: Vec<ShardFailure>,
     /// Where they are listed.
     pub failures_path: PathBuf,
+    /// Views checked by the verifier in this run (all agreed unless among the failures).
+    pub verified: usize,
     /// Whether this process wrote `shards.json` (every sidecar was in place).
     pub index_written: bool,
     /// Wall time.
@@ -183,6 +185,13 @@ impl std::fmt::Display for ShardSummary {
         )?;
         if self.rendered > 0 && secs > 0.0 {
             write!(f, "; {:.1} views/s", self.rendered as f64 / secs)?;
+        }
+        if self.verified > 0 {
+            write!(
+                f,
+                "; {} views verified against the reference",
+                self.verified
+            )?;
         }
         if !self.failures.is_empty() {
             write!(
@@ -766,6 +775,8 @@ struct Plan<'a> {
     stop: &'a AtomicBool,
     /// Checks the views [`view_selected`] (see the module docs).
     verifier: Option<&'a dyn Verifier>,
+    /// Views checked by the verifier so far.
+    verified: AtomicUsize,
 }
 
 impl Plan<'_> {
@@ -1056,6 +1067,7 @@ impl Plan<'_> {
             })
             .and_then(|()| verifier.check(view, scene, &file, &work));
         let _ = std::fs::remove_dir_all(&work);
+        self.verified.fetch_add(1, Ordering::Relaxed);
         match checked {
             Ok(verdict) if verdict.passes => Ok(()),
             Ok(verdict) => Err(format!(
@@ -1277,6 +1289,7 @@ pub fn write_shards_until(
         files_png: opts.png,
         stop,
         verifier,
+        verified: AtomicUsize::new(0),
     };
     let mut targets: Vec<(&str, PathBuf)> = vec![
         (&out_opt, out.join("shards.json")),
@@ -1322,6 +1335,7 @@ fn write_planned(
         rendered: 0,
         failures: Vec::new(),
         failures_path,
+        verified: 0,
         index_written: false,
         elapsed: Duration::ZERO,
     };
@@ -1344,6 +1358,7 @@ fn write_planned(
     }
     atomic_write_bytes(&summary.failures_path, lines.as_bytes())
         .with_context(|| format!("writing {}", summary.failures_path.display()))?;
+    summary.verified = plan.verified.load(Ordering::Relaxed);
     summary.index_written = plan.merge_index()?;
     summary.elapsed = start.elapsed();
     Ok(summary)
