@@ -70,7 +70,7 @@ pub fn write_shards<'py>(
         None => TarSelection::Shard(cylaov::dataset::batch::Shard::ALL),
     };
     let summary = run_stoppable(py, threads, |stop| {
-        shards::write_shards_until(&input, &out, &selection, &opts, &sopts, false, stop)
+        shards::write_shards_until(&input, &out, &selection, &opts, &sopts, false, stop, None)
     })?
     .map_err(value_error)?;
     let d = PyDict::new(py);

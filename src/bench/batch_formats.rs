@@ -127,6 +127,7 @@ pub fn run(views: u64, cylinders: u64, width: u32, height: u32) -> Result<Vec<Fo
         &opts,
         &ShardOptions::default(),
         false,
+        None,
     )?;
     row("webdataset", s.rendered, t, &out);
     sync_tree(&out)?;

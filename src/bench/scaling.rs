@@ -139,6 +139,7 @@ pub fn run(
                 &opts,
                 &sopts,
                 false,
+                None,
             )
         })?;
         measured.push(("batch webdataset", s.rendered, t.elapsed().as_secs_f64()));

@@ -4,7 +4,7 @@ use crate::cli;
 use crate::cli::common::{KernelCli, TolerancesCli, say, set_threads};
 use clap::Args;
 use cylaov::commands;
-use cylaov::dataset::batch::shards::{Member, ShardOptions, TarSelection};
+use cylaov::dataset::batch::shards::{Member, ShardOptions};
 use cylaov::dataset::batch::{BatchOptions, ProgressMode, Schedule, Shard};
 use cylaov::output::aov::{Compression, ExrLayout};
 use cylaov::output::depth_png::OutOfRange;
@@ -60,7 +60,8 @@ pub struct BatchCli {
     #[arg(long, value_parser = cli::choice::<Compression>(), default_value_t = Compression::None)]
     compression: Compression,
     /// Also render this fraction of the views (chosen from --verify-seed and the view
-    /// names) with Mitsuba, when the reference venv exists, and fail views that disagree.
+    /// names) with Mitsuba, when the reference venv exists, and fail views that disagree
+    /// (either --format; with webdataset, the views of the tars written in this run).
     #[arg(
         long,
         default_value_t = 0.0,
@@ -72,7 +73,7 @@ pub struct BatchCli {
     #[arg(long, default_value_t = 0)]
     verify_seed: u64,
     /// Write DIR/index.html for the views --verify-fraction checked: the page of
-    /// `cylaov verify --report`.
+    /// `cylaov verify --report` (either --format).
     #[arg(long, value_name = "DIR")]
     report: Option<PathBuf>,
     /// Parallelise over views (default) or within one view at a time.
@@ -193,17 +194,7 @@ pub fn run(a: BatchCli) -> anyhow::Result<ExitCode> {
 
 /// `batch --format webdataset`: exit 1 when any view of this process's tars failed.
 pub fn shards(args: &commands::batch::BatchArgs, sopts: &ShardOptions) -> anyhow::Result<ExitCode> {
-    let shard =
-        cylaov::dataset::batch::resolve_shard(args.shard, args.shards, &|k| std::env::var(k).ok())
-            .map_err(anyhow::Error::msg)?;
-    let summary = cylaov::dataset::batch::shards::write_shards(
-        &args.input,
-        &args.out,
-        &TarSelection::Shard(shard),
-        &args.options,
-        sopts,
-        args.progress != ProgressMode::Off,
-    )?;
+    let summary = commands::batch::shards(args, sopts)?;
     say(&summary.to_string())?;
     if !summary.failures.is_empty() {
         anyhow::bail!(

@@ -1,6 +1,8 @@
-//! `cylaov batch`: shard resolution from the command line and the environment, then
-//! [`crate::dataset::batch::run`].
+//! `cylaov batch`: shard resolution from the command line and the environment, the
+//! `--verify-fraction` verifier and `--report` page of both formats, then
+//! [`crate::dataset::batch::run`] (files) or [`crate::dataset::batch::shards`] (tar shards).
 
+use crate::dataset::batch::shards::{ShardOptions, ShardSummary, TarSelection};
 use crate::dataset::batch::{self, BatchOptions, ProgressMode, Shard, Summary};
 use anyhow::Result;
 use std::path::PathBuf;
@@ -36,19 +38,7 @@ pub fn run(args: &BatchArgs) -> Result<Summary> {
         .map_err(anyhow::Error::msg)?;
     // Bad values are refused before any advice about them is printed.
     args.options.validate().map_err(anyhow::Error::msg)?;
-    if let Some(dir) = &args.report {
-        if args.options.verify_fraction <= 0.0 {
-            anyhow::bail!(
-                "--report {}: goes with --verify-fraction F (F > 0), the views it shows",
-                dir.display()
-            );
-        }
-        crate::output::io::check_output_dir("--report", dir)?;
-    }
-    let mut verifier = verifier(args)?;
-    if let Some(v) = verifier.as_mut().filter(|_| args.report.is_some()) {
-        v.keep = Some(std::sync::Mutex::new(Vec::new()));
-    }
+    let verification = Verification::new(args)?;
     if args.options.png && args.options.depth_scale != NERFSTUDIO_DEPTH_SCALE {
         crate::output::io::warn(&format!(
             "warning: --depth-scale {}: nerfstudio reads depth PNGs at {NERFSTUDIO_DEPTH_SCALE} \
@@ -65,13 +55,74 @@ pub fn run(args: &BatchArgs) -> Result<Summary> {
         shard,
         &args.options,
         args.progress,
-        verifier.as_ref().map(|v| v as &dyn batch::Verifier),
+        verification.verifier(),
     )?;
-    if let (Some(dir), Some(kept)) = (&args.report, verifier.and_then(|v| v.keep)) {
-        let kept = kept.into_inner().unwrap_or_else(|e| e.into_inner());
-        crate::commands::verify::batch_report(dir, &args.out.display().to_string(), kept)?;
-    }
+    verification.finish(args)?;
     Ok(summary)
+}
+
+/// `batch --format webdataset`: the tar shards of this process (see
+/// [`crate::dataset::batch::shards`]), verified and reported on as [`run`] does; failed
+/// views are counted in the summary, not an `Err`.
+pub fn shards(args: &BatchArgs, sopts: &ShardOptions) -> Result<ShardSummary> {
+    let shard = batch::resolve_shard(args.shard, args.shards, &|k| std::env::var(k).ok())
+        .map_err(anyhow::Error::msg)?;
+    args.options.validate().map_err(anyhow::Error::msg)?;
+    let verification = Verification::new(args)?;
+    let summary = batch::shards::write_shards(
+        &args.input,
+        &args.out,
+        &TarSelection::Shard(shard),
+        &args.options,
+        sopts,
+        args.progress != ProgressMode::Off,
+        verification.verifier(),
+    )?;
+    verification.finish(args)?;
+    Ok(summary)
+}
+
+/// `--verify-fraction` and `--report` of either format: the report folder checked, the
+/// verifier found (keeping every checked view when there is a report), and the page
+/// written once the views are done.
+struct Verification {
+    verifier: Option<crate::verify::reference::MitsubaVerifier>,
+}
+
+impl Verification {
+    /// Refuse `--report` without `--verify-fraction` or with an unusable folder; find the
+    /// verifier (without the venv, verification is skipped with a notice saying how to make
+    /// it).
+    fn new(args: &BatchArgs) -> Result<Verification> {
+        if let Some(dir) = &args.report {
+            if args.options.verify_fraction <= 0.0 {
+                anyhow::bail!(
+                    "--report {}: goes with --verify-fraction F (F > 0), the views it shows",
+                    dir.display()
+                );
+            }
+            crate::output::io::check_output_dir("--report", dir)?;
+        }
+        let mut verifier = verifier(args)?;
+        if let Some(v) = verifier.as_mut().filter(|_| args.report.is_some()) {
+            v.keep = Some(std::sync::Mutex::new(Vec::new()));
+        }
+        Ok(Verification { verifier })
+    }
+
+    /// The verifier the batch calls, if any.
+    fn verifier(&self) -> Option<&dyn batch::Verifier> {
+        self.verifier.as_ref().map(|v| v as &dyn batch::Verifier)
+    }
+
+    /// Write `--report`'s page of the views checked.
+    fn finish(self, args: &BatchArgs) -> Result<()> {
+        if let (Some(dir), Some(kept)) = (&args.report, self.verifier.and_then(|v| v.keep)) {
+            let kept = kept.into_inner().unwrap_or_else(|e| e.into_inner());
+            crate::commands::verify::batch_report(dir, &args.out.display().to_string(), kept)?;
+        }
+        Ok(())
+    }
 }
 
 /// The Mitsuba verifier for `--verify-fraction`, if asked for and the reference venv exists

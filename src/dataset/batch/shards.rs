@@ -32,6 +32,17 @@
 //! written under its own lock (`OUT/.partial/J-of-T.lock`, T the tar count); `--shard K/N`
 //! assigns the tars with `j % N == K`. Whichever process finds every sidecar in place
 //! writes `OUT/shards.json` from them under the lock `OUT/.partial/shards.json.lock`.
+//!
+//! **Verification.** With a [`Verifier`], the views [`view_selected`] among those rendered in
+//! this run are checked as the files format checks them: the view's EXR (the plan's own,
+//! encoded whether or not `KEY.exr` is a member) goes to a private file under
+//! `OUT/.partial` that the verifier reads. A view that disagrees fails as a render failure
+//! does; the others' members are those of an unverified run. A tar kept from an earlier
+//! run is not checked again.
+//!
+//! **Memory.** Each view's estimate (its whole image, which a tar's view holds, and its
+//! encoded members) is checked against what the machine leaves before it renders, as in the
+//! files format: a view that does not fit fails alone.
 
 use super::lock::{lock_named, lock_shard, partial_root};
 use super::options::BatchOptions;
@@ -40,6 +51,7 @@ use super::resume::render_stamp;
 use super::run::{expand_views, read_views, resource_exhausted};
 use super::shard::Shard;
 use super::shard_settings;
+use super::verify::{Verifier, view_selected};
 use super::views::{ViewSource, list_views};
 use crate::npy;
 use crate::output::aov::{AovImage, ChannelData, ExrLayout, channel_names};
@@ -60,7 +72,7 @@ use sha2::{Digest, Sha256};
 use std::collections::HashMap;
 use std::io::{BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
 /// Views a tar holds unless told otherwise.
@@ -145,6 +157,8 @@ pub struct ShardSummary {
     pub failures: Vec<ShardFailure>,
     /// Where they are listed.
     pub failures_path: PathBuf,
+    /// Views checked by the verifier in this run (all agreed unless among the failures).
+    pub verified: usize,
     /// Whether this process wrote `shards.json` (every sidecar was in place).
     pub index_written: bool,
     /// Wall time.
@@ -171,6 +185,13 @@ impl std::fmt::Display for ShardSummary {
         )?;
         if self.rendered > 0 && secs > 0.0 {
             write!(f, "; {:.1} views/s", self.rendered as f64 / secs)?;
+        }
+        if self.verified > 0 {
+            write!(
+                f,
+                "; {} views verified against the reference",
+                self.verified
+            )?;
         }
         if !self.failures.is_empty() {
             write!(
@@ -430,6 +451,8 @@ struct TarSink<'a> {
     arrays: &'a [Aov],
     extra: serde_json::Value,
     keep: &'a [Member],
+    /// Encode the plan's EXR even when it is not a member: the verifier reads it.
+    exr_for_check: bool,
     npys: Vec<(String, Vec<u8>)>,
     camera: Option<Vec<u8>>,
     exr: Option<Vec<u8>>,
@@ -450,7 +473,7 @@ impl ViewSink for TarSink<'_> {
     fn add(&mut self, member: ViewMember, fill: Fill) -> Result<()> {
         match member {
             ViewMember::Camera => self.camera = Some(Self::fill(member, fill)?),
-            ViewMember::Exr if self.keep.contains(&Member::Exr) => {
+            ViewMember::Exr if self.exr_for_check || self.keep.contains(&Member::Exr) => {
                 self.exr = Some(Self::fill(member, fill)?)
             }
             ViewMember::DepthPng if self.keep.contains(&Member::DepthPng) => {
@@ -493,8 +516,16 @@ impl ViewSink for TarSink<'_> {
         self.members = std::mem::take(&mut self.npys);
         self.members
             .push((format!("{}.json", self.key), json.into_bytes()));
-        if let Some(exr) = self.exr.take() {
-            self.members.push((format!("{}.exr", self.key), exr));
+        if self.keep.contains(&Member::Exr) {
+            // Kept for the check too when it asked for it.
+            let exr = if self.exr_for_check {
+                self.exr.clone()
+            } else {
+                self.exr.take()
+            };
+            if let Some(exr) = exr {
+                self.members.push((format!("{}.exr", self.key), exr));
+            }
         }
         if let Some(png) = self.depth_png.take() {
             self.members.push((format!("{}.depth.png", self.key), png));
@@ -542,6 +573,22 @@ pub fn view_members(
     opts: &BatchOptions,
     members: &[Member],
 ) -> Result<Members> {
+    view_members_and_exr(key, view, scene, input_dir, aovs, opts, members, false).map(|m| m.0)
+}
+
+/// [`view_members`], and with `exr` the view's EXR bytes (the plan's, as `KEY.exr` would
+/// hold them) for its check. The view's memory estimate is checked before it renders.
+#[allow(clippy::too_many_arguments)]
+fn view_members_and_exr(
+    key: &str,
+    view: &ViewSource,
+    scene: &Scene,
+    input_dir: &Path,
+    aovs: &[Aov],
+    opts: &BatchOptions,
+    members: &[Member],
+    exr: bool,
+) -> Result<(Members, Option<Vec<u8>>)> {
     let arrays = array_aovs(aovs);
     let plan = ViewPlan {
         camera: Camera::new(scene.camera),
@@ -597,6 +644,7 @@ pub fn view_members(
         arrays: &arrays,
         extra,
         keep: members,
+        exr_for_check: exr,
         npys: Vec::new(),
         camera: None,
         exr: None,
@@ -609,8 +657,33 @@ pub fn view_members(
         formula: opts.formula,
         ..RenderOptions::new(plan.traced_aovs())
     };
+    // As the files format does: a view that does not fit fails alone, before it allocates.
+    crate::mem::check_memory(
+        &format!("rendering {}", view.id()),
+        tar_view_memory(&plan, aovs, members, exr),
+    )?;
     plan.execute(scene, &render_opts, &mut sink)?;
-    Ok(sink.members)
+    Ok((sink.members, sink.exr.filter(|_| exr)))
+}
+
+/// Bytes one view of a tar holds at its peak: the whole traced image (a tar's view is never
+/// streamed band by band) with what the plan encodes from it (see
+/// `crate::output::aov::render_memory`), and its encoded members, the EXR counted when it is
+/// encoded for the check alone.
+fn tar_view_memory(plan: &ViewPlan, aovs: &[Aov], members: &[Member], exr: bool) -> u64 {
+    let (w, h) = (plan.camera.width(), plan.camera.height());
+    let traced = crate::output::aov::render_memory(
+        (w, h),
+        &plan.traced_aovs(),
+        plan.layout,
+        plan.compression,
+        true,
+    );
+    let mut encoded: Vec<Member> = members.to_vec();
+    if exr && !encoded.contains(&Member::Exr) {
+        encoded.push(Member::Exr);
+    }
+    traced + view_tar_bytes(w as usize, h as usize, aovs, &encoded)
 }
 
 /// Bytes a tar of views of `w`×`h` with `aovs` and `members` takes per view, the JSON
@@ -700,6 +773,10 @@ struct Plan<'a> {
     files_png: bool,
     /// Set by the caller to end the run early (see [`write_shards_until`]).
     stop: &'a AtomicBool,
+    /// Checks the views [`view_selected`] (see the module docs).
+    verifier: Option<&'a dyn Verifier>,
+    /// Views checked by the verifier so far.
+    verified: AtomicUsize,
 }
 
 impl Plan<'_> {
@@ -914,20 +991,29 @@ impl Plan<'_> {
                     if self.stop.load(Ordering::Relaxed) {
                         return (i, Err(String::new()));
                     }
+                    let view = &self.views[i];
+                    let checker = self.verifier.filter(|_| {
+                        view_selected(self.opts.verify_seed, view, self.opts.verify_fraction)
+                    });
                     let r = scenes[i - range.start]
                         .as_ref()
                         .map_err(|e| e.clone())
                         .and_then(|scene| {
-                            view_members(
+                            let (members, exr) = view_members_and_exr(
                                 &self.keys[i],
-                                &self.views[i],
+                                view,
                                 scene,
                                 &self.input_dir,
                                 &self.aovs,
                                 &self.opts,
                                 &self.sopts.members,
+                                checker.is_some(),
                             )
-                            .map_err(|e| format!("{}: {e:#}", self.views[i].path.display()))
+                            .map_err(|e| format!("{}: {e:#}", view.path.display()))?;
+                            if let (Some(v), Some(exr)) = (checker, exr) {
+                                self.verify(v, i, scene, &exr)?;
+                            }
+                            Ok(members)
                         });
                     (i, r)
                 })
@@ -960,6 +1046,40 @@ impl Plan<'_> {
             .map_err(|e| e.into_error())
             .with_context(|| format!("writing {}", tmp.display()))?;
         Ok((samples, bytes, hex(&hash.finalize()), failures))
+    }
+
+    /// Check view `i`'s EXR bytes with `verifier` in a private folder under the partial
+    /// one (as the files format does); the error is the failure line.
+    fn verify(
+        &self,
+        verifier: &dyn Verifier,
+        i: usize,
+        scene: &Scene,
+        exr: &[u8],
+    ) -> Result<(), String> {
+        let view = &self.views[i];
+        let work = self.root.join(format!("{}.verify.tmp", self.keys[i]));
+        let file = work.join(format!("{}.exr", self.keys[i]));
+        let checked = crate::output::io::make_dir_all(&work)
+            .map_err(anyhow::Error::from)
+            .and_then(|()| {
+                std::fs::write(&file, exr).with_context(|| format!("writing {}", file.display()))
+            })
+            .and_then(|()| verifier.check(view, scene, &file, &work));
+        let _ = std::fs::remove_dir_all(&work);
+        self.verified.fetch_add(1, Ordering::Relaxed);
+        match checked {
+            Ok(verdict) if verdict.passes => Ok(()),
+            Ok(verdict) => Err(format!(
+                "{}: disagrees with the reference: {}",
+                view.path.display(),
+                verdict.report
+            )),
+            Err(e) => Err(format!(
+                "{}: verification could not run: {e:#}",
+                view.path.display()
+            )),
+        }
     }
 
     /// Write `shards.json` from the sidecars if every one is in place; whether it was.
@@ -1085,7 +1205,7 @@ fn estimate_line(plan: &Plan, mine: &[usize]) -> String {
 
 /// Write the tars `selection` names of the views of `input` into `out` (see the module
 /// docs). Bad input, a dotted scene name or colliding keys are errors before anything
-/// renders; failed views are counted in the summary.
+/// renders; failed views (a `verifier`'s disagreement included) are counted in the summary.
 pub fn write_shards(
     input: &Path,
     out: &Path,
@@ -1093,15 +1213,19 @@ pub fn write_shards(
     opts: &BatchOptions,
     sopts: &ShardOptions,
     announce: bool,
+    verifier: Option<&dyn Verifier>,
 ) -> Result<ShardSummary> {
     let never = AtomicBool::new(false);
-    write_shards_until(input, out, selection, opts, sopts, announce, &never)
+    write_shards_until(
+        input, out, selection, opts, sopts, announce, &never, verifier,
+    )
 }
 
 /// [`write_shards`], ended early with an error once `stop` is set (by another thread: the
 /// Python package on Ctrl-C). It stops as an interrupted command does: the tars finished by
 /// then stay with their sidecars (a rerun skips them), the one in progress and its
 /// temporary file go, and so does `OUT/.partial` when no other process uses it.
+#[allow(clippy::too_many_arguments)]
 pub fn write_shards_until(
     input: &Path,
     out: &Path,
@@ -1110,18 +1234,12 @@ pub fn write_shards_until(
     sopts: &ShardOptions,
     announce: bool,
     stop: &AtomicBool,
+    verifier: Option<&dyn Verifier>,
 ) -> Result<ShardSummary> {
     let start = Instant::now();
     opts.validate().map_err(anyhow::Error::msg)?;
     if sopts.shard_size == 0 {
         bail!("{}: must be >= 1, got 0", opt("shard_size"));
-    }
-    if opts.verify_fraction > 0.0 {
-        bail!(
-            "{}: not with {} webdataset (the check reads the files format's EXRs)",
-            opt("verify_fraction"),
-            opt("format")
-        );
     }
     let out_opt = opt("out");
     crate::output::io::check_output_dir(&out_opt, out)?;
@@ -1170,6 +1288,8 @@ pub fn write_shards_until(
         tars,
         files_png: opts.png,
         stop,
+        verifier,
+        verified: AtomicUsize::new(0),
     };
     let mut targets: Vec<(&str, PathBuf)> = vec![
         (&out_opt, out.join("shards.json")),
@@ -1215,6 +1335,7 @@ fn write_planned(
         rendered: 0,
         failures: Vec::new(),
         failures_path,
+        verified: 0,
         index_written: false,
         elapsed: Duration::ZERO,
     };
@@ -1237,6 +1358,7 @@ fn write_planned(
     }
     atomic_write_bytes(&summary.failures_path, lines.as_bytes())
         .with_context(|| format!("writing {}", summary.failures_path.display()))?;
+    summary.verified = plan.verified.load(Ordering::Relaxed);
     summary.index_written = plan.merge_index()?;
     summary.elapsed = start.elapsed();
     Ok(summary)
