@@ -121,14 +121,12 @@ fn write<T: Real, F: Formula>(
         index: hit.index,
         surface: hit.hit.surface,
     };
-    let depth = || {
-        if ray.planar_depth {
-            (ray.origin - cam.origin).dot(cam.forward) + t * ray.dir.dot(cam.forward)
-        } else {
-            t
-        }
+    let depth = if ray.planar_depth {
+        (ray.origin - cam.origin).dot(cam.forward) + t * ray.dir.dot(cam.forward)
+    } else {
+        t
     };
-    fill(fr, band, k, &shaded, depth, || nrm);
+    fill(fr, band, k, &shaded, depth, nrm);
 }
 
 #[cfg(test)]
