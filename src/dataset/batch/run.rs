@@ -18,7 +18,7 @@ use super::progress::{Counts, Progress, ProgressMode, SizeEstimate};
 use super::resume::{ViewFiles, view_file_names, view_is_complete};
 use super::shard::Shard;
 use super::transforms::{FrameCamera, index_json, transforms_json};
-use super::verify::{Verifier, view_selected};
+use super::verify::{Verifier, check_view, view_selected};
 use super::views::{ViewSource, list_views};
 use super::write::{ViewCost, render_view, view_memory};
 use crate::output::aov::ExrLayout;
@@ -585,23 +585,9 @@ impl ShardWork<'_> {
         let work = self
             .partial
             .join(format!("{}.verify.tmp", view.id().replace('/', ".")));
-        let checked = crate::output::io::make_dir_all(&work)
-            .map_err(anyhow::Error::from)
-            .and_then(|()| verifier.check(view, scene, &exr, &work));
-        let _ = std::fs::remove_dir_all(&work);
+        let checked = check_view(verifier, view, scene, &exr, None, &work);
         self.verified.fetch_add(1, Ordering::Relaxed);
-        match checked {
-            Ok(verdict) if verdict.passes => Ok(()),
-            Ok(verdict) => Err(format!(
-                "{}: disagrees with the reference: {}",
-                view.path.display(),
-                verdict.report
-            )),
-            Err(e) => Err(format!(
-                "{}: verification could not run: {e:#}",
-                view.path.display()
-            )),
-        }
+        checked
     }
 }
 

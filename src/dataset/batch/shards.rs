@@ -51,7 +51,7 @@ use super::resume::render_stamp;
 use super::run::{expand_views, read_views, resource_exhausted};
 use super::shard::Shard;
 use super::shard_settings;
-use super::verify::{Verifier, view_selected};
+use super::verify::{Verifier, check_view, view_selected};
 use super::views::{ViewSource, list_views};
 use crate::npy;
 use crate::output::aov::{AovImage, ChannelData, ExrLayout, channel_names};
@@ -1060,26 +1060,9 @@ impl Plan<'_> {
         let view = &self.views[i];
         let work = self.root.join(format!("{}.verify.tmp", self.keys[i]));
         let file = work.join(format!("{}.exr", self.keys[i]));
-        let checked = crate::output::io::make_dir_all(&work)
-            .map_err(anyhow::Error::from)
-            .and_then(|()| {
-                std::fs::write(&file, exr).with_context(|| format!("writing {}", file.display()))
-            })
-            .and_then(|()| verifier.check(view, scene, &file, &work));
-        let _ = std::fs::remove_dir_all(&work);
+        let checked = check_view(verifier, view, scene, &file, Some(exr), &work);
         self.verified.fetch_add(1, Ordering::Relaxed);
-        match checked {
-            Ok(verdict) if verdict.passes => Ok(()),
-            Ok(verdict) => Err(format!(
-                "{}: disagrees with the reference: {}",
-                view.path.display(),
-                verdict.report
-            )),
-            Err(e) => Err(format!(
-                "{}: verification could not run: {e:#}",
-                view.path.display()
-            )),
-        }
+        checked
     }
 
     /// Write `shards.json` from the sidecars if every one is in place; whether it was.

@@ -24,6 +24,40 @@ pub trait Verifier: Sync {
     fn check(&self, view: &ViewSource, scene: &Scene, exr: &Path, work: &Path) -> Result<Verdict>;
 }
 
+/// Check `view` with `verifier` in the private folder `work`, made here and removed after;
+/// `exr` is the view's EXR file, written there first from `bytes` when given (a tar's view
+/// has no file of its own). `Ok` when the view agrees; else the line its failure records.
+pub fn check_view(
+    verifier: &dyn Verifier,
+    view: &ViewSource,
+    scene: &Scene,
+    exr: &Path,
+    bytes: Option<&[u8]>,
+    work: &Path,
+) -> Result<(), String> {
+    let checked = crate::output::io::make_dir_all(work)
+        .map_err(anyhow::Error::from)
+        .and_then(|()| match bytes {
+            Some(b) => std::fs::write(exr, b)
+                .map_err(|e| anyhow::anyhow!("writing {}: {e}", exr.display())),
+            None => Ok(()),
+        })
+        .and_then(|()| verifier.check(view, scene, exr, work));
+    let _ = std::fs::remove_dir_all(work);
+    match checked {
+        Ok(verdict) if verdict.passes => Ok(()),
+        Ok(verdict) => Err(format!(
+            "{}: disagrees with the reference: {}",
+            view.path.display(),
+            verdict.report
+        )),
+        Err(e) => Err(format!(
+            "{}: verification could not run: {e:#}",
+            view.path.display()
+        )),
+    }
+}
+
 /// Whether `view` is in the seed-determined `fraction` checked against Mitsuba: the one
 /// choice of `batch --verify-fraction` and `cylaov verify --fraction`, keyed on the view's
 /// batch id (`scene`, or `scene/00` for camera 0 of a several-camera scene), so each scene's
