@@ -523,13 +523,21 @@ pub fn try_zeroed<T: bytemuck::Zeroable>(n: usize, what: &str) -> io::Result<Vec
     Ok(unsafe { Vec::from_raw_parts(p.cast::<T>(), n, n) })
 }
 
+/// Print a refusal as the one `error: ...` line every command ends with (a closed stderr
+/// is not an error). Written here, not through `output`: `mem` sits below every layer that
+/// allocates, `scene` and `render` included, which never import `output`.
+fn print_error(e: &dyn std::fmt::Display) {
+    use std::io::Write;
+    let _ = writeln!(std::io::stderr().lock(), "error: {e}");
+}
+
 /// `n` values not yet written, reserved fallibly as [`zeroed_or_exit`] reserves them (a
 /// refusal exits the same way): for a buffer whose users write it all before reading it,
 /// on the threads that will read it.
 pub fn uninit_or_exit<T>(n: usize, what: &str) -> Vec<std::mem::MaybeUninit<T>> {
     let mut v = Vec::new();
     if let Err(e) = try_reserve(&mut v, n, what) {
-        exit_after(|_| crate::output::io::warn(&format!("error: {e}")));
+        exit_after(|_| print_error(&e));
     }
     // SAFETY: the capacity is at least `n` (reserved above), and a `MaybeUninit` needs no
     // initialisation.
@@ -544,6 +552,6 @@ pub fn uninit_or_exit<T>(n: usize, what: &str) -> Vec<std::mem::MaybeUninit<T>> 
 pub fn zeroed_or_exit<T: bytemuck::Zeroable>(n: usize, what: &str) -> Vec<T> {
     match try_zeroed(n, what) {
         Ok(v) => v,
-        Err(e) => exit_after(|_| crate::output::io::warn(&format!("error: {e}"))),
+        Err(e) => exit_after(|_| print_error(&e)),
     }
 }

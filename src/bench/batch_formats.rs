@@ -5,10 +5,8 @@
 //! (the tar writer's buffered writes, no render, no hash) and hashing them alone (sha256 in
 //! memory).
 
-use crate::commands::generate::{GenerateArgs, run as generate};
 use crate::dataset::batch::shards::{ShardOptions, TarSelection, write_shards};
 use crate::dataset::batch::{self, BatchOptions, ProgressMode, Shard};
-use crate::dataset::generate::{ConfigFile, Range};
 use crate::output::tar::BLOCK;
 use anyhow::{Context, Result};
 use sha2::{Digest, Sha256};
@@ -68,30 +66,16 @@ pub(crate) fn sync_tree(dir: &Path) -> Result<()> {
     Ok(())
 }
 
-/// Generate `views` scenes of `cylinders` cylinders at `width`×`height` in a temp folder
-/// and time each format on them (depth+normal, the rayon pool as set), then the tar
-/// shards' two ceilings on the webdataset run's tars.
-pub fn run(views: u64, cylinders: u64, width: u32, height: u32) -> Result<Vec<FormatRow>> {
+/// Time each format on the generated dataset `data` (depth+normal, the rayon pool as set;
+/// the outputs in a temp folder), then the tar shards' two ceilings on the webdataset
+/// run's tars. The caller generates `data` (`cylaov bench` with `generate`'s own code) and
+/// syncs it to disk.
+pub fn run(data: &Path) -> Result<Vec<FormatRow>> {
     let tmp = tempfile::Builder::new()
         .prefix("cylaov-bench-formats-")
         .tempdir()
         .context("making a temp folder")?;
-    let data = tmp.path().join("data");
-    let n = cylinders.to_string();
-    generate(&GenerateArgs {
-        out: data.clone(),
-        config: None,
-        flags: ConfigFile {
-            count: Some(views),
-            seed: Some(1),
-            cylinders: Some(Range::parse(&n).map_err(anyhow::Error::msg)?),
-            width: Some(width),
-            height: Some(height),
-            ..ConfigFile::default()
-        },
-        force: false,
-    })?;
-    sync_tree(&data)?;
+    let data = data.to_path_buf();
     let opts = BatchOptions {
         aovs: Some(vec![crate::scene::Aov::Depth, crate::scene::Aov::Normal]),
         ..BatchOptions::default()

@@ -8,10 +8,8 @@
 //! `views/s(n) / (n · views/s(1))`: 1 is perfect scaling.
 
 use super::batch_formats::sync_tree;
-use crate::commands::generate::{GenerateArgs, run as generate};
 use crate::dataset::batch::shards::{ShardOptions, TarSelection, write_shards};
 use crate::dataset::batch::{self, BatchOptions, ProgressMode, Shard};
-use crate::dataset::generate::{ConfigFile, Range};
 use crate::render::{RenderOptions, render};
 use crate::scene::Aov;
 use anyhow::{Context, Result, bail};
@@ -63,10 +61,12 @@ pub fn thread_counts(cores: usize) -> Vec<usize> {
     v
 }
 
-/// Time every workload on `views` generated views at each of `threads`; the `DataLoader`
-/// rows only when `python` is given (a Python with the package and torch). `note` is told
-/// each row as it is measured.
+/// Time every workload on the generated dataset `data` (its `views` views, [`WIDTH`] ×
+/// [`HEIGHT`], [`CYLINDERS`] a scene, seed [`SEED`]: the caller generates and syncs it) at
+/// each of `threads`; the `DataLoader` rows only when `python` is given (a Python with the
+/// package and torch). `note` is told each row as it is measured.
 pub fn run(
+    data: &Path,
     views: u64,
     threads: &[usize],
     python: Option<&Path>,
@@ -76,21 +76,7 @@ pub fn run(
         .prefix("cylaov-bench-scaling-")
         .tempdir()
         .context("making a temp folder")?;
-    let data = tmp.path().join("data");
-    generate(&GenerateArgs {
-        out: data.clone(),
-        config: None,
-        flags: ConfigFile {
-            count: Some(views),
-            seed: Some(SEED),
-            cylinders: Some(Range::parse(&CYLINDERS.to_string()).map_err(anyhow::Error::msg)?),
-            width: Some(WIDTH),
-            height: Some(HEIGHT),
-            ..ConfigFile::default()
-        },
-        force: false,
-    })?;
-    sync_tree(&data)?;
+    let data = data.to_path_buf();
     let scenes = scene_files(&data.join("scenes"))?
         .iter()
         .map(|p| crate::scene::load(p).with_context(|| format!("loading {}", p.display())))
