@@ -149,6 +149,8 @@
 //! # Invariants
 //!
 //! Held by `tests/layers.rs` where it says so:
+//! - **Arrows between modules point down**: the top-level modules import each other
+//!   without a cycle (layers); inside one module, files may still import each other.
 //! - **The trace knows no file**: `scene`, `geometry`, `accel`, `image`, `render` and `scan`
 //!   never import `output` (`render_bands` hands its bands to the caller's sink) (layers).
 //! - **A render is a pure function of scene + options**: the same inputs give the same bits
