@@ -29,7 +29,8 @@
 //! `index.json` and every `transforms.json` are pure functions of the input files and the
 //! options, so every shard computes the same list and writes the same index bytes.
 //!
-//! The pieces, in the order a run uses them: `views` (the view list), `shard` (which views
+//! The pieces, in the order a run uses them: `views` (the view list), `input` (the list
+//! read with each view's camera, as both formats read it), `shard` (which views
 //! this process renders), `lock` (the shard's lock and its real, unfollowed partial
 //! folder), `options`, `resume` (output paths, render stamp, completeness
 //! checks), `write` (one view rendered and moved into place), `verify` (the reference check
@@ -37,6 +38,7 @@
 //! together); `shards` writes the same views as tar shards (`--format webdataset`), and
 //! `samples` reads them back (`cylaov verify OUT`).
 
+mod input;
 mod lock;
 mod options;
 mod progress;
@@ -52,11 +54,11 @@ mod views;
 mod write;
 
 pub use options::{BatchOptions, Schedule};
-pub use progress::{Counts, LARGE_OUTPUT, Progress, ProgressMode, SizeEstimate};
+pub use progress::{Counts, LARGE_OUTPUT, Outcome, Progress, ProgressMode, SizeEstimate};
 pub use resume::{
     ViewFiles, expected_channels, exr_is_complete, render_stamp, view_file_names, view_is_complete,
 };
-pub use run::{Failure, Outcome, Summary, run};
+pub use run::{Failure, Summary, run};
 pub use shard::{Shard, resolve_shard};
 pub use transforms::{FrameCamera, transforms_json};
 pub use verify::{Verdict, Verifier, selected_for_verify, view_selected};

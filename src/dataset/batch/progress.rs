@@ -7,12 +7,23 @@
 //! would bring a terminal-handling stack and its own redraw thread for it, and would still
 //! need the plain-line mode written here.
 
-use super::run::Outcome;
+use super::write::ViewCost;
 use crate::output::aov::Compression;
 use crate::scene::Aov;
 use std::io::{IsTerminal, Write};
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
+
+/// What happened to one view.
+#[derive(Clone, Debug)]
+pub enum Outcome {
+    /// Rendered and written now, with what it cost.
+    Done(ViewCost),
+    /// Its outputs were already complete (resume): nothing done.
+    Skipped,
+    /// The view failed: why.
+    Failed(String),
+}
 
 /// How progress is shown (on stderr).
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -12,21 +12,22 @@
 //! started are left for the next run, and the summary says why. The shard's partial folder
 //! goes on every exit, a signal's included (see `crate::output::signals`).
 
+use super::input::{load, read_views, resource_exhausted};
 use super::lock::{ShardLock, lock_shard, partial_root};
 use super::options::{BatchOptions, Schedule};
+use super::progress::Outcome;
 use super::progress::{Counts, Progress, ProgressMode, SizeEstimate};
 use super::resume::{ViewFiles, view_file_names, view_is_complete};
 use super::shard::Shard;
 use super::transforms::{FrameCamera, index_json, transforms_json};
 use super::verify::{Verifier, check_view, view_selected};
-use super::views::{ViewSource, list_views};
-use super::write::{ViewCost, render_view, view_memory};
+use super::views::ViewSource;
+use super::write::{render_view, view_memory};
 use crate::output::aov::ExrLayout;
 use crate::output::files::refuse_non_regular;
 use crate::output::io::{atomic_write_bytes, check_outputs};
 use crate::output::signals::{self, Cleanup, Registration};
-use crate::scene::camera::Camera;
-use crate::scene::{self, Scene};
+use crate::scene::Scene;
 use anyhow::{Context, Result};
 use rayon::prelude::*;
 use serde::Serialize;
@@ -36,17 +37,6 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Condvar, Mutex};
 use std::time::{Duration, Instant};
-
-/// What happened to one view.
-#[derive(Clone, Debug)]
-pub enum Outcome {
-    /// Rendered and written now, with what it cost.
-    Done(ViewCost),
-    /// Its outputs were already complete (resume): nothing done.
-    Skipped,
-    /// The view failed: why.
-    Failed(String),
-}
 
 /// One line of `failures.K-of-N.jsonl`.
 #[derive(Clone, Debug, Serialize)]
@@ -233,22 +223,6 @@ pub fn run(
     Ok(summary)
 }
 
-/// Which resource ran out, if `error` (a view's failure) says one did that every later
-/// view needs as well: then the shard stops rather than fail each of them the same way.
-pub fn resource_exhausted(error: &str) -> Option<&'static str> {
-    const CODES: [(i32, &str); 5] = [
-        (28, "the disk is full"),
-        (122, "the disk quota is exceeded"),
-        (27, "the file size limit (ulimit -f) is reached"),
-        (24, "too many open files (ulimit -n)"),
-        (23, "too many open files in the system"),
-    ];
-    CODES
-        .iter()
-        .find(|(n, _)| error.contains(&format!("(os error {n})")))
-        .map(|c| c.1)
-}
-
 /// Refuse, before anything is written, a path the shard would replace that is not a
 /// regular file: each view's files (see [`ViewFiles::all`]), `index.json`, the failures
 /// file and the `transforms.json` of several-camera scenes.
@@ -316,75 +290,6 @@ impl std::ops::Deref for Partial {
     fn deref(&self) -> &Path {
         &self.path
     }
-}
-
-/// Read a view's scene, the error naming its file.
-fn load(view: &ViewSource) -> Result<Scene, String> {
-    scene::load(&view.path).map_err(|e| format!("{}: {e}", view.path.display()))
-}
-
-/// Every view of the listed scenes (one per camera) and what the index needs of its camera,
-/// or why its scene does not load (such a scene is one failing view).
-/// Every shard reads every scene (the index lists every valid view) but keeps only what the
-/// index needs: memory is O(views), not O(views x cylinders). The views of this shard are
-/// read again, one at a time, when rendered. The list is a pure function of the input.
-/// The batch's view list and each view's camera (or why it has none).
-pub(super) type Views = (Vec<ViewSource>, Vec<Result<FrameCamera, String>>);
-
-/// The batch's view list and each view's camera, read from `input` (the folder scan skips
-/// `out`'s own files), saying what the scan skipped when `announce`. Out of file handles
-/// while reading the scenes is not a bad scene: it stops the run.
-pub(super) fn read_views(
-    input: &Path,
-    out: &Path,
-    opts: &BatchOptions,
-    announce: bool,
-) -> Result<Views> {
-    let (scenes, skipped) = list_views(input, Some(out))?;
-    if !skipped.is_empty() && announce {
-        eprintln!("{}: skipped {skipped}", input.display());
-    }
-    let (views, cameras) = expand_views(&scenes, opts);
-    if let Some((what, e)) = cameras
-        .iter()
-        .filter_map(|c| c.as_ref().err())
-        .find_map(|e| resource_exhausted(e).map(|what| (what, e)))
-    {
-        anyhow::bail!("reading the scenes: {what}: {e}");
-    }
-    Ok((views, cameras))
-}
-
-pub(super) fn expand_views(
-    scenes: &[ViewSource],
-    opts: &BatchOptions,
-) -> (Vec<ViewSource>, Vec<Result<FrameCamera, String>>) {
-    let read: Vec<Result<Vec<FrameCamera>, String>> = scenes
-        .par_iter()
-        .map(|v| {
-            load(v).map(|s| {
-                s.cameras
-                    .iter()
-                    .map(|&c| FrameCamera::new(&Camera::new(c), &opts.exr_aovs(&s)))
-                    .collect()
-            })
-        })
-        .collect();
-    let mut views = Vec::new();
-    let mut cameras = Vec::new();
-    for (scene, cams) in scenes.iter().zip(read) {
-        match cams {
-            Ok(cams) => {
-                views.extend(scene.cameras(cams.len()));
-                cameras.extend(cams.into_iter().map(Ok));
-            }
-            Err(e) => {
-                views.push(scene.clone());
-                cameras.push(Err(e));
-            }
-        }
-    }
-    (views, cameras)
 }
 
 /// Lock this shard, then clear and recreate its work-in-progress folder

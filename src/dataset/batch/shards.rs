@@ -44,11 +44,11 @@
 //! encoded members) is checked against what the machine leaves before it renders, as in the
 //! files format: a view that does not fit fails alone.
 
+use super::input::{expand_views, read_views, resource_exhausted};
 use super::lock::{lock_named, lock_shard, partial_root};
 use super::options::BatchOptions;
 use super::progress::SizeEstimate;
 use super::resume::render_stamp;
-use super::run::{expand_views, read_views, resource_exhausted};
 use super::shard::Shard;
 use super::shard_settings;
 use super::verify::{Verifier, check_view, view_selected};
