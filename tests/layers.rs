@@ -263,23 +263,26 @@ fn imports(me: &[String], file: &Path, known: &[Vec<String>]) -> Vec<Vec<String>
         if code.starts_with("//") {
             continue;
         }
-        for (root, base) in [("crate::", Vec::new()), ("super::", parent.clone())] {
+        for (root, base) in [("crate::", &[][..]), ("super::", &parent[..])] {
             for (i, _) in code.match_indices(root) {
                 let before = code[..i].chars().next_back();
                 if before.is_some_and(|c| c.is_alphanumeric() || c == '_') {
                     continue;
                 }
-                let mut path = base.clone();
+                let mut path = base.to_vec();
+                // Identifiers joined by `::`; the first segment that is more than one (`b;`,
+                // `{x, y}`) ends the path.
                 for seg in code[i + root.len()..].split("::") {
                     let id: String = seg
                         .chars()
                         .take_while(|c| c.is_alphanumeric() || *c == '_')
                         .collect();
-                    if id.is_empty() || id.len() != seg.len() && !seg.starts_with(&id) {
+                    if id.is_empty() {
                         break;
                     }
-                    path.push(id.clone());
-                    if id.len() != seg.len() {
+                    let whole = id.len() == seg.len();
+                    path.push(id);
+                    if !whole {
                         break;
                     }
                 }
