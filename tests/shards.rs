@@ -125,6 +125,17 @@ fn shards_are_deterministic_across_runs_and_processes() {
         ]
     );
     assert_eq!(one, shard_files(&b));
+    // One thread (render and append in turn) or three (windows of views rendering while
+    // the last is appended, tars side by side): the same bytes.
+    for threads in ["1", "3"] {
+        let d = dir.path().join(format!("threads-{threads}"));
+        must(batch_wds(
+            &data,
+            &d,
+            &["--shard-size", "3", "--threads", threads],
+        ));
+        assert_eq!(one, shard_files(&d), "--threads {threads}");
+    }
     // Three processes at once, several times over: they share `.partial`, which the last
     // to leave removes, and `shards.json`, which the last to finish writes.
     for round in 0..6 {

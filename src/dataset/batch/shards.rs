@@ -40,9 +40,13 @@
 //! does; the others' members are those of an unverified run. A tar kept from an earlier
 //! run is not checked again.
 //!
-//! **Memory.** Each view's estimate (its whole image, which a tar's view holds, and its
-//! encoded members) is checked against what the machine leaves before it renders, as in the
-//! files format: a view that does not fit fails alone.
+//! **Parallelism and memory.** Within a tar the pool renders a window of views while the
+//! tar's owner appends and hashes the window before it, in view order; several tars are
+//! written at once, each by one owner. How many tars and how large a window come from the
+//! largest view's estimate (its whole image, which a tar's view holds, and its encoded
+//! members) and half of what the machine leaves, so the views held stay within it. Each
+//! view's estimate is also checked before it renders, as in the files format: a view that
+//! does not fit fails alone.
 
 use super::input::{expand_views, read_views, resource_exhausted};
 use super::lock::{lock_named, lock_shard, partial_root};
@@ -657,26 +661,53 @@ fn view_members_and_exr(
         formula: opts.formula,
         ..RenderOptions::new(plan.traced_aovs())
     };
+    debug_assert_eq!(plan.traced_aovs(), tar_traced_aovs(aovs, members));
     // As the files format does: a view that does not fit fails alone, before it allocates.
     crate::mem::check_memory(
         &format!("rendering {}", view.id()),
-        tar_view_memory(&plan, aovs, members, exr),
+        tar_view_memory(
+            (plan.camera.width(), plan.camera.height()),
+            aovs,
+            opts,
+            members,
+            exr,
+        ),
     )?;
     plan.execute(scene, &render_opts, &mut sink)?;
     Ok((sink.members, sink.exr.filter(|_| exr)))
 }
 
-/// Bytes one view of a tar holds at its peak: the whole traced image (a tar's view is never
-/// streamed band by band) with what the plan encodes from it (see
+/// The AOVs a tar view traces: the dataset's, depth and normal (always arrays), and what
+/// a PLY member reads. The plan of [`view_members_and_exr`] traces exactly these (checked
+/// there), so the memory of a view is known from its size before its scene is loaded.
+fn tar_traced_aovs(aovs: &[Aov], members: &[Member]) -> Vec<Aov> {
+    let mut v = plan_aovs(aovs);
+    if members.contains(&Member::Ply) {
+        for a in crate::output::ply::PLY_AOVS {
+            if !v.contains(&a) {
+                v.push(a);
+            }
+        }
+    }
+    v
+}
+
+/// Bytes one view of `w`×`h` in a tar holds at its peak: the whole traced image (a tar's
+/// view is never streamed band by band) with what the plan encodes from it (see
 /// `crate::output::aov::render_memory`), and its encoded members, the EXR counted when it is
 /// encoded for the check alone.
-fn tar_view_memory(plan: &ViewPlan, aovs: &[Aov], members: &[Member], exr: bool) -> u64 {
-    let (w, h) = (plan.camera.width(), plan.camera.height());
+fn tar_view_memory(
+    (w, h): (u32, u32),
+    aovs: &[Aov],
+    opts: &BatchOptions,
+    members: &[Member],
+    exr: bool,
+) -> u64 {
     let traced = crate::output::aov::render_memory(
         (w, h),
-        &plan.traced_aovs(),
-        plan.layout,
-        plan.compression,
+        &tar_traced_aovs(aovs, members),
+        ExrLayout::Layers,
+        opts.compression,
         true,
     );
     let mut encoded: Vec<Member> = members.to_vec();
@@ -757,6 +788,9 @@ fn file_sha256(path: &Path) -> std::io::Result<(String, u64)> {
     Ok((hex(&h.finalize()), len))
 }
 
+/// What became of one tar: written or skipped, its sidecar, and the views rendered for it.
+type Written = (TarOutcome, Sidecar, usize);
+
 /// Everything a sharded run shares.
 struct Plan<'a> {
     out: &'a Path,
@@ -777,6 +811,24 @@ struct Plan<'a> {
     verifier: Option<&'a dyn Verifier>,
     /// Views checked by the verifier so far.
     verified: AtomicUsize,
+    /// Tars written at once, and views a tar renders at once (see [`in_flight`]).
+    tars_at_once: usize,
+    window: usize,
+}
+
+/// How many tars to write at once and how many views each renders at once, so that the
+/// views held fit the memory budget (`crate::mem::jobs_in_memory`: half of what the machine
+/// or `ulimit -v` leaves) and the pool stays busy. A tar holds at most two windows: one
+/// being appended, the next rendering. `each` is the largest view's peak
+/// ([`tar_view_memory`]), `tars` the tars to write.
+fn in_flight(each: u64, tars: usize, threads: usize) -> (usize, usize) {
+    let threads = threads.max(1);
+    let tars_at_once = crate::mem::jobs_in_memory(each.saturating_mul(2), threads.min(tars.max(1)));
+    let window = crate::mem::jobs_in_memory(
+        each.saturating_mul(2 * tars_at_once as u64),
+        threads.div_ceil(tars_at_once),
+    );
+    (tars_at_once, window)
 }
 
 impl Plan<'_> {
@@ -896,7 +948,7 @@ impl Plan<'_> {
     }
 
     /// Write tar `j` (unless its sidecar vouches for it) under its lock.
-    fn tar(&self, j: usize) -> Result<(TarOutcome, Sidecar, usize)> {
+    fn tar(&self, j: usize) -> Result<Written> {
         self.check_stop()?;
         let _lock = lock_shard(
             self.out,
@@ -977,66 +1029,32 @@ impl Plan<'_> {
             inner: BufWriter::with_capacity(64 << 10, file),
             hash: Sha256::new(),
         });
-        // Several tars are in flight at once (see `write_shards`), each appended and hashed
-        // by the worker that owns it: while one appends, the others' views render. Within a
-        // tar the pool renders a chunk of views, then its owner appends them in view order.
+        // Several tars are in flight at once (see `write_planned`), each appended and hashed
+        // by the worker that owns it. Within a tar the pool renders the next window of views
+        // while the owner appends the last one in view order, so appending and hashing
+        // overlap the trace even when there is one tar.
         let (mut samples, mut failures) = (0, Vec::new());
-        let chunk = rayon::current_num_threads().max(1);
         let indices: Vec<usize> = range.clone().collect();
-        for chunk in indices.chunks(chunk) {
+        let mut ready: Vec<(usize, Result<Members, String>)> = Vec::new();
+        for window in indices.chunks(self.window) {
             self.check_stop()?;
-            let rendered: Vec<(usize, Result<Members, String>)> = chunk
-                .par_iter()
-                .map(|&i| {
-                    if self.stop.load(Ordering::Relaxed) {
-                        return (i, Err(String::new()));
-                    }
-                    let view = &self.views[i];
-                    let checker = self.verifier.filter(|_| {
-                        view_selected(self.opts.verify_seed, view, self.opts.verify_fraction)
-                    });
-                    let r = scenes[i - range.start]
-                        .as_ref()
-                        .map_err(|e| e.clone())
-                        .and_then(|scene| {
-                            let (members, exr) = view_members_and_exr(
-                                &self.keys[i],
-                                view,
-                                scene,
-                                &self.input_dir,
-                                &self.aovs,
-                                &self.opts,
-                                &self.sopts.members,
-                                checker.is_some(),
-                            )
-                            .map_err(|e| format!("{}: {e:#}", view.path.display()))?;
-                            if let (Some(v), Some(exr)) = (checker, exr) {
-                                self.verify(v, i, scene, &exr)?;
-                            }
-                            Ok(members)
-                        });
-                    (i, r)
-                })
-                .collect();
-            self.check_stop()?;
-            for (i, r) in rendered {
-                match r {
-                    Ok(members) => {
-                        for (name, bytes) in &members {
-                            tar.append(name, bytes)
-                                .with_context(|| format!("writing {}", tmp.display()))?;
-                        }
-                        samples += 1;
-                    }
-                    Err(e) => {
-                        if let Some(what) = resource_exhausted(&e) {
-                            bail!("{}: {what}: {e}", tmp.display());
-                        }
-                        failures.push(self.failure(i, e));
-                    }
-                }
-            }
+            let (appended, rendered) = rayon::join(
+                || {
+                    self.append(
+                        &mut tar,
+                        tmp,
+                        std::mem::take(&mut ready),
+                        &mut samples,
+                        &mut failures,
+                    )
+                },
+                || self.render_window(window, range.start, scenes),
+            );
+            appended?;
+            ready = rendered;
         }
+        self.check_stop()?;
+        self.append(&mut tar, tmp, ready, &mut samples, &mut failures)?;
         let (hashing, bytes) = tar
             .finish()
             .with_context(|| format!("writing {}", tmp.display()))?;
@@ -1046,6 +1064,78 @@ impl Plan<'_> {
             .map_err(|e| e.into_error())
             .with_context(|| format!("writing {}", tmp.display()))?;
         Ok((samples, bytes, hex(&hash.finalize()), failures))
+    }
+
+    /// Render the views `window` of the tar whose first view is `first`, in parallel.
+    fn render_window(
+        &self,
+        window: &[usize],
+        first: usize,
+        scenes: &[Result<Scene, String>],
+    ) -> Vec<(usize, Result<Members, String>)> {
+        window
+            .par_iter()
+            .map(|&i| {
+                if self.stop.load(Ordering::Relaxed) {
+                    return (i, Err(String::new()));
+                }
+                let view = &self.views[i];
+                let checker = self.verifier.filter(|_| {
+                    view_selected(self.opts.verify_seed, view, self.opts.verify_fraction)
+                });
+                let r = scenes[i - first]
+                    .as_ref()
+                    .map_err(|e| e.clone())
+                    .and_then(|scene| {
+                        let (members, exr) = view_members_and_exr(
+                            &self.keys[i],
+                            view,
+                            scene,
+                            &self.input_dir,
+                            &self.aovs,
+                            &self.opts,
+                            &self.sopts.members,
+                            checker.is_some(),
+                        )
+                        .map_err(|e| format!("{}: {e:#}", view.path.display()))?;
+                        if let (Some(v), Some(exr)) = (checker, exr) {
+                            self.verify(v, i, scene, &exr)?;
+                        }
+                        Ok(members)
+                    });
+                (i, r)
+            })
+            .collect()
+    }
+
+    /// Append the `rendered` views to `tar` (at `tmp`) in view order, counting the samples
+    /// and recording the failures; a view that ran out of what every view needs ends the tar.
+    fn append<W: Write>(
+        &self,
+        tar: &mut TarWriter<W>,
+        tmp: &Path,
+        rendered: Vec<(usize, Result<Members, String>)>,
+        samples: &mut usize,
+        failures: &mut Vec<ShardFailure>,
+    ) -> Result<()> {
+        for (i, r) in rendered {
+            match r {
+                Ok(members) => {
+                    for (name, bytes) in &members {
+                        tar.append(name, bytes)
+                            .with_context(|| format!("writing {}", tmp.display()))?;
+                    }
+                    *samples += 1;
+                }
+                Err(e) => {
+                    if let Some(what) = resource_exhausted(&e) {
+                        bail!("{}: {what}: {e}", tmp.display());
+                    }
+                    failures.push(self.failure(i, e));
+                }
+            }
+        }
+        Ok(())
     }
 
     /// Check view `i`'s EXR bytes with `verifier` in a private folder under the partial
@@ -1255,6 +1345,15 @@ pub fn write_shards_until(
     } else {
         input.parent().unwrap_or(Path::new("")).to_path_buf()
     };
+    let exr_checked = verifier.is_some() && opts.verify_fraction > 0.0;
+    let each = mine
+        .iter()
+        .flat_map(|&j| j * sopts.shard_size..((j + 1) * sopts.shard_size).min(views.len()))
+        .filter_map(|i| cameras[i].as_ref().ok())
+        .map(|c| tar_view_memory(c.size(), &aovs, opts, &sopts.members, exr_checked))
+        .max()
+        .unwrap_or(0);
+    let (tars_at_once, window) = in_flight(each, mine.len(), rayon::current_num_threads());
     let mut shard_opts = opts.clone();
     shard_opts.aovs = Some(aovs.clone());
     shard_opts.png = sopts.members.contains(&Member::DepthPng);
@@ -1273,6 +1372,8 @@ pub fn write_shards_until(
         stop,
         verifier,
         verified: AtomicUsize::new(0),
+        tars_at_once,
+        window,
     };
     let mut targets: Vec<(&str, PathBuf)> = vec![
         (&out_opt, out.join("shards.json")),
@@ -1322,11 +1423,23 @@ fn write_planned(
         index_written: false,
         elapsed: Duration::ZERO,
     };
-    // Tars in parallel: each worker owns one tar at a time, so appending and hashing
-    // scale with the pool; every tar's bytes stay those of its views in order.
-    let written: Vec<Result<(TarOutcome, Sidecar, usize)>> =
-        mine.par_iter().map(|&j| plan.tar(j)).collect();
-    for (&j, w) in mine.iter().zip(written) {
+    // Tars in parallel: `tars_at_once` lanes, each writing its tars one after another (tar
+    // `mine[k]` in lane `k % lanes`), so appending and hashing scale with the pool while
+    // the tars in flight stay within the memory budget; every tar's bytes stay those of its
+    // views in order.
+    let lanes = plan.tars_at_once.min(mine.len()).max(1);
+    let mut written: Vec<(usize, Result<Written>)> = (0..lanes)
+        .into_par_iter()
+        .flat_map_iter(|lane| {
+            mine.iter()
+                .skip(lane)
+                .step_by(lanes)
+                .map(|&j| (j, plan.tar(j)))
+                .collect::<Vec<_>>()
+        })
+        .collect();
+    written.sort_by_key(|(j, _)| *j);
+    for (j, w) in written {
         let (outcome, car, rendered) = w?;
         summary.outcomes.push((j, outcome));
         if outcome == TarOutcome::Written {
@@ -1397,6 +1510,17 @@ mod tests {
     }
 
     /// Calls with other tar lists keep other failures files.
+    #[test]
+    fn tars_in_flight_fill_the_pool_within_the_memory_budget() {
+        // Nothing to hold: as many tars as threads (or tars), windows sharing the threads.
+        assert_eq!(in_flight(0, 1, 8), (1, 8));
+        assert_eq!(in_flight(0, 3, 8), (3, 3));
+        assert_eq!(in_flight(0, 40, 2), (2, 1));
+        assert_eq!(in_flight(0, 40, 1), (1, 1));
+        // Views too large for any budget: one tar, one view at a time.
+        assert_eq!(in_flight(u64::MAX / 8, 40, 16), (1, 1));
+    }
+
     #[test]
     fn failures_files_are_named_by_their_tars() {
         assert_eq!(failures_label(&[3]), "tar-000003");
