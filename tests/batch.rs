@@ -567,7 +567,7 @@ fn changed_camera_is_rendered_again() {
 /// when dropped.
 #[test]
 fn staged_files_have_unique_temporary_names_and_plain_modes() {
-    use cylaov::output::io::stage;
+    use cylaov::output::atomic::stage;
     use std::io::Write;
     use std::os::unix::fs::PermissionsExt;
     let tmp = fresh_dir("staged");

@@ -160,12 +160,12 @@ pub(crate) fn _write_ply(
         })
         .collect();
     py.detach(|| {
-        cylaov::output::io::check_output("path", &path, &[])?;
+        cylaov::output::targets::check_output("path", &path, &[])?;
         let bytes = encode(
             &hits,
             &format!("cylaov {} hit points", env!("CARGO_PKG_VERSION")),
         );
-        cylaov::output::io::atomic_write_bytes(&path, &bytes)
+        cylaov::output::atomic::atomic_write_bytes(&path, &bytes)
     })
     .map_err(|e| os_error(&path, &e))?;
     Ok(count)

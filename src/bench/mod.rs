@@ -26,7 +26,7 @@ use crate::geometry::wide::{Avx2, Simd};
 use crate::geometry::wide::{Lanes, Wide};
 use crate::geometry::{Cylinder, Prepared, Real};
 use crate::output::aov::{AovImage, Compression};
-use crate::output::io::atomic_write_bytes;
+use crate::output::atomic::atomic_write_bytes;
 use crate::render::{Accel, RenderOptions, render, render_timed};
 use crate::rng::SplitMix64;
 use crate::scene::camera::Camera;

@@ -111,6 +111,6 @@ pub fn set_threads(threads: Option<usize>) -> anyhow::Result<()> {
 
 /// Print a command's summary line (a closed pipe is not an error; see `io::say`).
 pub fn say(text: &str) -> anyhow::Result<()> {
-    cylaov::output::io::say(text)?;
+    cylaov::output::console::say(text)?;
     Ok(())
 }

@@ -54,5 +54,5 @@ pub fn check_status(outcome: anyhow::Result<(String, u8)>) -> std::process::Exit
 
 /// Print an error as the one `error: ...` line every command ends with on failure.
 pub fn report(e: &anyhow::Error) {
-    cylaov::output::io::warn(&format!("error: {e:#}"));
+    cylaov::output::console::warn(&format!("error: {e:#}"));
 }

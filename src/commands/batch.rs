@@ -33,14 +33,14 @@ pub struct BatchArgs {
 
 /// Run the batch; the summary says what happened (failed views are not an `Err`).
 pub fn run(args: &BatchArgs) -> Result<Summary> {
-    crate::output::io::check_output_dir("--out", &args.out)?;
+    crate::output::targets::check_output_dir("--out", &args.out)?;
     let shard = batch::resolve_shard(args.shard, args.shards, &|k| std::env::var(k).ok())
         .map_err(anyhow::Error::msg)?;
     // Bad values are refused before any advice about them is printed.
     args.options.validate().map_err(anyhow::Error::msg)?;
     let verification = Verification::new(args)?;
     if args.options.png && args.options.depth_scale != NERFSTUDIO_DEPTH_SCALE {
-        crate::output::io::warn(&format!(
+        crate::output::console::warn(&format!(
             "warning: --depth-scale {}: nerfstudio reads depth PNGs at {NERFSTUDIO_DEPTH_SCALE} \
              per unit unless told otherwise: train with its parser option \
              depth_unit_scale_factor = {} (index.json and transforms.json record it, but \
@@ -101,7 +101,7 @@ impl Verification {
                     dir.display()
                 );
             }
-            crate::output::io::check_output_dir("--report", dir)?;
+            crate::output::targets::check_output_dir("--report", dir)?;
         }
         let mut verifier = verifier(args)?;
         if let Some(v) = verifier.as_mut().filter(|_| args.report.is_some()) {
@@ -137,7 +137,7 @@ fn verifier(args: &BatchArgs) -> Result<Option<crate::verify::reference::Mitsuba
         args.options.formula,
     );
     if let Err(why) = &found {
-        crate::output::io::warn(&format!("--verify-fraction: skipped: {why}"));
+        crate::output::console::warn(&format!("--verify-fraction: skipped: {why}"));
     }
     Ok(found.ok())
 }

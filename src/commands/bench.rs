@@ -1,7 +1,10 @@
 //! `cylaov bench`: print the time-vs-error table, optionally as CSV and as a figure.
 
 use crate::bench::{self, Anchors, BenchOptions, Row};
-use crate::output::io::{atomic_write_bytes, check_outputs, csv_bytes, say};
+use crate::output::atomic::atomic_write_bytes;
+use crate::output::targets::check_outputs;
+use crate::output::camera_files::csv_bytes;
+use crate::output::console::say;
 use anyhow::{Context, Result, bail};
 use std::path::{Path, PathBuf};
 

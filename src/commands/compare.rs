@@ -4,7 +4,7 @@
 
 use crate::mem::check_memory;
 use crate::output::aov::AovImage;
-use crate::output::io::check_outputs;
+use crate::output::targets::check_outputs;
 use crate::output::preview::write_png;
 use crate::verify::compare::{
     Conditioning, Report, Tolerances, compare_with, heatmap_figure, tolerance_line, verdict_lines,

@@ -1,6 +1,8 @@
 //! `cylaov export-mitsuba`: scene file → Mitsuba 3 XML (see [`crate::output::mitsuba`]).
 
-use crate::output::io::{NewDirs, atomic_write_bytes, check_outputs};
+use crate::output::atomic::{NewDirs, atomic_write_bytes};
+
+use crate::output::targets::check_outputs;
 use crate::output::mitsuba::{shapes, to_xml};
 use crate::scene;
 use anyhow::{Context, Result};

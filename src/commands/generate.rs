@@ -27,7 +27,8 @@
 
 use crate::dataset::generate::{ConfigFile, GenerateOptions, to_json, view_name};
 use crate::output::files::read_regular;
-use crate::output::io::{NewDirs, atomic_write_bytes, check_output, check_output_dir};
+use crate::output::atomic::{NewDirs, atomic_write_bytes};
+use crate::output::targets::{check_output, check_output_dir};
 use anyhow::{Context, Result, bail};
 use rayon::prelude::*;
 use serde::Serialize;

@@ -9,9 +9,9 @@
 use crate::mem::check_memory;
 use crate::output::aov::{Compression, ExrLayout};
 use crate::output::depth_png::OutOfRange;
-use crate::output::io::{
-    NewDirs, Staged, camera_json_path, check_output_dir, check_outputs, stage,
-};
+use crate::output::atomic::{NewDirs, Staged, stage};
+use crate::output::camera_files::camera_json_path;
+use crate::output::targets::{check_output_dir, check_outputs};
 use crate::output::ply::{PLY_AOVS, encode, hits};
 use crate::output::view::{DepthOutOfRange, DepthPngPlan, FileSink, Member, ViewPlan};
 use crate::render::RenderOptions;
@@ -174,7 +174,7 @@ pub fn run(args: &RenderArgs) -> Result<String> {
     if written.depth_zeroed > 0
         && let Some(scale) = args.depth_png
     {
-        crate::output::io::warn(&format!(
+        crate::output::console::warn(&format!(
             "{}: depth PNG: {} hit pixels beyond 16 bits at --depth-scale {scale} stored as 0",
             args.out.display(),
             written.depth_zeroed

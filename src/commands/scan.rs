@@ -1,7 +1,9 @@
 //! `cylaov scan`: a scene, a sensor (a preset or a JSON table) and its pose or trajectory
 //! → one rotation's points as LAS, PLY or `.npz` (see [`crate::scan`]).
 
-use crate::output::io::{NewDirs, check_outputs, stage};
+use crate::output::atomic::{NewDirs, stage};
+
+use crate::output::targets::check_outputs;
 use crate::output::scan_files::ScanFormat;
 use crate::scan::{Motion, Noise, Pose, ScanOptions, Sensor, Trajectory};
 use crate::scene;

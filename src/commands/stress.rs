@@ -1,7 +1,11 @@
 //! `cylaov stress`: run the stress families through every kernel, print the table, and
 //! optionally write the per-ray CSV and a log-log plot of error against difficulty.
 
-use crate::output::io::{atomic_write_bytes, check_outputs, csv_bytes};
+use crate::output::atomic::atomic_write_bytes;
+
+use crate::output::targets::check_outputs;
+
+use crate::output::camera_files::csv_bytes;
 use crate::verify::stress::{self, Family, Record, TABLE_HEADER, TABLE_ORDER};
 use anyhow::{Context, Result, bail};
 use std::path::{Path, PathBuf};

@@ -118,7 +118,7 @@ fn run_written(args: &VerifyArgs) -> Result<VerifyOutcome> {
     let fresh = args.json || pictures;
     let mut images: Vec<Option<Images>> = Vec::new();
     if let Err(why) = &verifier {
-        crate::output::io::warn(&format!("verify: {why}"));
+        crate::output::console::warn(&format!("verify: {why}"));
     }
     let mut results = Vec::new();
     let mut all = 0;
@@ -251,7 +251,7 @@ fn run_shards(args: &VerifyArgs) -> Result<VerifyOutcome> {
     )
     .map(|v| crate::verify::reference::MitsubaVerifier { log: false, ..v });
     if let Err(why) = &verifier {
-        crate::output::io::warn(&format!("verify: {why}"));
+        crate::output::console::warn(&format!("verify: {why}"));
     }
     let pictures = args.report.is_some();
     let (mut results, mut images, mut all) = (Vec::new(), Vec::new(), 0);
@@ -557,9 +557,9 @@ fn check_one(
     );
     if let Some(dir) = &args.heatmap {
         let path = view.dir(dir).join(format!("{}.heatmap.png", view.name));
-        crate::output::io::check_output("--heatmap", &path, &[&view.path])?;
+        crate::output::targets::check_output("--heatmap", &path, &[&view.path])?;
         if let Some(parent) = path.parent() {
-            crate::output::io::make_dir_all(parent)?;
+            crate::output::atomic::make_dir_all(parent)?;
         }
         write_png(&img, &path)?;
     }
@@ -575,10 +575,10 @@ pub fn run(args: &VerifyArgs) -> Result<VerifyOutcome> {
         anyhow::bail!("--fraction: must be in [0, 1], got {}", args.fraction);
     }
     if let Some(dir) = &args.heatmap {
-        crate::output::io::check_output_dir("--heatmap", dir)?;
+        crate::output::targets::check_output_dir("--heatmap", dir)?;
     }
     if let Some(dir) = &args.report {
-        crate::output::io::check_output_dir("--report", dir)?;
+        crate::output::targets::check_output_dir("--report", dir)?;
     }
     // A candidate that is not a regular file is refused before Mitsuba is asked for
     // anything (reading a FIFO would block).
@@ -626,7 +626,7 @@ pub fn run(args: &VerifyArgs) -> Result<VerifyOutcome> {
     // Without the venv nothing can be checked. The table says how to make it once, under
     // the rows; JSON on stdout gets it on stderr as well, for the person reading the run.
     if let (Err(why), true) = (&mitsuba, args.json) {
-        crate::output::io::warn(&format!("verify: {why}"));
+        crate::output::console::warn(&format!("verify: {why}"));
     }
     // Progress: one line redrawn in place, on a terminal only (the table goes to stdout).
     let live = !args.json && std::io::IsTerminal::is_terminal(&std::io::stderr());

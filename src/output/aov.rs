@@ -35,7 +35,7 @@
 //! `Y` (all float32; ids are exact up to 2^24 and larger ones are refused), `normal` and
 //! `position` as `R, G, B` (= X, Y, Z). The samples are bitwise those of the layered file.
 
-use crate::output::io::{Staged, stage};
+use crate::output::atomic::{Staged, stage};
 use crate::scene::Aov;
 use crate::scene::camera::Camera;
 use anyhow::{Context, Result, bail};

@@ -12,7 +12,6 @@ pub mod camera_files;
 pub mod console;
 pub mod depth_png;
 pub mod files;
-pub mod io;
 pub mod mitsuba;
 pub mod npz;
 pub mod plot;

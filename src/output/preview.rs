@@ -3,7 +3,7 @@
 //! Also the data PNGs of datasets (normals without a key, 16-bit depth).
 
 use crate::output::aov::AovImage;
-use crate::output::io::{Staged, stage};
+use crate::output::atomic::{Staged, stage};
 use crate::output::plot;
 use crate::scene::Aov;
 use anyhow::{Context, Result};

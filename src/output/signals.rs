@@ -212,7 +212,7 @@ fn stop(sig: i32) -> ! {
     } else {
         ""
     };
-    crate::output::io::warn(&format!(
+    crate::output::console::warn(&format!(
         "{lead}cylaov: stopped by {name}: {removed} unfinished files and folders removed \
          (exit {})",
         exit_status(sig)

@@ -35,7 +35,7 @@
 use crate::dataset::batch::{Verdict, Verifier, ViewSource};
 use crate::geometry::{FormulaKind, Precision};
 use crate::output::aov::AovImage;
-use crate::output::io::atomic_write_bytes;
+use crate::output::atomic::atomic_write_bytes;
 use crate::output::signals::{self, Cleanup};
 use crate::render::{RenderOptions, render};
 use crate::scene::{Aov, Scene};
@@ -605,7 +605,7 @@ impl MitsubaVerifier {
             line.insert_str(0, "\r\x1b[2K");
         }
         if self.log {
-            crate::output::io::warn(&line);
+            crate::output::console::warn(&line);
         }
         let cached = CachedVerdict {
             stamp,

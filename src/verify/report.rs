@@ -87,7 +87,8 @@ r.forEach(e=>t.tBodies[0].appendChild(e));}";
 /// anything is written), then all are staged under temporary names and committed together,
 /// so nothing outside `dir` is touched and a failure leaves no half-written page.
 pub fn write_report(dir: &Path, title: &str, views: &[ReportView]) -> Result<()> {
-    use crate::output::io::{check_output, commit_all};
+    use crate::output::targets::check_output;
+    use crate::output::atomic::commit_all;
     use crate::output::preview::stage_png;
     // The picture files, named before anything is written so all can be checked first.
     let pictures =
@@ -111,7 +112,7 @@ pub fn write_report(dir: &Path, title: &str, views: &[ReportView]) -> Result<()>
     for t in &targets {
         check_output(&crate::spelling::opt("report"), t, &[])?;
     }
-    crate::output::io::make_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    crate::output::atomic::make_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     let mut staged = Vec::new();
     let mut html = format!(
         "<!DOCTYPE html><html><head><meta charset=\"utf-8\"><title>cylaov verify: {}</title><style>{STYLE}</style><script>{SCRIPT}</script></head><body><h1>cylaov verify: {}</h1>",
@@ -238,7 +239,7 @@ const REPROS: usize = 20;
 
 /// A text file staged for [`write_report`]'s commit.
 fn stage_text(path: &Path, text: &str) -> Result<crate::output::atomic::Staged> {
-    crate::output::io::stage(path, |f| {
+    crate::output::atomic::stage(path, |f| {
         use std::io::Write;
         f.write_all(text.as_bytes())
     })

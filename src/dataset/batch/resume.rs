@@ -330,7 +330,7 @@ pub fn render_stamp(scene: &Scene, opts: &BatchOptions) -> String {
         depth_out_of_range: opts.png.then(|| name(opts.depth_out_of_range)),
         ply: opts.ply,
     };
-    let mut s = crate::output::io::record_json(&stamp);
+    let mut s = crate::output::camera_files::record_json(&stamp);
     s.push('\n');
     s
 }

@@ -25,7 +25,8 @@ use super::views::ViewSource;
 use super::write::{render_view, view_memory};
 use crate::output::aov::ExrLayout;
 use crate::output::files::refuse_non_regular;
-use crate::output::io::{atomic_write_bytes, check_outputs};
+use crate::output::atomic::atomic_write_bytes;
+use crate::output::targets::check_outputs;
 use crate::output::signals::{self, Cleanup, Registration};
 use crate::scene::Scene;
 use anyhow::{Context, Result};
@@ -154,7 +155,7 @@ pub fn run(
     let failures_path = out.join(format!("failures.{shard}.jsonl"));
     check_targets(out, &views, &mine, &failures_path)?;
     // The folders made here go again if the run fails or is interrupted before writing.
-    let mut dirs = crate::output::io::NewDirs::default();
+    let mut dirs = crate::output::atomic::NewDirs::default();
     dirs.create(out)
         .with_context(|| format!("creating {}", out.display()))?;
     let (partial, lock) = clear_partial(out, shard)?;
@@ -433,7 +434,7 @@ impl ShardWork<'_> {
                 // The scene's folder, if this view makes it, stays registered for a
                 // signal's clean-up until the view's files are in it; kept either way
                 // after (other views of the scene may be writing into it).
-                let mut dirs = crate::output::io::NewDirs::default();
+                let mut dirs = crate::output::atomic::NewDirs::default();
                 let rendered = crate::mem::check_memory(&format!("rendering {}", view.id()), bytes)
                     .map_err(anyhow::Error::from)
                     .and_then(|()| {
@@ -447,7 +448,7 @@ impl ShardWork<'_> {
                 match rendered {
                     Ok(cost) => {
                         if cost.depth_zeroed > 0 {
-                            crate::output::io::warn(&format!(
+                            crate::output::console::warn(&format!(
                                 "{}: depth PNG: {} hit pixels beyond 16 bits at {} {} \
                                  stored as 0",
                                 view.id(),
@@ -609,7 +610,7 @@ fn write_index(
         let frames: Vec<(&str, FrameCamera)> =
             scene.iter().map(|(v, c)| (v.name.as_str(), *c)).collect();
         let dir = out.join(folder);
-        crate::output::io::make_dir_all(&dir)
+        crate::output::atomic::make_dir_all(&dir)
             .with_context(|| format!("creating {}", dir.display()))?;
         let path = dir.join("transforms.json");
         atomic_write_bytes(&path, transforms_json(&frames, opts).as_bytes())

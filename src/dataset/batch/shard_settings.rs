@@ -9,7 +9,7 @@
 
 use super::lock::lock_named;
 use crate::output::files::read_regular;
-use crate::output::io::atomic_write_bytes;
+use crate::output::atomic::atomic_write_bytes;
 use anyhow::{Context, Result, bail};
 use serde::{Deserialize, Serialize};
 use std::path::Path;

@@ -61,7 +61,9 @@ use crate::npy;
 use crate::output::aov::{AovImage, ChannelData, ExrLayout, channel_names};
 use crate::output::console::{self, count};
 use crate::output::files::{create_new, open_regular, read_regular};
-use crate::output::io::{atomic_write_bytes, check_outputs, record_json};
+use crate::output::atomic::atomic_write_bytes;
+use crate::output::targets::check_outputs;
+use crate::output::camera_files::record_json;
 use crate::output::signals::{self, Cleanup};
 use crate::output::tar::{self, TarWriter};
 use crate::output::view::{DepthPngPlan, Fill, Member as ViewMember, ViewPlan, ViewSink};
@@ -1020,7 +1022,7 @@ impl Plan<'_> {
         scenes: &[Result<Scene, String>],
     ) -> Result<(usize, u64, String, Vec<ShardFailure>)> {
         let file = create_new(tmp)
-            .map_err(crate::output::io::explain)
+            .map_err(crate::output::atomic::explain)
             .with_context(|| format!("creating {}", tmp.display()))?;
         // A buffer smaller than the arrays: BufWriter passes a write at least its size
         // straight to the file, so an array is hashed and written from where it was encoded,
@@ -1315,7 +1317,7 @@ pub fn write_shards_until(
         bail!("{}: must be >= 1, got 0", opt("shard_size"));
     }
     let out_opt = opt("out");
-    crate::output::io::check_output_dir(&out_opt, out)?;
+    crate::output::targets::check_output_dir(&out_opt, out)?;
     let (views, cameras) = read_views(input, out, opts, announce)?;
     let aovs = dataset_aovs(opts, &views, &cameras)?;
     let keys = keys(&views, &member_suffixes(&aovs, &sopts.members))?;
@@ -1387,7 +1389,7 @@ pub fn write_shards_until(
     let refs: Vec<(&str, &Path)> = targets.iter().map(|(f, p)| (*f, p.as_path())).collect();
     check_outputs(&refs, &[])?;
     // The folders made here go again if the run fails or is interrupted before writing.
-    let mut dirs = crate::output::io::NewDirs::default();
+    let mut dirs = crate::output::atomic::NewDirs::default();
     dirs.create(out)
         .with_context(|| format!("creating {}", out.display()))?;
     let (root, _root_reg) = partial_root(out)?;
