@@ -465,6 +465,6 @@ impl AovImage {
     }
 }
 
-/// Rows in one band of a render written band by band (see `output::aov::streams`): the tracer's tile
+/// Rows in one band of a render written band by band (see `output::pipeline::memory::streams`): the tracer's tile
 /// side, which `render` checks at compile time, so that `output` needs nothing of `accel`.
 pub const BAND_ROWS: usize = 16;

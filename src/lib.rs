@@ -54,7 +54,7 @@
 //!   the one AOV table (channels, sample type, miss value, meaning, Mitsuba's source, the
 //!   comparison metric) every other layer reads; [`scene::table`]: cylinder tables (tree
 //!   QSMs from TreeQSM, SimpleForest, aRchi, plain CSV) read into cylinders, and
-//!   [`scene::table_npz`] (the same from NumPy's `.npz`); `scene::parallel`: a big scene
+//!   [`scene::table::npz`] (the same from NumPy's `.npz`); `scene::parallel`: a big scene
 //!   file's cylinder list read on every core (a fast path that falls back to the one-thread
 //!   read for every message);
 //!   [`scene::framing`]: the camera distance at which a bounding sphere fills the view
@@ -84,20 +84,25 @@
 //!   dropout.
 //! - [`image`]: the AOV image a render fills, one buffer per AOV in numpy's `(H, W)` /
 //!   `(H, W, C)` layout, read channel by channel; no file format.
-//! - [`output`]: [`output::aov`] (the image's EXR reading and writing, band by band too
-//!   ([`output::aov::ExrBands`]), self-describing headers, the per-AOV layout, the memory
-//!   a render needs), [`output::depth_png`] (the 16-bit depth
-//!   PNG that fails rather than drop far pixels, and the hit mask), [`output::preview`] (PNG
-//!   previews with legends), [`output::plot`] (the pixel font and axis panels of every
-//!   figure), [`output::view`] (one view's files as a plan executed into a sink: `render`
-//!   and `batch` write through it), [`output::atomic`] (files staged under temporary names
-//!   and committed together), [`output::targets`] (output-target checks before any work),
-//!   [`output::camera_files`] (the camera and Open3D JSON, record encoding),
-//!   [`output::console`] (console output that survives a closed pipe), [`output::io`] (one
-//!   import path for those four), [`output::files`] (opening in place without following
-//!   links), [`output::signals`] (the clean-up on a signal), [`output::tar`] (deterministic
-//!   ustar members of tar shards, and read back), [`output::mitsuba`] (the scene as Mitsuba 3 XML), [`output::scan_files`] (a
-//!   scan's points as LAS, PLY or NPZ) and [`output::npz`] (the stored zip of `.npy` members).
+//! - [`output`], three layers, arrows down:
+//!   - [`output::pipeline`]: [`output::pipeline::view`] (one view's files as a plan executed
+//!     into a sink: `render`, `batch` and the tar shards write through it),
+//!     [`output::pipeline::memory`] (the memory a view holds at its peak, checked before it
+//!     allocates), [`output::pipeline::scan_files`] (a scan's points as LAS, PLY or NPZ);
+//!   - [`output::format`]: [`output::format::exr`] (the image's EXR reading and writing,
+//!     band by band too ([`output::format::exr::ExrBands`]), self-describing headers, the
+//!     per-AOV layout), [`output::format::depth_png`] (the 16-bit depth PNG that fails
+//!     rather than drop far pixels, and the hit mask), [`output::format::preview`] (PNG
+//!     previews with legends), [`output::format::plot`] (the pixel font and axis panels of
+//!     every figure), [`output::format::ply`], [`output::format::npz`] (the stored zip of
+//!     `.npy` members), [`output::format::tar`] (deterministic ustar members, and read
+//!     back), [`output::format::camera_files`] (the camera and Open3D JSON, record
+//!     encoding), [`output::format::mitsuba`] (the scene as Mitsuba 3 XML);
+//!   - [`output::store`]: [`output::store::atomic`] (files staged under temporary names and
+//!     committed together), [`output::store::signals`] (the clean-up on a signal),
+//!     [`output::store::files`] (opening in place without following links),
+//!     [`output::store::targets`] (output-target checks before any work);
+//!   - and [`output::console`] (console output that survives a closed pipe).
 //!
 //! Checking tools:
 //! - [`verify`]: [`verify::compare`] (the per-pixel rule: identity by cylinder and part,
@@ -150,7 +155,10 @@
 //!
 //! Held by `tests/layers.rs` where it says so:
 //! - **Arrows between modules point down**: the top-level modules import each other
-//!   without a cycle (layers); inside one module, files may still import each other.
+//!   without a cycle, and so do the files inside each (a file's own submodules excepted)
+//!   (layers).
+//! - **`output` is `pipeline` over `format` over `store`**, and **only `pipeline` calls
+//!   `render`** (layers).
 //! - **The trace knows no file**: `scene`, `geometry`, `accel`, `image`, `render` and `scan`
 //!   never import `output` (`render_bands` hands its bands to the caller's sink) (layers).
 //! - **A render is a pure function of scene + options**: the same inputs give the same bits
@@ -160,7 +168,7 @@
 //!   PyO3** (layers).
 //! - **`output` never reaches into `accel`**, and **`verify` never calls up into
 //!   `commands`** (layers).
-//! - `output::mitsuba` knows Mitsuba's XML, not how to run it (`verify::reference` does).
+//! - `output::format::mitsuba` knows Mitsuba's XML, not how to run it (`verify::reference` does).
 
 #![warn(missing_docs)]
 

@@ -204,8 +204,8 @@ fn command_line() -> clap::Command {
 
 fn main() -> ExitCode {
     use clap::FromArgMatches;
-    // First, before any thread starts: see `output::signals`.
-    cylaov::output::signals::install();
+    // First, before any thread starts: see `output::store::signals`.
+    cylaov::output::store::signals::install();
     cylaov::spelling::set(cylaov::spelling::as_flag);
     cylaov::mem::keep_freed_memory();
     cylaov::mem::init_from_env();

@@ -7,7 +7,7 @@ mod common;
 use common::venv_python;
 
 use cylaov::geometry::{FormulaKind, Precision};
-use cylaov::output::aov::{AovImage, StridedMut};
+use cylaov::image::{AovImage, StridedMut};
 use cylaov::scene;
 use cylaov::verify::arbiter::{Kind, PixelClass};
 use cylaov::verify::compare::Tolerances;

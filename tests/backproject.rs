@@ -6,7 +6,7 @@
 mod common;
 use common::{distance_to_surface, read_npy, venv_python};
 
-use cylaov::output::aov::AovImage;
+use cylaov::image::AovImage;
 use glam::DVec3;
 use std::path::{Path, PathBuf};
 use std::process::Command;

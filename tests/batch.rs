@@ -4,7 +4,7 @@
 mod common;
 use common::{cylaov, ok, tree};
 
-use cylaov::output::aov::AovImage;
+use cylaov::image::AovImage;
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -567,7 +567,7 @@ fn changed_camera_is_rendered_again() {
 /// when dropped.
 #[test]
 fn staged_files_have_unique_temporary_names_and_plain_modes() {
-    use cylaov::output::atomic::stage;
+    use cylaov::output::store::atomic::stage;
     use std::io::Write;
     use std::os::unix::fs::PermissionsExt;
     let tmp = fresh_dir("staged");

@@ -4,7 +4,7 @@
 
 mod common;
 
-use cylaov::output::aov::{AovImage, ChannelRef};
+use cylaov::image::{AovImage, ChannelRef};
 use std::path::Path;
 
 fn s(p: &Path) -> &str {

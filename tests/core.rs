@@ -1,7 +1,7 @@
 //! End-to-end checks of the core renderer against analytic answers.
 
 use cylaov::geometry::{FormulaKind, Precision};
-use cylaov::output::aov::AovImage;
+use cylaov::image::AovImage;
 use cylaov::render::{Accel, RenderOptions, render};
 use cylaov::scene::{self, Aov, Scene};
 
@@ -288,7 +288,7 @@ fn exr_round_trip_keeps_names_types_and_bits() {
         .unwrap();
     let dir = tmp.path();
     let path = dir.join("rt.exr");
-    img.write_exr(&path, cylaov::output::aov::Compression::Zip)
+    img.write_exr(&path, cylaov::output::format::exr::Compression::Zip)
         .unwrap();
     let back = AovImage::read_exr(&path).unwrap();
     assert_eq!((back.width, back.height), (160, 120));
@@ -307,7 +307,7 @@ fn direct_uncompressed_writer_reads_back_bit_exact_with_the_exr_crate() {
         .unwrap();
     let dir = tmp.path();
     let path = dir.join("raw.exr");
-    img.write_exr(&path, cylaov::output::aov::Compression::None)
+    img.write_exr(&path, cylaov::output::format::exr::Compression::None)
         .unwrap();
     let back = AovImage::read_exr(&path).unwrap();
     assert_eq!((back.width, back.height), (img.width, img.height));

@@ -6,7 +6,7 @@
 mod common;
 use common::{cylaov, ok};
 
-use cylaov::output::aov::AovImage;
+use cylaov::image::AovImage;
 use std::path::Path;
 
 const ROOT: &str = env!("CARGO_MANIFEST_DIR");

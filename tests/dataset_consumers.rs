@@ -10,7 +10,7 @@
 mod common;
 use common::{distance_to_surface, read_npy};
 
-use cylaov::output::aov::AovImage;
+use cylaov::image::AovImage;
 use cylaov::scene;
 use glam::DVec3;
 use std::path::{Path, PathBuf};

@@ -674,7 +674,7 @@ fn readme_python_block_gives_the_exrs_samples() {
         "--aov",
         "depth,normal",
     ]);
-    let img = cylaov::output::aov::AovImage::read_exr(&exr).unwrap();
+    let img = cylaov::image::AovImage::read_exr(&exr).unwrap();
     let want: Vec<u8> = img
         .f32_channel("depth")
         .unwrap()

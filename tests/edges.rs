@@ -5,8 +5,8 @@
 mod common;
 
 use cylaov::geometry::{Cylinder, FormulaKind, Precision};
-use cylaov::output::aov::{AovImage, ChannelData, ChannelRef};
-use cylaov::output::mitsuba::to_xml;
+use cylaov::image::{AovImage, ChannelData, ChannelRef};
+use cylaov::output::format::mitsuba::to_xml;
 use cylaov::render::{Accel, RenderOptions, render};
 use cylaov::rng::SplitMix64;
 use cylaov::scene::camera::Camera;

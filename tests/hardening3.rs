@@ -86,7 +86,7 @@ fn tour_data_ignored() {
 /// --verify-fraction` both write it.
 #[test]
 fn report_pictures_refuse_links_and_fifos() {
-    use cylaov::output::aov::{AovImage, Channel, ChannelData};
+    use cylaov::image::{AovImage, Channel, ChannelData};
     use cylaov::verify::report::{ReportView, write_report};
     let depth = |v: f32| {
         AovImage::from_channels(

@@ -22,7 +22,7 @@ fn openexr_reads_every_channel_of_our_uncompressed_files() {
         .unwrap();
     let dir = tmp.path();
     let path = dir.join("all.exr");
-    img.write_exr(&path, cylaov::output::aov::Compression::None)
+    img.write_exr(&path, cylaov::output::format::exr::Compression::None)
         .unwrap();
     let script = r#"
 import sys, numpy as np, mitsuba as mi
@@ -53,12 +53,12 @@ for i, n in enumerate(names):
             .unwrap_or_else(|| panic!("extra channel {name}"))
         {
             // Weighted by 1 + pixel index, so a misplaced row or column shows.
-            cylaov::output::aov::ChannelRef::F32(v) => v
+            cylaov::image::ChannelRef::F32(v) => v
                 .iter()
                 .enumerate()
                 .map(|(k, &x)| x as f64 * (1 + k) as f64)
                 .sum(),
-            cylaov::output::aov::ChannelRef::U32(v) => v
+            cylaov::image::ChannelRef::U32(v) => v
                 .iter()
                 .enumerate()
                 .map(|(k, &x)| x as f64 * (1 + k) as f64)

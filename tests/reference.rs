@@ -54,7 +54,7 @@
 //! to 0.13 seen edge-on.
 
 use cylaov::geometry::{FormulaKind, Precision};
-use cylaov::output::aov::AovImage;
+use cylaov::image::AovImage;
 use cylaov::scene;
 use cylaov::verify::arbiter::Bound;
 use cylaov::verify::compare::{Identity, Tolerances};

@@ -5,7 +5,7 @@
 mod common;
 
 use common::{cylaov, fresh_dir, ok, tree, venv_python};
-use cylaov::output::aov::AovImage;
+use cylaov::image::AovImage;
 use std::collections::BTreeMap;
 use std::os::unix::fs::MetadataExt;
 use std::path::Path;

@@ -9,7 +9,7 @@ use common::{cylaov, ok};
 
 use cylaov::dataset::batch::shards::{ShardOptions, TarSelection, write_shards};
 use cylaov::dataset::batch::{BatchOptions, Shard, Verdict, Verifier, ViewSource};
-use cylaov::output::aov::AovImage;
+use cylaov::image::AovImage;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::Mutex;

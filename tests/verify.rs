@@ -10,7 +10,7 @@ use common::venv_python;
 
 use cylaov::geometry::{Cylinder, Surface};
 use cylaov::geometry::{FormulaKind, Precision};
-use cylaov::output::aov::{AovImage, ChannelRef, StridedMut};
+use cylaov::image::{AovImage, ChannelRef, StridedMut};
 use cylaov::scene::camera::Camera;
 use cylaov::scene::{self, Scene};
 use cylaov::verify::arbiter::{Bound, PixelClass};

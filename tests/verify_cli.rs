@@ -191,7 +191,7 @@ fn batch_verifies_with_identity_and_keeps_verdicts() {
     assert!(out.contains("verify far_offset: silhouette "), "{out}");
     assert!(out.contains("candidate errors 0, ties "), "{out}");
     // The dataset stores depth only; the check rendered shape_id and part alongside.
-    let exr = cylaov::output::aov::AovImage::read_exr(&render.join("gen.exr")).expect("exr");
+    let exr = cylaov::image::AovImage::read_exr(&render.join("gen.exr")).expect("exr");
     let names: Vec<&str> = exr.names();
     assert_eq!(names, ["depth"], "the dataset's files are unchanged");
     for name in ["gen", "far_offset"] {
@@ -305,7 +305,8 @@ fn verify_and_batch_pick_the_same_views() {
 /// its sha256): one depth sample × (1 + 1e-4), a 3×3 patch of flipped normals, one id.
 #[test]
 fn an_exr_changed_after_writing_fails() {
-    use cylaov::output::aov::{AovImage, ChannelMut, Compression};
+    use cylaov::image::{AovImage, ChannelMut};
+    use cylaov::output::format::exr::Compression;
     let Some(py) = venv_python() else { return };
     let dir_tmp = common::fresh_dir("verify", "changed-exr");
     let dir = dir_tmp.path();
@@ -402,7 +403,8 @@ fn an_exr_changed_after_writing_fails() {
 #[test]
 fn verify_a_candidate_file() {
     use cylaov::geometry::{FormulaKind, Precision};
-    use cylaov::output::aov::{AovImage, Channel, ChannelMut, Compression};
+    use cylaov::image::{AovImage, Channel, ChannelMut};
+    use cylaov::output::format::exr::Compression;
     let Some(py) = venv_python() else { return };
     let dir_tmp = common::fresh_dir("verify", "candidate");
     let dir = dir_tmp.path();
@@ -491,7 +493,8 @@ fn verify_a_candidate_file() {
 /// moved it says to give `--scenes`, which then finds them.
 #[test]
 fn verify_checks_the_files_a_batch_wrote() {
-    use cylaov::output::aov::{AovImage, ChannelMut, Compression};
+    use cylaov::image::{AovImage, ChannelMut};
+    use cylaov::output::format::exr::Compression;
     let Some(py) = venv_python() else { return };
     let dir_tmp = common::fresh_dir("verify", "written");
     let dir = dir_tmp.path();
@@ -596,7 +599,7 @@ fn verify_checks_the_files_a_batch_wrote() {
 #[test]
 fn verify_checks_the_samples_of_tar_shards() {
     use cylaov::npy::{self, Dtype};
-    use cylaov::output::tar::{TarReader, TarWriter};
+    use cylaov::output::format::tar::{TarReader, TarWriter};
     let Some(py) = venv_python() else { return };
     let dir_tmp = common::fresh_dir("verify", "shards");
     let dir = dir_tmp.path();

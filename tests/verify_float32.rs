@@ -7,7 +7,8 @@
 mod common;
 use common::venv_python;
 
-use cylaov::output::aov::{AovImage, ChannelMut, Compression};
+use cylaov::image::{AovImage, ChannelMut};
+use cylaov::output::format::exr::Compression;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 

@@ -13,7 +13,7 @@
 mod common;
 
 use cylaov::geometry::{FormulaKind, Precision};
-use cylaov::output::aov::Compression;
+use cylaov::output::format::exr::Compression;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};

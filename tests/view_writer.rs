@@ -5,8 +5,8 @@
 mod common;
 use common::{cylaov, ok, tree};
 
-use cylaov::output::aov::{Compression, ExrLayout};
-use cylaov::output::view::{FileSink, Member, MemorySink, ViewPlan};
+use cylaov::output::format::exr::{Compression, ExrLayout};
+use cylaov::output::pipeline::view::{FileSink, Member, MemorySink, ViewPlan};
 use cylaov::render::RenderOptions;
 use cylaov::scene::camera::Camera;
 use std::path::Path;

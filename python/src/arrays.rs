@@ -1,7 +1,8 @@
 //! An image's AOV buffers as numpy arrays (no copy), with the hit `mask`.
 
 use crate::pool::on_pool;
-use cylaov::output::aov::{AovImage, ChannelData, channel_names};
+use cylaov::image::{AovImage, ChannelData};
+use cylaov::output::format::exr::channel_names;
 use cylaov::scene::Aov;
 use numpy::IntoPyArray;
 use numpy::ndarray::{Array2, Array3};

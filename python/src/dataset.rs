@@ -184,7 +184,8 @@ impl _Views {
         let r = cylaov::render::render_until(&sc, &opts, stop)
             .ok_or_else(|| PyValueError::new_err("stopped"))?;
         let a = arrays(r.image, &self.aovs);
-        let text = cylaov::output::camera_files::camera_json(&Camera::new(sc.camera), &self.aovs);
+        let text =
+            cylaov::output::format::camera_files::camera_json(&Camera::new(sc.camera), &self.aovs);
         let v: serde_json::Value =
             serde_json::from_str(&text).map_err(|e| PyValueError::new_err(e.to_string()))?;
         Ok((a, v))

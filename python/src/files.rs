@@ -4,7 +4,8 @@ use crate::arrays::image_to_dict;
 use crate::convert::parse_aov;
 use crate::errors::os_error;
 use crate::pool::run;
-use cylaov::output::aov::{AovImage, channel_names, per_aov_channel_names};
+use cylaov::image::AovImage;
+use cylaov::output::format::exr::{channel_names, per_aov_channel_names};
 use cylaov::scene::Aov;
 use numpy::PyReadonlyArray1;
 use pyo3::exceptions::{PyIsADirectoryError, PyOSError, PyValueError};
@@ -142,7 +143,7 @@ pub(crate) fn _write_ply(
     ids: PyReadonlyArray1<'_, u32>,
     path: PathBuf,
 ) -> PyResult<usize> {
-    use cylaov::output::ply::{Hit, encode};
+    use cylaov::output::format::ply::{Hit, encode};
     let (p, n, ids) = (position.as_slice()?, normal.as_slice()?, ids.as_slice()?);
     let count = ids.len() / 3;
     if p.len() != 3 * count || n.len() != 3 * count || ids.len() != 3 * count {
@@ -160,12 +161,12 @@ pub(crate) fn _write_ply(
         })
         .collect();
     py.detach(|| {
-        cylaov::output::targets::check_output("path", &path, &[])?;
+        cylaov::output::store::targets::check_output("path", &path, &[])?;
         let bytes = encode(
             &hits,
             &format!("cylaov {} hit points", env!("CARGO_PKG_VERSION")),
         );
-        cylaov::output::atomic::atomic_write_bytes(&path, &bytes)
+        cylaov::output::store::atomic::atomic_write_bytes(&path, &bytes)
     })
     .map_err(|e| os_error(&path, &e))?;
     Ok(count)

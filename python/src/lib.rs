@@ -1,6 +1,6 @@
 //! The Python extension module `cylaov._cylaov`, wrapped by the package `cylaov`
 //! (`python/cylaov/`). A thin layer over the `cylaov` library's public API: each function
-//! calls what the command line calls (`scene::load`, `render::render`, `output::aov`,
+//! calls what the command line calls (`scene::load`, `render::render`, `output::format::exr`,
 //! `verify::compare`, `dataset::generate`), so a render's arrays are the samples of the EXR
 //! `cylaov render` writes, bit for bit. The arrays own the Rust buffers (no copy); the GIL
 //! is released while tracing.

@@ -69,7 +69,7 @@ pub(crate) fn camera_info<'py>(
     camera: usize,
 ) -> PyResult<Bound<'py, PyAny>> {
     let sc = scene.get().with_camera(camera)?;
-    let text = cylaov::output::camera_files::camera_json(&Camera::new(sc.camera), &sc.aovs);
+    let text = cylaov::output::format::camera_files::camera_json(&Camera::new(sc.camera), &sc.aovs);
     let v: serde_json::Value =
         serde_json::from_str(&text).map_err(|e| PyValueError::new_err(e.to_string()))?;
     json_to_py(py, &v)

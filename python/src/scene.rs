@@ -334,7 +334,7 @@ impl PyScene {
     /// `source_name` is named in the comment at the top.
     #[pyo3(signature = (source_name="python"))]
     fn to_mitsuba_xml(&self, source_name: &str) -> PyResult<String> {
-        cylaov::output::mitsuba::to_xml(&self.scene, source_name)
+        cylaov::output::format::mitsuba::to_xml(&self.scene, source_name)
             .map_err(|e| PyValueError::new_err(e.to_string()))
     }
 

@@ -7,7 +7,7 @@
 
 use crate::dataset::batch::shards::{ShardOptions, TarSelection, write_shards};
 use crate::dataset::batch::{self, BatchOptions, ProgressMode, Shard};
-use crate::output::tar::BLOCK;
+use crate::output::format::tar::BLOCK;
 use anyhow::{Context, Result};
 use sha2::{Digest, Sha256};
 use std::io::{BufReader, BufWriter, Read, Write};
@@ -130,7 +130,7 @@ pub fn run(data: &Path) -> Result<Vec<FormatRow>> {
 }
 
 /// Read a tar from `r` and call `f` with each member's pieces as
-/// [`crate::output::tar::TarWriter`] writes them (its header block, its data, its padding),
+/// [`crate::output::format::tar::TarWriter`] writes them (its header block, its data, its padding),
 /// then with the closing blocks; one member in memory at a time.
 fn each_member(mut r: impl Read, mut f: impl FnMut(&[&[u8]]) -> Result<()>) -> Result<()> {
     let mut header = [0u8; BLOCK];
@@ -210,7 +210,7 @@ fn tar_ceilings(shards: &Path, dir: &Path) -> Result<(Duration, Duration, u64)> 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::output::tar::TarWriter;
+    use crate::output::format::tar::TarWriter;
 
     #[test]
     fn each_member_gives_the_writers_writes() {

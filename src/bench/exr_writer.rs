@@ -6,7 +6,7 @@
 //! file in the temp folder through the same 1 MiB buffer `cylaov render` uses (what a
 //! user waits for).
 
-use crate::output::aov::{AovBuffer, AovImage};
+use crate::image::{AovBuffer, AovImage};
 use crate::render::{RenderOptions, render};
 use crate::scene::Aov;
 use anyhow::{Context, Result, bail};

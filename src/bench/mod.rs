@@ -21,12 +21,14 @@ pub mod scan;
 use crate::accel::tiles;
 use crate::geometry::Kernel;
 use crate::geometry::kernel::KernelFn;
-use crate::geometry::packet::{LANES, Packet, PacketFormula};
+use crate::geometry::packet::{Packet, PacketFormula};
+use crate::geometry::wide::LANES;
 use crate::geometry::wide::{Avx2, Simd};
 use crate::geometry::wide::{Lanes, Wide};
 use crate::geometry::{Cylinder, Prepared, Real};
-use crate::output::aov::{AovImage, Compression};
-use crate::output::atomic::atomic_write_bytes;
+use crate::image::AovImage;
+use crate::output::format::exr::Compression;
+use crate::output::store::atomic::atomic_write_bytes;
 use crate::render::{Accel, RenderOptions, render, render_timed};
 use crate::rng::SplitMix64;
 use crate::scene::camera::Camera;
@@ -738,7 +740,7 @@ pub fn time_anchor(a: &Anchors, scene: &Scene, variant: &str, dir: &Path) -> Res
         let xml = dir.join(format!("mitsuba-{n}.xml"));
         std::fs::write(
             &xml,
-            crate::output::mitsuba::to_xml(scene, "cylaov bench random scene")
+            crate::output::format::mitsuba::to_xml(scene, "cylaov bench random scene")
                 .map_err(std::io::Error::other)?,
         )?;
         let script = dir.join("bench_mitsuba.py");

@@ -113,12 +113,15 @@ pub fn run(b: BenchCli) -> anyhow::Result<ExitCode> {
     set_threads(b.threads)?;
     if b.exr_writer {
         if let Some(p) = &b.csv {
-            cylaov::output::targets::check_outputs(&[("--csv", p)], &[])?;
+            cylaov::output::store::targets::check_outputs(&[("--csv", p)], &[])?;
         }
         let rows = bench::exr_writer::run(1000, b.width, b.height, b.repeats.max(5))?;
         say(&bench::exr_writer::table(&rows))?;
         if let Some(p) = &b.csv {
-            cylaov::output::atomic::atomic_write_bytes(p, &cylaov::output::camera_files::csv_bytes(&rows)?)?;
+            cylaov::output::store::atomic::atomic_write_bytes(
+                p,
+                &cylaov::output::format::camera_files::csv_bytes(&rows)?,
+            )?;
         }
         return Ok(ExitCode::SUCCESS);
     }

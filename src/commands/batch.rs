@@ -33,7 +33,7 @@ pub struct BatchArgs {
 
 /// Run the batch; the summary says what happened (failed views are not an `Err`).
 pub fn run(args: &BatchArgs) -> Result<Summary> {
-    crate::output::targets::check_output_dir("--out", &args.out)?;
+    crate::output::store::targets::check_output_dir("--out", &args.out)?;
     let shard = batch::resolve_shard(args.shard, args.shards, &|k| std::env::var(k).ok())
         .map_err(anyhow::Error::msg)?;
     // Bad values are refused before any advice about them is printed.
@@ -101,7 +101,7 @@ impl Verification {
                     dir.display()
                 );
             }
-            crate::output::targets::check_output_dir("--report", dir)?;
+            crate::output::store::targets::check_output_dir("--report", dir)?;
         }
         let mut verifier = verifier(args)?;
         if let Some(v) = verifier.as_mut().filter(|_| args.report.is_some()) {

@@ -1,10 +1,10 @@
 //! `cylaov bench`: print the time-vs-error table, optionally as CSV and as a figure.
 
 use crate::bench::{self, Anchors, BenchOptions, Row};
-use crate::output::atomic::atomic_write_bytes;
-use crate::output::targets::check_outputs;
-use crate::output::camera_files::csv_bytes;
 use crate::output::console::say;
+use crate::output::format::camera_files::csv_bytes;
+use crate::output::store::atomic::atomic_write_bytes;
+use crate::output::store::targets::check_outputs;
 use anyhow::{Context, Result, bail};
 use std::path::{Path, PathBuf};
 
@@ -138,7 +138,7 @@ pub fn run(
     }
     if let Some(path) = plot {
         let img = plot::plot(&rows, &mi_rows, &opts.kernels);
-        crate::output::preview::write_png(&img, &path)?;
+        crate::output::format::preview::write_png(&img, &path)?;
         say(&format!("wrote {}", path.display()))?;
     }
     Ok(rows)

@@ -2,7 +2,7 @@
 //! directions over the sphere, [`crate::scene::rig`]), written resolved: every camera
 //! listed and the cylinders inline, a scene file any tool reads.
 
-use crate::output::targets::check_outputs;
+use crate::output::store::targets::check_outputs;
 use crate::scene::rig::CameraRig;
 use crate::scene::{self, SceneFile};
 use anyhow::{Context, Result};

@@ -2,10 +2,10 @@
 //! With `--scene`, A must be a render of that scene (cylaov's or Mitsuba's, with `shape_id`,
 //! `distance` and `normal`), and grazing pixels get their float32 conditioning bound.
 
+use crate::image::AovImage;
 use crate::mem::check_memory;
-use crate::output::aov::AovImage;
-use crate::output::targets::check_outputs;
-use crate::output::preview::write_png;
+use crate::output::format::preview::write_png;
+use crate::output::store::targets::check_outputs;
 use crate::verify::compare::{
     Conditioning, Report, Tolerances, compare_with, heatmap_figure, tolerance_line, verdict_lines,
 };
@@ -57,7 +57,7 @@ pub struct CompareOutcome {
 /// allocated for the pixels).
 fn header_size(path: &Path) -> Result<(u64, u64)> {
     // Opened as an input (a FIFO is refused, not waited on) and read once for the header.
-    let file = crate::output::files::open_input(path)
+    let file = crate::output::store::files::open_input(path)
         .with_context(|| format!("reading {}", path.display()))?;
     let meta = exr::meta::MetaData::read_from_buffered(std::io::BufReader::new(file), false)
         .with_context(|| format!("reading {}", path.display()))?;

@@ -1,9 +1,9 @@
-//! `cylaov export-mitsuba`: scene file → Mitsuba 3 XML (see [`crate::output::mitsuba`]).
+//! `cylaov export-mitsuba`: scene file → Mitsuba 3 XML (see [`crate::output::format::mitsuba`]).
 
-use crate::output::atomic::{NewDirs, atomic_write_bytes};
+use crate::output::store::atomic::{NewDirs, atomic_write_bytes};
 
-use crate::output::targets::check_outputs;
-use crate::output::mitsuba::{shapes, to_xml};
+use crate::output::format::mitsuba::{shapes, to_xml};
+use crate::output::store::targets::check_outputs;
 use crate::scene;
 use anyhow::{Context, Result};
 use std::path::Path;

@@ -26,9 +26,9 @@
 //! without following a link or blocking on a FIFO.
 
 use crate::dataset::generate::{ConfigFile, GenerateOptions, to_json, view_name};
-use crate::output::files::read_regular;
-use crate::output::atomic::{NewDirs, atomic_write_bytes};
-use crate::output::targets::{check_output, check_output_dir};
+use crate::output::store::atomic::{NewDirs, atomic_write_bytes};
+use crate::output::store::files::read_regular;
+use crate::output::store::targets::{check_output, check_output_dir};
 use anyhow::{Context, Result, bail};
 use rayon::prelude::*;
 use serde::Serialize;

@@ -1,7 +1,7 @@
 //! `cylaov import`: a cylinder table (a tree's QSM, or plain CSV) → a complete scene file
 //! with one camera that frames every cylinder (see [`crate::scene::table`]).
 
-use crate::output::targets::check_outputs;
+use crate::output::store::targets::check_outputs;
 use crate::scene::framing::Frame;
 use crate::scene::table::{LabelRule, TableOptions, load_table};
 use anyhow::{Context, Result, anyhow};

@@ -19,10 +19,10 @@ pub mod verify;
 fn write_scene_file(out: &std::path::Path, file: &crate::scene::SceneFile) -> anyhow::Result<()> {
     use anyhow::Context;
     let json = crate::dataset::generate::to_json(file).context("encoding the scene")?;
-    let mut dirs = crate::output::atomic::NewDirs::default();
+    let mut dirs = crate::output::store::atomic::NewDirs::default();
     dirs.create_parent(out)
         .with_context(|| format!("-o {}", out.display()))?;
-    crate::output::atomic::atomic_write_bytes(out, format!("{json}\n").as_bytes())
+    crate::output::store::atomic::atomic_write_bytes(out, format!("{json}\n").as_bytes())
         .with_context(|| format!("writing {}", out.display()))?;
     dirs.keep();
     Ok(())

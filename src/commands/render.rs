@@ -2,18 +2,18 @@
 //! and PNG previews).
 //!
 //! Beside `OUT.exr` it writes `OUT.camera.json` and `OUT.open3d.json`; `--depth-png` adds
-//! `OUT.depth.png` (the same 16-bit depth PNG as `batch`, see [`crate::output::depth_png`]);
+//! `OUT.depth.png` (the same 16-bit depth PNG as `batch`, see [`crate::output::format::depth_png`]);
 //! `--preview DIR` writes `DIR/OUT.normal.preview.png` and `DIR/OUT.depth.preview.png`
 //! (pictures for people: the names say so).
 
 use crate::mem::check_memory;
-use crate::output::aov::{Compression, ExrLayout};
-use crate::output::depth_png::OutOfRange;
-use crate::output::atomic::{NewDirs, Staged, stage};
-use crate::output::camera_files::camera_json_path;
-use crate::output::targets::{check_output_dir, check_outputs};
-use crate::output::ply::{PLY_AOVS, encode, hits};
-use crate::output::view::{DepthOutOfRange, DepthPngPlan, FileSink, Member, ViewPlan};
+use crate::output::format::camera_files::camera_json_path;
+use crate::output::format::depth_png::OutOfRange;
+use crate::output::format::exr::{Compression, ExrLayout};
+use crate::output::format::ply::{PLY_AOVS, encode, hits};
+use crate::output::pipeline::view::{DepthOutOfRange, DepthPngPlan, FileSink, Member, ViewPlan};
+use crate::output::store::atomic::{NewDirs, Staged, stage};
+use crate::output::store::targets::{check_output_dir, check_outputs};
 use crate::render::RenderOptions;
 use crate::scene::camera::Camera;
 use crate::scene::{self, Aov};

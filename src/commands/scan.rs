@@ -1,10 +1,10 @@
 //! `cylaov scan`: a scene, a sensor (a preset or a JSON table) and its pose or trajectory
 //! → one rotation's points as LAS, PLY or `.npz` (see [`crate::scan`]).
 
-use crate::output::atomic::{NewDirs, stage};
+use crate::output::store::atomic::{NewDirs, stage};
 
-use crate::output::targets::check_outputs;
-use crate::output::scan_files::ScanFormat;
+use crate::output::pipeline::scan_files::ScanFormat;
+use crate::output::store::targets::check_outputs;
 use crate::scan::{Motion, Noise, Pose, ScanOptions, Sensor, Trajectory};
 use crate::scene;
 use anyhow::{Context, Result, anyhow};

@@ -1,11 +1,11 @@
 //! `cylaov stress`: run the stress families through every kernel, print the table, and
 //! optionally write the per-ray CSV and a log-log plot of error against difficulty.
 
-use crate::output::atomic::atomic_write_bytes;
+use crate::output::store::atomic::atomic_write_bytes;
 
-use crate::output::targets::check_outputs;
+use crate::output::store::targets::check_outputs;
 
-use crate::output::camera_files::csv_bytes;
+use crate::output::format::camera_files::csv_bytes;
 use crate::verify::stress::{self, Family, Record, TABLE_HEADER, TABLE_ORDER};
 use anyhow::{Context, Result, bail};
 use std::path::{Path, PathBuf};
@@ -81,7 +81,7 @@ pub fn run(args: &StressArgs) -> Result<String> {
         atomic_write_bytes(path, &text).with_context(|| format!("writing {}", path.display()))?;
     }
     if let Some(path) = &args.plot {
-        crate::output::preview::write_png(&plot::plot(&records, &families), path)?;
+        crate::output::format::preview::write_png(&plot::plot(&records, &families), path)?;
     }
     Ok(out)
 }

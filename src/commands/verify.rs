@@ -10,8 +10,8 @@
 
 use crate::dataset::batch::{ViewSource, list_views, view_selected};
 use crate::geometry::{FormulaKind, Precision};
-use crate::output::aov::AovImage;
-use crate::output::preview::write_png;
+use crate::image::AovImage;
+use crate::output::format::preview::write_png;
 use crate::verify::arbiter::{Arbitration, Bound, Reference};
 use crate::verify::compare::{Conditioning, Report, Tolerances, heatmap_figure};
 use crate::verify::reference::{
@@ -265,7 +265,7 @@ fn run_shards(args: &VerifyArgs) -> Result<VerifyOutcome> {
             );
         }
         let path = args.input.join(&entry.name);
-        let file = crate::output::files::open_input(&path)
+        let file = crate::output::store::files::open_input(&path)
             .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
         let mut samples = Samples::new(std::io::BufReader::with_capacity(1 << 20, file));
         let mut read = 0;
@@ -300,7 +300,7 @@ fn run_shards(args: &VerifyArgs) -> Result<VerifyOutcome> {
                 let exr = work.join(format!("{}.exr", sample.info.key));
                 sample
                     .image
-                    .write_exr(&exr, crate::output::aov::Compression::None)?;
+                    .write_exr(&exr, crate::output::format::exr::Compression::None)?;
                 Ok(exr)
             };
             let (result, pics) =
@@ -557,9 +557,9 @@ fn check_one(
     );
     if let Some(dir) = &args.heatmap {
         let path = view.dir(dir).join(format!("{}.heatmap.png", view.name));
-        crate::output::targets::check_output("--heatmap", &path, &[&view.path])?;
+        crate::output::store::targets::check_output("--heatmap", &path, &[&view.path])?;
         if let Some(parent) = path.parent() {
-            crate::output::atomic::make_dir_all(parent)?;
+            crate::output::store::atomic::make_dir_all(parent)?;
         }
         write_png(&img, &path)?;
     }
@@ -575,16 +575,17 @@ pub fn run(args: &VerifyArgs) -> Result<VerifyOutcome> {
         anyhow::bail!("--fraction: must be in [0, 1], got {}", args.fraction);
     }
     if let Some(dir) = &args.heatmap {
-        crate::output::targets::check_output_dir("--heatmap", dir)?;
+        crate::output::store::targets::check_output_dir("--heatmap", dir)?;
     }
     if let Some(dir) = &args.report {
-        crate::output::targets::check_output_dir("--report", dir)?;
+        crate::output::store::targets::check_output_dir("--report", dir)?;
     }
     // A candidate that is not a regular file is refused before Mitsuba is asked for
     // anything (reading a FIFO would block).
     channel_maps(&args.channels)?;
     if let Some(file) = &args.candidate {
-        crate::output::files::open_input(file).map_err(|e| anyhow::anyhow!("--candidate: {e}"))?;
+        crate::output::store::files::open_input(file)
+            .map_err(|e| anyhow::anyhow!("--candidate: {e}"))?;
     }
     if args.input.join("index.json").is_file() {
         return run_written(args);

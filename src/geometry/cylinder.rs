@@ -229,12 +229,33 @@ pub fn orthonormal_basis(n: DVec3) -> (DVec3, DVec3) {
     )
 }
 
+crate::choice_enum! {
+    /// Kernel formulation (see [`crate::geometry::cylinder`]).
+    #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+    pub enum FormulaKind default Stable {
+        /// The textbook formulas as written: textbook roots, axis-point normal quadratic.
+        Literal = "literal",
+        /// Lagrange discriminant, citardauq roots, projected normal, gap-free rims.
+        Stable = "stable",
+    }
+}
+
+impl FormulaKind {
+    /// `literal` or `stable`.
+    pub fn name(self) -> &'static str {
+        match self {
+            FormulaKind::Literal => "literal",
+            FormulaKind::Stable => "stable",
+        }
+    }
+}
+
 /// A formulation of the ray–cylinder hit: [`Literal`] or [`Stable`].
 pub trait Formula: Copy + Send + Sync + 'static {
     /// Name for tables: `literal` or `stable`.
     const NAME: &'static str;
     /// The same, as the kernel choice names it.
-    const KIND: super::kernel::FormulaKind;
+    const KIND: FormulaKind;
     /// Whether [`Prepared::new`] should form `oc` in f64 (see there).
     const CENTRED: bool;
     /// Nearest hit with `t` in `[tmin, tmax]`, or `None`. Computes no normal.
@@ -252,7 +273,7 @@ pub struct Literal;
 
 impl Formula for Literal {
     const NAME: &'static str = "literal";
-    const KIND: super::kernel::FormulaKind = super::kernel::FormulaKind::Literal;
+    const KIND: FormulaKind = FormulaKind::Literal;
     const CENTRED: bool = false;
 
     fn intersect<T: Real>(p: &Prepared<T>, d: T::V3, tmin: T, tmax: T) -> Option<BasicHit<T>> {
@@ -363,7 +384,7 @@ impl Stable {
 
 impl Formula for Stable {
     const NAME: &'static str = "stable";
-    const KIND: super::kernel::FormulaKind = super::kernel::FormulaKind::Stable;
+    const KIND: FormulaKind = FormulaKind::Stable;
     const CENTRED: bool = true;
 
     #[inline(always)]

@@ -3,53 +3,11 @@
 //! bench, stress), one printed name (`stable-f64`, …), and one place, `Kernel::dispatch`,
 //! that turns the run-time choice into the types the generic code is compiled for.
 
-use super::cylinder::{Formula, Literal, Stable};
+use super::cylinder::{Formula, FormulaKind, Literal, Stable};
 use super::packet::PacketFormula;
-use super::real::Real;
+use super::real::{Precision, Real};
 use super::wide::Simd;
 use std::fmt;
-
-crate::choice_enum! {
-    /// Kernel precision.
-    #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-    pub enum Precision default F64 {
-        /// IEEE single precision: eight lanes to an AVX register.
-        F32 = "f32",
-        /// IEEE double precision: the accuracy reference.
-        F64 = "f64",
-    }
-}
-
-crate::choice_enum! {
-    /// Kernel formulation (see [`crate::geometry::cylinder`]).
-    #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-    pub enum FormulaKind default Stable {
-        /// The textbook formulas as written: textbook roots, axis-point normal quadratic.
-        Literal = "literal",
-        /// Lagrange discriminant, citardauq roots, projected normal, gap-free rims.
-        Stable = "stable",
-    }
-}
-
-impl Precision {
-    /// `f32` or `f64`.
-    pub fn name(self) -> &'static str {
-        match self {
-            Precision::F32 => "f32",
-            Precision::F64 => "f64",
-        }
-    }
-}
-
-impl FormulaKind {
-    /// `literal` or `stable`.
-    pub fn name(self) -> &'static str {
-        match self {
-            FormulaKind::Literal => "literal",
-            FormulaKind::Stable => "stable",
-        }
-    }
-}
 
 /// One ray–cylinder kernel. Prints as `stable-f64`, `literal-f32`, ….
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]

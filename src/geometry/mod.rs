@@ -6,6 +6,6 @@ pub(crate) mod packet;
 pub mod real;
 pub(crate) mod wide;
 
-pub use cylinder::{BasicHit, Cylinder, Formula, Literal, Prepared, Stable, Surface};
-pub use kernel::{FormulaKind, Kernel, Precision};
-pub use real::Real;
+pub use cylinder::{BasicHit, Cylinder, Formula, FormulaKind, Literal, Prepared, Stable, Surface};
+pub use kernel::Kernel;
+pub use real::{Precision, Real};

@@ -10,10 +10,7 @@
 
 use super::cylinder::{Formula, Literal, Prepared, Stable, Surface};
 use super::real::Real;
-use super::wide::Wide;
-
-/// Rays per packet: eight pixels of a tile row.
-pub(crate) const LANES: usize = 8;
+use super::wide::{LANES, Wide};
 
 /// Lane value of "no hit yet" in [`Packet::index`].
 pub(crate) const NO_HIT: u32 = u32::MAX;

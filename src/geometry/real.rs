@@ -7,6 +7,27 @@ use glam::{DVec3, Vec3A};
 use std::fmt::Debug;
 use std::ops::{Add, Div, Mul, Neg, Sub};
 
+crate::choice_enum! {
+    /// Kernel precision.
+    #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+    pub enum Precision default F64 {
+        /// IEEE single precision: eight lanes to an AVX register.
+        F32 = "f32",
+        /// IEEE double precision: the accuracy reference.
+        F64 = "f64",
+    }
+}
+
+impl Precision {
+    /// `f32` or `f64`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Precision::F32 => "f32",
+            Precision::F64 => "f64",
+        }
+    }
+}
+
 /// A floating-point precision the kernels can run in.
 pub trait Real:
     Copy
@@ -43,7 +64,7 @@ pub trait Real:
     /// Name for tables: `f32` or `f64`.
     const NAME: &'static str;
     /// The same, as the kernel choice names it.
-    const PRECISION: super::kernel::Precision;
+    const PRECISION: Precision;
 
     /// Round an f64 to this precision (identity for f64).
     fn from_f64(x: f64) -> Self;
@@ -88,7 +109,7 @@ macro_rules! impl_real {
             const INFINITY: Self = <$t>::INFINITY;
             const UNIT_ROUNDOFF: f64 = <$t>::EPSILON as f64 / 2.0;
             const NAME: &'static str = $name;
-            const PRECISION: super::kernel::Precision = $precision;
+            const PRECISION: Precision = $precision;
 
             #[inline(always)]
             fn from_f64(x: f64) -> Self {
@@ -158,7 +179,7 @@ impl_real!(
     f64,
     DVec3,
     "f64",
-    super::kernel::Precision::F64,
+    Precision::F64,
     |v: DVec3| v,
     |v: DVec3| v
 );
@@ -166,7 +187,7 @@ impl_real!(
     f32,
     Vec3A,
     "f32",
-    super::kernel::Precision::F32,
+    Precision::F32,
     |v: DVec3| Vec3A::new(v.x as f32, v.y as f32, v.z as f32),
     |v: Vec3A| DVec3::new(v.x as f64, v.y as f64, v.z as f64)
 );

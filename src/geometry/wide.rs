@@ -7,9 +7,11 @@
 //! operation is the single IEEE operation the scalar kernel performs (add, sub, mul, div,
 //! sqrt, ordered compares, sign-bit logic), so all forms give the same bits.
 
-use super::packet::LANES;
 use super::real::Real;
 use std::ops::{Add, BitAnd, BitOr, Div, Mul, Neg, Not, Sub};
+
+/// Lanes of a [`Wide`] value; a packet's rays are one lane each: eight pixels of a tile row.
+pub(crate) const LANES: usize = 8;
 
 /// Eight lanes of `T`, with the operations the packet kernel needs.
 pub(crate) trait Wide<T>:

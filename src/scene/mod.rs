@@ -16,7 +16,6 @@ mod parallel;
 pub mod rig;
 pub mod strict;
 pub mod table;
-pub mod table_npz;
 
 use crate::geometry::Cylinder;
 use crate::scene::camera::model::{CameraModel, ModelFields};

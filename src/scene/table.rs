@@ -8,7 +8,7 @@
 //! | `treeqsm` | header with `parent, extension, branch, BranchOrder`, or no header and 14 or 15 columns | `start` | `start + length · axis` | `radius` | the row number (TreeQSM's `parent` counts rows) |
 //! | `simpleforest` | header with `ID, parentID, branchID, branchOrder` | `startX..Z` | `endX..Z` | `radius` | `ID` |
 //! | `archi` | header with `cyl_ID, parent_ID, branching_order` | `startX..Z` | `endX..Z` | `radius_cyl` | `cyl_ID` |
-//! | `npz` | a zip archive (NumPy's `savez`), see [`super::table_npz`] | array `p0` | array `p1` | array `radius` | array `id`, else the row number |
+//! | `npz` | a zip archive (NumPy's `savez`), see [`npz`] | array `p0` | array `p1` | array `radius` | array `id`, else the row number |
 //!
 //! Header names match whatever their case and punctuation (`start.x`, `start_x`, `startX`;
 //! a unit in brackets, `radius (m)`, is dropped). A format with axis and length but no end
@@ -16,6 +16,8 @@
 //! are all moved up by one (0 is a miss in `shape_id`).
 //!
 //! Every rejected row names its line (1-based, as an editor counts) and column.
+
+pub mod npz;
 
 use crate::scene::{CylinderFile, MAX_COORD, SceneFile, num};
 use glam::DVec3;
@@ -34,7 +36,7 @@ pub enum TableFormat {
     /// aRchi's cylinder CSV.
     Archi,
     /// NumPy's `.npz` of arrays `p0`, `p1`, `radius`, optional `id`, `label`, `caps`
-    /// ([`super::table_npz`]).
+    /// ([`npz`]).
     Npz,
 }
 
@@ -747,8 +749,8 @@ pub(super) fn finish(
 /// archive, else UTF-8 text.
 pub fn load_table(path: &std::path::Path, opts: &TableOptions) -> Result<Table, TableError> {
     let bytes = crate::scene::read_bounded(path).map_err(|e| line_err(0, e.to_string()))?;
-    if super::table_npz::is_zip(&bytes) {
-        return super::table_npz::read_npz(&bytes, opts);
+    if npz::is_zip(&bytes) {
+        return npz::read_npz(&bytes, opts);
     }
     let text = std::str::from_utf8(&bytes)
         .map_err(|e| line_err(0, format!("not UTF-8 text (byte {})", e.valid_up_to())))?;

@@ -45,7 +45,7 @@
 //! against the exact answer alone.
 
 use crate::geometry::{Cylinder, Precision, Surface};
-use crate::output::aov::{AovImage, Strided};
+use crate::image::{AovImage, Strided};
 use crate::scene::Scene;
 use crate::scene::camera::{Camera, PixelRay, Projection};
 use crate::verify::compare::{CONDITIONING_ULPS, Tolerances, id_channel, ray_origin_size};
@@ -1084,7 +1084,7 @@ pub fn has_mitsuba_sensor(p: &Projection) -> bool {
 /// `normal`, `position` (each rounded once to float32), `shape_id` and `part` (u32; every
 /// channel 0 where the ray misses). The reference of a camera Mitsuba has no sensor for.
 pub fn exact_render(scene: &Scene) -> Result<AovImage> {
-    use crate::output::aov::{Channel, ChannelData};
+    use crate::image::{Channel, ChannelData};
     let cam = Camera::new(scene.camera);
     let (w, h) = (cam.width() as usize, cam.height() as usize);
     let tracer = Tracer {

@@ -4,7 +4,7 @@
 //! 1. cylaov renders the view in memory with every AOV the check needs ([`check_render`]:
 //!    all of them, `shape_id` and `part` included), whatever the dataset stores.
 //! 2. Mitsuba renders the reference ([`Mitsuba::render`]): the scene goes through
-//!    `output::mitsuba::to_xml`, and the reference script, compiled into this binary
+//!    `output::format::mitsuba::to_xml`, and the reference script, compiled into this binary
 //!    ([`SCRIPT`]), runs in the pinned venv's Python (mitsuba 3.9.1, `scalar_rgb`). That
 //!    is the perspective and the orthographic camera; the lens models (`opencv`,
 //!    `opencv_fisheye`, `equirectangular`), which Mitsuba has no sensor for, are checked
@@ -24,7 +24,7 @@
 //! is checked again.
 //!
 //! **Signals**: Mitsuba's Python runs in a process group of its own (a Ctrl-C reaches
-//! cylaov, not it) registered with `crate::output::signals`, as is the scratch folder, so
+//! cylaov, not it) registered with `crate::output::store::signals`, as is the scratch folder, so
 //! a signal to cylaov kills the group and removes the folder before cylaov exits.
 //!
 //! **The venv** is the first of: `$CYLAOV_VENV`; `.venv` in the source tree this binary
@@ -34,9 +34,9 @@
 
 use crate::dataset::batch::{Verdict, Verifier, ViewSource};
 use crate::geometry::{FormulaKind, Precision};
-use crate::output::aov::AovImage;
-use crate::output::atomic::atomic_write_bytes;
-use crate::output::signals::{self, Cleanup};
+use crate::image::AovImage;
+use crate::output::store::atomic::atomic_write_bytes;
+use crate::output::store::signals::{self, Cleanup};
 use crate::render::{RenderOptions, render};
 use crate::scene::{Aov, Scene};
 use crate::verify::arbiter::{
@@ -126,7 +126,7 @@ impl Mitsuba {
         };
         write(
             &xml,
-            crate::output::mitsuba::to_xml(&one_camera, source_name)?.as_bytes(),
+            crate::output::format::mitsuba::to_xml(&one_camera, source_name)?.as_bytes(),
         )?;
         write(&camera, camera_file(scene).as_bytes())?;
         write(&script, SCRIPT.as_bytes())?;
@@ -478,7 +478,7 @@ fn differing_samples(file: &AovImage, fresh: &AovImage) -> Vec<String> {
     file.names()
         .into_iter()
         .filter_map(|name| {
-            use crate::output::aov::ChannelRef as C;
+            use crate::image::ChannelRef as C;
             match (file.channel(name)?, fresh.channel(name)) {
                 (C::F32(a), Some(C::F32(b))) => (0..a.len().min(b.len()))
                     .find(|&k| a[k].to_bits() != b[k].to_bits())

@@ -5,7 +5,7 @@
 //! proven reference error gets a script beside the page ([`crate::verify::repro`]), linked
 //! from it and listed in `DIR/README.md` with how to check one before filing it upstream.
 
-use crate::output::aov::AovImage;
+use crate::image::AovImage;
 use crate::verify::arbiter::{Arbitration, Pixel, PixelClass};
 use crate::verify::repro::{ReproHit, script};
 use anyhow::{Context, Result};
@@ -87,9 +87,9 @@ r.forEach(e=>t.tBodies[0].appendChild(e));}";
 /// anything is written), then all are staged under temporary names and committed together,
 /// so nothing outside `dir` is touched and a failure leaves no half-written page.
 pub fn write_report(dir: &Path, title: &str, views: &[ReportView]) -> Result<()> {
-    use crate::output::targets::check_output;
-    use crate::output::atomic::commit_all;
-    use crate::output::preview::stage_png;
+    use crate::output::format::preview::stage_png;
+    use crate::output::store::atomic::commit_all;
+    use crate::output::store::targets::check_output;
     // The picture files, named before anything is written so all can be checked first.
     let pictures =
         |i: usize| ["candidate", "mitsuba", "heatmap"].map(|what| format!("view{i}.{what}.png"));
@@ -112,7 +112,8 @@ pub fn write_report(dir: &Path, title: &str, views: &[ReportView]) -> Result<()>
     for t in &targets {
         check_output(&crate::spelling::opt("report"), t, &[])?;
     }
-    crate::output::atomic::make_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    crate::output::store::atomic::make_dir_all(dir)
+        .with_context(|| format!("creating {}", dir.display()))?;
     let mut staged = Vec::new();
     let mut html = format!(
         "<!DOCTYPE html><html><head><meta charset=\"utf-8\"><title>cylaov verify: {}</title><style>{STYLE}</style><script>{SCRIPT}</script></head><body><h1>cylaov verify: {}</h1>",
@@ -238,8 +239,8 @@ pub fn write_report(dir: &Path, title: &str, views: &[ReportView]) -> Result<()>
 const REPROS: usize = 20;
 
 /// A text file staged for [`write_report`]'s commit.
-fn stage_text(path: &Path, text: &str) -> Result<crate::output::atomic::Staged> {
-    crate::output::atomic::stage(path, |f| {
+fn stage_text(path: &Path, text: &str) -> Result<crate::output::store::atomic::Staged> {
+    crate::output::store::atomic::stage(path, |f| {
         use std::io::Write;
         f.write_all(text.as_bytes())
     })

@@ -10,7 +10,7 @@
 //! prints another shape than the exact one.
 
 use crate::geometry::Cylinder;
-use crate::output::mitsuba::{Part, cap_to_world};
+use crate::output::format::mitsuba::{Part, cap_to_world};
 use serde::Serialize;
 use std::fmt::Write as _;
 

@@ -1,4 +1,4 @@
-//! The bench figure, two log-log panels drawn with [`crate::output::plot`]:
+//! The bench figure, two log-log panels drawn with [`crate::output::format::plot`]:
 //! (a) the Pareto view: error against build + trace time at one cylinder count (1 000, or
 //! the nearest count run), one point per kernel: filled = max error, open = median;
 //! (b) build + trace time against cylinder count, one line per kernel, with Mitsuba's warm
@@ -9,7 +9,7 @@
 
 use crate::bench::{AnchorRow, Row};
 use crate::geometry::{FormulaKind, Kernel, Precision};
-use crate::output::plot::{self, Axis, BLACK, Grid, Marker, NOTE};
+use crate::output::format::plot::{self, Axis, BLACK, Grid, Marker, NOTE};
 use image::{Rgb, RgbImage};
 
 /// Two panels side by side; the legend band is sized in [`plot`].

@@ -2,10 +2,10 @@
 //! max(1, κ) — the backward-error ratio the bar holds at 4 — and normal angle error in
 //! ε·max(1, t/r)) against the difficulty parameter, one colour per kernel. Every
 //! ray is a dot; the line joins the worst ray per parameter value; the dashed line is the
-//! bound (4, 4 and 16). Drawn with [`crate::output::plot`].
+//! bound (4, 4 and 16). Drawn with [`crate::output::format::plot`].
 
 use crate::geometry::{FormulaKind, Kernel};
-use crate::output::plot::{self, Axis, BOUND, Grid, Marker, NOTE};
+use crate::output::format::plot::{self, Axis, BOUND, Grid, Marker, NOTE};
 use crate::verify::stress::{Family, Record, TABLE_ORDER};
 use image::{Rgb, RgbImage};
 

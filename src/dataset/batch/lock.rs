@@ -21,8 +21,8 @@
 //! through.
 
 use super::shard::Shard;
-use crate::output::files::{explain_open, kind_name, no_follow};
-use crate::output::signals::{self, Cleanup, Registration};
+use crate::output::store::files::{explain_open, kind_name, no_follow};
+use crate::output::store::signals::{self, Cleanup, Registration};
 use anyhow::{Context, Result, bail};
 use std::fs::File;
 use std::path::{Path, PathBuf};

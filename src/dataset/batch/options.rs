@@ -1,8 +1,8 @@
 //! What a batch renders and writes, and how its threads share the work.
 
 use crate::geometry::{FormulaKind, Precision};
-use crate::output::aov::{Compression, ExrLayout};
-use crate::output::depth_png::OutOfRange;
+use crate::output::format::depth_png::OutOfRange;
+use crate::output::format::exr::{Compression, ExrLayout};
 use crate::scene::{Aov, Scene};
 
 crate::choice_enum! {

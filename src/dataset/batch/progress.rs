@@ -8,7 +8,7 @@
 //! need the plain-line mode written here.
 
 use super::write::ViewCost;
-use crate::output::aov::Compression;
+use crate::output::format::exr::Compression;
 use crate::scene::Aov;
 use std::io::{IsTerminal, Write};
 use std::sync::Mutex;
@@ -207,7 +207,7 @@ impl SizeEstimate {
         let (w, h) = (width as u64, height as u64);
         let channels: u64 = aovs
             .iter()
-            .map(|&a| crate::output::aov::channel_names(a).len() as u64)
+            .map(|&a| crate::output::format::exr::channel_names(a).len() as u64)
             .sum();
         self.exr += files * (2 << 10) + files * h * 16 + w * h * 4 * channels;
         self.other += TEXT_BYTES_PER_VIEW;

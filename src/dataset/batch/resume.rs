@@ -2,9 +2,10 @@
 //! cheap checks that tell a complete view from a partial or stale one.
 
 use super::options::BatchOptions;
-use crate::output::aov::{Compression, ExrLayout, channel_names, per_aov_channel_names};
-use crate::output::files::{open_regular, read_regular};
-use crate::output::view::Member;
+use crate::output::format::exr::{Compression, ExrLayout, channel_names, per_aov_channel_names};
+use crate::output::pipeline::view::{DepthPngPlan, Member, ViewPlan};
+use crate::output::store::files::{open_regular, read_regular};
+use crate::scene::camera::Camera;
 use crate::scene::camera::Projection;
 use crate::scene::{Aov, Scene};
 use exr::meta::MetaData;
@@ -330,9 +331,35 @@ pub fn render_stamp(scene: &Scene, opts: &BatchOptions) -> String {
         depth_out_of_range: opts.png.then(|| name(opts.depth_out_of_range)),
         ply: opts.ply,
     };
-    let mut s = crate::output::camera_files::record_json(&stamp);
+    let mut s = crate::output::format::camera_files::record_json(&stamp);
     s.push('\n');
     s
+}
+
+/// The plan of one view of a batch: the EXR (or EXRs), camera and Open3D JSON, the render
+/// stamp and, with PNGs, the normal picture, the depth PNG and the mask.
+pub fn view_plan(scene: &Scene, opts: &BatchOptions) -> ViewPlan {
+    ViewPlan {
+        camera: Camera::new(scene.camera),
+        exr_aovs: opts.exr_aovs(scene),
+        layout: opts.exr_layout,
+        compression: opts.compression,
+        depth_png: opts.png.then_some(DepthPngPlan {
+            scale: opts.depth_scale,
+            out_of_range: opts.depth_out_of_range,
+        }),
+        mask: opts.png,
+        normal_picture: opts.png,
+        previews: false,
+        stamp: Some(render_stamp(scene, opts)),
+        ply: opts.ply,
+    }
+}
+
+/// Bytes rendering and writing a view holds at its peak (see
+/// [`crate::output::pipeline::memory::render_memory`]).
+pub fn view_memory(scene: &Scene, opts: &BatchOptions) -> u64 {
+    view_plan(scene, opts).memory()
 }
 
 /// Whether view `name` of `scene` is already complete in `dir`.
@@ -342,7 +369,7 @@ pub fn view_is_complete(dir: &Path, name: &str, scene: &Scene, opts: &BatchOptio
     // The camera file and the stamp must be the ones this run would write: a changed scene
     // (e.g. regenerated under the same names), AOV list or output option renders the view
     // again.
-    let plan = super::write::view_plan(scene, opts);
+    let plan = view_plan(scene, opts);
     let same = |path: &Path, member: Member| {
         read_regular(path).is_ok_and(|b| plan.member_bytes(member).is_some_and(|want| b == want))
     };

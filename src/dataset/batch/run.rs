@@ -10,24 +10,25 @@
 //! view that fails because the machine ran out of something every view needs (a full disk
 //! or quota, the file size limit, the open-file limit) stops the shard: the views not yet
 //! started are left for the next run, and the summary says why. The shard's partial folder
-//! goes on every exit, a signal's included (see `crate::output::signals`).
+//! goes on every exit, a signal's included (see `crate::output::store::signals`).
 
 use super::input::{load, read_views, resource_exhausted};
 use super::lock::{ShardLock, lock_shard, partial_root};
 use super::options::{BatchOptions, Schedule};
 use super::progress::Outcome;
 use super::progress::{Counts, Progress, ProgressMode, SizeEstimate};
+use super::resume::view_memory;
 use super::resume::{ViewFiles, view_file_names, view_is_complete};
 use super::shard::Shard;
 use super::transforms::{FrameCamera, index_json, transforms_json};
 use super::verify::{Verifier, check_view, view_selected};
 use super::views::ViewSource;
-use super::write::{render_view, view_memory};
-use crate::output::aov::ExrLayout;
-use crate::output::files::refuse_non_regular;
-use crate::output::atomic::atomic_write_bytes;
-use crate::output::targets::check_outputs;
-use crate::output::signals::{self, Cleanup, Registration};
+use super::write::render_view;
+use crate::output::format::exr::ExrLayout;
+use crate::output::store::atomic::atomic_write_bytes;
+use crate::output::store::files::refuse_non_regular;
+use crate::output::store::signals::{self, Cleanup, Registration};
+use crate::output::store::targets::check_outputs;
 use crate::scene::Scene;
 use anyhow::{Context, Result};
 use rayon::prelude::*;
@@ -155,7 +156,7 @@ pub fn run(
     let failures_path = out.join(format!("failures.{shard}.jsonl"));
     check_targets(out, &views, &mine, &failures_path)?;
     // The folders made here go again if the run fails or is interrupted before writing.
-    let mut dirs = crate::output::atomic::NewDirs::default();
+    let mut dirs = crate::output::store::atomic::NewDirs::default();
     dirs.create(out)
         .with_context(|| format!("creating {}", out.display()))?;
     let (partial, lock) = clear_partial(out, shard)?;
@@ -434,7 +435,7 @@ impl ShardWork<'_> {
                 // The scene's folder, if this view makes it, stays registered for a
                 // signal's clean-up until the view's files are in it; kept either way
                 // after (other views of the scene may be writing into it).
-                let mut dirs = crate::output::atomic::NewDirs::default();
+                let mut dirs = crate::output::store::atomic::NewDirs::default();
                 let rendered = crate::mem::check_memory(&format!("rendering {}", view.id()), bytes)
                     .map_err(anyhow::Error::from)
                     .and_then(|()| {
@@ -610,7 +611,7 @@ fn write_index(
         let frames: Vec<(&str, FrameCamera)> =
             scene.iter().map(|(v, c)| (v.name.as_str(), *c)).collect();
         let dir = out.join(folder);
-        crate::output::atomic::make_dir_all(&dir)
+        crate::output::store::atomic::make_dir_all(&dir)
             .with_context(|| format!("creating {}", dir.display()))?;
         let path = dir.join("transforms.json");
         atomic_write_bytes(&path, transforms_json(&frames, opts).as_bytes())
@@ -776,11 +777,11 @@ mod tests {
     }
 
     fn render_memory_depth_only() -> u64 {
-        crate::output::aov::render_memory(
+        crate::output::pipeline::memory::render_memory(
             (16384, 4096),
             &[crate::scene::Aov::Depth],
-            crate::output::aov::ExrLayout::Layers,
-            crate::output::aov::Compression::Zip,
+            crate::output::format::exr::ExrLayout::Layers,
+            crate::output::format::exr::Compression::Zip,
             false,
         ) / 2
     }

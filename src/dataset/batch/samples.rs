@@ -4,9 +4,10 @@
 //! [`AovImage`] with the channel names of an EXR, so every check of an EXR applies to it.
 //! One sample is in memory at a time.
 
+use crate::image::{AovBuffer, AovImage, ChannelData};
 use crate::npy::{self, Dtype};
-use crate::output::aov::{AovBuffer, AovImage, ChannelData, channel_names};
-use crate::output::tar::TarReader;
+use crate::output::format::exr::channel_names;
+use crate::output::format::tar::TarReader;
 use crate::scene::Aov;
 use std::io::Read;
 
@@ -141,7 +142,7 @@ fn sample(key: &str, members: &[(String, Vec<u8>)]) -> Result<Sample, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::output::tar::TarWriter;
+    use crate::output::format::tar::TarWriter;
 
     fn json(key: &str) -> Vec<u8> {
         format!(r#"{{"key":"{key}","scene":"{key}","scene_file":"{key}.json","camera_index":0}}"#)

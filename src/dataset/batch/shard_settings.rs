@@ -8,8 +8,8 @@
 //! a run with another shard size cannot sit beside an index that does not list them.
 
 use super::lock::lock_named;
-use crate::output::files::read_regular;
-use crate::output::atomic::atomic_write_bytes;
+use crate::output::store::atomic::atomic_write_bytes;
+use crate::output::store::files::read_regular;
 use anyhow::{Context, Result, bail};
 use serde::{Deserialize, Serialize};
 use std::path::Path;

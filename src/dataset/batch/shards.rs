@@ -15,13 +15,13 @@
 //! `KEY.depth.png`, the bytes the files format writes. A view that fails keeps its slot: it
 //! is absent from its tar and listed in the sidecar and the failures file.
 //!
-//! A view's members come from its `crate::output::view::ViewPlan`, executed into a tar
+//! A view's members come from its `crate::output::pipeline::view::ViewPlan`, executed into a tar
 //! sink (`TarSink`, behind [`view_members`]): the arrays from the traced image, `KEY.json`
 //! from the plan's camera member, `KEY.exr` and `KEY.depth.png` from the plan's own members
 //! (not encoded unless asked for).
 //!
 //! **Determinism.** Members in that fixed order, every header fixed (see
-//! `crate::output::tar`), scene files named relative to the input folder: a tar is a pure
+//! `crate::output::format::tar`), scene files named relative to the input folder: a tar is a pure
 //! function of the input and the options, whichever process or engine writes it.
 //!
 //! **Writing and resume.** A tar is written under `OUT/.partial/shard-00000j.tar.tmp` and
@@ -57,16 +57,17 @@ use super::shard::Shard;
 use super::shard_settings;
 use super::verify::{Verifier, check_view, view_selected};
 use super::views::{ViewSource, list_views};
+use crate::image::{AovImage, ChannelData};
 use crate::npy;
-use crate::output::aov::{AovImage, ChannelData, ExrLayout, channel_names};
 use crate::output::console::{self, count};
-use crate::output::files::{create_new, open_regular, read_regular};
-use crate::output::atomic::atomic_write_bytes;
-use crate::output::targets::check_outputs;
-use crate::output::camera_files::record_json;
-use crate::output::signals::{self, Cleanup};
-use crate::output::tar::{self, TarWriter};
-use crate::output::view::{DepthPngPlan, Fill, Member as ViewMember, ViewPlan, ViewSink};
+use crate::output::format::camera_files::record_json;
+use crate::output::format::exr::{ExrLayout, channel_names};
+use crate::output::format::tar::{self, TarWriter};
+use crate::output::pipeline::view::{DepthPngPlan, Fill, Member as ViewMember, ViewPlan, ViewSink};
+use crate::output::store::atomic::atomic_write_bytes;
+use crate::output::store::files::{create_new, open_regular, read_regular};
+use crate::output::store::signals::{self, Cleanup};
+use crate::output::store::targets::check_outputs;
 use crate::render::RenderOptions;
 use crate::scene::camera::Camera;
 use crate::scene::{self, Aov, Scene};
@@ -685,7 +686,7 @@ fn view_members_and_exr(
 fn tar_traced_aovs(aovs: &[Aov], members: &[Member]) -> Vec<Aov> {
     let mut v = plan_aovs(aovs);
     if members.contains(&Member::Ply) {
-        for a in crate::output::ply::PLY_AOVS {
+        for a in crate::output::format::ply::PLY_AOVS {
             if !v.contains(&a) {
                 v.push(a);
             }
@@ -696,7 +697,7 @@ fn tar_traced_aovs(aovs: &[Aov], members: &[Member]) -> Vec<Aov> {
 
 /// Bytes one view of `w`×`h` in a tar holds at its peak: the whole traced image (a tar's
 /// view is never streamed band by band) with what the plan encodes from it (see
-/// `crate::output::aov::render_memory`), and its encoded members, the EXR counted when it is
+/// `crate::output::pipeline::memory::render_memory`), and its encoded members, the EXR counted when it is
 /// encoded for the check alone.
 fn tar_view_memory(
     (w, h): (u32, u32),
@@ -705,7 +706,7 @@ fn tar_view_memory(
     members: &[Member],
     exr: bool,
 ) -> u64 {
-    let traced = crate::output::aov::render_memory(
+    let traced = crate::output::pipeline::memory::render_memory(
         (w, h),
         &tar_traced_aovs(aovs, members),
         ExrLayout::Layers,
@@ -1022,7 +1023,7 @@ impl Plan<'_> {
         scenes: &[Result<Scene, String>],
     ) -> Result<(usize, u64, String, Vec<ShardFailure>)> {
         let file = create_new(tmp)
-            .map_err(crate::output::atomic::explain)
+            .map_err(crate::output::store::atomic::explain)
             .with_context(|| format!("creating {}", tmp.display()))?;
         // A buffer smaller than the arrays: BufWriter passes a write at least its size
         // straight to the file, so an array is hashed and written from where it was encoded,
@@ -1317,7 +1318,7 @@ pub fn write_shards_until(
         bail!("{}: must be >= 1, got 0", opt("shard_size"));
     }
     let out_opt = opt("out");
-    crate::output::targets::check_output_dir(&out_opt, out)?;
+    crate::output::store::targets::check_output_dir(&out_opt, out)?;
     let (views, cameras) = read_views(input, out, opts, announce)?;
     let aovs = dataset_aovs(opts, &views, &cameras)?;
     let keys = keys(&views, &member_suffixes(&aovs, &sopts.members))?;
@@ -1389,7 +1390,7 @@ pub fn write_shards_until(
     let refs: Vec<(&str, &Path)> = targets.iter().map(|(f, p)| (*f, p.as_path())).collect();
     check_outputs(&refs, &[])?;
     // The folders made here go again if the run fails or is interrupted before writing.
-    let mut dirs = crate::output::atomic::NewDirs::default();
+    let mut dirs = crate::output::store::atomic::NewDirs::default();
     dirs.create(out)
         .with_context(|| format!("creating {}", out.display()))?;
     let (root, _root_reg) = partial_root(out)?;

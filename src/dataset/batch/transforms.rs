@@ -13,7 +13,7 @@
 
 use super::options::BatchOptions;
 use super::views::ViewSource;
-use crate::output::aov::ExrLayout;
+use crate::output::format::exr::ExrLayout;
 use crate::scene::Aov;
 use crate::scene::camera::lens::Lens;
 use crate::scene::camera::{Camera, Projection, rows};
@@ -286,7 +286,7 @@ pub fn transforms_json(views: &[(&str, FrameCamera)], opts: &BatchOptions) -> St
         principal_point_note: PRINCIPAL_POINT_NOTE,
         frames,
     };
-    let mut s = crate::output::camera_files::record_json(&t);
+    let mut s = crate::output::format::camera_files::record_json(&t);
     s.push('\n');
     s
 }
@@ -327,7 +327,7 @@ pub fn index_json(
         layout_note: "views of different scenes are unrelated: each several-camera scene has its own SCENE/transforms.json for nerfstudio (ns-train ... --data OUT/SCENE); a one-camera scene's files are OUT/SCENE.*",
         views,
     };
-    let mut s = crate::output::camera_files::record_json(&index);
+    let mut s = crate::output::format::camera_files::record_json(&index);
     s.push('\n');
     s
 }

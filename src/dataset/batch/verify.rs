@@ -35,7 +35,7 @@ pub fn check_view(
     bytes: Option<&[u8]>,
     work: &Path,
 ) -> Result<(), String> {
-    let checked = crate::output::atomic::make_dir_all(work)
+    let checked = crate::output::store::atomic::make_dir_all(work)
         .map_err(anyhow::Error::from)
         .and_then(|()| match bytes {
             Some(b) => std::fs::write(exr, b)

@@ -2,10 +2,9 @@
 //! file in the shard's partial folder, then renames them into place with the EXR last.
 
 use super::options::BatchOptions;
-use super::resume::{ViewFiles, render_stamp};
-use crate::output::view::{DepthPngPlan, FileSink, Member, ViewPlan};
+use super::resume::{ViewFiles, view_plan};
+use crate::output::pipeline::view::{FileSink, Member};
 use crate::render::RenderOptions;
-use crate::scene::camera::Camera;
 use crate::scene::{Aov, Scene};
 use anyhow::Result;
 use std::path::{Path, PathBuf};
@@ -21,32 +20,6 @@ pub struct ViewCost {
     pub write: Duration,
     /// Hit pixels stored as 0 in the depth PNG (`--depth-out-of-range zero`).
     pub depth_zeroed: usize,
-}
-
-/// The plan of one view of a batch: the EXR (or EXRs), camera and Open3D JSON, the render
-/// stamp and, with PNGs, the normal picture, the depth PNG and the mask.
-pub fn view_plan(scene: &Scene, opts: &BatchOptions) -> ViewPlan {
-    ViewPlan {
-        camera: Camera::new(scene.camera),
-        exr_aovs: opts.exr_aovs(scene),
-        layout: opts.exr_layout,
-        compression: opts.compression,
-        depth_png: opts.png.then_some(DepthPngPlan {
-            scale: opts.depth_scale,
-            out_of_range: opts.depth_out_of_range,
-        }),
-        mask: opts.png,
-        normal_picture: opts.png,
-        previews: false,
-        stamp: Some(render_stamp(scene, opts)),
-        ply: opts.ply,
-    }
-}
-
-/// Bytes rendering and writing a view holds at its peak (see
-/// [`crate::output::aov::render_memory`]).
-pub fn view_memory(scene: &Scene, opts: &BatchOptions) -> u64 {
-    view_plan(scene, opts).memory()
 }
 
 /// Where a batch puts `member` of view `NAME`: `DIR/NAME.SUFFIX`.
@@ -81,7 +54,7 @@ fn stale(done: &ViewFiles, png: bool, ply: bool) -> Vec<PathBuf> {
 
 /// Render one view into `partial` (temporary names `TMP_STEM.*.tmp`) and move its files
 /// into `dir` as `NAME.*`, the EXR last. A depth PNG that cannot hold the view's depths
-/// (under [`OutOfRange::Fail`](crate::output::depth_png::OutOfRange::Fail)) fails the view
+/// (under [`OutOfRange::Fail`](crate::output::format::depth_png::OutOfRange::Fail)) fails the view
 /// before anything is staged.
 pub fn render_view(
     dir: &Path,

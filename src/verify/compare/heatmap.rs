@@ -54,11 +54,11 @@ pub const LEGEND: [(Rgb<u8>, &str); 6] = [
     (SEAM, "SEAM MISMATCH"),
     (INTERIOR, "INTERIOR MISMATCH (FAIL)"),
     (OVER_TOLERANCE, "OVER TOLERANCE (FAIL)"),
-    (crate::output::plot::WHITE, "RING: FAILING PIXEL"),
+    (crate::output::format::plot::WHITE, "RING: FAILING PIXEL"),
 ];
 
 pub(super) fn with_legend(heat: &RgbImage, title: &str) -> RgbImage {
-    use crate::output::plot;
+    use crate::output::format::plot;
     let (w, h) = heat.dimensions();
     let scale = (w / 160).clamp(1, 4);
     let s = scale as i64;
@@ -201,7 +201,7 @@ pub fn heatmap(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::output::plot;
+    use crate::output::format::plot;
 
     /// The figure ends with its title (files and verdict) drawn in full, and the near-black
     /// "both miss" swatch has a light frame on the black ground.

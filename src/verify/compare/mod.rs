@@ -67,7 +67,7 @@
 //! sample types (u32 in one, float32 in the other) is not compared: it is listed in
 //! [`Report::type_clashes`] and a note says so.
 
-use crate::output::aov::{AovImage, ChannelRef};
+use crate::image::{AovImage, ChannelRef};
 use crate::scene::Scene;
 use crate::scene::camera::{Camera, Projection};
 use anyhow::{Result, bail};
@@ -87,7 +87,7 @@ pub use rule::*;
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::output::aov::{Channel, ChannelData, ChannelMut, StridedMut};
+    use crate::image::{Channel, ChannelData, ChannelMut, StridedMut};
 
     /// A 6x5 image: cylinder 1 fills columns 1..=3 of rows 1..=3, the rest misses.
     fn image() -> AovImage {

@@ -553,7 +553,7 @@ pub(super) fn angle_deg(a: [f64; 3], b: [f64; 3]) -> f64 {
     c.atan2(d).to_degrees()
 }
 
-pub(super) fn vec3_at(v: &[crate::output::aov::Strided<f32>; 3], k: usize) -> [f64; 3] {
+pub(super) fn vec3_at(v: &[crate::image::Strided<f32>; 3], k: usize) -> [f64; 3] {
     [f64::from(v[0][k]), f64::from(v[1][k]), f64::from(v[2][k])]
 }
 

@@ -2,8 +2,8 @@
 //! it reads or computes anything, so a refused target costs nothing and leaves nothing
 //! behind.
 
-use super::atomic::NAME_MAX;
-use super::files::{kind_name, system_folder};
+use crate::output::store::atomic::NAME_MAX;
+use crate::output::store::files::{kind_name, system_folder};
 use std::io;
 use std::path::{Path, PathBuf};
 

@@ -262,7 +262,7 @@ fn remove_free_lock(path: &Path) -> io::Result<()> {
     use std::os::unix::io::AsRawFd;
     let mut opts = std::fs::OpenOptions::new();
     opts.read(true);
-    crate::output::files::no_follow(&mut opts);
+    crate::output::store::files::no_follow(&mut opts);
     let file = opts.open(path)?;
     if !file.metadata()?.is_file() {
         return Err(io::Error::other("not a regular file"));

@@ -3,7 +3,7 @@
 //! (uint32), one vertex per pixel that hit a cylinder, in pixel order (row by row). Open3D,
 //! CloudCompare, MeshLab and plyfile read it; the ids ride along as extra properties.
 
-use crate::output::aov::AovImage;
+use crate::image::AovImage;
 use crate::scene::Aov;
 
 /// The AOVs a point cloud is made of.

@@ -6,7 +6,7 @@
 //!
 //! A rejected value names its array and 0-based index as numpy prints it (`radius[16]`).
 
-use super::table::{LabelRule, Table, TableError, TableFormat, TableOptions};
+use super::{LabelRule, Table, TableError, TableFormat, TableOptions};
 use crate::npy::{Element, RawArray};
 use crate::scene::{CylinderFile, MAX_COORD, num};
 use glam::DVec3;
@@ -241,5 +241,5 @@ pub fn read_npz(bytes: &[u8], opts: &TableOptions) -> Result<Table, TableError> 
             ..CylinderFile::default()
         });
     }
-    Ok(super::table::finish(TableFormat::Npz, cylinders, rule))
+    Ok(super::finish(TableFormat::Npz, cylinders, rule))
 }

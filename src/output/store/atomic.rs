@@ -1,11 +1,11 @@
 //! Files that are never half-written: each is staged under a temporary name in the
 //! target's folder (or a work folder on the same file system) and renamed into place
 //! when complete, alone ([`atomic_write`]) or together with the other files of one
-//! command ([`commit_all`]). Staged files are registered with [`super::signals`], so a
+//! command ([`commit_all`]). Staged files are registered with [`crate::output::store::signals`], so a
 //! signal removes them too; the folders a command made go again if it fails
 //! ([`NewDirs`]).
 
-use super::signals::{self, Cleanup, Registration};
+use crate::output::store::signals::{self, Cleanup, Registration};
 use std::fs::File;
 use std::io::{self, Write};
 use std::path::{Path, PathBuf};

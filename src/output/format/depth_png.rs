@@ -11,7 +11,7 @@
 //! **Mask PNG.** 255 where the pixel's ray hits a cylinder, 0 where it misses: the
 //! `mask_path` of nerfstudio's `transforms.json`.
 
-use crate::output::aov::AovImage;
+use crate::image::AovImage;
 use crate::scene::Aov;
 use image::{GrayImage, ImageBuffer, Luma};
 
@@ -102,7 +102,7 @@ pub fn mask(img: &AovImage) -> Option<GrayImage> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::output::aov::{Channel, ChannelData};
+    use crate::image::{Channel, ChannelData};
 
     fn depth_image(values: &[f32]) -> AovImage {
         AovImage::from_channels(

@@ -20,14 +20,15 @@
 //!   [`ViewPlan::traced_aovs`] and the camera record from [`ViewPlan::member_bytes`] (or
 //!   `camera_json`) and hands out the traced image itself; it needs no sink.
 
-use super::aov::{
-    AovImage, Compression, ExrBands, ExrLayout, channel_names, exr_attributes, per_aov_image,
-    render_memory, streams,
+use crate::image::AovImage;
+use crate::output::format::camera_files::{camera_json, open3d_json};
+use crate::output::format::depth_png::{self, OutOfRange};
+use crate::output::format::exr::{
+    Compression, ExrBands, ExrLayout, channel_names, exr_attributes, per_aov_image,
 };
-use super::atomic::{Staged, commit_all, explain, stage, stage_in};
-use super::camera_files::{camera_json, open3d_json};
-use super::depth_png::{self, OutOfRange};
-use super::preview;
+use crate::output::format::preview;
+use crate::output::pipeline::memory::{render_memory, streams};
+use crate::output::store::atomic::{Staged, commit_all, explain, stage, stage_in};
 use crate::render::{RenderOptions, render, render_bands};
 use crate::scene::camera::Camera;
 use crate::scene::{Aov, Scene};
@@ -60,7 +61,7 @@ pub enum Member {
     DepthPreview(Aov),
     /// What made the files (a batch's render stamp).
     Stamp,
-    /// The hit points as a PLY point cloud ([`crate::output::ply`]).
+    /// The hit points as a PLY point cloud ([`crate::output::format::ply`]).
     Ply,
 }
 
@@ -201,7 +202,9 @@ impl ViewPlan {
             need(Aov::Normal);
         }
         if self.ply {
-            crate::output::ply::PLY_AOVS.into_iter().for_each(need);
+            crate::output::format::ply::PLY_AOVS
+                .into_iter()
+                .for_each(need);
         }
         aovs
     }
@@ -363,9 +366,9 @@ impl ViewPlan {
         };
         let ply = match self.ply {
             true => {
-                let hits = crate::output::ply::hits(image).context("no point-cloud AOV")?;
+                let hits = crate::output::format::ply::hits(image).context("no point-cloud AOV")?;
                 let comment = format!("cylaov {} hit points", env!("CARGO_PKG_VERSION"));
-                Some(crate::output::ply::encode(&hits, &comment))
+                Some(crate::output::format::ply::encode(&hits, &comment))
             }
             false => None,
         };
@@ -425,7 +428,7 @@ fn add_exr(
     member: Member,
     image: &AovImage,
     compression: Compression,
-    attrs: &[super::aov::ExrAttr],
+    attrs: &[crate::output::format::exr::ExrAttr],
 ) -> Result<()> {
     sink.add(member, &mut |w| {
         let mut out = io::BufWriter::with_capacity(1 << 20, w);

@@ -1,6 +1,6 @@
 //! A scan's points as files: LAS 1.4, binary PLY or NumPy `.npz`, chosen by the output's
 //! extension. Each encoder returns the file's bytes; the command stages them
-//! ([`super::atomic`]). `docs/scan.md` lists the fields of each format.
+//! ([`crate::output::store::atomic`]). `docs/scan.md` lists the fields of each format.
 
 use crate::npy::{self, Dtype};
 use crate::scan::{Column, Scan};
@@ -65,7 +65,7 @@ pub fn npz(scan: &Scan) -> Result<Vec<u8>, String> {
             (format!("{name}.npy"), bytes)
         })
         .collect();
-    super::npz::zip_stored(&members)
+    crate::output::format::npz::zip_stored(&members)
 }
 
 /// The binary little-endian PLY: `x y z` (double), `nx ny nz` (float), then the other

@@ -2,9 +2,9 @@
 //! colours, depth through a colour map with a titled legend bar (quantity, unit, ticks).
 //! Also the data PNGs of datasets (normals without a key, 16-bit depth).
 
-use crate::output::aov::AovImage;
-use crate::output::atomic::{Staged, stage};
-use crate::output::plot;
+use crate::image::AovImage;
+use crate::output::format::plot;
+use crate::output::store::atomic::{Staged, stage};
 use crate::scene::Aov;
 use anyhow::{Context, Result};
 use image::{ImageBuffer, Luma, Rgb, RgbImage};
@@ -236,7 +236,7 @@ where
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::output::aov::{Channel, ChannelData};
+    use crate::image::{Channel, ChannelData};
 
     /// Whether column `x` of `img` has a white (text) pixel below row `from`.
     fn text_in_column(img: &RgbImage, x: u32, from: u32) -> bool {

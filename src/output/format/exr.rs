@@ -1,5 +1,5 @@
 //! AOV images as OpenEXR files: the image model ([`crate::image`], re-exported here)
-//! written and read back, its header, the per-AOV layout and the memory a render needs.
+//! written and read back, its header and the per-AOV layout.
 //!
 //! Channel names are the contract: the AOV table's (`distance`, `depth`, `normal.X/Y/Z`,
 //! `uv.U/V`, …; float32, ids u32). Row 0 is the top row. A missed pixel is 0 everywhere.
@@ -35,7 +35,7 @@
 //! `Y` (all float32; ids are exact up to 2^24 and larger ones are refused), `normal` and
 //! `position` as `R, G, B` (= X, Y, Z). The samples are bitwise those of the layered file.
 
-use crate::output::atomic::{Staged, stage};
+use crate::output::store::atomic::{Staged, stage};
 use crate::scene::Aov;
 use crate::scene::camera::Camera;
 use anyhow::{Context, Result, bail};
@@ -190,69 +190,6 @@ pub fn depth_kind_text(kind: &str) -> &'static str {
 /// The channel names of `aov` in the per-AOV layout, in order (`Y`, or `R, G, B`).
 pub fn per_aov_channel_names(aov: Aov) -> &'static [&'static str] {
     aov.spec().per_aov_channels()
-}
-
-/// Whether a render going to `layout` with `compression`, and `pictures` (PNGs) or not,
-/// is written band by band while it is traced (see `render::render_bands`): one
-/// uncompressed layered EXR and no pictures, since nothing then needs the whole image.
-pub fn streams(layout: ExrLayout, compression: Compression, pictures: bool) -> bool {
-    layout == ExrLayout::Layers && compression == Compression::None && !pictures
-}
-
-/// Bytes a render of `width × height` with `aovs` holds at its peak (see [`streams`] for
-/// which renders are written band by band), the image's share: the scene, its prepared
-/// cylinders and the BVH come on top.
-///
-/// - Written band by band: each worker thread holds one band (16 rows) of every channel
-///   and the band's encoded copy.
-/// - Else one buffer per AOV (4 bytes a sample); the per-AOV layout copies one AOV at
-///   a time into its file's channels; a compressed file is copied once more, since the
-///   `exr` crate encodes from its own copy, and its encoder holds blocks in flight (about
-///   a sixth of the file, a third for PIZ, plus 2 MiB a thread, 5 MiB for PIZ); the
-///   pictures (PNGs) hold up to 6 bytes a pixel at once (the normal picture, the depth PNG
-///   and the mask of a batch view).
-/// - 1 MiB of write buffer, and 1 MiB for headers, offset tables and the rest.
-///
-/// `tests/memory_messages.rs` counts what the allocator hands out at 128², 512² and 1024²,
-/// every compression and both layouts: the peaks lie within this estimate, which is at
-/// most a quarter above them plus 8 MiB.
-pub fn render_memory(
-    (width, height): (u32, u32),
-    aovs: &[Aov],
-    layout: ExrLayout,
-    compression: Compression,
-    pictures: bool,
-) -> u64 {
-    const MIB: u64 = 1 << 20;
-    let channels: u64 = aovs.iter().map(|&a| channel_names(a).len() as u64).sum();
-    if streams(layout, compression, pictures) {
-        let rows = (BAND_ROWS as u64).min(height as u64);
-        let threads = rayon::current_num_threads() as u64;
-        return 2 * threads * rows * width as u64 * 4 * channels + MIB;
-    }
-    let pixels = width as u64 * height as u64;
-    let planes = pixels * 4 * channels;
-    // The channels one EXR file is encoded from.
-    let file_channels = match layout {
-        ExrLayout::Layers => channels,
-        ExrLayout::PerAov => aovs
-            .iter()
-            .map(|&a| channel_names(a).len() as u64)
-            .max()
-            .unwrap_or(0),
-    };
-    let file = pixels * 4 * file_channels;
-    let copies =
-        u64::from(layout == ExrLayout::PerAov) + u64::from(compression != Compression::None);
-    let threads = rayon::current_num_threads()
-        .max(std::thread::available_parallelism().map_or(1, |n| n.get())) as u64;
-    let encoder = match compression {
-        Compression::None => 0,
-        Compression::Piz => file * 3 / 10 + threads * 5 * MIB,
-        _ => file / 6 + threads * 2 * MIB,
-    };
-    let pngs = if pictures { pixels * 6 } else { 0 };
-    planes + copies * file + encoder + pngs + 2 * MIB
 }
 
 /// Largest shape id a float32 `Y` channel holds exactly.
@@ -426,7 +363,7 @@ impl AovImage {
 
     /// Read every channel of the first layer of an OpenEXR file. Half channels become f32.
     pub fn read_exr(path: &Path) -> Result<AovImage> {
-        let file = crate::output::files::open_input(path)
+        let file = crate::output::store::files::open_input(path)
             .with_context(|| format!("reading {}", path.display()))?;
         let image = read()
             .no_deep_data()
@@ -873,50 +810,6 @@ impl<W: std::io::Write + std::io::Seek> std::io::Seek for SortedHeader<W> {
 mod tests {
     use super::*;
 
-    /// Written band by band in scrambled order through positional writes, the file is the
-    /// bytes of the whole image's streamed write (mixed f32 and u32 channels, names out of
-    /// order, a last band of one row), and the `exr` crate reads it back.
-    /// A render written band by band is estimated at its bands (two copies of 16 rows
-    /// per thread); one holding the whole image at its planes, with a second copy when
-    /// compressed, the per-AOV copy of the largest AOV, and the pictures.
-    #[test]
-    fn the_memory_estimate_follows_what_the_render_holds() {
-        let all = [
-            Aov::Distance,
-            Aov::Depth,
-            Aov::Normal,
-            Aov::Position,
-            Aov::ShapeId,
-        ];
-        let size = (16384, 4096);
-        let px = 16384 * 4096;
-        let planes = px * 4 * 9;
-        let est = |layout, compression, pictures| {
-            render_memory(size, &all, layout, compression, pictures)
-        };
-        let fixed = 2 << 20;
-        assert_eq!(
-            est(ExrLayout::PerAov, Compression::None, false),
-            planes + px * 4 * 3 + fixed
-        );
-        let zip = est(ExrLayout::Layers, Compression::Zip, false);
-        assert!(
-            zip > 2 * planes + planes / 6 && zip < 2 * planes + planes / 5,
-            "{zip}"
-        );
-        let piz = est(ExrLayout::Layers, Compression::Piz, false);
-        assert!(piz > zip + planes / 10, "{piz} {zip}");
-        assert_eq!(
-            est(ExrLayout::Layers, Compression::None, true),
-            planes + px * 6 + fixed
-        );
-        let threads = rayon::current_num_threads() as u64;
-        assert_eq!(
-            est(ExrLayout::Layers, Compression::None, false),
-            2 * threads * 16 * 16384 * 4 * 9 + (1 << 20)
-        );
-    }
-
     /// Mixed f32 and u32 channels, names out of order, an interleaved three-channel
     /// buffer and a last band of one row.
     fn sample_image() -> AovImage {
@@ -939,6 +832,9 @@ mod tests {
         )
     }
 
+    /// Written band by band in scrambled order through positional writes, the file is the
+    /// bytes of the whole image's streamed write (mixed f32 and u32 channels, names out of
+    /// order, a last band of one row), and the `exr` crate reads it back.
     /// The three normal planes become one buffer of `(x, y, z)` triples in the table's
     /// order; each channel reads back as its plane; taken apart, the same planes.
     #[test]

@@ -142,7 +142,7 @@ pub fn camera_json(cam: &Camera, aovs: &[Aov]) -> String {
                 let spec = a.spec();
                 AovMeaning {
                     name: a.name(),
-                    channels: crate::output::aov::channel_names(a),
+                    channels: crate::output::format::exr::channel_names(a),
                     meaning: spec.meaning,
                     miss: spec.miss,
                 }
