@@ -420,7 +420,9 @@ class _Buffers:
     (in shared memory, as much time as the views' rendering). In a DataLoader worker they
     are shared memory (torch's), elsewhere plain numpy memory."""
 
-    KEEP = 8
+    # A worker holds at most its DataLoader's prefetched batches (2 by default), the one
+    # the main process uses and the one it writes: more are kept only while in use.
+    KEEP = 4
 
     def __init__(self):
         self.pid = None
@@ -452,7 +454,11 @@ class _Buffers:
             e = [owner, tensor, None]
             self.entries.append(e)
             if len(self.entries) > self.KEEP:
-                del self.entries[0]
+                # A free one first (memory, shared memory in a worker, kept for nothing);
+                # else the oldest, which lives on while its batch does.
+                idle = [x for x in self.entries if x[2] is not None and x[2]() is None
+                        and _flag(x[0]) == 0]
+                self.entries.remove(idle[0] if idle else self.entries[0])
         # A view through a memoryview: the arrays made from it keep it, not the owner, as
         # their base, so the weak reference tells when the last of them is gone.
         buffer = _np.frombuffer(memoryview(e[0]), dtype=_np.uint8)
