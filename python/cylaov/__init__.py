@@ -550,7 +550,7 @@ def _tensors(buffer, layout, offsets, n):
 class _SharedBatch(dict):
     """A collated batch in a DataLoader worker: the dict default collation makes, which
     pickles (to the main process) as its shared buffer, sent once, and the camera fields as
-    numpy arrays, instead of one shared-memory block a tensor. Unpickled, it is that plain
+    a few numpy arrays, instead of one shared-memory block a tensor. Unpickled, it is that plain
     dict again. A changed dict pickles as a dict."""
 
     __slots__ = ("_made",)
@@ -564,7 +564,7 @@ class _SharedBatch(dict):
         if self.keys() != was.keys() or any(self[k] is not v for k, v in was.items()):
             return (dict, (list(self.items()),))
         _flag(buffer, 1)
-        return (_rebuild, (shared, layout, offsets, n, _numpy_tree(self["camera_info"])))
+        return (_rebuild, (shared, layout, offsets, n, _pack(self["camera_info"])))
 
 
 def _rebuild(shared, layout, offsets, n, info):
@@ -576,30 +576,54 @@ def _rebuild(shared, layout, offsets, n, info):
     buffer = _np.frombuffer(memoryview(owner), dtype=_np.uint8)
     _weakref.finalize(buffer, _flag, owner, 0)
     out = _tensors(buffer, layout, offsets, n)
-    out["camera_info"] = _torch_tree(info, torch)
+    out["camera_info"] = _unpack(info, torch)
     return out
 
 
-def _numpy_tree(x):
-    """Collated camera fields with each tensor as a numpy array (pickled by value)."""
-    if isinstance(x, dict):
-        return {k: _numpy_tree(v) for k, v in x.items()}
-    if isinstance(x, list):
-        return [_numpy_tree(v) for v in x]
-    if hasattr(x, "numpy") and not isinstance(x, str):
-        return x.numpy()
-    return x
+def _pack(info):
+    """Collated camera fields for pickling: the tree with each tensor replaced by its
+    number, and the tensors stacked by dtype, ``[(numpy (n, B) array, numbers)]``: a few
+    arrays to pickle and rebuild instead of one a field."""
+    leaves = []
+
+    def walk(x):
+        t = type(x)
+        if t is dict:
+            return {k: walk(v) for k, v in x.items()}
+        if t is list:
+            # Collated strings are the list of the items' strings: nothing to convert.
+            return x if x and type(x[0]) is str else [walk(v) for v in x]
+        if hasattr(x, "numpy"):
+            leaves.append(x)
+            return len(leaves) - 1
+        return x
+
+    tree = walk(info)
+    import torch
+
+    groups = {}
+    for j, t in enumerate(leaves):
+        groups.setdefault((t.dtype, t.shape), []).append(j)
+    stacks = [(torch.stack([leaves[j] for j in js]).numpy(), js) for js in groups.values()]
+    return tree, stacks
 
 
-def _torch_tree(x, torch):
-    """``_numpy_tree`` undone."""
-    if isinstance(x, dict):
-        return {k: _torch_tree(v, torch) for k, v in x.items()}
-    if isinstance(x, list):
-        return [_torch_tree(v, torch) for v in x]
-    if isinstance(x, _np.ndarray):
-        return torch.from_numpy(x)
-    return x
+def _unpack(packed, torch):
+    """``_pack`` undone: the same tensors, each a row of its stack."""
+    tree, stacks = packed
+    leaves = {}
+    for array, js in stacks:
+        leaves.update(zip(js, torch.from_numpy(array).unbind(0)))
+
+    def walk(x):
+        t = type(x)
+        if t is dict:
+            return {k: walk(v) for k, v in x.items()}
+        if t is list:
+            return x if x and type(x[0]) is str else [walk(v) for v in x]
+        return leaves[x] if t is int else x
+
+    return walk(tree)
 
 
 def _index(i):

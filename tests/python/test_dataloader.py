@@ -59,12 +59,14 @@ def test_batches_are_the_default_collation_of_the_items(workers, method):
         del batch
 
 
-def test_a_batch_is_one_buffer_in_the_main_process():
+@pytest.mark.parametrize("method", ["fork", "spawn"])
+def test_a_batch_is_one_buffer_in_the_main_process(method):
     """The arrays of a worker's batch lie in one block, each AOV's after the previous one
     (64-byte aligned), as `__getitems__` wrote them: collation copied nothing."""
     torch = need("torch")
     ds = cylaov.Dataset(SETTINGS, seed=3, length=8, aovs=("depth", "normal"), threads=1)
-    loader = torch.utils.data.DataLoader(ds, batch_size=8, num_workers=1)
+    loader = torch.utils.data.DataLoader(ds, batch_size=8, num_workers=1,
+                                         multiprocessing_context=method)
     batch = next(iter(loader))
     depth, normal, mask = batch["depth"], batch["normal"], batch["mask"]
     assert normal.data_ptr() - depth.data_ptr() == 8 * 48 * 32 * 4
