@@ -22,6 +22,7 @@ import json as _json
 import os as _os
 import sys as _sys
 import tempfile as _tempfile
+import threading as _threading
 import weakref as _weakref
 
 import numpy as _np
@@ -385,6 +386,10 @@ class _Item(dict):
 
     __slots__ = ()
 
+    def __reduce__(self):
+        # A plain dict elsewhere: each array pickles its own bytes, not the batch's buffer.
+        return (dict, (dict(self),))
+
 
 class _Items(list):
     """The list ``Dataset.__getitems__`` returns, with its batch buffer: ``(buffer, shared,
@@ -396,6 +401,9 @@ class _Items(list):
     def __init__(self, *args):
         super().__init__(*args)
         self._batch = None
+
+    def __reduce__(self):
+        return (list, (list(self),))
 
 
 # A batch buffer starts with a header: its first 8 bytes are 1 while a DataLoader's main
@@ -427,14 +435,21 @@ class _Buffers:
     def __init__(self):
         self.pid = None
         self.entries = []  # [owner, shared tensor or None, weak ref to the last batch's array]
+        self.lock = None
 
     def take(self, size):
         """A buffer of at least ``size`` bytes no batch holds: ``(uint8 array, shared
         storage tensor or None)``; the array's views keep it from reuse while alive."""
         if self.pid != _os.getpid():
-            # Inherited through fork: the parent's buffers are not shared with this
-            # process's parent the way this process's own are.
-            self.pid, self.entries = _os.getpid(), []
+            # Inherited through fork: the parent's buffers are its own (copied on write),
+            # and its lock may have been held by a thread that the child does not have.
+            self.pid, self.entries, self.lock = _os.getpid(), [], _threading.Lock()
+        # Threads calling `__getitems__` at once (the GIL is released while views render)
+        # must not both take the same free buffer.
+        with self.lock:
+            return self._take(size)
+
+    def _take(self, size):
         shared = _in_worker()
         for e in self.entries:
             owner, tensor, ref = e

@@ -110,7 +110,14 @@ def test_items_of_getitems_equal_ds_i_and_pickle():
         for k in AOVS + ("mask",):
             assert item[k].dtype == one[k].dtype and np.array_equal(item[k], one[k]), k
         back = pickle.loads(pickle.dumps(item))
-        assert all(np.array_equal(back[k], one[k]) for k in AOVS)
+        assert type(back) is dict and all(np.array_equal(back[k], one[k]) for k in AOVS)
+    # Pickled, a list of items is a plain list of plain dicts, each with its own arrays
+    # (not the batch's whole buffer once an item).
+    data = pickle.dumps(items)
+    assert len(data) < 3 * 48 * 32 * (4 + 12 + 4 + 1) + 3 * 4096
+    back = pickle.loads(data)
+    assert type(back) is list and [type(b) for b in back] == [dict] * 3
+    assert np.array_equal(back[1]["normal"], ds[0]["normal"])
 
 
 def test_collate_fn_list_gives_the_items():
@@ -121,3 +128,25 @@ def test_collate_fn_list_gives_the_items():
     assert len(got) == 6
     for i, item in enumerate(got):
         assert np.array_equal(item["depth"], ds[i]["depth"]) and item["camera_info"] == ds[i]["camera_info"]
+
+
+def test_threads_fetching_batches_at_once_get_their_own_buffers():
+    """The GIL is released while a batch renders: batches fetched from several threads at
+    once, some kept and some freed, each hold their own items."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    ds = cylaov.Dataset(SETTINGS, seed=3, length=12, aovs="depth", threads=1)
+    want = [ds[i]["depth"] for i in range(12)]
+    kept = []
+
+    def fetch(k):
+        indices = [(k + j) % 12 for j in range(3)]
+        items = ds.__getitems__(indices)
+        if k % 2:
+            kept.append((indices, items))
+        return all(np.array_equal(it["depth"], want[i]) for i, it in zip(indices, items))
+
+    with ThreadPoolExecutor(4) as pool:
+        assert all(pool.map(fetch, range(40)))
+    for indices, items in kept:
+        assert all(np.array_equal(it["depth"], want[i]) for i, it in zip(indices, items))
