@@ -460,8 +460,7 @@ class _Buffers:
             if shared:
                 import torch
 
-                tensor = torch.empty(0, dtype=torch.uint8).set_(
-                    torch.UntypedStorage._new_shared(size))
+                tensor = torch.empty(size, dtype=torch.uint8).share_memory_()
                 owner = tensor.numpy()
             else:
                 tensor, owner = None, _np.empty(size, dtype=_np.uint8)
