@@ -8,10 +8,12 @@ measures rendering and handing batches over, not process start. The reference re
 same views in this process, `Dataset.__getitems__` a batch on a pool of N threads, with no
 collation: what the workers' cores could give with nothing to hand over. The two alternate,
 `--repeats` passes each, and each reports its fastest pass, so a load that comes and goes
-(other jobs on the machine) weighs on both alike.
+(other jobs on the machine) weighs on both alike. `--plain-items` hands the `DataLoader` the
+same items as plain dicts, which PyTorch's default collation copies into a fresh
+shared-memory block a tensor: what a dataset of plain dicts gets, for comparison.
 
 Usage: bench_dataloader.py --views V --workers N [--seed S] [--cylinders C] [--width W]
-       [--height H] [--batch-size B] [--repeats R]
+       [--height H] [--batch-size B] [--repeats R] [--plain-items]
 Prints the reference, the DataLoader and their ratio, then `VIEWS SECONDS` of the
 DataLoader's fastest pass on its last line (`cylaov bench --scaling` runs it).
 """
@@ -25,6 +27,13 @@ import torch
 import cylaov
 
 
+class PlainItems(cylaov.Dataset):
+    """The items as plain dicts: default collation stacks their arrays afresh."""
+
+    def __getitems__(self, indices):
+        return [dict(item) for item in super().__getitems__(indices)]
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--views", type=int, required=True)
@@ -35,9 +44,10 @@ def main():
     ap.add_argument("--height", type=int, default=240)
     ap.add_argument("--batch-size", type=int, default=32)
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--plain-items", action="store_true")
     a = ap.parse_args()
     settings = {"cylinders": a.cylinders, "width": a.width, "height": a.height}
-    ds = cylaov.Dataset(settings, seed=a.seed, length=a.views, aovs=("depth", "normal"),
+    ds = (PlainItems if a.plain_items else cylaov.Dataset)(settings, seed=a.seed, length=a.views, aovs=("depth", "normal"),
                         threads=1)
     one = cylaov.Dataset(settings, seed=a.seed, length=a.views, aovs=("depth", "normal"),
                          threads=max(a.workers, 1))
@@ -60,7 +70,8 @@ def main():
         best_loader = min(best_loader, time.perf_counter() - t)
     one_rate, loader_rate = a.views / best_one, views / best_loader
     print(f"one process, {max(a.workers, 1)} threads: {one_rate:.1f} views/s")
-    print(f"DataLoader, {a.workers} workers: {loader_rate:.1f} views/s, "
+    what = "plain-dict items" if a.plain_items else "items"
+    print(f"DataLoader, {a.workers} workers, {what}: {loader_rate:.1f} views/s, "
           f"{loader_rate / one_rate:.2f}x the one process")
     print(f"{views} {best_loader:.6f}")
 
