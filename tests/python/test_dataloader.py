@@ -150,3 +150,27 @@ def test_threads_fetching_batches_at_once_get_their_own_buffers():
         assert all(pool.map(fetch, range(40)))
     for indices, items in kept:
         assert all(np.array_equal(it["depth"], want[i]) for i, it in zip(indices, items))
+
+
+def _doubled_depth(items):
+    batch = need("torch").utils.data.default_collate(items)
+    batch["depth"] = batch["depth"] * 2
+    return batch
+
+
+def _negated_normal(items):
+    batch = need("torch").utils.data.default_collate(items)
+    batch["normal"].mul_(-1)
+    return batch
+
+
+@pytest.mark.parametrize("collate", [_doubled_depth, _negated_normal])
+def test_a_worker_batch_changed_after_collation_arrives_as_changed(collate):
+    """A collate_fn that changes default collation's dict in the worker: a replaced tensor
+    sends the dict as PyTorch sends any dict, a tensor changed in place travels in the
+    buffer; either way the main process gets what the worker made."""
+    torch = need("torch")
+    ds = cylaov.Dataset(SETTINGS, seed=3, length=8, aovs=AOVS, threads=1)
+    loader = torch.utils.data.DataLoader(ds, batch_size=4, num_workers=1, collate_fn=collate)
+    for j, batch in enumerate(loader):
+        _same(collate([ds[i] for i in range(4 * j, 4 * j + 4)]), batch)
