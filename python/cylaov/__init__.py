@@ -20,7 +20,10 @@ say more; the package's documentation page is ``docs/python.md`` in the reposito
 
 import json as _json
 import os as _os
+import sys as _sys
 import tempfile as _tempfile
+import threading as _threading
+import weakref as _weakref
 
 import numpy as _np
 
@@ -331,8 +334,38 @@ class Dataset:
     def __getitems__(self, indices):
         """Items ``indices`` as a list, rendered in one call on the pool: PyTorch's
         ``DataLoader`` calls this once per batch, so a batch costs one trip, and its small
-        views render side by side. Each item equals ``self[i]``."""
-        return self._views.items([_index(i) for i in indices])
+        views render side by side. Each item equals ``self[i]``.
+
+        The items' arrays lie back to back in one buffer, each key's arrays forming the
+        batch PyTorch's default collation would stack them into: collation then takes that
+        buffer as it is (no copy), and a worker of a ``DataLoader`` hands it to the main
+        process as one shared-memory block, reused once the batch is freed there."""
+        indices = [_index(i) for i in indices]
+        if not indices:
+            return _Items()
+        _register_collation()
+        layout = self._layout()
+        offsets, size = _offsets(layout, len(indices))
+        buffer, shared = _BUFFERS.take(size)
+        infos = self._views.items_into(indices, buffer, [o for o, _ in offsets])
+        items = _Items()
+        for j, info in enumerate(infos):
+            item = _Item()
+            for (name, dtype, shape), (off, nbytes) in zip(layout, offsets):
+                start = off + j * nbytes
+                item[name] = buffer[start:start + nbytes].view(dtype).reshape(shape)
+            item["camera_info"] = info
+            items.append(item)
+        items._batch = (buffer, shared, layout, offsets, tuple(dict(it) for it in items))
+        return items
+
+    def _layout(self):
+        layout = self.__dict__.get("_layout_cache")
+        if layout is None:
+            layout = [(name, _np.dtype(dtype), tuple(shape))
+                      for name, dtype, shape in self._views.layout()]
+            self._layout_cache = layout
+        return layout
 
     def __iter__(self):
         for i in range(self.length):
@@ -345,6 +378,266 @@ class Dataset:
     def __repr__(self):
         return (f"cylaov.Dataset(seed={self.seed}, length={self.length}, aovs={self.aovs}, "
                 f"views_per_scene={self.views_per_scene})")
+
+
+class _Item(dict):
+    """An item of ``Dataset.__getitems__``: a plain dict, whose type tells PyTorch's default
+    collation (``_collate``) that its arrays may lie in a batch buffer already."""
+
+    __slots__ = ()
+
+    def __reduce__(self):
+        # A plain dict elsewhere: each array pickles its own bytes, not the batch's buffer.
+        return (dict, (dict(self),))
+
+
+class _Items(list):
+    """The list ``Dataset.__getitems__`` returns, with its batch buffer: ``(buffer, shared,
+    layout, offsets, items as made)``, so collation can tell whether the items are still
+    those arrays."""
+
+    __slots__ = ("_batch",)
+
+    def __init__(self, *args):
+        super().__init__(*args)
+        self._batch = None
+
+    def __reduce__(self):
+        return (list, (list(self),))
+
+
+# A batch buffer starts with a header: its first 8 bytes are 1 while a DataLoader's main
+# process holds the batch, which lets the worker that wrote it reuse it afterwards.
+_HEADER = 64
+
+
+def _offsets(layout, n):
+    """Each array block's ``(offset, bytes an item)`` in a buffer of ``n`` items, and the
+    buffer's size: blocks after the header, each 64-byte aligned."""
+    out, at = [], _HEADER
+    for _, dtype, shape in layout:
+        nbytes = dtype.itemsize * int(_np.prod(shape))
+        out.append((at, nbytes))
+        at += -(-nbytes * n // 64) * 64
+    return out, at
+
+
+class _Buffers:
+    """This process's batch buffers, reused once nothing holds the batch made in one: its
+    pages are then mapped already, where a fresh buffer a batch would fault each page in
+    (in shared memory, as much time as the views' rendering). In a DataLoader worker they
+    are shared memory (torch's), elsewhere plain numpy memory."""
+
+    # A worker holds at most its DataLoader's prefetched batches (2 by default), the one
+    # the main process uses and the one it writes: more are kept only while in use.
+    KEEP = 4
+
+    def __init__(self):
+        self.pid = None
+        self.entries = []  # [owner, shared tensor or None, weak ref to the last batch's array]
+        self.lock = None
+
+    def take(self, size):
+        """A buffer of at least ``size`` bytes no batch holds: ``(uint8 array, shared
+        storage tensor or None)``; the array's views keep it from reuse while alive."""
+        if self.pid != _os.getpid():
+            # Inherited through fork: the parent's buffers are its own (copied on write),
+            # and its lock may have been held by a thread that the child does not have.
+            self.pid, self.entries, self.lock = _os.getpid(), [], _threading.Lock()
+        # Threads calling `__getitems__` at once (the GIL is released while views render)
+        # must not both take the same free buffer.
+        with self.lock:
+            return self._take(size)
+
+    def _take(self, size):
+        shared = _in_worker()
+        for e in self.entries:
+            owner, tensor, ref = e
+            if (tensor is not None) == shared and owner.size >= size and ref() is None \
+                    and _flag(owner) == 0:
+                break
+        else:
+            if shared:
+                import torch
+
+                tensor = torch.empty(size, dtype=torch.uint8).share_memory_()
+                owner = tensor.numpy()
+            else:
+                tensor, owner = None, _np.empty(size, dtype=_np.uint8)
+            _flag(owner, 0)
+            e = [owner, tensor, None]
+            self.entries.append(e)
+            if len(self.entries) > self.KEEP:
+                # A free one first (memory, shared memory in a worker, kept for nothing);
+                # else the oldest, which lives on while its batch does.
+                idle = [x for x in self.entries if x[2] is not None and x[2]() is None
+                        and _flag(x[0]) == 0]
+                self.entries.remove(idle[0] if idle else self.entries[0])
+        # A view through a memoryview: the arrays made from it keep it, not the owner, as
+        # their base, so the weak reference tells when the last of them is gone.
+        buffer = _np.frombuffer(memoryview(e[0]), dtype=_np.uint8)
+        e[2] = _weakref.ref(buffer)
+        return buffer, e[1]
+
+
+_BUFFERS = _Buffers()
+
+
+def _flag(buffer, value=None):
+    """The header's in-use flag of a batch buffer; set to ``value`` if given."""
+    word = buffer[:8].view(_np.uint64)
+    if value is not None:
+        word[0] = value
+    return int(word[0])
+
+
+def _in_worker():
+    """Whether this process is a worker of a PyTorch DataLoader (torch imported)."""
+    torch = _sys.modules.get("torch")
+    if torch is None:
+        return False
+    try:
+        return torch.utils.data.get_worker_info() is not None
+    except AttributeError:
+        return False
+
+
+_REGISTERED = False
+
+
+def _register_collation():
+    """Teach PyTorch's default collation (``default_collate_fn_map``, its documented
+    extension point) that a batch of ``_Item``s is its buffer: done once torch is loaded."""
+    global _REGISTERED
+    if _REGISTERED or "torch" not in _sys.modules:
+        return
+    try:
+        from torch.utils.data._utils.collate import default_collate_fn_map
+    except ImportError:
+        return
+    default_collate_fn_map[_Item] = _collate
+    _REGISTERED = True
+
+
+def _collate(batch, *, collate_fn_map=None):
+    """PyTorch's default collation of items of ``Dataset.__getitems__``: the same tensors,
+    bit for bit, taken from the batch buffer when the items are still its arrays (else
+    collated as plain dicts)."""
+    from torch.utils.data._utils.collate import collate, default_collate_fn_map
+
+    made = getattr(batch, "_batch", None)
+    if made is None or collate_fn_map is not default_collate_fn_map or not _unchanged(batch, made):
+        return collate([dict(x) for x in batch], collate_fn_map=collate_fn_map)
+    buffer, shared, layout, offsets, _ = made
+    out = _tensors(buffer, layout, offsets, len(batch))
+    out["camera_info"] = collate([x["camera_info"] for x in batch], collate_fn_map=collate_fn_map)
+    if shared is not None and _in_worker():
+        return _SharedBatch(out, shared, buffer, layout, offsets, len(batch))
+    return out
+
+
+def _unchanged(batch, made):
+    """Whether ``batch`` holds the items ``__getitems__`` made, each with the same arrays."""
+    first = made[4]
+    if type(batch) is not _Items or len(batch) != len(first):
+        return False
+    for item, was in zip(batch, first):
+        if type(item) is not _Item or item.keys() != was.keys():
+            return False
+        for k, v in was.items():
+            if item[k] is not v:
+                return False
+    return True
+
+
+def _tensors(buffer, layout, offsets, n):
+    """The batch tensors of a buffer's arrays: ``{name: (n, *shape)}``."""
+    import torch
+
+    out = {}
+    for (name, dtype, shape), (off, nbytes) in zip(layout, offsets):
+        block = buffer[off:off + n * nbytes].view(dtype).reshape((n,) + shape)
+        out[name] = torch.from_numpy(block)
+    return out
+
+
+class _SharedBatch(dict):
+    """A collated batch in a DataLoader worker: the dict default collation makes, which
+    pickles (to the main process) as its shared buffer, sent once, and the camera fields as
+    a few numpy arrays, instead of one shared-memory block a tensor. Unpickled, it is that plain
+    dict again. A changed dict pickles as a dict."""
+
+    __slots__ = ("_made",)
+
+    def __init__(self, out, shared, buffer, layout, offsets, n):
+        super().__init__(out)
+        self._made = (dict(out), shared, buffer, layout, offsets, n)
+
+    def __reduce__(self):
+        was, shared, buffer, layout, offsets, n = self._made
+        if self.keys() != was.keys() or any(self[k] is not v for k, v in was.items()):
+            return (dict, (list(self.items()),))
+        _flag(buffer, 1)
+        return (_rebuild, (shared, layout, offsets, n, _pack(self["camera_info"])))
+
+
+def _rebuild(shared, layout, offsets, n, info):
+    """A worker's batch in the main process: tensors over the shared buffer, which is
+    flagged free for the worker again once the last of them is freed."""
+    import torch
+
+    owner = shared.numpy()
+    buffer = _np.frombuffer(memoryview(owner), dtype=_np.uint8)
+    _weakref.finalize(buffer, _flag, owner, 0)
+    out = _tensors(buffer, layout, offsets, n)
+    out["camera_info"] = _unpack(info, torch)
+    return out
+
+
+def _pack(info):
+    """Collated camera fields for pickling: the tree with each tensor replaced by its
+    number, and the tensors stacked by dtype, ``[(numpy (n, B) array, numbers)]``: a few
+    arrays to pickle and rebuild instead of one a field."""
+    leaves = []
+
+    def walk(x):
+        t = type(x)
+        if t is dict:
+            return {k: walk(v) for k, v in x.items()}
+        if t is list:
+            # Collated strings are the list of the items' strings: nothing to convert.
+            return x if x and type(x[0]) is str else [walk(v) for v in x]
+        if hasattr(x, "numpy"):
+            leaves.append(x)
+            return len(leaves) - 1
+        return x
+
+    tree = walk(info)
+    import torch
+
+    groups = {}
+    for j, t in enumerate(leaves):
+        groups.setdefault((t.dtype, t.shape), []).append(j)
+    stacks = [(torch.stack([leaves[j] for j in js]).numpy(), js) for js in groups.values()]
+    return tree, stacks
+
+
+def _unpack(packed, torch):
+    """``_pack`` undone: the same tensors, each a row of its stack."""
+    tree, stacks = packed
+    leaves = {}
+    for array, js in stacks:
+        leaves.update(zip(js, torch.from_numpy(array).unbind(0)))
+
+    def walk(x):
+        t = type(x)
+        if t is dict:
+            return {k: walk(v) for k, v in x.items()}
+        if t is list:
+            return x if x and type(x[0]) is str else [walk(v) for v in x]
+        return leaves[x] if t is int else x
+
+    return walk(tree)
 
 
 def _index(i):

@@ -83,6 +83,38 @@ pub(crate) fn arrays(mut image: AovImage, aovs: &[Aov]) -> Arrays {
     }
 }
 
+impl Arrays {
+    /// Each array's bytes in the order of its dict (the AOVs, then `mask`: a bool is one
+    /// byte, 0 or 1, as numpy stores it), for copying into a batch's buffer.
+    pub(crate) fn bytes(&self) -> Vec<&[u8]> {
+        let mut v: Vec<&[u8]> = self
+            .planes
+            .iter()
+            .map(|(_, p)| match p {
+                Plane::F32(x) | Plane::Channels(x, _) => as_bytes(x),
+                Plane::U32(x) => as_bytes(x),
+            })
+            .collect();
+        if let Some(m) = &self.mask {
+            v.push(as_bytes(m));
+        }
+        v
+    }
+}
+
+/// Values whose every byte is initialised (no padding): their slices read as bytes.
+trait Plain: Copy {}
+impl Plain for f32 {}
+impl Plain for u32 {}
+impl Plain for bool {}
+
+/// A slice's memory as bytes.
+fn as_bytes<T: Plain>(x: &[T]) -> &[u8] {
+    // SAFETY: a `Plain` value has no padding, so every byte of the slice is initialised; u8
+    // has no alignment, and the length is the slice's size in bytes.
+    unsafe { std::slice::from_raw_parts(x.as_ptr().cast::<u8>(), std::mem::size_of_val(x)) }
+}
+
 /// The arrays as a dict keyed by AOV name, `mask` beside them; numpy takes the buffers.
 pub(crate) fn arrays_to_dict<'py>(py: Python<'py>, arrays: Arrays) -> PyResult<Bound<'py, PyDict>> {
     let Arrays {

@@ -7,9 +7,11 @@ use crate::errors::scene_error;
 use crate::pool::{on_pool, run_stoppable};
 use crate::scene::PyScene;
 use cylaov::dataset::generate::{ConfigFile, GenerateOptions};
+use cylaov::output::aov::channel_names;
 use cylaov::render::RenderOptions;
 use cylaov::scene::Aov;
 use cylaov::scene::camera::Camera;
+use numpy::PyReadwriteArray1;
 use pyo3::exceptions::{PyIndexError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
@@ -148,6 +150,105 @@ impl _Views {
             out.append(view_dict(py, a, &v)?)?;
         }
         Ok(out)
+    }
+
+    /// An item's arrays as `(name, numpy dtype, shape)`, in the order of its dict: the
+    /// same for every view, so a batch's buffer can be sized before it renders.
+    fn layout(&self) -> Vec<(&'static str, &'static str, Vec<usize>)> {
+        let (h, w) = (self.options.height as usize, self.options.width as usize);
+        let mut v: Vec<_> = self
+            .aovs
+            .iter()
+            .map(|&a| {
+                let c = channel_names(a).len();
+                let dtype = if a.is_u32() { "uint32" } else { "float32" };
+                let shape = if c == 1 { vec![h, w] } else { vec![h, w, c] };
+                (a.name(), dtype, shape)
+            })
+            .collect();
+        v.push(("mask", "bool", vec![h, w]));
+        v
+    }
+
+    /// Views `indices` rendered as `items` renders them, each array copied into `out`
+    /// (bytes) while the render has it in cache: array `k` of item `j` at
+    /// `offsets[k] + j * bytes(k)`, `offsets` ascending. A batch's arrays thus lie back to
+    /// back, each one already the stacked tensor collation would copy them into. Returns
+    /// each item's `camera_info`.
+    fn items_into<'py>(
+        &self,
+        py: Python<'py>,
+        indices: Vec<i64>,
+        mut out: PyReadwriteArray1<'py, u8>,
+        offsets: Vec<usize>,
+    ) -> PyResult<Bound<'py, PyList>> {
+        let ks = indices
+            .iter()
+            .map(|&i| self.position(i))
+            .collect::<PyResult<Vec<_>>>()?;
+        let sizes: Vec<usize> = self
+            .layout()
+            .iter()
+            .map(|(_, dtype, shape)| {
+                let item = if *dtype == "bool" { 1 } else { 4 };
+                shape.iter().product::<usize>() * item
+            })
+            .collect();
+        if offsets.len() != sizes.len() {
+            return Err(PyValueError::new_err(format!(
+                "offsets: {} of them for {} arrays an item",
+                offsets.len(),
+                sizes.len()
+            )));
+        }
+        let buf = out.as_slice_mut()?;
+        // Each item's destinations, split off the buffer block by block.
+        let mut slots: Vec<Vec<&mut [u8]>> = ks.iter().map(|_| Vec::new()).collect();
+        let (mut rest, mut at) = (buf, 0usize);
+        for (&off, &size) in offsets.iter().zip(&sizes) {
+            let len = size * ks.len();
+            if off < at || off - at + len > rest.len() {
+                return Err(PyValueError::new_err(format!(
+                    "offsets: {offsets:?} do not fit a buffer of {} bytes for {} items",
+                    at + rest.len(),
+                    ks.len()
+                )));
+            }
+            let (block, tail) = std::mem::take(&mut rest)[off - at..].split_at_mut(len);
+            if size > 0 {
+                for (slot, chunk) in slots.iter_mut().zip(block.chunks_exact_mut(size)) {
+                    slot.push(chunk);
+                }
+            }
+            rest = tail;
+            at = off + len;
+        }
+        let infos = run_stoppable(py, self.threads, |stop| {
+            use rayon::prelude::*;
+            ks.par_iter()
+                .zip(slots.into_par_iter())
+                .map(|(&k, mut slot)| {
+                    let (a, v) = self.view(k, stop)?;
+                    let src = a.bytes();
+                    let fits = src.len() == slot.len()
+                        && src.iter().zip(&slot).all(|(s, d)| s.len() == d.len());
+                    if !fits {
+                        return Err(PyValueError::new_err(format!(
+                            "view {k}: its arrays do not match the dataset's layout"
+                        )));
+                    }
+                    for (s, d) in src.iter().zip(slot.iter_mut()) {
+                        d.copy_from_slice(s);
+                    }
+                    Ok(v)
+                })
+                .collect::<PyResult<Vec<_>>>()
+        })??;
+        let list = PyList::empty(py);
+        for v in &infos {
+            list.append(json_to_py(py, v)?)?;
+        }
+        Ok(list)
     }
 }
 

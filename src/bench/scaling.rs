@@ -168,7 +168,9 @@ fn scene_files(dir: &Path) -> Result<Vec<PathBuf>> {
 }
 
 /// Views and seconds of the package's `Dataset` through a `DataLoader` of `workers`
-/// workers, as the script reports them (`VIEWS SECONDS` on its last line).
+/// workers, as the script reports them (`VIEWS SECONDS` on its last line): its fastest
+/// pass, alternated with passes rendering the same views in one process, whose ratio it
+/// prints above (the loader's cost of handing batches over, in one run).
 fn dataloader(python: &Path, script: &Path, views: u64, workers: usize) -> Result<(usize, f64)> {
     let out = std::process::Command::new(python)
         .arg(script)
