@@ -22,7 +22,7 @@ cylinder quadratic is solved in float64, and the render is deterministic) and wr
 
 The shape_index -> (shape_id, part) map is read from the loaded scene itself: every exported
 shape has the XML id `c<file index>_id<shape_id>_<side|bottom|top>` (see
-src/output/mitsuba.rs), and Mitsuba's shape_index is 1 + the shape's position in
+src/output/format/mitsuba.rs), and Mitsuba's shape_index is 1 + the shape's position in
 `scene.shapes()`. Side, bottom and top are separate Mitsuba shapes, so the part is exact;
 only the side's facing is computed, from Mitsuba's outward normal and the pixel ray.
 

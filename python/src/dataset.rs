@@ -7,7 +7,7 @@ use crate::errors::scene_error;
 use crate::pool::{on_pool, run_stoppable};
 use crate::scene::PyScene;
 use cylaov::dataset::generate::{ConfigFile, GenerateOptions};
-use cylaov::output::aov::channel_names;
+use cylaov::output::format::exr::channel_names;
 use cylaov::render::RenderOptions;
 use cylaov::scene::Aov;
 use cylaov::scene::camera::Camera;
