@@ -16,6 +16,21 @@ pub(super) fn load(view: &ViewSource) -> Result<Scene, String> {
     scene::load(&view.path).map_err(|e| format!("{}: {e}", view.path.display()))
 }
 
+/// The scene of `view` with the view's camera selected, as both formats render it, or why
+/// not: `camera` is what reading the input found (an error there is the view's failure).
+pub(super) fn view_scene<C>(
+    view: &ViewSource,
+    camera: &Result<C, String>,
+) -> Result<Scene, String> {
+    if let Err(e) = camera {
+        return Err(e.clone());
+    }
+    let mut s = load(view)?;
+    s.select_camera(view.camera)
+        .map_err(|e| format!("{}: {e}", view.path.display()))?;
+    Ok(s)
+}
+
 /// Every view of the listed scenes (one per camera) and what the index needs of its camera,
 /// or why its scene does not load (such a scene is one failing view).
 /// Every shard reads every scene (the index lists every valid view) but keeps only what the

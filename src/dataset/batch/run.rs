@@ -12,7 +12,7 @@
 //! started are left for the next run, and the summary says why. The shard's partial folder
 //! goes on every exit, a signal's included (see `crate::output::store::signals`).
 
-use super::input::{load, read_views, resource_exhausted};
+use super::input::{read_views, resource_exhausted, view_scene};
 use super::lock::{ShardLock, lock_shard, partial_root};
 use super::options::{BatchOptions, Schedule};
 use super::progress::Outcome;
@@ -413,14 +413,7 @@ impl ShardWork<'_> {
 
     fn view_outcome(&self, i: usize) -> Outcome {
         let view = &self.views[i];
-        let scene = match &self.cameras[i] {
-            Err(e) => Err(e.clone()),
-            Ok(_) => load(view).and_then(|mut s| {
-                s.select_camera(view.camera)
-                    .map_err(|e| format!("{}: {e}", view.path.display()))?;
-                Ok(s)
-            }),
-        };
+        let scene = view_scene(view, &self.cameras[i]);
         let dir = view.dir(self.out);
         let mut outcome = match &scene {
             Err(e) => Outcome::Failed(e.clone()),

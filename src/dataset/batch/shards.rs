@@ -48,7 +48,7 @@
 //! view's estimate is also checked before it renders, as in the files format: a view that
 //! does not fit fails alone.
 
-use super::input::{expand_views, read_views, resource_exhausted};
+use super::input::{expand_views, read_views, resource_exhausted, view_scene};
 use super::lock::{lock_named, lock_shard, partial_root};
 use super::options::BatchOptions;
 use super::progress::SizeEstimate;
@@ -70,7 +70,7 @@ use crate::output::store::signals::{self, Cleanup};
 use crate::output::store::targets::check_outputs;
 use crate::render::RenderOptions;
 use crate::scene::camera::Camera;
-use crate::scene::{self, Aov, Scene};
+use crate::scene::{Aov, Scene};
 use crate::spelling::opt;
 use anyhow::{Context, Result, anyhow, bail};
 use rayon::prelude::*;
@@ -873,14 +873,7 @@ impl Plan<'_> {
 
     /// The scene of view `i` with its camera selected, or why not.
     fn scene(&self, i: usize) -> Result<Scene, String> {
-        let v = &self.views[i];
-        if let Err(e) = &self.cameras[i] {
-            return Err(e.clone());
-        }
-        let mut s = scene::load(&v.path).map_err(|e| format!("{}: {e}", v.path.display()))?;
-        s.select_camera(v.camera)
-            .map_err(|e| format!("{}: {e}", v.path.display()))?;
-        Ok(s)
+        view_scene(&self.views[i], &self.cameras[i])
     }
 
     /// The stamp of tar `j`: a hash of the options and, per view, its key, camera and
