@@ -12,6 +12,7 @@
 //! started are left for the next run, and the summary says why. The shard's partial folder
 //! goes on every exit, a signal's included (see `crate::output::store::signals`).
 
+use super::failures::write_failures;
 use super::input::{read_views, resource_exhausted, view_scene};
 use super::lock::{ShardLock, lock_shard, partial_root};
 use super::options::{BatchOptions, Schedule};
@@ -199,7 +200,7 @@ pub fn run(
     summary.stopped = work.stopped.into_inner().unwrap_or_else(|e| e.into_inner());
     // The temporary files go first: on a full disk that is the room the failures file needs.
     let cleared = partial.remove();
-    match write_failures(&summary) {
+    match write_failures(&summary.failures_path, &summary.failures) {
         Ok(()) => summary.failures_written = true,
         Err(e) => summary.problems.push(format!("{e:#}")),
     }
@@ -559,17 +560,6 @@ fn summarize(
         }
     }
     summary
-}
-
-/// Write `failures.K-of-N.jsonl`, one [`Failure`] per line (empty when none failed).
-fn write_failures(summary: &Summary) -> Result<()> {
-    let mut lines = String::new();
-    for f in &summary.failures {
-        lines.push_str(&serde_json::to_string(f)?);
-        lines.push('\n');
-    }
-    atomic_write_bytes(&summary.failures_path, lines.as_bytes())
-        .with_context(|| format!("writing {}", summary.failures_path.display()))
 }
 
 /// Write `OUT/index.json` (every view whose scene loads) and the `transforms.json` of each

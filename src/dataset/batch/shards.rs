@@ -48,6 +48,7 @@
 //! view's estimate is also checked before it renders, as in the files format: a view that
 //! does not fit fails alone.
 
+use super::failures::write_failures;
 use super::input::{expand_views, read_views, resource_exhausted, view_scene};
 use super::lock::{lock_named, lock_shard, partial_root};
 use super::options::BatchOptions;
@@ -1443,13 +1444,7 @@ fn write_planned(
         }
         summary.failures.extend(car.failures);
     }
-    let mut lines = String::new();
-    for f in &summary.failures {
-        lines.push_str(&serde_json::to_string(f)?);
-        lines.push('\n');
-    }
-    atomic_write_bytes(&summary.failures_path, lines.as_bytes())
-        .with_context(|| format!("writing {}", summary.failures_path.display()))?;
+    write_failures(&summary.failures_path, &summary.failures)?;
     summary.verified = plan.verified.load(Ordering::Relaxed);
     summary.index_written = plan.merge_index()?;
     summary.elapsed = start.elapsed();
