@@ -107,6 +107,16 @@ fn shards_are_deterministic_across_runs_and_processes() {
         said.contains("of tar shards (the files format: about"),
         "{said}"
     );
+    // Progress as the files format shows it, each view counted once.
+    assert!(
+        said.contains("batch 0-of-1 10/10 (done 10 skipped 0 failed 0)"),
+        "{said}"
+    );
+    let again = must(batch_wds(&data, &a, &["--shard-size", "3"]));
+    assert!(
+        again.contains("batch 0-of-1 10/10 (done 0 skipped 10 failed 0)"),
+        "{again}"
+    );
     must(batch_wds(&data, &b, &["--shard-size", "3"]));
     let one = shard_files(&a);
     assert_eq!(

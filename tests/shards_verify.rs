@@ -8,7 +8,7 @@ mod common;
 use common::{cylaov, ok};
 
 use cylaov::dataset::batch::shards::{ShardOptions, TarSelection, write_shards};
-use cylaov::dataset::batch::{BatchOptions, Shard, Verdict, Verifier, ViewSource};
+use cylaov::dataset::batch::{BatchOptions, ProgressMode, Shard, Verdict, Verifier, ViewSource};
 use cylaov::image::AovImage;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -106,7 +106,7 @@ fn shards_check_selected_views_and_fail_disagreements() {
         &all,
         &opts(1.0),
         &sopts,
-        false,
+        ProgressMode::Off,
         Some(&verifier),
     )
     .unwrap();
@@ -145,7 +145,7 @@ fn shards_check_selected_views_and_fail_disagreements() {
         &all,
         &opts(0.5),
         &sopts,
-        false,
+        ProgressMode::Off,
         Some(&verifier),
     )
     .unwrap();
@@ -155,7 +155,16 @@ fn shards_check_selected_views_and_fail_disagreements() {
 
     // Without a verifier the tar of the passing views is the same bytes.
     let plain = tmp.path().join("plain");
-    let s = write_shards(&data, &plain, &all, &opts(0.0), &sopts, false, None).unwrap();
+    let s = write_shards(
+        &data,
+        &plain,
+        &all,
+        &opts(0.0),
+        &sopts,
+        ProgressMode::Off,
+        None,
+    )
+    .unwrap();
     assert!(s.failures.is_empty(), "{s}");
     let plain = tars(&plain);
     assert_eq!(verified[1], plain[1], "the tar of passing views");

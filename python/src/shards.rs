@@ -5,8 +5,8 @@
 use crate::convert::{aov_names, choice, kernel, names, parse_aovs};
 use crate::errors::value_error;
 use crate::pool::{run, run_stoppable};
-use cylaov::dataset::batch::BatchOptions;
 use cylaov::dataset::batch::shards::{self, Member, ShardOptions, TarOutcome, TarSelection};
+use cylaov::dataset::batch::{BatchOptions, ProgressMode};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use std::path::PathBuf;
@@ -70,7 +70,16 @@ pub fn write_shards<'py>(
         None => TarSelection::Shard(cylaov::dataset::batch::Shard::ALL),
     };
     let summary = run_stoppable(py, threads, |stop| {
-        shards::write_shards_until(&input, &out, &selection, &opts, &sopts, false, stop, None)
+        shards::write_shards_until(
+            &input,
+            &out,
+            &selection,
+            &opts,
+            &sopts,
+            ProgressMode::Off,
+            stop,
+            None,
+        )
     })?
     .map_err(value_error)?;
     let d = PyDict::new(py);

@@ -110,7 +110,7 @@ pub fn run(data: &Path) -> Result<Vec<FormatRow>> {
         &TarSelection::Shard(Shard::ALL),
         &opts,
         &ShardOptions::default(),
-        false,
+        ProgressMode::Off,
         None,
     )?;
     row("webdataset", s.rendered, t, &out);

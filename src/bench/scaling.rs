@@ -124,7 +124,7 @@ pub fn run(
                 &TarSelection::Shard(Shard::ALL),
                 &opts,
                 &sopts,
-                false,
+                ProgressMode::Off,
                 None,
             )
         })?;

@@ -75,7 +75,7 @@ pub fn shards(args: &BatchArgs, sopts: &ShardOptions) -> Result<ShardSummary> {
         &TarSelection::Shard(shard),
         &args.options,
         sopts,
-        args.progress != ProgressMode::Off,
+        args.progress,
         verification.verifier(),
     )?;
     verification.finish(args)?;

@@ -52,7 +52,7 @@ use super::failures::write_failures;
 use super::input::{expand_views, read_views, resource_exhausted, view_scene};
 use super::lock::{lock_named, lock_shard, partial_root};
 use super::options::BatchOptions;
-use super::progress::SizeEstimate;
+use super::progress::{Outcome, Progress, ProgressMode, SizeEstimate};
 use super::resume::render_stamp;
 use super::shard::Shard;
 use super::shard_settings;
@@ -818,6 +818,8 @@ struct Plan<'a> {
     /// Tars written at once, and views a tar renders at once (see [`in_flight`]).
     tars_at_once: usize,
     window: usize,
+    /// The views of this process's tars: rendered, failed, or skipped with their tar.
+    progress: Progress,
 }
 
 /// How many tars to write at once and how many views each renders at once, so that the
@@ -966,6 +968,7 @@ impl Plan<'_> {
         self.check_stop()?;
         let stamp = self.stamp(&scenes, j);
         if let Some(car) = self.vouched(j, &stamp) {
+            range.for_each(|_| self.progress.record(&Outcome::Skipped));
             return Ok((TarOutcome::Skipped, car, 0));
         }
         let sidecar = self.sidecar_path(j);
@@ -1123,11 +1126,13 @@ impl Plan<'_> {
                             .with_context(|| format!("writing {}", tmp.display()))?;
                     }
                     *samples += 1;
+                    self.progress.record(&Outcome::Done(Default::default()));
                 }
                 Err(e) => {
                     if let Some(what) = resource_exhausted(&e) {
                         bail!("{}: {what}: {e}", tmp.display());
                     }
+                    self.progress.record(&Outcome::Failed(e.clone()));
                     failures.push(self.failure(i, e));
                 }
             }
@@ -1282,12 +1287,12 @@ pub fn write_shards(
     selection: &TarSelection,
     opts: &BatchOptions,
     sopts: &ShardOptions,
-    announce: bool,
+    progress: ProgressMode,
     verifier: Option<&dyn Verifier>,
 ) -> Result<ShardSummary> {
     let never = AtomicBool::new(false);
     write_shards_until(
-        input, out, selection, opts, sopts, announce, &never, verifier,
+        input, out, selection, opts, sopts, progress, &never, verifier,
     )
 }
 
@@ -1302,7 +1307,7 @@ pub fn write_shards_until(
     selection: &TarSelection,
     opts: &BatchOptions,
     sopts: &ShardOptions,
-    announce: bool,
+    progress: ProgressMode,
     stop: &AtomicBool,
     verifier: Option<&dyn Verifier>,
 ) -> Result<ShardSummary> {
@@ -1313,6 +1318,7 @@ pub fn write_shards_until(
     }
     let out_opt = opt("out");
     crate::output::store::targets::check_output_dir(&out_opt, out)?;
+    let announce = progress != ProgressMode::Off;
     let (views, cameras) = read_views(input, out, opts, announce)?;
     let aovs = dataset_aovs(opts, &views, &cameras)?;
     let keys = keys(&views, &member_suffixes(&aovs, &sopts.members))?;
@@ -1342,6 +1348,10 @@ pub fn write_shards_until(
     } else {
         input.parent().unwrap_or(Path::new("")).to_path_buf()
     };
+    let my_views: usize = mine
+        .iter()
+        .map(|&j| (j * sopts.shard_size..((j + 1) * sopts.shard_size).min(views.len())).len())
+        .sum();
     let exr_checked = verifier.is_some() && opts.verify_fraction > 0.0;
     let each = mine
         .iter()
@@ -1371,6 +1381,7 @@ pub fn write_shards_until(
         verified: AtomicUsize::new(0),
         tars_at_once,
         window,
+        progress: Progress::new(progress, format!("batch {label}"), my_views),
     };
     let mut targets: Vec<(&str, PathBuf)> = vec![
         (&out_opt, out.join("shards.json")),
@@ -1445,6 +1456,7 @@ fn write_planned(
         summary.failures.extend(car.failures);
     }
     write_failures(&summary.failures_path, &summary.failures)?;
+    plan.progress.finish();
     summary.verified = plan.verified.load(Ordering::Relaxed);
     summary.index_written = plan.merge_index()?;
     summary.elapsed = start.elapsed();
