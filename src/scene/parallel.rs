@@ -215,17 +215,42 @@ fn array(bytes: &[u8], i: usize) -> Option<(usize, Vec<Cylinder>)> {
     let Next::End(end) = next else {
         return None;
     };
-    let mut cylinders = Vec::with_capacity(parts.iter().map(Vec::len).sum());
+    Some((end, join(&parts)?))
+}
+
+/// The chunks' elements in one list, each chunk copied to its place by its own task: the
+/// list is fresh memory (8 MB at 100 000 cylinders), whose first touch and copy took one
+/// thread, the others idle, about 5% of the CPU time of a 16×16 render of them. A missing
+/// `id` becomes the 1-based index in the file, as `CylinderFile::validate` has it; `None`
+/// past `u32`'s range.
+fn join(parts: &[Vec<Cylinder>]) -> Option<Vec<Cylinder>> {
+    let total = parts.iter().map(Vec::len).sum();
+    let mut cylinders = Vec::with_capacity(total);
+    let mut rest = &mut cylinders.spare_capacity_mut()[..total];
+    let mut places = Vec::with_capacity(parts.len());
+    let mut first = 0;
     for part in parts {
-        cylinders.extend(part);
+        let (place, after) = rest.split_at_mut(part.len());
+        places.push((first, place, part));
+        first += part.len();
+        rest = after;
     }
-    // A missing `id` is the 1-based index in the file, as `CylinderFile::validate` has it.
-    for (k, c) in cylinders.iter_mut().enumerate() {
-        if c.id == 0 {
-            c.id = u32::try_from(k + 1).ok()?;
-        }
-    }
-    Some((end, cylinders))
+    places
+        .into_par_iter()
+        .try_for_each(|(first, place, part)| {
+            for (k, (slot, c)) in place.iter_mut().zip(part).enumerate() {
+                let mut c = *c;
+                if c.id == 0 {
+                    c.id = u32::try_from(first + k + 1).ok()?;
+                }
+                slot.write(c);
+            }
+            Some(())
+        })?;
+    // SAFETY: the places cut the first `total` elements whole, and each was written above
+    // (every task returned `Some`, or this is not reached).
+    unsafe { cylinders.set_len(total) };
+    Some(cylinders)
 }
 
 /// The elements that start in `bytes[lo..hi]`, the last one read to its end wherever that
