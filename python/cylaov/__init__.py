@@ -600,19 +600,13 @@ def _pack(info):
     arrays to pickle and rebuild instead of one a field."""
     leaves = []
 
-    def walk(x):
-        t = type(x)
-        if t is dict:
-            return {k: walk(v) for k, v in x.items()}
-        if t is list:
-            # Collated strings are the list of the items' strings: nothing to convert.
-            return x if x and type(x[0]) is str else [walk(v) for v in x]
+    def number(x):
         if hasattr(x, "numpy"):
             leaves.append(x)
             return len(leaves) - 1
         return x
 
-    tree = walk(info)
+    tree = _map_leaves(info, number)
     import torch
 
     groups = {}
@@ -629,15 +623,18 @@ def _unpack(packed, torch):
     for array, js in stacks:
         leaves.update(zip(js, torch.from_numpy(array).unbind(0)))
 
-    def walk(x):
-        t = type(x)
-        if t is dict:
-            return {k: walk(v) for k, v in x.items()}
-        if t is list:
-            return x if x and type(x[0]) is str else [walk(v) for v in x]
-        return leaves[x] if t is int else x
+    return _map_leaves(tree, lambda x: leaves[x] if type(x) is int else x)
 
-    return walk(tree)
+
+def _map_leaves(x, leaf):
+    """The collated tree ``x`` (dicts and lists) with ``leaf`` applied to each leaf; a list of
+    strings (collated strings: the items' own) is a leaf left as it is."""
+    t = type(x)
+    if t is dict:
+        return {k: _map_leaves(v, leaf) for k, v in x.items()}
+    if t is list:
+        return x if x and type(x[0]) is str else [_map_leaves(v, leaf) for v in x]
+    return leaf(x)
 
 
 def _index(i):
