@@ -445,6 +445,11 @@ fn file_sha256(path: &Path) -> std::io::Result<(String, u64)> {
     Ok((hex(&h.finalize()), len))
 }
 
+/// The views of tar `j`, `shard_size` a tar, of `n` views in all.
+fn tar_views(j: usize, shard_size: usize, n: usize) -> std::ops::Range<usize> {
+    j * shard_size..((j + 1) * shard_size).min(n)
+}
+
 /// What became of one tar: written or skipped, its sidecar, and the views rendered for it.
 type Written = (TarOutcome, Sidecar, usize);
 
@@ -500,8 +505,7 @@ impl Plan<'_> {
     }
 
     fn range(&self, j: usize) -> std::ops::Range<usize> {
-        let s = self.sopts.shard_size;
-        j * s..((j + 1) * s).min(self.views.len())
+        tar_views(j, self.sopts.shard_size, self.views.len())
     }
 
     fn tar_path(&self, j: usize) -> PathBuf {
@@ -1003,12 +1007,12 @@ pub fn write_shards_until(
     };
     let my_views: usize = mine
         .iter()
-        .map(|&j| (j * sopts.shard_size..((j + 1) * sopts.shard_size).min(views.len())).len())
+        .map(|&j| tar_views(j, sopts.shard_size, views.len()).len())
         .sum();
     let exr_checked = verifier.is_some() && opts.verify_fraction > 0.0;
     let each = mine
         .iter()
-        .flat_map(|&j| j * sopts.shard_size..((j + 1) * sopts.shard_size).min(views.len()))
+        .flat_map(|&j| tar_views(j, sopts.shard_size, views.len()))
         .filter_map(|i| cameras[i].as_ref().ok())
         .map(|c| tar_view_memory(c.size(), &aovs, opts, &sopts.members, exr_checked))
         .max()

@@ -349,44 +349,33 @@ fn sensor(w: &mut Writer<&mut Vec<u8>>, cam: &CameraSpec) -> io::Result<()> {
     Ok(())
 }
 
-fn string(w: &mut Writer<&mut Vec<u8>>, name: &str, value: &str) -> io::Result<()> {
-    w.create_element("string")
+/// `<TAG name="NAME" value="VALUE"/>`: every typed property below is one of these.
+fn property(w: &mut Writer<&mut Vec<u8>>, tag: &str, name: &str, value: &str) -> io::Result<()> {
+    w.create_element(tag)
         .with_attribute(("name", name))
         .with_attribute(("value", value))
         .write_empty()?;
     Ok(())
 }
 
+fn string(w: &mut Writer<&mut Vec<u8>>, name: &str, value: &str) -> io::Result<()> {
+    property(w, "string", name, value)
+}
+
 fn float(w: &mut Writer<&mut Vec<u8>>, name: &str, value: f64) -> io::Result<()> {
-    w.create_element("float")
-        .with_attribute(("name", name))
-        .with_attribute(("value", num(value).as_str()))
-        .write_empty()?;
-    Ok(())
+    property(w, "float", name, &num(value))
 }
 
 fn integer(w: &mut Writer<&mut Vec<u8>>, name: &str, value: u64) -> io::Result<()> {
-    w.create_element("integer")
-        .with_attribute(("name", name))
-        .with_attribute(("value", value.to_string().as_str()))
-        .write_empty()?;
-    Ok(())
+    property(w, "integer", name, &value.to_string())
 }
 
 fn boolean(w: &mut Writer<&mut Vec<u8>>, name: &str, value: bool) -> io::Result<()> {
-    w.create_element("boolean")
-        .with_attribute(("name", name))
-        .with_attribute(("value", if value { "true" } else { "false" }))
-        .write_empty()?;
-    Ok(())
+    property(w, "boolean", name, if value { "true" } else { "false" })
 }
 
 fn point(w: &mut Writer<&mut Vec<u8>>, name: &str, p: DVec3) -> io::Result<()> {
-    w.create_element("point")
-        .with_attribute(("name", name))
-        .with_attribute(("value", vec3(p).as_str()))
-        .write_empty()?;
-    Ok(())
+    property(w, "point", name, &vec3(p))
 }
 
 #[cfg(test)]
