@@ -38,6 +38,7 @@
 //! together); `shards` writes the same views as tar shards (`--format webdataset`), and
 //! `samples` reads them back (`cylaov verify OUT`).
 
+mod driver;
 mod failures;
 mod input;
 mod lock;

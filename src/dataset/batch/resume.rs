@@ -362,6 +362,34 @@ pub fn view_memory(scene: &Scene, opts: &BatchOptions) -> u64 {
     view_plan(scene, opts).memory()
 }
 
+/// [`view_memory`] of a view of `size` whose EXR holds `aovs`, known before its scene is
+/// read again: the AOVs its plan traces are those, plus depth and normal for the
+/// pictures and what a PLY reads.
+pub fn view_memory_at(size: (u32, u32), aovs: &[Aov], opts: &BatchOptions) -> u64 {
+    let mut traced = aovs.to_vec();
+    let mut need = |a: Aov| {
+        if !traced.contains(&a) {
+            traced.push(a);
+        }
+    };
+    if opts.png {
+        need(Aov::Depth);
+        need(Aov::Normal);
+    }
+    if opts.ply {
+        crate::output::format::ply::PLY_AOVS
+            .into_iter()
+            .for_each(&mut need);
+    }
+    crate::output::pipeline::memory::render_memory(
+        size,
+        &traced,
+        opts.exr_layout,
+        opts.compression,
+        opts.png,
+    )
+}
+
 /// Whether view `name` of `scene` is already complete in `dir`.
 pub fn view_is_complete(dir: &Path, name: &str, scene: &Scene, opts: &BatchOptions) -> bool {
     let files = ViewFiles::new(dir, name);

@@ -12,33 +12,30 @@
 //! started are left for the next run, and the summary says why. The shard's partial folder
 //! goes on every exit, a signal's included (see `crate::output::store::signals`).
 
+use super::driver::{self, Container, Rendered, Run, Start, Unit};
 use super::failures::write_failures;
-use super::input::{read_views, resource_exhausted, view_scene};
-use super::lock::{ShardLock, lock_shard, partial_root};
+use super::input::read_views;
+use super::lock::partial_root;
 use super::options::{BatchOptions, Schedule};
 use super::progress::Outcome;
 use super::progress::{Counts, Progress, ProgressMode, SizeEstimate};
-use super::resume::view_memory;
-use super::resume::{ViewFiles, view_file_names, view_is_complete};
+use super::resume::{ViewFiles, view_file_names, view_is_complete, view_memory, view_memory_at};
 use super::shard::Shard;
 use super::transforms::{FrameCamera, index_json, transforms_json};
-use super::verify::{Verifier, check_view, view_selected};
+use super::verify::Verifier;
 use super::views::ViewSource;
 use super::write::render_view;
 use crate::output::format::exr::ExrLayout;
 use crate::output::store::atomic::atomic_write_bytes;
 use crate::output::store::files::refuse_non_regular;
-use crate::output::store::signals::{self, Cleanup, Registration};
 use crate::output::store::targets::check_outputs;
 use crate::scene::Scene;
 use anyhow::{Context, Result};
-use rayon::prelude::*;
 use serde::Serialize;
 use std::collections::HashSet;
 use std::fmt;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::{Condvar, Mutex};
+use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
 /// One line of `failures.K-of-N.jsonl`.
@@ -160,7 +157,7 @@ pub fn run(
     let mut dirs = crate::output::store::atomic::NewDirs::default();
     dirs.create(out)
         .with_context(|| format!("creating {}", out.display()))?;
-    let (partial, lock) = clear_partial(out, shard)?;
+    let (root, _root_registered) = partial_root(out)?;
 
     if progress != ProgressMode::Off {
         let estimate = estimate(&mine, &cameras, opts);
@@ -175,31 +172,55 @@ pub fn run(
             ))
         );
     }
-    let work = ShardWork {
+    // The views held at once: every view of the shard when memory allows (no barrier
+    // between views), else as many as fit; one at a time when each view's pixels use
+    // the pool instead.
+    let window = match opts.schedule {
+        Schedule::Views => {
+            let each = mine
+                .iter()
+                .filter_map(|&i| cameras[i].as_ref().ok())
+                .map(|c| view_memory_at(c.size(), &c.aovs().collect::<Vec<_>>(), opts))
+                .max()
+                .unwrap_or(0);
+            driver::in_flight(each, 1, rayon::current_num_threads(), Some(mine.len())).1
+        }
+        Schedule::Pixels => 1,
+    };
+    let never = AtomicBool::new(false);
+    let run = Run {
+        out,
+        root: &root,
         views: &views,
         cameras: &cameras,
-        out,
-        partial: &partial,
         opts,
         verifier,
+        stop: &never,
         progress: Progress::new(progress, format!("batch {shard}"), mine.len()),
-        verified: AtomicUsize::new(0),
-        memory: MemoryBudget::new(
-            crate::mem::memory_available().map_or(u64::MAX, |bytes| bytes / 2),
-        ),
-        stopped: Mutex::new(None),
+        lanes: 1,
+        window,
     };
-    let outcomes: Vec<Option<Outcome>> = match opts.schedule {
-        Schedule::Views => mine.par_iter().map(|&i| work.view(i)).collect(),
-        Schedule::Pixels => mine.iter().map(|&i| work.view(i)).collect(),
+    let files = Files {
+        views: &views,
+        out,
+        opts,
     };
-    work.progress.finish();
+    let unit = Unit {
+        name: shard,
+        views: mine.clone(),
+    };
+    let driven = driver::drive(&run, &files, std::slice::from_ref(&unit))?;
+    run.progress.finish();
+    let outcomes = driven
+        .units
+        .into_iter()
+        .next()
+        .map_or_else(Vec::new, |u| u.outcomes);
 
     let mut summary = summarize(shard, &views, &mine, &outcomes, out);
-    summary.verified = work.verified.into_inner();
-    summary.stopped = work.stopped.into_inner().unwrap_or_else(|e| e.into_inner());
-    // The temporary files go first: on a full disk that is the room the failures file needs.
-    let cleared = partial.remove();
+    summary.verified = driven.verified;
+    summary.stopped = driven.stopped;
+    summary.problems.extend(driven.problems);
     match write_failures(&summary.failures_path, &summary.failures) {
         Ok(()) => summary.failures_written = true,
         Err(e) => summary.problems.push(format!("{e:#}")),
@@ -215,10 +236,6 @@ pub fn run(
     if let Err(e) = remove_stale_views(out, &views, &cameras, &mine) {
         summary.problems.push(format!("{e:#}"));
     }
-    if let Err(e) = cleared {
-        summary.problems.push(format!("{e:#}"));
-    }
-    drop(lock);
     // Other shards may still be using `.partial`; it goes when the last one leaves.
     let _ = std::fs::remove_dir(out.join(".partial"));
     dirs.keep();
@@ -258,237 +275,92 @@ fn check_targets(
     Ok(())
 }
 
-/// A shard's partial folder: removed with its content when dropped (an error return) or by
-/// [`Partial::remove`], and by a signal's clean-up meanwhile.
-struct Partial {
-    path: PathBuf,
-    _registered: [Registration; 2],
-}
-
-impl Partial {
-    /// Remove the folder now, saying why if it cannot be. Out of file handles,
-    /// `remove_dir_all` cannot open the folder to list it; an empty one still goes by
-    /// `rmdir`, which needs none.
-    fn remove(&self) -> Result<()> {
-        match std::fs::remove_dir_all(&self.path) {
-            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
-                if std::fs::remove_dir(&self.path).is_ok() {
-                    return Ok(());
-                }
-                Err(e).with_context(|| format!("removing {}", self.path.display()))
-            }
-            _ => Ok(()),
-        }
-    }
-}
-
-impl Drop for Partial {
-    fn drop(&mut self) {
-        let _ = self.remove();
-    }
-}
-
-impl std::ops::Deref for Partial {
-    type Target = Path;
-    fn deref(&self) -> &Path {
-        &self.path
-    }
-}
-
-/// Lock this shard, then clear and recreate its work-in-progress folder
-/// `OUT/.partial/K-of-N` (see [`super::lock`]: a real folder inside `--out`, never a link).
-fn clear_partial(out: &Path, shard: Shard) -> Result<(Partial, ShardLock)> {
-    let (root, root_reg) = partial_root(out)?;
-    let lock = lock_shard(out, &root, shard)?;
-    let partial = root.join(shard.to_string());
-    // remove_dir_all removes a symlink itself, never what it points to.
-    if partial.symlink_metadata().is_ok() {
-        std::fs::remove_dir_all(&partial)
-            .or_else(|_| std::fs::remove_file(&partial))
-            .with_context(|| format!("clearing {}", partial.display()))?;
-    }
-    let ((), registered) = signals::create_registered(
-        Cleanup::Tree,
-        || std::fs::create_dir(&partial),
-        |_| partial.clone(),
-    )
-    .with_context(|| format!("creating {}", partial.display()))?;
-    Ok((
-        Partial {
-            path: partial,
-            _registered: [root_reg, registered],
-        },
-        lock,
-    ))
-}
-
-/// Everything the views of one shard share while they are rendered.
-struct ShardWork<'a> {
+/// The files format: one unit, this process's shard, whose views each commit on their
+/// own (see the module docs of `super` for the crash invariant).
+struct Files<'a> {
     views: &'a [ViewSource],
-    cameras: &'a [Result<FrameCamera, String>],
     out: &'a Path,
-    partial: &'a Path,
     opts: &'a BatchOptions,
-    verifier: Option<&'a dyn Verifier>,
-    progress: Progress,
-    /// Views checked by the verifier so far.
-    verified: AtomicUsize,
-    /// Bounds the memory of the views rendered at once.
-    memory: MemoryBudget,
-    /// Set by the first view that ran out of a resource every view needs.
-    stopped: Mutex<Option<String>>,
 }
 
-/// The views in flight, bounded by memory rather than by thread count: a view starts only
-/// when its estimate ([`view_memory`]) fits beside those running within `limit` (half of
-/// what the machine or `ulimit -v` leaves, see `mem::memory_available`). Eight 16384×4096
-/// views need 268 MiB each depth-only, 2.4 GiB with every AOV; without the bound each
-/// thread held one, so the peak grew with the core count. One view always runs, however
-/// large (a render checks its own memory before it allocates).
-struct MemoryBudget {
-    limit: u64,
-    in_use: Mutex<u64>,
-    freed: Condvar,
-}
+impl Container for Files<'_> {
+    type View = ();
+    type Open = ();
+    type Record = ();
+    const SCENES_AHEAD: bool = false;
 
-impl MemoryBudget {
-    fn new(limit: u64) -> MemoryBudget {
-        MemoryBudget {
-            limit,
-            in_use: Mutex::new(0),
-            freed: Condvar::new(),
-        }
+    fn start(&self, _: &Unit, _: &[Result<Scene, String>], _: &Path) -> Result<Start<(), ()>> {
+        Ok(Start::Open(()))
     }
 
-    /// Wait until `bytes` fit (or nothing else runs), then hold them until the guard drops.
-    fn acquire(&self, bytes: u64) -> BudgetGuard<'_> {
-        let mut in_use = self.in_use.lock().unwrap_or_else(|e| e.into_inner());
-        while *in_use > 0 && in_use.saturating_add(bytes) > self.limit {
-            in_use = self.freed.wait(in_use).unwrap_or_else(|e| e.into_inner());
-        }
-        *in_use += bytes;
-        BudgetGuard {
-            budget: self,
-            bytes,
-        }
-    }
-}
-
-/// Memory held by a view being rendered; given back when dropped.
-struct BudgetGuard<'a> {
-    budget: &'a MemoryBudget,
-    bytes: u64,
-}
-
-impl Drop for BudgetGuard<'_> {
-    fn drop(&mut self) {
-        let mut in_use = self.budget.in_use.lock().unwrap_or_else(|e| e.into_inner());
-        *in_use -= self.bytes;
-        self.budget.freed.notify_all();
-    }
-}
-
-impl ShardWork<'_> {
-    /// Skip, render or fail view `i`, then verify it if it is selected; `None` when the
-    /// shard has stopped (see [`resource_exhausted`]) before the view started.
-    fn view(&self, i: usize) -> Option<Outcome> {
-        if self.is_stopped() {
-            return None;
-        }
-        let outcome = self.view_outcome(i);
-        if let Outcome::Failed(why) = &outcome
-            && let Some(what) = resource_exhausted(why)
-        {
-            let mut stopped = self.stopped.lock().unwrap_or_else(|e| e.into_inner());
-            stopped.get_or_insert_with(|| format!("{what}: {why}"));
-        }
-        Some(outcome)
-    }
-
-    fn is_stopped(&self) -> bool {
-        self.stopped
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .is_some()
-    }
-
-    fn view_outcome(&self, i: usize) -> Outcome {
+    fn view_kept(&self, i: usize, scene: &Scene) -> bool {
         let view = &self.views[i];
-        let scene = view_scene(view, &self.cameras[i]);
-        let dir = view.dir(self.out);
-        let mut outcome = match &scene {
-            Err(e) => Outcome::Failed(e.clone()),
-            Ok(scene) if view_is_complete(&dir, &view.name, scene, self.opts) => Outcome::Skipped,
-            Ok(scene) => {
-                // Temporary files are named by the view's position: names repeat across the
-                // folders of several-camera scenes.
-                let tmp_stem = format!("{i:06}");
-                let bytes = view_memory(scene, self.opts);
-                let _memory = self.memory.acquire(bytes);
-                // A view that does not fit what is left fails alone, before it allocates.
-                // The scene's folder, if this view makes it, stays registered for a
-                // signal's clean-up until the view's files are in it; kept either way
-                // after (other views of the scene may be writing into it).
-                let mut dirs = crate::output::store::atomic::NewDirs::default();
-                let rendered = crate::mem::check_memory(&format!("rendering {}", view.id()), bytes)
-                    .map_err(anyhow::Error::from)
-                    .and_then(|()| {
-                        dirs.create(&dir)
-                            .with_context(|| format!("creating {}", dir.display()))
-                    })
-                    .and_then(|()| {
-                        render_view(&dir, self.partial, &view.name, &tmp_stem, scene, self.opts)
-                    });
-                dirs.keep();
-                match rendered {
-                    Ok(cost) => {
-                        if cost.depth_zeroed > 0 {
-                            crate::output::console::warn(&format!(
-                                "{}: depth PNG: {} hit pixels beyond 16 bits at {} {} \
-                                 stored as 0",
-                                view.id(),
-                                cost.depth_zeroed,
-                                crate::spelling::opt("depth_scale"),
-                                self.opts.depth_scale
-                            ));
-                        }
-                        Outcome::Done(cost)
-                    }
-                    Err(e) => {
-                        // Its temporary files go now, not at the end: on a full disk the
-                        // other views need the room.
-                        remove_temps(self.partial, &tmp_stem);
-                        Outcome::Failed(format!("{}: {e:#}", view.path.display()))
-                    }
-                }
-            }
-        };
-        if let (Some(v), Ok(scene)) = (self.verifier, &scene)
-            && !matches!(outcome, Outcome::Failed(_))
-            && view_selected(self.opts.verify_seed, view, self.opts.verify_fraction)
-            && let Err(why) = self.verify(v, view, scene)
-        {
-            outcome = Outcome::Failed(why);
-        }
-        self.progress.record(&outcome);
-        outcome
+        view_is_complete(&view.dir(self.out), &view.name, scene, self.opts)
     }
 
-    /// Check the view's finished EXR with `verifier` in a private folder under the partial
-    /// one; the error is the failure line.
-    fn verify(
+    fn render(
         &self,
-        verifier: &dyn Verifier,
-        view: &ViewSource,
+        i: usize,
         scene: &Scene,
-    ) -> Result<(), String> {
-        let exr = ViewFiles::new(&view.dir(self.out), &view.name).exr;
-        let work = self
-            .partial
-            .join(format!("{}.verify.tmp", view.id().replace('/', ".")));
-        let checked = check_view(verifier, view, scene, &exr, None, &work);
-        self.verified.fetch_add(1, Ordering::Relaxed);
-        checked
+        partial: &Path,
+        _exr: bool,
+    ) -> Result<Rendered<()>, String> {
+        let view = &self.views[i];
+        let dir = view.dir(self.out);
+        // Temporary files are named by the view's position: names repeat across the
+        // folders of several-camera scenes.
+        let tmp_stem = format!("{i:06}");
+        let bytes = view_memory(scene, self.opts);
+        // A view that does not fit what is left fails alone, before it allocates. The
+        // scene's folder, if this view makes it, stays registered for a signal's clean-up
+        // until the view's files are in it; kept either way after (other views of the
+        // scene may be writing into it).
+        let mut dirs = crate::output::store::atomic::NewDirs::default();
+        let rendered = crate::mem::check_memory(&format!("rendering {}", view.id()), bytes)
+            .map_err(anyhow::Error::from)
+            .and_then(|()| {
+                dirs.create(&dir)
+                    .with_context(|| format!("creating {}", dir.display()))
+            })
+            .and_then(|()| render_view(&dir, partial, &view.name, &tmp_stem, scene, self.opts));
+        dirs.keep();
+        match rendered {
+            Ok(cost) => {
+                if cost.depth_zeroed > 0 {
+                    crate::output::console::warn(&format!(
+                        "{}: depth PNG: {} hit pixels beyond 16 bits at {} {} stored as 0",
+                        view.id(),
+                        cost.depth_zeroed,
+                        crate::spelling::opt("depth_scale"),
+                        self.opts.depth_scale
+                    ));
+                }
+                Ok(Rendered {
+                    view: (),
+                    cost,
+                    exr: None,
+                })
+            }
+            Err(e) => {
+                // Its temporary files go now, not at the end: on a full disk the other
+                // views need the room.
+                remove_temps(partial, &tmp_stem);
+                Err(format!("{}: {e:#}", view.path.display()))
+            }
+        }
+    }
+
+    fn exr_path(&self, i: usize, _: &Path) -> PathBuf {
+        let view = &self.views[i];
+        ViewFiles::new(&view.dir(self.out), &view.name).exr
+    }
+
+    fn accept(&self, _: &mut (), _: usize, _: ()) -> Result<()> {
+        Ok(())
+    }
+
+    fn commit(&self, _: &Unit, _: (), _: &[(usize, &str)]) -> Result<()> {
+        Ok(())
     }
 }
 
@@ -720,52 +592,5 @@ fn remove_file_if_there(path: &Path) -> Result<()> {
             Err(e).with_context(|| format!("removing the stale {}", path.display()))
         }
         _ => Ok(()),
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// Eight views of about 280 MiB (16384×4096 depth-only) on eight threads with 600 MiB to
-    /// spend: never more than two at once, all eight done; a view larger than the whole
-    /// budget still runs, alone.
-    #[test]
-    fn the_memory_budget_bounds_the_views_in_flight() {
-        let each = render_memory_depth_only();
-        assert!((16384 * 4096 * 4..300 << 20).contains(&each), "{each}");
-        let budget = MemoryBudget::new(600 << 20);
-        let (running, most, done) = (
-            AtomicUsize::new(0),
-            AtomicUsize::new(0),
-            AtomicUsize::new(0),
-        );
-        std::thread::scope(|s| {
-            for _ in 0..8 {
-                s.spawn(|| {
-                    let _held = budget.acquire(each);
-                    let now = running.fetch_add(1, Ordering::SeqCst) + 1;
-                    most.fetch_max(now, Ordering::SeqCst);
-                    std::thread::sleep(Duration::from_millis(100));
-                    running.fetch_sub(1, Ordering::SeqCst);
-                    done.fetch_add(1, Ordering::SeqCst);
-                });
-            }
-        });
-        assert_eq!(done.into_inner(), 8);
-        assert_eq!(most.into_inner(), 2);
-        let small = MemoryBudget::new(1 << 20);
-        drop(small.acquire(each));
-        assert_eq!(*small.in_use.lock().unwrap(), 0);
-    }
-
-    fn render_memory_depth_only() -> u64 {
-        crate::output::pipeline::memory::render_memory(
-            (16384, 4096),
-            &[crate::scene::Aov::Depth],
-            crate::output::format::exr::ExrLayout::Layers,
-            crate::output::format::exr::Compression::Zip,
-            false,
-        ) / 2
     }
 }

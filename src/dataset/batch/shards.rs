@@ -48,37 +48,37 @@
 //! view's estimate is also checked before it renders, as in the files format: a view that
 //! does not fit fails alone.
 
-use super::failures::write_failures;
 mod sample;
 
-use super::input::{expand_views, read_views, resource_exhausted, view_scene};
-use super::lock::{lock_named, lock_shard, partial_root};
+use super::driver::{self, Container, Rendered, Run, Start, Unit};
+use super::failures::write_failures;
+use super::input::{expand_views, read_views};
+use super::lock::{lock_named, partial_root};
 use super::options::BatchOptions;
 use super::progress::{Outcome, Progress, ProgressMode, SizeEstimate};
 use super::resume::render_stamp;
 use super::shard::Shard;
 use super::shard_settings;
-use super::verify::{Verifier, check_view, view_selected};
+use super::verify::Verifier;
 use super::views::{ViewSource, list_views};
 use crate::output::console::{self, count};
 use crate::output::format::camera_files::record_json;
 use crate::output::format::tar::{self, TarWriter};
 use crate::output::store::atomic::atomic_write_bytes;
 use crate::output::store::files::{create_new, open_regular, read_regular};
-use crate::output::store::signals::{self, Cleanup};
 use crate::output::store::targets::check_outputs;
 use crate::scene::{Aov, Scene};
 use crate::spelling::opt;
 use anyhow::{Context, Result, bail};
-use rayon::prelude::*;
 pub use sample::{Members, view_members, view_tar_bytes};
 use sample::{array_aovs, member_suffixes, tar_view_memory, view_members_and_exr};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 use std::collections::HashMap;
+use std::fs::File;
 use std::io::{BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
 /// Views a tar holds unless told otherwise.
@@ -450,10 +450,7 @@ fn tar_views(j: usize, shard_size: usize, n: usize) -> std::ops::Range<usize> {
     j * shard_size..((j + 1) * shard_size).min(n)
 }
 
-/// What became of one tar: written or skipped, its sidecar, and the views rendered for it.
-type Written = (TarOutcome, Sidecar, usize);
-
-/// Everything a sharded run shares.
+/// Everything a sharded run shares: the tar container of the batch driver.
 struct Plan<'a> {
     out: &'a Path,
     root: PathBuf,
@@ -467,43 +464,17 @@ struct Plan<'a> {
     tars: usize,
     /// Whether the files format would write PNGs (for its size estimate).
     files_png: bool,
-    /// Set by the caller to end the run early (see [`write_shards_until`]).
-    stop: &'a AtomicBool,
-    /// Checks the views [`view_selected`] (see the module docs).
-    verifier: Option<&'a dyn Verifier>,
-    /// Views checked by the verifier so far.
-    verified: AtomicUsize,
-    /// Tars written at once, and views a tar renders at once (see [`in_flight`]).
-    tars_at_once: usize,
-    window: usize,
-    /// The views of this process's tars: rendered, failed, or skipped with their tar.
-    progress: Progress,
 }
 
-/// How many tars to write at once and how many views each renders at once, so that the
-/// views held fit the memory budget (`crate::mem::jobs_in_memory`: half of what the machine
-/// or `ulimit -v` leaves) and the pool stays busy. A tar holds at most two windows: one
-/// being appended, the next rendering. `each` is the largest view's peak
-/// ([`tar_view_memory`]), `tars` the tars to write.
-fn in_flight(each: u64, tars: usize, threads: usize) -> (usize, usize) {
-    let threads = threads.max(1);
-    let tars_at_once = crate::mem::jobs_in_memory(each.saturating_mul(2), threads.min(tars.max(1)));
-    let window = crate::mem::jobs_in_memory(
-        each.saturating_mul(2 * tars_at_once as u64),
-        threads.div_ceil(tars_at_once),
-    );
-    (tars_at_once, window)
+/// A tar being written: appended and hashed in view order under `OUT/.partial/J-of-T/`.
+struct OpenTar {
+    tar: TarWriter<Hashing<BufWriter<File>>>,
+    tmp: PathBuf,
+    stamp: String,
+    samples: usize,
 }
 
 impl Plan<'_> {
-    /// An error once the caller asked to stop.
-    fn check_stop(&self) -> Result<()> {
-        if self.stop.load(Ordering::Relaxed) {
-            bail!("stopped before the run finished");
-        }
-        Ok(())
-    }
-
     fn range(&self, j: usize) -> std::ops::Range<usize> {
         tar_views(j, self.sopts.shard_size, self.views.len())
     }
@@ -529,11 +500,6 @@ impl Plan<'_> {
                 .to_string(),
             error,
         }
-    }
-
-    /// The scene of view `i` with its camera selected, or why not.
-    fn scene(&self, i: usize) -> Result<Scene, String> {
-        view_scene(&self.views[i], &self.cameras[i])
     }
 
     /// The stamp of tar `j`: a hash of the options and, per view, its key, camera and
@@ -601,217 +567,6 @@ impl Plan<'_> {
         }
         let (sha, _) = file_sha256(&self.tar_path(j)).ok()?;
         (sha == car.sha256).then_some(car)
-    }
-
-    /// Write tar `j` (unless its sidecar vouches for it) under its lock.
-    fn tar(&self, j: usize) -> Result<Written> {
-        self.check_stop()?;
-        let _lock = lock_shard(
-            self.out,
-            &self.root,
-            Shard::new(j as u32, self.tars as u32).map_err(anyhow::Error::msg)?,
-        )?;
-        let range = self.range(j);
-        let scenes: Vec<Result<Scene, String>> = range
-            .clone()
-            .into_par_iter()
-            .map(|i| {
-                if self.stop.load(Ordering::Relaxed) {
-                    return Err(String::new());
-                }
-                self.scene(i)
-            })
-            .collect();
-        self.check_stop()?;
-        let stamp = self.stamp(&scenes, j);
-        if let Some(car) = self.vouched(j, &stamp) {
-            range.for_each(|_| self.progress.record(&Outcome::Skipped));
-            return Ok((TarOutcome::Skipped, car, 0));
-        }
-        let sidecar = self.sidecar_path(j);
-        match std::fs::remove_file(&sidecar) {
-            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
-                return Err(e).with_context(|| format!("removing the old {}", sidecar.display()));
-            }
-            _ => {}
-        }
-        let name = format!("{}.tar", shard_stem(j));
-        let tmp = self.root.join(format!("{name}.tmp"));
-        let _ = std::fs::remove_file(&tmp);
-        let _registered = signals::register(Cleanup::File, &tmp);
-        let written = self.write_tar(&tmp, range.clone(), &scenes);
-        let (samples, bytes, sha256, failures) = match written {
-            Ok(w) => w,
-            Err(e) => {
-                let _ = std::fs::remove_file(&tmp);
-                return Err(e);
-            }
-        };
-        let dest = self.tar_path(j);
-        std::fs::rename(&tmp, &dest)
-            .with_context(|| format!("moving {} to {}", tmp.display(), dest.display()))?;
-        let car = Sidecar {
-            name,
-            samples,
-            bytes,
-            sha256,
-            stamp,
-            first_view: range.start,
-            end_view: range.end,
-            failures,
-        };
-        let mut text = record_json(&car);
-        text.push('\n');
-        atomic_write_bytes(&sidecar, text.as_bytes())
-            .with_context(|| format!("writing {}", sidecar.display()))?;
-        let rendered = car.samples;
-        Ok((TarOutcome::Written, car, rendered))
-    }
-
-    /// Render the views of `range` in parallel, a few at a time, appending their members
-    /// in view order to a new tar at `tmp`.
-    fn write_tar(
-        &self,
-        tmp: &Path,
-        range: std::ops::Range<usize>,
-        scenes: &[Result<Scene, String>],
-    ) -> Result<(usize, u64, String, Vec<ShardFailure>)> {
-        let file = create_new(tmp)
-            .map_err(crate::output::store::atomic::explain)
-            .with_context(|| format!("creating {}", tmp.display()))?;
-        // A buffer smaller than the arrays: BufWriter passes a write at least its size
-        // straight to the file, so an array is hashed and written from where it was encoded,
-        // never copied into the buffer first; headers and JSON are gathered.
-        let mut tar = TarWriter::new(Hashing {
-            inner: BufWriter::with_capacity(64 << 10, file),
-            hash: Sha256::new(),
-        });
-        // Several tars are in flight at once (see `write_planned`), each appended and hashed
-        // by the worker that owns it. Within a tar the pool renders the next window of views
-        // while the owner appends the last one in view order, so appending and hashing
-        // overlap the trace even when there is one tar.
-        let (mut samples, mut failures) = (0, Vec::new());
-        let indices: Vec<usize> = range.clone().collect();
-        let mut ready: Vec<(usize, Result<Members, String>)> = Vec::new();
-        for window in indices.chunks(self.window) {
-            self.check_stop()?;
-            let (appended, rendered) = rayon::join(
-                || {
-                    self.append(
-                        &mut tar,
-                        tmp,
-                        std::mem::take(&mut ready),
-                        &mut samples,
-                        &mut failures,
-                    )
-                },
-                || self.render_window(window, range.start, scenes),
-            );
-            appended?;
-            ready = rendered;
-        }
-        self.check_stop()?;
-        self.append(&mut tar, tmp, ready, &mut samples, &mut failures)?;
-        let (hashing, bytes) = tar
-            .finish()
-            .with_context(|| format!("writing {}", tmp.display()))?;
-        let Hashing { inner, hash } = hashing;
-        inner
-            .into_inner()
-            .map_err(|e| e.into_error())
-            .with_context(|| format!("writing {}", tmp.display()))?;
-        Ok((samples, bytes, hex(&hash.finalize()), failures))
-    }
-
-    /// Render the views `window` of the tar whose first view is `first`, in parallel.
-    fn render_window(
-        &self,
-        window: &[usize],
-        first: usize,
-        scenes: &[Result<Scene, String>],
-    ) -> Vec<(usize, Result<Members, String>)> {
-        window
-            .par_iter()
-            .map(|&i| {
-                if self.stop.load(Ordering::Relaxed) {
-                    return (i, Err(String::new()));
-                }
-                let view = &self.views[i];
-                let checker = self.verifier.filter(|_| {
-                    view_selected(self.opts.verify_seed, view, self.opts.verify_fraction)
-                });
-                let r = scenes[i - first]
-                    .as_ref()
-                    .map_err(|e| e.clone())
-                    .and_then(|scene| {
-                        let (members, exr) = view_members_and_exr(
-                            &self.keys[i],
-                            view,
-                            scene,
-                            &self.input_dir,
-                            &self.aovs,
-                            &self.opts,
-                            &self.sopts.members,
-                            checker.is_some(),
-                        )
-                        .map_err(|e| format!("{}: {e:#}", view.path.display()))?;
-                        if let (Some(v), Some(exr)) = (checker, exr) {
-                            self.verify(v, i, scene, &exr)?;
-                        }
-                        Ok(members)
-                    });
-                (i, r)
-            })
-            .collect()
-    }
-
-    /// Append the `rendered` views to `tar` (at `tmp`) in view order, counting the samples
-    /// and recording the failures; a view that ran out of what every view needs ends the tar.
-    fn append<W: Write>(
-        &self,
-        tar: &mut TarWriter<W>,
-        tmp: &Path,
-        rendered: Vec<(usize, Result<Members, String>)>,
-        samples: &mut usize,
-        failures: &mut Vec<ShardFailure>,
-    ) -> Result<()> {
-        for (i, r) in rendered {
-            match r {
-                Ok(members) => {
-                    for (name, bytes) in &members {
-                        tar.append(name, bytes)
-                            .with_context(|| format!("writing {}", tmp.display()))?;
-                    }
-                    *samples += 1;
-                    self.progress.record(&Outcome::Done(Default::default()));
-                }
-                Err(e) => {
-                    if let Some(what) = resource_exhausted(&e) {
-                        bail!("{}: {what}: {e}", tmp.display());
-                    }
-                    self.progress.record(&Outcome::Failed(e.clone()));
-                    failures.push(self.failure(i, e));
-                }
-            }
-        }
-        Ok(())
-    }
-
-    /// Check view `i`'s EXR bytes with `verifier` in a private folder under the partial
-    /// one (as the files format does); the error is the failure line.
-    fn verify(
-        &self,
-        verifier: &dyn Verifier,
-        i: usize,
-        scene: &Scene,
-        exr: &[u8],
-    ) -> Result<(), String> {
-        let view = &self.views[i];
-        let work = self.root.join(format!("{}.verify.tmp", self.keys[i]));
-        let file = work.join(format!("{}.exr", self.keys[i]));
-        let checked = check_view(verifier, view, scene, &file, Some(exr), &work);
-        self.verified.fetch_add(1, Ordering::Relaxed);
-        checked
     }
 
     /// Write `shards.json` from the sidecars if every one is in place; whether it was.
@@ -895,6 +650,134 @@ impl Plan<'_> {
         atomic_write_bytes(&path, text.as_bytes())
             .with_context(|| format!("writing {}", path.display()))?;
         Ok(true)
+    }
+}
+
+impl Container for Plan<'_> {
+    type View = Members;
+    type Open = OpenTar;
+    type Record = Sidecar;
+    const SCENES_AHEAD: bool = true;
+
+    /// Keep tar `j` if its sidecar vouches for it with this run's stamp; else start it
+    /// afresh under `work`, its old sidecar removed first.
+    fn start(
+        &self,
+        unit: &Unit,
+        scenes: &[Result<Scene, String>],
+        work: &Path,
+    ) -> Result<Start<OpenTar, Sidecar>> {
+        let j = unit.name.index as usize;
+        let stamp = self.stamp(scenes, j);
+        if let Some(car) = self.vouched(j, &stamp) {
+            return Ok(Start::Kept(car));
+        }
+        let sidecar = self.sidecar_path(j);
+        match std::fs::remove_file(&sidecar) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                return Err(e).with_context(|| format!("removing the old {}", sidecar.display()));
+            }
+            _ => {}
+        }
+        let tmp = work.join(format!("{}.tar.tmp", shard_stem(j)));
+        let file = create_new(&tmp)
+            .map_err(crate::output::store::atomic::explain)
+            .with_context(|| format!("creating {}", tmp.display()))?;
+        // A buffer smaller than the arrays: BufWriter passes a write at least its size
+        // straight to the file, so an array is hashed and written from where it was encoded,
+        // never copied into the buffer first; headers and JSON are gathered.
+        let tar = TarWriter::new(Hashing {
+            inner: BufWriter::with_capacity(64 << 10, file),
+            hash: Sha256::new(),
+        });
+        Ok(Start::Open(OpenTar {
+            tar,
+            tmp,
+            stamp,
+            samples: 0,
+        }))
+    }
+
+    fn render(
+        &self,
+        i: usize,
+        scene: &Scene,
+        _work: &Path,
+        exr: bool,
+    ) -> Result<Rendered<Members>, String> {
+        let view = &self.views[i];
+        let (members, exr) = view_members_and_exr(
+            &self.keys[i],
+            view,
+            scene,
+            &self.input_dir,
+            &self.aovs,
+            &self.opts,
+            &self.sopts.members,
+            exr,
+        )
+        .map_err(|e| format!("{}: {e:#}", view.path.display()))?;
+        Ok(Rendered {
+            view: members,
+            cost: Default::default(),
+            exr,
+        })
+    }
+
+    fn exr_path(&self, i: usize, check_work: &Path) -> PathBuf {
+        check_work.join(format!("{}.exr", self.keys[i]))
+    }
+
+    fn accept(&self, open: &mut OpenTar, _i: usize, members: Members) -> Result<()> {
+        for (name, bytes) in &members {
+            open.tar
+                .append(name, bytes)
+                .with_context(|| format!("writing {}", open.tmp.display()))?;
+        }
+        open.samples += 1;
+        Ok(())
+    }
+
+    /// Finish the tar, move it into place, then write the sidecar that vouches for it.
+    fn commit(&self, unit: &Unit, open: OpenTar, failed: &[(usize, &str)]) -> Result<Sidecar> {
+        let OpenTar {
+            tar,
+            tmp,
+            stamp,
+            samples,
+        } = open;
+        let (hashing, bytes) = tar
+            .finish()
+            .with_context(|| format!("writing {}", tmp.display()))?;
+        let Hashing { inner, hash } = hashing;
+        inner
+            .into_inner()
+            .map_err(|e| e.into_error())
+            .with_context(|| format!("writing {}", tmp.display()))?;
+        let j = unit.name.index as usize;
+        let dest = self.tar_path(j);
+        std::fs::rename(&tmp, &dest)
+            .with_context(|| format!("moving {} to {}", tmp.display(), dest.display()))?;
+        let range = self.range(j);
+        let car = Sidecar {
+            name: format!("{}.tar", shard_stem(j)),
+            samples,
+            bytes,
+            sha256: hex(&hash.finalize()),
+            stamp,
+            first_view: range.start,
+            end_view: range.end,
+            failures: failed
+                .iter()
+                .map(|&(i, e)| self.failure(i, e.to_string()))
+                .collect(),
+        };
+        let sidecar = self.sidecar_path(j);
+        let mut text = record_json(&car);
+        text.push('\n');
+        atomic_write_bytes(&sidecar, text.as_bytes())
+            .with_context(|| format!("writing {}", sidecar.display()))?;
+        Ok(car)
     }
 }
 
@@ -1017,7 +900,14 @@ pub fn write_shards_until(
         .map(|c| tar_view_memory(c.size(), &aovs, opts, &sopts.members, exr_checked))
         .max()
         .unwrap_or(0);
-    let (tars_at_once, window) = in_flight(each, mine.len(), rayon::current_num_threads());
+    // A tar's view is held from its render until the tar's owner appends it: two windows
+    // at most, one appending while the next renders.
+    let (lanes, window) = driver::in_flight(
+        each.saturating_mul(2),
+        mine.len(),
+        rayon::current_num_threads(),
+        None,
+    );
     let mut shard_opts = opts.clone();
     shard_opts.aovs = Some(aovs.clone());
     shard_opts.png = sopts.members.contains(&Member::DepthPng);
@@ -1033,12 +923,6 @@ pub fn write_shards_until(
         sopts,
         tars,
         files_png: opts.png,
-        stop,
-        verifier,
-        verified: AtomicUsize::new(0),
-        tars_at_once,
-        window,
-        progress: Progress::new(progress, format!("batch {label}"), my_views),
     };
     let mut targets: Vec<(&str, PathBuf)> = vec![
         (&out_opt, out.join("shards.json")),
@@ -1061,7 +945,19 @@ pub fn write_shards_until(
     if announce {
         eprintln!("{}", estimate_line(&plan, &mine));
     }
-    let summary = write_planned(&plan, &mine, failures_path, start);
+    let run = Run {
+        out,
+        root: &plan.root,
+        views: &plan.views,
+        cameras: &plan.cameras,
+        opts: &plan.opts,
+        verifier,
+        stop,
+        progress: Progress::new(progress, format!("batch {label}"), my_views),
+        lanes,
+        window,
+    };
+    let summary = write_planned(&plan, &run, &mine, failures_path, start);
     // Other processes may still be using `.partial`; it goes when the last one leaves.
     let _ = std::fs::remove_dir(out.join(".partial"));
     if summary.is_ok() {
@@ -1070,9 +966,11 @@ pub fn write_shards_until(
     summary
 }
 
-/// The tars `mine` of `plan`, the failures file and, when every tar is in place, the index.
+/// The tars `mine` of `plan` through the batch driver, the failures file and, when every
+/// tar is in place, the index.
 fn write_planned(
     plan: &Plan,
+    run: &Run,
     mine: &[usize],
     failures_path: PathBuf,
     start: Instant,
@@ -1088,33 +986,42 @@ fn write_planned(
         index_written: false,
         elapsed: Duration::ZERO,
     };
-    // Tars in parallel: `tars_at_once` lanes, each writing its tars one after another (tar
-    // `mine[k]` in lane `k % lanes`), so appending and hashing scale with the pool while
-    // the tars in flight stay within the memory budget; every tar's bytes stay those of its
-    // views in order.
-    let lanes = plan.tars_at_once.min(mine.len()).max(1);
-    let mut written: Vec<(usize, Result<Written>)> = (0..lanes)
-        .into_par_iter()
-        .flat_map_iter(|lane| {
-            mine.iter()
-                .skip(lane)
-                .step_by(lanes)
-                .map(|&j| (j, plan.tar(j)))
-                .collect::<Vec<_>>()
+    let units = mine
+        .iter()
+        .map(|&j| {
+            Ok(Unit {
+                name: Shard::new(j as u32, plan.tars as u32).map_err(anyhow::Error::msg)?,
+                views: plan.range(j).collect(),
+            })
         })
-        .collect();
-    written.sort_by_key(|(j, _)| *j);
-    for (j, w) in written {
-        let (outcome, car, rendered) = w?;
-        summary.outcomes.push((j, outcome));
-        if outcome == TarOutcome::Written {
-            summary.rendered += rendered + car.failures.len();
+        .collect::<Result<Vec<Unit>>>()?;
+    let driven = driver::drive(run, plan, &units)?;
+    run.progress.finish();
+    if let Some(why) = driven.stopped {
+        bail!("{why}");
+    }
+    for (unit, result) in units.iter().zip(driven.units) {
+        let Some(car) = result.record else {
+            continue;
+        };
+        let j = unit.name.index as usize;
+        if result.kept {
+            summary.outcomes.push((j, TarOutcome::Skipped));
+            summary.failures.extend(car.failures);
+            // A kept tar's views checked again now and found to disagree.
+            for (&i, o) in unit.views.iter().zip(&result.outcomes) {
+                if let Some(Outcome::Failed(e)) = o {
+                    summary.failures.push(plan.failure(i, e.clone()));
+                }
+            }
+        } else {
+            summary.outcomes.push((j, TarOutcome::Written));
+            summary.rendered += car.samples + car.failures.len();
+            summary.failures.extend(car.failures);
         }
-        summary.failures.extend(car.failures);
     }
     write_failures(&summary.failures_path, &summary.failures)?;
-    plan.progress.finish();
-    summary.verified = plan.verified.load(Ordering::Relaxed);
+    summary.verified = driven.verified;
     summary.index_written = plan.merge_index()?;
     summary.elapsed = start.elapsed();
     Ok(summary)
@@ -1170,17 +1077,6 @@ mod tests {
     }
 
     /// Calls with other tar lists keep other failures files.
-    #[test]
-    fn tars_in_flight_fill_the_pool_within_the_memory_budget() {
-        // Nothing to hold: as many tars as threads (or tars), windows sharing the threads.
-        assert_eq!(in_flight(0, 1, 8), (1, 8));
-        assert_eq!(in_flight(0, 3, 8), (3, 3));
-        assert_eq!(in_flight(0, 40, 2), (2, 1));
-        assert_eq!(in_flight(0, 40, 1), (1, 1));
-        // Views too large for any budget: one tar, one view at a time.
-        assert_eq!(in_flight(u64::MAX / 8, 40, 16), (1, 1));
-    }
-
     #[test]
     fn failures_files_are_named_by_their_tars() {
         assert_eq!(failures_label(&[3]), "tar-000003");
