@@ -7,7 +7,7 @@
 mod common;
 use common::{cylaov, ok};
 
-use cylaov::dataset::batch::shards::{ShardOptions, TarSelection, write_shards};
+use cylaov::dataset::batch::shards::{ShardOptions, TarOutcome, TarSelection, write_shards};
 use cylaov::dataset::batch::{BatchOptions, ProgressMode, Shard, Verdict, Verifier, ViewSource};
 use cylaov::image::AovImage;
 use std::path::{Path, PathBuf};
@@ -54,9 +54,10 @@ fn tars(out: &Path) -> Vec<(String, Vec<u8>)> {
     v
 }
 
-/// A stand-in reference: reads the EXR it is given back, and disagrees on `000001`.
+/// A stand-in reference: reads the EXR it is given back, and disagrees on view `bad`.
 struct ReadsBack {
     checked: Mutex<Vec<String>>,
+    bad: &'static str,
 }
 
 impl Verifier for ReadsBack {
@@ -70,7 +71,7 @@ impl Verifier for ReadsBack {
         assert!(work.is_dir() && exr.starts_with(work), "{}", exr.display());
         let img = AovImage::read_exr(exr)?;
         self.checked.lock().unwrap().push(view.id());
-        let ok = img.width == scene.camera.width as usize && view.name != "000001";
+        let ok = img.width == scene.camera.width as usize && view.name != self.bad;
         Ok(Verdict {
             passes: ok,
             report: format!("stand-in verdict for {}", view.name),
@@ -98,6 +99,7 @@ fn shards_check_selected_views_and_fail_disagreements() {
     let all = TarSelection::Shard(Shard::ALL);
     let verifier = ReadsBack {
         checked: Mutex::new(Vec::new()),
+        bad: "000001",
     };
     let out = tmp.path().join("verified");
     let s = write_shards(
@@ -130,6 +132,32 @@ fn shards_check_selected_views_and_fail_disagreements() {
     let tar0 = String::from_utf8_lossy(&verified[0].1);
     assert!(tar0.contains("000000.json") && !tar0.contains("000001.json"));
 
+    // A rerun keeps both tars and checks their views again, as the files format checks
+    // the views it keeps: a reference that now disagrees on 000002 fails that view too
+    // (the tars stay as they are), and 000001 is listed once.
+    let recheck = ReadsBack {
+        checked: Mutex::new(Vec::new()),
+        bad: "000002",
+    };
+    let s = write_shards(
+        &data,
+        &out,
+        &all,
+        &opts(1.0),
+        &sopts,
+        ProgressMode::Off,
+        Some(&recheck),
+    )
+    .unwrap();
+    assert!(s.outcomes.iter().all(|o| o.1 == TarOutcome::Skipped), "{s}");
+    let mut checked = recheck.checked.lock().unwrap().clone();
+    checked.sort();
+    assert_eq!(checked, ["000000", "000001", "000002", "000003"]);
+    let failed: Vec<&str> = s.failures.iter().map(|f| f.key.as_str()).collect();
+    assert_eq!((s.verified, failed), (4, vec!["000001", "000002"]), "{s}");
+    assert_eq!(tars(&out), verified);
+    assert!(!out.join(".partial").exists());
+
     // Half the views, the same choice as the files format's.
     let picked: Vec<String> = (0..4)
         .map(|i| format!("{i:06}"))
@@ -137,6 +165,7 @@ fn shards_check_selected_views_and_fail_disagreements() {
         .collect();
     let verifier = ReadsBack {
         checked: Mutex::new(Vec::new()),
+        bad: "000001",
     };
     let half = tmp.path().join("half");
     write_shards(

@@ -25,7 +25,7 @@
 //! after it, and a unit missing views is not committed.
 
 use super::input::{resource_exhausted, view_scene};
-use super::lock::lock_shard;
+use super::lock::{ShardLock, lock_shard};
 use super::options::BatchOptions;
 use super::progress::{Outcome, Progress};
 use super::shard::Shard;
@@ -47,6 +47,9 @@ pub(super) struct Unit {
     pub name: Shard,
     /// Its views (indices into the view list), in the order the container takes them.
     pub views: Vec<usize>,
+    /// Its lock when the caller took it already (the files format takes it before it
+    /// prints anything, so a held lock is the one line it prints).
+    pub held: Option<ShardLock>,
 }
 
 /// How a unit starts.
@@ -335,7 +338,10 @@ impl Run<'_> {
         if self.stopping(state) {
             return Ok(not_started());
         }
-        let _lock = lock_shard(self.out, self.root, unit.name)?;
+        let _lock = match unit.held {
+            Some(_) => None,
+            None => Some(lock_shard(self.out, self.root, unit.name)?),
+        };
         let work = WorkFolder::new(self.root.join(unit.name.to_string()))?;
         let scenes: Vec<Result<Scene, String>> = if C::SCENES_AHEAD {
             unit.views

@@ -29,14 +29,21 @@
 //! `index.json` and every `transforms.json` are pure functions of the input files and the
 //! options, so every shard computes the same list and writes the same index bytes.
 //!
+//! **One driver**: both formats run on `driver`, which takes each unit's lock, clears its
+//! work folder, resumes, renders windows of views within the memory budget, verifies,
+//! counts progress and stops on a full disk; a format is a container that says what a
+//! view's members are and how a unit is committed (the files format: this process's
+//! shard, each view committed on its own; tar shards: one tar).
+//!
 //! The pieces, in the order a run uses them: `views` (the view list), `input` (the list
 //! read with each view's camera, as both formats read it), `shard` (which views
-//! this process renders), `lock` (the shard's lock and its real, unfollowed partial
-//! folder), `options`, `resume` (output paths, render stamp, completeness
-//! checks), `write` (one view rendered and moved into place), `verify` (the reference check
-//! interface), `transforms` (`transforms.json`), `progress`, and `run` (the loop tying them
-//! together); `shards` writes the same views as tar shards (`--format webdataset`), and
-//! `samples` reads them back (`cylaov verify OUT`).
+//! this process renders), `lock` (the locks and the real, unfollowed partial folder),
+//! `options`, `resume` (output paths, render stamp, completeness checks), `driver` (the
+//! loop over units and views), `write` (one view rendered and moved into place), `verify`
+//! (the reference check interface), `transforms` (`transforms.json`), `progress`,
+//! `failures`, and `run` (the files format: its container, `index.json`, stale views);
+//! `shards` writes the same views as tar shards (`--format webdataset`), and `samples`
+//! reads them back (`cylaov verify OUT`).
 
 mod driver;
 mod failures;

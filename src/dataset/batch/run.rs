@@ -1,7 +1,8 @@
-//! The run loop: read every scene's cameras (a scene with several becomes several views),
-//! render this shard's views through one rayon pool (resuming what is complete, verifying
-//! the selected ones), then write the failures file, `OUT/index.json` and each
-//! several-camera scene's `OUT/<scene>/transforms.json`.
+//! The files format: read every scene's cameras (a scene with several becomes several
+//! views), render this shard's views as one unit of the batch driver (`super::driver`:
+//! resuming what is complete, verifying the selected ones), each view's files committed
+//! on their own, then write the failures file, `OUT/index.json` and each several-camera
+//! scene's `OUT/<scene>/transforms.json`.
 //!
 //! Before anything is rendered, every path the shard may replace (the views' files,
 //! `index.json`, the failures file, `transforms.json`) must be missing or a regular file
@@ -15,7 +16,7 @@
 use super::driver::{self, Container, Rendered, Run, Start, Unit};
 use super::failures::write_failures;
 use super::input::read_views;
-use super::lock::partial_root;
+use super::lock::{lock_shard, partial_root};
 use super::options::{BatchOptions, Schedule};
 use super::progress::Outcome;
 use super::progress::{Counts, Progress, ProgressMode, SizeEstimate};
@@ -158,6 +159,7 @@ pub fn run(
     dirs.create(out)
         .with_context(|| format!("creating {}", out.display()))?;
     let (root, _root_registered) = partial_root(out)?;
+    let lock = lock_shard(out, &root, shard)?;
 
     if progress != ProgressMode::Off {
         let estimate = estimate(&mine, &cameras, opts);
@@ -208,6 +210,7 @@ pub fn run(
     let unit = Unit {
         name: shard,
         views: mine.clone(),
+        held: Some(lock),
     };
     let driven = driver::drive(&run, &files, std::slice::from_ref(&unit))?;
     run.progress.finish();
@@ -236,6 +239,7 @@ pub fn run(
     if let Err(e) = remove_stale_views(out, &views, &cameras, &mine) {
         summary.problems.push(format!("{e:#}"));
     }
+    drop(unit);
     // Other shards may still be using `.partial`; it goes when the last one leaves.
     let _ = std::fs::remove_dir(out.join(".partial"));
     dirs.keep();

@@ -24,8 +24,9 @@
 //! `crate::output::format::tar`), scene files named relative to the input folder: a tar is a pure
 //! function of the input and the options, whichever process or engine writes it.
 //!
-//! **Writing and resume.** A tar is written under `OUT/.partial/shard-00000j.tar.tmp` and
-//! renamed into place; then its sidecar `OUT/shard-00000j.json` (sample count, byte count,
+//! **Writing and resume.** Each tar is a unit of the batch driver (`super::driver`),
+//! which the files format runs on too. A tar is written under
+//! `OUT/.partial/J-of-T/shard-00000j.tar.tmp` and renamed into place; then its sidecar `OUT/shard-00000j.json` (sample count, byte count,
 //! sha256, the stamp of its inputs and options, its failures) is written, so a sidecar on
 //! disk vouches for a whole tar. A rerun skips a tar whose sidecar has this run's stamp and
 //! whose file has the recorded size and sha256, and writes the others again. Each tar is
@@ -33,18 +34,20 @@
 //! assigns the tars with `j % N == K`. Whichever process finds every sidecar in place
 //! writes `OUT/shards.json` from them under the lock `OUT/.partial/shards.json.lock`.
 //!
-//! **Verification.** With a [`Verifier`], the views [`view_selected`] among those rendered in
-//! this run are checked as the files format checks them: the view's EXR (the plan's own,
-//! encoded whether or not `KEY.exr` is a member) goes to a private file under
-//! `OUT/.partial` that the verifier reads. A view that disagrees fails as a render failure
-//! does; the others' members are those of an unverified run. A tar kept from an earlier
-//! run is not checked again.
+//! **Verification.** With a [`Verifier`], the views [`view_selected`] are checked as the
+//! files format checks them: the view's EXR (the plan's own, encoded whether or not
+//! `KEY.exr` is a member) goes to a private file under `OUT/.partial` that the verifier
+//! reads. A view that disagrees fails as a render failure does; the others' members are
+//! those of an unverified run. The views of a tar kept from an earlier run are checked
+//! too, from an EXR rendered again (the tar is a pure function of the same inputs): one
+//! that disagrees is listed with the failures, and the tar stays as it is.
 //!
 //! **Parallelism and memory.** Within a tar the pool renders a window of views while the
 //! tar's owner appends and hashes the window before it, in view order; several tars are
-//! written at once, each by one owner. How many tars and how large a window come from the
-//! largest view's estimate (its whole image, which a tar's view holds, and its encoded
-//! members) and half of what the machine leaves, so the views held stay within it. Each
+//! written at once, each by one owner that takes the next tar when it finishes one. How
+//! many tars and how large a window come from the largest view's estimate (its whole
+//! image, which a tar's view holds until it is appended, and its encoded members) and
+//! half of what the machine leaves, so the views held stay within it. Each
 //! view's estimate is also checked before it renders, as in the files format: a view that
 //! does not fit fails alone.
 
@@ -992,6 +995,7 @@ fn write_planned(
             Ok(Unit {
                 name: Shard::new(j as u32, plan.tars as u32).map_err(anyhow::Error::msg)?,
                 views: plan.range(j).collect(),
+                held: None,
             })
         })
         .collect::<Result<Vec<Unit>>>()?;
@@ -1007,13 +1011,23 @@ fn write_planned(
         let j = unit.name.index as usize;
         if result.kept {
             summary.outcomes.push((j, TarOutcome::Skipped));
+            // A kept tar's views checked again now and found to disagree, besides those
+            // its sidecar lists.
+            let rechecked: Vec<ShardFailure> = unit
+                .views
+                .iter()
+                .zip(&result.outcomes)
+                .filter_map(|(&i, o)| match o {
+                    Some(Outcome::Failed(e))
+                        if !car.failures.iter().any(|f| f.key == plan.keys[i]) =>
+                    {
+                        Some(plan.failure(i, e.clone()))
+                    }
+                    _ => None,
+                })
+                .collect();
             summary.failures.extend(car.failures);
-            // A kept tar's views checked again now and found to disagree.
-            for (&i, o) in unit.views.iter().zip(&result.outcomes) {
-                if let Some(Outcome::Failed(e)) = o {
-                    summary.failures.push(plan.failure(i, e.clone()));
-                }
-            }
+            summary.failures.extend(rechecked);
         } else {
             summary.outcomes.push((j, TarOutcome::Written));
             summary.rendered += car.samples + car.failures.len();
