@@ -87,6 +87,8 @@
 //! - [`output`], three layers, arrows down:
 //!   - [`output::pipeline`]: [`output::pipeline::view`] (one view's files as a plan executed
 //!     into a sink: `render`, `batch` and the tar shards write through it),
+//!     [`output::pipeline::files`] (an EXR or PNG staged and committed as a file, an EXR
+//!     read from a path),
 //!     [`output::pipeline::memory`] (the memory a view holds at its peak, checked before it
 //!     allocates), [`output::pipeline::scan_files`] (a scan's points as LAS, PLY or NPZ);
 //!   - [`output::format`]: [`output::format::exr`] (the image's EXR reading and writing,
@@ -125,8 +127,10 @@
 //!
 //! Datasets:
 //! - [`dataset`]: [`dataset::generate`] (seeded procedural scenes, several cameras each if
-//!   asked), [`dataset::batch`] (views of (scene, camera), shards and their locks, resumable
-//!   kill-safe rendering, `index.json` and per-scene `transforms.json`, and
+//!   asked), [`dataset::batch`] (views of (scene, camera), shards and their locks, one
+//!   driver both formats run on (locks, resume, memory-bounded windows, verification,
+//!   progress), resumable kill-safe rendering, `index.json` and per-scene
+//!   `transforms.json`, and
 //!   [`dataset::batch::shards`], `--format webdataset`: tar shards, sidecars and
 //!   `shards.json`, resumable per tar; [`dataset::batch::samples`], the tars read back a
 //!   sample at a time for `cylaov verify`), [`dataset::names`]
@@ -157,8 +161,12 @@
 //! - **Arrows between modules point down**: the top-level modules import each other
 //!   without a cycle, and so do the files inside each (a file's own submodules excepted)
 //!   (layers).
-//! - **`output` is `pipeline` over `format` over `store`**, and **only `pipeline` calls
-//!   `render`** (layers).
+//! - **`output` is `pipeline` over `format` over `store`**, **only `pipeline` calls
+//!   `render`**, and **a format knows bytes, not files** (it never imports the store)
+//!   (layers).
+//! - **One batch driver**: both dataset formats are containers of
+//!   `dataset::batch::driver`, the one place that loads, renders, checks and walks a
+//!   batch's views (layers).
 //! - **The trace knows no file**: `scene`, `geometry`, `accel`, `image`, `render` and `scan`
 //!   never import `output` (`render_bands` hands its bands to the caller's sink) (layers).
 //! - **A render is a pure function of scene + options**: the same inputs give the same bits

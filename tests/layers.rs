@@ -387,7 +387,8 @@ fn files_import_without_a_cycle() {
 
 /// **`output` in three layers, arrows down**: `pipeline` (what a command writes) over
 /// `format` (the bytes of each file) over `store` (how files reach the disk); **only
-/// `pipeline` calls `render`**.
+/// `pipeline` calls `render`**, and **a format knows bytes, not files**: it never
+/// imports the store (`pipeline::files` stages its bytes as a file).
 #[test]
 fn output_is_pipeline_over_format_over_store() {
     let edges = edges_at(3);
@@ -410,11 +411,11 @@ fn output_is_pipeline_over_format_over_store() {
         Vec::<String>::new()
     );
     assert_eq!(
-        up("format", &["output::pipeline", "render"]),
+        up("format", &["output::pipeline", "output::store", "render"]),
         Vec::<String>::new()
     );
-    // The probe sees the layers: the view plan calls render and the EXR format, which
-    // stages its file in the store.
+    // The probe sees the layers: the view plan calls render and the EXR format, and
+    // `pipeline::files` stages a format's bytes in the store.
     let pipeline = from("pipeline");
     assert!(
         pipeline
@@ -423,8 +424,53 @@ fn output_is_pipeline_over_format_over_store() {
     );
     assert!(pipeline.iter().any(|(_, b)| b == "output::format::exr"));
     assert!(
-        from("format")
+        pipeline
             .iter()
-            .any(|(a, b)| a == "output::format::exr" && b == "output::store::atomic")
+            .any(|(a, b)| a == "output::pipeline::files" && b == "output::store::atomic")
     );
+}
+
+/// **One batch driver**: in `dataset/batch`, only `driver.rs` reads a view's scene to
+/// render it, checks a view against the reference and walks the views on the pool; the
+/// files format (`run.rs`) and the tar shards (`shards.rs`) are its containers.
+#[test]
+fn both_batch_formats_run_on_one_driver() {
+    let dir = Path::new(ROOT).join("src/dataset/batch");
+    let mut found = Vec::new();
+    for f in sources(&dir) {
+        let rel = f.strip_prefix(&dir).unwrap().display().to_string();
+        let text = std::fs::read_to_string(&f).unwrap();
+        for (n, line) in text.lines().enumerate() {
+            let code = line.trim_start();
+            if code.starts_with("//")
+                || code.starts_with("pub fn")
+                || code.starts_with("pub(super) fn")
+            {
+                continue;
+            }
+            for call in ["view_scene(", "check_view(", "rayon::join(", "lock_shard("] {
+                if code.contains(call) {
+                    found.push(format!("{rel}:{}: {call}", n + 1));
+                }
+            }
+        }
+    }
+    let outside: Vec<&String> = found
+        .iter()
+        .filter(|h| !h.starts_with("driver.rs:"))
+        .filter(|h| !h.starts_with("run.rs:") || !h.ends_with("lock_shard("))
+        .collect();
+    assert!(outside.is_empty(), "outside the driver:\n{outside:#?}");
+    for call in ["view_scene(", "check_view(", "rayon::join(", "lock_shard("] {
+        assert!(
+            found
+                .iter()
+                .any(|h| h.starts_with("driver.rs:") && h.ends_with(call)),
+            "the probe does not see {call} in driver.rs: {found:#?}"
+        );
+    }
+    for container in ["run.rs", "shards.rs"] {
+        let text = std::fs::read_to_string(dir.join(container)).unwrap();
+        assert!(text.contains("impl Container for"), "{container}");
+    }
 }

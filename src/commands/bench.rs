@@ -138,7 +138,7 @@ pub fn run(
     }
     if let Some(path) = plot {
         let img = plot::plot(&rows, &mi_rows, &opts.kernels);
-        crate::output::format::preview::write_png(&img, &path)?;
+        crate::output::pipeline::files::write_png(&img, &path)?;
         say(&format!("wrote {}", path.display()))?;
     }
     Ok(rows)

@@ -4,7 +4,7 @@
 
 use crate::image::AovImage;
 use crate::mem::check_memory;
-use crate::output::format::preview::write_png;
+use crate::output::pipeline::files::write_png;
 use crate::output::store::targets::check_outputs;
 use crate::verify::compare::{
     Conditioning, Report, Tolerances, compare_with, heatmap_figure, tolerance_line, verdict_lines,

@@ -81,7 +81,7 @@ pub fn run(args: &StressArgs) -> Result<String> {
         atomic_write_bytes(path, &text).with_context(|| format!("writing {}", path.display()))?;
     }
     if let Some(path) = &args.plot {
-        crate::output::format::preview::write_png(&plot::plot(&records, &families), path)?;
+        crate::output::pipeline::files::write_png(&plot::plot(&records, &families), path)?;
     }
     Ok(out)
 }

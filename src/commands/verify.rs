@@ -11,7 +11,7 @@
 use crate::dataset::batch::{ViewSource, list_views, view_selected};
 use crate::geometry::{FormulaKind, Precision};
 use crate::image::AovImage;
-use crate::output::format::preview::write_png;
+use crate::output::pipeline::files::write_png;
 use crate::verify::arbiter::{Arbitration, Bound, Reference};
 use crate::verify::compare::{Conditioning, Report, Tolerances, heatmap_figure};
 use crate::verify::reference::{

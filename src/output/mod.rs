@@ -2,8 +2,9 @@
 //! pointing down:
 //!
 //! - [`pipeline`]: one view's files as a plan executed into a sink (`render` and `batch`
-//!   write through it), and a scan's points as files: the one layer that calls both
-//!   `render` and the formats.
+//!   write through it), a scan's points as files, and a format's bytes staged as a file
+//!   (`files`): the one layer that calls both `render` and the formats, and the formats
+//!   and the store.
 //! - [`format`](mod@format): what the bytes of each file are: the AOV EXR and its streaming writer,
 //!   PNG depth and previews with the figures' pixel font, PLY, `.npz`, ustar members, the
 //!   camera and Open3D JSON, Mitsuba 3 XML.

@@ -87,7 +87,7 @@ r.forEach(e=>t.tBodies[0].appendChild(e));}";
 /// anything is written), then all are staged under temporary names and committed together,
 /// so nothing outside `dir` is touched and a failure leaves no half-written page.
 pub fn write_report(dir: &Path, title: &str, views: &[ReportView]) -> Result<()> {
-    use crate::output::format::preview::stage_png;
+    use crate::output::pipeline::files::stage_png;
     use crate::output::store::atomic::commit_all;
     use crate::output::store::targets::check_output;
     // The picture files, named before anything is written so all can be checked first.

@@ -137,7 +137,7 @@ impl fmt::Display for Summary {
 }
 
 /// Render `shard` of the views of `input` into `out`; see the module docs. With a
-/// `verifier`, the views [`view_selected`] (rendered now or earlier) are checked, and
+/// `verifier`, the views [`view_selected`](super::view_selected) (rendered now or earlier) are checked, and
 /// one that disagrees counts as failed. Per-view problems are counted in the summary; only
 /// whole-batch problems are errors.
 pub fn run(

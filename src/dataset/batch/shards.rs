@@ -34,7 +34,7 @@
 //! assigns the tars with `j % N == K`. Whichever process finds every sidecar in place
 //! writes `OUT/shards.json` from them under the lock `OUT/.partial/shards.json.lock`.
 //!
-//! **Verification.** With a [`Verifier`], the views [`view_selected`] are checked as the
+//! **Verification.** With a [`Verifier`], the views [`view_selected`](super::view_selected) are checked as the
 //! files format checks them: the view's EXR (the plan's own, encoded whether or not
 //! `KEY.exr` is a member) goes to a private file under `OUT/.partial` that the verifier
 //! reads. A view that disagrees fails as a render failure does; the others' members are

@@ -35,12 +35,10 @@
 //! `Y` (all float32; ids are exact up to 2^24 and larger ones are refused), `normal` and
 //! `position` as `R, G, B` (= X, Y, Z). The samples are bitwise those of the layered file.
 
-use crate::output::store::atomic::{Staged, stage};
 use crate::scene::Aov;
 use crate::scene::camera::Camera;
 use anyhow::{Context, Result, bail};
 use exr::prelude::*;
-use std::io::Write;
 use std::path::Path;
 
 pub use crate::image::{
@@ -226,34 +224,6 @@ pub fn per_aov_image(img: &AovImage, aov: Aov) -> Result<AovImage> {
 }
 
 impl AovImage {
-    /// Write an OpenEXR file atomically (temporary name, then rename).
-    pub fn write_exr(&self, path: &Path, compression: Compression) -> Result<()> {
-        self.stage_exr(path, compression)?
-            .commit()
-            .with_context(|| format!("writing {}", path.display()))
-    }
-
-    /// Encode an OpenEXR file to `path`'s temporary name, to be committed with others.
-    pub fn stage_exr(&self, path: &Path, compression: Compression) -> Result<Staged> {
-        self.stage_exr_with(path, compression, &[])
-    }
-
-    /// [`AovImage::stage_exr`] with extra header attributes.
-    pub fn stage_exr_with(
-        &self,
-        path: &Path,
-        compression: Compression,
-        attrs: &[ExrAttr],
-    ) -> Result<Staged> {
-        stage(path, |file| {
-            let mut out = std::io::BufWriter::with_capacity(1 << 20, file);
-            self.write_exr_with(&mut out, compression, attrs)
-                .map_err(|e| std::io::Error::other(format!("{e:#}")))?;
-            out.flush()
-        })
-        .with_context(|| format!("writing {}", path.display()))
-    }
-
     /// Encode as OpenEXR into any seekable writer (a file, or memory). Uncompressed files
     /// are streamed by [`AovImage::write_uncompressed`]; the rest go through the `exr`
     /// crate, which compresses blocks in parallel.
@@ -361,17 +331,20 @@ impl AovImage {
         Ok(())
     }
 
-    /// Read every channel of the first layer of an OpenEXR file. Half channels become f32.
-    pub fn read_exr(path: &Path) -> Result<AovImage> {
-        let file = crate::output::store::files::open_input(path)
-            .with_context(|| format!("reading {}", path.display()))?;
+    /// Read every channel of the first layer of an OpenEXR stream (`what` names it in
+    /// errors). Half channels become f32.
+    pub fn read_exr_from(
+        input: impl std::io::Read + std::io::Seek + Send,
+        what: &Path,
+    ) -> Result<AovImage> {
+        let path = what;
         let image = read()
             .no_deep_data()
             .largest_resolution_level()
             .all_channels()
             .first_valid_layer()
             .all_attributes()
-            .from_buffered(std::io::BufReader::new(file))
+            .from_buffered(input)
             .with_context(|| format!("reading {}", path.display()))?;
         let layer = image.layer_data;
         let size = layer.size;

@@ -3,8 +3,10 @@
 //! axis panels ([`plot`]), hit points as PLY ([`ply`]), the stored zip of `.npy` members
 //! ([`npz`]), deterministic ustar members of tar shards ([`tar`]), the camera and Open3D
 //! JSON with the record encoding ([`camera_files`]) and the scene as Mitsuba 3 XML
-//! ([`mitsuba`]). A format may write through a staged file of [`super::store`], never
-//! decide which files a command writes: that is [`super::pipeline`].
+//! ([`mitsuba`]). A format knows bytes, not files: it writes into a writer it is given
+//! (the streaming EXR writer into an open file, at offsets) and never imports
+//! [`super::store`]; staging its bytes as a file ([`super::pipeline::files`]) and deciding
+//! which files a command writes are [`super::pipeline`]'s.
 
 pub mod camera_files;
 pub mod depth_png;

@@ -4,11 +4,8 @@
 
 use crate::image::AovImage;
 use crate::output::format::plot;
-use crate::output::store::atomic::{Staged, stage};
 use crate::scene::Aov;
-use anyhow::{Context, Result};
 use image::{ImageBuffer, Luma, Rgb, RgbImage};
-use std::path::Path;
 
 /// Normals mapped `n * 0.5 + 0.5` to RGB; a miss is black.
 pub fn normal_rgb(img: &AovImage) -> Option<RgbImage> {
@@ -197,40 +194,6 @@ pub fn depth_u16(img: &AovImage, scale: f64) -> Option<ImageBuffer<Luma<u16>, Ve
         })
         .collect();
     ImageBuffer::from_raw(img.width as u32, img.height as u32, data)
-}
-
-/// Encode any PNG-able image atomically.
-pub fn write_png<P, C>(img: &ImageBuffer<P, C>, path: &Path) -> Result<()>
-where
-    P: image::PixelWithColorType,
-    [P::Subpixel]: image::EncodableLayout,
-    C: std::ops::Deref<Target = [P::Subpixel]>,
-{
-    stage_png(img, path)?
-        .commit()
-        .with_context(|| format!("writing {}", path.display()))
-}
-
-/// Encode a PNG to `path`'s temporary name, to be committed with others.
-pub fn stage_png<P, C>(img: &ImageBuffer<P, C>, path: &Path) -> Result<Staged>
-where
-    P: image::PixelWithColorType,
-    [P::Subpixel]: image::EncodableLayout,
-    C: std::ops::Deref<Target = [P::Subpixel]>,
-{
-    stage(path, |f| {
-        use std::io::Write;
-        let mut w = std::io::BufWriter::new(f);
-        // The encoder's IO error as it is, so a full disk gets its advice as the EXR's does;
-        // and the last buffered bytes flushed here, where a failure is still reported.
-        img.write_to(&mut w, image::ImageFormat::Png)
-            .map_err(|e| match e {
-                image::ImageError::IoError(e) => e,
-                e => std::io::Error::other(e.to_string()),
-            })?;
-        w.flush()
-    })
-    .with_context(|| format!("writing {}", path.display()))
 }
 
 #[cfg(test)]
