@@ -79,6 +79,80 @@ impl Verifier for ReadsBack {
     }
 }
 
+/// A stand-in whose check of view `000001` finds the disk full, as writing its EXR would.
+struct DiskFull;
+
+impl Verifier for DiskFull {
+    fn check(
+        &self,
+        view: &ViewSource,
+        _scene: &cylaov::scene::Scene,
+        _exr: &Path,
+        _work: &Path,
+    ) -> anyhow::Result<Verdict> {
+        if view.name == "000001" {
+            return Err(std::io::Error::from_raw_os_error(28).into());
+        }
+        Ok(Verdict {
+            passes: true,
+            report: String::new(),
+        })
+    }
+}
+
+/// A view that runs out of the disk stops the run, and its tar is not committed: no tar
+/// and no sidecar vouch for a tar missing that view, so a rerun writes it whole.
+#[test]
+fn a_tar_whose_view_ran_out_of_disk_is_not_committed() {
+    let tmp = common::fresh_dir("shards-verify", "disk-full");
+    let data = generated(tmp.path());
+    let opts = BatchOptions {
+        verify_fraction: 1.0,
+        ..BatchOptions::default()
+    };
+    let sopts = ShardOptions {
+        shard_size: 2,
+        ..ShardOptions::default()
+    };
+    let all = TarSelection::Shard(Shard::ALL);
+    let out = tmp.path().join("out");
+    let e = write_shards(
+        &data,
+        &out,
+        &all,
+        &opts,
+        &sopts,
+        ProgressMode::Off,
+        Some(&DiskFull),
+    )
+    .unwrap_err();
+    assert!(format!("{e:#}").contains("the disk is full"), "{e:#}");
+    assert!(!out.join("shard-000000.tar").exists());
+    assert!(!out.join("shard-000000.json").exists());
+    assert!(!out.join(".partial").exists());
+    let s = write_shards(
+        &data,
+        &out,
+        &all,
+        &BatchOptions::default(),
+        &sopts,
+        ProgressMode::Off,
+        None,
+    )
+    .unwrap();
+    assert!(s.failures.is_empty() && s.index_written, "{s}");
+    assert_eq!(
+        s.rendered
+            + 2 * s
+                .outcomes
+                .iter()
+                .filter(|o| o.1 == TarOutcome::Skipped)
+                .count(),
+        4,
+        "{s}"
+    );
+}
+
 /// The library's `write_shards` with a verifier: the chosen views are checked from their
 /// EXR, the one that disagrees is absent from its tar and in the failures, and the tar is
 /// otherwise the bytes of an unverified run (with that view failing alone); no temporary

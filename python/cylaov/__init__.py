@@ -195,7 +195,7 @@ def write_shards(input, out, shards=None, shard_size=1000, aovs=None, members=No
                  force=False):
     """Write tar shards ``shards`` (indices; None: all) as ``cylaov batch INPUT --out OUT
     --format webdataset`` does, the same bytes; returns ``{"tars", "written", "skipped",
-    "failed", "index_written"}``.
+    "failed", "index_written", "problems"}`` (``problems``: what could not be cleaned up).
 
     ``input`` is what ``batch`` takes (a scene file, a folder of them, a ``generate``
     output), or scenes in memory: one ``Scene``, a list of them (keys ``scene_000000``,

@@ -163,7 +163,7 @@ def write_shards(
     force: bool = False,
 ) -> Dict[str, Any]:
     """Write tar shards `shards` (None: all) as `batch --format webdataset` does, same bytes;
-    returns {"tars", "written", "skipped", "failed", "index_written"}. `input` is a path as
+    returns {"tars", "written", "skipped", "failed", "index_written", "problems"}. `input` is a path as
     `batch` takes, or scenes in memory: a Scene, a list (keys scene_000000, ...) or a dict
     {key: Scene}. Ctrl-C stops it with
     KeyboardInterrupt, leaving the finished tars (a rerun skips them) and no temporary file.

@@ -101,6 +101,7 @@ pub fn write_shards<'py>(
         .collect();
     d.set_item("failed", failed)?;
     d.set_item("index_written", summary.index_written)?;
+    d.set_item("problems", summary.problems.clone())?;
     Ok(d)
 }
 

@@ -61,7 +61,8 @@ pub struct BatchCli {
     compression: Compression,
     /// Also render this fraction of the views (chosen from --verify-seed and the view
     /// names) with Mitsuba, when the reference venv exists, and fail views that disagree
-    /// (either --format; with webdataset, the views of the tars written in this run).
+    /// (either --format; the views an earlier run wrote are checked again, from a render
+    /// of their EXR for a kept tar).
     #[arg(
         long,
         default_value_t = 0.0,
@@ -192,16 +193,22 @@ pub fn run(a: BatchCli) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// `batch --format webdataset`: exit 1 when any view of this process's tars failed.
+/// `batch --format webdataset`: exit 1 when any view of this process's tars failed or a
+/// tar's work folder could not be removed.
 pub fn shards(args: &commands::batch::BatchArgs, sopts: &ShardOptions) -> anyhow::Result<ExitCode> {
     let summary = commands::batch::shards(args, sopts)?;
     say(&summary.to_string())?;
+    let mut why: Vec<String> = Vec::new();
     if !summary.failures.is_empty() {
-        anyhow::bail!(
+        why.push(format!(
             "{} views failed (see {})",
             summary.failures.len(),
             summary.failures_path.display()
-        );
+        ));
+    }
+    why.extend(summary.problems.iter().cloned());
+    if !why.is_empty() {
+        anyhow::bail!("{}", why.join("; "));
     }
     Ok(ExitCode::SUCCESS)
 }

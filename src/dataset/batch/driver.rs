@@ -10,19 +10,21 @@
 //!    then clears and makes its work folder `OUT/.partial/NAME/`, removed when the unit
 //!    ends and by a signal's clean-up;
 //! 2. lets the container start it, or keep it when it is already whole on disk (a tar
-//!    whose sidecar vouches for it: its views count as skipped);
+//!    whose sidecar vouches for it: its views count as skipped, and those the verifier
+//!    checks are rendered again for their check, in the same windows);
 //! 3. renders its views in windows on the pool, each window while the container takes the
 //!    one before in view order ([`Container::accept`]), so a tar is appended and hashed
 //!    while the next views trace; a view whole on disk already is skipped (the files
 //!    format's resume); every view [`view_selected`] is checked by the verifier, kept ones
 //!    included;
-//! 4. commits it ([`Container::commit`]) once every view has run.
+//! 4. commits it ([`Container::commit`]) once every view has run, none of them out of a
+//!    resource every view needs.
 //!
 //! Units run `lanes` at a time, `window` views each at once, both from the memory a view
 //! holds ([`in_flight`]), so what the views hold stays within half of what the machine
 //! leaves however many cores there are. A view that failed because a resource every view
 //! needs ran out (a full disk, see [`resource_exhausted`]) stops the run: no view starts
-//! after it, and a unit missing views is not committed.
+//! after it, and a unit missing views or holding such a failure is not committed.
 
 use super::input::{resource_exhausted, view_scene};
 use super::lock::{ShardLock, lock_shard};
@@ -354,29 +356,27 @@ impl Run<'_> {
         if self.stopping(state) {
             return Ok(not_started());
         }
-        let mut open = match c.start(unit, &scenes, work.path())? {
-            Start::Kept(record) => {
-                let outcomes = self.check_kept(c, unit, &scenes, work.path(), state);
-                return Ok(UnitResult {
-                    record: Some(record),
-                    kept: true,
-                    outcomes,
-                });
-            }
-            Start::Open(open) => open,
+        // A kept unit's views run too, but only those the verifier checks render (again,
+        // for their EXR: the unit is a pure function of the same inputs).
+        let (mut open, kept) = match c.start(unit, &scenes, work.path())? {
+            Start::Kept(record) => (None, Some(record)),
+            Start::Open(open) => (Some(open), None),
         };
         let mut outcomes: Vec<Option<Outcome>> = Vec::with_capacity(unit.views.len());
         let mut ready: Vec<(usize, ViewResult<C::View>)> = Vec::new();
         let positions: Vec<usize> = (0..unit.views.len()).collect();
+        let check_only = kept.is_some();
         for window in positions.chunks(self.window.max(1)) {
             let (accepted, rendered) = rayon::join(
-                || self.accept(c, &mut open, std::mem::take(&mut ready), &mut outcomes),
+                || self.accept(c, open.as_mut(), std::mem::take(&mut ready), &mut outcomes),
                 || {
                     window
                         .par_iter()
                         .map(|&k| {
                             let i = unit.views[k];
-                            (i, self.view(c, i, scenes.get(k), work.path(), state))
+                            let ran =
+                                self.view(c, i, scenes.get(k), work.path(), check_only, state);
+                            (i, ran)
                         })
                         .collect::<Vec<_>>()
                 },
@@ -384,31 +384,37 @@ impl Run<'_> {
             accepted?;
             ready = rendered;
         }
-        self.accept(c, &mut open, ready, &mut outcomes)?;
-        if outcomes.iter().any(Option::is_none) {
-            return Ok(UnitResult {
-                record: None,
-                kept: false,
-                outcomes,
-            });
-        }
-        let failed: Vec<(usize, &str)> = unit
-            .views
-            .iter()
-            .zip(&outcomes)
-            .filter_map(|(&i, o)| match o {
-                Some(Outcome::Failed(e)) => Some((i, e.as_str())),
-                _ => None,
-            })
-            .collect();
-        let record = c.commit(unit, open, &failed)?;
+        self.accept(c, open.as_mut(), ready, &mut outcomes)?;
+        // A unit is committed only whole: every view ran, and none ran out of what every
+        // view needs (a tar missing such a view would be vouched for and never redone).
+        let whole = outcomes.iter().all(|o| match o {
+            None => false,
+            Some(Outcome::Failed(e)) => resource_exhausted(e).is_none(),
+            Some(_) => true,
+        });
+        let record = match (kept, open) {
+            (Some(record), _) => Some(record),
+            (None, Some(open)) if whole => {
+                let failed: Vec<(usize, &str)> = unit
+                    .views
+                    .iter()
+                    .zip(&outcomes)
+                    .filter_map(|(&i, o)| match o {
+                        Some(Outcome::Failed(e)) => Some((i, e.as_str())),
+                        _ => None,
+                    })
+                    .collect();
+                Some(c.commit(unit, open, &failed)?)
+            }
+            _ => None,
+        };
         if let Err(e) = work.remove() {
             let mut problems = state.problems.lock().unwrap_or_else(|e| e.into_inner());
             problems.push(format!("{e:#}"));
         }
         Ok(UnitResult {
-            record: Some(record),
-            kept: false,
+            record,
+            kept: check_only,
             outcomes,
         })
     }
@@ -418,7 +424,7 @@ impl Run<'_> {
     fn accept<C: Container>(
         &self,
         c: &C,
-        open: &mut C::Open,
+        mut open: Option<&mut C::Open>,
         rendered: Vec<(usize, ViewResult<C::View>)>,
         outcomes: &mut Vec<Option<Outcome>>,
     ) -> Result<()> {
@@ -426,7 +432,9 @@ impl Run<'_> {
             outcomes.push(match r {
                 None => None,
                 Some(Ok(Ran::Done(view, cost))) => {
-                    c.accept(open, i, view)?;
+                    if let Some(open) = open.as_deref_mut() {
+                        c.accept(open, i, view)?;
+                    }
                     Some(Outcome::Done(cost))
                 }
                 Some(Ok(Ran::Kept)) => Some(Outcome::Skipped),
@@ -437,18 +445,25 @@ impl Run<'_> {
     }
 
     /// Skip, render or fail view `i` (its scene read `ahead` with its unit, or now), then
-    /// check it if it is selected; `None` when the run stopped before it started. The
-    /// view's outcome goes to the progress.
+    /// check it if it is selected; `None` when the run stopped before it started. In a kept
+    /// unit (`check_only`) the view is rendered only for its check. The view's outcome
+    /// goes to the progress.
     fn view<C: Container>(
         &self,
         c: &C,
         i: usize,
         ahead: Option<&Result<Scene, String>>,
         work: &Path,
+        check_only: bool,
         state: &State,
     ) -> ViewResult<C::View> {
         if self.stopping(state) {
             return None;
+        }
+        let checker = self.checker(i);
+        if check_only && checker.is_none() {
+            self.progress.record(&Outcome::Skipped);
+            return Some(Ok(Ran::Kept));
         }
         let loaded;
         let scene = match ahead {
@@ -458,9 +473,10 @@ impl Run<'_> {
                 &loaded
             }
         };
-        let checker = self.checker(i);
         let ran = scene.as_ref().map_err(Clone::clone).and_then(|s| {
-            let (ran, exr) = if c.view_kept(i, s) {
+            let (ran, exr) = if check_only {
+                (Ran::Kept, c.render(i, s, work, true)?.exr)
+            } else if c.view_kept(i, s) {
                 (Ran::Kept, None)
             } else {
                 let r = c.render(i, s, work, checker.is_some())?;
@@ -515,37 +531,6 @@ impl Run<'_> {
         let checked = check_view(verifier, view, scene, &file, exr, &check_work);
         state.verified.fetch_add(1, Ordering::Relaxed);
         checked
-    }
-
-    /// The outcomes of a kept unit's views: skipped, or failed when a view the verifier
-    /// checks (rendered again for its EXR, which the kept unit's bytes are a pure
-    /// function of) disagrees.
-    fn check_kept<C: Container>(
-        &self,
-        c: &C,
-        unit: &Unit,
-        scenes: &[Result<Scene, String>],
-        work: &Path,
-        state: &State,
-    ) -> Vec<Option<Outcome>> {
-        unit.views
-            .par_iter()
-            .enumerate()
-            .map(|(k, &i)| {
-                let checked = match (self.checker(i), scenes.get(k)) {
-                    (Some(v), Some(Ok(s))) => c
-                        .render(i, s, work, true)
-                        .and_then(|r| self.check(c, v, i, s, r.exr.as_deref(), work, state)),
-                    _ => Ok(()),
-                };
-                let outcome = match checked {
-                    Ok(()) => Outcome::Skipped,
-                    Err(e) => Outcome::Failed(e),
-                };
-                self.progress.record(&outcome);
-                Some(outcome)
-            })
-            .collect()
     }
 }
 

@@ -386,7 +386,8 @@ pub fn view_memory_at(size: (u32, u32), aovs: &[Aov], opts: &BatchOptions) -> u6
         &traced,
         opts.exr_layout,
         opts.compression,
-        opts.png,
+        // As `ViewPlan::pictures`: a PLY reads the whole image too.
+        opts.png || opts.ply,
     )
 }
 
@@ -459,6 +460,36 @@ mod tests {
             view_file_names("a").len(),
             VIEW_SUFFIXES.len() + Aov::ALL.len()
         );
+    }
+
+    /// The estimate from a view's size and AOVs (before its scene is read again) is the
+    /// plan's, for every option that changes what the view holds.
+    #[test]
+    fn view_memory_at_is_the_plans_estimate() {
+        use crate::output::format::exr::Compression;
+        let scene = crate::bench::random_scene(3, 5, 640, 480);
+        let aovs: Vec<Aov> = [Aov::Depth, Aov::ShapeId, Aov::Uv].to_vec();
+        for png in [false, true] {
+            for ply in [false, true] {
+                for layout in [ExrLayout::Layers, ExrLayout::PerAov] {
+                    for compression in [Compression::None, Compression::Zip] {
+                        let opts = BatchOptions {
+                            aovs: Some(aovs.clone()),
+                            png,
+                            ply,
+                            exr_layout: layout,
+                            compression,
+                            ..BatchOptions::default()
+                        };
+                        assert_eq!(
+                            view_memory_at((640, 480), &aovs, &opts),
+                            view_memory(&scene, &opts),
+                            "png {png} ply {ply} {layout:?} {compression:?}"
+                        );
+                    }
+                }
+            }
+        }
     }
 
     #[test]

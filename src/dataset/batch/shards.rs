@@ -170,6 +170,8 @@ pub struct ShardSummary {
     pub verified: usize,
     /// Whether this process wrote `shards.json` (every sidecar was in place).
     pub index_written: bool,
+    /// What could not be cleaned up after the tars were written (a tar's work folder).
+    pub problems: Vec<String>,
     /// Wall time.
     pub elapsed: Duration,
 }
@@ -987,6 +989,7 @@ fn write_planned(
         failures_path,
         verified: 0,
         index_written: false,
+        problems: Vec::new(),
         elapsed: Duration::ZERO,
     };
     let units = mine
@@ -1035,6 +1038,7 @@ fn write_planned(
         }
     }
     write_failures(&summary.failures_path, &summary.failures)?;
+    summary.problems = driven.problems;
     summary.verified = driven.verified;
     summary.index_written = plan.merge_index()?;
     summary.elapsed = start.elapsed();
