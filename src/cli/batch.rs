@@ -61,8 +61,8 @@ pub struct BatchCli {
     compression: Compression,
     /// Also render this fraction of the views (chosen from --verify-seed and the view
     /// names) with Mitsuba, when the reference venv exists, and fail views that disagree
-    /// (either --format; the views an earlier run wrote are checked again, from a render
-    /// of their EXR for a kept tar).
+    /// (either --format; views already on disk are checked again, a kept tar's from a
+    /// render of their EXR).
     #[arg(
         long,
         default_value_t = 0.0,

@@ -156,7 +156,7 @@ pub(super) struct Run<'a> {
 pub(super) struct UnitResult<R> {
     /// Its record; `None` when the run stopped before all its views ran.
     pub record: Option<R>,
-    /// Whether it was kept from an earlier run.
+    /// Whether it was whole on disk already, and kept.
     pub kept: bool,
     /// Each of its views' outcome, in unit order; `None` for a view not started.
     pub outcomes: Vec<Option<Outcome>>,

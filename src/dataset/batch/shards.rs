@@ -38,7 +38,7 @@
 //! files format checks them: the view's EXR (the plan's own, encoded whether or not
 //! `KEY.exr` is a member) goes to a private file under `OUT/.partial` that the verifier
 //! reads. A view that disagrees fails as a render failure does; the others' members are
-//! those of an unverified run. The views of a tar kept from an earlier run are checked
+//! those of an unverified run. The views of a tar already on disk and kept are checked
 //! too, from an EXR rendered again (the tar is a pure function of the same inputs): one
 //! that disagrees is listed with the failures, and the tar stays as it is.
 //!
