@@ -9,7 +9,7 @@ use crate::scene::camera::Camera;
 use crate::scene::{self, Scene};
 use anyhow::Result;
 use rayon::prelude::*;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// Read a view's scene, the error naming its file.
 pub(super) fn load(view: &ViewSource) -> Result<Scene, String> {
@@ -61,6 +61,16 @@ pub(super) fn read_views(
         anyhow::bail!("reading the scenes: {what}: {e}");
     }
     Ok((views, cameras))
+}
+
+/// The folder the scene files' paths are shown relative to: `input` itself when it is a
+/// folder, else the folder of the manifest or scene file.
+pub(super) fn input_dir(input: &Path) -> PathBuf {
+    if input.is_dir() {
+        input.to_path_buf()
+    } else {
+        input.parent().unwrap_or(Path::new("")).to_path_buf()
+    }
 }
 
 pub(super) fn expand_views(

@@ -15,7 +15,7 @@
 
 use super::driver::{self, Container, Rendered, Run, Start, Unit};
 use super::failures::write_failures;
-use super::input::read_views;
+use super::input::{input_dir, read_views};
 use super::lock::{lock_shard, partial_root};
 use super::options::{BatchOptions, Schedule};
 use super::progress::Outcome;
@@ -228,12 +228,7 @@ pub fn run(
         Ok(()) => summary.failures_written = true,
         Err(e) => summary.problems.push(format!("{e:#}")),
     }
-    let input_dir = if input.is_dir() {
-        input
-    } else {
-        input.parent().unwrap_or(Path::new(""))
-    };
-    if let Err(e) = write_index(out, input, input_dir, &views, &cameras, opts) {
+    if let Err(e) = write_index(out, input, &input_dir(input), &views, &cameras, opts) {
         summary.problems.push(format!("{e:#}"));
     }
     if let Err(e) = remove_stale_views(out, &views, &cameras, &mine) {

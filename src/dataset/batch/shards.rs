@@ -55,7 +55,7 @@ mod sample;
 
 use super::driver::{self, Container, Rendered, Run, Start, Unit};
 use super::failures::write_failures;
-use super::input::{expand_views, read_views};
+use super::input::{expand_views, input_dir, read_views};
 use super::lock::{lock_named, partial_root};
 use super::options::BatchOptions;
 use super::progress::{Outcome, Progress, ProgressMode, SizeEstimate};
@@ -888,11 +888,6 @@ pub fn write_shards_until(
         TarSelection::List(l) => failures_label(l),
     };
     let failures_path = out.join(format!("failures.{label}.jsonl"));
-    let input_dir = if input.is_dir() {
-        input.to_path_buf()
-    } else {
-        input.parent().unwrap_or(Path::new("")).to_path_buf()
-    };
     let my_views: usize = mine
         .iter()
         .map(|&j| tar_views(j, sopts.shard_size, views.len()).len())
@@ -919,7 +914,7 @@ pub fn write_shards_until(
     let plan = Plan {
         out,
         root: PathBuf::new(),
-        input_dir,
+        input_dir: input_dir(input),
         views,
         cameras,
         keys,
