@@ -575,7 +575,10 @@ impl Tiles {
                 }
                 let mut fill = start.clone();
                 let mut list = vec![EMPTY; start[nx] as usize];
-                for v in &row {
+                for (k, v) in row.iter().enumerate() {
+                    if let Some(ahead) = row.get(k + crate::mem::PREFETCH_AHEAD) {
+                        crate::mem::prefetch(&cands[ahead.pos as usize]);
+                    }
                     let c = &cands[v.pos as usize];
                     for tx in v.tx0..=v.tx1 {
                         let f = &mut fill[tx as usize];
