@@ -564,6 +564,18 @@ impl Tiles {
                 } else {
                     row.sort_unstable_by_key(|v| (v.key, v.pos));
                 }
+                let gather = |k: usize, v: &Visit| {
+                    if let Some(ahead) = row.get(k + crate::mem::PREFETCH_AHEAD) {
+                        crate::mem::prefetch(&cands[ahead.pos as usize]);
+                    }
+                    cands[v.pos as usize]
+                };
+                if nx == 1 {
+                    // One tile a row (a tiny view): its list is the row, gathered on every
+                    // thread.
+                    let list = row.par_iter().enumerate().map(|(k, v)| gather(k, v));
+                    return (vec![0, row.len() as u32], list.collect());
+                }
                 let mut start = vec![0u32; nx + 1];
                 for v in &row {
                     for tx in v.tx0..=v.tx1 {
@@ -576,13 +588,10 @@ impl Tiles {
                 let mut fill = start.clone();
                 let mut list = vec![EMPTY; start[nx] as usize];
                 for (k, v) in row.iter().enumerate() {
-                    if let Some(ahead) = row.get(k + crate::mem::PREFETCH_AHEAD) {
-                        crate::mem::prefetch(&cands[ahead.pos as usize]);
-                    }
-                    let c = &cands[v.pos as usize];
+                    let c = gather(k, v);
                     for tx in v.tx0..=v.tx1 {
                         let f = &mut fill[tx as usize];
-                        list[*f as usize] = *c;
+                        list[*f as usize] = c;
                         *f += 1;
                     }
                 }
