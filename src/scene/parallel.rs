@@ -6,9 +6,10 @@
 //! comes first in the files `generate` and `bench` write), then cuts the rest of the text
 //! into chunks, one task each, and each task reads and validates the elements that start
 //! in its chunk straight into [`Cylinder`]s (no list of [`CylinderFile`]s is held beside
-//! the text). The tasks' results are joined in chunk order, so the list is in file order
-//! whatever the threads do. The rest of the file, the *skeleton* (the text with the array
-//! written `[]`), is read with `serde_json` as before.
+//! the text), written to their place in the one list: a first pass counts each chunk's
+//! `{` (in a valid array, its elements), which places the chunks, so the list is in file
+//! order whatever the threads do. The rest of the file, the *skeleton* (the text with the
+//! array written `[]`), is read with `serde_json` as before.
 //!
 //! It is a fast path only: it returns a scene or nothing. Whatever it does not accept (an
 //! error anywhere, a key written with escapes, `"cylinders"` twice, a table reference) the
@@ -34,15 +35,18 @@
 //!   a chunk's last), or by whitespace and the array's `]`. Elements that each read as a
 //!   whole object, so joined, are exactly a JSON array of them (JSON's grammar composes),
 //!   so a wrong guess in a task (a `{` inside a string of an invalid file) breaks the chain
-//!   and the fast path gives up;
+//!   and the fast path gives up. So does a chunk before the array's end whose `{` are not
+//!   all elements (which only an invalid file has): every place before the end is filled;
 //! - the skeleton is the same text before the array and after it, so `serde_json`
 //!   accepting it means it accepts the whole file with the same structure, and a second
 //!   `"cylinders"` key (however spelled) is still its "duplicate field" error;
 //! - validation is [`CylinderFile`]'s own; a cylinder without an `id` gets its 1-based
-//!   index in the file once the chain has numbered them, as the one-thread read gives it.
+//!   index in the file, its chunk's place plus its rank there, which the chain confirms
+//!   (every chunk before it full), as the one-thread read gives it.
 
 use super::{Cylinder, CylinderFile, Scene, SceneFile, strict, validate_scene};
 use rayon::prelude::*;
+use std::mem::MaybeUninit;
 
 /// The scene in `bytes`, read with its cylinders in parallel; `None` when it is not a
 /// plain, valid scene file (the caller reads it again for the message).
@@ -171,11 +175,12 @@ enum Read {
     /// No `{` in the chunk.
     Empty,
     /// An element that does not read or validate, or something else than whitespace and a
-    /// comma after one: fatal only if the chain reaches the chunk.
+    /// comma after one, or more elements than the chunk has `{`: fatal only if the chain
+    /// reaches the chunk.
     Failed,
-    /// The text position of the chunk's first `{`, the elements from there on (those
-    /// without an `id` carry 0, which no valid `id` is), and what follows the last.
-    Elements(usize, Vec<Cylinder>, Next),
+    /// The text position of the chunk's first `{`, how many elements from there on were
+    /// written to the chunk's place, and what follows the last.
+    Elements(usize, usize, Next),
 }
 
 /// The elements of the array whose `[` is at `i`, read and validated, and the index just
@@ -192,22 +197,53 @@ fn array(bytes: &[u8], i: usize) -> Option<(usize, Vec<Cylinder>)> {
     // few per thread, so one slow thread does not hold the rest up.
     let rest = bytes.len() - first;
     let size = rest.div_ceil(8 * rayon::current_num_threads()).max(1 << 16);
-    let chunks: Vec<Read> = (0..rest.div_ceil(size))
+    let chunk = |k: usize| {
+        let lo = first + k * size;
+        (lo, (lo + size).min(bytes.len()))
+    };
+    // Each chunk's `{`: in a valid array, one per element that starts in it. Their sums
+    // place each chunk's elements in the list, so every task writes its own straight to
+    // their place (no per-chunk lists copied together after).
+    let counts: Vec<usize> = (0..rest.div_ceil(size))
         .into_par_iter()
         .map(|k| {
-            let lo = first + k * size;
-            read_chunk(bytes, lo, (lo + size).min(bytes.len()))
+            let (lo, hi) = chunk(k);
+            count(&bytes[lo..hi], b'{')
+        })
+        .collect();
+    let total = counts.iter().sum();
+    let mut cylinders = Vec::with_capacity(total);
+    crate::mem::huge_pages(&cylinders);
+    let mut spare = &mut cylinders.spare_capacity_mut()[..total];
+    let mut places = Vec::with_capacity(counts.len());
+    let mut offset = 0;
+    for &count in &counts {
+        let (place, after) = spare.split_at_mut(count);
+        places.push((offset, place));
+        offset += count;
+        spare = after;
+    }
+    let chunks: Vec<(usize, Read)> = places
+        .into_par_iter()
+        .enumerate()
+        .map(|(k, (offset, place))| {
+            let (lo, hi) = chunk(k);
+            (offset, read_chunk(bytes, lo, hi, place, offset))
         })
         .collect();
     // The chain, in text order; chunks past the array's end are not looked at.
     let mut next = Next::Element(first);
-    let mut parts = Vec::new();
-    for chunk in chunks {
+    let mut len = 0;
+    for ((offset, chunk), count) in chunks.into_iter().zip(counts) {
         let Next::Element(at) = next else { break };
         match chunk {
             Read::Empty => {}
-            Read::Elements(start, list, after) if start == at => {
-                parts.push(list);
+            // Before the array's end, every `{` of a chunk opens an element: one read
+            // otherwise would leave its place in the list a hole.
+            Read::Elements(start, written, after)
+                if start == at && (written == count || matches!(after, Next::End(_))) =>
+            {
+                len = offset + written;
                 next = after;
             }
             _ => return None,
@@ -216,69 +252,59 @@ fn array(bytes: &[u8], i: usize) -> Option<(usize, Vec<Cylinder>)> {
     let Next::End(end) = next else {
         return None;
     };
-    Some((end, join(&parts)?))
+    // SAFETY: the chained chunks are consecutive, each filled its place from its start
+    // (all of it but for the last, whose elements end the list), and `Empty` ones have
+    // none: the first `len` elements were all written.
+    unsafe { cylinders.set_len(len) };
+    Some((end, cylinders))
 }
 
-/// The chunks' elements in one list, each chunk copied to its place by its own task: the
-/// list is fresh memory (8 MB at 100 000 cylinders), whose first touch and copy took one
-/// thread, the others idle, about 5% of the CPU time of a 16×16 render of them. A missing
-/// `id` becomes the 1-based index in the file, as `CylinderFile::validate` has it; `None`
-/// past `u32`'s range.
-fn join(parts: &[Vec<Cylinder>]) -> Option<Vec<Cylinder>> {
-    let total = parts.iter().map(Vec::len).sum();
-    let mut cylinders = Vec::with_capacity(total);
-    let mut rest = &mut cylinders.spare_capacity_mut()[..total];
-    let mut places = Vec::with_capacity(parts.len());
-    let mut first = 0;
-    for part in parts {
-        let (place, after) = rest.split_at_mut(part.len());
-        places.push((first, place, part));
-        first += part.len();
-        rest = after;
-    }
-    places
-        .into_par_iter()
-        .try_for_each(|(first, place, part)| {
-            for (k, (slot, c)) in place.iter_mut().zip(part).enumerate() {
-                let mut c = *c;
-                if c.id == 0 {
-                    c.id = u32::try_from(first + k + 1).ok()?;
-                }
-                slot.write(c);
+/// How many bytes of `bytes` are `needle`. Counted in 32 one-byte lanes, added up every
+/// 255 blocks (before a lane could wrap): whole-vector compares and subtracts, where
+/// `filter().count()` widens every byte to a 64-bit sum.
+fn count(bytes: &[u8], needle: u8) -> usize {
+    let mut total = 0;
+    for group in bytes.chunks(32 * 255) {
+        let mut lanes = [0u8; 32];
+        let mut blocks = group.chunks_exact(32);
+        for block in &mut blocks {
+            for (lane, &b) in lanes.iter_mut().zip(block) {
+                *lane += u8::from(b == needle);
             }
-            Some(())
-        })?;
-    // SAFETY: the places cut the first `total` elements whole, and each was written above
-    // (every task returned `Some`, or this is not reached).
-    unsafe { cylinders.set_len(total) };
-    Some(cylinders)
+        }
+        total += lanes.iter().map(|&n| usize::from(n)).sum::<usize>();
+        total += blocks.remainder().iter().filter(|&&b| b == needle).count();
+    }
+    total
 }
 
 /// The elements that start in `bytes[lo..hi]`, the last one read to its end wherever that
-/// is.
-fn read_chunk(bytes: &[u8], lo: usize, hi: usize) -> Read {
+/// is, written in order to `place`; the first is the file's element `offset` (0-based),
+/// which names a cylinder without an `id`, as the one-thread read numbers it.
+fn read_chunk(
+    bytes: &[u8],
+    lo: usize,
+    hi: usize,
+    place: &mut [MaybeUninit<Cylinder>],
+    offset: usize,
+) -> Read {
     let Some(first) = bytes[lo..hi].iter().position(|&b| b == b'{') else {
         return Read::Empty;
     };
     let first = lo + first;
-    let mut list = Vec::with_capacity((hi - lo) / 128);
     let mut at = first;
     // One element's fields at a time, filled in place.
     let mut file = CylinderFile::default();
+    let mut written = 0;
     loop {
         let Some(end) = element(bytes, at, &mut file) else {
             return Read::Failed;
         };
-        let given = file.id.is_some();
-        // Validated as element 0: the index only names the field in a message, or gives
-        // the default `id`, set once the chain has numbered the elements.
-        let Ok(mut c) = file.validate(0) else {
+        let (Ok(c), Some(slot)) = (file.validate(offset + written), place.get_mut(written)) else {
             return Read::Failed;
         };
-        if !given {
-            c.id = 0;
-        }
-        list.push(c);
+        slot.write(c);
+        written += 1;
         let after = skip_ws(bytes, end);
         let next = match bytes.get(after) {
             Some(b',') => {
@@ -293,7 +319,7 @@ fn read_chunk(bytes: &[u8], lo: usize, hi: usize) -> Read {
         };
         match next {
             Next::Element(open) if open < hi => at = open,
-            _ => return Read::Elements(first, list, next),
+            _ => return Read::Elements(first, written, next),
         }
     }
 }
@@ -628,6 +654,18 @@ mod tests {
         assert!(accepted > 19_000, "{accepted}");
     }
 
+    #[test]
+    fn count_is_filter_count() {
+        let mut rng = SplitMix64::new(5);
+        let bytes: Vec<u8> = (0..40_000)
+            .map(|_| b"{}a"[(rng.unit() * 3.0) as usize])
+            .collect();
+        for (lo, hi) in [(0, 0), (0, 31), (3, 8160), (1, 8161), (7, 40_000)] {
+            let want = bytes[lo..hi].iter().filter(|&&b| b == b'{').count();
+            assert_eq!(count(&bytes[lo..hi], b'{'), want, "{lo}..{hi}");
+        }
+    }
+
     /// `number` is `str::parse` at the edges of its fast path (2^53, 10^±22, 19 and 20
     /// digits, zeros) and on random digit strings and exponents about them.
     #[test]
@@ -744,5 +782,11 @@ mod tests {
         let bad = text.replacen("] , \"aovs\"", ",{\"radius\":1}] , \"aovs\"", 1);
         assert!(load(bad.as_bytes()).is_none());
         assert!(load(format!("{text} {{}}").as_bytes()).is_none());
+        // The camera after the cylinders: the chunk where the array ends has `{` past it.
+        let (camera, rest) = text[1..].split_once(",\"cylinders\"").unwrap();
+        let (cylinders, aovs) = rest.split_once(" , ").unwrap();
+        let moved = format!("{{\"cylinders\"{cylinders} , {camera}, {aovs}");
+        let fast = load(moved.as_bytes()).expect("fast path, camera last");
+        assert_eq!(fast, file.validate().unwrap());
     }
 }
