@@ -619,6 +619,22 @@ impl Tiles {
     /// index order. Kept in slot order, a tile's cylinders lie close together in memory:
     /// at 100 000 cylinders, index order would scatter them over megabytes.
     pub fn assign_slots(&mut self, cylinders: usize) -> Vec<u32> {
+        if let [list] = &mut self.rows[..]
+            && self.tiles_x == 1
+        {
+            // One tile (a tiny view): each cylinder is listed once, and its slot is its
+            // place in the list, numbered on every thread.
+            let mut listed = vec![false; cylinders];
+            for c in list.iter() {
+                listed[c.index as usize] = true;
+            }
+            list.par_iter_mut()
+                .enumerate()
+                .for_each(|(s, c)| c.slot = s as u32);
+            let mut order: Vec<u32> = list.par_iter().map(|c| c.index).collect();
+            order.extend((0..cylinders as u32).filter(|&i| !listed[i as usize]));
+            return order;
+        }
         let mut slot_of = vec![u32::MAX; cylinders];
         let mut order = Vec::with_capacity(cylinders);
         for c in self.rows.iter_mut().flatten() {
