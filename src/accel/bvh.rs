@@ -15,6 +15,7 @@
 
 use glam::{DVec3, Vec3A};
 use rayon::prelude::*;
+use std::mem::MaybeUninit;
 use std::ops::Range;
 
 /// Most primitives in a leaf (below [`SAH_DEPTH`]; a median-split leaf may hold more only
@@ -183,7 +184,7 @@ impl Part {
     /// Write the subtree's root to `root` and its other nodes to `rest` (the node of local
     /// index `i ≥ 1` goes to `rest[i - 1]`, at index `shift + i` of the whole list), child
     /// offsets made indices of the whole list. The halves of a split are placed in parallel.
-    fn place(&self, root: &mut Node, rest: &mut [Node], shift: u32) {
+    fn place(&self, root: &mut MaybeUninit<Node>, rest: &mut [MaybeUninit<Node>], shift: u32) {
         match self {
             Part::Nodes(nodes) => {
                 let moved = |k: &Node| Node {
@@ -194,21 +195,22 @@ impl Part {
                     },
                     ..*k
                 };
-                *root = moved(&nodes[0]);
+                assert_eq!(rest.len() + 1, nodes.len(), "a part fills its place");
+                root.write(moved(&nodes[0]));
                 for (slot, k) in rest.iter_mut().zip(&nodes[1..]) {
-                    *slot = moved(k);
+                    slot.write(moved(k));
                 }
             }
             Part::Split(bounds, halves) => {
                 // Local layout: 1 and 2 the halves' roots, then the left's rest (its local
                 // i ≥ 1 at i + 2), then the right's (at i + 1 + nl).
                 let nl = halves[0].len() as u32;
-                *root = Node {
+                root.write(Node {
                     min: bounds.min,
                     max: bounds.max,
                     offset: shift + 1,
                     count: 0,
-                };
+                });
                 let (roots, rest) = rest.split_at_mut(2);
                 let (lroot, rroot) = roots.split_at_mut(1);
                 let (lrest, rrest) = rest.split_at_mut(nl as usize - 1);
@@ -252,9 +254,14 @@ impl Bvh {
     /// parallel ([`Part`]), then every node is written once to its place in one list.
     fn build_tree(items: &mut [Item], depth: (usize, usize), bounds: Bounds) -> Vec<Node> {
         let part = Self::build_part(items, 0, depth, bounds);
-        let mut nodes = vec![BLANK; part.len()];
-        let (root, rest) = nodes.split_at_mut(1);
+        let len = part.len();
+        // Not filled first: each node's memory is first touched by the thread placing it.
+        let mut nodes = Vec::with_capacity(len);
+        let (root, rest) = nodes.spare_capacity_mut()[..len].split_at_mut(1);
         part.place(&mut root[0], rest, 0);
+        // SAFETY: `place` writes its root and all of `rest` (checked where a part's own
+        // nodes are copied; a split hands its halves their roots and exactly their rests).
+        unsafe { nodes.set_len(len) };
         nodes
     }
 
