@@ -41,6 +41,33 @@ pub(crate) fn huge_pages<X>(v: &Vec<X>) {
     let _ = v;
 }
 
+/// How many elements ahead a gather [`prefetch`]es: enough to cover a miss (a few hundred
+/// ns) with the work of the elements between.
+pub(crate) const PREFETCH_AHEAD: usize = 16;
+
+/// Start loading the cache lines of `x` now: for gathers in an order that memory's does
+/// not follow, whose misses would otherwise each be waited for in turn (preparing 100 000
+/// cylinders in the trace's order stalled on nearly every one). A hint: no value changes.
+#[inline(always)]
+pub(crate) fn prefetch<X>(x: &X) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+        let p = (x as *const X).cast::<i8>();
+        // Every line `x` touches: one each 64 bytes from its start, and its last byte's.
+        for at in (0..size_of::<X>())
+            .step_by(64)
+            .chain([size_of::<X>().saturating_sub(1)])
+        {
+            // SAFETY: SSE is part of x86_64; a prefetch reads nothing into the program and
+            // never faults, whatever the address.
+            unsafe { _mm_prefetch::<_MM_HINT_T0>(p.wrapping_add(at)) };
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = x;
+}
+
 /// Keep the memory a process frees for its own later allocations, instead of returning
 /// each large block to the kernel (glibc maps every block over 128 KiB on its own and
 /// unmaps it when freed). A render frees the scene file's bytes before it allocates the

@@ -15,6 +15,7 @@
 
 use glam::{DVec3, Vec3A};
 use rayon::prelude::*;
+use std::mem::MaybeUninit;
 use std::ops::Range;
 
 /// Most primitives in a leaf (below [`SAH_DEPTH`]; a median-split leaf may hold more only
@@ -153,6 +154,75 @@ enum Cut {
     Unusable,
 }
 
+const BLANK: Node = Node {
+    min: Vec3A::ZERO,
+    max: Vec3A::ZERO,
+    offset: 0,
+    count: 0,
+};
+
+/// A subtree of a parallel build, before its nodes are placed. Laid out as the
+/// sequential build lays it out, a subtree is its root, then the roots of its two halves,
+/// then the rest of the left half, then the rest of the right, each half the same way.
+enum Part {
+    /// Built by one task: its nodes, root first; an interior node's `offset` is the local
+    /// index of its left child.
+    Nodes(Vec<Node>),
+    /// Split here, at these bounds; the halves built in parallel.
+    Split(Bounds, Box<[Part; 2]>),
+}
+
+impl Part {
+    /// Nodes in the subtree.
+    fn len(&self) -> usize {
+        match self {
+            Part::Nodes(nodes) => nodes.len(),
+            Part::Split(_, halves) => 1 + halves[0].len() + halves[1].len(),
+        }
+    }
+
+    /// Write the subtree's root to `root` and its other nodes to `rest` (the node of local
+    /// index `i ≥ 1` goes to `rest[i - 1]`, at index `shift + i` of the whole list), child
+    /// offsets made indices of the whole list. The halves of a split are placed in parallel.
+    fn place(&self, root: &mut MaybeUninit<Node>, rest: &mut [MaybeUninit<Node>], shift: u32) {
+        match self {
+            Part::Nodes(nodes) => {
+                let moved = |k: &Node| Node {
+                    offset: if k.count > 0 {
+                        k.offset
+                    } else {
+                        k.offset + shift
+                    },
+                    ..*k
+                };
+                assert_eq!(rest.len() + 1, nodes.len(), "a part fills its place");
+                root.write(moved(&nodes[0]));
+                for (slot, k) in rest.iter_mut().zip(&nodes[1..]) {
+                    slot.write(moved(k));
+                }
+            }
+            Part::Split(bounds, halves) => {
+                // Local layout: 1 and 2 the halves' roots, then the left's rest (its local
+                // i ≥ 1 at i + 2), then the right's (at i + 1 + nl).
+                let nl = halves[0].len() as u32;
+                root.write(Node {
+                    min: bounds.min,
+                    max: bounds.max,
+                    offset: shift + 1,
+                    count: 0,
+                });
+                let (roots, rest) = rest.split_at_mut(2);
+                let (lroot, rroot) = roots.split_at_mut(1);
+                let (lrest, rrest) = rest.split_at_mut(nl as usize - 1);
+                rayon::join(
+                    || halves[0].place(&mut lroot[0], lrest, shift + 2),
+                    || halves[1].place(&mut rroot[0], rrest, shift + 1 + nl),
+                );
+            }
+        }
+    }
+}
+
 impl Bvh {
     /// Build over world-space boxes, stored relative to `origin`.
     pub fn build(bounds: &[(DVec3, DVec3)], origin: DVec3) -> Bvh {
@@ -171,7 +241,7 @@ impl Bvh {
             .par_chunks(4096)
             .map(Bounds::of)
             .reduce(|| Bounds::EMPTY, |a, b| a.union(&b));
-        let nodes = Self::build_tree(&mut items, 0, (0, sah_depth), all);
+        let nodes = Self::build_tree(&mut items, (0, sah_depth), all);
         Bvh {
             nodes,
             order: items.par_iter().map(|it| it.index).collect(),
@@ -179,63 +249,46 @@ impl Bvh {
         }
     }
 
+    /// The tree over `items` (bounded by `bounds`), root first, laid out as the sequential
+    /// build lays it out: large subtrees are split here and their halves built in
+    /// parallel ([`Part`]), then every node is written once to its place in one list.
+    fn build_tree(items: &mut [Item], depth: (usize, usize), bounds: Bounds) -> Vec<Node> {
+        let part = Self::build_part(items, 0, depth, bounds);
+        let len = part.len();
+        // Not filled first: each node's memory is first touched by the thread placing it.
+        let mut nodes = Vec::with_capacity(len);
+        let (root, rest) = nodes.spare_capacity_mut()[..len].split_at_mut(1);
+        part.place(&mut root[0], rest, 0);
+        // SAFETY: `place` writes its root and all of `rest` (checked where a part's own
+        // nodes are copied; a split hands its halves their roots and exactly their rests).
+        unsafe { nodes.set_len(len) };
+        nodes
+    }
+
     /// The subtree over `items` (positions `start..` of the final order, bounded by
-    /// `bounds`), root first. Large subtrees split here and build their halves in
-    /// parallel, then are laid out as the sequential build would lay them out: root, left
-    /// root, right root, the rest of the left subtree, the rest of the right.
-    fn build_tree(
-        items: &mut [Item],
-        start: usize,
-        depth: (usize, usize),
-        bounds: Bounds,
-    ) -> Vec<Node> {
+    /// `bounds`): split, with its halves built in parallel, when it is large.
+    fn build_part(items: &mut [Item], start: usize, depth: (usize, usize), bounds: Bounds) -> Part {
         let n = items.len();
-        let blank = Node {
-            min: Vec3A::ZERO,
-            max: Vec3A::ZERO,
-            offset: 0,
-            count: 0,
-        };
-        let mut nodes = Vec::with_capacity(2 * n.max(1));
-        nodes.push(blank);
         let split = (n > PARALLEL_MIN)
             .then(|| Self::split(items, &bounds, depth.0, depth.1))
             .flatten();
         let Some((mid, [lb, rb])) = split else {
+            let mut nodes = Vec::with_capacity(2 * n.max(1));
+            nodes.push(BLANK);
             Self::build_node(&mut nodes, 0, items, 0, n, depth, bounds);
             // Leaves index the slice; shift them to positions in the whole order.
             for node in nodes.iter_mut().filter(|k| k.count > 0) {
                 node.offset += start as u32;
             }
-            return nodes;
+            return Part::Nodes(nodes);
         };
         let (left, right) = items.split_at_mut(mid);
         let next = (depth.0 + 1, depth.1);
         let (l, r) = rayon::join(
-            || Self::build_tree(left, start, next, lb),
-            || Self::build_tree(right, start + mid, next, rb),
+            || Self::build_part(left, start, next, lb),
+            || Self::build_part(right, start + mid, next, rb),
         );
-        // New index of a node at local index i of the left (right) subtree.
-        let (nl, nr) = (l.len() as u32, r.len() as u32);
-        let at_l = |i: u32| if i == 0 { 1 } else { i + 2 };
-        let at_r = |i: u32| if i == 0 { 2 } else { i + 1 + nl };
-        let moved = |k: &Node, at: &dyn Fn(u32) -> u32| Node {
-            offset: if k.count > 0 { k.offset } else { at(k.offset) },
-            ..*k
-        };
-        nodes[0] = Node {
-            min: bounds.min,
-            max: bounds.max,
-            offset: 1,
-            count: 0,
-        };
-        nodes.reserve((nl + nr) as usize);
-        nodes.push(moved(&l[0], &at_l));
-        nodes.push(moved(&r[0], &at_r));
-        nodes.extend(l[1..].iter().map(|k| moved(k, &at_l)));
-        nodes.extend(r[1..].iter().map(|k| moved(k, &at_r)));
-        debug_assert_eq!(nodes.len() as u32, 1 + nl + nr);
-        nodes
+        Part::Split(bounds, Box::new([l, r]))
     }
 
     fn build_node(

@@ -564,6 +564,18 @@ impl Tiles {
                 } else {
                     row.sort_unstable_by_key(|v| (v.key, v.pos));
                 }
+                let gather = |k: usize, v: &Visit| {
+                    if let Some(ahead) = row.get(k + crate::mem::PREFETCH_AHEAD) {
+                        crate::mem::prefetch(&cands[ahead.pos as usize]);
+                    }
+                    cands[v.pos as usize]
+                };
+                if nx == 1 {
+                    // One tile a row (a tiny view): its list is the row, gathered on every
+                    // thread.
+                    let list = row.par_iter().enumerate().map(|(k, v)| gather(k, v));
+                    return (vec![0, row.len() as u32], list.collect());
+                }
                 let mut start = vec![0u32; nx + 1];
                 for v in &row {
                     for tx in v.tx0..=v.tx1 {
@@ -575,11 +587,11 @@ impl Tiles {
                 }
                 let mut fill = start.clone();
                 let mut list = vec![EMPTY; start[nx] as usize];
-                for v in &row {
-                    let c = &cands[v.pos as usize];
+                for (k, v) in row.iter().enumerate() {
+                    let c = gather(k, v);
                     for tx in v.tx0..=v.tx1 {
                         let f = &mut fill[tx as usize];
-                        list[*f as usize] = *c;
+                        list[*f as usize] = c;
                         *f += 1;
                     }
                 }
@@ -607,6 +619,22 @@ impl Tiles {
     /// index order. Kept in slot order, a tile's cylinders lie close together in memory:
     /// at 100 000 cylinders, index order would scatter them over megabytes.
     pub fn assign_slots(&mut self, cylinders: usize) -> Vec<u32> {
+        if let [list] = &mut self.rows[..]
+            && self.tiles_x == 1
+        {
+            // One tile (a tiny view): each cylinder is listed once, and its slot is its
+            // place in the list, numbered on every thread.
+            let mut listed = vec![false; cylinders];
+            for c in list.iter() {
+                listed[c.index as usize] = true;
+            }
+            list.par_iter_mut()
+                .enumerate()
+                .for_each(|(s, c)| c.slot = s as u32);
+            let mut order: Vec<u32> = list.par_iter().map(|c| c.index).collect();
+            order.extend((0..cylinders as u32).filter(|&i| !listed[i as usize]));
+            return order;
+        }
         let mut slot_of = vec![u32::MAX; cylinders];
         let mut order = Vec::with_capacity(cylinders);
         for c in self.rows.iter_mut().flatten() {

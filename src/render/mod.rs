@@ -242,8 +242,9 @@ impl<T: Real, F: Formula> Setup<T, F> {
             } else {
                 Vec::new()
             },
-            ids: scene.cylinders.iter().map(|c| c.id).collect(),
-            labels: scene.cylinders.iter().map(|c| c.label).collect(),
+            // On every thread: at 100 000 cylinders each is a pass over 8 MB.
+            ids: scene.cylinders.par_iter().map(|c| c.id).collect(),
+            labels: scene.cylinders.par_iter().map(|c| c.label).collect(),
             tracer,
             cols_off,
             rows_off,

@@ -53,9 +53,14 @@ impl ConeCands {
     ) -> Self {
         let pixels = camera.width() as usize * camera.height() as usize;
         if let Some(p) = projected {
-            let slots = order.par_iter().enumerate().map(|(s, &i)| Candidate {
-                slot: s as u32,
-                ..p[i as usize]
+            let slots = order.par_iter().enumerate().map(|(s, &i)| {
+                if let Some(&ahead) = order.get(s + crate::mem::PREFETCH_AHEAD) {
+                    crate::mem::prefetch(&p[ahead as usize]);
+                }
+                Candidate {
+                    slot: s as u32,
+                    ..p[i as usize]
+                }
             });
             ConeCands::Projected(slots.collect())
         } else if pixels >= cylinders.len() {
@@ -153,11 +158,12 @@ impl<T: Real, F: Formula> Tracer<T, F> {
         let t0 = std::time::Instant::now();
         let mut prepared = Vec::with_capacity(order.len());
         crate::mem::huge_pages(&prepared);
-        prepared.par_extend(
-            order
-                .par_iter()
-                .map(|&i| Prepared::new(&cylinders[i as usize], origin, F::CENTRED)),
-        );
+        prepared.par_extend(order.par_iter().enumerate().map(|(k, &i)| {
+            if let Some(&ahead) = order.get(k + crate::mem::PREFETCH_AHEAD) {
+                crate::mem::prefetch(&cylinders[ahead as usize]);
+            }
+            Prepared::new(&cylinders[i as usize], origin, F::CENTRED)
+        }));
         let prepare = t0.elapsed();
         let tracer = Tracer {
             camera,

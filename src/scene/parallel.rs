@@ -6,9 +6,10 @@
 //! comes first in the files `generate` and `bench` write), then cuts the rest of the text
 //! into chunks, one task each, and each task reads and validates the elements that start
 //! in its chunk straight into [`Cylinder`]s (no list of [`CylinderFile`]s is held beside
-//! the text). The tasks' results are joined in chunk order, so the list is in file order
-//! whatever the threads do. The rest of the file, the *skeleton* (the text with the array
-//! written `[]`), is read with `serde_json` as before.
+//! the text), written to their place in the one list: a first pass counts each chunk's
+//! `{` (in a valid array, its elements), which places the chunks, so the list is in file
+//! order whatever the threads do. The rest of the file, the *skeleton* (the text with the
+//! array written `[]`), is read with `serde_json` as before.
 //!
 //! It is a fast path only: it returns a scene or nothing. Whatever it does not accept (an
 //! error anywhere, a key written with escapes, `"cylinders"` twice, a table reference) the
@@ -24,24 +25,28 @@
 //!   [`CylinderFile`] nests no object, and its only strings are keys, whose raw bytes hold
 //!   no brace: a key with one is an unknown field). Each element is read from its first
 //!   byte by [`plain`] when it is written plainly (as `generate` and `bench` write them;
-//!   its numbers by `str::parse`, correctly rounded like `serde_json`'s with
-//!   `float_roundtrip`; the unit tests hold it to `serde_json` on 20 000 numbers), else by
-//!   the same `serde_json` code as before ([`strict::Object`] of [`CylinderFile`]); either
-//!   says where the element ends;
+//!   its numbers correctly rounded, by Clinger's exact fast path where it applies, else by
+//!   `str::parse`, like `serde_json`'s with `float_roundtrip`; the unit tests hold it to
+//!   `serde_json` on 20 000 numbers and to `str::parse` on 200 000), else by the same
+//!   `serde_json` code as before ([`strict::Object`] of [`CylinderFile`]); either says
+//!   where the element ends;
 //! - the elements are then chained in text order: each must be followed by whitespace and
 //!   a comma and whitespace and the next element's `{` (the first of the next chunk's, for
 //!   a chunk's last), or by whitespace and the array's `]`. Elements that each read as a
 //!   whole object, so joined, are exactly a JSON array of them (JSON's grammar composes),
 //!   so a wrong guess in a task (a `{` inside a string of an invalid file) breaks the chain
-//!   and the fast path gives up;
+//!   and the fast path gives up. So does a chunk before the array's end whose `{` are not
+//!   all elements (which only an invalid file has): every place before the end is filled;
 //! - the skeleton is the same text before the array and after it, so `serde_json`
 //!   accepting it means it accepts the whole file with the same structure, and a second
 //!   `"cylinders"` key (however spelled) is still its "duplicate field" error;
 //! - validation is [`CylinderFile`]'s own; a cylinder without an `id` gets its 1-based
-//!   index in the file once the chain has numbered them, as the one-thread read gives it.
+//!   index in the file, its chunk's place plus its rank there, which the chain confirms
+//!   (every chunk before it full), as the one-thread read gives it.
 
 use super::{Cylinder, CylinderFile, Scene, SceneFile, strict, validate_scene};
 use rayon::prelude::*;
+use std::mem::MaybeUninit;
 
 /// The scene in `bytes`, read with its cylinders in parallel; `None` when it is not a
 /// plain, valid scene file (the caller reads it again for the message).
@@ -170,11 +175,12 @@ enum Read {
     /// No `{` in the chunk.
     Empty,
     /// An element that does not read or validate, or something else than whitespace and a
-    /// comma after one: fatal only if the chain reaches the chunk.
+    /// comma after one, or more elements than the chunk has `{`: fatal only if the chain
+    /// reaches the chunk.
     Failed,
-    /// The text position of the chunk's first `{`, the elements from there on (those
-    /// without an `id` carry 0, which no valid `id` is), and what follows the last.
-    Elements(usize, Vec<Cylinder>, Next),
+    /// The text position of the chunk's first `{`, how many elements from there on were
+    /// written to the chunk's place, and what follows the last.
+    Elements(usize, usize, Next),
 }
 
 /// The elements of the array whose `[` is at `i`, read and validated, and the index just
@@ -191,22 +197,53 @@ fn array(bytes: &[u8], i: usize) -> Option<(usize, Vec<Cylinder>)> {
     // few per thread, so one slow thread does not hold the rest up.
     let rest = bytes.len() - first;
     let size = rest.div_ceil(8 * rayon::current_num_threads()).max(1 << 16);
-    let chunks: Vec<Read> = (0..rest.div_ceil(size))
+    let chunk = |k: usize| {
+        let lo = first + k * size;
+        (lo, (lo + size).min(bytes.len()))
+    };
+    // Each chunk's `{`: in a valid array, one per element that starts in it. Their sums
+    // place each chunk's elements in the list, so every task writes its own straight to
+    // their place (no per-chunk lists copied together after).
+    let counts: Vec<usize> = (0..rest.div_ceil(size))
         .into_par_iter()
         .map(|k| {
-            let lo = first + k * size;
-            read_chunk(bytes, lo, (lo + size).min(bytes.len()))
+            let (lo, hi) = chunk(k);
+            count(&bytes[lo..hi], b'{')
+        })
+        .collect();
+    let total = counts.iter().sum();
+    let mut cylinders = Vec::with_capacity(total);
+    crate::mem::huge_pages(&cylinders);
+    let mut spare = &mut cylinders.spare_capacity_mut()[..total];
+    let mut places = Vec::with_capacity(counts.len());
+    let mut offset = 0;
+    for &count in &counts {
+        let (place, after) = spare.split_at_mut(count);
+        places.push((offset, place));
+        offset += count;
+        spare = after;
+    }
+    let chunks: Vec<(usize, Read)> = places
+        .into_par_iter()
+        .enumerate()
+        .map(|(k, (offset, place))| {
+            let (lo, hi) = chunk(k);
+            (offset, read_chunk(bytes, lo, hi, place, offset))
         })
         .collect();
     // The chain, in text order; chunks past the array's end are not looked at.
     let mut next = Next::Element(first);
-    let mut parts = Vec::new();
-    for chunk in chunks {
+    let mut len = 0;
+    for ((offset, chunk), count) in chunks.into_iter().zip(counts) {
         let Next::Element(at) = next else { break };
         match chunk {
             Read::Empty => {}
-            Read::Elements(start, list, after) if start == at => {
-                parts.push(list);
+            // Before the array's end, every `{` of a chunk opens an element: one read
+            // otherwise would leave its place in the list a hole.
+            Read::Elements(start, written, after)
+                if start == at && (written == count || matches!(after, Next::End(_))) =>
+            {
+                len = offset + written;
                 next = after;
             }
             _ => return None,
@@ -215,67 +252,59 @@ fn array(bytes: &[u8], i: usize) -> Option<(usize, Vec<Cylinder>)> {
     let Next::End(end) = next else {
         return None;
     };
-    Some((end, join(&parts)?))
+    // SAFETY: the chained chunks are consecutive, each filled its place from its start
+    // (all of it but for the last, whose elements end the list), and `Empty` ones have
+    // none: the first `len` elements were all written.
+    unsafe { cylinders.set_len(len) };
+    Some((end, cylinders))
 }
 
-/// The chunks' elements in one list, each chunk copied to its place by its own task: the
-/// list is fresh memory (8 MB at 100 000 cylinders), whose first touch and copy took one
-/// thread, the others idle, about 5% of the CPU time of a 16×16 render of them. A missing
-/// `id` becomes the 1-based index in the file, as `CylinderFile::validate` has it; `None`
-/// past `u32`'s range.
-fn join(parts: &[Vec<Cylinder>]) -> Option<Vec<Cylinder>> {
-    let total = parts.iter().map(Vec::len).sum();
-    let mut cylinders = Vec::with_capacity(total);
-    let mut rest = &mut cylinders.spare_capacity_mut()[..total];
-    let mut places = Vec::with_capacity(parts.len());
-    let mut first = 0;
-    for part in parts {
-        let (place, after) = rest.split_at_mut(part.len());
-        places.push((first, place, part));
-        first += part.len();
-        rest = after;
-    }
-    places
-        .into_par_iter()
-        .try_for_each(|(first, place, part)| {
-            for (k, (slot, c)) in place.iter_mut().zip(part).enumerate() {
-                let mut c = *c;
-                if c.id == 0 {
-                    c.id = u32::try_from(first + k + 1).ok()?;
-                }
-                slot.write(c);
+/// How many bytes of `bytes` are `needle`. Counted in 32 one-byte lanes, added up every
+/// 255 blocks (before a lane could wrap): whole-vector compares and subtracts, where
+/// `filter().count()` widens every byte to a 64-bit sum.
+fn count(bytes: &[u8], needle: u8) -> usize {
+    let mut total = 0;
+    for group in bytes.chunks(32 * 255) {
+        let mut lanes = [0u8; 32];
+        let mut blocks = group.chunks_exact(32);
+        for block in &mut blocks {
+            for (lane, &b) in lanes.iter_mut().zip(block) {
+                *lane += u8::from(b == needle);
             }
-            Some(())
-        })?;
-    // SAFETY: the places cut the first `total` elements whole, and each was written above
-    // (every task returned `Some`, or this is not reached).
-    unsafe { cylinders.set_len(total) };
-    Some(cylinders)
+        }
+        total += lanes.iter().map(|&n| usize::from(n)).sum::<usize>();
+        total += blocks.remainder().iter().filter(|&&b| b == needle).count();
+    }
+    total
 }
 
 /// The elements that start in `bytes[lo..hi]`, the last one read to its end wherever that
-/// is.
-fn read_chunk(bytes: &[u8], lo: usize, hi: usize) -> Read {
+/// is, written in order to `place`; the first is the file's element `offset` (0-based),
+/// which names a cylinder without an `id`, as the one-thread read numbers it.
+fn read_chunk(
+    bytes: &[u8],
+    lo: usize,
+    hi: usize,
+    place: &mut [MaybeUninit<Cylinder>],
+    offset: usize,
+) -> Read {
     let Some(first) = bytes[lo..hi].iter().position(|&b| b == b'{') else {
         return Read::Empty;
     };
     let first = lo + first;
-    let mut list = Vec::with_capacity((hi - lo) / 128);
     let mut at = first;
+    // One element's fields at a time, filled in place.
+    let mut file = CylinderFile::default();
+    let mut written = 0;
     loop {
-        let Some((file, end)) = element(bytes, at) else {
+        let Some(end) = element(bytes, at, &mut file) else {
             return Read::Failed;
         };
-        let given = file.id.is_some();
-        // Validated as element 0: the index only names the field in a message, or gives
-        // the default `id`, set once the chain has numbered the elements.
-        let Ok(mut c) = file.validate(0) else {
+        let (Ok(c), Some(slot)) = (file.validate(offset + written), place.get_mut(written)) else {
             return Read::Failed;
         };
-        if !given {
-            c.id = 0;
-        }
-        list.push(c);
+        slot.write(c);
+        written += 1;
         let after = skip_ws(bytes, end);
         let next = match bytes.get(after) {
             Some(b',') => {
@@ -290,21 +319,22 @@ fn read_chunk(bytes: &[u8], lo: usize, hi: usize) -> Read {
         };
         match next {
             Next::Element(open) if open < hi => at = open,
-            _ => return Read::Elements(first, list, next),
+            _ => return Read::Elements(first, written, next),
         }
     }
 }
 
-/// The element whose `{` is at `at` and the index just past its `}`: read by [`plain`]
-/// when it is written plainly, else by `serde_json` (which then also says where it ended).
-fn element(bytes: &[u8], at: usize) -> Option<(CylinderFile, usize)> {
-    if let Some(read) = plain(bytes, at) {
-        return Some(read);
+/// The element whose `{` is at `at`, read into `file`, and the index just past its `}`:
+/// read by [`plain`] when it is written plainly, else by `serde_json` (which then also
+/// says where it ended).
+fn element(bytes: &[u8], at: usize, file: &mut CylinderFile) -> Option<usize> {
+    if let Some(end) = plain(bytes, at, file) {
+        return Some(end);
     }
     let mut stream = serde_json::Deserializer::from_slice(&bytes[at..])
         .into_iter::<strict::Object<CylinderFile>>();
-    let file = stream.next()?.ok()?.0;
-    Some((file, at + stream.byte_offset()))
+    *file = stream.next()?.ok()?.0;
+    Some(at + stream.byte_offset())
 }
 
 /// A cylinder object written plainly, as `generate` and `bench` write them: keys without
@@ -312,36 +342,16 @@ fn element(bytes: &[u8], at: usize) -> Option<(CylinderFile, usize)> {
 /// literal, `id` and `label` plain integers. `None` for anything else, which `serde_json`
 /// then reads (and refuses with its message where it must).
 ///
-/// What it returns is what `serde_json` gives for the same text: a number is parsed with
-/// `str::parse::<f64>`, correctly rounded, as `serde_json` with `float_roundtrip` is (and
+/// What it returns is what `serde_json` gives for the same text: a number is correctly
+/// rounded ([`number`]), as `serde_json` with `float_roundtrip` is (and
 /// an integer it keeps as u64 or i64 converts to the nearest f64, the same value; `-0` is
 /// -0.0 in both); a value out of f64's range (which `serde_json` refuses) is left to it.
-fn plain(bytes: &[u8], at: usize) -> Option<(CylinderFile, usize)> {
-    // A plain element holds no `}` but its last byte: the text up to the first one,
-    // checked as UTF-8 once, for the numbers' `str::parse`.
-    let close = find(bytes, at, b'}')?;
-    let text = std::str::from_utf8(&bytes[at..=close]).ok()?;
-    let (file, end) = plain_object(text)?;
-    (end == text.len()).then_some((file, at + end))
-}
-
-/// The first `needle` in `bytes` from `from` on, sixteen bytes a step (a comparison the
-/// compiler makes one SIMD instruction of) and then byte by byte within the block.
-fn find(bytes: &[u8], from: usize, needle: u8) -> Option<usize> {
-    let mut i = from;
-    while let Some(block) = bytes.get(i..i + 16) {
-        if block.iter().fold(false, |any, &b| any | (b == needle)) {
-            break;
-        }
-        i += 16;
-    }
-    Some(i + bytes.get(i..)?.iter().position(|&b| b == needle)?)
-}
-
-/// [`plain`] of `text`, an object from its `{`.
-fn plain_object(text: &str) -> Option<(CylinderFile, usize)> {
-    let bytes = text.as_bytes();
-    let mut file = CylinderFile {
+///
+/// The element whose `{` is at `at` goes into `file` (every field set); the return is the
+/// index just past its `}`. Every byte it accepts is ASCII (whitespace, the keys, numbers,
+/// literals, punctuation), so the text it reads needs no UTF-8 check.
+fn plain(bytes: &[u8], at: usize, file: &mut CylinderFile) -> Option<usize> {
+    *file = CylinderFile {
         caps: true,
         ..CylinderFile::default()
     };
@@ -350,7 +360,7 @@ fn plain_object(text: &str) -> Option<(CylinderFile, usize)> {
         b"p0", b"p1", b"center", b"axis", b"height", b"radius", b"caps", b"id", b"label",
     ];
     let mut seen = 0u32;
-    let mut i = skip_ws(bytes, 1);
+    let mut i = skip_ws(bytes, at + 1);
     if bytes.get(i) == Some(&b'}') {
         return None;
     }
@@ -377,12 +387,12 @@ fn plain_object(text: &str) -> Option<(CylinderFile, usize)> {
         i = skip_ws(bytes, i + 1);
         match key {
             0..=3 => {
-                let (v, next) = vec3(text, i)?;
+                let (v, next) = vec3(bytes, i)?;
                 *[&mut file.p0, &mut file.p1, &mut file.center, &mut file.axis][key] = Some(v);
                 i = next;
             }
             4 | 5 => {
-                let (x, next) = number(text, i)?;
+                let (x, next) = number(bytes, i)?;
                 if key == 4 {
                     file.height = Some(x);
                 } else {
@@ -417,7 +427,7 @@ fn plain_object(text: &str) -> Option<(CylinderFile, usize)> {
         match bytes.get(i) {
             Some(b',') => i = skip_ws(bytes, i + 1),
             // `radius` has no default: without it serde refuses the element.
-            Some(b'}') if seen & (1 << 5) != 0 => return Some((file, i + 1)),
+            Some(b'}') if seen & (1 << 5) != 0 => return Some(i + 1),
             _ => return None,
         }
     }
@@ -429,15 +439,14 @@ fn is_delimiter(b: u8) -> bool {
 }
 
 /// `[x, y, z]` at `i`, and the index past its `]`.
-fn vec3(text: &str, mut i: usize) -> Option<([f64; 3], usize)> {
-    let bytes = text.as_bytes();
+fn vec3(bytes: &[u8], mut i: usize) -> Option<([f64; 3], usize)> {
     if bytes.get(i) != Some(&b'[') {
         return None;
     }
     let mut v = [0.0; 3];
     for (k, x) in v.iter_mut().enumerate() {
         i = skip_ws(bytes, i + 1);
-        (*x, i) = number(text, i)?;
+        (*x, i) = number(bytes, i)?;
         i = skip_ws(bytes, i);
         let want = if k == 2 { b']' } else { b',' };
         if bytes.get(i) != Some(&want) {
@@ -448,41 +457,118 @@ fn vec3(text: &str, mut i: usize) -> Option<([f64; 3], usize)> {
 }
 
 /// A JSON number at `i` (`-?(0|[1-9][0-9]*)(.[0-9]+)?([eE][+-]?[0-9]+)?`), finite as an
-/// f64, and the index past it.
-fn number(text: &str, i: usize) -> Option<(f64, usize)> {
-    let bytes = text.as_bytes();
-    let digits = |mut j: usize| {
-        let from = j;
-        while bytes.get(j).is_some_and(u8::is_ascii_digit) {
-            j += 1;
-        }
-        (j > from).then_some(j)
-    };
-    let mut j = i + usize::from(bytes.get(i) == Some(&b'-'));
-    j = match bytes.get(j)? {
-        b'0' => j + 1,
-        b'1'..=b'9' => digits(j)?,
+/// f64, and the index past it. The scan that checks the grammar also gathers the digits
+/// as one integer `m` and the power of ten `e` they are scaled by (`1.25e1` is 125·10⁻¹).
+fn number(bytes: &[u8], i: usize) -> Option<(f64, usize)> {
+    let neg = bytes.get(i) == Some(&b'-');
+    let start = i + usize::from(neg);
+    let mut m = 0u64;
+    let mut j = match bytes.get(start)? {
+        b'0' => start + 1,
+        b'1'..=b'9' => digits(bytes, start, &mut m),
         _ => return None,
     };
+    // Digits in `m`: past 19 it may have wrapped, and only `str::parse` reads the number.
+    let mut count = j - start;
+    let mut e = 0i64;
     if bytes.get(j) == Some(&b'.') {
-        j = digits(j + 1)?;
+        let end = digits(bytes, j + 1, &mut m);
+        let fraction = end - (j + 1);
+        if fraction == 0 {
+            return None;
+        }
+        count += fraction;
+        e = -(fraction as i64);
+        j = end;
     }
     if matches!(bytes.get(j), Some(b'e' | b'E')) {
         j += 1;
-        if matches!(bytes.get(j), Some(b'+' | b'-')) {
-            j += 1;
+        let minus = bytes.get(j) == Some(&b'-');
+        j += usize::from(matches!(bytes.get(j), Some(b'+' | b'-')));
+        let mut k = 0u64;
+        let end = digits(bytes, j, &mut k);
+        if end == j {
+            return None;
         }
-        j = digits(j)?;
+        // At most 18 digits fit an i64 unwrapped; a longer exponent is far past ±22.
+        let k = if end - j <= 18 {
+            k as i64
+        } else {
+            i64::MAX / 2
+        };
+        e += if minus { -k } else { k };
+        j = end;
     }
     if !bytes.get(j).is_some_and(|&b| is_delimiter(b)) {
         return None;
     }
-    let text = text.get(i..j)?;
+    // Clinger's fast path: `m` ≤ 2^53 is exact as an f64, and so is 10^|e| for |e| ≤ 22
+    // (5^22 < 2^53); one IEEE multiplication or division of the two rounds the exact
+    // m·10^e once, to nearest: the correctly rounded value `str::parse` gives. Its results
+    // lie in [1e-22, 2^53·1e22] or are ±0, so never subnormal or infinite.
+    if count <= 19 && m <= 1 << 53 && (-22..=22).contains(&e) {
+        let x = m as f64;
+        let x = if e >= 0 {
+            x * POW10[e as usize]
+        } else {
+            x / POW10[(-e) as usize]
+        };
+        return Some((if neg { -x } else { x }, j));
+    }
+    // SAFETY: every byte of `i..j` is one the grammar above accepted (`-+.eE0-9`), ASCII,
+    // so the bytes are UTF-8 (checking them again costs a twentieth of reading a scene).
+    let text = unsafe { std::str::from_utf8_unchecked(&bytes[i..j]) };
     let x: f64 = text.parse().ok()?;
     // Subnormal results and underflows to zero are left to serde_json too: rare, and
     // where the two readers' handling is least alike in code (not in the value it must be).
     let underflow = x == 0.0 && text.bytes().any(|b| matches!(b, b'1'..=b'9'));
     (x.is_finite() && !x.is_subnormal() && !underflow).then_some((x, j))
+}
+
+/// 10^k for k in 0..=22, each exact as an f64.
+const POW10: [f64; 23] = [
+    1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15, 1e16,
+    1e17, 1e18, 1e19, 1e20, 1e21, 1e22,
+];
+
+/// The index past the ASCII digits from `j` on, each appended to `m` (`m·10 + digit`,
+/// wrapping: callers count the digits); eight at a time while eight follow.
+fn digits(bytes: &[u8], mut j: usize, m: &mut u64) -> usize {
+    while let Some(&eight) = bytes.get(j..).and_then(<[u8]>::first_chunk::<8>)
+        && let Some(n) = eight_digits(u64::from_le_bytes(eight))
+    {
+        *m = m.wrapping_mul(100_000_000).wrapping_add(n);
+        j += 8;
+    }
+    while let Some(&b) = bytes.get(j)
+        && b.is_ascii_digit()
+    {
+        *m = m.wrapping_mul(10).wrapping_add(u64::from(b - b'0'));
+        j += 1;
+    }
+    j
+}
+
+/// The value of eight ASCII digits read as one little-endian word (the first digit in the
+/// low byte), or `None` if a byte is not a digit; in three multiplications rather than
+/// eight (the SWAR form of Lemire's fast_float).
+fn eight_digits(v: u64) -> Option<u64> {
+    const NIBBLES: u64 = 0xF0F0_F0F0_F0F0_F0F0;
+    const ZEROS: u64 = 0x3030_3030_3030_3030;
+    // Each byte 0x30..=0x39: its high nibble 3, and still 3 with 6 added (no byte carries
+    // into the next once every high nibble is 3).
+    if v & NIBBLES != ZEROS || v.wrapping_add(0x0606_0606_0606_0606) & NIBBLES != ZEROS {
+        return None;
+    }
+    let v = v - ZEROS;
+    // Pairs of digits (10·first + second) in every other byte, then pairs of pairs,
+    // gathered in the high half.
+    let v = v.wrapping_mul(10) + (v >> 8);
+    const MASK: u64 = 0x0000_00FF_0000_00FF;
+    let v = (v & MASK)
+        .wrapping_mul(100 + (1_000_000 << 32))
+        .wrapping_add(((v >> 16) & MASK).wrapping_mul(1 + (10_000 << 32)));
+    Some(v >> 32)
 }
 
 /// A non-negative JSON integer at `i` that fits a u32, and the index past it.
@@ -531,9 +617,10 @@ mod tests {
     /// Every text the plain reader accepts, serde_json reads to the same bits and ends at
     /// the same byte; whatever serde_json refuses, the plain reader refuses.
     fn check(text: &str) -> bool {
-        let mine = plain(text.as_bytes(), 0);
+        let mut a = CylinderFile::default();
+        let mine = plain(text.as_bytes(), 0, &mut a);
         match (mine, serde(text)) {
-            (Some((a, end)), Some(b)) => {
+            (Some(end), Some(b)) => {
                 assert!(same(&a, &b), "{text}");
                 assert_eq!(end, text.len(), "{text}");
                 true
@@ -565,6 +652,65 @@ mod tests {
             accepted += check(&text) as usize;
         }
         assert!(accepted > 19_000, "{accepted}");
+    }
+
+    #[test]
+    fn count_is_filter_count() {
+        let mut rng = SplitMix64::new(5);
+        let bytes: Vec<u8> = (0..40_000)
+            .map(|_| b"{}a"[(rng.unit() * 3.0) as usize])
+            .collect();
+        for (lo, hi) in [(0, 0), (0, 31), (3, 8160), (1, 8161), (7, 40_000)] {
+            let want = bytes[lo..hi].iter().filter(|&&b| b == b'{').count();
+            assert_eq!(count(&bytes[lo..hi], b'{'), want, "{lo}..{hi}");
+        }
+    }
+
+    /// `number` is `str::parse` at the edges of its fast path (2^53, 10^±22, 19 and 20
+    /// digits, zeros) and on random digit strings and exponents about them.
+    #[test]
+    fn number_is_str_parse() {
+        let same = |lit: &str| {
+            let text = format!("{lit},");
+            let (x, end) = number(text.as_bytes(), 0).expect(lit);
+            assert_eq!(end, lit.len(), "{lit}");
+            assert_eq!(x.to_bits(), lit.parse::<f64>().unwrap().to_bits(), "{lit}");
+        };
+        for lit in [
+            "9007199254740992",
+            "9007199254740993",
+            "-9007199254740992e22",
+            "9007199254740993e-22",
+            "9007199254740991e-23",
+            "1e22",
+            "1e23",
+            "1e-22",
+            "1e-23",
+            "1234567890123456789",
+            "12345678901234567890",
+            "1844674407370955161.5",
+            "0.0000000000000000000001",
+            "0.1",
+            "-0",
+            "-0.0e5",
+            "0e22",
+            "1.7976931348623157e308",
+        ] {
+            same(lit);
+        }
+        let mut rng = SplitMix64::new(11);
+        for _ in 0..200_000 {
+            let m = ((rng.unit() * 2f64.powi((rng.unit() * 60.0) as i32)) as u64).max(1);
+            let e = (rng.unit() * 60.0) as i32 - 30;
+            let digits = m.to_string();
+            let point = (rng.unit() * digits.len() as f64) as usize;
+            let lit = match (point, e % 3) {
+                (0, _) => format!("{m}e{e}"),
+                (p, 0) => format!("{}.{}", &digits[..p], &digits[p..]),
+                (p, _) => format!("-{}.{}E{e:+}", &digits[..p], &digits[p..]),
+            };
+            same(&lit);
+        }
     }
 
     #[test]
@@ -636,5 +782,11 @@ mod tests {
         let bad = text.replacen("] , \"aovs\"", ",{\"radius\":1}] , \"aovs\"", 1);
         assert!(load(bad.as_bytes()).is_none());
         assert!(load(format!("{text} {{}}").as_bytes()).is_none());
+        // The camera after the cylinders: the chunk where the array ends has `{` past it.
+        let (camera, rest) = text[1..].split_once(",\"cylinders\"").unwrap();
+        let (cylinders, aovs) = rest.split_once(" , ").unwrap();
+        let moved = format!("{{\"cylinders\"{cylinders} , {camera}, {aovs}");
+        let fast = load(moved.as_bytes()).expect("fast path, camera last");
+        assert_eq!(fast, file.validate().unwrap());
     }
 }
