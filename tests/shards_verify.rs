@@ -7,7 +7,9 @@
 mod common;
 use common::{cylaov, ok};
 
-use cylaov::dataset::batch::shards::{ShardOptions, TarOutcome, TarSelection, write_shards};
+use cylaov::dataset::batch::shards::{
+    ShardOptions, ShardSummary, TarOutcome, TarSelection, write_shards,
+};
 use cylaov::dataset::batch::{BatchOptions, ProgressMode, Shard, Verdict, Verifier, ViewSource};
 use cylaov::image::AovImage;
 use std::path::{Path, PathBuf};
@@ -79,6 +81,21 @@ impl Verifier for ReadsBack {
     }
 }
 
+/// All the tars of `data`'s views into `out`, two views a tar.
+fn two_a_tar(
+    data: &Path,
+    out: &Path,
+    opts: &BatchOptions,
+    verifier: Option<&dyn Verifier>,
+) -> anyhow::Result<ShardSummary> {
+    let sopts = ShardOptions {
+        shard_size: 2,
+        ..ShardOptions::default()
+    };
+    let all = TarSelection::Shard(Shard::ALL);
+    write_shards(data, out, &all, opts, &sopts, ProgressMode::Off, verifier)
+}
+
 /// A stand-in whose check of view `000001` finds the disk full, as writing its EXR would.
 struct DiskFull;
 
@@ -110,36 +127,13 @@ fn a_tar_whose_view_ran_out_of_disk_is_not_committed() {
         verify_fraction: 1.0,
         ..BatchOptions::default()
     };
-    let sopts = ShardOptions {
-        shard_size: 2,
-        ..ShardOptions::default()
-    };
-    let all = TarSelection::Shard(Shard::ALL);
     let out = tmp.path().join("out");
-    let e = write_shards(
-        &data,
-        &out,
-        &all,
-        &opts,
-        &sopts,
-        ProgressMode::Off,
-        Some(&DiskFull),
-    )
-    .unwrap_err();
+    let e = two_a_tar(&data, &out, &opts, Some(&DiskFull)).unwrap_err();
     assert!(format!("{e:#}").contains("the disk is full"), "{e:#}");
     assert!(!out.join("shard-000000.tar").exists());
     assert!(!out.join("shard-000000.json").exists());
     assert!(!out.join(".partial").exists());
-    let s = write_shards(
-        &data,
-        &out,
-        &all,
-        &BatchOptions::default(),
-        &sopts,
-        ProgressMode::Off,
-        None,
-    )
-    .unwrap();
+    let s = two_a_tar(&data, &out, &BatchOptions::default(), None).unwrap();
     assert!(s.failures.is_empty() && s.index_written, "{s}");
     assert_eq!(
         s.rendered
@@ -166,26 +160,12 @@ fn shards_check_selected_views_and_fail_disagreements() {
         verify_seed: 1,
         ..BatchOptions::default()
     };
-    let sopts = ShardOptions {
-        shard_size: 2,
-        ..ShardOptions::default()
-    };
-    let all = TarSelection::Shard(Shard::ALL);
     let verifier = ReadsBack {
         checked: Mutex::new(Vec::new()),
         bad: "000001",
     };
     let out = tmp.path().join("verified");
-    let s = write_shards(
-        &data,
-        &out,
-        &all,
-        &opts(1.0),
-        &sopts,
-        ProgressMode::Off,
-        Some(&verifier),
-    )
-    .unwrap();
+    let s = two_a_tar(&data, &out, &opts(1.0), Some(&verifier)).unwrap();
     let mut checked = verifier.checked.lock().unwrap().clone();
     checked.sort();
     assert_eq!(checked, ["000000", "000001", "000002", "000003"]);
@@ -213,16 +193,7 @@ fn shards_check_selected_views_and_fail_disagreements() {
         checked: Mutex::new(Vec::new()),
         bad: "000002",
     };
-    let s = write_shards(
-        &data,
-        &out,
-        &all,
-        &opts(1.0),
-        &sopts,
-        ProgressMode::Off,
-        Some(&recheck),
-    )
-    .unwrap();
+    let s = two_a_tar(&data, &out, &opts(1.0), Some(&recheck)).unwrap();
     assert!(s.outcomes.iter().all(|o| o.1 == TarOutcome::Skipped), "{s}");
     let mut checked = recheck.checked.lock().unwrap().clone();
     checked.sort();
@@ -242,32 +213,14 @@ fn shards_check_selected_views_and_fail_disagreements() {
         bad: "000001",
     };
     let half = tmp.path().join("half");
-    write_shards(
-        &data,
-        &half,
-        &all,
-        &opts(0.5),
-        &sopts,
-        ProgressMode::Off,
-        Some(&verifier),
-    )
-    .unwrap();
+    two_a_tar(&data, &half, &opts(0.5), Some(&verifier)).unwrap();
     let mut checked = verifier.checked.lock().unwrap().clone();
     checked.sort();
     assert_eq!(checked, picked);
 
     // Without a verifier the tar of the passing views is the same bytes.
     let plain = tmp.path().join("plain");
-    let s = write_shards(
-        &data,
-        &plain,
-        &all,
-        &opts(0.0),
-        &sopts,
-        ProgressMode::Off,
-        None,
-    )
-    .unwrap();
+    let s = two_a_tar(&data, &plain, &opts(0.0), None).unwrap();
     assert!(s.failures.is_empty(), "{s}");
     let plain = tars(&plain);
     assert_eq!(verified[1], plain[1], "the tar of passing views");
