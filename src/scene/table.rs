@@ -540,12 +540,88 @@ pub fn read_table(text: &str, opts: &TableOptions) -> Result<Table, TableError> 
     } else {
         Separator::Space
     };
+    let (format, cols, is_header) = table_layout(first_line, first, sep, opts)?;
+    if is_header {
+        lines.next();
+    }
+
+    let label = opts.label.unwrap_or(LabelRule::None);
+    let label_source = match label {
+        LabelRule::BranchOrder => Some(cols.order.ok_or((
+            "branch order",
+            "BranchOrder, branchOrder or branching_order",
+        ))),
+        LabelRule::Branch => Some(
+            cols.branch
+                .ok_or(("branch", "branch, branchID or branch_ID")),
+        ),
+        _ => None,
+    };
+    if let Some(Err((what, names))) = label_source {
+        return Err(line_err(
+            first_line,
+            format!(
+                "{} {}: this {} table has no {what} column ({names})",
+                crate::spelling::opt("label"),
+                label.name(),
+                format.name()
+            ),
+        ));
+    }
+    let default_caps = opts.caps.unwrap_or(true);
+    let needed = cols.needed();
+    let mut cylinders = Vec::new();
+    for (line, text) in lines {
+        let row = Row {
+            line,
+            fields: split(text, sep),
+            names: &cols.names,
+        };
+        if row.fields.len() < needed {
+            return Err(line_err(
+                line,
+                format!(
+                    "has {} fields, the table needs at least {needed} ({})",
+                    row.fields.len(),
+                    cols.names
+                        .iter()
+                        .take(needed)
+                        .cloned()
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            ));
+        }
+        cylinders.push(row_cylinder(
+            &row,
+            cylinders.len(),
+            &cols,
+            opts,
+            label,
+            label_source.and_then(Result::ok),
+            default_caps,
+        )?);
+    }
+    if cylinders.is_empty() {
+        return Err(line_err(0, "the table has no cylinder rows"));
+    }
+    Ok(finish(format, cylinders, label))
+}
+
+/// The format and columns of a table whose first row (line `first_line`) is `first`, and
+/// whether that row is a header: named columns tell the format, or `opts.format`; without a
+/// header only TreeQSM's 14 or 15 positional columns are known.
+fn table_layout(
+    first_line: usize,
+    first: &str,
+    sep: Separator,
+    opts: &TableOptions,
+) -> Result<(TableFormat, Columns, bool), TableError> {
     let first_fields = split(first, sep);
     let is_header = first_fields
         .iter()
         .any(|f| !f.is_empty() && f.parse::<f64>().is_err());
     let (format, cols) = if is_header {
-        lines.next();
         let (norm, shown) = spread(&header_names(first, sep));
         let format = match opts.format {
             Some(f) => f,
@@ -599,126 +675,88 @@ pub fn read_table(text: &str, opts: &TableOptions) -> Result<Table, TableError> 
             }
         }
     };
+    Ok((format, cols, is_header))
+}
 
-    let label = opts.label.unwrap_or(LabelRule::None);
-    let label_source = match label {
-        LabelRule::BranchOrder => Some(cols.order.ok_or((
-            "branch order",
-            "BranchOrder, branchOrder or branching_order",
-        ))),
-        LabelRule::Branch => Some(
-            cols.branch
-                .ok_or(("branch", "branch, branchID or branch_ID")),
-        ),
-        _ => None,
+/// The cylinder of table row `row`, the `index`-th (its id when the table has none):
+/// start, radius and end (or axis and length), checked; its id, label (by the `label`
+/// rule from `rule_column`, else its own) and caps (`default_caps` when the table has no
+/// caps column).
+fn row_cylinder(
+    row: &Row,
+    index: usize,
+    cols: &Columns,
+    opts: &TableOptions,
+    label: LabelRule,
+    rule_column: Option<usize>,
+    default_caps: bool,
+) -> Result<CylinderFile, TableError> {
+    let p0 = row.point(cols.start)?;
+    let radius = row.number(cols.radius)?;
+    if radius <= 0.0 {
+        return Err(row.fail(cols.radius, format!("must be > 0, got {}", num(radius))));
+    }
+    let p1 = match (cols.end, cols.axis, cols.length) {
+        (Some(end), ..) => {
+            let p1 = row.point(end)?;
+            if p1 == p0 {
+                return Err(row.fail(
+                    end[0],
+                    format!("zero length: the end equals the start {:?}", p0.to_array()),
+                ));
+            }
+            p1
+        }
+        (None, Some(axis), Some(length)) => {
+            let h = row.number(length)?;
+            if h <= 0.0 {
+                return Err(row.fail(length, format!("must be > 0, got {}", num(h))));
+            }
+            let a = row.point(axis)?;
+            let len = a.length();
+            if len == 0.0 || !len.is_finite() {
+                return Err(row.fail(
+                    axis[0],
+                    format!("the axis must be non-zero, got {:?}", a.to_array()),
+                ));
+            }
+            p0 + a / len * h
+        }
+        _ => unreachable!("columns_from_header requires end, or axis and length"),
     };
-    if let Some(Err((what, names))) = label_source {
-        return Err(line_err(
-            first_line,
-            format!(
-                "{} {}: this {} table has no {what} column ({names})",
-                crate::spelling::opt("label"),
-                label.name(),
-                format.name()
-            ),
+    if p1.abs().max_element() > MAX_COORD {
+        return Err(row.fail(
+            cols.length.unwrap_or(cols.start[0]),
+            format!("puts the end at {:?}, beyond {MAX_COORD:e}", p1.to_array()),
         ));
     }
-    let default_caps = opts.caps.unwrap_or(true);
-    let needed = cols.needed();
-    let mut cylinders = Vec::new();
-    for (line, text) in lines {
-        let row = Row {
-            line,
-            fields: split(text, sep),
-            names: &cols.names,
-        };
-        if row.fields.len() < needed {
-            return Err(line_err(
-                line,
-                format!(
-                    "has {} fields, the table needs at least {needed} ({})",
-                    row.fields.len(),
-                    cols.names
-                        .iter()
-                        .take(needed)
-                        .cloned()
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                ),
-            ));
+    let id = match cols.id {
+        Some(k) => row.whole(k, u32::MAX - 1)?,
+        None => {
+            u32::try_from(index + 1).map_err(|_| line_err(row.line, "more than 4294967295 rows"))?
         }
-        let p0 = row.point(cols.start)?;
-        let radius = row.number(cols.radius)?;
-        if radius <= 0.0 {
-            return Err(row.fail(cols.radius, format!("must be > 0, got {}", num(radius))));
-        }
-        let p1 = match (cols.end, cols.axis, cols.length) {
-            (Some(end), ..) => {
-                let p1 = row.point(end)?;
-                if p1 == p0 {
-                    return Err(row.fail(
-                        end[0],
-                        format!("zero length: the end equals the start {:?}", p0.to_array()),
-                    ));
-                }
-                p1
-            }
-            (None, Some(axis), Some(length)) => {
-                let h = row.number(length)?;
-                if h <= 0.0 {
-                    return Err(row.fail(length, format!("must be > 0, got {}", num(h))));
-                }
-                let a = row.point(axis)?;
-                let len = a.length();
-                if len == 0.0 || !len.is_finite() {
-                    return Err(row.fail(
-                        axis[0],
-                        format!("the axis must be non-zero, got {:?}", a.to_array()),
-                    ));
-                }
-                p0 + a / len * h
-            }
-            _ => unreachable!("columns_from_header requires end, or axis and length"),
-        };
-        if p1.abs().max_element() > MAX_COORD {
-            return Err(row.fail(
-                cols.length.unwrap_or(cols.start[0]),
-                format!("puts the end at {:?}, beyond {MAX_COORD:e}", p1.to_array()),
-            ));
-        }
-        let id = match cols.id {
-            Some(k) => row.whole(k, u32::MAX - 1)?,
-            None => u32::try_from(cylinders.len() + 1)
-                .map_err(|_| line_err(line, "more than 4294967295 rows"))?,
-        };
-        let own_label = match (opts.label, cols.label) {
-            (None, Some(k)) => row.whole(k, u32::MAX)?,
-            _ => 0,
-        };
-        let by_rule = match (label, label_source) {
-            (LabelRule::BranchOrder | LabelRule::Branch, Some(Ok(k))) => {
-                row.whole(k, u32::MAX - 1)? + 1
-            }
-            _ => own_label,
-        };
-        let caps = match cols.caps {
-            Some(k) => row.flag(k)?,
-            None => default_caps,
-        };
-        cylinders.push(CylinderFile {
-            p0: Some(p0.to_array()),
-            p1: Some(p1.to_array()),
-            radius,
-            caps,
-            id: Some(id),
-            label: by_rule,
-            ..CylinderFile::default()
-        });
-    }
-    if cylinders.is_empty() {
-        return Err(line_err(0, "the table has no cylinder rows"));
-    }
-    Ok(finish(format, cylinders, label))
+    };
+    let own_label = match (opts.label, cols.label) {
+        (None, Some(k)) => row.whole(k, u32::MAX)?,
+        _ => 0,
+    };
+    let by_rule = match (label, rule_column) {
+        (LabelRule::BranchOrder | LabelRule::Branch, Some(k)) => row.whole(k, u32::MAX - 1)? + 1,
+        _ => own_label,
+    };
+    let caps = match cols.caps {
+        Some(k) => row.flag(k)?,
+        None => default_caps,
+    };
+    Ok(CylinderFile {
+        p0: Some(p0.to_array()),
+        p1: Some(p1.to_array()),
+        radius,
+        caps,
+        id: Some(id),
+        label: by_rule,
+        ..CylinderFile::default()
+    })
 }
 
 /// The table of these rows: ids moved up by one if the table counted from 0 (0 is a miss
