@@ -262,7 +262,7 @@ impl State {
 
 /// A unit's work folder: removed with its content when dropped, and by a signal's
 /// clean-up meanwhile.
-pub(super) struct WorkFolder {
+struct WorkFolder {
     path: PathBuf,
     _registered: Registration,
 }
@@ -270,7 +270,7 @@ pub(super) struct WorkFolder {
 impl WorkFolder {
     /// Clear and make `path` (a real folder in `OUT/.partial`: a link there is removed
     /// itself, never what it points to).
-    pub(super) fn new(path: PathBuf) -> Result<WorkFolder> {
+    fn new(path: PathBuf) -> Result<WorkFolder> {
         if path.symlink_metadata().is_ok() {
             std::fs::remove_dir_all(&path)
                 .or_else(|_| std::fs::remove_file(&path))
@@ -291,7 +291,7 @@ impl WorkFolder {
     /// Remove the folder now, saying why if it cannot be. Out of file handles,
     /// `remove_dir_all` cannot open the folder to list it; an empty one still goes by
     /// `rmdir`, which needs none.
-    pub(super) fn remove(&self) -> Result<()> {
+    fn remove(&self) -> Result<()> {
         match std::fs::remove_dir_all(&self.path) {
             Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
                 if std::fs::remove_dir(&self.path).is_ok() {
@@ -303,7 +303,7 @@ impl WorkFolder {
         }
     }
 
-    pub(super) fn path(&self) -> &Path {
+    fn path(&self) -> &Path {
         &self.path
     }
 }

@@ -366,21 +366,8 @@ pub fn view_memory(scene: &Scene, opts: &BatchOptions) -> u64 {
 /// read again: the AOVs its plan traces are those, plus depth and normal for the
 /// pictures and what a PLY reads.
 pub fn view_memory_at(size: (u32, u32), aovs: &[Aov], opts: &BatchOptions) -> u64 {
-    let mut traced = aovs.to_vec();
-    let mut need = |a: Aov| {
-        if !traced.contains(&a) {
-            traced.push(a);
-        }
-    };
-    if opts.png {
-        need(Aov::Depth);
-        need(Aov::Normal);
-    }
-    if opts.ply {
-        crate::output::format::ply::PLY_AOVS
-            .into_iter()
-            .for_each(&mut need);
-    }
+    // The pictures of `view_plan`: with PNGs the depth PNG, mask and normal picture.
+    let traced = crate::output::pipeline::view::traced_aovs(aovs, opts.png, opts.png, opts.ply);
     crate::output::pipeline::memory::render_memory(
         size,
         &traced,

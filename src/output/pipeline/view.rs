@@ -185,28 +185,41 @@ pub trait ViewSink {
     fn commit(&mut self) -> Result<()>;
 }
 
+/// The AOVs a view is traced with: its EXR's `exr_aovs`, then depth when `depth` (a depth
+/// PNG or mask reads it), normal when `normal` (the normal picture) and what a PLY reads
+/// when `ply`, each added once, in that order. Also what a view's memory is estimated from
+/// before its plan exists.
+pub fn traced_aovs(exr_aovs: &[Aov], depth: bool, normal: bool, ply: bool) -> Vec<Aov> {
+    let mut aovs = exr_aovs.to_vec();
+    let mut need = |a: Aov| {
+        if !aovs.contains(&a) {
+            aovs.push(a);
+        }
+    };
+    if depth {
+        need(Aov::Depth);
+    }
+    if normal {
+        need(Aov::Normal);
+    }
+    if ply {
+        crate::output::format::ply::PLY_AOVS
+            .into_iter()
+            .for_each(need);
+    }
+    aovs
+}
+
 impl ViewPlan {
     /// The AOVs the view is traced with: the EXR's, plus depth for the depth PNG, mask and
     /// previews' needs, and normal for the normal picture.
     pub fn traced_aovs(&self) -> Vec<Aov> {
-        let mut aovs = self.exr_aovs.clone();
-        let mut need = |a: Aov| {
-            if !aovs.contains(&a) {
-                aovs.push(a);
-            }
-        };
-        if self.depth_png.is_some() || self.mask {
-            need(Aov::Depth);
-        }
-        if self.normal_picture {
-            need(Aov::Normal);
-        }
-        if self.ply {
-            crate::output::format::ply::PLY_AOVS
-                .into_iter()
-                .for_each(need);
-        }
-        aovs
+        traced_aovs(
+            &self.exr_aovs,
+            self.depth_png.is_some() || self.mask,
+            self.normal_picture,
+            self.ply,
+        )
     }
 
     /// Whether any PNG is written (then the whole image is needed).

@@ -299,15 +299,12 @@ pub(super) fn view_members_and_exr(
 /// a PLY member reads. The plan of [`view_members_and_exr`] traces exactly these (checked
 /// there), so the memory of a view is known from its size before its scene is loaded.
 pub(super) fn tar_traced_aovs(aovs: &[Aov], members: &[Member]) -> Vec<Aov> {
-    let mut v = plan_aovs(aovs);
-    if members.contains(&Member::Ply) {
-        for a in crate::output::format::ply::PLY_AOVS {
-            if !v.contains(&a) {
-                v.push(a);
-            }
-        }
-    }
-    v
+    crate::output::pipeline::view::traced_aovs(
+        &plan_aovs(aovs),
+        false,
+        false,
+        members.contains(&Member::Ply),
+    )
 }
 
 /// Bytes one view of `w`×`h` in a tar holds at its peak: the whole traced image (a tar's
