@@ -285,24 +285,29 @@ fn render_simd<T: Simd, F: PacketFormula>(
     let setup = Setup::<T, F>::new(scene, opts);
     let cam = &setup.tracer.camera;
     let (w, h) = (cam.width() as usize, cam.height() as usize);
-    let band_rows = TILE as usize;
-    // The planes are zeroed band by band by the threads that trace them: zeroed up front,
+    let part = part_rows(h);
+    // The planes are zeroed part by part by the threads that trace them: zeroed up front,
     // memory the allocator reuses would be cleared by this one thread while the pool waits.
     let mut samples = uninit_planes(opts, w * h);
     let inputs = setup.inputs();
     let band_fn = band_renderer::<T, F>(simd);
-    // A stopped render skips its remaining bands, zeroing included (a large view's pages
+    // A stopped render skips its remaining parts, zeroing included (a large view's pages
     // would take longer to fault in than the caller wants to wait), and so has no image.
     let skipped = AtomicBool::new(false);
-    let hits: usize = bands(&mut samples, band_rows * w, h.div_ceil(band_rows))
+    let hits: usize = bands(&mut samples, part * w, h.div_ceil(part))
         .into_par_iter()
         .enumerate()
-        .map(|(b, band)| match stop {
+        .map(|(k, piece)| match stop {
             Some(s) if s.load(Ordering::Relaxed) => {
                 skipped.store(true, Ordering::Relaxed);
                 0
             }
-            _ => band_fn(&inputs, b, &mut band.zeroed()),
+            _ => {
+                // `part` divides a band's rows, so no piece straddles two bands.
+                let (row0, rows) = (k * part, part.min(h - k * part));
+                let (b, at) = (row0 / TILE as usize, row0 % TILE as usize);
+                band_fn(&inputs, b, at..at + rows, &mut piece.zeroed())
+            }
         })
         .sum();
     if skipped.into_inner() {
@@ -322,6 +327,18 @@ fn render_simd<T: Simd, F: PacketFormula>(
         buffers: buffers_of(opts, cam, samples),
     };
     (Render { image, hits }, setup.timing(start))
+}
+
+/// Rows traced as one task: a band's 16, or for an image of fewer bands than threads (a
+/// tiny view, where one band of 100 000 candidates is most of the trace) the largest
+/// power of two that gives every thread a part. A power of two divides the band.
+fn part_rows(height: usize) -> usize {
+    let threads = rayon::current_num_threads();
+    let mut rows = TILE as usize;
+    while rows > 1 && height.div_ceil(rows) < threads {
+        rows /= 2;
+    }
+    rows
 }
 
 /// Where [`render_bands`] hands each band: its first row and the band as an image of its
@@ -363,6 +380,7 @@ fn bands_simd<T: Simd, F: PacketFormula>(
     let cam = &setup.tracer.camera;
     let (w, h) = (cam.width() as usize, cam.height() as usize);
     let band_rows = TILE as usize;
+    let part = part_rows(h);
     let inputs = setup.inputs();
     let band_fn = band_renderer::<T, F>(true);
     let hits = (0..h.div_ceil(band_rows))
@@ -370,9 +388,15 @@ fn bands_simd<T: Simd, F: PacketFormula>(
         .map(|b| {
             let rows = band_rows.min(h - b * band_rows);
             let mut samples = output_planes(opts, rows * w);
-            let mut band = bands(&mut samples, rows * w, 1);
-            let hits = band_fn(&inputs, b, &mut band[0]);
-            drop(band);
+            let pieces = bands(&mut samples, part * w, rows.div_ceil(part));
+            let hits: usize = pieces
+                .into_par_iter()
+                .enumerate()
+                .map(|(k, mut piece)| {
+                    let at = k * part;
+                    band_fn(&inputs, b, at..at + part.min(rows - at), &mut piece)
+                })
+                .sum();
             let image = AovImage {
                 width: w,
                 height: rows,
@@ -447,48 +471,69 @@ mod tests {
 
     /// Rendered band by band, every AOV is the whole render's bits at the band's rows (an
     /// odd size: a last band of 97 mod 16 = 1 row, partial tiles), through each structure;
-    /// the bands cover the image once; an error from the sink ends the render with it.
+    /// the bands cover the image once; an error from the sink ends the render with it. The
+    /// whole render is traced a band a task (one thread), the bands in parts of 4 rows (16
+    /// threads, more than the 7 bands).
     #[test]
     fn bands_are_the_whole_render() {
         let mut sc = crate::bench::dense_scene(2000, 5, 211, 117);
         (sc.camera.width, sc.camera.height) = (173, 97);
+        let pool = |n| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(n)
+                .build()
+                .unwrap()
+        };
+        let (one, many) = (pool(1), pool(16));
+        assert_eq!(
+            (
+                one.install(|| part_rows(97)),
+                many.install(|| part_rows(97))
+            ),
+            (16, 4)
+        );
         for accel in [Accel::Tiles, Accel::Frustum, Accel::Bvh] {
             let o = RenderOptions {
                 accel,
                 ..RenderOptions::new(Aov::ALL.to_vec())
             };
-            let whole = render(&sc, &o);
+            let whole = one.install(|| render(&sc, &o));
             let seen = std::sync::Mutex::new(vec![0u32; 97]);
-            let (hits, _) = render_bands(&sc, &o, &|y0, band| {
-                assert_eq!(band.width, 173);
-                assert_eq!(
-                    band.names(),
-                    whole.image.names(),
-                    "same channels, same order"
-                );
-                for (c, w) in band.buffers.iter().zip(&whole.image.buffers) {
-                    let s = c.stride();
-                    let rows = y0 * 173 * s..(y0 + band.height) * 173 * s;
-                    let same = match (&c.data, &w.data) {
-                        (ChannelData::F32(a), ChannelData::F32(b)) => a
-                            .iter()
-                            .map(|x| x.to_bits())
-                            .eq(b[rows.clone()].iter().map(|x| x.to_bits())),
-                        (ChannelData::U32(a), ChannelData::U32(b)) => a[..] == b[rows.clone()],
-                        _ => false,
-                    };
-                    assert!(
-                        same,
-                        "{accel:?}: {:?} differs in the band at row {y0}",
-                        c.names
-                    );
-                }
-                for n in &mut seen.lock().unwrap()[y0..y0 + band.height] {
-                    *n += 1;
-                }
-                Ok(())
-            })
-            .unwrap();
+            let (hits, _) = many
+                .install(|| {
+                    render_bands(&sc, &o, &|y0, band| {
+                        assert_eq!(band.width, 173);
+                        assert_eq!(
+                            band.names(),
+                            whole.image.names(),
+                            "same channels, same order"
+                        );
+                        for (c, w) in band.buffers.iter().zip(&whole.image.buffers) {
+                            let s = c.stride();
+                            let rows = y0 * 173 * s..(y0 + band.height) * 173 * s;
+                            let same = match (&c.data, &w.data) {
+                                (ChannelData::F32(a), ChannelData::F32(b)) => a
+                                    .iter()
+                                    .map(|x| x.to_bits())
+                                    .eq(b[rows.clone()].iter().map(|x| x.to_bits())),
+                                (ChannelData::U32(a), ChannelData::U32(b)) => {
+                                    a[..] == b[rows.clone()]
+                                }
+                                _ => false,
+                            };
+                            assert!(
+                                same,
+                                "{accel:?}: {:?} differs in the band at row {y0}",
+                                c.names
+                            );
+                        }
+                        for n in &mut seen.lock().unwrap()[y0..y0 + band.height] {
+                            *n += 1;
+                        }
+                        Ok(())
+                    })
+                })
+                .unwrap();
             assert_eq!(hits, whole.hits);
             assert!(hits > 1000, "{hits} hits");
             assert!(seen.into_inner().unwrap().iter().all(|&n| n == 1));
@@ -594,7 +639,14 @@ mod tests {
                 pool.install(|| render(sc, &o))
             };
             let reference = with(Accel::Bvh, 1);
-            for (accel, threads) in [(Accel::Frustum, 1), (Accel::Frustum, 2), (Accel::Tiles, 2)] {
+            // At 2 and 5 threads, the 16- and 6-row views are traced in parts of a band.
+            for (accel, threads) in [
+                (Accel::Frustum, 1),
+                (Accel::Frustum, 2),
+                (Accel::Tiles, 2),
+                (Accel::Tiles, 5),
+                (Accel::Bvh, 5),
+            ] {
                 let r = with(accel, threads);
                 assert_eq!(r.hits, reference.hits);
                 assert!(r.image == reference.image, "{accel:?}, {threads} threads");

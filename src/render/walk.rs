@@ -13,6 +13,7 @@ use crate::geometry::wide::{Avx2, Lanes, Simd, Wide};
 use crate::geometry::{BasicHit, Real, Surface};
 use crate::scene::camera::Camera;
 use glam::{DVec3, Vec3A};
+use std::ops::Range;
 
 /// Nearest hits for the pixels `xs × ys` (inclusive) of one tile from its candidates,
 /// rasterised nearest first (see [`rasterise`]). `offsets` are the image-plane offsets per
@@ -284,19 +285,21 @@ impl<T: Real> TileRays<T> {
     }
 }
 
-/// Trace and shade band `b` (one row of tiles), returning its hit count.
+/// Trace and shade rows `part` (counted from the band's first row) of band `b` (one row of
+/// tiles) into `band`, which holds just those rows; returns their hit count. Each pixel's
+/// answer is its own ray's, so a band traced in parts is the band traced whole.
 #[inline(always)]
 pub(super) fn render_band<T: Real, F: PacketFormula, W: Wide<T>>(
     tok: W::Token,
     fr: &BandInputs<T, F>,
     b: usize,
+    part: Range<usize>,
     band: &mut Band,
 ) -> usize {
     let (tracer, cam) = (fr.tracer, &fr.tracer.camera);
-    let (w, h) = (cam.width() as usize, cam.height() as usize);
-    let band_rows = TILE as usize;
-    let row0 = b * band_rows;
-    let rows = band_rows.min(h - row0);
+    let w = cam.width() as usize;
+    let row0 = b * TILE as usize + part.start;
+    let rows = part.len();
     let mut hits = 0;
     let offsets = (fr.cols_off, fr.rows_off);
     match (&tracer.tiles, &tracer.bvh, &tracer.cone_cands) {
@@ -379,24 +382,26 @@ pub(super) fn render_band_avx2<T: Simd, F: PacketFormula>(
     tok: Avx2,
     fr: &BandInputs<T, F>,
     b: usize,
+    part: Range<usize>,
     band: &mut Band,
 ) -> usize {
-    render_band::<T, F, T::Avx>(tok, fr, b, band)
+    render_band::<T, F, T::Avx>(tok, fr, b, part, band)
 }
 
+/// Traces rows of a band: [`render_band`]'s arguments but the token.
+pub(super) type BandFn<T, F> = fn(&BandInputs<T, F>, usize, Range<usize>, &mut Band) -> usize;
+
 /// The band renderer for this CPU: AVX2 when it has it (and `simd`), else the baseline.
-pub(super) fn band_renderer<T: Simd, F: PacketFormula>(
-    simd: bool,
-) -> fn(&BandInputs<T, F>, usize, &mut Band) -> usize {
+pub(super) fn band_renderer<T: Simd, F: PacketFormula>(simd: bool) -> BandFn<T, F> {
     #[cfg(target_arch = "x86_64")]
     if simd && Avx2::detect().is_some() {
-        return |fr, b, band| {
+        return |fr, b, part, band| {
             // SAFETY: this closure is returned only after `Avx2::detect` succeeded, so the
             // CPU has AVX2, POPCNT, LZCNT and BMI1, which both the token and the target
             // features require.
-            unsafe { render_band_avx2(Avx2::new_unchecked(), fr, b, band) }
+            unsafe { render_band_avx2(Avx2::new_unchecked(), fr, b, part, band) }
         };
     }
     let _ = simd;
-    |fr, b, band| render_band::<T, F, Lanes<T>>((), fr, b, band)
+    |fr, b, part, band| render_band::<T, F, Lanes<T>>((), fr, b, part, band)
 }
