@@ -419,8 +419,10 @@ impl Run<'_> {
         })
     }
 
-    /// Hand the rendered views to the container in order, noting each outcome; a view's
-    /// own failure is kept in its outcome and the view is not handed over.
+    /// Hand the rendered views to the container in order, noting each outcome (and counting
+    /// it in the progress: a view is done once its unit holds it, so the progress reaches
+    /// its end with the last view appended, not rendered); a view's own failure is kept in
+    /// its outcome and the view is not handed over.
     fn accept<C: Container>(
         &self,
         c: &C,
@@ -429,7 +431,7 @@ impl Run<'_> {
         outcomes: &mut Vec<Option<Outcome>>,
     ) -> Result<()> {
         for (i, r) in rendered {
-            outcomes.push(match r {
+            let outcome = match r {
                 None => None,
                 Some(Ok(Ran::Done(view, cost))) => {
                     if let Some(open) = open.as_deref_mut() {
@@ -439,15 +441,18 @@ impl Run<'_> {
                 }
                 Some(Ok(Ran::Kept)) => Some(Outcome::Skipped),
                 Some(Err(e)) => Some(Outcome::Failed(e)),
-            });
+            };
+            if let Some(o) = &outcome {
+                self.progress.record(o);
+            }
+            outcomes.push(outcome);
         }
         Ok(())
     }
 
     /// Skip, render or fail view `i` (its scene read `ahead` with its unit, or now), then
     /// check it if it is selected; `None` when the run stopped before it started. In a kept
-    /// unit (`check_only`) the view is rendered only for its check. The view's outcome
-    /// goes to the progress.
+    /// unit (`check_only`) the view is rendered only for its check.
     fn view<C: Container>(
         &self,
         c: &C,
@@ -462,7 +467,6 @@ impl Run<'_> {
         }
         let checker = self.checker(i);
         if check_only && checker.is_none() {
-            self.progress.record(&Outcome::Skipped);
             return Some(Ok(Ran::Kept));
         }
         let loaded;
@@ -486,11 +490,6 @@ impl Run<'_> {
                 self.check(c, v, i, s, exr.as_deref(), work, state)?;
             }
             Ok(ran)
-        });
-        self.progress.record(&match &ran {
-            Ok(Ran::Done(_, cost)) => Outcome::Done(*cost),
-            Ok(Ran::Kept) => Outcome::Skipped,
-            Err(e) => Outcome::Failed(e.clone()),
         });
         if let Err(why) = &ran
             && let Some(what) = resource_exhausted(why)
