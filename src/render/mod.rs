@@ -609,6 +609,74 @@ mod tests {
         assert!(hits > 20_000, "the scenes hit something ({hits})");
     }
 
+    /// A view of fewer bands than threads is traced in parts of a band (here 1 or 4 rows at
+    /// 5 threads): every camera model and structure gives the bits it gives traced a band
+    /// a task on one thread, in memory and band by band.
+    #[test]
+    fn parts_of_a_band_are_the_band() {
+        let pool = |n| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(n)
+                .build()
+                .unwrap()
+        };
+        let (one, five) = (pool(1), pool(5));
+        assert_eq!(five.install(|| part_rows(5)), 1);
+        assert_eq!(five.install(|| part_rows(27)), 4);
+        let base =
+            r#""origin": [0.2, -9, 3], "target": [0, 0, 0], "up": [0, 0, 1], "near_clip": 0.01"#;
+        let cameras = [
+            r#""fov_deg": 50"#,
+            r#""model": "orthographic", "ortho_width": 9"#,
+            r#""model": "opencv", "fx": 20, "fy": 21, "cx": 15.2, "cy": 5.7, "k1": -0.21, "k2": 0.04"#,
+            r#""model": "opencv_fisheye", "fx": 9, "fy": 9.5, "cx": 15.6, "cy": 5.4, "k1": 0.03"#,
+            r#""model": "equirectangular""#,
+        ];
+        let mut hits = 0;
+        for (cam, (w, h)) in cameras.iter().flat_map(|c| [(c, (31, 5)), (c, (17, 27))]) {
+            let mut sc = crate::bench::dense_scene(600, 4, w, h);
+            let text = format!(
+                r#"{{"camera": {{{base}, {cam}, "width": {w}, "height": {h}}}, "cylinders": []}}"#
+            );
+            sc.camera = crate::scene::parse(&text).unwrap().camera;
+            for accel in [Accel::Tiles, Accel::Frustum, Accel::Bvh] {
+                let o = RenderOptions {
+                    accel,
+                    ..RenderOptions::new(Aov::ALL.to_vec())
+                };
+                let whole = one.install(|| render(&sc, &o));
+                let parts = five.install(|| render(&sc, &o));
+                assert_eq!(parts.hits, whole.hits, "{cam}, {accel:?}");
+                assert!(parts.image == whole.image, "{cam}, {w}×{h}, {accel:?}");
+                let banded = std::sync::Mutex::new(0);
+                five.install(|| {
+                    render_bands(&sc, &o, &|y0, band| {
+                        let s = whole.image.buffers.iter().zip(&band.buffers).all(|(a, b)| {
+                            let rows = y0 * a.stride() * w as usize..;
+                            match (&a.data, &b.data) {
+                                (ChannelData::F32(a), ChannelData::F32(b)) => b
+                                    .iter()
+                                    .map(|x| x.to_bits())
+                                    .eq(a[rows].iter().take(b.len()).map(|x| x.to_bits())),
+                                (ChannelData::U32(a), ChannelData::U32(b)) => {
+                                    a[rows].starts_with(b)
+                                }
+                                _ => false,
+                            }
+                        });
+                        assert!(s, "{cam}, {accel:?}: band at row {y0}");
+                        *banded.lock().unwrap() += band.height;
+                        Ok(())
+                    })
+                })
+                .unwrap();
+                assert_eq!(banded.into_inner().unwrap(), h as usize);
+                hits += whole.hits;
+            }
+        }
+        assert!(hits > 2_000, "{hits} hits");
+    }
+
     /// The cone walk gives the per-ray BVH's bits, whether it projects every cylinder
     /// first or (fewer pixels than cylinders) each as it meets it, at 1 and 2 threads; so
     /// do the tiles, crowded lists and all, on a tiny view.
