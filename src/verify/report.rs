@@ -82,30 +82,32 @@ const d=t.dataset.dir==='1'?-1:1;t.dataset.dir=d===1?'1':'0';r.sort((a,b)=>{cons
 const y=b.cells[c].dataset.v||b.cells[c].textContent;const n=parseFloat(x)-parseFloat(y);return d*(isNaN(n)?x.localeCompare(y):n)});\
 r.forEach(e=>t.tBodies[0].appendChild(e));}";
 
+/// The picture files of view `i`: candidate depth, Mitsuba depth, heatmap.
+fn pictures(i: usize) -> [String; 3] {
+    ["candidate", "mitsuba", "heatmap"].map(|what| format!("view{i}.{what}.png"))
+}
+
 /// Write `dir/index.html` and its images for `views`. Every file is checked as an output
 /// target first (a planted link, FIFO or folder at any of them refuses the whole page before
 /// anything is written), then all are staged under temporary names and committed together,
 /// so nothing outside `dir` is touched and a failure leaves no half-written page.
 pub fn write_report(dir: &Path, title: &str, views: &[ReportView]) -> Result<()> {
-    use crate::output::pipeline::files::stage_png;
     use crate::output::store::atomic::commit_all;
     use crate::output::store::targets::check_output;
-    // The picture files, named before anything is written so all can be checked first.
-    let pictures =
-        |i: usize| ["candidate", "mitsuba", "heatmap"].map(|what| format!("view{i}.{what}.png"));
+    let repros: Vec<Vec<(String, &Pixel)>> = views
+        .iter()
+        .enumerate()
+        .map(|(i, v)| repro_files(i, v))
+        .collect();
+    let any_repro = repros.iter().any(|r| !r.is_empty());
+    // Every file, named before anything is written so all can be checked first.
     let mut targets = vec![dir.join("index.html")];
     for (i, v) in views.iter().enumerate() {
         if v.images.is_some() {
             targets.extend(pictures(i).iter().map(|f| dir.join(f)));
         }
     }
-    let repros: Vec<Vec<(String, &Pixel)>> = views
-        .iter()
-        .enumerate()
-        .map(|(i, v)| repro_files(i, v))
-        .collect();
     targets.extend(repros.iter().flatten().map(|(f, _)| dir.join(f)));
-    let any_repro = repros.iter().any(|r| !r.is_empty());
     if any_repro {
         targets.push(dir.join("README.md"));
     }
@@ -120,7 +122,27 @@ pub fn write_report(dir: &Path, title: &str, views: &[ReportView]) -> Result<()>
         esc(title),
         esc(title)
     );
-    html += "<table id=\"views\"><thead><tr><th onclick=\"sortBy(0)\">view</th><th onclick=\"sortBy(1)\">verdict</th><th onclick=\"sortBy(2)\">worst rel distance</th><th onclick=\"sortBy(3)\">reference errors</th><th onclick=\"sortBy(4)\">candidate errors</th><th onclick=\"sortBy(5)\">unexplained</th><th>result</th></tr></thead><tbody>";
+    html += &views_table(views);
+    if any_repro {
+        html += "<p>Proven reference errors: Mitsuba's shape differs from the exact answer on its own float32 inputs. Each has a script below; see <a href=\"README.md\">README.md</a> before filing one upstream.</p>";
+    }
+    for (i, (v, repros)) in views.iter().zip(&repros).enumerate() {
+        html += &view_section(dir, i, v, repros, &mut staged)?;
+    }
+    if any_repro {
+        let readme = readme(title, views, &repros);
+        staged.push(stage_text(&dir.join("README.md"), &readme)?);
+    }
+    html += "</body></html>\n";
+    staged.push(stage_text(&dir.join("index.html"), &html)?);
+    commit_all(staged).with_context(|| format!("writing the report in {}", dir.display()))
+}
+
+/// The page's table of views, a row each, sortable by any column.
+fn views_table(views: &[ReportView]) -> String {
+    let mut html = String::from(
+        "<table id=\"views\"><thead><tr><th onclick=\"sortBy(0)\">view</th><th onclick=\"sortBy(1)\">verdict</th><th onclick=\"sortBy(2)\">worst rel distance</th><th onclick=\"sortBy(3)\">reference errors</th><th onclick=\"sortBy(4)\">candidate errors</th><th onclick=\"sortBy(5)\">unexplained</th><th>result</th></tr></thead><tbody>",
+    );
     for (i, v) in views.iter().enumerate() {
         let count = |f: fn(&Arbitration) -> usize| v.arbitration.map_or(0, f);
         let _ = write!(
@@ -138,101 +160,110 @@ pub fn write_report(dir: &Path, title: &str, views: &[ReportView]) -> Result<()>
         );
     }
     html += "</tbody></table>";
-    if any_repro {
-        let _ = write!(
-            html,
-            "<p>Proven reference errors: Mitsuba's shape differs from the exact answer on its own float32 inputs. Each has a script below; see <a href=\"README.md\">README.md</a> before filing one upstream.</p>"
-        );
+    html
+}
+
+/// View `i`'s section of the page: its verdict and lines, its pictures, its worst pixels
+/// and its reproductions (`repros`); the files it names are staged into `staged`.
+fn view_section(
+    dir: &Path,
+    i: usize,
+    v: &ReportView,
+    repros: &[(String, &Pixel)],
+    staged: &mut Vec<crate::output::store::atomic::Staged>,
+) -> Result<String> {
+    use crate::output::pipeline::files::stage_png;
+    let mut html = format!(
+        "<h2 id=\"v{i}\">{} <span class=\"{}\">{}</span></h2>",
+        esc(v.name),
+        v.verdict,
+        v.verdict
+    );
+    for l in &v.lines {
+        let _ = write!(html, "<p>{}</p>", esc(l));
     }
-    for (i, v) in views.iter().enumerate() {
-        let _ = write!(
-            html,
-            "<h2 id=\"v{i}\">{} <span class=\"{}\">{}</span></h2>",
-            esc(v.name),
-            v.verdict,
-            v.verdict
-        );
-        for l in &v.lines {
-            let _ = write!(html, "<p>{}</p>", esc(l));
-        }
-        if let Some((cand, reference, heat)) = v.images {
-            let [cand_file, mitsuba_file, heat_file] = pictures(i);
-            for (img, label, file) in [
-                (cand, "candidate", cand_file),
-                (reference, "Mitsuba", mitsuba_file),
-            ] {
-                if let Some((pic, lo, hi)) = depth_picture(img) {
-                    staged.push(stage_png(&pic, &dir.join(&file))?);
-                    let _ = write!(
-                        html,
-                        "<figure><img src=\"{file}\" alt=\"{label} depth\"><figcaption>{label} depth: white {lo:.4} to dark {hi:.4}, black: miss</figcaption></figure>"
-                    );
-                }
-            }
-            staged.push(stage_png(heat, &dir.join(&heat_file))?);
-            let _ = write!(
-                html,
-                "<figure><img src=\"{heat_file}\" alt=\"difference\"><figcaption>{}: difference, candidate against Mitsuba ({})</figcaption>{LEGEND}</figure>",
-                esc(v.name),
-                v.verdict
-            );
-        }
-        if let Some(a) = v.arbitration {
-            let mut worst: Vec<_> = a.pixels.iter().collect();
-            let rank = |c: PixelClass| match c {
-                PixelClass::CandidateError => 0,
-                PixelClass::UnexplainedReferenceError => 1,
-                PixelClass::ReferenceError => 2,
-                PixelClass::Tie => 3,
-                PixelClass::InputRounding => 4,
-            };
-            worst.sort_by(|p, q| {
-                rank(p.class)
-                    .cmp(&rank(q.class))
-                    .then(q.reference_off.total_cmp(&p.reference_off))
-            });
-            if !worst.is_empty() {
-                html += "<table><tr><th>pixel</th><th>class</th><th>kind</th><th>candidate</th><th>Mitsuba</th><th>exact</th></tr>";
-                for p in worst.iter().take(WORST) {
-                    let _ = write!(
-                        html,
-                        "<tr><td>[{}, {}]</td><td>{}</td><td>{:?}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
-                        p.at[0],
-                        p.at[1],
-                        p.class.label(),
-                        p.kind,
-                        esc(&p.candidate.to_string()),
-                        esc(&p.reference.to_string()),
-                        esc(&p.exact.to_string())
-                    );
-                }
-                html += "</table>";
-            }
-        }
-        if !repros[i].is_empty() {
-            html += "<h3>Proven reference errors: reproductions</h3><ul>";
-            for (file, p) in &repros[i] {
-                let r = p.repro.as_ref().expect("a reproduction");
-                staged.push(stage_text(&dir.join(file), &script(r, &repro_title(v, p)))?);
+    if let Some((cand, reference, heat)) = v.images {
+        let [cand_file, mitsuba_file, heat_file] = pictures(i);
+        for (img, label, file) in [
+            (cand, "candidate", cand_file),
+            (reference, "Mitsuba", mitsuba_file),
+        ] {
+            if let Some((pic, lo, hi)) = depth_picture(img) {
+                staged.push(stage_png(&pic, &dir.join(&file))?);
                 let _ = write!(
                     html,
-                    "<li><a href=\"{file}\">{file}</a>: pixel [{}, {}], Mitsuba {}, exact {}</li>",
-                    p.at[0],
-                    p.at[1],
-                    esc(&ReproHit::describe(&r.reference)),
-                    esc(&ReproHit::describe(&r.exact))
+                    "<figure><img src=\"{file}\" alt=\"{label} depth\"><figcaption>{label} depth: white {lo:.4} to dark {hi:.4}, black: miss</figcaption></figure>"
                 );
             }
-            html += "</ul>";
         }
+        staged.push(stage_png(heat, &dir.join(&heat_file))?);
+        let _ = write!(
+            html,
+            "<figure><img src=\"{heat_file}\" alt=\"difference\"><figcaption>{}: difference, candidate against Mitsuba ({})</figcaption>{LEGEND}</figure>",
+            esc(v.name),
+            v.verdict
+        );
     }
-    if any_repro {
-        let readme = readme(title, views, &repros);
-        staged.push(stage_text(&dir.join("README.md"), &readme)?);
+    if let Some(a) = v.arbitration {
+        html += &worst_pixels(a);
     }
-    html += "</body></html>\n";
-    staged.push(stage_text(&dir.join("index.html"), &html)?);
-    commit_all(staged).with_context(|| format!("writing the report in {}", dir.display()))
+    if !repros.is_empty() {
+        html += "<h3>Proven reference errors: reproductions</h3><ul>";
+        for (file, p) in repros {
+            let r = p.repro.as_ref().expect("a reproduction");
+            staged.push(stage_text(&dir.join(file), &script(r, &repro_title(v, p)))?);
+            let _ = write!(
+                html,
+                "<li><a href=\"{file}\">{file}</a>: pixel [{}, {}], Mitsuba {}, exact {}</li>",
+                p.at[0],
+                p.at[1],
+                esc(&ReproHit::describe(&r.reference)),
+                esc(&ReproHit::describe(&r.exact))
+            );
+        }
+        html += "</ul>";
+    }
+    Ok(html)
+}
+
+/// The table of a view's [`WORST`] pixels: candidate errors first, then unexplained and
+/// proven reference errors, ties and input rounding; within a class, farthest from the
+/// reference first. Empty when no pixel disagrees.
+fn worst_pixels(a: &Arbitration) -> String {
+    let mut worst: Vec<_> = a.pixels.iter().collect();
+    let rank = |c: PixelClass| match c {
+        PixelClass::CandidateError => 0,
+        PixelClass::UnexplainedReferenceError => 1,
+        PixelClass::ReferenceError => 2,
+        PixelClass::Tie => 3,
+        PixelClass::InputRounding => 4,
+    };
+    worst.sort_by(|p, q| {
+        rank(p.class)
+            .cmp(&rank(q.class))
+            .then(q.reference_off.total_cmp(&p.reference_off))
+    });
+    if worst.is_empty() {
+        return String::new();
+    }
+    let mut html = String::from(
+        "<table><tr><th>pixel</th><th>class</th><th>kind</th><th>candidate</th><th>Mitsuba</th><th>exact</th></tr>",
+    );
+    for p in worst.iter().take(WORST) {
+        let _ = write!(
+            html,
+            "<tr><td>[{}, {}]</td><td>{}</td><td>{:?}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+            p.at[0],
+            p.at[1],
+            p.class.label(),
+            p.kind,
+            esc(&p.candidate.to_string()),
+            esc(&p.reference.to_string()),
+            esc(&p.exact.to_string())
+        );
+    }
+    html += "</table>";
+    html
 }
 
 /// How many reproductions a view writes at most (the first in image order).
