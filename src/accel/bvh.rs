@@ -29,6 +29,10 @@ pub const MAX_DEPTH: usize = 64;
 /// Subtrees of more primitives than this build their two halves in parallel. A count,
 /// not a thread count: the tree is the same on any machine.
 const PARALLEL_MIN: usize = 8192;
+/// Interleaved sets of bins in a node's binning ([`Bvh::bin`]), and the fewest items for
+/// which more than one pays for clearing and merging the others.
+const SETS: usize = 4;
+const SETS_MIN: usize = 64;
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(super) struct Node {
@@ -58,17 +62,33 @@ fn outward(x: DVec3, o: DVec3, down: bool) -> Vec3A {
     let rel = x - o;
     let pad = rel.abs() * 1e-6 + DVec3::splat(1e-30);
     let v = if down { rel - pad } else { rel + pad };
-    let f = |a: f64| {
-        let r = a as f32;
-        match (down, (r as f64) > a, (r as f64) < a) {
-            (true, _, _) if r == 0.0 => -f32::MIN_POSITIVE,
-            (false, _, _) if r == 0.0 => f32::MIN_POSITIVE,
-            (true, true, _) => r.next_down(),
-            (false, _, true) => r.next_up(),
-            _ => r,
-        }
-    };
+    let f = |a: f64| round_out(a, down);
     Vec3A::new(f(v.x), f(v.y), f(v.z))
+}
+
+/// `a` rounded to f32 toward -inf (`down`) or +inf, never to ±0 (the smallest normal on
+/// the outer side instead). Without branches, as the rounding's direction is a coin toss
+/// per coordinate: round to nearest, then, where that went the wrong way, step one f32:
+/// the bit pattern ± 1, +1 where the step is away from 0 (a negative number going down, a
+/// positive one going up). That is `next_down` / `next_up` for every `r` that needs a step
+/// (-inf never steps down, +inf never up, NaN never steps).
+#[inline(always)]
+fn round_out(a: f64, down: bool) -> f32 {
+    let r = a as f32;
+    let wrong = if down { (r as f64) > a } else { (r as f64) < a };
+    let step = wrong as u32;
+    let bits = if r.is_sign_negative() == down {
+        r.to_bits().wrapping_add(step)
+    } else {
+        r.to_bits().wrapping_sub(step)
+    };
+    let s = f32::from_bits(bits);
+    let tiny = if down {
+        -f32::MIN_POSITIVE
+    } else {
+        f32::MIN_POSITIVE
+    };
+    if r == 0.0 || s == 0.0 { tiny } else { s }
 }
 
 #[derive(Clone, Copy)]
@@ -141,6 +161,28 @@ impl Bounds {
             b.add(it);
         }
         b
+    }
+}
+
+/// A node's SAH bins: items and bounds of each.
+struct Bins {
+    count: [usize; BINS],
+    bounds: [Bounds; BINS],
+}
+
+impl Bins {
+    const EMPTY: Bins = Bins {
+        count: [0; BINS],
+        bounds: [Bounds::EMPTY; BINS],
+    };
+
+    /// Add `o`'s items to these bins.
+    #[inline(always)]
+    fn merge(&mut self, o: &Bins) {
+        for k in 0..BINS {
+            self.count[k] += o.count[k];
+            self.bounds[k] = self.bounds[k].union(&o.bounds[k]);
+        }
     }
 }
 
@@ -241,7 +283,8 @@ impl Bvh {
             .par_chunks(4096)
             .map(Bounds::of)
             .reduce(|| Bounds::EMPTY, |a, b| a.union(&b));
-        let nodes = Self::build_tree(&mut items, (0, sah_depth), all);
+        let mut keys = vec![0u32; items.len()];
+        let nodes = Self::build_tree(&mut items, &mut keys, (0, sah_depth), all);
         Bvh {
             nodes,
             order: items.par_iter().map(|it| it.index).collect(),
@@ -249,11 +292,17 @@ impl Bvh {
         }
     }
 
-    /// The tree over `items` (bounded by `bounds`), root first, laid out as the sequential
-    /// build lays it out: large subtrees are split here and their halves built in
-    /// parallel ([`Part`]), then every node is written once to its place in one list.
-    fn build_tree(items: &mut [Item], depth: (usize, usize), bounds: Bounds) -> Vec<Node> {
-        let part = Self::build_part(items, 0, depth, bounds);
+    /// The tree over `items` (bounded by `bounds`; `keys` scratch of the same length), root
+    /// first, laid out as the sequential build lays it out: large subtrees are split here
+    /// and their halves built in parallel ([`Part`]), then every node is written once to
+    /// its place in one list.
+    fn build_tree(
+        items: &mut [Item],
+        keys: &mut [u32],
+        depth: (usize, usize),
+        bounds: Bounds,
+    ) -> Vec<Node> {
+        let part = Self::build_part(items, keys, 0, depth, bounds);
         let len = part.len();
         // Not filled first: each node's memory is first touched by the thread placing it.
         let mut nodes = Vec::with_capacity(len);
@@ -267,15 +316,21 @@ impl Bvh {
 
     /// The subtree over `items` (positions `start..` of the final order, bounded by
     /// `bounds`): split, with its halves built in parallel, when it is large.
-    fn build_part(items: &mut [Item], start: usize, depth: (usize, usize), bounds: Bounds) -> Part {
+    fn build_part(
+        items: &mut [Item],
+        keys: &mut [u32],
+        start: usize,
+        depth: (usize, usize),
+        bounds: Bounds,
+    ) -> Part {
         let n = items.len();
         let split = (n > PARALLEL_MIN)
-            .then(|| Self::split(items, &bounds, depth.0, depth.1))
+            .then(|| Self::split(items, keys, &bounds, depth.0, depth.1))
             .flatten();
         let Some((mid, [lb, rb])) = split else {
             let mut nodes = Vec::with_capacity(2 * n.max(1));
             nodes.push(BLANK);
-            Self::build_node(&mut nodes, 0, items, 0, n, depth, bounds);
+            Self::build_node(&mut nodes, 0, items, keys, 0, depth, bounds);
             // Leaves index the slice; shift them to positions in the whole order.
             for node in nodes.iter_mut().filter(|k| k.count > 0) {
                 node.offset += start as u32;
@@ -283,30 +338,33 @@ impl Bvh {
             return Part::Nodes(nodes);
         };
         let (left, right) = items.split_at_mut(mid);
+        let (lkeys, rkeys) = keys.split_at_mut(mid);
         let next = (depth.0 + 1, depth.1);
         let (l, r) = rayon::join(
-            || Self::build_part(left, start, next, lb),
-            || Self::build_part(right, start + mid, next, rb),
+            || Self::build_part(left, lkeys, start, next, lb),
+            || Self::build_part(right, rkeys, start + mid, next, rb),
         );
         Part::Split(bounds, Box::new([l, r]))
     }
 
+    /// Node `node` (already pushed) over `items`, which lie at positions `start..` of the
+    /// order `nodes` indexes; `keys` is scratch as long as `items`.
     fn build_node(
         nodes: &mut Vec<Node>,
         node: usize,
         items: &mut [Item],
+        keys: &mut [u32],
         start: usize,
-        end: usize,
         (depth, sah_depth): (usize, usize),
         bounds: Bounds,
     ) {
-        let slice = &mut items[start..end];
-        let Some((mid, [lb, rb])) = Self::split(slice, &bounds, depth, sah_depth) else {
+        let n = items.len();
+        let Some((mid, [lb, rb])) = Self::split(items, keys, &bounds, depth, sah_depth) else {
             nodes[node] = Node {
                 min: bounds.min,
                 max: bounds.max,
                 offset: start as u32,
-                count: (end - start) as u32,
+                count: n as u32,
             };
             return;
         };
@@ -321,14 +379,18 @@ impl Bvh {
         nodes.push(blank);
         nodes.push(blank);
         let next = (depth + 1, sah_depth);
-        Self::build_node(nodes, child, items, start, start + mid, next, lb);
-        Self::build_node(nodes, child + 1, items, start + mid, end, next, rb);
+        let (left, right) = items.split_at_mut(mid);
+        let (lkeys, rkeys) = keys.split_at_mut(mid);
+        Self::build_node(nodes, child, left, lkeys, start, next, lb);
+        Self::build_node(nodes, child + 1, right, rkeys, start + mid, next, rb);
     }
 
-    /// Partition `slice` (bounded by `bounds`) for an interior node: the size of the left
-    /// part and the bounds of both parts; `None` when it should be a leaf.
+    /// Partition `slice` (bounded by `bounds`; `keys` scratch of the same length) for an
+    /// interior node: the size of the left part and the bounds of both parts; `None` when
+    /// it should be a leaf.
     fn split(
         slice: &mut [Item],
+        keys: &mut [u32],
         bounds: &Bounds,
         depth: usize,
         sah_depth: usize,
@@ -367,9 +429,9 @@ impl Bvh {
         // One copy of the binning per axis, so the centroid's coordinate is a field
         // read rather than an index chosen at run time (half the cost of a bin).
         let cut = match axis {
-            0 => Self::sah_cut::<0>(slice, bounds),
-            1 => Self::sah_cut::<1>(slice, bounds),
-            _ => Self::sah_cut::<2>(slice, bounds),
+            0 => Self::sah_cut::<0>(slice, keys, bounds),
+            1 => Self::sah_cut::<1>(slice, keys, bounds),
+            _ => Self::sah_cut::<2>(slice, keys, bounds),
         };
         match cut {
             Cut::Leaf => None,
@@ -380,9 +442,104 @@ impl Bvh {
     }
 
     /// The binned SAH cut of `slice` across `AXIS` (whose centroid extent is positive),
-    /// the slice partitioned at it.
-    fn sah_cut<const AXIS: usize>(slice: &mut [Item], bounds: &Bounds) -> Cut {
+    /// the slice partitioned at it; `keys` (as long as `slice`) is scratch.
+    fn sah_cut<const AXIS: usize>(slice: &mut [Item], keys: &mut [u32], bounds: &Bounds) -> Cut {
         let n = slice.len();
+        let mut bins = Bins::EMPTY;
+        if n > 4 * PARALLEL_MIN {
+            // The few largest nodes (the root's first levels), whose binning would
+            // otherwise leave a core idle: in parallel, merged as the sets are.
+            bins = slice
+                .par_chunks(PARALLEL_MIN)
+                .zip(keys.par_chunks_mut(PARALLEL_MIN))
+                .map(|(items, keys)| {
+                    let mut bins = Bins::EMPTY;
+                    Self::bin::<AXIS, SETS>(items, keys, bounds, &mut bins);
+                    bins
+                })
+                .reduce(
+                    || Bins::EMPTY,
+                    |mut a, b| {
+                        a.merge(&b);
+                        a
+                    },
+                );
+        } else if n >= SETS_MIN {
+            Self::bin::<AXIS, SETS>(slice, keys, bounds, &mut bins);
+        } else {
+            Self::bin::<AXIS, 1>(slice, keys, bounds, &mut bins);
+        }
+        // Only the non-empty bins, in order. A cut inside a run of empty bins has the
+        // same two sides, hence the same cost, as the cut right after the run's last
+        // non-empty bin, which comes first and so wins the ties (`<`): skipping the run
+        // gives the cut the sweep over all bins gives, for a fraction of the work on the
+        // small nodes that are most of the tree. Cuts leaving a side empty (before the
+        // first or after the last) are no candidates.
+        let mut used = [0usize; BINS];
+        let mut m = 0;
+        for (k, &c) in bins.count.iter().enumerate() {
+            used[m] = k;
+            m += (c > 0) as usize;
+        }
+        let used = &used[..m];
+        // Sweep from the right to get suffix costs, then from the left to find the best cut
+        // (after bin `used[j]`, j < m - 1).
+        let mut right = [0f32; BINS];
+        let (mut c, mut acc) = (0usize, Bounds::EMPTY);
+        for j in (1..m).rev() {
+            c += bins.count[used[j]];
+            acc = acc.union(&bins.bounds[used[j]]);
+            right[j] = c as f32 * area(acc.min, acc.max);
+        }
+        let (mut best, mut best_cost) = (0usize, f32::INFINITY);
+        let (mut c, mut acc) = (0usize, Bounds::EMPTY);
+        for j in 0..m.saturating_sub(1) {
+            c += bins.count[used[j]];
+            acc = acc.union(&bins.bounds[used[j]]);
+            let cost = c as f32 * area(acc.min, acc.max) + right[j + 1];
+            if cost < best_cost {
+                best_cost = cost;
+                best = j;
+            }
+        }
+        // Leaf when splitting costs more than testing everything (box test ≈ 1/2 a cylinder).
+        if n <= 2 * LEAF_SIZE && best_cost >= (n as f32 - 0.5) * area(bounds.min, bounds.max) {
+            return Cut::Leaf;
+        }
+        if best_cost == f32::INFINITY {
+            // No cut keeps both sides non-empty, or every cost overflowed (boxes of
+            // extents past 1e19, beyond any scene's coordinates).
+            return Cut::Unusable;
+        }
+        // The parts' bounds, unions of their bins (in any order: see `bin`).
+        let mut left = 0;
+        let mut parts = [Bounds::EMPTY; 2];
+        for (j, &k) in used.iter().enumerate() {
+            let side = (j > best) as usize;
+            left += if side == 0 { bins.count[k] } else { 0 };
+            parts[side] = parts[side].union(&bins.bounds[k]);
+        }
+        Self::partition(slice, keys, used[best] as u32, left);
+        Cut::At(left, parts)
+    }
+
+    /// SAH bins of `slice` across `AXIS` (whose centroid extent is positive), added to
+    /// `bins`; each item's bin to `keys`. `S` interleaved sets
+    /// of bins, merged after: consecutive items often fall in the same bin, and one set
+    /// would make each update wait for the last one's store. Counts, mins and maxes do not
+    /// depend on the order they are taken in but for NaN and the sign of a zero (`min(+0,
+    /// -0)` keeps either). Box corners are never 0 ([`round_out`]) nor NaN for finite
+    /// boxes, so the merged box bounds are exactly those of one pass. A centroid can be -0
+    /// (half a subnormal sum), and a centroid bound's zero may then differ in sign, but no
+    /// choice sees it: the axis, the extent and the bins compare and subtract it, where +0
+    /// and -0 agree.
+    #[inline(always)]
+    fn bin<const AXIS: usize, const S: usize>(
+        slice: &[Item],
+        keys: &mut [u32],
+        bounds: &Bounds,
+        bins: &mut Bins,
+    ) {
         let at = |v: Vec3A| match AXIS {
             0 => v.x,
             1 => v.y,
@@ -390,48 +547,69 @@ impl Bvh {
         };
         let low = at(bounds.cmin);
         let scale = BINS as f32 / (at(bounds.cmax) - low);
-        let bin_of = |c: Vec3A| (((at(c) - low) * scale) as usize).min(BINS - 1);
-        let mut bins = [(0usize, Bounds::EMPTY); BINS];
-        for it in slice.iter() {
-            let b = &mut bins[bin_of(it.centroid)];
-            b.0 += 1;
-            b.1.add(it);
-        }
-        // Sweep from the right to get suffix areas, then from the left to find the best cut.
-        let mut right = [(0f32, Bounds::EMPTY); BINS];
-        let (mut c, mut acc) = (0usize, Bounds::EMPTY);
-        for k in (1..BINS).rev() {
-            c += bins[k].0;
-            acc = acc.union(&bins[k].1);
-            right[k] = (c as f32 * area(acc.min, acc.max), acc);
-        }
-        let (mut best, mut best_cost, mut best_left) = (0usize, f32::INFINITY, Bounds::EMPTY);
-        let (mut c, mut acc) = (0usize, Bounds::EMPTY);
-        for k in 0..BINS - 1 {
-            c += bins[k].0;
-            acc = acc.union(&bins[k].1);
-            let cost = c as f32 * area(acc.min, acc.max) + right[k + 1].0;
-            if c > 0 && c < n && cost < best_cost {
-                best_cost = cost;
-                best = k;
-                best_left = acc;
+        // `(x as usize).min(BINS - 1)` without the saturating cast's fix-ups: NaN (0·inf
+        // when the extent is subnormal) and negatives fail `x > 0` and go to bin 0 as
+        // there; `x < 15` keeps the rest in range, so the cast is exact.
+        let bin_of = |c: Vec3A| {
+            let x = (at(c) - low) * scale;
+            let x = if x > 0.0 { x } else { 0.0 };
+            let x = if x < (BINS - 1) as f32 {
+                x
+            } else {
+                (BINS - 1) as f32
+            };
+            // SAFETY: `x` is finite and in [0, BINS - 1] (clamped above).
+            unsafe { x.to_int_unchecked::<u32>() }
+        };
+        // Set 0 is `bins` itself.
+        let mut others = [Bins::EMPTY; S];
+        let (items, items_tail) = slice.as_chunks::<S>();
+        let (ks, keys_tail) = keys.as_chunks_mut::<S>();
+        for (its, ks) in items.iter().zip(ks) {
+            for s in 0..S {
+                let k = bin_of(its[s].centroid);
+                ks[s] = k;
+                let b = if s == 0 { &mut *bins } else { &mut others[s] };
+                b.count[k as usize] += 1;
+                b.bounds[k as usize].add(&its[s]);
             }
         }
-        // Leaf when splitting costs more than testing everything (box test ≈ 1/2 a cylinder).
-        if n <= 2 * LEAF_SIZE && best_cost >= (n as f32 - 0.5) * area(bounds.min, bounds.max) {
-            return Cut::Leaf;
+        for (it, k) in items_tail.iter().zip(keys_tail) {
+            *k = bin_of(it.centroid);
+            bins.count[*k as usize] += 1;
+            bins.bounds[*k as usize].add(it);
         }
-        let mut left = 0;
-        for k in 0..n {
-            if bin_of(slice[k].centroid) <= best {
-                slice.swap(k, left);
-                left += 1;
+        for set in &others[1..] {
+            bins.merge(set);
+        }
+    }
+
+    /// Move the items whose key (bin) is at most `best`, `left` of them, to the front of
+    /// `slice`, each swapped with one of the others that lie there. Branch-free: the
+    /// positions of the misplaced items on either side are listed first (over the keys, in
+    /// place), then swapped pairwise, so a side's unpredictable choice costs no mispredict.
+    /// The result is a function of the keys alone.
+    fn partition(slice: &mut [Item], keys: &mut [u32], best: u32, left: usize) {
+        // Positions (relative to the part) of the items in the wrong part, listed over the
+        // keys already read: the m-th is written at m ≤ the position being read.
+        fn list(keys: &mut [u32], misplaced: impl Fn(u32) -> bool) -> usize {
+            let mut m = 0;
+            for i in 0..keys.len() {
+                let k = keys[i];
+                keys[m] = i as u32;
+                m += misplaced(k) as usize;
             }
+            m
         }
-        if left == 0 || left == n {
-            return Cut::Unusable;
+        let (lkeys, rkeys) = keys.split_at_mut(left);
+        let ml = list(lkeys, |k| k > best);
+        let mr = list(rkeys, |k| k <= best);
+        // As many of one part's items lie in the other's as the other way round.
+        assert_eq!(ml, mr, "a partition swaps pairs");
+        let (l, r) = slice.split_at_mut(left);
+        for (&i, &j) in lkeys[..ml].iter().zip(&rkeys[..mr]) {
+            std::mem::swap(&mut l[i as usize], &mut r[j as usize]);
         }
-        Cut::At(left, [best_left, right[best + 1].1])
     }
 
     /// Levels below the root of the deepest leaf.
@@ -815,13 +993,13 @@ pub(crate) mod tests {
                 offset: 0,
                 count: 0,
             }];
-            let n = items.len();
+            let mut keys = vec![0; items.len()];
             let all = Bounds::of(&items);
-            Bvh::build_node(&mut nodes, 0, &mut items, 0, n, (0, SAH_DEPTH), all);
+            Bvh::build_node(&mut nodes, 0, &mut items, &mut keys, 0, (0, SAH_DEPTH), all);
             (nodes, items.iter().map(|it| it.index).collect::<Vec<u32>>())
         };
         assert!(seq.0.len() > 10_000);
-        for threads in [1, 3] {
+        for threads in [1, 2, 3] {
             let pool = rayon::ThreadPoolBuilder::new()
                 .num_threads(threads)
                 .build()
@@ -829,6 +1007,58 @@ pub(crate) mod tests {
             let bvh = pool.install(|| Bvh::build(&boxes, origin));
             assert!(bvh.nodes == seq.0, "{threads} threads: nodes differ");
             assert!(bvh.order == seq.1, "{threads} threads: order differs");
+        }
+    }
+
+    /// The branch-free rounding of `round_out` agrees with rounding to nearest and stepping
+    /// by `next_down` / `next_up`, except that it never gives ±0.
+    #[test]
+    fn round_out_rounds_as_next_down_and_next_up() {
+        let reference = |a: f64, down: bool| {
+            let r = a as f32;
+            let tiny = if down {
+                -f32::MIN_POSITIVE
+            } else {
+                f32::MIN_POSITIVE
+            };
+            let s = match (down, (r as f64) > a, (r as f64) < a) {
+                _ if r == 0.0 => tiny,
+                (true, true, _) => r.next_down(),
+                (false, _, true) => r.next_up(),
+                _ => r,
+            };
+            if s == 0.0 { tiny } else { s }
+        };
+        let mut rng = crate::rng::SplitMix64::new(3);
+        let tiny = f32::from_bits(1) as f64;
+        let mut values = vec![
+            0.0,
+            f64::MAX,
+            f64::INFINITY,
+            f64::NAN,
+            f32::MAX as f64,
+            f32::MAX as f64 * (1.0 + 1e-9),
+            f32::MIN_POSITIVE as f64,
+            tiny,
+            tiny * 0.5,
+            tiny * 0.75,
+            tiny * 1.5,
+            1.0,
+            1.0 + 1e-12,
+            0.1,
+        ];
+        for _ in 0..20_000 {
+            let e = rng.range(-160.0, 140.0);
+            let x = rng.range(-1.0, 1.0) * 2f64.powf(e);
+            let f = x as f32 as f64;
+            // Arbitrary values, exact f32 ones and their neighbours in f64.
+            values.extend([x, f, f * (1.0 + 1e-12), f * (1.0 - 1e-12)]);
+        }
+        for a in values.iter().flat_map(|&a| [a, -a]) {
+            for down in [true, false] {
+                let (got, want) = (round_out(a, down), reference(a, down));
+                assert_eq!(got.to_bits(), want.to_bits(), "{a:e} down {down}");
+            }
         }
     }
 }
