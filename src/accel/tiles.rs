@@ -468,6 +468,88 @@ pub fn project_slots(cam: &Camera, cylinders: &[Cylinder], order: &[u32]) -> Vec
         .collect()
 }
 
+/// The candidates that reach the image's one tile, ordered by (`t_min`, index) as the
+/// general binning orders a tile's list, in a bucket sort on every thread: the sort of a
+/// tiny view's 100 000 candidates was most of its binning, and a comparison sort splits
+/// its first passes poorly over the threads.
+///
+/// Buckets are runs of the `t_min` keys' range (a key's high bits past the range's low
+/// end, about 32 candidates a bucket). Each chunk of candidates counts its own per bucket;
+/// the counts place every (bucket, chunk) pair in the list, bucket-major, so each chunk
+/// writes its candidates, in order, to slices no other chunk holds. Then each bucket is
+/// sorted on its own. The list does not depend on the chunking: a bucket's members and
+/// their final order are the key's.
+fn nearest_first(cands: &[Candidate]) -> Vec<Candidate> {
+    let reaches = |c: &Candidate| c.tile_entries() > 0;
+    let key = |c: &Candidate| order_key(c.t_min);
+    let Some((lo, hi)) = cands
+        .par_iter()
+        .filter(|c| reaches(c))
+        .map(|c| (key(c), key(c)))
+        .reduce_with(|a, b| (a.0.min(b.0), a.1.max(b.1)))
+    else {
+        return Vec::new();
+    };
+    // The fewest high bits of `key - lo` that leave at most `buckets` values.
+    let buckets = (cands.len() / 32).next_power_of_two();
+    let bits = u64::BITS - (hi - lo).leading_zeros();
+    let shift = bits.saturating_sub(buckets.trailing_zeros());
+    let bucket = |k: u64| (k - lo).checked_shr(shift).unwrap_or(0) as usize;
+    let nb = bucket(hi) + 1;
+    let chunk = cands
+        .len()
+        .div_ceil(4 * rayon::current_num_threads())
+        .max(4096);
+    let counts: Vec<Vec<usize>> = cands
+        .par_chunks(chunk)
+        .map(|part| {
+            let mut count = vec![0; nb];
+            for c in part.iter().filter(|c| reaches(c)) {
+                count[bucket(key(c))] += 1;
+            }
+            count
+        })
+        .collect();
+    let total = counts.iter().flatten().sum();
+    let mut list = Vec::with_capacity(total);
+    let mut rest = &mut list.spare_capacity_mut()[..total];
+    let mut places: Vec<Vec<&mut [std::mem::MaybeUninit<Candidate>]>> =
+        counts.iter().map(|_| Vec::with_capacity(nb)).collect();
+    for b in 0..nb {
+        for (place, count) in places.iter_mut().zip(&counts) {
+            let (mine, after) = rest.split_at_mut(count[b]);
+            place.push(mine);
+            rest = after;
+        }
+    }
+    cands
+        .par_chunks(chunk)
+        .zip(places)
+        .for_each(|(part, mut place)| {
+            let mut filled = vec![0; nb];
+            for c in part.iter().filter(|c| reaches(c)) {
+                let b = bucket(key(c));
+                place[b][filled[b]].write(*c);
+                filled[b] += 1;
+            }
+        });
+    // SAFETY: the places cut the first `total` slots into one slice per (bucket, chunk),
+    // each as long as the chunk's count of candidates in the bucket, and each chunk wrote
+    // exactly those candidates to its slices: every slot was written.
+    unsafe { list.set_len(total) };
+    let mut rest = &mut list[..];
+    let mut runs = Vec::with_capacity(nb);
+    for b in 0..nb {
+        let (run, after) = rest.split_at_mut(counts.iter().map(|c| c[b]).sum());
+        runs.push(run);
+        rest = after;
+    }
+    runs.into_par_iter()
+        .with_min_len(16)
+        .for_each(|run| run.sort_unstable_by_key(|c| (key(c), c.index)));
+    list
+}
+
 impl Tiles {
     /// Bin `cylinders` for `cam`, or `None` when the lists would average more than
     /// [`CROWDED`] candidates per tile (a dense scene, or many cylinders reaching past the
@@ -521,6 +603,16 @@ impl Tiles {
             && cands.par_iter().map(Candidate::tile_entries).sum::<usize>() > limit
         {
             return Err(cands);
+        }
+        if tiles_x == 1 && tiles_y == 1 {
+            // One tile (a tiny view): its list is every candidate that reaches it.
+            let list = nearest_first(&cands);
+            return Ok(Tiles {
+                tiles_x,
+                tiles_y,
+                start: vec![0, list.len() as u32],
+                rows: vec![list],
+            });
         }
         // Each chunk of candidates lists its visits per tile row; then each tile row
         // gathers its visits, sorts them by (t_min, index) and fills its tiles' lists. The
@@ -743,6 +835,46 @@ mod tests {
             }
         }
         assert!(checked > 10_000, "{checked}");
+    }
+
+    /// A tiny view's one list (the bucket sort) holds the candidates the general binning
+    /// would list, ordered by (`t_min`, index), whatever the thread count: on views from
+    /// outside a crowd and inside one (keys bunched at the near plane).
+    #[test]
+    fn one_tile_lists_every_reaching_candidate_nearest_first() {
+        let mut inside = crate::bench::dense_scene(20_000, 9, 16, 12);
+        inside.camera.origin = DVec3::new(0.3, -0.2, 0.1);
+        inside.camera.near_clip = 0.5;
+        for sc in [crate::bench::dense_scene(20_000, 9, 16, 12), inside] {
+            let cam = Camera::new(sc.camera);
+            let view = View::new(&cam);
+            let mut want: Vec<(u64, u32)> = sc
+                .cylinders
+                .iter()
+                .enumerate()
+                .filter_map(|(i, c)| project_in(&view, c).map(|k| (k, i)))
+                .filter(|(k, _)| k.tile_entries() > 0)
+                .map(|(k, i)| (order_key(k.t_min), i as u32))
+                .collect();
+            want.sort_unstable();
+            assert!(want.len() > 1_000, "{}", want.len());
+            for threads in [1, 2, 3, 7] {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .unwrap();
+                let t = pool
+                    .install(|| Tiles::build_within(&cam, &sc.cylinders, usize::MAX))
+                    .unwrap();
+                assert_eq!((t.tiles_x, t.tiles_y), (1, 1));
+                let got: Vec<(u64, u32)> = t
+                    .tile(0, 0)
+                    .iter()
+                    .map(|c| (order_key(c.t_min), c.index))
+                    .collect();
+                assert!(got == want, "{threads} threads");
+            }
+        }
     }
 
     /// The lists do not depend on the thread count (the chunking follows it).
