@@ -236,15 +236,22 @@ impl<T: Real, F: Formula> Setup<T, F> {
             cam.projection,
             crate::scene::camera::Projection::Orthographic { .. }
         );
+        let ids_for = |aov: Aov, f: fn(&crate::geometry::Cylinder) -> u32| -> Vec<u32> {
+            match opts.aovs.contains(&aov) {
+                true => scene.cylinders.par_iter().map(f).collect(),
+                false => Vec::new(),
+            }
+        };
         Setup {
             cylinders: if parallel || opts.aovs.contains(&crate::scene::Aov::Uv) {
                 scene.cylinders.clone()
             } else {
                 Vec::new()
             },
-            // On every thread: at 100 000 cylinders each is a pass over 8 MB.
-            ids: scene.cylinders.par_iter().map(|c| c.id).collect(),
-            labels: scene.cylinders.par_iter().map(|c| c.label).collect(),
+            // Only for the planes that read them (`shade` writes a hit's id or label there),
+            // on every thread: at 100 000 cylinders each is a pass over 8 MB.
+            ids: ids_for(Aov::ShapeId, |c| c.id),
+            labels: ids_for(Aov::Label, |c| c.label),
             tracer,
             cols_off,
             rows_off,

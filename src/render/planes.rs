@@ -185,9 +185,9 @@ pub(super) fn bands<'a, F, U>(
 /// What every band of a render shares.
 pub(super) struct BandInputs<'a, T: Real, F: Formula> {
     pub(super) tracer: &'a Tracer<T, F>,
-    /// `shape_id` per cylinder.
+    /// `shape_id` per cylinder, for the `shape_id` AOV; empty otherwise.
     pub(super) ids: &'a [u32],
-    /// `label` per cylinder.
+    /// `label` per cylinder, for the `label` AOV; empty otherwise.
     pub(super) labels: &'a [u32],
     /// Image-plane offset per column (padded to whole tiles) and per row.
     pub(super) cols_off: &'a [f64],
