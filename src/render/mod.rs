@@ -424,6 +424,14 @@ mod tests {
     use crate::image::ChannelData;
     use glam::DVec3;
 
+    /// A pool of `n` threads, for renders whose parts follow the thread count.
+    fn pool(n: usize) -> rayon::ThreadPool {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build()
+            .unwrap()
+    }
+
     /// Each threshold of the strategy, on both sides: the tiny view (16 cylinders per
     /// pixel), the crowded lists (`8 · CROWDED` cylinders per tile, partial tiles counted
     /// whole), the tiny lists' bound, and the wide collapse (4 cylinders per pixel).
@@ -485,12 +493,6 @@ mod tests {
     fn bands_are_the_whole_render() {
         let mut sc = crate::bench::dense_scene(2000, 5, 211, 117);
         (sc.camera.width, sc.camera.height) = (173, 97);
-        let pool = |n| {
-            rayon::ThreadPoolBuilder::new()
-                .num_threads(n)
-                .build()
-                .unwrap()
-        };
         let (one, many) = (pool(1), pool(16));
         assert_eq!(
             (
@@ -621,12 +623,6 @@ mod tests {
     /// a task on one thread, in memory and band by band.
     #[test]
     fn parts_of_a_band_are_the_band() {
-        let pool = |n| {
-            rayon::ThreadPoolBuilder::new()
-                .num_threads(n)
-                .build()
-                .unwrap()
-        };
         let (one, five) = (pool(1), pool(5));
         assert_eq!(five.install(|| part_rows(5)), 1);
         assert_eq!(five.install(|| part_rows(27)), 4);
@@ -707,11 +703,7 @@ mod tests {
                     accel,
                     ..RenderOptions::new(Aov::ALL.to_vec())
                 };
-                let pool = rayon::ThreadPoolBuilder::new()
-                    .num_threads(threads)
-                    .build()
-                    .unwrap();
-                pool.install(|| render(sc, &o))
+                pool(threads).install(|| render(sc, &o))
             };
             let reference = with(Accel::Bvh, 1);
             // At 2 and 5 threads, the 16- and 6-row views are traced in parts of a band.

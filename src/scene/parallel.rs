@@ -626,27 +626,22 @@ const RECIPROCALS: [(u128, i64); 20] = {
     table
 };
 
-/// 5^k for k in 0..=22 (5^22 < 2^52).
-const POW5: [u64; 23] = {
-    let mut p = [1u64; 23];
+/// `base`^k for k in 0..N, at compile time (an overflow is a compile error).
+const fn powers<const N: usize>(base: u64) -> [u64; N] {
+    let mut p = [1u64; N];
     let mut k = 1;
-    while k < 23 {
-        p[k] = p[k - 1] * 5;
+    while k < N {
+        p[k] = p[k - 1] * base;
         k += 1;
     }
     p
-};
+}
+
+/// 5^k for k in 0..=22 (5^22 < 2^52).
+const POW5: [u64; 23] = powers(5);
 
 /// 10^k for k in 0..=19 (10^19 < 2^64).
-const POW10_INT: [u64; 20] = {
-    let mut p = [1u64; 20];
-    let mut k = 1;
-    while k < 20 {
-        p[k] = p[k - 1] * 10;
-        k += 1;
-    }
-    p
-};
+const POW10_INT: [u64; 20] = powers(10);
 
 /// 10^k for k in 0..=22, each exact as an f64.
 const POW10: [f64; 23] = [
