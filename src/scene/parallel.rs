@@ -26,8 +26,9 @@
 //!   no brace: a key with one is an unknown field). Each element is read from its first
 //!   byte by [`plain`] when it is written plainly (as `generate` and `bench` write them;
 //!   its numbers correctly rounded, by Clinger's exact fast path where it applies, by
-//!   integer arithmetic for up to 19 digits past it, else by `str::parse`, like `serde_json`'s with `float_roundtrip`; the unit tests hold it to
-//!   `serde_json` on 20 000 numbers and to `str::parse` on 200 000), else by the same
+//!   integer arithmetic for up to 19 digits past it, else by `str::parse`, like
+//!   `serde_json`'s with `float_roundtrip`; the unit tests hold it to `serde_json` on
+//!   20 000 numbers and to `str::parse` on 400 000 and 10 000 exact ties), else by the same
 //!   `serde_json` code as before ([`strict::Object`] of [`CylinderFile`]); either says
 //!   where the element ends;
 //! - the elements are then chained in text order: each must be followed by whitespace and
