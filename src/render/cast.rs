@@ -297,12 +297,12 @@ fn cast_with<T: Real, F: Formula>(
 /// The scene prepared for rays from `origin`: cylinders in its frame, and the BVH (eight
 /// wide when there are rays enough to repay collapsing it, as [`Tracer::new`] decides)
 /// built there, unless `rays` are too few or the scene one leaf.
-fn tracer_at<T: Real, F: Formula>(
-    scene: &Scene,
+fn tracer_at<'s, T: Real, F: Formula>(
+    scene: &'s Scene,
     bounds: &[(DVec3, DVec3)],
     origin: DVec3,
     rays: usize,
-) -> Tracer<T, F> {
+) -> Tracer<'s, T, F> {
     let cylinders = &scene.cylinders;
     let bvh =
         (rays >= BVH_MIN_RAYS && cylinders.len() > LEAF_SIZE).then(|| Bvh::build(bounds, origin));
@@ -320,6 +320,7 @@ fn tracer_at<T: Real, F: Formula>(
         .collect();
     Tracer {
         camera: Camera::new(scene.camera),
+        cylinders,
         prepared,
         order,
         bvh: bvh.filter(|_| wide.is_none()),

@@ -211,19 +211,18 @@ fn render_with<T: Simd, F: PacketFormula>(scene: &Scene, opts: &RenderOptions) -
 }
 
 /// What every band of one render reads, kept while the bands are traced.
-struct Setup<T: Real, F: Formula> {
-    tracer: Tracer<T, F>,
+struct Setup<'s, T: Real, F: Formula> {
+    tracer: Tracer<'s, T, F>,
     ids: Vec<u32>,
     labels: Vec<u32>,
     cols_off: Vec<f64>,
     rows_off: Vec<f64>,
-    cylinders: Vec<crate::geometry::Cylinder>,
     build: std::time::Duration,
     prepare: std::time::Duration,
 }
 
-impl<T: Real, F: Formula> Setup<T, F> {
-    fn new(scene: &Scene, opts: &RenderOptions) -> Self {
+impl<'s, T: Real, F: Formula> Setup<'s, T, F> {
+    fn new(scene: &'s Scene, opts: &RenderOptions) -> Self {
         let start = std::time::Instant::now();
         let (tracer, prepare) = Tracer::<T, F>::new_timed(scene, opts.accel);
         let build = start.elapsed() - prepare;
@@ -232,10 +231,6 @@ impl<T: Real, F: Formula> Setup<T, F> {
         let padded = w.div_ceil(TILE as usize) * TILE as usize;
         let cols_off = (0..padded as u32).map(|i| cam.column_offset(i)).collect();
         let rows_off = (0..h as u32).map(|j| cam.row_offset(j)).collect();
-        let parallel = matches!(
-            cam.projection,
-            crate::scene::camera::Projection::Orthographic { .. }
-        );
         let ids_for = |aov: Aov, f: fn(&crate::geometry::Cylinder) -> u32| -> Vec<u32> {
             match opts.aovs.contains(&aov) {
                 true => scene.cylinders.par_iter().map(f).collect(),
@@ -243,11 +238,6 @@ impl<T: Real, F: Formula> Setup<T, F> {
             }
         };
         Setup {
-            cylinders: if parallel || opts.aovs.contains(&crate::scene::Aov::Uv) {
-                scene.cylinders.clone()
-            } else {
-                Vec::new()
-            },
             // Only for the planes that read them (`shade` writes a hit's id or label there),
             // on every thread: at 100 000 cylinders each is a pass over 8 MB.
             ids: ids_for(Aov::ShapeId, |c| c.id),
@@ -267,7 +257,7 @@ impl<T: Real, F: Formula> Setup<T, F> {
             labels: &self.labels,
             cols_off: &self.cols_off,
             rows_off: &self.rows_off,
-            cylinders: &self.cylinders,
+            cylinders: self.tracer.cylinders,
         }
     }
 
@@ -682,7 +672,8 @@ mod tests {
 
     /// The cone walk gives the per-ray BVH's bits, whether it projects every cylinder
     /// first or (fewer pixels than cylinders) each as it meets it, at 1 and 2 threads; so
-    /// do the tiles, crowded lists and all, on a tiny view.
+    /// do the tiles, crowded lists and all, on a tiny view, where they prepare no
+    /// cylinder up front but make each kernel as they test it.
     #[test]
     fn cone_walk_matches_the_per_ray_bvh() {
         let scenes = [
@@ -723,6 +714,11 @@ mod tests {
         assert!(hits > 5_000, "{hits} of 15 732 pixels hit");
         let tiny = Tracer::<f64, Stable>::new(&scenes[4], Accel::Tiles);
         assert!(tiny.tiles.is_some() && tiny.bvh.is_none() && tiny.wide.is_none());
+        assert!(tiny.prepared.is_empty());
+        // Lists that are not a tiny view's: every cylinder prepared up front.
+        let sparse = crate::bench::random_scene(300, 7, 64, 48);
+        let listed = Tracer::<f64, Stable>::new(&sparse, Accel::Tiles);
+        assert!(listed.tiles.is_some() && listed.prepared.len() == 300);
     }
 
     /// Rays of any direction from the camera find the same nearest hit (cylinder, ray

@@ -184,7 +184,7 @@ pub(super) fn bands<'a, F, U>(
 
 /// What every band of a render shares.
 pub(super) struct BandInputs<'a, T: Real, F: Formula> {
-    pub(super) tracer: &'a Tracer<T, F>,
+    pub(super) tracer: &'a Tracer<'a, T, F>,
     /// `shape_id` per cylinder, for the `shape_id` AOV; empty otherwise.
     pub(super) ids: &'a [u32],
     /// `label` per cylinder, for the `label` AOV; empty otherwise.
@@ -193,7 +193,7 @@ pub(super) struct BandInputs<'a, T: Real, F: Formula> {
     pub(super) cols_off: &'a [f64],
     pub(super) rows_off: &'a [f64],
     /// The cylinders by scene index, for rays that do not start at the camera centre
-    /// (orthographic) and for the `uv` AOV; empty otherwise.
+    /// (orthographic) and for the `uv` AOV.
     pub(super) cylinders: &'a [crate::geometry::Cylinder],
 }
 

@@ -15,11 +15,16 @@ use glam::{DVec3, Vec3A};
 use rayon::prelude::*;
 
 /// The scene prepared for one camera: cylinders in kernel form and the BVH over them.
-pub struct Tracer<T: Real, F: Formula> {
+pub struct Tracer<'s, T: Real, F: Formula> {
     /// The camera the rays leave from.
     pub camera: Camera,
+    /// The scene's cylinders, by index.
+    pub(super) cylinders: &'s [Cylinder],
     /// Cylinders in kernel form, in slot order: `prepared[s]` is cylinder `order[s]`
-    /// (index order for the BVH, the tiles' visiting order for tiles).
+    /// (index order for the BVH, the tiles' visiting order for tiles). Empty for a tiny
+    /// view's tile lists, whose walk makes each kernel as it tests the cylinder
+    /// ([`Tracer::kernel`]): it tests about a tenth of them (dense 100 000 at 16×16), and
+    /// preparing the rest cost more than its trace.
     pub(super) prepared: Vec<Prepared<T>>,
     pub(super) order: Vec<u32>,
     pub(super) bvh: Option<Bvh>,
@@ -102,14 +107,14 @@ pub(super) fn f32_down(x: f64) -> f32 {
     let f = x as f32;
     if (f as f64) > x { f.next_down() } else { f }
 }
-impl<T: Real, F: Formula> Tracer<T, F> {
+impl<'s, T: Real, F: Formula> Tracer<'s, T, F> {
     /// Prepare `scene` for its camera, building the structure `accel` needs.
-    pub fn new(scene: &Scene, accel: Accel) -> Self {
+    pub fn new(scene: &'s Scene, accel: Accel) -> Self {
         Self::new_timed(scene, accel).0
     }
 
     /// [`Tracer::new`], also reporting how long the kernel forms took.
-    pub(super) fn new_timed(scene: &Scene, accel: Accel) -> (Self, std::time::Duration) {
+    pub(super) fn new_timed(scene: &'s Scene, accel: Accel) -> (Self, std::time::Duration) {
         let camera = Camera::new(scene.camera);
         let origin = camera.origin;
         let cylinders = &scene.cylinders;
@@ -156,17 +161,21 @@ impl<T: Real, F: Formula> Tracer<T, F> {
         // free it (53 MB at a million cylinders).
         let bvh = bvh.filter(|_| wide.is_none());
         let t0 = std::time::Instant::now();
-        let mut prepared = Vec::with_capacity(order.len());
-        crate::mem::huge_pages(&prepared);
-        prepared.par_extend(order.par_iter().enumerate().map(|(k, &i)| {
-            if let Some(&ahead) = order.get(k + crate::mem::PREFETCH_AHEAD) {
-                crate::mem::prefetch(&cylinders[ahead as usize]);
-            }
-            Prepared::new(&cylinders[i as usize], origin, F::CENTRED)
-        }));
+        let lazy = matches!(plan, Strategy::TinyTiles { .. }) && tiles.is_some();
+        let mut prepared = Vec::with_capacity(if lazy { 0 } else { order.len() });
+        if !lazy {
+            crate::mem::huge_pages(&prepared);
+            prepared.par_extend(order.par_iter().enumerate().map(|(k, &i)| {
+                if let Some(&ahead) = order.get(k + crate::mem::PREFETCH_AHEAD) {
+                    crate::mem::prefetch(&cylinders[ahead as usize]);
+                }
+                Prepared::new(&cylinders[i as usize], origin, F::CENTRED)
+            }));
+        }
         let prepare = t0.elapsed();
         let tracer = Tracer {
             camera,
+            cylinders,
             prepared,
             order,
             bvh,
@@ -317,14 +326,34 @@ impl<T: Real, F: Formula> Tracer<T, F> {
     /// World-space unit outward normal of a hit along `d`.
     #[inline(always)]
     pub fn normal(&self, d: DVec3, h: &PixelHit<T>) -> DVec3 {
-        T::v3_to_f64(F::normal(&self.prepared[h.slot as usize], T::v3(d), h.hit))
+        let made;
+        let kernel = match self.prepared.get(h.slot as usize) {
+            Some(p) => p,
+            None => {
+                made = self.kernel(h.index);
+                &made
+            }
+        };
+        T::v3_to_f64(F::normal(kernel, T::v3(d), h.hit))
+    }
+
+    /// The kernel form of cylinder `index`, made now: the same bits as its prepared one
+    /// (a pure function of the cylinder and the camera's origin), for a tracer that
+    /// prepares none.
+    #[inline]
+    pub(super) fn kernel(&self, index: u32) -> Prepared<T> {
+        Prepared::new(
+            &self.cylinders[index as usize],
+            self.camera.origin,
+            F::CENTRED,
+        )
     }
 }
 
 /// The cylinder tests of the rays walking the wide tree together
 /// ([`Tracer::trace_in_turn`]): each ray's best hit so far, the hint already tested.
 pub(super) struct GroupVisit<'a, T: Real, F: Formula> {
-    pub(super) tracer: &'a Tracer<T, F>,
+    pub(super) tracer: &'a Tracer<'a, T, F>,
     pub(super) hint: Option<u32>,
     /// Per ray: direction, ray parameter range, and the range's end in f64.
     pub(super) dt: [T::V3; IN_TURN],

@@ -129,7 +129,9 @@ pub(super) fn rasterise<T: Real, F: PacketFormula, W: Wide<T>, const CONE: bool>
     if CONE && (c.x1 < xs.0 || c.x0 > xs.1 || c.y1 < ys.0 || c.y0 > ys.1) {
         return;
     }
-    let prepared = &tracer.prepared[c.slot as usize];
+    // The prepared kernel, or for a tracer that prepares none, one made at the first
+    // test (most candidates of a tiny view's list are skipped untested).
+    let mut made = None;
     for j in c.y0.max(ys.0)..=c.y1.min(ys.1) {
         let Some((a, b)) = c.row_span(j, xs.0, xs.1) else {
             continue;
@@ -167,6 +169,10 @@ pub(super) fn rasterise<T: Real, F: PacketFormula, W: Wide<T>, const CONE: bool>
             if mask == 0 {
                 continue;
             }
+            let prepared = match tracer.prepared.get(c.slot as usize) {
+                Some(p) => p,
+                None => made.get_or_insert_with(|| tracer.kernel(c.index)),
+            };
             let pk = &mut rays.packets[k];
             let changed = F::intersect_packet::<T, W>(tok, prepared, (c.index, c.slot), pk, mask);
             if changed != 0 {
