@@ -468,6 +468,19 @@ pub fn project_slots(cam: &Camera, cylinders: &[Cylinder], order: &[u32]) -> Vec
         .collect()
 }
 
+/// Whether the candidates' tile entries ([`Candidate::tile_entries`]) add up to more than
+/// `limit`: summed in chunks on every thread, into a running total that stops the count
+/// once it passes the limit. The terms are not negative, so the answer is the whole sum's,
+/// whichever chunks were counted: a crowded view (dense 100 000 at 1920×1080 lists several
+/// times its limit) stops after a fraction of its candidates.
+fn entries_exceed(cands: &[Candidate], limit: usize) -> bool {
+    let total = std::sync::atomic::AtomicUsize::new(0);
+    cands.par_chunks(4096).any(|part| {
+        let n: usize = part.iter().map(Candidate::tile_entries).sum();
+        total.fetch_add(n, std::sync::atomic::Ordering::Relaxed) + n > limit
+    })
+}
+
 /// The candidates that reach the image's one tile, ordered by (`t_min`, index) as the
 /// general binning orders a tile's list, in a bucket sort on every thread: the sort of a
 /// tiny view's 100 000 candidates was most of its binning, and a comparison sort splits
@@ -599,9 +612,7 @@ impl Tiles {
             false => 0,
         };
         let limit = crowded.saturating_mul(ntiles);
-        if cands.par_iter().map(rect).sum::<usize>() > limit
-            && cands.par_iter().map(Candidate::tile_entries).sum::<usize>() > limit
-        {
+        if cands.par_iter().map(rect).sum::<usize>() > limit && entries_exceed(&cands, limit) {
             return Err(cands);
         }
         if tiles_x == 1 && tiles_y == 1 {
@@ -904,6 +915,36 @@ mod tests {
         assert!(one.0 > 5000);
         for threads in [2, 3, 7] {
             assert!(with(threads) == one, "{threads} threads");
+        }
+    }
+
+    /// The count that stops once past its limit answers as the whole sum does, at the
+    /// sum and on either side of it, whichever thread counts the chunks: on 20 000
+    /// candidates (5 chunks).
+    #[test]
+    fn entries_exceed_is_the_whole_sums_answer() {
+        let sc = crate::bench::random_scene(20_000, 5, 640, 360);
+        let view = View::new(&Camera::new(sc.camera));
+        let cands: Vec<Candidate> = sc
+            .cylinders
+            .iter()
+            .map(|c| project_in(&view, c).unwrap_or(CULLED))
+            .collect();
+        let total: usize = cands.iter().map(Candidate::tile_entries).sum();
+        assert!(total > 20_000, "{total} entries");
+        for threads in [1, 2, 5] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            for limit in [0, total / 3, total - 1, total, total + 1, usize::MAX] {
+                let exceed = pool.install(|| entries_exceed(&cands, limit));
+                assert_eq!(
+                    exceed,
+                    total > limit,
+                    "{limit} of {total}, {threads} threads"
+                );
+            }
         }
     }
 
