@@ -493,12 +493,14 @@ fn entries_exceed(cands: &[Candidate], limit: usize) -> bool {
 /// sorted on its own. The list does not depend on the chunking: a bucket's members and
 /// their final order are the key's.
 fn nearest_first(cands: &[Candidate]) -> Vec<Candidate> {
-    let reaches = |c: &Candidate| c.tile_entries() > 0;
     let key = |c: &Candidate| order_key(c.t_min);
+    // Whether each candidate reaches the tile, found once (the later passes read it).
+    let reaches: Vec<bool> = cands.par_iter().map(|c| c.tile_entries() > 0).collect();
     let Some((lo, hi)) = cands
         .par_iter()
-        .filter(|c| reaches(c))
-        .map(|c| (key(c), key(c)))
+        .zip(&reaches)
+        .filter(|(_, r)| **r)
+        .map(|(c, _)| (key(c), key(c)))
         .reduce_with(|a, b| (a.0.min(b.0), a.1.max(b.1)))
     else {
         return Vec::new();
@@ -515,9 +517,10 @@ fn nearest_first(cands: &[Candidate]) -> Vec<Candidate> {
         .max(4096);
     let counts: Vec<Vec<usize>> = cands
         .par_chunks(chunk)
-        .map(|part| {
+        .zip(reaches.par_chunks(chunk))
+        .map(|(part, reach)| {
             let mut count = vec![0; nb];
-            for c in part.iter().filter(|c| reaches(c)) {
+            for (c, _) in part.iter().zip(reach).filter(|(_, r)| **r) {
                 count[bucket(key(c))] += 1;
             }
             count
@@ -537,10 +540,11 @@ fn nearest_first(cands: &[Candidate]) -> Vec<Candidate> {
     }
     cands
         .par_chunks(chunk)
+        .zip(reaches.par_chunks(chunk))
         .zip(places)
-        .for_each(|(part, mut place)| {
+        .for_each(|((part, reach), mut place)| {
             let mut filled = vec![0; nb];
-            for c in part.iter().filter(|c| reaches(c)) {
+            for (c, _) in part.iter().zip(reach).filter(|(_, r)| **r) {
                 let b = bucket(key(c));
                 place[b][filled[b]].write(*c);
                 filled[b] += 1;
