@@ -131,6 +131,7 @@ pub(super) fn rasterise<T: Real, F: PacketFormula, W: Wide<T>, const CONE: bool>
     }
     // The prepared kernel, or for a tracer that prepares none, one made at the first
     // test (most candidates of a tiny view's list are skipped untested).
+    let prepared = tracer.prepared.get(c.slot as usize);
     let mut made = None;
     for j in c.y0.max(ys.0)..=c.y1.min(ys.1) {
         let Some((a, b)) = c.row_span(j, xs.0, xs.1) else {
@@ -169,7 +170,7 @@ pub(super) fn rasterise<T: Real, F: PacketFormula, W: Wide<T>, const CONE: bool>
             if mask == 0 {
                 continue;
             }
-            let prepared = match tracer.prepared.get(c.slot as usize) {
+            let prepared = match prepared {
                 Some(p) => p,
                 None => made.get_or_insert_with(|| tracer.kernel(c.index)),
             };
