@@ -769,6 +769,14 @@ mod tests {
     use crate::rng::SplitMix64;
     use crate::scene::camera::{CameraSpec, FovAxis};
 
+    /// A pool of `n` threads: the chunking of the parallel passes follows the count.
+    fn pool(n: usize) -> rayon::ThreadPool {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build()
+            .unwrap()
+    }
+
     /// Random cameras over generated scenes: some outside the cloud of cylinders, some
     /// among them (boxes straddling the camera plane), various fields of view and sizes.
     fn cases() -> Vec<(Camera, Vec<Cylinder>)> {
@@ -875,10 +883,7 @@ mod tests {
             want.sort_unstable();
             assert!(want.len() > 1_000, "{}", want.len());
             for threads in [1, 2, 3, 7] {
-                let pool = rayon::ThreadPoolBuilder::new()
-                    .num_threads(threads)
-                    .build()
-                    .unwrap();
+                let pool = pool(threads);
                 let t = pool
                     .install(|| Tiles::build_within(&cam, &sc.cylinders, usize::MAX))
                     .unwrap();
@@ -899,10 +904,7 @@ mod tests {
         let sc = crate::bench::random_scene(5000, 3, 640, 360);
         let cam = Camera::new(sc.camera);
         let with = |threads: usize| {
-            let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .unwrap();
+            let pool = pool(threads);
             let t = pool.install(|| Tiles::build(&cam, &sc.cylinders)).unwrap();
             let mut out = Vec::new();
             for ty in 0..t.tiles_y {
@@ -938,10 +940,7 @@ mod tests {
         let total: usize = cands.iter().map(Candidate::tile_entries).sum();
         assert!(total > 20_000, "{total} entries");
         for threads in [1, 2, 5] {
-            let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .unwrap();
+            let pool = pool(threads);
             for limit in [0, total / 3, total - 1, total, total + 1, usize::MAX] {
                 let exceed = pool.install(|| entries_exceed(&cands, limit));
                 assert_eq!(
