@@ -422,6 +422,29 @@ mod tests {
             .unwrap()
     }
 
+    /// The names of the first channel of `band` (rows from `y0` of the image) whose bits
+    /// differ from `whole`'s at those rows, if any.
+    fn band_differs(whole: &AovImage, y0: usize, band: &AovImage) -> Option<Vec<String>> {
+        let w = whole.width;
+        band.buffers
+            .iter()
+            .zip(&whole.buffers)
+            .find(|(c, a)| {
+                let s = c.stride();
+                let rows = y0 * w * s..(y0 + band.height) * w * s;
+                let same = match (&c.data, &a.data) {
+                    (ChannelData::F32(b), ChannelData::F32(a)) => b
+                        .iter()
+                        .map(|x| x.to_bits())
+                        .eq(a[rows].iter().map(|x| x.to_bits())),
+                    (ChannelData::U32(b), ChannelData::U32(a)) => b[..] == a[rows],
+                    _ => false,
+                };
+                !same
+            })
+            .map(|(c, _)| c.names.clone())
+    }
+
     /// Each threshold of the strategy, on both sides: the tiny view (16 cylinders per
     /// pixel), the crowded lists (`8 · CROWDED` cylinders per tile, partial tiles counted
     /// whole), the tiny lists' bound, and the wide collapse (4 cylinders per pixel).
@@ -507,24 +530,8 @@ mod tests {
                             whole.image.names(),
                             "same channels, same order"
                         );
-                        for (c, w) in band.buffers.iter().zip(&whole.image.buffers) {
-                            let s = c.stride();
-                            let rows = y0 * 173 * s..(y0 + band.height) * 173 * s;
-                            let same = match (&c.data, &w.data) {
-                                (ChannelData::F32(a), ChannelData::F32(b)) => a
-                                    .iter()
-                                    .map(|x| x.to_bits())
-                                    .eq(b[rows.clone()].iter().map(|x| x.to_bits())),
-                                (ChannelData::U32(a), ChannelData::U32(b)) => {
-                                    a[..] == b[rows.clone()]
-                                }
-                                _ => false,
-                            };
-                            assert!(
-                                same,
-                                "{accel:?}: {:?} differs in the band at row {y0}",
-                                c.names
-                            );
+                        if let Some(names) = band_differs(&whole.image, y0, band) {
+                            panic!("{accel:?}: {names:?} differs in the band at row {y0}");
                         }
                         for n in &mut seen.lock().unwrap()[y0..y0 + band.height] {
                             *n += 1;
@@ -644,20 +651,11 @@ mod tests {
                 let banded = std::sync::Mutex::new(0);
                 five.install(|| {
                     render_bands(&sc, &o, &|y0, band| {
-                        let s = whole.image.buffers.iter().zip(&band.buffers).all(|(a, b)| {
-                            let rows = y0 * a.stride() * w as usize..;
-                            match (&a.data, &b.data) {
-                                (ChannelData::F32(a), ChannelData::F32(b)) => b
-                                    .iter()
-                                    .map(|x| x.to_bits())
-                                    .eq(a[rows].iter().take(b.len()).map(|x| x.to_bits())),
-                                (ChannelData::U32(a), ChannelData::U32(b)) => {
-                                    a[rows].starts_with(b)
-                                }
-                                _ => false,
-                            }
-                        });
-                        assert!(s, "{cam}, {accel:?}: band at row {y0}");
+                        let differs = band_differs(&whole.image, y0, band);
+                        assert!(
+                            differs.is_none(),
+                            "{cam}, {accel:?}: {differs:?} at row {y0}"
+                        );
                         *banded.lock().unwrap() += band.height;
                         Ok(())
                     })
