@@ -412,6 +412,11 @@ impl Formula for Stable {
         let (du, dv, dn) = (T::dot(d, p.u), T::dot(d, p.v), T::dot(d, p.n));
         let on = p.oc_local[2];
         let (s0, s1) = Self::side_interval(p, du, dv)?;
+        // Every hit is at or past the side's entry (on the side, or through a cap after
+        // it), so an entry past `tmax` ends the test before the caps' divisions.
+        if s0 > tmax {
+            return None;
+        }
         let in_range = |t: T| t >= tmin && t <= tmax;
         if !p.caps {
             // Open tube: each side root counts if it lies between the cap planes.

@@ -175,6 +175,12 @@ pub(crate) fn stable_lanes<T: Real, W: Wide<T>>(
     );
     let side = (parallel & W::all(tok, p.c_side <= T::ZERO)) | (!parallel & !disc.lt(zero));
     let (tmin, limit) = (W::load(tok, &pk.tmin), W::load(tok, &pk.t));
+    // Every hit lies at or past the side's entry `s0` (on the side, or through a cap
+    // after it): a lane whose entry is past its best hit cannot improve. In dense views
+    // most tests end here, before the caps' two divisions.
+    if mask & W::bits(side & !s0.gt(limit)) == 0 {
+        return 0;
+    }
     // The hit per lane, and its surface as bits: on the side, else on the bottom cap.
     let (hit, t, on_side, on_bottom) = if p.caps {
         // Slab between the cap planes (a ray parallel to them: all or nothing).
@@ -231,4 +237,80 @@ pub(crate) fn stable_lanes<T: Real, W: Wide<T>>(
         }
     }
     changed
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::Cylinder;
+    use crate::geometry::wide::{Lanes, Simd};
+    use glam::DVec3;
+
+    /// Eight rays from the origin fanned across a cylinder lying across the view, five
+    /// units ahead: every lane meets its side (the outer ones also a cap).
+    fn fan<T: Real>(caps: bool) -> (Prepared<T>, Packet<T>) {
+        let cyl = Cylinder {
+            base: DVec3::new(-1.0, 0.1, 5.0),
+            axis: DVec3::X,
+            height: 2.0,
+            radius: 0.5,
+            caps,
+            id: 1,
+            label: 0,
+        };
+        let p = Prepared::new(&cyl, DVec3::ZERO, Stable::CENTRED);
+        let mut pk = Packet::EMPTY;
+        for l in 0..LANES {
+            let d = DVec3::new(-0.18 + 0.05 * l as f64, 0.03, 1.0).normalize();
+            for (c, x) in d.to_array().into_iter().enumerate() {
+                pk.d[c][l] = T::from_f64(x);
+            }
+            (pk.tmin[l], pk.t[l]) = (T::ZERO, T::INFINITY);
+        }
+        (p, pk)
+    }
+
+    /// The side-entry early exit keeps the keep rule exactly: with each lane's best hit at
+    /// the cylinder's own hit `t` (a tie, on a higher index) every lane still changes, and
+    /// with the best hit one step nearer none does and the packet is left as it was.
+    fn ties_survive_the_early_exit<T: Real, W: Wide<T>>(tok: W::Token, below: fn(T) -> T) {
+        for caps in [true, false] {
+            let (p, pk) = fan::<T>(caps);
+            let mut open = pk;
+            let all = stable_lanes::<T, W>(tok, &p, (7, 3), &mut open, u8::MAX);
+            assert_eq!(all, u8::MAX, "caps {caps}: every lane meets the cylinder");
+            for l in 0..LANES {
+                let scalar = Stable::intersect(&p, pk.dir(l), T::ZERO, T::INFINITY);
+                assert_eq!(
+                    scalar.map(|h| h.t),
+                    Some(open.t[l]),
+                    "caps {caps}, lane {l}"
+                );
+            }
+            let mut tie = pk;
+            (tie.t, tie.index) = (open.t, [9; LANES]);
+            let changed = stable_lanes::<T, W>(tok, &p, (7, 3), &mut tie, u8::MAX);
+            assert_eq!(changed, u8::MAX, "caps {caps}: ties go to the lower index");
+            assert_eq!(tie.index, [7; LANES]);
+            let mut nearer = pk;
+            (nearer.t, nearer.index) = (open.t.map(below), [9; LANES]);
+            let before = nearer;
+            let changed = stable_lanes::<T, W>(tok, &p, (7, 3), &mut nearer, u8::MAX);
+            assert_eq!(changed, 0, "caps {caps}: nothing is nearer");
+            assert_eq!((nearer.t, nearer.index), (before.t, before.index));
+        }
+    }
+
+    #[test]
+    fn the_keep_rule_holds_at_the_side_entry() {
+        fn run<T: Simd>(below: fn(T) -> T) {
+            ties_survive_the_early_exit::<T, Lanes<T>>((), below);
+            #[cfg(target_arch = "x86_64")]
+            if let Some(tok) = crate::geometry::wide::Avx2::detect() {
+                ties_survive_the_early_exit::<T, T::Avx>(tok, below);
+            }
+        }
+        run::<f32>(f32::next_down);
+        run::<f64>(f64::next_down);
+    }
 }
