@@ -106,10 +106,7 @@ pub(super) fn tile_cone(
     let (c, d) = (y0.min(y1) - step_y, y0.max(y1) + step_y);
     let (f, l, u) = (cam.forward, cam.left, cam.true_up);
     let v = |p: DVec3| Vec3A::new(p.x as f32, p.y as f32, p.z as f32);
-    Cone {
-        planes: [-l - f * a, l + f * b, u - f * c, -u + f * d].map(v),
-        forward: v(f),
-    }
+    Cone::new([-l - f * a, l + f * b, u - f * c, -u + f * d].map(v), v(f))
 }
 
 /// Test candidate `c` against the pixels of tile `xs × ys` it can cover: it visits only
