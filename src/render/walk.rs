@@ -29,7 +29,11 @@ pub(super) fn trace_tile<T: Real, F: PacketFormula, W: Wide<T>>(
     rays: &mut TileRays<T>,
 ) {
     rays.ready = 0;
-    for c in cands {
+    let lazy = tracer.prepared.is_empty();
+    for (k, c) in cands.iter().enumerate() {
+        if lazy && let Some(ahead) = cands.get(k + 8) {
+            crate::mem::prefetch(&tracer.cylinders[ahead.index as usize]);
+        }
         rasterise::<T, F, W, false>(tok, tracer, c, xs, ys, offsets, rays);
     }
 }
