@@ -1,6 +1,7 @@
 //! `cylaov bench --batch-formats`: one generated dataset written by `batch` in the files
 //! format (with pictures, and EXR-only) and as tar shards, side by side in one run, in
-//! views per second of the whole batch (listing, rendering, encoding, writing); then two
+//! views per second of the whole batch (listing, rendering, encoding, writing), the
+//! fastest of a few passes in turned orders; then two
 //! ceilings on the tar shards, measured on the tar bytes that run wrote: writing them alone
 //! (the tar writer's buffered writes, no render, no hash) and hashing them alone (sha256 in
 //! memory).
@@ -66,63 +67,89 @@ pub(crate) fn sync_tree(dir: &Path) -> Result<()> {
     Ok(())
 }
 
+/// The formats each pass times, in the order of pass 0.
+const FORMATS: [&str; 3] = ["files", "files --no-png", "webdataset"];
+
+/// The order of the formats in pass `r`: [`FORMATS`] started `r` places later. A
+/// virtual machine's disk can slow down after a few gigabytes of writes and stay slow for
+/// a while: in a fixed order the last format would always pay for that. Over three
+/// passes each format runs first, second and last once.
+fn pass_order(r: usize) -> [&'static str; 3] {
+    std::array::from_fn(|k| FORMATS[(r + k) % FORMATS.len()])
+}
+
 /// Time each format on the generated dataset `data` (depth+normal, the rayon pool as set;
-/// the outputs in a temp folder), then the tar shards' two ceilings on the webdataset
-/// run's tars. The caller generates `data` (`cylaov bench` with `generate`'s own code) and
-/// syncs it to disk.
-pub fn run(data: &Path) -> Result<Vec<FormatRow>> {
+/// the outputs in a temp folder) in `passes` passes, the formats' order turned each pass
+/// ([`pass_order`]), keeping each format's fastest; then the tar shards' two ceilings on
+/// the webdataset run's tars. The caller generates `data` (`cylaov bench` with
+/// `generate`'s own code) and syncs it to disk.
+pub fn run(data: &Path, passes: usize) -> Result<Vec<FormatRow>> {
     let tmp = tempfile::Builder::new()
         .prefix("cylaov-bench-formats-")
         .tempdir()
         .context("making a temp folder")?;
-    let data = data.to_path_buf();
     let opts = BatchOptions {
         aovs: Some(vec![crate::scene::Aov::Depth, crate::scene::Aov::Normal]),
         ..BatchOptions::default()
     };
-    let mut rows = Vec::new();
-    let mut row = |format, views: usize, t: Instant, out: &Path| {
-        let seconds = t.elapsed().as_secs_f64();
+    let mut rows: Vec<FormatRow> = Vec::new();
+    let shards = tmp.path().join("webdataset");
+    for r in 0..passes.max(1) {
+        for format in pass_order(r) {
+            let out = tmp.path().join(format.replace([' ', '-'], ""));
+            // A format's last output goes before its next run (so the page cache holds
+            // one output per format at most); the final pass's tars stay, for the ceilings.
+            if out.exists() {
+                std::fs::remove_dir_all(&out)
+                    .with_context(|| format!("removing {}", out.display()))?;
+            }
+            let t = Instant::now();
+            let views = if format == "webdataset" {
+                write_shards(
+                    data,
+                    &out,
+                    &TarSelection::Shard(Shard::ALL),
+                    &opts,
+                    &ShardOptions::default(),
+                    ProgressMode::Off,
+                    None,
+                )?
+                .rendered
+            } else {
+                let o = BatchOptions {
+                    png: format == "files",
+                    ..opts.clone()
+                };
+                batch::run(data, &out, Shard::ALL, &o, ProgressMode::Off, None)?
+                    .counts
+                    .done
+            };
+            let seconds = t.elapsed().as_secs_f64();
+            sync_tree(&out)?;
+            let row = FormatRow {
+                format,
+                views,
+                seconds,
+                views_per_s: views as f64 / seconds,
+                bytes: folder_bytes(&out),
+            };
+            match rows.iter_mut().find(|x| x.format == format) {
+                Some(best) if best.seconds <= seconds => {}
+                Some(best) => *best = row,
+                None => rows.push(row),
+            }
+        }
+    }
+    rows.sort_by_key(|x| FORMATS.iter().position(|&f| f == x.format));
+    let views = rows.last().map_or(0, |x| x.views);
+    let (write, sha, bytes) = tar_ceilings(&shards, &tmp.path().join("write-only"))?;
+    for (format, seconds) in [(WRITE_ONLY, write), (SHA256_ONLY, sha)] {
+        let seconds = seconds.as_secs_f64();
         rows.push(FormatRow {
             format,
             views,
             seconds,
             views_per_s: views as f64 / seconds,
-            bytes: folder_bytes(out),
-        });
-    };
-    for (format, png) in [("files", true), ("files --no-png", false)] {
-        let out = tmp.path().join(format.replace(' ', ""));
-        let o = BatchOptions {
-            png,
-            ..opts.clone()
-        };
-        let t = Instant::now();
-        let s = batch::run(&data, &out, Shard::ALL, &o, ProgressMode::Off, None)?;
-        row(format, s.counts.done, t, &out);
-        sync_tree(&out)?;
-    }
-    let out = tmp.path().join("webdataset");
-    let t = Instant::now();
-    let s = write_shards(
-        &data,
-        &out,
-        &TarSelection::Shard(Shard::ALL),
-        &opts,
-        &ShardOptions::default(),
-        ProgressMode::Off,
-        None,
-    )?;
-    row("webdataset", s.rendered, t, &out);
-    sync_tree(&out)?;
-    let (write, sha, bytes) = tar_ceilings(&out, &tmp.path().join("write-only"))?;
-    for (format, seconds) in [(WRITE_ONLY, write), (SHA256_ONLY, sha)] {
-        let seconds = seconds.as_secs_f64();
-        rows.push(FormatRow {
-            format,
-            views: s.rendered,
-            seconds,
-            views_per_s: s.rendered as f64 / seconds,
             bytes,
         });
     }
@@ -211,6 +238,20 @@ fn tar_ceilings(shards: &Path, dir: &Path) -> Result<(Duration, Duration, u64)> 
 mod tests {
     use super::*;
     use crate::output::format::tar::TarWriter;
+
+    /// Over three passes each format runs once in each place, and every pass times all.
+    #[test]
+    fn each_format_takes_each_place_once_in_three_passes() {
+        let passes: Vec<_> = (0..3).map(pass_order).collect();
+        for (k, place) in (0..3).map(|k| passes.iter().map(move |r| r[k])).enumerate() {
+            let mut seen: Vec<_> = place.collect();
+            seen.sort();
+            let mut all = FORMATS.to_vec();
+            all.sort();
+            assert_eq!(seen, all, "place {k}");
+        }
+        assert_eq!(passes[0], FORMATS);
+    }
 
     #[test]
     fn each_member_gives_the_writers_writes() {

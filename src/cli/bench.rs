@@ -83,8 +83,10 @@ pub struct BenchCli {
     scan: bool,
     /// Only the dataset formats side by side: `batch` of one generated dataset (320x240,
     /// depth+normal, 100 cylinders a scene) in the files format with pictures, EXR-only,
-    /// and as webdataset tar shards, in views/s, on the --threads given; then the tar
-    /// shards' ceilings on the same tar bytes: writing them alone, hashing them alone.
+    /// and as webdataset tar shards, in views/s, on the --threads given, the fastest of
+    /// --repeats passes (each pass starts one format later, so none always runs after the
+    /// others' writes); then the tar shards' ceilings on the same tar bytes: writing them
+    /// alone, hashing them alone.
     #[arg(long)]
     batch_formats: bool,
     /// Only the EXR writer: an uncompressed file of a 1080p render (depth+normal, and every
@@ -153,7 +155,7 @@ pub fn run(b: BenchCli) -> anyhow::Result<ExitCode> {
         return Ok(ExitCode::SUCCESS);
     }
     if b.batch_formats {
-        commands::bench::batch_formats(b.batch_views, b.csv.as_deref())?;
+        commands::bench::batch_formats(b.batch_views, b.repeats, b.csv.as_deref())?;
         return Ok(ExitCode::SUCCESS);
     }
     if b.scaling {

@@ -220,19 +220,21 @@ fn generated(
 }
 
 /// `cylaov bench --batch-formats`: the dataset formats side by side on `views` generated
-/// views (320×240, depth+normal, 100 cylinders a scene) and the two ceilings on the tar
-/// shards, printed as a table; with `csv`, the same rows written there.
-pub fn batch_formats(views: u64, csv: Option<&Path>) -> Result<()> {
+/// views (320×240, depth+normal, 100 cylinders a scene), each the fastest of `passes`, and
+/// the two ceilings on the tar shards, printed as a table; with `csv`, the same rows
+/// written there.
+pub fn batch_formats(views: u64, passes: usize, csv: Option<&Path>) -> Result<()> {
     if let Some(p) = csv {
         check_parent(p, "--csv")?;
         check_outputs(&[("--csv", p)], &[])?;
     }
     say(&format!(
-        "cylaov bench --batch-formats: {views} views, 320x240, depth+normal, 100 cylinders a scene, {} threads",
-        rayon::current_num_threads()
+        "cylaov bench --batch-formats: {views} views, 320x240, depth+normal, 100 cylinders a scene, {} threads, fastest of {} passes",
+        rayon::current_num_threads(),
+        passes.max(1)
     ))?;
     let (_tmp, data) = generated(views, 1, 100, 320, 240)?;
-    let rows = bench::batch_formats::run(&data)?;
+    let rows = bench::batch_formats::run(&data, passes)?;
     say(&format!(
         "{:<22} {:>7} {:>9} {:>10} {:>10}",
         "format", "views", "seconds", "views/s", "MiB"
