@@ -96,7 +96,8 @@ pub struct BenchCli {
     #[arg(long)]
     exr_writer: bool,
     /// Only scaling with the threads: views/s of `render` (in memory, a view at a time),
-    /// `batch` to files (--no-png) and as tar shards (25 views a tar), and, when the
+    /// `batch` to files (--no-png) and as tar shards (25 views a tar; each format the faster
+    /// of two runs, one in each order), and, when the
     /// reference venv has the package and torch, `Dataset` through a PyTorch DataLoader
     /// (that many workers, threads=1 each, batches of 32), at 1, 2, 4, ... threads up to
     /// the cores (or --threads), with the parallel efficiency of each; 320x240,
