@@ -79,8 +79,8 @@ fn pass_order(r: usize) -> [&'static str; 3] {
 }
 
 /// Time each format on the generated dataset `data` (depth+normal, the rayon pool as set;
-/// the outputs in a temp folder) in `passes` passes, the formats' order turned each pass
-/// ([`pass_order`]), keeping each format's fastest; then the tar shards' two ceilings on
+/// the outputs in a temp folder) in `passes` passes, each starting one format later than
+/// the one before, keeping each format's fastest; then the tar shards' two ceilings on
 /// the webdataset run's tars. The caller generates `data` (`cylaov bench` with
 /// `generate`'s own code) and syncs it to disk.
 pub fn run(data: &Path, passes: usize) -> Result<Vec<FormatRow>> {
