@@ -1117,6 +1117,13 @@ pub(crate) mod tests {
             });
             let margin = |p: DVec3| 1e-4 * p.length();
             let meets = cone.meets(lo.into(), hi.into());
+            // The same answer as the plane-at-a-time form, with its rounding allowance.
+            let one_by_one = planes.iter().all(|n| {
+                let n: Vec3A = n.as_vec3().into();
+                let (a, b) = (n * Vec3A::from(lo), n * Vec3A::from(hi));
+                a.max(b).element_sum() >= -1e-6 * a.abs().max(b.abs()).element_sum()
+            });
+            assert_eq!(meets, one_by_one, "box {lo} {hi}");
             if corners
                 .clone()
                 .any(|p| planes.iter().all(|n| n.dot(p) > margin(p)))

@@ -246,11 +246,13 @@ mod tests {
     use crate::geometry::wide::{Lanes, Simd};
     use glam::DVec3;
 
-    /// Eight rays from the origin fanned across a cylinder lying across the view, five
-    /// units ahead: every lane meets its side (the outer ones also a cap).
+    /// Eight rays from the origin fanned along a cylinder lying across the view, five units
+    /// ahead: lane 0 enters a closed one through its near cap (past the side's entry, which
+    /// lies outside the cap planes) and an open one from inside, the others through the
+    /// side.
     fn fan<T: Real>(caps: bool) -> (Prepared<T>, Packet<T>) {
         let cyl = Cylinder {
-            base: DVec3::new(-1.0, 0.1, 5.0),
+            base: DVec3::new(0.2, 0.1, 5.0),
             axis: DVec3::X,
             height: 2.0,
             radius: 0.5,
@@ -261,7 +263,7 @@ mod tests {
         let p = Prepared::new(&cyl, DVec3::ZERO, Stable::CENTRED);
         let mut pk = Packet::EMPTY;
         for l in 0..LANES {
-            let d = DVec3::new(-0.18 + 0.05 * l as f64, 0.03, 1.0).normalize();
+            let d = DVec3::new(0.04 + 0.04 * l as f64, 0.03, 1.0).normalize();
             for (c, x) in d.to_array().into_iter().enumerate() {
                 pk.d[c][l] = T::from_f64(x);
             }
@@ -287,6 +289,12 @@ mod tests {
                     "caps {caps}, lane {l}"
                 );
             }
+            let wanted = if caps { Surface::Bottom } else { Surface::Side };
+            assert_eq!(
+                open.surface[0], wanted as u32,
+                "caps {caps}: lane 0's surface"
+            );
+            assert!((1..LANES).all(|l| open.surface[l] == Surface::Side as u32));
             let mut tie = pk;
             (tie.t, tie.index) = (open.t, [9; LANES]);
             let changed = stable_lanes::<T, W>(tok, &p, (7, 3), &mut tie, u8::MAX);

@@ -29,9 +29,11 @@ pub(super) fn trace_tile<T: Real, F: PacketFormula, W: Wide<T>>(
     rays: &mut TileRays<T>,
 ) {
     rays.ready = 0;
+    // A tracer that prepared no kernels makes one from the scene's cylinder at the first
+    // test, and the list visits those cylinders in no order memory's follows: prefetched.
     let lazy = tracer.prepared.is_empty();
     for (k, c) in cands.iter().enumerate() {
-        if lazy && let Some(ahead) = cands.get(k + 8) {
+        if lazy && let Some(ahead) = cands.get(k + crate::mem::PREFETCH_AHEAD) {
             crate::mem::prefetch(&tracer.cylinders[ahead.index as usize]);
         }
         rasterise::<T, F, W, false>(tok, tracer, c, xs, ys, offsets, rays);
