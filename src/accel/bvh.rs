@@ -1084,13 +1084,8 @@ pub(crate) mod tests {
     /// behind one plane does not. Boxes of all sizes straddle the planes.
     #[test]
     fn cone_meets_the_boxes_its_planes_admit() {
-        let mut s = 99u64;
-        let mut rnd = || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((s >> 11) as f64) / ((1u64 << 53) as f64)
-        };
+        let mut rng = crate::rng::SplitMix64::new(99);
+        let mut rnd = || rng.unit();
         // A narrow view down +z, slightly turned: 0.05 wide, 0.03 tall at unit depth.
         let (f, l, u) = (
             DVec3::new(0.1, 0.05, 1.0).normalize(),
