@@ -98,32 +98,12 @@ pub fn run(data: &Path, passes: usize) -> Result<Vec<FormatRow>> {
             let out = tmp.path().join(format.replace([' ', '-'], ""));
             // A format's last output goes before its next run (so the page cache holds
             // one output per format at most); the final pass's tars stay, for the ceilings.
-            if out.exists() {
-                std::fs::remove_dir_all(&out)
-                    .with_context(|| format!("removing {}", out.display()))?;
-            }
-            let t = Instant::now();
-            let views = if format == "webdataset" {
-                write_shards(
-                    data,
-                    &out,
-                    &TarSelection::Shard(Shard::ALL),
-                    &opts,
-                    &ShardOptions::default(),
-                    ProgressMode::Off,
-                    None,
-                )?
-                .rendered
-            } else {
-                let o = BatchOptions {
-                    png: format == "files",
-                    ..opts.clone()
-                };
-                batch::run(data, &out, Shard::ALL, &o, ProgressMode::Off, None)?
-                    .counts
-                    .done
+            let o = BatchOptions {
+                png: format == "files",
+                ..opts.clone()
             };
-            let seconds = t.elapsed().as_secs_f64();
+            let tars = (format == "webdataset").then(ShardOptions::default);
+            let (views, seconds) = timed_batch(data, &out, &o, tars.as_ref())?;
             sync_tree(&out)?;
             let row = FormatRow {
                 format,
@@ -156,6 +136,33 @@ pub fn run(data: &Path, passes: usize) -> Result<Vec<FormatRow>> {
         });
     }
     Ok(rows)
+}
+
+/// Make the views of `data` into `out` (emptied first, untimed), as tar shards with
+/// `shards`, else as files: what each timed batch row of the bench runs. The views made
+/// and the seconds the batch took.
+pub(crate) fn timed_batch(
+    data: &Path,
+    out: &Path,
+    opts: &BatchOptions,
+    shards: Option<&ShardOptions>,
+) -> Result<(usize, f64)> {
+    if out.exists() {
+        std::fs::remove_dir_all(out).with_context(|| format!("removing {}", out.display()))?;
+    }
+    let t = Instant::now();
+    let views = match shards {
+        Some(sopts) => {
+            let all = TarSelection::Shard(Shard::ALL);
+            write_shards(data, out, &all, opts, sopts, ProgressMode::Off, None)?.rendered
+        }
+        None => {
+            batch::run(data, out, Shard::ALL, opts, ProgressMode::Off, None)?
+                .counts
+                .done
+        }
+    };
+    Ok((views, t.elapsed().as_secs_f64()))
 }
 
 /// Read a tar from `r` and call `f` with each member's pieces as

@@ -8,9 +8,9 @@
 //! `views/s(n) / (n · views/s(1))`: 1 is perfect scaling. The two `batch` formats run
 //! twice at each thread count, in both orders, and each keeps its faster run.
 
-use super::batch_formats::sync_tree;
-use crate::dataset::batch::shards::{ShardOptions, TarSelection, write_shards};
-use crate::dataset::batch::{self, BatchOptions, ProgressMode, Shard};
+use super::batch_formats::{sync_tree, timed_batch};
+use crate::dataset::batch::BatchOptions;
+use crate::dataset::batch::shards::ShardOptions;
 use crate::render::{RenderOptions, render};
 use crate::scene::Aov;
 use anyhow::{Context, Result, bail};
@@ -120,30 +120,9 @@ pub fn run(
                 let out = tmp
                     .path()
                     .join(format!("{}-{n}", ["files", "webdataset"][k]));
-                if out.exists() {
-                    std::fs::remove_dir_all(&out)
-                        .with_context(|| format!("removing {}", out.display()))?;
-                }
-                let t = Instant::now();
-                done[k] = pool.install(|| -> Result<usize> {
-                    Ok(if k == 0 {
-                        batch::run(&data, &out, Shard::ALL, &opts, ProgressMode::Off, None)?
-                            .counts
-                            .done
-                    } else {
-                        write_shards(
-                            &data,
-                            &out,
-                            &TarSelection::Shard(Shard::ALL),
-                            &opts,
-                            &sopts,
-                            ProgressMode::Off,
-                            None,
-                        )?
-                        .rendered
-                    })
-                })?;
-                best[k] = best[k].min(t.elapsed().as_secs_f64());
+                let (made, seconds) =
+                    pool.install(|| timed_batch(&data, &out, &opts, [None, Some(&sopts)][k]))?;
+                (done[k], best[k]) = (made, best[k].min(seconds));
                 sync_tree(&out)?;
             }
         }
