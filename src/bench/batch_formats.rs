@@ -119,7 +119,7 @@ pub fn run(data: &Path, passes: usize) -> Result<Vec<FormatRow>> {
             }
         }
     }
-    rows.sort_by_key(|x| FORMATS.iter().position(|&f| f == x.format));
+    // Rows stay in FORMATS order: pass 0 made them in it, later passes only replace.
     let views = rows
         .iter()
         .find(|x| x.format == "webdataset")
