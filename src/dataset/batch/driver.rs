@@ -12,20 +12,22 @@
 //! 2. lets the container start it, or keep it when it is already whole on disk (a tar
 //!    whose sidecar vouches for it: its views count as skipped, and those the verifier
 //!    checks are rendered again for their check, in the same windows);
-//! 3. renders its views in windows on the pool, each window while the container takes the
-//!    one before in view order ([`Container::accept`]), so a tar is appended and hashed
-//!    while the next views trace; a view whole on disk already is skipped (the files
-//!    format's resume); every view [`view_selected`] is checked by the verifier, kept ones
-//!    included;
+//! 3. renders its views on the pool, `window` at once, each taken by the container in
+//!    view order as soon as it and the ones before it have rendered
+//!    ([`Container::accept`], by whichever worker finds it ready: `in_order`), so a tar
+//!    is appended and hashed while later views trace, with no barrier between windows; a
+//!    view whole on disk already is skipped (the files format's resume); every view
+//!    [`view_selected`] is checked by the verifier, kept ones included;
 //! 4. commits it ([`Container::commit`]) once every view has run, none of them out of a
 //!    resource every view needs.
 //!
-//! Units run `lanes` at a time, `window` views each at once, both from the memory a view
-//! holds ([`in_flight`]), so what the views hold stays within half of what the machine
-//! leaves however many cores there are. A view that failed because a resource every view
+//! Units run `lanes` at a time, each rendering `window` views at once and holding at most
+//! two windows' views, both from the memory a view holds ([`in_flight`]), so what the
+//! views hold stays within half of what the machine leaves however many cores there are. A view that failed because a resource every view
 //! needs ran out (a full disk, see [`resource_exhausted`]) stops the run: no view starts
 //! after it, and a unit missing views or holding such a failure is not committed.
 
+use super::in_order::in_order;
 use super::input::{resource_exhausted, view_scene};
 use super::lock::{ShardLock, lock_shard};
 use super::options::BatchOptions;
@@ -88,7 +90,7 @@ pub(super) trait Container: Sync {
     type Record: Send;
 
     /// Whether a unit's scenes are read before it starts (its record depends on them all);
-    /// otherwise each view reads its own as it renders, and only a window's are held.
+    /// otherwise each view reads its own as it renders, and only two windows' are held.
     const SCENES_AHEAD: bool;
 
     /// Start `unit` (`scenes` its views' scenes when [`Self::SCENES_AHEAD`], else empty),
@@ -147,7 +149,8 @@ pub(super) struct Run<'a> {
     pub stop: &'a AtomicBool,
     /// Every view of the units: rendered, skipped or failed.
     pub progress: Progress,
-    /// Units written at once, and views a unit renders at once (see [`in_flight`]).
+    /// Units written at once, and views a unit renders at once; a unit holds at most two
+    /// windows' views (see [`in_flight`]).
     pub lanes: usize,
     pub window: usize,
 }
@@ -362,29 +365,22 @@ impl Run<'_> {
             Start::Kept(record) => (None, Some(record)),
             Start::Open(open) => (Some(open), None),
         };
-        let mut outcomes: Vec<Option<Outcome>> = Vec::with_capacity(unit.views.len());
-        let mut ready: Vec<(usize, ViewResult<C::View>)> = Vec::new();
-        let positions: Vec<usize> = (0..unit.views.len()).collect();
         let check_only = kept.is_some();
-        for window in positions.chunks(self.window.max(1)) {
-            let (accepted, rendered) = rayon::join(
-                || self.accept(c, open.as_mut(), std::mem::take(&mut ready), &mut outcomes),
-                || {
-                    window
-                        .par_iter()
-                        .map(|&k| {
-                            let i = unit.views[k];
-                            let ran =
-                                self.view(c, i, scenes.get(k), work.path(), check_only, state);
-                            (i, ran)
-                        })
-                        .collect::<Vec<_>>()
-                },
-            );
-            accepted?;
-            ready = rendered;
-        }
-        self.accept(c, open.as_mut(), ready, &mut outcomes)?;
+        // Each view is taken into the unit as soon as it and the ones before it have
+        // rendered, by whichever worker finds it ready: a tar is appended and hashed while
+        // later views trace, with no barrier between windows.
+        let mut outcomes: Vec<Option<Outcome>> = Vec::with_capacity(unit.views.len());
+        let mut target = open.as_mut();
+        in_order(
+            unit.views.len(),
+            self.window,
+            |k| {
+                let i = unit.views[k];
+                let ran = self.view(c, i, scenes.get(k), work.path(), check_only, state);
+                (i, ran)
+            },
+            |_, view| self.accept(c, target.as_deref_mut(), view, &mut outcomes),
+        )?;
         // A unit is committed only whole: every view ran, and none ran out of what every
         // view needs (a tar missing such a view would be vouched for and never redone).
         let whole = outcomes.iter().all(|o| match o {
@@ -419,34 +415,32 @@ impl Run<'_> {
         })
     }
 
-    /// Hand the rendered views to the container in order, noting each outcome (and counting
-    /// it in the progress: a view is done once its unit holds it, so the progress reaches
-    /// its end with the last view appended, not rendered); a view's own failure is kept in
-    /// its outcome and the view is not handed over.
+    /// Hand a rendered view to the container (views come in order), noting its outcome
+    /// (and counting it in the progress: a view is done once its unit holds it, so the
+    /// progress reaches its end with the last view appended, not rendered); a view's own
+    /// failure is kept in its outcome and the view is not handed over.
     fn accept<C: Container>(
         &self,
         c: &C,
-        mut open: Option<&mut C::Open>,
-        rendered: Vec<(usize, ViewResult<C::View>)>,
+        open: Option<&mut C::Open>,
+        (i, r): (usize, ViewResult<C::View>),
         outcomes: &mut Vec<Option<Outcome>>,
     ) -> Result<()> {
-        for (i, r) in rendered {
-            let outcome = match r {
-                None => None,
-                Some(Ok(Ran::Done(view, cost))) => {
-                    if let Some(open) = open.as_deref_mut() {
-                        c.accept(open, i, view)?;
-                    }
-                    Some(Outcome::Done(cost))
+        let outcome = match r {
+            None => None,
+            Some(Ok(Ran::Done(view, cost))) => {
+                if let Some(open) = open {
+                    c.accept(open, i, view)?;
                 }
-                Some(Ok(Ran::Kept)) => Some(Outcome::Skipped),
-                Some(Err(e)) => Some(Outcome::Failed(e)),
-            };
-            if let Some(o) = &outcome {
-                self.progress.record(o);
+                Some(Outcome::Done(cost))
             }
-            outcomes.push(outcome);
+            Some(Ok(Ran::Kept)) => Some(Outcome::Skipped),
+            Some(Err(e)) => Some(Outcome::Failed(e)),
+        };
+        if let Some(o) = &outcome {
+            self.progress.record(o);
         }
+        outcomes.push(outcome);
         Ok(())
     }
 

@@ -39,14 +39,16 @@
 //! read with each view's camera, as both formats read it), `shard` (which views
 //! this process renders), `lock` (the locks and the real, unfollowed partial folder),
 //! `options`, `resume` (output paths, render stamp, completeness checks), `driver` (the
-//! loop over units and views), `write` (one view rendered and moved into place), `verify`
-//! (the reference check interface), `transforms` (`transforms.json`), `progress`,
+//! loop over units and views), `in_order` (views rendered at once, taken in order),
+//! `write` (one view rendered and moved into place), `verify` (the reference check
+//! interface), `transforms` (`transforms.json`), `progress`,
 //! `failures`, and `run` (the files format: its container, `index.json`, stale views);
 //! `shards` writes the same views as tar shards (`--format webdataset`), and `samples`
 //! reads them back (`cylaov verify OUT`).
 
 mod driver;
 mod failures;
+mod in_order;
 mod input;
 mod lock;
 mod options;

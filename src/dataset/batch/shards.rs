@@ -900,8 +900,8 @@ pub fn write_shards_until(
         .map(|c| tar_view_memory(c.size(), &aovs, opts, &sopts.members, exr_checked))
         .max()
         .unwrap_or(0);
-    // A tar's view is held from its render until the tar's owner appends it: two windows
-    // at most, one appending while the next renders.
+    // A tar's view is held from its render until it is appended: two windows at most (no
+    // view renders two windows ahead of the next to append).
     let (lanes, window) = driver::in_flight(
         each.saturating_mul(2),
         mine.len(),
