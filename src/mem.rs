@@ -115,6 +115,11 @@ pub fn peak_rss_mib() -> Option<f64> {
 /// the memory this process freed and kept for reuse ([`keep_freed_memory`]: the next
 /// view of a batch reuses the last one's). `None` when none of them is known.
 pub fn memory_available() -> Option<u64> {
+    left_by_os().map(|b| b.saturating_add(kept_free()))
+}
+
+/// [`memory_available`] without the memory this process keeps for reuse.
+fn left_by_os() -> Option<u64> {
     let mut best: Option<u64> = None;
     let mut take = |x: Option<u64>| {
         if let Some(x) = x {
@@ -124,7 +129,7 @@ pub fn memory_available() -> Option<u64> {
     take(meminfo_available());
     take(address_space_left());
     take(cgroup_left());
-    best.map(|b| b.saturating_add(kept_free()))
+    best
 }
 
 /// Bytes the allocator holds free for reuse: counted as used by the kernel, the limit and
@@ -208,7 +213,14 @@ fn cgroup_left() -> Option<u64> {
 /// Fail with a clear message, before allocating, when `bytes` (what `what` needs) exceeds
 /// [`memory_available`]. Unknown availability passes: the allocator then has the last word.
 pub fn check_memory(what: &str, bytes: u64) -> io::Result<()> {
-    match memory_available() {
+    // `memory_available` is what the OS leaves plus what the allocator keeps, never less
+    // than the first: what fits in it fits, and the allocator's statistics (a walk of its
+    // free lists, read for every view of a batch) are read only when it does not.
+    let left = left_by_os();
+    if left.is_some_and(|left| bytes <= left) {
+        return Ok(());
+    }
+    match left.map(|b| b.saturating_add(kept_free())) {
         Some(avail) if bytes > avail => Err(io::Error::new(
             io::ErrorKind::OutOfMemory,
             format!(

@@ -53,8 +53,10 @@ where
             while k >= order.taken.load(Ordering::Acquire) + ahead
                 && !order.failed.load(Ordering::Relaxed)
             {
+                // The wait lasts one take at most: nap rather than spin, leaving the core
+                // to the kernel's writeback and to hyperthread siblings.
                 if !order.take_ready() {
-                    std::thread::yield_now();
+                    std::thread::sleep(std::time::Duration::from_micros(50));
                 }
             }
             if order.failed.load(Ordering::Relaxed) {
