@@ -73,7 +73,7 @@ use crate::output::store::targets::check_outputs;
 use crate::scene::{Aov, Scene};
 use crate::spelling::opt;
 use anyhow::{Context, Result, bail};
-pub use sample::{Members, view_members, view_tar_bytes};
+pub use sample::{MemberBytes, Members, view_members, view_tar_bytes};
 use sample::{array_aovs, member_suffixes, tar_view_memory, view_members_and_exr};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
@@ -736,7 +736,7 @@ impl Container for Plan<'_> {
     fn accept(&self, open: &mut OpenTar, _i: usize, members: Members) -> Result<()> {
         for (name, bytes) in &members {
             open.tar
-                .append(name, bytes)
+                .append_pieces(name, &bytes.pieces())
                 .with_context(|| format!("writing {}", open.tmp.display()))?;
         }
         open.samples += 1;

@@ -109,13 +109,22 @@ impl<W: Write> TarWriter<W> {
     /// Append the regular file `name` holding `data`. A name ustar cannot hold is an
     /// `InvalidInput` error and nothing is written.
     pub fn append(&mut self, name: &str, data: &[u8]) -> io::Result<()> {
-        let h = header(name, data.len() as u64)
-            .map_err(|e| io::Error::new(io::ErrorKind::InvalidInput, e))?;
+        self.append_pieces(name, &[data])
+    }
+
+    /// [`TarWriter::append`] of the member whose bytes are `pieces` one after the other
+    /// (a header and an array kept apart, written without joining them).
+    pub fn append_pieces(&mut self, name: &str, pieces: &[&[u8]]) -> io::Result<()> {
+        let len: usize = pieces.iter().map(|p| p.len()).sum();
+        let h =
+            header(name, len as u64).map_err(|e| io::Error::new(io::ErrorKind::InvalidInput, e))?;
         self.out.write_all(&h)?;
-        self.out.write_all(data)?;
-        let pad = data.len().next_multiple_of(BLOCK) - data.len();
+        for p in pieces {
+            self.out.write_all(p)?;
+        }
+        let pad = len.next_multiple_of(BLOCK) - len;
         self.out.write_all(&[0u8; BLOCK][..pad])?;
-        self.written += (BLOCK + data.len() + pad) as u64;
+        self.written += (BLOCK + len + pad) as u64;
         Ok(())
     }
 
@@ -312,5 +321,24 @@ mod tests {
         r.next_member().unwrap();
         let e = r.next_member().unwrap_err();
         assert!(e.to_string().contains("100 of its 513 bytes"), "{e}");
+    }
+
+    /// A member appended in pieces is the member appended whole, byte for byte, however
+    /// the pieces fall against the 512-byte blocks.
+    #[test]
+    fn pieces_make_the_member_they_join_into() {
+        let data: Vec<u8> = (0..1500u32).map(|i| (i * 7 % 251) as u8).collect();
+        for cut in [0, 1, 128, 511, 512, 513, 1024, 1499, 1500] {
+            let mut whole = TarWriter::new(Vec::new());
+            whole.append("k.depth.npy", &data).unwrap();
+            let mut pieces = TarWriter::new(Vec::new());
+            let (a, b) = data.split_at(cut);
+            pieces.append_pieces("k.depth.npy", &[a, b]).unwrap();
+            assert_eq!(
+                pieces.finish().unwrap(),
+                whole.finish().unwrap(),
+                "cut at {cut}"
+            );
+        }
     }
 }

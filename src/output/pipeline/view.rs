@@ -174,10 +174,11 @@ pub trait ViewSink {
     fn label(&self, member: Member) -> String {
         member.suffix()
     }
-    /// The traced image, before any member is encoded from it (never called when the EXR
-    /// streams): a sink that stores arrays rather than files (a tar shard's `.npy`
-    /// members) takes them here. The default takes nothing.
-    fn image(&mut self, image: &AovImage) -> Result<()> {
+    /// The traced image, once every member is staged from it, holding the EXR's channels
+    /// (never called when the EXR streams): a sink that stores arrays rather than files (a
+    /// tar shard's `.npy` members) takes their buffers here, without a copy. The default
+    /// takes nothing.
+    fn image(&mut self, image: AovImage) -> Result<()> {
         let _ = image;
         Ok(())
     }
@@ -332,8 +333,7 @@ impl ViewPlan {
         let r = render(scene, &opts);
         let trace = t0.elapsed();
         let t1 = Instant::now();
-        let mut image = r.image;
-        let depth_zeroed = self.add_image_members(&mut image, sink)?;
+        let depth_zeroed = self.add_image_members(r.image, sink)?;
         sink.commit()?;
         Ok(Written {
             hits: r.hits,
@@ -354,32 +354,32 @@ impl ViewPlan {
         Ok(())
     }
 
-    /// Every member of a whole traced image; returns the depth PNG's zeroed pixels.
-    /// The image keeps only the EXR's channels afterwards.
-    fn add_image_members(&self, image: &mut AovImage, sink: &mut dyn ViewSink) -> Result<usize> {
+    /// Every member of a whole traced image, then the image itself (the EXR's channels) to
+    /// the sink; returns the depth PNG's zeroed pixels.
+    fn add_image_members(&self, mut image: AovImage, sink: &mut dyn ViewSink) -> Result<usize> {
         // The depth PNG first: a view whose depths do not fit fails before any write.
         let depth = match self.depth_png {
             Some(d) => Some(
-                depth_png::encode(image, d.scale, d.out_of_range)
+                depth_png::encode(&image, d.scale, d.out_of_range)
                     .context("no depth AOV")?
                     .map_err(DepthOutOfRange)?,
             ),
             None => None,
         };
         let depth_zeroed = depth.as_ref().map_or(0, |d| d.zeroed);
-        sink.image(image)?;
         // The dataset pictures use AOVs the EXR may not store.
         let normal = match self.normal_picture {
-            true => Some(preview::normal_rgb(image).context("no normal AOV")?),
+            true => Some(preview::normal_rgb(&image).context("no normal AOV")?),
             false => None,
         };
         let mask = match self.mask {
-            true => Some(depth_png::mask(image).context("no depth AOV")?),
+            true => Some(depth_png::mask(&image).context("no depth AOV")?),
             false => None,
         };
         let ply = match self.ply {
             true => {
-                let hits = crate::output::format::ply::hits(image).context("no point-cloud AOV")?;
+                let hits =
+                    crate::output::format::ply::hits(&image).context("no point-cloud AOV")?;
                 let comment = format!("cylaov {} hit points", env!("CARGO_PKG_VERSION"));
                 Some(crate::output::format::ply::encode(&hits, &comment))
             }
@@ -395,11 +395,11 @@ impl ViewPlan {
         match self.layout {
             ExrLayout::Layers => {
                 let attrs = exr_attributes(&self.camera, &self.exr_aovs);
-                add_exr(sink, Member::Exr, image, self.compression, &attrs)?;
+                add_exr(sink, Member::Exr, &image, self.compression, &attrs)?;
             }
             ExrLayout::PerAov => {
                 for &a in &self.exr_aovs {
-                    let one = per_aov_image(image, a)?;
+                    let one = per_aov_image(&image, a)?;
                     let attrs = exr_attributes(&self.camera, &[a]);
                     add_exr(sink, Member::AovExr(a), &one, self.compression, &attrs)?;
                 }
@@ -420,18 +420,19 @@ impl ViewPlan {
         }
         // The previews show what the EXR stores.
         if self.previews {
-            if let Some(p) = preview::normal_preview(image) {
+            if let Some(p) = preview::normal_preview(&image) {
                 add_png(sink, Member::NormalPreview, &p)?;
             }
             let shown = [Aov::Depth, Aov::Distance]
                 .into_iter()
                 .find(|a| image.f32_channel(a.name()).is_some());
             if let Some(a) = shown
-                && let Some(p) = preview::depth_colormap(image, a.name())
+                && let Some(p) = preview::depth_colormap(&image, a.name())
             {
                 add_png(sink, Member::DepthPreview(a), &p)?;
             }
         }
+        sink.image(image)?;
         Ok(depth_zeroed)
     }
 }

@@ -30,15 +30,27 @@ pub(super) fn array_aovs(aovs: &[Aov]) -> Vec<Aov> {
     v
 }
 
-/// The array of `aov` as `.npy` bytes: its buffer as the render holds it.
-pub(super) fn aov_npy(image: &AovImage, aov: Aov) -> Result<Vec<u8>> {
+/// The array of `aov` as a `.npy` member: its header, then its buffer as the render left
+/// it, taken out of `image` (no copy where the machine's byte order is the file's).
+pub(super) fn aov_npy(image: &mut AovImage, aov: Aov) -> Result<MemberBytes> {
     let shape = aov_shape(aov, image.width, image.height);
     let buffer = image
-        .aov_buffer(aov)
+        .take_aov_buffer(aov)
         .ok_or_else(|| anyhow!("no {} AOV", aov.name()))?;
-    Ok(match &buffer.data {
-        ChannelData::F32(v) => npy::array(npy::Dtype::F32, &shape, v),
-        ChannelData::U32(v) => npy::array(npy::Dtype::U32, &shape, v),
+    let dtype = match &buffer.data {
+        ChannelData::F32(_) => npy::Dtype::F32,
+        ChannelData::U32(_) => npy::Dtype::U32,
+    };
+    Ok(if cfg!(target_endian = "little") {
+        MemberBytes::Array {
+            header: npy::header(dtype, &shape),
+            data: buffer.data,
+        }
+    } else {
+        MemberBytes::Whole(match &buffer.data {
+            ChannelData::F32(v) => npy::array(dtype, &shape, v),
+            ChannelData::U32(v) => npy::array(dtype, &shape, v),
+        })
     })
 }
 
@@ -75,12 +87,12 @@ pub(super) struct TarSink<'a> {
     keep: &'a [Member],
     /// Encode the plan's EXR even when it is not a member: the verifier reads it.
     exr_for_check: bool,
-    npys: Vec<(String, Vec<u8>)>,
+    npys: Members,
     camera: Option<Vec<u8>>,
     exr: Option<Vec<u8>>,
     depth_png: Option<Vec<u8>>,
     ply: Option<Vec<u8>>,
-    members: Vec<(String, Vec<u8>)>,
+    members: Members,
 }
 
 impl TarSink<'_> {
@@ -107,19 +119,20 @@ impl ViewSink for TarSink<'_> {
         Ok(())
     }
 
-    fn image(&mut self, image: &AovImage) -> Result<()> {
+    fn image(&mut self, mut image: AovImage) -> Result<()> {
         let (h, w) = (image.height, image.width);
-        for &a in self.arrays {
-            self.npys
-                .push((format!("{}.{}.npy", self.key, a.name()), aov_npy(image, a)?));
-        }
         let Some(ChannelData::F32(depth)) = image.aov_buffer(Aov::Depth).map(|b| &b.data) else {
             bail!("no depth AOV");
         };
-        self.npys.push((
-            format!("{}.mask.npy", self.key),
-            npy::bool_plane(h, w, depth.iter().map(|&z| z > 0.0)),
-        ));
+        let mask = npy::bool_plane(h, w, depth.iter().map(|&z| z > 0.0));
+        for &a in self.arrays {
+            self.npys.push((
+                format!("{}.{}.npy", self.key, a.name()),
+                aov_npy(&mut image, a)?,
+            ));
+        }
+        self.npys
+            .push((format!("{}.mask.npy", self.key), MemberBytes::Whole(mask)));
         Ok(())
     }
 
@@ -136,8 +149,10 @@ impl ViewSink for TarSink<'_> {
         let mut json = record_json(&meta);
         json.push('\n');
         self.members = std::mem::take(&mut self.npys);
-        self.members
-            .push((format!("{}.json", self.key), json.into_bytes()));
+        self.members.push((
+            format!("{}.json", self.key),
+            MemberBytes::Whole(json.into_bytes()),
+        ));
         if self.keep.contains(&Member::Exr) {
             // Kept for the check too when it asked for it.
             let exr = if self.exr_for_check {
@@ -146,14 +161,17 @@ impl ViewSink for TarSink<'_> {
                 self.exr.take()
             };
             if let Some(exr) = exr {
-                self.members.push((format!("{}.exr", self.key), exr));
+                self.members
+                    .push((format!("{}.exr", self.key), MemberBytes::Whole(exr)));
             }
         }
         if let Some(png) = self.depth_png.take() {
-            self.members.push((format!("{}.depth.png", self.key), png));
+            self.members
+                .push((format!("{}.depth.png", self.key), MemberBytes::Whole(png)));
         }
         if let Some(ply) = self.ply.take() {
-            self.members.push((format!("{}.ply", self.key), ply));
+            self.members
+                .push((format!("{}.ply", self.key), MemberBytes::Whole(ply)));
         }
         Ok(())
     }
@@ -182,7 +200,38 @@ pub(super) fn member_suffixes(aovs: &[Aov], members: &[Member]) -> Vec<String> {
 }
 
 /// A view's tar members, `(name, bytes)` in the order they are appended.
-pub type Members = Vec<(String, Vec<u8>)>;
+pub type Members = Vec<(String, MemberBytes)>;
+
+/// A tar member's bytes: whole, or an array's `.npy` header and its samples, kept as the
+/// render left them so that appending them copies nothing.
+pub enum MemberBytes {
+    /// The member's bytes.
+    Whole(Vec<u8>),
+    /// A `.npy` header, then `data`'s samples in the machine's byte order (little-endian,
+    /// as the header says: built only there).
+    Array {
+        /// The `.npy` header, padded as the format asks.
+        header: Vec<u8>,
+        /// The samples.
+        data: ChannelData,
+    },
+}
+
+impl MemberBytes {
+    /// The member's bytes, in two pieces (the second empty for a whole member).
+    pub fn pieces(&self) -> [&[u8]; 2] {
+        match self {
+            MemberBytes::Whole(v) => [v, &[]],
+            MemberBytes::Array { header, data } => [
+                header,
+                match data {
+                    ChannelData::F32(v) => bytemuck::cast_slice(v),
+                    ChannelData::U32(v) => bytemuck::cast_slice(v),
+                },
+            ],
+        }
+    }
+}
 
 /// The members of one view, in tar order (see the module docs): the view's plan executed
 /// into a tar sink.
