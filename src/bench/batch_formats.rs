@@ -165,8 +165,8 @@ pub(crate) fn timed_batch(
     Ok((views, t.elapsed().as_secs_f64()))
 }
 
-/// Read a tar from `r` and call `f` with each member's pieces as
-/// [`crate::output::format::tar::TarWriter`] writes them (its header block, its data, its padding),
+/// Read a tar from `r` and call `f` with each member's pieces as the archive holds them
+/// (its header block, its data, its padding),
 /// then with the closing blocks; one member in memory at a time.
 fn each_member(mut r: impl Read, mut f: impl FnMut(&[&[u8]]) -> Result<()>) -> Result<()> {
     let mut header = [0u8; BLOCK];
@@ -189,7 +189,7 @@ fn each_member(mut r: impl Read, mut f: impl FnMut(&[&[u8]]) -> Result<()>) -> R
 }
 
 /// The time to write the tar files of `shards` (in the page cache after their run) to new
-/// files in `dir`, through the tar writer's 64 KiB `BufWriter` in the tar writer's pieces,
+/// files in `dir`, through a 64 KiB `BufWriter`, a member's header, data and padding in turn,
 /// and the time to hash them with sha256 in memory; and their bytes. Only the writes (from
 /// creating each file to its last write) and the hashing are timed, not reading each
 /// member into memory, which is one member at a time, as the tar writer holds them.

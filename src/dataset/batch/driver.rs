@@ -14,8 +14,9 @@
 //!    checks are rendered again for their check, in the same windows);
 //! 3. renders its views on the pool, `window` at once, each taken by the container in
 //!    view order as soon as it and the ones before it have rendered
-//!    ([`Container::accept`], by whichever worker finds it ready: `in_order`), so a tar
-//!    is appended and hashed while later views trace, with no barrier between windows; a
+//!    ([`Container::accept`], by whichever worker finds it ready: `in_order`), then
+//!    finished by that worker out of order ([`Container::place`]), so a tar is laid out,
+//!    hashed and written while later views trace, with no barrier between windows; a
 //!    view whole on disk already is skipped (the files format's resume); every view
 //!    [`view_selected`] is checked by the verifier, kept ones included;
 //! 4. commits it ([`Container::commit`]) once every view has run, none of them out of a
@@ -84,7 +85,7 @@ enum Ran<V> {
 pub(super) trait Container: Sync {
     /// What a rendered view hands its unit (a tar's members).
     type View: Send;
-    /// A unit being written (a tar file being appended).
+    /// A unit being written (a tar file being laid out and written).
     type Open: Send;
     /// What a committed or kept unit records (a tar's sidecar).
     type Record: Send;
@@ -121,8 +122,16 @@ pub(super) trait Container: Sync {
     /// from the bytes [`Self::render`] gave.
     fn exr_path(&self, i: usize, check_work: &Path) -> PathBuf;
 
+    /// What a view taken into its unit leaves to do outside the view order (a tar's view:
+    /// its bytes, to write at the place [`Self::accept`] gave them).
+    type Placed: Send;
+
     /// Take rendered view `i` into the unit, in view order.
-    fn accept(&self, open: &mut Self::Open, i: usize, view: Self::View) -> Result<()>;
+    fn accept(&self, open: &mut Self::Open, i: usize, view: Self::View) -> Result<Self::Placed>;
+
+    /// Finish a view [`Self::accept`] took, on the worker that took it while the next
+    /// views are taken: views finish in any order, all before the unit commits.
+    fn place(&self, placed: Self::Placed) -> Result<()>;
 
     /// Commit `unit`, every one of its views run; `failed` its views that failed.
     fn commit(
@@ -180,9 +189,9 @@ pub(super) struct Driven<R> {
 /// How many units to write at once and how many views each renders at once, so the
 /// views held fit the memory budget (`crate::mem::jobs_in_memory`: half of what the
 /// machine or `ulimit -v` leaves) and the pool stays busy. `each` is the most one view
-/// holds from its render until its unit has taken it; `widest` the most views a window
+/// holds from its render until its unit has written it; `widest` the most views a window
 /// may usefully have: by default the lanes share the threads (a tar's windows, so that
-/// appending overlaps tracing); the files format's window is its whole unit.
+/// hashing and writing overlap tracing); the files format's window is its whole unit.
 pub(super) fn in_flight(
     each: u64,
     units: usize,
@@ -367,8 +376,8 @@ impl Run<'_> {
         };
         let check_only = kept.is_some();
         // Each view is taken into the unit as soon as it and the ones before it have
-        // rendered, by whichever worker finds it ready: a tar is appended and hashed while
-        // later views trace, with no barrier between windows.
+        // rendered, by whichever worker finds it ready, then placed by that worker while
+        // the next are taken: a tar is hashed and written while later views trace.
         let mut outcomes: Vec<Option<Outcome>> = Vec::with_capacity(unit.views.len());
         let mut target = open.as_mut();
         in_order(
@@ -380,6 +389,7 @@ impl Run<'_> {
                 (i, ran)
             },
             |_, view| self.accept(c, target.as_deref_mut(), view, &mut outcomes),
+            |placed| placed.map_or(Ok(()), |p| c.place(p)),
         )?;
         // A unit is committed only whole: every view ran, and none ran out of what every
         // view needs (a tar missing such a view would be vouched for and never redone).
@@ -417,7 +427,7 @@ impl Run<'_> {
 
     /// Hand a rendered view to the container (views come in order), noting its outcome
     /// (and counting it in the progress: a view is done once its unit holds it, so the
-    /// progress reaches its end with the last view appended, not rendered); a view's own
+    /// progress reaches its end with the last view taken, not rendered); a view's own
     /// failure is kept in its outcome and the view is not handed over.
     fn accept<C: Container>(
         &self,
@@ -425,12 +435,13 @@ impl Run<'_> {
         open: Option<&mut C::Open>,
         (i, r): (usize, ViewResult<C::View>),
         outcomes: &mut Vec<Option<Outcome>>,
-    ) -> Result<()> {
+    ) -> Result<Option<C::Placed>> {
+        let mut placed = None;
         let outcome = match r {
             None => None,
             Some(Ok(Ran::Done(view, cost))) => {
                 if let Some(open) = open {
-                    c.accept(open, i, view)?;
+                    placed = Some(c.accept(open, i, view)?);
                 }
                 Some(Outcome::Done(cost))
             }
@@ -441,7 +452,7 @@ impl Run<'_> {
             self.progress.record(o);
         }
         outcomes.push(outcome);
-        Ok(())
+        Ok(placed)
     }
 
     /// Skip, render or fail view `i` (its scene read `ahead` with its unit, or now), then

@@ -1,13 +1,16 @@
 //! Make items on the pool, several at once, and take them one by one in order, with no
-//! barrier between groups of items: the batch driver renders a unit's views with it and
-//! appends them to the unit's tar in view order while later views render.
+//! barrier between groups of items: the batch driver renders a unit's views with it, lays
+//! them out in the unit's tar (and hashes them) in view order while later views render,
+//! and writes each where it was laid out.
 //!
 //! `width` workers each claim the next index, make its item, then take every item ready
 //! in order, unless another worker is taking them: at most one worker takes at a time,
 //! and it looks again after letting go, so an item made while it held the taker is never
-//! left behind. A worker makes only items fewer than `2 × width` ahead of the next to
-//! take, so at most that many items are held (made or being made, not yet taken) at any
-//! moment, whatever the makers' speeds; while it waits it takes what is ready itself.
+//! left behind. What a take leaves (`after`: a view's bytes to write at their place) runs
+//! on the worker that took it once it has let go, so the next items are taken meanwhile.
+//! A worker claims only items fewer than `2 × width` ahead of the items done with (made,
+//! taken and their `after` run), so at most that many are held at any moment, whatever
+//! the makers' speeds; while it waits it takes what is ready itself.
 
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
@@ -18,15 +21,24 @@ pub(super) fn held_at_most(width: usize) -> usize {
     width.max(1).saturating_mul(2)
 }
 
-/// Make `make(k)` for `k` in `0..n` on the pool, `width` at once, and `take(k, item)` each
-/// in order of `k` (see the module docs). The first error of `take` ends the run: no item
-/// is made after it, none is taken after it, and it is returned.
-pub(super) fn in_order<T, E, M, F>(n: usize, width: usize, make: M, take: F) -> Result<(), E>
+/// Make `make(k)` for `k` in `0..n` on the pool, `width` at once, `take(k, item)` each in
+/// order of `k`, and run `after` on what each take returns, in any order (see the module
+/// docs). The first error of `take` or `after` ends the run: no item is made after it,
+/// none is taken after it, and it is returned (`take`'s first).
+pub(super) fn in_order<T, A, E, M, F, W>(
+    n: usize,
+    width: usize,
+    make: M,
+    take: F,
+    after: W,
+) -> Result<(), E>
 where
     T: Send,
+    A: Send,
     E: Send,
     M: Fn(usize) -> T + Sync,
-    F: FnMut(usize, T) -> Result<(), E> + Send,
+    F: FnMut(usize, T) -> Result<A, E> + Send,
+    W: Fn(A) -> Result<(), E> + Sync,
 {
     use rayon::prelude::*;
     let ahead = held_at_most(width);
@@ -37,8 +49,22 @@ where
             taken: 0,
             error: None,
         }),
-        taken: AtomicUsize::new(0),
+        done: AtomicUsize::new(0),
         failed: AtomicBool::new(false),
+        late: Mutex::new(None),
+    };
+    // Take what is ready, then run `after` on it with the taker let go.
+    let take_and_finish = || {
+        let taken = order.take_ready();
+        let any = !taken.is_empty();
+        for a in taken {
+            if let Err(e) = after(a) {
+                order.failed.store(true, Ordering::Relaxed);
+                lock(&order.late).get_or_insert(e);
+            }
+            order.done.fetch_add(1, Ordering::Release);
+        }
+        any
     };
     let next = AtomicUsize::new(0);
     let workers = width.clamp(1, rayon::current_num_threads().max(1)).min(n);
@@ -50,12 +76,12 @@ where
             if k >= n {
                 break;
             }
-            while k >= order.taken.load(Ordering::Acquire) + ahead
+            // The wait lasts one take at most: nap rather than spin, leaving the core
+            // to the kernel's writeback and to hyperthread siblings.
+            while k >= order.done.load(Ordering::Acquire) + ahead
                 && !order.failed.load(Ordering::Relaxed)
             {
-                // The wait lasts one take at most: nap rather than spin, leaving the core
-                // to the kernel's writeback and to hyperthread siblings.
-                if !order.take_ready() {
+                if !take_and_finish() {
                     std::thread::sleep(std::time::Duration::from_micros(50));
                 }
             }
@@ -64,13 +90,14 @@ where
             }
             let item = make(k);
             lock(&order.ready).insert(k, item);
-            order.take_ready();
+            take_and_finish();
         }
     });
     // Every worker has ended: whatever is still ready is taken here.
-    order.take_ready();
+    take_and_finish();
     let taker = order.taker.into_inner().unwrap_or_else(|e| e.into_inner());
-    match taker.error {
+    let late = order.late.into_inner().unwrap_or_else(|e| e.into_inner());
+    match taker.error.or(late) {
         Some(e) => Err(e),
         None => Ok(()),
     }
@@ -82,10 +109,12 @@ struct Order<T, E, F> {
     ready: Mutex<BTreeMap<usize, T>>,
     /// The one worker taking items at a time.
     taker: Mutex<Taker<E, F>>,
-    /// Items taken so far, for the workers' bound.
-    taken: AtomicUsize,
-    /// `take` failed (or a worker panicked): no item is made after it.
+    /// Items done with (taken and their `after` run), for the workers' bound.
+    done: AtomicUsize,
+    /// `take` or `after` failed (or a worker panicked): no item is made after it.
     failed: AtomicBool,
+    /// The first error of `after`.
+    late: Mutex<Option<E>>,
 }
 
 /// What the worker taking items holds.
@@ -96,11 +125,14 @@ struct Taker<E, F> {
     error: Option<E>,
 }
 
-impl<T, E, F: FnMut(usize, T) -> Result<(), E>> Order<T, E, F> {
+impl<T, E, F> Order<T, E, F> {
     /// Take the items ready in order, unless another worker is taking them (it then sees
-    /// the ones made meanwhile: it looks again after letting go). Whether any was taken.
-    fn take_ready(&self) -> bool {
-        let mut took = false;
+    /// the ones made meanwhile: it looks again after letting go); what the takes returned.
+    fn take_ready<A>(&self) -> Vec<A>
+    where
+        F: FnMut(usize, T) -> Result<A, E>,
+    {
+        let mut took = Vec::new();
         loop {
             let mut guard = match self.taker.try_lock() {
                 Ok(guard) => guard,
@@ -116,15 +148,16 @@ impl<T, E, F: FnMut(usize, T) -> Result<(), E>> Order<T, E, F> {
                 let Some(item) = lock(&self.ready).remove(&k) else {
                     break;
                 };
-                took = true;
                 match (taker.take)(k, item) {
-                    Ok(()) => taker.taken += 1,
+                    Ok(a) => {
+                        took.push(a);
+                        taker.taken += 1;
+                    }
                     Err(e) => {
                         taker.error = Some(e);
                         self.failed.store(true, Ordering::Relaxed);
                     }
                 }
-                self.taken.store(taker.taken, Ordering::Release);
             }
             let (k, failed) = (taker.taken, taker.error.is_some());
             drop(guard);
@@ -159,21 +192,37 @@ mod tests {
     use crate::rng::SplitMix64;
     use std::time::Duration;
 
-    /// Items made at random speeds (0 to 300 µs) on a pool of `threads`: what `take` saw,
-    /// and the most items ever held (claimed and not yet taken).
+    /// Where a run fails, if it does.
+    #[derive(Clone, Copy, PartialEq)]
+    enum Fail {
+        Never,
+        Take(usize),
+        After(usize),
+    }
+
+    /// A sleep of 0 to 300 µs, the same for the same `(seed, k)`.
+    fn nap(seed: u64, k: usize) {
+        let us = SplitMix64::for_item(seed, k as u64).int_in(0, 300);
+        std::thread::sleep(Duration::from_micros(us as u64));
+    }
+
+    /// Items made and finished at random speeds on a pool of `threads`: the order `take`
+    /// saw them in, the items whose `after` ran, the most items ever held (claimed and not
+    /// done with), and the result.
     fn run(
         n: usize,
         width: usize,
         threads: usize,
-        fail_at: Option<usize>,
-    ) -> (Vec<usize>, usize, Result<(), usize>) {
+        fail: Fail,
+    ) -> (Vec<usize>, Vec<usize>, usize, Result<(), usize>) {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
             .build()
             .expect("a pool");
         let started = AtomicUsize::new(0);
-        let taken_count = AtomicUsize::new(0);
+        let finished = AtomicUsize::new(0);
         let most = AtomicUsize::new(0);
+        let afters = Mutex::new(Vec::new());
         let mut seen = Vec::new();
         let result = pool.install(|| {
             in_order(
@@ -181,50 +230,69 @@ mod tests {
                 width,
                 |k| {
                     let s = started.fetch_add(1, Ordering::SeqCst) + 1;
-                    let held = s - taken_count.load(Ordering::SeqCst);
-                    most.fetch_max(held, Ordering::SeqCst);
-                    let us = SplitMix64::for_item(7, k as u64).int_in(0, 300);
-                    std::thread::sleep(Duration::from_micros(us as u64));
+                    most.fetch_max(s - finished.load(Ordering::SeqCst), Ordering::SeqCst);
+                    nap(7, k);
                     k * 10
                 },
                 |k, item| {
                     assert_eq!(item, k * 10, "an item reaches take with its own index");
-                    if Some(k) == fail_at {
+                    if fail == Fail::Take(k) {
                         return Err(k);
                     }
                     seen.push(k);
-                    taken_count.fetch_add(1, Ordering::SeqCst);
+                    Ok(k)
+                },
+                |k| {
+                    nap(8, k);
+                    lock(&afters).push(k);
+                    finished.fetch_add(1, Ordering::SeqCst);
+                    if fail == Fail::After(k) {
+                        return Err(k);
+                    }
                     Ok(())
                 },
             )
         });
-        (seen, most.into_inner(), result)
+        let mut afters = afters.into_inner().expect("no panic");
+        afters.sort_unstable();
+        (seen, afters, most.into_inner(), result)
     }
 
     #[test]
     fn items_are_taken_in_order_within_the_bound() {
         for (width, threads) in [(1, 1), (1, 4), (2, 2), (3, 4), (8, 4), (16, 8)] {
-            let (seen, most, result) = run(300, width, threads, None);
+            let (seen, afters, most, result) = run(300, width, threads, Fail::Never);
             assert_eq!(result, Ok(()));
-            assert_eq!(
-                seen,
-                (0..300).collect::<Vec<_>>(),
-                "width {width}, {threads} threads"
-            );
+            let all: Vec<usize> = (0..300).collect();
+            assert_eq!(seen, all, "width {width}, {threads} threads");
+            assert_eq!(afters, all, "width {width}, {threads} threads");
             assert!(
                 most <= held_at_most(width),
                 "width {width}, {threads} threads: {most} items held, more than {}",
                 held_at_most(width)
             );
         }
-        assert_eq!(run(0, 4, 2, None).0, Vec::<usize>::new());
+        let (seen, afters, _, result) = run(0, 4, 2, Fail::Never);
+        assert_eq!((seen.len(), afters.len(), result), (0, 0, Ok(())));
     }
 
     #[test]
     fn a_failed_take_ends_the_run() {
-        let (seen, _, result) = run(300, 4, 4, Some(40));
+        let (seen, afters, _, result) = run(300, 4, 4, Fail::Take(40));
         assert_eq!(result, Err(40));
         assert_eq!(seen, (0..40).collect::<Vec<_>>());
+        assert_eq!(afters, seen, "what was taken is finished");
+    }
+
+    /// A failed `after` ends the run too: the items taken are those up to it and a few
+    /// more (takes go on while it runs), in order, each finished, and the rest never start.
+    #[test]
+    fn a_failed_after_ends_the_run() {
+        let (seen, afters, _, result) = run(300, 4, 4, Fail::After(40));
+        assert_eq!(result, Err(40));
+        assert_eq!(seen, (0..seen.len()).collect::<Vec<_>>());
+        assert!((41..100).contains(&seen.len()), "{} taken", seen.len());
+        assert_eq!(afters, seen, "what was taken is finished");
     }
 
     /// The bound holds the makers back: a stalled first item lets at most the bound's
@@ -250,6 +318,7 @@ mod tests {
                     }
                 },
                 |_, ()| Ok::<(), ()>(()),
+                |()| Ok(()),
             )
         })
         .expect("no take fails");

@@ -286,6 +286,7 @@ impl Container for Files<'_> {
     type View = ();
     type Open = ();
     type Record = ();
+    type Placed = ();
     const SCENES_AHEAD: bool = false;
 
     fn start(&self, _: &Unit, _: &[Result<Scene, String>], _: &Path) -> Result<Start<(), ()>> {
@@ -355,6 +356,10 @@ impl Container for Files<'_> {
     }
 
     fn accept(&self, _: &mut (), _: usize, _: ()) -> Result<()> {
+        Ok(())
+    }
+
+    fn place(&self, _: ()) -> Result<()> {
         Ok(())
     }
 

@@ -42,12 +42,15 @@
 //! too, from an EXR rendered again (the tar is a pure function of the same inputs): one
 //! that disagrees is listed with the failures, and the tar stays as it is.
 //!
-//! **Parallelism and memory.** Within a tar the pool renders a window of views while the
-//! tar's owner appends and hashes the window before it, in view order; several tars are
-//! written at once, each by one owner that takes the next tar when it finishes one. How
-//! many tars and how large a window come from the largest view's estimate (its whole
-//! image, which a tar's view holds until it is appended, and its encoded members) and
-//! half of what the machine leaves, so the views held stay within it. Each
+//! **Parallelism and memory.** Within a tar the pool renders a window of views at once;
+//! each rendered view is laid out at the tar's end and hashed in view order, by whichever
+//! worker finds it next in line, and that worker then writes it at its offset (a
+//! positional write) while another lays out and hashes the views after it. So only the
+//! hash is in line; the render and the write of a view overlap others'. Several tars are
+//! written at once, each lane taking the next tar when it finishes one. How many tars and
+//! how large a window come from the largest view's estimate (its whole image, which a
+//! tar's view holds until it is written, and its encoded members) and half of what the
+//! machine leaves, so the views held (at most two windows a tar) stay within it. Each
 //! view's estimate is also checked before it renders, as in the files format: a view that
 //! does not fit fails alone.
 
@@ -66,21 +69,22 @@ use super::verify::Verifier;
 use super::views::{ViewSource, list_views};
 use crate::output::console::{self, count};
 use crate::output::format::camera_files::record_json;
-use crate::output::format::tar::{self, TarWriter};
+use crate::output::format::tar;
 use crate::output::store::atomic::atomic_write_bytes;
 use crate::output::store::files::{create_new, open_regular, read_regular};
 use crate::output::store::targets::check_outputs;
 use crate::scene::{Aov, Scene};
 use crate::spelling::opt;
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result, anyhow, bail};
 pub use sample::{MemberBytes, Members, view_members, view_tar_bytes};
 use sample::{array_aovs, member_suffixes, tar_view_memory, view_members_and_exr};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 use std::collections::HashMap;
 use std::fs::File;
-use std::io::{BufWriter, Read, Write};
+use std::io::Read;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
@@ -412,23 +416,6 @@ fn value_name(v: impl crate::choice::Choice) -> String {
     v.choice_name().to_string()
 }
 
-/// A writer that hashes what passes through it.
-struct Hashing<W: Write> {
-    inner: W,
-    hash: Sha256,
-}
-
-impl<W: Write> Write for Hashing<W> {
-    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
-        let n = self.inner.write(buf)?;
-        self.hash.update(&buf[..n]);
-        Ok(n)
-    }
-    fn flush(&mut self) -> std::io::Result<()> {
-        self.inner.flush()
-    }
-}
-
 fn hex(bytes: &[u8]) -> String {
     bytes.iter().map(|b| format!("{b:02x}")).collect()
 }
@@ -471,13 +458,31 @@ struct Plan<'a> {
     files_png: bool,
 }
 
-/// A tar being written: appended and hashed in view order under `OUT/.partial/J-of-T/`.
+/// A tar being written under `OUT/.partial/J-of-T/`: laid out and hashed in view order,
+/// each view's bytes then written at their offset by the worker that took the view
+/// (positional writes, in any order), so one view's write overlaps the next one's hash.
 struct OpenTar {
-    tar: TarWriter<Hashing<BufWriter<File>>>,
-    tmp: PathBuf,
+    file: Arc<File>,
+    tmp: Arc<Path>,
+    /// Where the next member goes: the bytes laid out so far.
+    at: u64,
+    hash: Sha256,
     stamp: String,
     samples: usize,
 }
+
+/// A view laid out in its tar, to be written at `at`.
+struct PlacedView {
+    file: Arc<File>,
+    tmp: Arc<Path>,
+    at: u64,
+    members: Members,
+    framed: Vec<tar::Framed>,
+}
+
+/// Pieces shorter than this are gathered into one write (headers, padding, JSON); longer
+/// ones (the arrays) are written from where they lie.
+const GATHER: usize = 64 << 10;
 
 impl Plan<'_> {
     fn range(&self, j: usize) -> std::ops::Range<usize> {
@@ -662,6 +667,7 @@ impl Container for Plan<'_> {
     type View = Members;
     type Open = OpenTar;
     type Record = Sidecar;
+    type Placed = PlacedView;
     const SCENES_AHEAD: bool = true;
 
     /// Keep tar `j` if its sidecar vouches for it with this run's stamp; else start it
@@ -688,16 +694,11 @@ impl Container for Plan<'_> {
         let file = create_new(&tmp)
             .map_err(crate::output::store::atomic::explain)
             .with_context(|| format!("creating {}", tmp.display()))?;
-        // A buffer smaller than the arrays: BufWriter passes a write at least its size
-        // straight to the file, so an array is hashed and written from where it was encoded,
-        // never copied into the buffer first; headers and JSON are gathered.
-        let tar = TarWriter::new(Hashing {
-            inner: BufWriter::with_capacity(64 << 10, file),
-            hash: Sha256::new(),
-        });
         Ok(Start::Open(OpenTar {
-            tar,
-            tmp,
+            file: Arc::new(file),
+            tmp: tmp.into(),
+            at: 0,
+            hash: Sha256::new(),
             stamp,
             samples: 0,
         }))
@@ -733,32 +734,84 @@ impl Container for Plan<'_> {
         check_work.join(format!("{}.exr", self.keys[i]))
     }
 
-    fn accept(&self, open: &mut OpenTar, _i: usize, members: Members) -> Result<()> {
+    /// Lay the view's members out at the tar's end and hash them.
+    fn accept(&self, open: &mut OpenTar, _i: usize, members: Members) -> Result<PlacedView> {
+        let at = open.at;
+        let mut framed = Vec::with_capacity(members.len());
         for (name, bytes) in &members {
-            open.tar
-                .append_pieces(name, &bytes.pieces())
+            let pieces = bytes.pieces();
+            let f = tar::Framed::new(name, &pieces)
+                .map_err(|e| anyhow!(e))
                 .with_context(|| format!("writing {}", open.tmp.display()))?;
+            for b in f.bytes(&pieces) {
+                open.hash.update(b);
+                open.at += b.len() as u64;
+            }
+            framed.push(f);
         }
         open.samples += 1;
+        Ok(PlacedView {
+            file: open.file.clone(),
+            tmp: open.tmp.clone(),
+            at,
+            members,
+            framed,
+        })
+    }
+
+    /// Write a view's bytes where [`Plan::accept`] laid them out.
+    fn place(&self, view: PlacedView) -> Result<()> {
+        use std::os::unix::fs::FileExt;
+        let mut at = view.at;
+        let mut gathered: Vec<u8> = Vec::new();
+        let mut gathered_at = at;
+        let write = |bytes: &[u8], to: u64| {
+            view.file
+                .write_all_at(bytes, to)
+                .map_err(crate::output::store::atomic::explain)
+                .with_context(|| format!("writing {}", view.tmp.display()))
+        };
+        for (f, (_, bytes)) in view.framed.iter().zip(&view.members) {
+            let pieces = bytes.pieces();
+            for b in f.bytes(&pieces) {
+                if b.len() < GATHER {
+                    if gathered.is_empty() {
+                        gathered_at = at;
+                    }
+                    gathered.extend_from_slice(b);
+                } else {
+                    if !gathered.is_empty() {
+                        write(&gathered, gathered_at)?;
+                        gathered.clear();
+                    }
+                    write(b, at)?;
+                }
+                at += b.len() as u64;
+            }
+        }
+        if !gathered.is_empty() {
+            write(&gathered, gathered_at)?;
+        }
         Ok(())
     }
 
     /// Finish the tar, move it into place, then write the sidecar that vouches for it.
     fn commit(&self, unit: &Unit, open: OpenTar, failed: &[(usize, &str)]) -> Result<Sidecar> {
+        use std::os::unix::fs::FileExt;
         let OpenTar {
-            tar,
+            file,
             tmp,
+            at,
+            mut hash,
             stamp,
             samples,
         } = open;
-        let (hashing, bytes) = tar
-            .finish()
+        file.write_all_at(&tar::CLOSING, at)
+            .map_err(crate::output::store::atomic::explain)
             .with_context(|| format!("writing {}", tmp.display()))?;
-        let Hashing { inner, hash } = hashing;
-        inner
-            .into_inner()
-            .map_err(|e| e.into_error())
-            .with_context(|| format!("writing {}", tmp.display()))?;
+        hash.update(tar::CLOSING);
+        let bytes = at + tar::CLOSING.len() as u64;
+        drop(file);
         let j = unit.name.index as usize;
         let dest = self.tar_path(j);
         std::fs::rename(&tmp, &dest)
@@ -900,8 +953,8 @@ pub fn write_shards_until(
         .map(|c| tar_view_memory(c.size(), &aovs, opts, &sopts.members, exr_checked))
         .max()
         .unwrap_or(0);
-    // A tar's view is held from its render until it is appended: two windows at most (no
-    // view renders two windows ahead of the next to append).
+    // A tar's view is held from its render until it is written: two windows at most (no
+    // view renders two windows ahead of the views written).
     let (lanes, window) = driver::in_flight(
         each.saturating_mul(2),
         mine.len(),

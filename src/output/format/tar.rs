@@ -94,6 +94,37 @@ pub fn header(name: &str, size: u64) -> Result<[u8; BLOCK], String> {
     Ok(h)
 }
 
+/// The two zero blocks that close an archive (a member's padding is a part of one).
+pub const CLOSING: [u8; 2 * BLOCK] = [0; 2 * BLOCK];
+
+/// A member as it lies in an archive: its header block, its bytes, then zeros to a whole
+/// block. Framing a member does not write it, so an archive can be laid out and hashed in
+/// member order while the members are written at their offsets in any order.
+pub struct Framed {
+    header: [u8; BLOCK],
+    pad: usize,
+}
+
+impl Framed {
+    /// Frame member `name` whose bytes are `pieces` one after the other, or say why ustar
+    /// cannot hold it.
+    pub fn new(name: &str, pieces: &[&[u8]]) -> Result<Framed, String> {
+        let len: usize = pieces.iter().map(|p| p.len()).sum();
+        Ok(Framed {
+            header: header(name, len as u64)?,
+            pad: len.next_multiple_of(BLOCK) - len,
+        })
+    }
+
+    /// The member's bytes in archive order (header, `pieces`, padding): `pieces` must be
+    /// the ones it was framed with.
+    pub fn bytes<'a>(&'a self, pieces: &[&'a [u8]]) -> impl Iterator<Item = &'a [u8]> {
+        std::iter::once(&self.header[..])
+            .chain(pieces.iter().copied())
+            .chain(std::iter::once(&CLOSING[..self.pad]))
+    }
+}
+
 /// Appends members to a ustar archive in `W`.
 pub struct TarWriter<W: Write> {
     out: W,
@@ -115,23 +146,19 @@ impl<W: Write> TarWriter<W> {
     /// [`TarWriter::append`] of the member whose bytes are `pieces` one after the other
     /// (a header and an array kept apart, written without joining them).
     pub fn append_pieces(&mut self, name: &str, pieces: &[&[u8]]) -> io::Result<()> {
-        let len: usize = pieces.iter().map(|p| p.len()).sum();
-        let h =
-            header(name, len as u64).map_err(|e| io::Error::new(io::ErrorKind::InvalidInput, e))?;
-        self.out.write_all(&h)?;
-        for p in pieces {
-            self.out.write_all(p)?;
+        let framed = Framed::new(name, pieces)
+            .map_err(|e| io::Error::new(io::ErrorKind::InvalidInput, e))?;
+        for b in framed.bytes(pieces) {
+            self.out.write_all(b)?;
+            self.written += b.len() as u64;
         }
-        let pad = len.next_multiple_of(BLOCK) - len;
-        self.out.write_all(&[0u8; BLOCK][..pad])?;
-        self.written += (BLOCK + len + pad) as u64;
         Ok(())
     }
 
     /// Write the two closing zero blocks and return the writer and the archive's size.
     pub fn finish(mut self) -> io::Result<(W, u64)> {
-        self.out.write_all(&[0u8; 2 * BLOCK])?;
-        self.written += 2 * BLOCK as u64;
+        self.out.write_all(&CLOSING)?;
+        self.written += CLOSING.len() as u64;
         self.out.flush()?;
         Ok((self.out, self.written))
     }
