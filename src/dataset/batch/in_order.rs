@@ -11,6 +11,12 @@
 //! A worker claims only items fewer than `2 × width` ahead of the items done with (made,
 //! taken and their `after` run), so at most that many are held at any moment, whatever
 //! the makers' speeds; while it waits it takes what is ready itself.
+//!
+//! **No wait above a suspended item.** A pool thread that waits inside a `make` (a render
+//! waiting for its bands) runs other pool jobs meanwhile, a worker among them. A worker
+//! that waited there at the bound could be waiting for the very item suspended beneath
+//! it, forever. So a worker that meets the bound on a thread with a `make` beneath it
+//! ends instead of waiting; the other workers, and the caller after them, make the rest.
 
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
@@ -72,29 +78,59 @@ where
         // A worker that panics would hold up the others' bound: they stop instead.
         let _stop_peers = FailOnUnwind(&order.failed);
         loop {
-            let k = next.fetch_add(1, Ordering::Relaxed);
-            if k >= n {
-                break;
-            }
-            // The wait lasts one take at most: nap rather than spin, leaving the core
-            // to the kernel's writeback and to hyperthread siblings.
-            while k >= order.done.load(Ordering::Acquire) + ahead
-                && !order.failed.load(Ordering::Relaxed)
-            {
-                if !take_and_finish() {
-                    std::thread::sleep(std::time::Duration::from_micros(50));
-                }
-            }
             if order.failed.load(Ordering::Relaxed) {
                 break;
             }
-            let item = make(k);
+            let k = next.load(Ordering::Acquire);
+            if k >= n {
+                break;
+            }
+            if k >= order.done.load(Ordering::Acquire) + ahead {
+                if take_and_finish() {
+                    continue;
+                }
+                if making_beneath() {
+                    // An item is suspended beneath this worker (see the module docs):
+                    // the others and the caller's last pass make the rest.
+                    break;
+                }
+                // The wait lasts one take at most: nap rather than spin, leaving the
+                // core to the kernel's writeback and to hyperthread siblings.
+                std::thread::sleep(std::time::Duration::from_micros(50));
+                continue;
+            }
+            if next
+                .compare_exchange(k, k + 1, Ordering::AcqRel, Ordering::Acquire)
+                .is_err()
+            {
+                continue;
+            }
+            let item = {
+                let _making = Making::enter();
+                make(k)
+            };
             lock(&order.ready).insert(k, item);
             take_and_finish();
         }
     });
-    // Every worker has ended: whatever is still ready is taken here.
-    take_and_finish();
+    // Every worker has ended. Normally every item is made by now; workers that found an
+    // item beneath them at the bound may have left some, made here one at a time (each
+    // taken before the next is made, so nothing waits and little is held).
+    loop {
+        take_and_finish();
+        if order.failed.load(Ordering::Relaxed) {
+            break;
+        }
+        let k = next.fetch_add(1, Ordering::AcqRel);
+        if k >= n {
+            break;
+        }
+        let item = {
+            let _making = Making::enter();
+            make(k)
+        };
+        lock(&order.ready).insert(k, item);
+    }
     let taker = order.taker.into_inner().unwrap_or_else(|e| e.into_inner());
     let late = order.late.into_inner().unwrap_or_else(|e| e.into_inner());
     match taker.error.or(late) {
@@ -167,6 +203,33 @@ impl<T, E, F> Order<T, E, F> {
             }
         }
     }
+}
+
+thread_local! {
+    /// How many `make`s are running on this thread, one inside another's wait (see the
+    /// module docs).
+    static MAKING: std::cell::Cell<u32> = const { std::cell::Cell::new(0) };
+}
+
+/// A `make` running on this thread, from [`Making::enter`] until dropped.
+struct Making;
+
+impl Making {
+    fn enter() -> Making {
+        MAKING.with(|m| m.set(m.get() + 1));
+        Making
+    }
+}
+
+impl Drop for Making {
+    fn drop(&mut self) {
+        MAKING.with(|m| m.set(m.get() - 1));
+    }
+}
+
+/// Whether a `make` is suspended beneath the caller on this thread.
+fn making_beneath() -> bool {
+    MAKING.with(|m| m.get() > 0)
 }
 
 /// Sets its flag when dropped by a panic.
@@ -293,6 +356,110 @@ mod tests {
         assert_eq!(seen, (0..seen.len()).collect::<Vec<_>>());
         assert!((41..100).contains(&seen.len()), "{} taken", seen.len());
         assert_eq!(afters, seen, "what was taken is finished");
+    }
+
+    /// A `make` that itself runs on the pool (as a render does) may have a worker run on
+    /// its thread while it waits for its own jobs, and that worker must not wait for the
+    /// suspended item beneath it. Two runs at once (as the driver's tars are), each as
+    /// wide as the pool, so workers queue in the pool; many small nested items. (A
+    /// schedule that nests a worker over its own run's item is rare, and this does not
+    /// force one: `a_worker_above_a_suspended_item_never_waits` does.)
+    #[test]
+    fn makers_that_use_the_pool_never_wait_on_each_other() {
+        use rayon::prelude::*;
+        let one = |width: usize| {
+            let mut seen = Vec::new();
+            in_order(
+                1000,
+                width,
+                |k| {
+                    (0..16u64)
+                        .into_par_iter()
+                        .map(|j| (0..200u64).fold(k as u64 ^ j, |a, b| a.rotate_left(5) ^ b))
+                        .sum::<u64>()
+                },
+                |k, _| {
+                    seen.push(k);
+                    Ok::<(), ()>(())
+                },
+                |()| Ok(()),
+            )
+            .expect("no take fails");
+            seen
+        };
+        for threads in [2, 4, 8] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .expect("a pool");
+            let (a, b) = pool.install(|| rayon::join(|| one(threads), || one(threads)));
+            let all: Vec<usize> = (0..1000).collect();
+            assert_eq!((a, b), (all.clone(), all), "{threads} threads");
+        }
+    }
+
+    /// Forces the schedule the module docs rule out: while item 0 is being made, its
+    /// thread runs the run's other worker (`yield_local` runs the job waiting in the
+    /// thread's own queue, as a render's wait for its bands may), which makes items 1 to
+    /// 3 and then meets the bound, item 0 beneath it. It must end rather than wait (a
+    /// wait would never end); the run then finishes in order.
+    #[test]
+    fn a_worker_above_a_suspended_item_never_waits() {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(2)
+            .build()
+            .expect("a pool");
+        let (send, done) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let busy = AtomicBool::new(true);
+            let nested = AtomicUsize::new(0);
+            thread_local! {
+                static IN_ITEM_0: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+            }
+            let mut seen = Vec::new();
+            pool.install(|| {
+                rayon::join(
+                    || {
+                        let r = in_order(
+                            20,
+                            2,
+                            |k| {
+                                if k == 0 {
+                                    // The other worker waits in this thread's queue (the
+                                    // pool's other thread spins below).
+                                    IN_ITEM_0.with(|c| c.set(true));
+                                    let _ = rayon::yield_local();
+                                    IN_ITEM_0.with(|c| c.set(false));
+                                } else if IN_ITEM_0.with(|c| c.get()) {
+                                    nested.fetch_add(1, Ordering::SeqCst);
+                                }
+                                k
+                            },
+                            |k, item| {
+                                seen.push((k, item));
+                                Ok::<(), ()>(())
+                            },
+                            |()| Ok(()),
+                        );
+                        busy.store(false, Ordering::SeqCst);
+                        r
+                    },
+                    || {
+                        while busy.load(Ordering::SeqCst) {
+                            std::hint::spin_loop();
+                        }
+                    },
+                )
+            })
+            .0
+            .expect("no take fails");
+            let _ = send.send((seen, nested.into_inner()));
+        });
+        let (seen, nested) = done
+            .recv_timeout(Duration::from_secs(20))
+            .expect("the run ends (a worker waited above the item it needed)");
+        assert_eq!(nested, 3, "items 1 to 3 made above item 0, then the bound");
+        assert_eq!(seen, (0..20).map(|k| (k, k)).collect::<Vec<_>>());
     }
 
     /// The bound holds the makers back: a stalled first item lets at most the bound's
