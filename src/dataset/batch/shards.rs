@@ -46,15 +46,20 @@
 //! each rendered view is laid out at the tar's end and hashed in view order, by whichever
 //! worker finds it next in line, and that worker then writes it at its offset (a
 //! positional write) while another lays out and hashes the views after it. So only the
-//! hash is in line; the render and the write of a view overlap others'. Several tars are
+//! hash is in line; the render and the write of a view overlap others'. One worker
+//! writes a tar at a time: one that finds the tar being written hands its view to the
+//! writer and goes back to rendering (the kernel would make it spin on the file's lock
+//! instead), and at most one view a tar waits so. Several tars are
 //! written at once, each lane taking the next tar when it finishes one. How many tars and
 //! how large a window come from the largest view's estimate (its whole image, which a
 //! tar's view holds until it is written, and its encoded members) and half of what the
-//! machine leaves, so the views held (at most two windows a tar) stay within it. Each
+//! machine leaves, so the views held (at most two windows and the one waiting view a tar)
+//! stay within it. Each
 //! view's estimate is also checked before it renders, as in the files format: a view that
 //! does not fit fails alone.
 
 mod sample;
+mod tar_file;
 
 use super::driver::{self, Container, Rendered, Run, Start, Unit};
 use super::failures::write_failures;
@@ -75,18 +80,18 @@ use crate::output::store::files::{create_new, open_regular, read_regular};
 use crate::output::store::targets::check_outputs;
 use crate::scene::{Aov, Scene};
 use crate::spelling::opt;
-use anyhow::{Context, Result, anyhow, bail};
+use anyhow::{Context, Result, bail};
 pub use sample::{MemberBytes, Members, view_members, view_tar_bytes};
 use sample::{array_aovs, member_suffixes, tar_view_memory, view_members_and_exr};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 use std::collections::HashMap;
-use std::fs::File;
 use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
+use tar_file::{TarFile, ViewBytes};
 
 /// Views a tar holds unless told otherwise.
 pub const DEFAULT_SHARD_SIZE: usize = 1000;
@@ -459,11 +464,10 @@ struct Plan<'a> {
 }
 
 /// A tar being written under `OUT/.partial/J-of-T/`: laid out and hashed in view order,
-/// each view's bytes then written at their offset by the worker that took the view
-/// (positional writes, in any order), so one view's write overlaps the next one's hash.
+/// each view's bytes then written at their offset ([`TarFile`]), so one view's write
+/// overlaps the next one's hash.
 struct OpenTar {
-    file: Arc<File>,
-    tmp: Arc<Path>,
+    file: Arc<TarFile>,
     /// Where the next member goes: the bytes laid out so far.
     at: u64,
     hash: Sha256,
@@ -471,18 +475,11 @@ struct OpenTar {
     samples: usize,
 }
 
-/// A view laid out in its tar, to be written at `at`.
+/// A view laid out in its tar, to be written there.
 struct PlacedView {
-    file: Arc<File>,
-    tmp: Arc<Path>,
-    at: u64,
-    members: Members,
-    framed: Vec<tar::Framed>,
+    file: Arc<TarFile>,
+    bytes: ViewBytes,
 }
-
-/// Pieces shorter than this are gathered into one write (headers, padding, JSON); longer
-/// ones (the arrays) are written from where they lie.
-const GATHER: usize = 64 << 10;
 
 impl Plan<'_> {
     fn range(&self, j: usize) -> std::ops::Range<usize> {
@@ -695,8 +692,7 @@ impl Container for Plan<'_> {
             .map_err(crate::output::store::atomic::explain)
             .with_context(|| format!("creating {}", tmp.display()))?;
         Ok(Start::Open(OpenTar {
-            file: Arc::new(file),
-            tmp: tmp.into(),
+            file: Arc::new(TarFile::new(file, tmp)),
             at: 0,
             hash: Sha256::new(),
             stamp,
@@ -737,80 +733,42 @@ impl Container for Plan<'_> {
     /// Lay the view's members out at the tar's end and hash them.
     fn accept(&self, open: &mut OpenTar, _i: usize, members: Members) -> Result<PlacedView> {
         let at = open.at;
-        let mut framed = Vec::with_capacity(members.len());
-        for (name, bytes) in &members {
-            let pieces = bytes.pieces();
-            let f = tar::Framed::new(name, &pieces)
-                .map_err(|e| anyhow!(e))
-                .with_context(|| format!("writing {}", open.tmp.display()))?;
-            for b in f.bytes(&pieces) {
+        let framed = tar_file::frame(&members, open.file.path())?;
+        for (f, (_, bytes)) in framed.iter().zip(&members) {
+            for b in f.bytes(&bytes.pieces()) {
                 open.hash.update(b);
                 open.at += b.len() as u64;
             }
-            framed.push(f);
         }
         open.samples += 1;
         Ok(PlacedView {
             file: open.file.clone(),
-            tmp: open.tmp.clone(),
-            at,
-            members,
-            framed,
+            bytes: ViewBytes {
+                at,
+                members,
+                framed,
+            },
         })
     }
 
     /// Write a view's bytes where [`Plan::accept`] laid them out.
     fn place(&self, view: PlacedView) -> Result<()> {
-        use std::os::unix::fs::FileExt;
-        let mut at = view.at;
-        let mut gathered: Vec<u8> = Vec::new();
-        let mut gathered_at = at;
-        let write = |bytes: &[u8], to: u64| {
-            view.file
-                .write_all_at(bytes, to)
-                .map_err(crate::output::store::atomic::explain)
-                .with_context(|| format!("writing {}", view.tmp.display()))
-        };
-        for (f, (_, bytes)) in view.framed.iter().zip(&view.members) {
-            let pieces = bytes.pieces();
-            for b in f.bytes(&pieces) {
-                if b.len() < GATHER {
-                    if gathered.is_empty() {
-                        gathered_at = at;
-                    }
-                    gathered.extend_from_slice(b);
-                } else {
-                    if !gathered.is_empty() {
-                        write(&gathered, gathered_at)?;
-                        gathered.clear();
-                    }
-                    write(b, at)?;
-                }
-                at += b.len() as u64;
-            }
-        }
-        if !gathered.is_empty() {
-            write(&gathered, gathered_at)?;
-        }
-        Ok(())
+        view.file.write(view.bytes)
     }
 
     /// Finish the tar, move it into place, then write the sidecar that vouches for it.
     fn commit(&self, unit: &Unit, open: OpenTar, failed: &[(usize, &str)]) -> Result<Sidecar> {
-        use std::os::unix::fs::FileExt;
         let OpenTar {
             file,
-            tmp,
             at,
             mut hash,
             stamp,
             samples,
         } = open;
-        file.write_all_at(&tar::CLOSING, at)
-            .map_err(crate::output::store::atomic::explain)
-            .with_context(|| format!("writing {}", tmp.display()))?;
+        file.close(at)?;
         hash.update(tar::CLOSING);
         let bytes = at + tar::CLOSING.len() as u64;
+        let tmp = file.path().to_path_buf();
         drop(file);
         let j = unit.name.index as usize;
         let dest = self.tar_path(j);
@@ -954,9 +912,10 @@ pub fn write_shards_until(
         .max()
         .unwrap_or(0);
     // A tar's view is held from its render until it is written: two windows at most (no
-    // view renders two windows ahead of the views written).
+    // view renders two windows ahead of the views done with), and one view done with but
+    // waiting for the tar's writer; 2 w + 1 <= 3 w.
     let (lanes, window) = driver::in_flight(
-        each.saturating_mul(2),
+        each.saturating_mul(3),
         mine.len(),
         rayon::current_num_threads(),
         None,
