@@ -23,10 +23,13 @@
 //!    resource every view needs.
 //!
 //! Units run `lanes` at a time, each rendering `window` views at once and holding at most
-//! two windows' views, both from the memory a view holds ([`in_flight`]), so what the
-//! views hold stays within half of what the machine leaves however many cores there are. A view that failed because a resource every view
-//! needs ran out (a full disk, see [`resource_exhausted`]) stops the run: no view starts
-//! after it, and a unit missing views or holding such a failure is not committed.
+//! two windows' views until they are done with (a container may hold a view a little
+//! longer: a tar's view waiting for its writer), both from the memory a view holds
+//! ([`in_flight`], given what a container's view holds), so what the views hold stays
+//! within half of what the machine leaves however many cores there are. A view that
+//! failed because a resource every view needs ran out (a full disk, see
+//! [`resource_exhausted`]) stops the run: no view starts after it, and a unit missing
+//! views or holding such a failure is not committed.
 
 use super::in_order::in_order;
 use super::input::{resource_exhausted, view_scene};

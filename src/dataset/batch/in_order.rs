@@ -12,25 +12,37 @@
 //! taken and their `after` run), so at most that many are held at any moment, whatever
 //! the makers' speeds; while it waits it takes what is ready itself.
 //!
-//! **No wait above a suspended item.** A pool thread that waits inside a `make` (a render
-//! waiting for its bands) runs other pool jobs meanwhile, a worker among them. A worker
-//! that waited there at the bound could be waiting for the very item suspended beneath
-//! it, forever. So a worker that meets the bound on a thread with a `make` beneath it
-//! ends instead of waiting; the other workers, and the caller after them, make the rest.
+//! **No wait without end.** A pool thread that waits inside a job (a render waiting for
+//! its bands, or a band waiting for its halves) runs other pool jobs meanwhile, a worker
+//! among them. A worker that waited there at the bound could be waiting for the very item
+//! suspended beneath it, forever. So a worker waits at the bound for [`PATIENCE`] at most,
+//! then parks: it ends, counted, and the worker whose `after` moves the bound starts the
+//! parked ones again. A worker never holds an item while it waits, so parking loses
+//! nothing; the bound's wait is short in the usual case (a take), so workers seldom park.
 
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Mutex, MutexGuard, TryLockError};
+use std::time::{Duration, Instant};
 
 /// The most items held at once by [`in_order`] with `width` workers.
 pub(super) fn held_at_most(width: usize) -> usize {
     width.max(1).saturating_mul(2)
 }
 
+/// How long a worker waits at the bound before it parks (see the module docs): about a
+/// small view's render, so an ordinary wait (a take, a view finishing) ends first.
+const PATIENCE: Duration = Duration::from_millis(2);
+
+/// How long a worker naps between looks at the bound: short against [`PATIENCE`] and a
+/// take, long enough to leave the core to the others and to the kernel's writeback.
+const NAP: Duration = Duration::from_micros(50);
+
 /// Make `make(k)` for `k` in `0..n` on the pool, `width` at once, `take(k, item)` each in
 /// order of `k`, and run `after` on what each take returns, in any order (see the module
 /// docs). The first error of `take` or `after` ends the run: no item is made after it,
-/// none is taken after it, and it is returned (`take`'s first).
+/// none is taken after a failed take or once the failure is seen, and it is returned
+/// (`take`'s first).
 pub(super) fn in_order<T, A, E, M, F, W>(
     n: usize,
     width: usize,
@@ -46,96 +58,141 @@ where
     F: FnMut(usize, T) -> Result<A, E> + Send,
     W: Fn(A) -> Result<(), E> + Sync,
 {
-    use rayon::prelude::*;
-    let ahead = held_at_most(width);
-    let order = Order {
-        ready: Mutex::new(BTreeMap::new()),
-        taker: Mutex::new(Taker {
-            take,
-            taken: 0,
-            error: None,
-        }),
-        done: AtomicUsize::new(0),
-        failed: AtomicBool::new(false),
-        late: Mutex::new(None),
+    let run = Run {
+        n,
+        ahead: held_at_most(width),
+        make: &make,
+        after: &after,
+        next: AtomicUsize::new(0),
+        parked: AtomicUsize::new(0),
+        order: Order {
+            ready: Mutex::new(BTreeMap::new()),
+            taker: Mutex::new(Taker {
+                take,
+                taken: 0,
+                error: None,
+            }),
+            done: AtomicUsize::new(0),
+            failed: AtomicBool::new(false),
+            late: Mutex::new(None),
+        },
+        _taken: std::marker::PhantomData,
     };
-    // Take what is ready, then run `after` on it with the taker let go.
-    let take_and_finish = || {
-        let taken = order.take_ready();
-        let any = !taken.is_empty();
-        for a in taken {
-            if let Err(e) = after(a) {
-                order.failed.store(true, Ordering::Relaxed);
-                lock(&order.late).get_or_insert(e);
-            }
-            order.done.fetch_add(1, Ordering::Release);
-        }
-        any
-    };
-    let next = AtomicUsize::new(0);
     let workers = width.clamp(1, rayon::current_num_threads().max(1)).min(n);
-    (0..workers).into_par_iter().for_each(|_| {
-        // A worker that panics would hold up the others' bound: they stop instead.
-        let _stop_peers = FailOnUnwind(&order.failed);
-        loop {
-            if order.failed.load(Ordering::Relaxed) {
-                break;
-            }
-            let k = next.load(Ordering::Acquire);
-            if k >= n {
-                break;
-            }
-            if k >= order.done.load(Ordering::Acquire) + ahead {
-                if take_and_finish() {
-                    continue;
-                }
-                if making_beneath() {
-                    // An item is suspended beneath this worker (see the module docs):
-                    // the others and the caller's last pass make the rest.
-                    break;
-                }
-                // The wait lasts one take at most: nap rather than spin, leaving the
-                // core to the kernel's writeback and to hyperthread siblings.
-                std::thread::sleep(std::time::Duration::from_micros(50));
-                continue;
-            }
-            if next
-                .compare_exchange(k, k + 1, Ordering::AcqRel, Ordering::Acquire)
-                .is_err()
-            {
-                continue;
-            }
-            let item = {
-                let _making = Making::enter();
-                make(k)
-            };
-            lock(&order.ready).insert(k, item);
-            take_and_finish();
+    rayon::scope(|s| {
+        for _ in 0..workers {
+            s.spawn(|s| run.work(Some(s)));
         }
     });
-    // Every worker has ended. Normally every item is made by now; workers that found an
-    // item beneath them at the bound may have left some, made here one at a time (each
-    // taken before the next is made, so nothing waits and little is held).
-    loop {
-        take_and_finish();
-        if order.failed.load(Ordering::Relaxed) {
-            break;
-        }
-        let k = next.fetch_add(1, Ordering::AcqRel);
-        if k >= n {
-            break;
-        }
-        let item = {
-            let _making = Making::enter();
-            make(k)
-        };
-        lock(&order.ready).insert(k, item);
-    }
+    // Every worker has ended, each with no item left to claim, or the run failed: what is
+    // still ready is taken here, and any item left (none, unless a worker panicked) is
+    // made here in turn, each taken before the next is made.
+    run.work(None);
+    let Run { order, .. } = run;
     let taker = order.taker.into_inner().unwrap_or_else(|e| e.into_inner());
     let late = order.late.into_inner().unwrap_or_else(|e| e.into_inner());
     match taker.error.or(late) {
         Some(e) => Err(e),
         None => Ok(()),
+    }
+}
+
+/// One call of [`in_order`].
+struct Run<'r, T, A, E, M, F, W> {
+    n: usize,
+    ahead: usize,
+    make: &'r M,
+    after: &'r W,
+    /// The next index to claim.
+    next: AtomicUsize,
+    /// Workers parked at the bound, to start again when it moves.
+    parked: AtomicUsize,
+    order: Order<T, E, F>,
+    _taken: std::marker::PhantomData<fn() -> A>,
+}
+
+impl<'r, T, A, E, M, F, W> Run<'r, T, A, E, M, F, W>
+where
+    T: Send,
+    A: Send,
+    E: Send,
+    M: Fn(usize) -> T + Sync,
+    F: FnMut(usize, T) -> Result<A, E> + Send,
+    W: Fn(A) -> Result<(), E> + Sync,
+{
+    /// A worker: claim, make and take items until none is left or the run fails; at the
+    /// bound, wait for [`PATIENCE`] at most, then park. Without a scope (`s` is `None`:
+    /// the caller's last pass) it goes on past the bound, taking each item as it makes it.
+    fn work<'s>(&'s self, s: Option<&rayon::Scope<'s>>) {
+        // A worker that panics fails the run, so no worker waits for its item.
+        let _stop_peers = FailOnUnwind(&self.order.failed);
+        let mut waiting_since: Option<Instant> = None;
+        loop {
+            if self.order.failed.load(Ordering::Relaxed) {
+                return;
+            }
+            let k = self.next.load(Ordering::Acquire);
+            if k >= self.n {
+                self.take_and_finish(s);
+                return;
+            }
+            if let Some(s) = s
+                && k >= self.order.done.load(Ordering::Acquire) + self.ahead
+            {
+                if self.take_and_finish(Some(s)) {
+                    waiting_since = None;
+                    continue;
+                }
+                let since = *waiting_since.get_or_insert_with(Instant::now);
+                if since.elapsed() < PATIENCE {
+                    std::thread::sleep(NAP);
+                    continue;
+                }
+                self.parked.fetch_add(1, Ordering::AcqRel);
+                // The bound may have moved between the look and the count: whoever moved
+                // it may have found no one parked, so look again.
+                if k < self.order.done.load(Ordering::Acquire) + self.ahead {
+                    self.unpark(s);
+                }
+                return;
+            }
+            waiting_since = None;
+            if self
+                .next
+                .compare_exchange(k, k + 1, Ordering::AcqRel, Ordering::Acquire)
+                .is_err()
+            {
+                continue;
+            }
+            let item = (self.make)(k);
+            lock(&self.order.ready).insert(k, item);
+            self.take_and_finish(s);
+        }
+    }
+
+    /// Start the parked workers again (each looks at the bound anew).
+    fn unpark<'s>(&'s self, s: &rayon::Scope<'s>) {
+        for _ in 0..self.parked.swap(0, Ordering::AcqRel) {
+            s.spawn(|s| self.work(Some(s)));
+        }
+    }
+
+    /// Take what is ready, run `after` on it with the taker let go, and start parked
+    /// workers if that moved the bound. Whether any item was taken.
+    fn take_and_finish<'s>(&'s self, s: Option<&rayon::Scope<'s>>) -> bool {
+        let taken = self.order.take_ready();
+        let any = !taken.is_empty();
+        for a in taken {
+            if let Err(e) = (self.after)(a) {
+                self.order.failed.store(true, Ordering::Relaxed);
+                lock(&self.order.late).get_or_insert(e);
+            }
+            self.order.done.fetch_add(1, Ordering::AcqRel);
+        }
+        if any && let Some(s) = s {
+            self.unpark(s);
+        }
+        any
     }
 }
 
@@ -163,7 +220,8 @@ struct Taker<E, F> {
 
 impl<T, E, F> Order<T, E, F> {
     /// Take the items ready in order, unless another worker is taking them (it then sees
-    /// the ones made meanwhile: it looks again after letting go); what the takes returned.
+    /// the ones made meanwhile: it looks again after letting go), until the run fails;
+    /// what the takes returned.
     fn take_ready<A>(&self) -> Vec<A>
     where
         F: FnMut(usize, T) -> Result<A, E>,
@@ -179,7 +237,7 @@ impl<T, E, F> Order<T, E, F> {
                 }
             };
             let taker = &mut *guard;
-            while taker.error.is_none() {
+            while taker.error.is_none() && !self.failed.load(Ordering::Relaxed) {
                 let k = taker.taken;
                 let Some(item) = lock(&self.ready).remove(&k) else {
                     break;
@@ -195,41 +253,14 @@ impl<T, E, F> Order<T, E, F> {
                     }
                 }
             }
-            let (k, failed) = (taker.taken, taker.error.is_some());
+            let k = taker.taken;
             drop(guard);
             // An item made while this worker held the taker found it busy: look again.
-            if failed || !lock(&self.ready).contains_key(&k) {
+            if self.failed.load(Ordering::Relaxed) || !lock(&self.ready).contains_key(&k) {
                 return took;
             }
         }
     }
-}
-
-thread_local! {
-    /// How many `make`s are running on this thread, one inside another's wait (see the
-    /// module docs).
-    static MAKING: std::cell::Cell<u32> = const { std::cell::Cell::new(0) };
-}
-
-/// A `make` running on this thread, from [`Making::enter`] until dropped.
-struct Making;
-
-impl Making {
-    fn enter() -> Making {
-        MAKING.with(|m| m.set(m.get() + 1));
-        Making
-    }
-}
-
-impl Drop for Making {
-    fn drop(&mut self) {
-        MAKING.with(|m| m.set(m.get() - 1));
-    }
-}
-
-/// Whether a `make` is suspended beneath the caller on this thread.
-fn making_beneath() -> bool {
-    MAKING.with(|m| m.get() > 0)
 }
 
 /// Sets its flag when dropped by a panic.
@@ -348,7 +379,8 @@ mod tests {
     }
 
     /// A failed `after` ends the run too: the items taken are those up to it and a few
-    /// more (takes go on while it runs), in order, each finished, and the rest never start.
+    /// more (takes that began before the failure was seen), in order, each finished, and
+    /// the rest never start.
     #[test]
     fn a_failed_after_ends_the_run() {
         let (seen, afters, _, result) = run(300, 4, 4, Fail::After(40));
@@ -359,23 +391,39 @@ mod tests {
     }
 
     /// A `make` that itself runs on the pool (as a render does) may have a worker run on
-    /// its thread while it waits for its own jobs, and that worker must not wait for the
-    /// suspended item beneath it. Two runs at once (as the driver's tars are), each as
-    /// wide as the pool, so workers queue in the pool; many small nested items. (A
-    /// schedule that nests a worker over its own run's item is rare, and this does not
-    /// force one: `a_worker_above_a_suspended_item_never_waits` does.)
+    /// one of its threads while a part of it waits for its own jobs, and that worker must
+    /// not wait without end for the suspended item beneath it. Two runs at once (as the
+    /// driver's tars are), each as wide as the pool, so workers queue in the pool; many
+    /// small items, each split in parts that yield to the pool's queued jobs while their
+    /// halves run elsewhere. (This makes such schedules likely, not certain:
+    /// `a_worker_above_a_suspended_item_parks` forces one.) A run that never ends
+    /// fails after 60 s.
     #[test]
     fn makers_that_use_the_pool_never_wait_on_each_other() {
         use rayon::prelude::*;
-        let one = |width: usize| {
+        fn one(width: usize) -> Vec<usize> {
             let mut seen = Vec::new();
             in_order(
-                1000,
+                300,
                 width,
                 |k| {
-                    (0..16u64)
+                    (0..4u64)
                         .into_par_iter()
-                        .map(|j| (0..200u64).fold(k as u64 ^ j, |a, b| a.rotate_left(5) ^ b))
+                        .map(|j| {
+                            let f = |x: u64| (0..200u64).fold(x, |a, b| a.rotate_left(5) ^ b);
+                            let (a, b) = rayon::join(
+                                || {
+                                    nap(k as u64, j as usize);
+                                    f(k as u64 ^ j)
+                                },
+                                || {
+                                    let _ = rayon::yield_now();
+                                    nap(k as u64 + 1, j as usize);
+                                    f(j)
+                                },
+                            );
+                            a ^ b
+                        })
                         .sum::<u64>()
                 },
                 |k, _| {
@@ -386,25 +434,31 @@ mod tests {
             )
             .expect("no take fails");
             seen
-        };
+        }
         for threads in [2, 4, 8] {
-            let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .expect("a pool");
-            let (a, b) = pool.install(|| rayon::join(|| one(threads), || one(threads)));
-            let all: Vec<usize> = (0..1000).collect();
+            let (send, done) = std::sync::mpsc::channel();
+            std::thread::spawn(move || {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .expect("a pool");
+                let _ = send.send(pool.install(|| rayon::join(|| one(threads), || one(threads))));
+            });
+            let (a, b) = done
+                .recv_timeout(Duration::from_secs(60))
+                .unwrap_or_else(|_| panic!("{threads} threads: the runs never ended"));
+            let all: Vec<usize> = (0..300).collect();
             assert_eq!((a, b), (all.clone(), all), "{threads} threads");
         }
     }
 
-    /// Forces the schedule the module docs rule out: while item 0 is being made, its
-    /// thread runs the run's other worker (`yield_local` runs the job waiting in the
-    /// thread's own queue, as a render's wait for its bands may), which makes items 1 to
-    /// 3 and then meets the bound, item 0 beneath it. It must end rather than wait (a
-    /// wait would never end); the run then finishes in order.
+    /// Forces the schedule of the module docs: while item 0 is being made, its thread
+    /// runs the run's other worker (`yield_local` runs the job waiting in the thread's
+    /// own queue, as a render's wait for its bands may), which makes items 1 to 3 and
+    /// then meets the bound, item 0 beneath it. It must park rather than wait on (a wait
+    /// would never end); the run then finishes in order.
     #[test]
-    fn a_worker_above_a_suspended_item_never_waits() {
+    fn a_worker_above_a_suspended_item_parks() {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(2)
             .build()
