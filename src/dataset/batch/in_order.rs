@@ -17,8 +17,8 @@
 //! among them. A worker that waited there at the bound could be waiting for the very item
 //! suspended beneath it, forever. So a worker waits at the bound for [`PATIENCE`] at most,
 //! then parks: it ends, counted, and the worker whose `after` moves the bound starts the
-//! parked ones again. A worker never holds an item while it waits, so parking loses
-//! nothing; the bound's wait is short in the usual case (a take), so workers seldom park.
+//! parked ones again. A worker holds no item while it waits at the bound, so parking
+//! loses nothing; the bound's wait is short in the usual case (a take), so workers seldom park.
 
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
@@ -40,9 +40,9 @@ const NAP: Duration = Duration::from_micros(50);
 
 /// Make `make(k)` for `k` in `0..n` on the pool, `width` at once, `take(k, item)` each in
 /// order of `k`, and run `after` on what each take returns, in any order (see the module
-/// docs). The first error of `take` or `after` ends the run: no item is made after it,
-/// none is taken after a failed take or once the failure is seen, and it is returned
-/// (`take`'s first).
+/// docs). The first error of `take` or `after` ends the run: no item is claimed or taken
+/// once a worker has seen it (a take already under way has its `after` run), and it is
+/// returned (`take`'s first).
 pub(super) fn in_order<T, A, E, M, F, W>(
     n: usize,
     width: usize,
@@ -84,9 +84,9 @@ where
             s.spawn(|s| run.work(Some(s)));
         }
     });
-    // Every worker has ended, each with no item left to claim, or the run failed: what is
-    // still ready is taken here, and any item left (none, unless a worker panicked) is
-    // made here in turn, each taken before the next is made.
+    // Every worker has ended, with no item left to claim, or the run failed (a panic is
+    // raised again by the scope). A guard that finds nothing to do: were any item left,
+    // it would be made and taken here in turn.
     run.work(None);
     let Run { order, .. } = run;
     let taker = order.taker.into_inner().unwrap_or_else(|e| e.into_inner());
@@ -137,7 +137,11 @@ where
                 return;
             }
             if let Some(s) = s
-                && k >= self.order.done.load(Ordering::Acquire) + self.ahead
+                && k >= self
+                    .order
+                    .done
+                    .load(Ordering::Acquire)
+                    .saturating_add(self.ahead)
             {
                 if self.take_and_finish(Some(s)) {
                     waiting_since = None;
@@ -151,7 +155,12 @@ where
                 self.parked.fetch_add(1, Ordering::AcqRel);
                 // The bound may have moved between the look and the count: whoever moved
                 // it may have found no one parked, so look again.
-                if k < self.order.done.load(Ordering::Acquire) + self.ahead {
+                if k < self
+                    .order
+                    .done
+                    .load(Ordering::Acquire)
+                    .saturating_add(self.ahead)
+                {
                     self.unpark(s);
                 }
                 return;
