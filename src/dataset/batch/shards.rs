@@ -49,12 +49,11 @@
 //! hash is in line; the render and the write of a view overlap others'. One worker
 //! writes a tar at a time: one that finds the tar being written hands its view to the
 //! writer and goes back to rendering (the kernel would make it spin on the file's lock
-//! instead), and at most one view a tar waits so. Several tars are
-//! written at once, each lane taking the next tar when it finishes one. How many tars and
-//! how large a window come from the largest view's estimate (its whole image, which a
-//! tar's view holds until it is written, and its encoded members) and half of what the
-//! machine leaves, so the views held (at most two windows and the one waiting view a tar)
-//! stay within it. Each
+//! instead), and at most one view a tar waits so. Several tars are written at once, each
+//! lane taking the next tar when it finishes one. How many tars and how large a window
+//! come from the largest view's estimate (its whole image, which a tar's view holds until
+//! it is written, and its encoded members) and half of what the machine leaves, so the
+//! views held (at most two windows and the one waiting view a tar) stay within it. Each
 //! view's estimate is also checked before it renders, as in the files format: a view that
 //! does not fit fails alone.
 
@@ -732,22 +731,15 @@ impl Container for Plan<'_> {
 
     /// Lay the view's members out at the tar's end and hash them.
     fn accept(&self, open: &mut OpenTar, _i: usize, members: Members) -> Result<PlacedView> {
-        let at = open.at;
-        let framed = tar_file::frame(&members, open.file.path())?;
-        for (f, (_, bytes)) in framed.iter().zip(&members) {
-            for b in f.bytes(&bytes.pieces()) {
-                open.hash.update(b);
-                open.at += b.len() as u64;
-            }
+        let bytes = ViewBytes::new(open.at, members, open.file.path())?;
+        for b in bytes.pieces() {
+            open.hash.update(b);
+            open.at += b.len() as u64;
         }
         open.samples += 1;
         Ok(PlacedView {
             file: open.file.clone(),
-            bytes: ViewBytes {
-                at,
-                members,
-                framed,
-            },
+            bytes,
         })
     }
 

@@ -118,9 +118,12 @@ impl Framed {
 
     /// The member's bytes in archive order (header, `pieces`, padding): `pieces` must be
     /// the ones it was framed with.
-    pub fn bytes<'a>(&'a self, pieces: &[&'a [u8]]) -> impl Iterator<Item = &'a [u8]> {
+    pub fn bytes<'a>(
+        &'a self,
+        pieces: impl IntoIterator<Item = &'a [u8]>,
+    ) -> impl Iterator<Item = &'a [u8]> {
         std::iter::once(&self.header[..])
-            .chain(pieces.iter().copied())
+            .chain(pieces)
             .chain(std::iter::once(&CLOSING[..self.pad]))
     }
 }
@@ -148,7 +151,7 @@ impl<W: Write> TarWriter<W> {
     pub fn append_pieces(&mut self, name: &str, pieces: &[&[u8]]) -> io::Result<()> {
         let framed = Framed::new(name, pieces)
             .map_err(|e| io::Error::new(io::ErrorKind::InvalidInput, e))?;
-        for b in framed.bytes(pieces) {
+        for b in framed.bytes(pieces.iter().copied()) {
             self.out.write_all(b)?;
             self.written += b.len() as u64;
         }

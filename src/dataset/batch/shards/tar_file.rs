@@ -31,6 +31,34 @@ pub(super) struct ViewBytes {
     pub framed: Vec<tar::Framed>,
 }
 
+impl ViewBytes {
+    /// Frame `members` to be written at `at`, or say why ustar cannot hold one (naming
+    /// `tmp`, the tar).
+    pub fn new(at: u64, members: Members, tmp: &Path) -> Result<ViewBytes> {
+        let framed = members
+            .iter()
+            .map(|(name, bytes)| {
+                tar::Framed::new(name, &bytes.pieces())
+                    .map_err(|e| anyhow!(e))
+                    .with_context(|| format!("writing {}", tmp.display()))
+            })
+            .collect::<Result<_>>()?;
+        Ok(ViewBytes {
+            at,
+            members,
+            framed,
+        })
+    }
+
+    /// The view's bytes in archive order, from `at` on.
+    pub fn pieces(&self) -> impl Iterator<Item = &[u8]> {
+        self.framed
+            .iter()
+            .zip(&self.members)
+            .flat_map(|(f, (_, bytes))| f.bytes(bytes.pieces()))
+    }
+}
+
 /// A tar file being written under its work folder (see the module docs).
 pub(super) struct TarFile {
     file: File,
@@ -117,23 +145,20 @@ impl TarFile {
                 .map_err(crate::output::store::atomic::explain)
                 .with_context(|| format!("writing {}", self.tmp.display()))
         };
-        for (f, (_, bytes)) in view.framed.iter().zip(&view.members) {
-            let pieces = bytes.pieces();
-            for b in f.bytes(&pieces) {
-                if b.len() < GATHER {
-                    if gathered.is_empty() {
-                        gathered_at = at;
-                    }
-                    gathered.extend_from_slice(b);
-                } else {
-                    if !gathered.is_empty() {
-                        write(&gathered, gathered_at)?;
-                        gathered.clear();
-                    }
-                    write(b, at)?;
+        for b in view.pieces() {
+            if b.len() < GATHER {
+                if gathered.is_empty() {
+                    gathered_at = at;
                 }
-                at += b.len() as u64;
+                gathered.extend_from_slice(b);
+            } else {
+                if !gathered.is_empty() {
+                    write(&gathered, gathered_at)?;
+                    gathered.clear();
+                }
+                write(b, at)?;
             }
+            at += b.len() as u64;
         }
         if !gathered.is_empty() {
             write(&gathered, gathered_at)?;
@@ -172,18 +197,6 @@ impl Drop for PutDown<'_> {
     }
 }
 
-/// Frame `members` for a tar, or say why ustar cannot hold one (naming `tmp`).
-pub(super) fn frame(members: &Members, tmp: &Path) -> Result<Vec<tar::Framed>> {
-    members
-        .iter()
-        .map(|(name, bytes)| {
-            tar::Framed::new(name, &bytes.pieces())
-                .map_err(|e| anyhow!(e))
-                .with_context(|| format!("writing {}", tmp.display()))
-        })
-        .collect()
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -206,19 +219,12 @@ mod tests {
                         (format!("{k:06}.m{m}"), MemberBytes::Whole(bytes))
                     })
                     .collect();
-                let framed = frame(&members, Path::new("t.tar")).expect("short names");
-                let view_at = at;
-                for (f, (_, b)) in framed.iter().zip(&members) {
-                    for p in f.bytes(&b.pieces()) {
-                        whole.extend_from_slice(p);
-                        at += p.len() as u64;
-                    }
+                let view = ViewBytes::new(at, members, Path::new("t.tar")).expect("short names");
+                for p in view.pieces() {
+                    whole.extend_from_slice(p);
+                    at += p.len() as u64;
                 }
-                ViewBytes {
-                    at: view_at,
-                    members,
-                    framed,
-                }
+                view
             })
             .collect();
         (views, whole)
