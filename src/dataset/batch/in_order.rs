@@ -197,9 +197,10 @@ where
                 lock(&self.order.late).get_or_insert(e);
             }
             self.order.done.fetch_add(1, Ordering::AcqRel);
-        }
-        if any && let Some(s) = s {
-            self.unpark(s);
+            // The bound moved: start the parked now, not after the rest of the batch.
+            if let Some(s) = s {
+                self.unpark(s);
+            }
         }
         any
     }
