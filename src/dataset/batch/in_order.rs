@@ -18,7 +18,8 @@
 //! suspended beneath it, forever. So a worker waits at the bound for [`PATIENCE`] at most,
 //! then parks: it ends, counted, and the worker whose `after` moves the bound starts the
 //! parked ones again. A worker holds no item while it waits at the bound, so parking
-//! loses nothing; the bound's wait is short in the usual case (a take), so workers seldom park.
+//! loses nothing; the bound's wait is short in the usual case (a take), so workers seldom
+//! park.
 
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
@@ -137,11 +138,7 @@ where
                 return;
             }
             if let Some(s) = s
-                && k >= self
-                    .order
-                    .done
-                    .load(Ordering::Acquire)
-                    .saturating_add(self.ahead)
+                && k >= self.bound()
             {
                 if self.take_and_finish(Some(s)) {
                     waiting_since = None;
@@ -155,12 +152,7 @@ where
                 self.parked.fetch_add(1, Ordering::AcqRel);
                 // The bound may have moved between the look and the count: whoever moved
                 // it may have found no one parked, so look again.
-                if k < self
-                    .order
-                    .done
-                    .load(Ordering::Acquire)
-                    .saturating_add(self.ahead)
-                {
+                if k < self.bound() {
                     self.unpark(s);
                 }
                 return;
@@ -177,6 +169,14 @@ where
             lock(&self.order.ready).insert(k, item);
             self.take_and_finish(s);
         }
+    }
+
+    /// The first index a worker may not claim yet: `ahead` past the items done with.
+    fn bound(&self) -> usize {
+        self.order
+            .done
+            .load(Ordering::Acquire)
+            .saturating_add(self.ahead)
     }
 
     /// Start the parked workers again (each looks at the bound anew).

@@ -24,11 +24,11 @@ const GATHER: usize = 64 << 10;
 /// A view's members framed for its tar, to be written at `at`.
 pub(super) struct ViewBytes {
     /// Its offset in the tar.
-    pub at: u64,
+    at: u64,
     /// Its members, in order.
-    pub members: Members,
+    members: Members,
     /// Each member's header and padding, in the same order.
-    pub framed: Vec<tar::Framed>,
+    framed: Vec<tar::Framed>,
 }
 
 impl ViewBytes {
