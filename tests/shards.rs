@@ -489,8 +489,8 @@ fn one_folder_holds_one_dataset() {
     assert!(
         err.contains("shard size: 4 now, 3 in the folder")
             && err.contains("tars: 3 now, 4 in the folder")
-            && err.contains("aovs: depth,normal,shape_id now, depth,normal in the folder")
-            && err.contains("force to replace it"),
+            && err.contains("aovs: depth,shape_id now, depth in the folder")
+            && err.contains("--force to replace it"),
         "{err}"
     );
     assert_eq!(
@@ -538,4 +538,107 @@ fn one_folder_holds_one_dataset() {
         .filter(|k| k.ends_with(".tar"))
         .count() as u64;
     assert_eq!(tars, 10u64.div_ceil(size));
+}
+
+/// A run whose dataset another replaces (`--force`, other settings) while it writes stops
+/// before its next tar lands: the folder ends holding the other dataset alone. The
+/// writing run is paused (SIGSTOP) once its first tar is in place, the other runs to the
+/// end, and the first goes on.
+#[test]
+fn a_dataset_replaced_while_written_gets_no_more_tars() {
+    let dir = fresh_dir("shards", "replaced-while-written");
+    let data = dir.path().join("data");
+    ok(&[
+        "generate",
+        "--count",
+        "40",
+        "--seed",
+        "5",
+        "--cylinders",
+        "100",
+        "--width",
+        "320",
+        "--height",
+        "240",
+        "--out",
+        data.to_str().unwrap(),
+    ]);
+    let mut exercised = 0;
+    for attempt in 0..5 {
+        let out = dir.path().join(format!("out{attempt}"));
+        let a = std::process::Command::new(env!("CARGO_BIN_EXE_cylaov"))
+            .args([
+                "batch",
+                data.to_str().unwrap(),
+                "--out",
+                out.to_str().unwrap(),
+            ])
+            .args([
+                "--format",
+                "webdataset",
+                "--shard-size",
+                "2",
+                "--threads",
+                "1",
+            ])
+            .args(["--aov", "depth,normal,position"])
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        let start = std::time::Instant::now();
+        while !out.join("shard-000000.json").exists()
+            && start.elapsed() < std::time::Duration::from_secs(60)
+        {
+            std::thread::sleep(std::time::Duration::from_micros(200));
+        }
+        let pid = a.id().to_string();
+        let signal = |s: &str| {
+            assert!(
+                std::process::Command::new("kill")
+                    .args([s, &pid])
+                    .status()
+                    .unwrap()
+                    .success()
+            );
+        };
+        signal("-STOP");
+        // Too fast to catch: every tar already landed.
+        let caught = !out.join("shard-000019.json").exists();
+        let b = batch_wds(&data, &out, &["--shard-size", "8", "--force"]);
+        signal("-CONT");
+        let a = a.wait_with_output().unwrap();
+        must(b);
+        if !caught {
+            continue;
+        }
+        exercised += 1;
+        let err = String::from_utf8_lossy(&a.stderr);
+        assert_eq!(a.status.code(), Some(1), "{err}");
+        assert!(
+            err.contains("another run replaced the dataset")
+                && err.contains("shard size: 2 now, 8 in the folder"),
+            "{err}"
+        );
+        // The folder holds the second dataset alone: its 5 tars, all in the index.
+        let files = shard_files(&out);
+        let tars: Vec<&String> = files.keys().filter(|k| k.ends_with(".tar")).collect();
+        assert_eq!(tars.len(), 5, "{tars:?}");
+        let index: serde_json::Value = serde_json::from_slice(&files["shards.json"]).unwrap();
+        assert_eq!(index["shards"].as_array().unwrap().len(), 5);
+        assert_eq!(index["samples"], 40);
+        assert_eq!(index["aovs"], serde_json::json!(["depth", "normal"]));
+        for t in tars {
+            assert!(
+                members(&files[t])
+                    .iter()
+                    .all(|(n, _)| !n.ends_with(".position.npy")),
+                "{t} holds the replaced dataset's arrays"
+            );
+        }
+        assert!(!out.join(".partial").exists());
+    }
+    assert!(
+        exercised > 0,
+        "the first run finished before it could be paused, 5 times"
+    );
 }

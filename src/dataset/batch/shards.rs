@@ -378,19 +378,28 @@ pub fn shard_count(input: &Path, shard_size: usize) -> Result<usize> {
     Ok(views.len().div_ceil(shard_size))
 }
 
-/// The one AOV set of the dataset: `--aov`, else the scenes' own when all agree.
+/// The one AOV set of the dataset: `--aov`, else the scenes' own when all agree; in
+/// [`Aov::ALL`]'s order, without repeats, so the order they are given in changes neither
+/// the settings nor a byte of the tars.
 fn dataset_aovs(
     opts: &BatchOptions,
     views: &[ViewSource],
     cameras: &[Result<super::FrameCamera, String>],
 ) -> Result<Vec<Aov>> {
+    let canonical = |aovs: &[Aov]| -> Vec<Aov> {
+        Aov::ALL
+            .iter()
+            .copied()
+            .filter(|a| aovs.contains(a))
+            .collect()
+    };
     if let Some(a) = &opts.aovs {
-        return Ok(a.clone());
+        return Ok(canonical(a));
     }
     let mut found: Option<(Vec<Aov>, &ViewSource)> = None;
     for (v, c) in views.iter().zip(cameras) {
         let Ok(c) = c else { continue };
-        let aovs: Vec<Aov> = c.aovs().collect();
+        let aovs = canonical(&c.aovs().collect::<Vec<_>>());
         match &found {
             None => found = Some((aovs, v)),
             Some((first, fv)) if *first != aovs => bail!(
@@ -460,6 +469,8 @@ struct Plan<'a> {
     tars: usize,
     /// Whether the files format would write PNGs (for its size estimate).
     files_png: bool,
+    /// [`Plan::settings`], made once: every commit checks the record against it.
+    settings: std::sync::OnceLock<shard_settings::Settings>,
 }
 
 /// A tar being written under `OUT/.partial/J-of-T/`: laid out and hashed in view order,
@@ -534,7 +545,11 @@ impl Plan<'_> {
     }
 
     /// What every tar of the dataset is written with (see [`shard_settings`]).
-    fn settings(&self) -> shard_settings::Settings {
+    fn settings(&self) -> &shard_settings::Settings {
+        self.settings.get_or_init(|| self.make_settings())
+    }
+
+    fn make_settings(&self) -> shard_settings::Settings {
         let mut inputs = Sha256::new();
         for k in &self.keys {
             inputs.update(k.as_bytes());
@@ -545,10 +560,9 @@ impl Plan<'_> {
             tars: self.tars,
             views: self.views.len(),
             inputs: hex(&inputs.finalize()),
-            aovs: array_aovs(&self.aovs)
-                .iter()
-                .map(|a| a.name().to_string())
-                .collect(),
+            // As asked (the sample's JSON and `exr` member list them), not the arrays,
+            // which always add depth and normal.
+            aovs: self.aovs.iter().map(|a| a.name().to_string()).collect(),
             members: self
                 .sopts
                 .members
@@ -557,7 +571,21 @@ impl Plan<'_> {
                 .collect(),
             precision: value_name(self.opts.precision),
             formula: value_name(self.opts.formula),
+            compression: self
+                .sopts
+                .members
+                .contains(&Member::Exr)
+                .then(|| value_name(self.opts.compression)),
+            depth_scale: self.depth_png().then_some(self.opts.depth_scale),
+            depth_out_of_range: self
+                .depth_png()
+                .then(|| value_name(self.opts.depth_out_of_range)),
         }
+    }
+
+    /// Whether each view has the `depth.png` member.
+    fn depth_png(&self) -> bool {
+        self.sopts.members.contains(&Member::DepthPng)
     }
 
     /// The sidecar of tar `j` if it vouches for the tar on disk with this `stamp`.
@@ -578,6 +606,9 @@ impl Plan<'_> {
     /// Write `shards.json` from the sidecars if every one is in place; whether it was.
     fn merge_index(&self) -> Result<bool> {
         let _lock = lock_named(self.out, &self.root, "shards.json")?;
+        // Only while the folder still records this run's dataset: its sidecars are then
+        // all of this dataset's (a run with other settings replaces them all first).
+        let _settings = shard_settings::still_held(self.out, &self.root, self.settings())?;
         let mut cars = Vec::with_capacity(self.tars);
         for j in 0..self.tars {
             let Some(car) = read_regular(&self.sidecar_path(j))
@@ -614,6 +645,12 @@ impl Plan<'_> {
             members: Vec<String>,
             precision: String,
             formula: String,
+            #[serde(skip_serializing_if = "Option::is_none")]
+            compression: Option<&'a str>,
+            #[serde(skip_serializing_if = "Option::is_none")]
+            depth_scale: Option<f64>,
+            #[serde(skip_serializing_if = "Option::is_none")]
+            depth_out_of_range: Option<&'a str>,
             keys_note: &'static str,
             scenes_dir: String,
             shards: Vec<Entry<'a>>,
@@ -635,6 +672,9 @@ impl Plan<'_> {
             members,
             precision: value_name(self.opts.precision),
             formula: value_name(self.opts.formula),
+            compression: self.settings().compression.as_deref(),
+            depth_scale: self.settings().depth_scale,
+            depth_out_of_range: self.settings().depth_out_of_range.as_deref(),
             keys_note: "a sample's key is its view name without dots: SCENE, or SCENE_cNN for camera NN of a several-camera scene",
             // Where the samples' `scene_file` paths start (`cylaov verify OUT` reads the
             // scenes from there); absolute, so the record holds wherever OUT is read from.
@@ -764,6 +804,8 @@ impl Container for Plan<'_> {
         drop(file);
         let j = unit.name.index as usize;
         let dest = self.tar_path(j);
+        // The tar and its sidecar land only while the folder records this run's dataset.
+        let _settings = shard_settings::still_held(self.out, &self.root, self.settings())?;
         std::fs::rename(&tmp, &dest)
             .with_context(|| format!("moving {} to {}", tmp.display(), dest.display()))?;
         let range = self.range(j);
@@ -861,6 +903,14 @@ pub fn write_shards_until(
 ) -> Result<ShardSummary> {
     let start = Instant::now();
     opts.validate().map_err(anyhow::Error::msg)?;
+    // Members in one order, without repeats: how they are listed changes nothing.
+    let mut members = sopts.members.clone();
+    members.sort_unstable();
+    members.dedup();
+    let sopts = &ShardOptions {
+        members,
+        ..sopts.clone()
+    };
     if sopts.shard_size == 0 {
         bail!("{}: must be >= 1, got 0", opt("shard_size"));
     }
@@ -874,6 +924,9 @@ pub fn write_shards_until(
     let mine: Vec<usize> = match selection {
         TarSelection::Shard(s) => (0..tars).filter(|&j| s.contains(j)).collect(),
         TarSelection::List(list) => {
+            if list.is_empty() {
+                bail!("shards: an empty list (give at least one tar)");
+            }
             if let Some(&j) = list.iter().find(|&&j| j >= tars) {
                 bail!(
                     "shards: tar {j} does not exist ({tars} tars of {} views)",
@@ -888,7 +941,7 @@ pub fn write_shards_until(
     };
     let label = match selection {
         TarSelection::Shard(s) => s.to_string(),
-        TarSelection::List(l) => failures_label(l),
+        TarSelection::List(_) => failures_label(&mine),
     };
     let failures_path = out.join(format!("failures.{label}.jsonl"));
     let my_views: usize = mine
@@ -927,6 +980,7 @@ pub fn write_shards_until(
         sopts,
         tars,
         files_png: opts.png,
+        settings: Default::default(),
     };
     let mut targets: Vec<(&str, PathBuf)> = vec![
         (&out_opt, out.join("shards.json")),
@@ -945,7 +999,7 @@ pub fn write_shards_until(
         .with_context(|| format!("creating {}", out.display()))?;
     let (root, _root_reg) = partial_root(out)?;
     let plan = Plan { root, ..plan };
-    shard_settings::hold(out, &plan.root, &plan.settings(), sopts.force)?;
+    shard_settings::hold(out, &plan.root, plan.settings(), sopts.force)?;
     if announce {
         eprintln!("{}", estimate_line(&plan, &mine));
     }
@@ -1001,7 +1055,18 @@ fn write_planned(
             })
         })
         .collect::<Result<Vec<Unit>>>()?;
-    let driven = driver::drive(run, plan, &units)?;
+    let driven = match driver::drive(run, plan, &units) {
+        Ok(d) => d,
+        Err(e) => {
+            // A tar another run holds (two runs of one dataset at once) fails this one,
+            // but its tars in place still count: whichever run finishes last writes the
+            // index once every tar is in place.
+            if !run.stop.load(std::sync::atomic::Ordering::Relaxed) {
+                let _ = plan.merge_index();
+            }
+            return Err(e);
+        }
+    };
     run.progress.finish();
     if let Some(why) = driven.stopped {
         bail!("{why}");
