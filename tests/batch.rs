@@ -853,4 +853,20 @@ fn ply_writes_each_views_hit_points() {
         "{}",
         String::from_utf8_lossy(&o.stderr)
     );
+    // The tars' EXR member is one layered file: a per-AOV layout is refused, not ignored.
+    let tars = tmp.path().join("tars");
+    let o = run_batch(
+        &data,
+        &tars,
+        &["--format", "webdataset", "--exr-layout", "per-aov"],
+    );
+    assert_eq!(o.status.code(), Some(1));
+    assert!(
+        String::from_utf8_lossy(&o.stderr).contains(
+            "--exr-layout per-aov: with --format webdataset a view's EXR (--members exr) is one layered file"
+        ),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(!tars.exists());
 }

@@ -3,6 +3,7 @@
 use crate::cli;
 use crate::cli::common::{KernelCli, TolerancesCli, say, set_threads};
 use clap::Args;
+use cylaov::choice::Choice;
 use cylaov::commands;
 use cylaov::dataset::batch::shards::{Member, ShardOptions};
 use cylaov::dataset::batch::{BatchOptions, ProgressMode, Schedule, Shard};
@@ -118,6 +119,13 @@ pub fn run(a: BatchCli) -> anyhow::Result<ExitCode> {
     set_threads(a.kernel.threads)?;
     if a.format == Format::Webdataset && a.ply {
         anyhow::bail!("--ply: with --format webdataset, ask for --members ply");
+    }
+    if a.format == Format::Webdataset && a.exr_layout != ExrLayout::Layers {
+        anyhow::bail!(
+            "--exr-layout {}: with --format webdataset a view's EXR (--members exr) is one \
+             layered file",
+            a.exr_layout.choice_name()
+        );
     }
     if a.format == Format::Files {
         if a.shard_size.is_some() {
