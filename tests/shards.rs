@@ -642,3 +642,28 @@ fn a_dataset_replaced_while_written_gets_no_more_tars() {
         "the first run finished before it could be paused, 5 times"
     );
 }
+
+/// The files format refuses a folder that holds a tar-shard dataset (it would overwrite
+/// the dataset's failures file and sit beside an index that does not know it), touching
+/// nothing there.
+#[test]
+fn the_files_format_keeps_out_of_a_tar_shard_folder() {
+    let dir = fresh_dir("shards", "files-beside-tars");
+    let data = generate(dir.path(), 3);
+    let out = dir.path().join("out");
+    must(batch_wds(&data, &out, &[]));
+    let before = tree(&out);
+    let o = cylaov(&[
+        "batch",
+        data.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("holds a tar-shard dataset") && err.contains("another --out"),
+        "{err}"
+    );
+    assert_eq!(tree(&out), before);
+}

@@ -31,7 +31,7 @@ use crate::output::store::atomic::atomic_write_bytes;
 use crate::output::store::files::refuse_non_regular;
 use crate::output::store::targets::check_outputs;
 use crate::scene::Scene;
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use serde::Serialize;
 use std::collections::HashSet;
 use std::fmt;
@@ -150,6 +150,17 @@ pub fn run(
 ) -> Result<Summary> {
     let start = Instant::now();
     opts.validate().map_err(anyhow::Error::msg)?;
+    // A folder holds one dataset: files beside a tar-shard dataset would overwrite its
+    // failures file and sit beside an index that does not know them.
+    let record = out.join(super::shard_settings::FILE);
+    if record.symlink_metadata().is_ok() {
+        bail!(
+            "{} holds a tar-shard dataset ({} is there): give the files format another {}",
+            out.display(),
+            record.display(),
+            crate::spelling::opt("out")
+        );
+    }
     let (views, cameras) = read_views(input, out, opts, true)?;
     let mine: Vec<usize> = (0..views.len()).filter(|&i| shard.contains(i)).collect();
     let failures_path = out.join(format!("failures.{shard}.jsonl"));
