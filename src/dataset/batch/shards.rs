@@ -276,10 +276,17 @@ fn keys(views: &[ViewSource], suffixes: &[String]) -> Result<Vec<String>> {
     let mut seen: HashMap<String, &ViewSource> = HashMap::new();
     let mut keys = Vec::with_capacity(views.len());
     let mut problems: Vec<String> = Vec::new();
+    // A scene's problem is listed once, not once for each of its cameras.
+    let mut listed: std::collections::HashSet<String> = Default::default();
+    let mut problem = |p: String| {
+        if listed.insert(p.clone()) {
+            problems.push(p);
+        }
+    };
     for v in views {
         let key = view_key(v);
         if key.contains('.') {
-            problems.push(format!(
+            problem(format!(
                 "{}: scene name {:?} has a '.' (readers cut a member name at its first dot)",
                 v.path.display(),
                 v.scene
@@ -289,10 +296,10 @@ fn keys(views: &[ViewSource], suffixes: &[String]) -> Result<Vec<String>> {
             .map(|s| tar::header(&format!("{key}{s}"), 0).map(|_| ()))
             .find(Result::is_err)
         {
-            problems.push(format!("{}: {why}", v.path.display()));
+            problem(format!("{}: {why}", v.path.display()));
         }
         if let Some(other) = seen.get(&key) {
-            problems.push(format!(
+            problem(format!(
                 "views {:?} ({}) and {:?} ({}) would both have the key {key:?}",
                 other.id(),
                 other.path.display(),
@@ -303,6 +310,7 @@ fn keys(views: &[ViewSource], suffixes: &[String]) -> Result<Vec<String>> {
         seen.insert(key.clone(), v);
         keys.push(key);
     }
+    drop(problem);
     if !problems.is_empty() {
         let n = problems.len();
         let mut text = problems
@@ -1134,6 +1142,12 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("\"a.b\" has a '.'"), "{e}");
+        // A dotted scene of two cameras is one problem, listed once.
+        let e = keys(&[view("t.", true, "00"), view("t.", true, "01")], &sfx)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("(1 problem;"), "{e}");
+        assert_eq!(e.matches("has a '.'").count(), 1, "{e}");
         let clash = [view("s", true, "01"), view("s_c01", false, "s_c01")];
         let e = keys(&clash, &sfx).unwrap_err().to_string();
         assert!(e.contains("\"s_c01\""), "{e}");
