@@ -310,7 +310,6 @@ fn keys(views: &[ViewSource], suffixes: &[String]) -> Result<Vec<String>> {
         seen.insert(key.clone(), v);
         keys.push(key);
     }
-    drop(problem);
     if !problems.is_empty() {
         let n = problems.len();
         let mut text = problems
