@@ -2,10 +2,11 @@
 //! their hits.
 
 use crate::arrays::shape_err;
-use crate::convert::kernel;
-use crate::errors::InternalError;
-use crate::pool::run_stoppable;
+use crate::convert::{camera_arg, kernel};
+use crate::errors::{InternalError, memory_error};
+use crate::pool::{run_stoppable, threads_arg};
 use crate::scene::PyScene;
+use cylaov::mem::try_reserve;
 use cylaov::render::cast::{self, Ray};
 use cylaov::scene::camera::{Camera, Projection};
 use glam::DVec3;
@@ -21,19 +22,27 @@ use pyo3::types::PyDict;
 /// render traces, bit for bit. Every model's own rays ([`Camera::pixel_ray`]): the
 /// orthographic camera's start on its image plane at the pixel's offset; a lens model's
 /// rays whose depth is Euclidean (equirectangular, a fisheye at or beyond 90°) are unit,
-/// so `t` is their distance and the clips bound it, as the render counts them.
+/// so `t` is their distance and the clips bound it, as the render counts them. Rays that
+/// do not fit in the memory left raise `MemoryError` (48 bytes a pixel).
 #[pyfunction]
 #[pyo3(signature = (scene, camera=0))]
 pub(crate) fn camera_rays<'py>(
     py: Python<'py>,
     scene: &Bound<'py, PyScene>,
-    camera: usize,
+    #[pyo3(from_py_with = camera_arg)] camera: usize,
 ) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
     let sc = scene.get().with_camera(camera)?;
     let cam = Camera::new(sc.camera);
     let (w, h) = (cam.width() as usize, cam.height() as usize);
-    let mut o = Vec::with_capacity(3 * w * h);
-    let mut d = Vec::with_capacity(3 * w * h);
+    // Both arrays, 3 float64 a pixel each, handed to numpy as they are. Checked first, as
+    // the machine may promise memory it cannot give (overcommit); reserved fallibly, as a
+    // refusal would otherwise abort the interpreter.
+    let n = 3 * w * h;
+    let what = format!("the camera rays of {w}x{h}");
+    crate::pool::check_memory(None, &what, 2 * 8 * n as u64)?;
+    let (mut o, mut d) = (Vec::new(), Vec::new());
+    try_reserve(&mut o, n, "the camera rays' origins").map_err(memory_error)?;
+    try_reserve(&mut d, n, "the camera rays' directions").map_err(memory_error)?;
     for j in 0..h as u32 {
         let y = cam.row_offset(j);
         for i in 0..w as u32 {
@@ -66,8 +75,9 @@ fn flat<'a>(a: &'a numpy::PyReadonlyArrayDyn<'_, f64>, name: &str) -> PyResult<&
 }
 
 /// Cast rays (the package's `cast_rays` prepares the arguments): `origins` and
-/// `directions` (N, 3), `t_min` and `t_max` (N,), all float64. Returns the requested
-/// arrays, flat.
+/// `directions` (N, 3), `t_min` and `t_max` (N,), all float64; `origins` may be one row,
+/// and `t_min`, `t_max` one value, for every ray (a copy a ray would say the same in
+/// memory and time). Returns the requested arrays, flat.
 #[pyfunction]
 #[pyo3(signature = (scene, origins, directions, t_min, t_max, aovs, precision="f64", formula="stable", threads=None))]
 #[allow(clippy::too_many_arguments)]
@@ -81,13 +91,14 @@ pub(crate) fn _cast_rays<'py>(
     aovs: Vec<String>,
     precision: &str,
     formula: &str,
-    threads: Option<usize>,
+    #[pyo3(from_py_with = threads_arg)] threads: Option<usize>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let k = kernel(precision, formula)?;
     let (o, d) = (flat(&origins, "origins")?, flat(&directions, "directions")?);
     let (lo, hi) = (flat(&t_min, "t_min")?, flat(&t_max, "t_max")?);
-    let n = lo.len();
-    if o.len() != 3 * n || d.len() != 3 * n || hi.len() != n {
+    let n = d.len() / 3;
+    let fits = |len: usize, per: usize| len == per || len == per * n;
+    if d.len() != 3 * n || !fits(o.len(), 3) || !fits(lo.len(), 1) || !fits(hi.len(), 1) {
         return Err(PyValueError::new_err(
             "origins, directions, t_min, t_max: sizes differ",
         ));
@@ -108,14 +119,21 @@ pub(crate) fn _cast_rays<'py>(
             )));
         }
     }
-    let rays: Vec<Ray> = (0..n)
-        .map(|i| Ray {
-            origin: DVec3::from_slice(&o[3 * i..3 * i + 3]),
-            dir: DVec3::from_slice(&d[3 * i..3 * i + 3]),
-            t_min: lo[i],
-            t_max: hi[i],
-        })
-        .collect();
+    // What a cast holds at its peak, a ray: the ray (64 bytes), its place in the grouping
+    // by origin (4), its hit twice (96 each: as found, then gathered) and the outputs
+    // asked for (at most 88): checked first, as a refusal would end the interpreter.
+    let bytes = n as u64 * (64 + 4 + 2 * 96 + 88);
+    crate::pool::check_memory(threads, &format!("casting {n} rays"), bytes)?;
+    // Ray `i`'s value of an argument given once or a ray.
+    let at = |a: &[f64], per: usize, i: usize| if a.len() == per { 0 } else { per * i };
+    let mut rays: Vec<Ray> = Vec::new();
+    try_reserve(&mut rays, n, "the rays").map_err(memory_error)?;
+    rays.extend((0..n).map(|i| Ray {
+        origin: DVec3::from_slice(&o[at(o, 3, i)..at(o, 3, i) + 3]),
+        dir: DVec3::from_slice(&d[3 * i..3 * i + 3]),
+        t_min: lo[at(lo, 1, i)],
+        t_max: hi[at(hi, 1, i)],
+    }));
     let sc = &scene.get().scene;
     let hits = run_stoppable(py, threads, |stop| cast::cast_until(sc, k, &rays, stop))?
         .map_err(PyValueError::new_err)?

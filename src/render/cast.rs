@@ -212,13 +212,12 @@ pub fn cast_until(
     }
     struct Run<'a>(&'a Scene, &'a [Ray], &'a AtomicBool);
     impl KernelFn for Run<'_> {
-        type Output = Vec<Option<RayHit>>;
+        type Output = Option<Vec<Option<RayHit>>>;
         fn call<T: Simd, F: PacketFormula>(self) -> Self::Output {
             cast_with::<T, F>(self.0, self.1, self.2)
         }
     }
-    let hits = kernel.dispatch(Run(scene, rays, stop));
-    Ok((!stop.load(Ordering::Relaxed)).then_some(hits))
+    Ok(kernel.dispatch(Run(scene, rays, stop)))
 }
 
 fn check_ray(i: usize, r: &Ray) -> Result<(), String> {
@@ -253,11 +252,14 @@ fn check_ray(i: usize, r: &Ray) -> Result<(), String> {
     Ok(())
 }
 
+/// The hits of `rays`, or `None` once `stop` is set: the rays in flight finish, and then
+/// nothing more is cast, collected or gathered (8 million rays' hits take most of a
+/// second to fill and gather).
 fn cast_with<T: Real, F: Formula>(
     scene: &Scene,
     rays: &[Ray],
     stop: &AtomicBool,
-) -> Vec<Option<RayHit>> {
+) -> Option<Vec<Option<RayHit>>> {
     // Group by origin, bit for bit: rays of one group share one prepared scene.
     let key = |r: &Ray| r.origin.to_array().map(f64::to_bits);
     let mut by_origin: Vec<u32> = (0..rays.len() as u32).collect();
@@ -266,32 +268,28 @@ fn cast_with<T: Real, F: Formula>(
         .chunk_by(|&a, &b| key(&rays[a as usize]) == key(&rays[b as usize]))
         .collect();
     let bounds: Vec<_> = scene.cylinders.par_iter().map(|c| c.bounds()).collect();
+    // A `None` item ends the collection into an `Option` as soon as rayon sees it.
+    let running = || (!stop.load(Ordering::Relaxed)).then_some(());
     let found: Vec<Vec<Option<RayHit>>> = groups
         .par_iter()
         .map(|group| {
-            if stop.load(Ordering::Relaxed) {
-                return vec![None; group.len()];
-            }
+            running()?;
             let origin = rays[group[0] as usize].origin;
             let tracer = tracer_at::<T, F>(scene, &bounds, origin, group.len());
             group
                 .par_iter()
-                .map(|&i| {
-                    if stop.load(Ordering::Relaxed) {
-                        return None;
-                    }
-                    cast_one(scene, &tracer, &rays[i as usize])
-                })
-                .collect()
+                .map(|&i| running().map(|()| cast_one(scene, &tracer, &rays[i as usize])))
+                .collect::<Option<Vec<_>>>()
         })
-        .collect();
+        .collect::<Option<Vec<_>>>()?;
+    running()?;
     let mut out = vec![None; rays.len()];
     for (group, hits) in groups.iter().zip(found) {
         for (&i, h) in group.iter().zip(hits) {
             out[i as usize] = h;
         }
     }
-    out
+    Some(out)
 }
 
 /// The scene prepared for rays from `origin`: cylinders in its frame, and the BVH (eight

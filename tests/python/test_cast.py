@@ -97,6 +97,35 @@ def test_shapes_units_and_misses():
         cylaov.cast_rays(scene, o, d[:, :2])
 
 
+def test_many_rays_give_the_bits_of_few_and_name_a_bad_ray_by_its_index():
+    """A hit does not depend on which rays share the call: 600 000 rays from three origins
+    taking turns hit as the same rays cast origin by origin, 1 000 at a time, and one
+    origin given once as given per ray. A bad ray is named by its index among all."""
+    scene = cylaov.Scene.load(SCENES[0])
+    rng = np.random.default_rng(5)
+    n = 600_000
+    starts = rng.uniform(-3, 3, (3, 3))
+    origins = np.tile(starts, (n // 3, 1))
+    dirs = rng.normal(size=(n, 3))
+    aovs = ("t_hit", "normal", "shape_id", "part", "position", "position_error")
+    got = cylaov.cast_rays(scene, origins, dirs, aovs=aovs, t_max=40.0)
+    assert np.isfinite(got["t_hit"]).sum() > 1000
+    for k in range(3):
+        for at in (0, 123_456, 199_000):
+            ids = np.arange(3 * at + k, 3 * (at + 1000) + k, 3)
+            want = cylaov.cast_rays(scene, starts[k], dirs[ids], aovs=aovs, t_max=40.0)
+            for a in aovs:
+                assert want[a].tobytes() == got[a][ids].tobytes(), (k, at, a)
+    # One origin for all of them: the same bits as the origin given per ray.
+    one = cylaov.cast_rays(scene, starts[1], dirs, aovs=("t_hit",), t_max=40.0)
+    per = cylaov.cast_rays(scene, np.tile(starts[1], (n, 1)), dirs, aovs=("t_hit",), t_max=40.0)
+    assert one["t_hit"].tobytes() == per["t_hit"].tobytes()
+    dirs[599_998] = 0.0
+    for o in (origins, starts[2]):
+        with pytest.raises(ValueError, match=r"^rays\[599998\]\.direction: must be finite"):
+            cylaov.cast_rays(scene, o, dirs)
+
+
 # `cast_rays` reads only the cylinders; a scene needs a camera all the same.
 _CAMERA = {"origin": [5, 0, 0.5], "target": [0, 0, 0.5], "up": [0, 0, 1], "fov_deg": 40,
            "width": 8, "height": 6}
