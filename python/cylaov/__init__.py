@@ -19,7 +19,9 @@ say more; the package's documentation page is ``docs/python.md`` in the reposito
 """
 
 import json as _json
+import operator as _operator
 import os as _os
+import re as _re
 import sys as _sys
 import tempfile as _tempfile
 import threading as _threading
@@ -94,16 +96,23 @@ def cast_rays(scene, origins, directions, t_min=0.0, t_max=float("inf"),
     if d.ndim < 1 or d.shape[-1] != 3:
         raise ValueError(f"directions: shape must be (..., 3), got {d.shape}")
     shape = d.shape[:-1]
+    o = _np.asarray(origins, dtype=_np.float64)
+    lo = _np.asarray(t_min, dtype=_np.float64)
+    hi = _np.asarray(t_max, dtype=_np.float64)
     try:
-        o = _np.broadcast_to(_np.asarray(origins, dtype=_np.float64), d.shape)
-        lo = _np.broadcast_to(_np.asarray(t_min, dtype=_np.float64), shape)
-        hi = _np.broadcast_to(_np.asarray(t_max, dtype=_np.float64), shape)
+        wide = (_np.broadcast_to(o, d.shape), _np.broadcast_to(lo, shape),
+                _np.broadcast_to(hi, shape))
     except ValueError as e:
         raise ValueError(f"origins, t_min, t_max must broadcast to {shape}: {e}") from None
     aovs = _names(aovs, "aovs: a ray output name or a sequence of them")
+    # One origin or one bound for every ray goes as it is: a copy a ray would be memory
+    # and time (8 million rays: 192 MB) to say the same.
     flat = lambda a, k: _np.ascontiguousarray(a.reshape((-1,) + k))
-    out = _cylaov._cast_rays(scene, flat(o, (3,)), flat(d, (3,)), flat(lo, ()), flat(hi, ()),
-                             list(aovs), precision, formula, threads)
+    one = (o.shape[-1:] == (3,) and o.size == 3, lo.size == 1, hi.size == 1)
+    o, lo, hi = (flat(x if once else w, k)
+                 for x, w, k, once in zip((o, lo, hi), wide, ((3,), (), ()), one))
+    out = _cylaov._cast_rays(scene, o, flat(d, (3,)), lo, hi, list(aovs), precision, formula,
+                             threads)
     return {k: v.reshape(shape + v.shape[1:]) for k, v in out.items()}
 
 
@@ -151,8 +160,8 @@ def scan(scene, sensor, pose=(0.0, 0.0, 0.0), trajectory=None, returns=1, range_
             csv = "time,x,y,z,yaw,pitch,roll\n" + "".join(
                 ",".join(repr(float(v)) for v in r) + "\n" for r in rows)
     pose = [float(v) for v in pose]
-    return _cylaov._scan(scene, sensor, pose, csv, int(returns), float(range_noise),
-                         float(dropout), int(seed), threads)
+    return _cylaov._scan(scene, sensor, pose, csv, returns, float(range_noise),
+                         float(dropout), seed, threads)
 
 
 def spawn_rays(hits, directions):
@@ -222,8 +231,31 @@ def write_shards(input, out, shards=None, shard_size=1000, aovs=None, members=No
         for key, scene in named.items():
             with open(_os.path.join(tmp, key + ".json"), "w", encoding="utf-8") as f:
                 f.write(scene.to_json())
-        return _cylaov.write_shards(tmp, out, shards, shard_size, aovs, members, precision,
-                                    formula, depth_scale, threads, force)
+        try:
+            return _cylaov.write_shards(tmp, out, shards, shard_size, aovs, members,
+                                        precision, formula, depth_scale, threads, force)
+        except ValueError as e:
+            message = _keys_for_files(str(e), tmp, named)
+            if message == str(e):
+                raise
+            raise type(e)(message) from None
+
+
+def _keys_for_files(message, tmp, named):
+    """``message`` naming the scenes in memory by their keys (``input['a.b']``) where it
+    names the temporary scene files written for them, which the user never saw and which
+    are gone once the call returns."""
+    if tmp not in message:
+        return message
+    prefix = _re.escape(_os.path.join(tmp, ""))
+
+    def key(m):
+        k = m.group(1)
+        return f"input[{k!r}]" if k in named else m.group(0)
+
+    message = _re.sub(prefix + r"(.+?)\.json(?=:)", key, message)
+    return message.replace("rename the scene files or give them manifest names",
+                           "rename the keys")
 
 
 def _scene_files(input):
@@ -287,7 +319,7 @@ def generate(settings, seed, index):
     in it that differs from the argument raises ``ValueError``. A pure function of its
     arguments: the same scene in any process, worker or machine.
     """
-    return _cylaov._generate(_settings_json(settings), int(seed), int(index))
+    return _cylaov._generate(_settings_json(settings), seed, index)
 
 
 class Dataset:
@@ -314,22 +346,21 @@ class Dataset:
 
     def __init__(self, settings, seed, length, aovs=("depth", "normal"), views_per_scene=1,
                  threads=None):
-        if length < 0:
-            raise ValueError(f"length: must be >= 0, got {length}")
         self.settings = settings
-        self.seed = int(seed)
-        self.length = int(length)
         self.aovs = _names(aovs, "aovs: an AOV name or a sequence of AOV names")
-        self.views_per_scene = int(views_per_scene)
-        self.threads = threads
-        self._views = _cylaov._Views(_settings_json(settings), self.seed, self.length,
-                                     list(self.aovs), self.views_per_scene, threads)
+        # The numbers are checked there (an integer in range, else an error naming it).
+        self._views = _cylaov._Views(_settings_json(settings), seed, length, list(self.aovs),
+                                     views_per_scene, threads)
+        self.seed = _operator.index(seed)
+        self.length = _operator.index(length)
+        self.views_per_scene = _operator.index(views_per_scene)
+        self.threads = None if threads is None else _operator.index(threads)
 
     def __len__(self):
         return self.length
 
     def __getitem__(self, i):
-        return self._views.item(_index(i))
+        return self._views.item(self._position(i))
 
     def __getitems__(self, indices):
         """Items ``indices`` as a list, rendered in one call on the pool: PyTorch's
@@ -340,7 +371,7 @@ class Dataset:
         batch PyTorch's default collation would stack them into: collation then takes that
         buffer as it is (no copy), and a worker of a ``DataLoader`` hands it to the main
         process as one shared-memory block, reused once the batch is freed there."""
-        indices = [_index(i) for i in indices]
+        indices = [self._position(i) for i in indices]
         if not indices:
             return _Items()
         _register_collation()
@@ -358,6 +389,15 @@ class Dataset:
             items.append(item)
         items._batch = (buffer, shared, layout, offsets, tuple(dict(it) for it in items))
         return items
+
+    def _position(self, i):
+        """Index ``i`` (negative counts from the end) as a view number; ``IndexError`` out of
+        range, however large (the views take 64-bit numbers)."""
+        k = _index(i)
+        n = self.length
+        if not -n <= k < n:
+            raise IndexError(f"index {k} out of range for a dataset of {n} views")
+        return k + n if k < 0 else k
 
     def _layout(self):
         layout = self.__dict__.get("_layout_cache")
@@ -472,7 +512,10 @@ class _Buffers:
                 # else the oldest, which lives on while its batch does.
                 idle = [x for x in self.entries if x[2] is not None and x[2]() is None
                         and _flag(x[0]) == 0]
-                self.entries.remove(idle[0] if idle else self.entries[0])
+                # By identity: `list.remove` would compare the entries with `==`, which
+                # on their numpy arrays is elementwise (and raises).
+                victim = idle[0] if idle else self.entries[0]
+                del self.entries[next(k for k, x in enumerate(self.entries) if x is victim)]
         # A view through a memoryview: the arrays made from it keep it, not the owner, as
         # their base, so the weak reference tells when the last of them is gone.
         buffer = _np.frombuffer(memoryview(e[0]), dtype=_np.uint8)

@@ -93,6 +93,84 @@ pub(crate) fn choice<T: cylaov::choice::Choice>(name: &str, keyword: &str) -> Py
     T::parse(name).map_err(|e| PyValueError::new_err(format!("{keyword}: {e}")))
 }
 
+/// Integer argument `name` within `lo..=hi`, taken as Python's `operator.index` takes it
+/// (an `int`, a numpy integer, a `bool`; not a float, whose fraction would be dropped, nor
+/// a string). pyo3's own conversion to an unsigned type raises `OverflowError` or a
+/// `TypeError` that name neither the argument nor the value:
+/// `shard_size: must be >= 1, got -1`, `shard_size: must be an integer, got float 1.5`.
+pub(crate) fn integer(obj: &Bound<'_, PyAny>, name: &str, lo: i128, hi: i128) -> PyResult<i128> {
+    let py = obj.py();
+    let int = py
+        .import("operator")?
+        .getattr("index")?
+        .call1((obj,))
+        .map_err(|_| {
+            PyTypeError::new_err(format!(
+                "{name}: must be an integer, got {}",
+                described(obj)
+            ))
+        })?;
+    let v = int.extract::<i128>().ok();
+    if let Some(v) = v
+        && (lo..=hi).contains(&v)
+    {
+        return Ok(v);
+    }
+    // Beyond i128 is beyond any bound, on the side of its sign.
+    let below = match v {
+        Some(v) => v < lo,
+        None => int.lt(0)?,
+    };
+    // As the library words its bounds (`threads: must be in 1..=1024, got 0`).
+    let want = if hi <= i128::from(u32::MAX) {
+        format!("in {lo}..={hi}")
+    } else if below {
+        format!(">= {lo}")
+    } else {
+        format!("<= {hi}")
+    };
+    // Python refuses to print an int of more than 4300 digits.
+    let got = match int.str() {
+        Ok(s) => cylaov::scene::strict::shorten(&s.to_string_lossy()),
+        Err(_) => format!("an integer of {} bits", int.call_method0("bit_length")?),
+    };
+    Err(PyValueError::new_err(format!(
+        "{name}: must be {want}, got {got}"
+    )))
+}
+
+/// [`integer`] as a `usize`, `lo` and up.
+pub(crate) fn size(obj: &Bound<'_, PyAny>, name: &str, lo: usize) -> PyResult<usize> {
+    // `usize` fits in i128 and back on every target.
+    Ok(integer(obj, name, lo as i128, usize::MAX as i128)? as usize)
+}
+
+/// A `camera=` argument (`#[pyo3(from_py_with = camera_arg)]`): an index >= 0; one past
+/// the scene's cameras is refused where the scene is at hand (`IndexError`).
+pub(crate) fn camera_arg(obj: &Bound<'_, PyAny>) -> PyResult<usize> {
+    size(obj, "camera", 0)
+}
+
+/// A seed (`#[pyo3(from_py_with = seed_arg)]`): any integer of 64 bits, >= 0.
+pub(crate) fn seed_arg(obj: &Bound<'_, PyAny>) -> PyResult<u64> {
+    Ok(integer(obj, "seed", 0, i128::from(u64::MAX))? as u64)
+}
+
+/// A value for a message: its type and its (shortened) repr, `float 1.5`, `str '3'`.
+pub(crate) fn described(obj: &Bound<'_, PyAny>) -> String {
+    let ty = obj.get_type().name().map_or_else(
+        |_| "object".to_string(),
+        |n| n.to_string_lossy().into_owned(),
+    );
+    match obj.repr() {
+        Ok(r) => format!(
+            "{ty} {}",
+            cylaov::scene::strict::shorten(&r.to_string_lossy())
+        ),
+        Err(_) => ty,
+    }
+}
+
 pub(crate) fn kernel(precision: &str, formula: &str) -> PyResult<Kernel> {
     Ok(Kernel::new(
         choice(formula, "formula")?,

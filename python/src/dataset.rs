@@ -1,10 +1,10 @@
 //! `cylaov.generate` and `cylaov.Dataset`: `cylaov generate`'s scenes and their views,
 //! rendered on demand.
 
-use crate::arrays::{Arrays, arrays, arrays_to_dict, traced};
-use crate::convert::{json_to_py, parse_aovs};
+use crate::arrays::{Arrays, arrays, arrays_to_dict, check_views_memory, traced};
+use crate::convert::{integer, json_to_py, parse_aovs, seed_arg};
 use crate::errors::scene_error;
-use crate::pool::{on_pool, run_stoppable};
+use crate::pool::{on_pool, run_stoppable, threads_arg};
 use crate::scene::PyScene;
 use cylaov::dataset::generate::{ConfigFile, GenerateOptions};
 use cylaov::output::format::exr::channel_names;
@@ -66,7 +66,11 @@ fn generated(
 /// keys, or None), as `cylaov generate` writes it.
 #[pyfunction]
 #[pyo3(signature = (settings, seed, index))]
-pub(crate) fn _generate(settings: Option<&str>, seed: u64, index: u64) -> PyResult<PyScene> {
+pub(crate) fn _generate(
+    settings: Option<&str>,
+    #[pyo3(from_py_with = seed_arg)] seed: u64,
+    #[pyo3(from_py_with = index_arg)] index: u64,
+) -> PyResult<PyScene> {
     let (o, _) = options(settings, seed)?;
     generated(&o, seed, index, None)
 }
@@ -87,11 +91,11 @@ impl _Views {
     #[pyo3(signature = (settings, seed, length, aovs, views_per_scene, threads))]
     fn new(
         settings: Option<&str>,
-        seed: u64,
-        length: u64,
+        #[pyo3(from_py_with = seed_arg)] seed: u64,
+        #[pyo3(from_py_with = length_arg)] length: u64,
         aovs: Vec<String>,
-        views_per_scene: u32,
-        threads: Option<usize>,
+        #[pyo3(from_py_with = views_per_scene_arg)] views_per_scene: u32,
+        #[pyo3(from_py_with = threads_arg)] threads: Option<usize>,
     ) -> PyResult<Self> {
         let (mut options, config) = options(settings, seed)?;
         if let Some(v) = config.views_per_scene
@@ -102,12 +106,8 @@ impl _Views {
             )));
         }
         options.views_per_scene = views_per_scene;
-        options
-            .validate()
-            .map_err(|e| PyValueError::new_err(format!("views_per_scene: {e}")))?;
-        if threads == Some(0) {
-            return Err(PyValueError::new_err("threads: must be >= 1, got 0"));
-        }
+        // The options passed before; the message names `views_per_scene` itself.
+        options.validate().map_err(PyValueError::new_err)?;
         // Each view allocates its planes afresh: kept by the allocator, their pages are
         // reused warm instead of faulted in again (`cylaov bench --python` times a 320x240
         // depth+normal view with it). A process-wide policy, taken by streaming datasets only.
@@ -122,8 +122,9 @@ impl _Views {
     }
 
     /// View `i`: the arrays of `render` and `camera_info` under `"camera_info"`.
-    fn item<'py>(&self, py: Python<'py>, i: i64) -> PyResult<Bound<'py, PyDict>> {
+    fn item<'py>(&self, py: Python<'py>, i: i128) -> PyResult<Bound<'py, PyDict>> {
         let k = self.position(i)?;
+        self.check_memory(1)?;
         // Generation, validation, the trace and the arrays in one trip to the pool, the
         // GIL released: each trip costs a hand-over to a worker and back.
         let (a, v) = run_stoppable(py, self.threads, |stop| self.view(k, stop))??;
@@ -134,11 +135,13 @@ impl _Views {
     /// `DataLoader` calls once a batch): the views render side by side, each one also on
     /// the pool, so small views fill the cores that one alone leaves idle. Each item is the
     /// same as `item(i)`: a render is a pure function of its view.
-    fn items<'py>(&self, py: Python<'py>, indices: Vec<i64>) -> PyResult<Bound<'py, PyList>> {
+    fn items<'py>(&self, py: Python<'py>, indices: Vec<i128>) -> PyResult<Bound<'py, PyList>> {
         let ks = indices
             .iter()
             .map(|&i| self.position(i))
             .collect::<PyResult<Vec<_>>>()?;
+        // Every view's arrays are held until the list is made.
+        self.check_memory(ks.len())?;
         let views = run_stoppable(py, self.threads, |stop| {
             use rayon::prelude::*;
             ks.par_iter()
@@ -178,7 +181,7 @@ impl _Views {
     fn items_into<'py>(
         &self,
         py: Python<'py>,
-        indices: Vec<i64>,
+        indices: Vec<i128>,
         mut out: PyReadwriteArray1<'py, u8>,
         offsets: Vec<usize>,
     ) -> PyResult<Bound<'py, PyList>> {
@@ -186,6 +189,10 @@ impl _Views {
             .iter()
             .map(|&i| self.position(i))
             .collect::<PyResult<Vec<_>>>()?;
+        // A view's arrays are dropped once copied into `out`, but the pool may have every
+        // view of the batch under way at once (a thread waiting inside one view's render
+        // takes up the next view).
+        self.check_memory(ks.len())?;
         let sizes: Vec<usize> = self
             .layout()
             .iter()
@@ -253,14 +260,16 @@ impl _Views {
 }
 
 impl _Views {
+    /// Refuse, as `MemoryError`, rendering `views` views at once when they do not fit.
+    fn check_memory(&self, views: usize) -> PyResult<()> {
+        let size = (self.options.width, self.options.height);
+        check_views_memory(size, &traced(&self.aovs), views, self.threads)
+    }
+
     /// Index `i` (negative counts from the end) as a view number, or `IndexError`.
-    fn position(&self, i: i64) -> PyResult<u64> {
+    fn position(&self, i: i128) -> PyResult<u64> {
         let n = i128::from(self.length);
-        let k = if i < 0 {
-            i128::from(i) + n
-        } else {
-            i128::from(i)
-        };
+        let k = if i < 0 { i + n } else { i };
         if !(0..n).contains(&k) {
             return Err(PyIndexError::new_err(format!(
                 "index {i} out of range for a dataset of {n} views"
@@ -291,6 +300,22 @@ impl _Views {
             serde_json::from_str(&text).map_err(|e| PyValueError::new_err(e.to_string()))?;
         Ok((a, v))
     }
+}
+
+/// `index=` of `generate`: any integer of 64 bits, >= 0.
+fn index_arg(obj: &Bound<'_, PyAny>) -> PyResult<u64> {
+    Ok(integer(obj, "index", 0, i128::from(u64::MAX))? as u64)
+}
+
+/// `length=` of a `Dataset`: its views, any integer of 64 bits, >= 0.
+fn length_arg(obj: &Bound<'_, PyAny>) -> PyResult<u64> {
+    Ok(integer(obj, "length", 0, i128::from(u64::MAX))? as u64)
+}
+
+/// `views_per_scene=` of a `Dataset`: 1..=`MAX_VIEWS_PER_SCENE` (the library's bound).
+fn views_per_scene_arg(obj: &Bound<'_, PyAny>) -> PyResult<u32> {
+    let max = cylaov::dataset::generate::MAX_VIEWS_PER_SCENE;
+    Ok(integer(obj, "views_per_scene", 1, i128::from(max))? as u32)
 }
 
 /// A view's dict: its arrays and `"camera_info"`.

@@ -128,8 +128,7 @@ pub(crate) fn exr_input(path: &Path) -> PyResult<()> {
     let pixels = h.layer_size.0 as u64 * h.layer_size.1 as u64;
     // 4 bytes a sample as it is read, 2 MiB for the read buffers.
     let bytes = 4 * pixels * h.channels.list.len() as u64 + (2 << 20);
-    cylaov::mem::check_memory(&format!("reading {}", path.display()), bytes)
-        .map_err(|e| pyo3::exceptions::PyMemoryError::new_err(e.to_string()))
+    crate::pool::check_memory(None, &format!("reading {}", path.display()), bytes)
 }
 
 /// Write hit points as a PLY point cloud (`cylaov.to_ply` prepares the flat arrays): the

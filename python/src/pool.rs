@@ -1,7 +1,7 @@
 //! The thread pools every call runs on, and the waiting that lets Ctrl-C through (see the
 //! crate's documentation).
 
-use crate::errors::panic_error;
+use crate::errors::{memory_error, panic_error};
 use pyo3::exceptions::{PyOSError, PyValueError};
 use pyo3::prelude::*;
 use std::collections::HashMap;
@@ -46,13 +46,39 @@ fn pool(threads: Option<usize>) -> PyResult<Arc<rayon::ThreadPool>> {
         .num_threads(n)
         .build()
         .map_err(|e| PyOSError::new_err(format!("cannot start {n} threads: {e}")))?;
+    // Each thread allocates once now: glibc gives a thread its own arena at its first
+    // allocation, reserving 64 MiB of address space, which `ulimit -v` counts. Reserved
+    // now, it is seen by the memory check a call makes before its buffers (on this pool,
+    // [`check_memory`]); reserved later, it could take the room of the last plane of a
+    // render that passed the check.
+    p.broadcast(|_| drop(std::hint::black_box(Box::new(0u8))));
     let p = Arc::new(p);
     pools.insert(n, p.clone());
     Ok(p)
 }
 
+/// `cylaov::mem::check_memory` made on the pool of `threads` that will do the work, a
+/// refusal as `MemoryError`: there the check counts the pool's threads as those still to
+/// start (on the caller's thread it would ask rayon's global pool, starting it, and its
+/// threads would take address space the package never uses), and the pool's threads have
+/// made their reservations already (see [`pool`]).
+pub(crate) fn check_memory(threads: Option<usize>, what: &str, bytes: u64) -> PyResult<()> {
+    on_pool(threads, || cylaov::mem::check_memory(what, bytes))?.map_err(memory_error)
+}
+
 /// The bounds of `threads=`, those of `--threads`.
 const MAX_THREADS: usize = 1024;
+
+/// A `threads=` argument (`#[pyo3(from_py_with = threads_arg)]`): `None` (every core) or
+/// an integer in 1..=[`MAX_THREADS`], the error naming it and the value
+/// (`threads: must be in 1..=1024, got -1`).
+pub(crate) fn threads_arg(obj: &Bound<'_, PyAny>) -> PyResult<Option<usize>> {
+    if obj.is_none() {
+        return Ok(None);
+    }
+    let n = crate::convert::integer(obj, "threads", 1, MAX_THREADS as i128)?;
+    Ok(Some(n as usize))
+}
 
 /// Pools kept at most (beyond those in use): one per distinct thread count asked for.
 const MAX_POOLS: usize = 4;

@@ -1,9 +1,9 @@
 //! `cylaov.render` and `cylaov.camera_info`: a camera's view as arrays, and its metadata.
 
-use crate::arrays::{arrays, arrays_to_dict, traced};
-use crate::convert::{aov_names, choice, json_to_py, kernel, parse_aovs};
+use crate::arrays::{arrays, arrays_to_dict, check_views_memory, traced};
+use crate::convert::{aov_names, camera_arg, choice, json_to_py, kernel, parse_aovs};
 use crate::errors::InternalError;
-use crate::pool::run_stoppable;
+use crate::pool::{run_stoppable, threads_arg};
 use crate::scene::PyScene;
 use cylaov::render::{Accel, RenderOptions};
 use cylaov::scene::Aov;
@@ -21,7 +21,8 @@ use pyo3::types::PyDict;
 /// with the same options (`precision` "f64" | "f32", `formula` "stable" | "literal",
 /// `accel` "tiles" | "frustum" | "bvh"). The GIL is released while tracing (Ctrl-C raises
 /// `KeyboardInterrupt` within a fraction of a second); `threads` (default: every core)
-/// sizes the thread pool; use 1 inside DataLoader workers.
+/// sizes the thread pool; use 1 inside DataLoader workers. A view whose planes do not fit
+/// in the memory left raises `MemoryError` before anything is allocated.
 #[pyfunction]
 #[pyo3(signature = (scene, aovs=None, camera=0, precision="f64", formula="stable", accel="tiles", threads=None))]
 #[allow(clippy::too_many_arguments)]
@@ -29,11 +30,11 @@ pub(crate) fn render<'py>(
     py: Python<'py>,
     scene: &Bound<'py, PyScene>,
     aovs: Option<&Bound<'py, PyAny>>,
-    camera: usize,
+    #[pyo3(from_py_with = camera_arg)] camera: usize,
     precision: &str,
     formula: &str,
     accel: &str,
-    threads: Option<usize>,
+    #[pyo3(from_py_with = threads_arg)] threads: Option<usize>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let aovs = match aovs {
         None => vec![Aov::Depth, Aov::Normal],
@@ -48,6 +49,7 @@ pub(crate) fn render<'py>(
         formula: k.formula,
         accel,
     };
+    check_views_memory((sc.camera.width, sc.camera.height), &opts.aovs, 1, threads)?;
     let a = run_stoppable(py, threads, |stop| {
         cylaov::render::render_until(&sc, &opts, stop).map(|r| arrays(r.image, &aovs))
     })?;
@@ -66,7 +68,7 @@ pub(crate) fn render<'py>(
 pub(crate) fn camera_info<'py>(
     py: Python<'py>,
     scene: &Bound<'py, PyScene>,
-    camera: usize,
+    #[pyo3(from_py_with = camera_arg)] camera: usize,
 ) -> PyResult<Bound<'py, PyAny>> {
     let sc = scene.get().with_camera(camera)?;
     let text = cylaov::output::format::camera_files::camera_json(&Camera::new(sc.camera), &sc.aovs);

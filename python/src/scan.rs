@@ -4,7 +4,8 @@
 //! text).
 
 use crate::arrays::shape_err;
-use crate::pool::run_stoppable;
+use crate::convert::{integer, seed_arg};
+use crate::pool::{run_stoppable, threads_arg};
 use crate::scene::PyScene;
 use cylaov::scan::{self, Column, Motion, Noise, Pose, ScanOptions, Sensor, Trajectory};
 use numpy::IntoPyArray;
@@ -24,11 +25,11 @@ fn _scan<'py>(
     sensor: &str,
     pose: Vec<f64>,
     trajectory: Option<&str>,
-    returns: u32,
+    #[pyo3(from_py_with = returns_arg)] returns: u32,
     range_noise: f64,
     dropout: f64,
-    seed: u64,
-    threads: Option<usize>,
+    #[pyo3(from_py_with = seed_arg)] seed: u64,
+    #[pyo3(from_py_with = threads_arg)] threads: Option<usize>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let sensor = match Sensor::preset(sensor) {
         Some(s) => s,
@@ -65,6 +66,17 @@ fn _scan<'py>(
         },
     };
     opts.validate().map_err(PyValueError::new_err)?;
+    // The library gathers the points of every azimuth step, then appends them into one
+    // scan (its columns growing to twice the points at most), which the arrays copy: about
+    // three copies of the points at the peak, with every beam giving every return. A scan
+    // that cannot fit raises `MemoryError` here, not an abort in the library.
+    let points = (opts.sensor.beams() as u64)
+        .saturating_mul(u64::from(opts.sensor.steps_per_rotation))
+        .saturating_mul(u64::from(returns));
+    let bytes = points
+        .saturating_mul(3 * POINT_BYTES)
+        .saturating_add(u64::from(opts.sensor.steps_per_rotation) * STEP_BYTES);
+    crate::pool::check_memory(threads, &format!("a scan of up to {points} points"), bytes)?;
     let sc = &scene.get().scene;
     let points = run_stoppable(py, threads, |stop| scan::scan_until(sc, &opts, stop))?
         .map_err(PyValueError::new_err)?
@@ -86,6 +98,19 @@ fn _scan<'py>(
         }
     }
     Ok(out)
+}
+
+/// Bytes a point takes in the columns of a scan: nine float64, five uint32 and a normal of
+/// three float32.
+const POINT_BYTES: u64 = 9 * 8 + 5 * 4 + 3 * 4;
+
+/// Bytes an azimuth step's own scan takes besides its points: fifteen columns, each a
+/// vector and its allocation.
+const STEP_BYTES: u64 = 15 * (24 + 32);
+
+/// `returns=`: 1..=15 returns a beam, as the library bounds it.
+fn returns_arg(obj: &Bound<'_, PyAny>) -> PyResult<u32> {
+    Ok(integer(obj, "returns", 1, i128::from(scan::MAX_RETURNS))? as u32)
 }
 
 /// Add `_scan` to the module.

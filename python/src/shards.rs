@@ -2,19 +2,24 @@
 //! webdataset` from Python, so any engine (Ray, Dask, a process pool) can map tars over
 //! workers and get the command line's bytes.
 
-use crate::convert::{aov_names, choice, kernel, names, parse_aovs};
+use crate::convert::{aov_names, choice, described, integer, kernel, names, parse_aovs, size};
 use crate::errors::value_error;
-use crate::pool::{run, run_stoppable};
+use crate::pool::{run, run_stoppable, threads_arg};
 use cylaov::dataset::batch::shards::{self, Member, ShardOptions, TarOutcome, TarSelection};
 use cylaov::dataset::batch::{BatchOptions, ProgressMode};
+use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
+use pyo3::types::{PyBytes, PyDict, PyString};
 use std::path::PathBuf;
 
 /// The number of tar shards the views of `input` make at `shard_size` views a tar.
 #[pyfunction]
 #[pyo3(signature = (input, shard_size = shards::DEFAULT_SHARD_SIZE))]
-pub fn shard_count(py: Python<'_>, input: PathBuf, shard_size: usize) -> PyResult<usize> {
+pub fn shard_count(
+    py: Python<'_>,
+    input: PathBuf,
+    #[pyo3(from_py_with = shard_size_arg)] shard_size: usize,
+) -> PyResult<usize> {
     run(py, None, || shards::shard_count(&input, shard_size))?.map_err(value_error)
 }
 
@@ -30,16 +35,22 @@ pub fn write_shards<'py>(
     py: Python<'py>,
     input: PathBuf,
     out: PathBuf,
-    shards: Option<Vec<usize>>,
-    shard_size: usize,
+    #[pyo3(from_py_with = shards_arg)] shards: Option<Vec<usize>>,
+    #[pyo3(from_py_with = shard_size_arg)] shard_size: usize,
     aovs: Option<&Bound<'py, PyAny>>,
     members: Option<&Bound<'py, PyAny>>,
     precision: &str,
     formula: &str,
     depth_scale: f64,
-    threads: Option<usize>,
+    #[pyo3(from_py_with = threads_arg)] threads: Option<usize>,
     force: bool,
 ) -> PyResult<Bound<'py, PyDict>> {
+    // The command line refuses an empty `--out`; here it would be the working folder.
+    if out.as_os_str().is_empty() {
+        return Err(PyValueError::new_err(
+            "out: must name a folder, got '' (use '.' for the working folder)",
+        ));
+    }
     let k = kernel(precision, formula)?;
     let members = match members {
         None => Vec::new(),
@@ -103,6 +114,54 @@ pub fn write_shards<'py>(
     d.set_item("index_written", summary.index_written)?;
     d.set_item("problems", summary.problems.clone())?;
     Ok(d)
+}
+
+/// `shard_size=`: views a tar, >= 1.
+fn shard_size_arg(obj: &Bound<'_, PyAny>) -> PyResult<usize> {
+    size(obj, "shard_size", 1)
+}
+
+/// `shards=`: `None` (every tar) or tar indices, at least one, each once; sorted, as the
+/// tars are written in their order whatever the list's, and the failures file is named by
+/// the tars it records (`failures.tars-000001-000002.jsonl` for `[2, 1]` as for `[1, 2]`).
+fn shards_arg(obj: &Bound<'_, PyAny>) -> PyResult<Option<Vec<usize>>> {
+    if obj.is_none() {
+        return Ok(None);
+    }
+    let what = || {
+        PyTypeError::new_err(format!(
+            "shards: a sequence of tar indices or None, got {}",
+            described(obj)
+        ))
+    };
+    if obj.is_instance_of::<PyString>() || obj.is_instance_of::<PyBytes>() {
+        return Err(what());
+    }
+    let mut list = Vec::new();
+    for (i, item) in obj.try_iter().map_err(|_| what())?.enumerate() {
+        let j = integer(&item?, &format!("shards[{i}]"), 0, usize::MAX as i128)?;
+        list.push(j as usize);
+    }
+    if list.is_empty() {
+        return Err(PyValueError::new_err(
+            "shards: an empty list (give at least one tar, or None for all)",
+        ));
+    }
+    list.sort_unstable();
+    let mut twice: Vec<usize> = list
+        .windows(2)
+        .filter(|w| w[0] == w[1])
+        .map(|w| w[0])
+        .collect();
+    if !twice.is_empty() {
+        twice.dedup();
+        let named: Vec<String> = twice.iter().map(|j| j.to_string()).collect();
+        return Err(PyValueError::new_err(format!(
+            "shards: tar {} listed more than once",
+            named.join(", ")
+        )));
+    }
+    Ok(Some(list))
 }
 
 /// Add this file's functions to the module.

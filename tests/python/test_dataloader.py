@@ -152,6 +152,48 @@ def test_threads_fetching_batches_at_once_get_their_own_buffers():
         assert all(np.array_equal(it["depth"], want[i]) for i, it in zip(indices, items))
 
 
+def _held_batches_hold_their_items(ds, held):
+    for indices, items in held:
+        for i, item in zip(indices, items):
+            one = ds[i]
+            for k in AOVS + ("mask",):
+                assert np.array_equal(item[k], one[k]), (i, k)
+
+
+def test_a_free_buffer_behind_busy_ones_is_dropped_by_identity(monkeypatch):
+    """A fifth buffer drops a free one (the cache keeps four): found by identity, not by
+    `list.remove`'s `==`, which compared the entries' numpy arrays and raised."""
+    monkeypatch.setattr(cylaov, "_BUFFERS", cylaov._Buffers())  # this test's cache alone
+    ds = cylaov.Dataset(SETTINGS, seed=5, length=14, aovs=AOVS, threads=1)
+    held = [([0, 1, 2], ds.__getitems__([0, 1, 2]))]
+    small = ds.__getitems__([3])  # the second buffer: freed below, too small after
+    held += [(b, ds.__getitems__(b)) for b in ([4, 5, 6], [7, 8, 9])]
+    del small
+    held.append(([10, 11, 12, 13], ds.__getitems__([10, 11, 12, 13])))
+    assert len(cylaov._BUFFERS.entries) == cylaov._Buffers.KEEP
+    _held_batches_hold_their_items(ds, held)
+
+
+def test_growing_batches_while_the_first_is_kept(monkeypatch):
+    torch = need("torch")
+    monkeypatch.setattr(cylaov, "_BUFFERS", cylaov._Buffers())
+    ds = cylaov.Dataset(SETTINGS, seed=1, length=36, aovs=AOVS, threads=1)
+    batches, at = [], 0
+    for size in range(1, 9):
+        batches.append(list(range(at, at + size)))
+        at += size
+    loader = torch.utils.data.DataLoader(ds, batch_sampler=batches)
+    # Each batch is larger than the buffers freed before it, so each needs a new one, and
+    # the cache drops a free buffer behind the first, kept one.
+    first, sizes = None, []
+    for indices, batch in zip(batches, loader):
+        _same(_expected(ds, indices), batch)
+        first = batch if first is None else first
+        sizes.append(len(batch["depth"]))
+    assert sizes == list(range(1, 9))
+    _same(_expected(ds, batches[0]), first)
+
+
 def _doubled_depth(items):
     batch = need("torch").utils.data.default_collate(items)
     batch["depth"] = batch["depth"] * 2

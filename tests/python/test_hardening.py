@@ -4,6 +4,7 @@ string for `aovs`; Ctrl-C during a long call; the array-likes `Scene.from_arrays
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -197,6 +198,19 @@ report(lambda: ds[0])
     assert latency < LATENCY, latency
 
 
+def test_ctrl_c_stops_cast_rays_of_millions_of_rays():
+    # 8 million rays from one origin through 200 cylinders, about 10 s on one core, stopped
+    # while they are traced: a stop waits for the rays in flight, not for every ray's hit
+    # to be filled and gathered (most of a second here).
+    latency, took, err = _interrupt("""
+import numpy as np
+scene = cylaov.generate({"cylinders": "200..200"}, 1, 0)
+dirs = np.random.default_rng(0).normal(size=(8_000_000, 3))
+report(lambda: cylaov.cast_rays(scene, [0.1, 0.2, 0.3], dirs, threads=1))
+""", wait=1.5)
+    assert latency < LATENCY, latency
+
+
 def _shard_input(path, views):
     """A folder holding one scene of 20 000 cylinders seen by `views` cameras: a view takes
     about 60 ms on one core (loading the scene, then the trace), its tar members 1.3 MB."""
@@ -325,3 +339,105 @@ def test_every_aovs_parameter_takes_one_name(tmp_path):
             cylaov.Dataset(None, 0, 1, aovs=bad)
         with pytest.raises(TypeError, match="aovs: a ray output name or a sequence of them"):
             cylaov.cast_rays(scene, [0, 0, 5], [[0, 0, -1]], aovs=bad)
+
+
+def test_integer_arguments_name_themselves_and_their_value():
+    """Negative, huge and fractional numbers raise ValueError or TypeError naming the
+    argument and the value, not pyo3's nameless OverflowError; a Dataset index of any size
+    out of range is an IndexError. (pytest matches the notes too: no `$`.)"""
+    scene = cylaov.Scene.load(SCENE)
+    for call, exc, msg in (
+        (lambda: cylaov.render(scene, camera=-1), ValueError, r"^camera: must be >= 0, got -1"),
+        (lambda: cylaov.render(scene, camera=1.0), TypeError, r"^camera: must be an integer, got float 1\.0"),
+        (lambda: cylaov.render(scene, threads=-1), ValueError, r"^threads: must be in 1\.\.=1024, got -1"),
+        (lambda: cylaov.render(scene, threads=2**70), ValueError, r"^threads: must be in 1\.\.=1024, got 1180591620717411303424"),
+        (lambda: cylaov.render(scene, threads="2"), TypeError, r"^threads: must be an integer, got str '2'"),
+        (lambda: cylaov.camera_info(scene, camera=-2), ValueError, r"^camera: must be >= 0, got -2"),
+        (lambda: cylaov.camera_rays(scene, camera=-1), ValueError, r"^camera: must be >= 0, got -1"),
+        (lambda: cylaov.cast_rays(scene, [0, 0, 5], [[0, 0, -1]], threads=-1), ValueError, r"^threads: must be in 1\.\.=1024, got -1"),
+        (lambda: cylaov.generate(None, -1, 0), ValueError, r"^seed: must be >= 0, got -1"),
+        (lambda: cylaov.generate(None, 0, 2**64), ValueError, r"^index: must be <= 18446744073709551615, got 18446744073709551616"),
+        (lambda: cylaov.scan(scene, "vlp16", returns=1.5), TypeError, r"^returns: must be an integer, got float 1\.5"),
+        (lambda: cylaov.scan(scene, "vlp16", seed=-1), ValueError, r"^seed: must be >= 0, got -1"),
+        (lambda: cylaov.Dataset(None, -1, 4), ValueError, r"^seed: must be >= 0, got -1"),
+        (lambda: cylaov.Dataset(None, 0, 4, threads=-1), ValueError, r"^threads: must be in 1\.\.=1024, got -1"),
+        (lambda: cylaov.Dataset(None, 0, 4, views_per_scene=-2), ValueError, r"^views_per_scene: must be in 1\.\.=1000, got -2"),
+        (lambda: cylaov.Dataset(None, 0, 4, views_per_scene=0), ValueError, r"^views_per_scene: must be in 1\.\.=1000, got 0"),
+        (lambda: cylaov.Dataset(None, 0, 1.5), TypeError, r"^length: must be an integer, got float 1\.5"),
+        (lambda: cylaov.Dataset(None, 0, -1), ValueError, r"^length: must be >= 0, got -1"),
+        (lambda: cylaov.Dataset(None, 0, 2**64), ValueError, r"^length: must be <= 18446744073709551615, got 18446744073709551616"),
+    ):
+        with pytest.raises(exc, match=msg):
+            call()
+    # numpy integers are integers; the attributes keep Python ints.
+    ds = cylaov.Dataset(None, np.uint64(3), np.int64(4), aovs="depth", threads=np.int32(1))
+    assert (ds.seed, ds.length, ds.threads) == (3, 4, 1) and type(ds.length) is int
+    assert cylaov.render(scene, aovs="depth", camera=np.int64(0), threads=np.uint8(1))["depth"].size
+    for i in (4, -5, 2**63, -(2**63) - 1, 2**70):
+        with pytest.raises(IndexError, match=rf"^index {i} out of range for a dataset of 4 views$"):
+            ds[i]
+        with pytest.raises(IndexError, match=rf"^index {i} out of range"):
+            ds.__getitems__([0, i])
+    assert np.array_equal(ds[-4]["depth"], ds[0]["depth"])
+
+
+# Run in a child whose address space is capped at 2 GiB (so pytest survives whatever it
+# does): each call needs more than that, and must raise MemoryError naming its size before
+# it allocates, not end the process; a small render works after.
+OUT_OF_MEMORY = """
+import json, resource, sys
+resource.setrlimit(resource.RLIMIT_AS, (2 << 30, 2 << 30))
+import numpy as np
+import cylaov
+
+ALL = ("depth", "distance", "normal", "normal_camera", "position", "shape_id", "part", "label", "uv")
+scene = json.load(open(sys.argv[1]))
+small = cylaov.Scene.from_dict(scene)
+scene["camera"].update(width=8192, height=8192)
+big = cylaov.Scene.from_dict(scene)
+settings = {"width": 8192, "height": 8192, "cylinders": "5..5"}
+sensor = {"elevations_deg": [0.01 * k for k in range(1024)], "points_per_rotation": 2**20,
+          "rotation_hz": 10, "min_range": 0.1, "max_range": 100}
+calls = {
+    # The directions (916 MiB) fit; the hits beside them (1.5 GiB) do not.
+    "cast_rays": lambda: cylaov.cast_rays(small, [0, 0, 1], np.zeros((40_000_000, 3)),
+                                          threads=2),
+    "render": lambda: cylaov.render(big, aovs=ALL, threads=2),
+    "Dataset[0]": lambda: cylaov.Dataset(settings, 0, 2, aovs=ALL, threads=2)[0],
+    # The batch's buffer (960 MiB) fits; its three views' planes beside it do not.
+    "Dataset.__getitems__": lambda: cylaov.Dataset(settings, 0, 3, aovs="depth", threads=2)
+        .__getitems__([0, 1, 2]),
+    "camera_rays": lambda: cylaov.camera_rays(big),
+    "scan": lambda: cylaov.scan(small, sensor, threads=2),
+}
+for name, call in calls.items():
+    try:
+        call()
+    except MemoryError as e:
+        print(name, "|", e, flush=True)
+    else:
+        print(name, "| no error", flush=True)
+out = cylaov.render(small, aovs=ALL, threads=2)
+print("small render |", sorted(out) == sorted(ALL + ("mask",)) and bool(out["mask"].any()))
+"""
+
+
+def test_out_of_memory_is_a_memory_error_naming_the_size():
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
+    p = subprocess.run([sys.executable, "-c", OUT_OF_MEMORY, str(SCENE)], capture_output=True,
+                       text=True, cwd=ROOT, env=env, timeout=300)
+    assert p.returncode == 0, p.stdout + p.stderr
+    got = dict(line.split(" | ", 1) for line in p.stdout.splitlines())
+    assert got.pop("small render") == "True", p.stdout
+    names = "depth,distance,normal,normal_camera,position,shape_id,part,label,uv"
+    sizes = {
+        "render": rf"rendering 8192x8192 with {names} needs about 4160 MiB",
+        "Dataset[0]": rf"rendering 8192x8192 with {names} needs about 4160 MiB",
+        "Dataset.__getitems__": r"rendering 3 views of 8192x8192 with depth needs about 960 MiB",
+        "camera_rays": r"the camera rays of 8192x8192 needs about 3072 MiB",
+        "cast_rays": r"casting 40000000 rays needs about",
+        "scan": r"a scan of up to 1073741824 points needs about",
+    }
+    assert set(got) == set(sizes), p.stdout
+    for name, size in sizes.items():
+        assert re.search(size, got[name]), (name, got[name])

@@ -185,3 +185,75 @@ def test_errors_name_the_keyword_not_the_flag(dataset, tmp_path):
             call()
         assert "--" not in str(e.value)
     assert not (tmp_path / "out").exists()
+
+
+def test_integer_arguments_name_themselves_and_their_value(dataset, tmp_path):
+    """Negative, huge and fractional numbers raise ValueError or TypeError naming the
+    argument (and the entry of `shards`) and the value, not pyo3's nameless OverflowError."""
+    data, out = dataset / "data", tmp_path / "out"
+    for kw, exc, msg in (
+        (dict(shard_size=-1), ValueError, r"^shard_size: must be >= 1, got -1"),
+        (dict(shard_size=2**70), ValueError,
+         r"^shard_size: must be <= 18446744073709551615, got 1180591620717411303424"),
+        (dict(shard_size=1.5), TypeError, r"^shard_size: must be an integer, got float 1\.5"),
+        (dict(shard_size="3"), TypeError, r"^shard_size: must be an integer, got str '3'"),
+        (dict(shards=[-1]), ValueError, r"^shards\[0\]: must be >= 0, got -1"),
+        (dict(shards=[0, 2**64]), ValueError,
+         r"^shards\[1\]: must be <= 18446744073709551615, got 18446744073709551616"),
+        (dict(shards=["a"]), TypeError, r"^shards\[0\]: must be an integer, got str 'a'"),
+        (dict(shards=[1.5]), TypeError, r"^shards\[0\]: must be an integer, got float 1\.5"),
+        (dict(shards=[None]), TypeError, r"^shards\[0\]: must be an integer, got NoneType None"),
+        (dict(shards=3), TypeError, r"^shards: a sequence of tar indices or None, got int 3"),
+        (dict(shards="01"), TypeError, r"^shards: a sequence of tar indices or None, got str '01'"),
+        (dict(threads=-1), ValueError, r"^threads: must be in 1\.\.=1024, got -1"),
+        (dict(threads=2.0), TypeError, r"^threads: must be an integer, got float 2\.0"),
+    ):
+        with pytest.raises(exc, match=msg):
+            cylaov.write_shards(data, out, **kw)
+    with pytest.raises(ValueError, match=r"^shard_size: must be >= 1, got -1"):
+        cylaov.shard_count(data, -1)
+    assert not out.exists()
+    # numpy integers are integers.
+    r = cylaov.write_shards(data, out, shards=np.array([2]), shard_size=np.int64(SIZE))
+    assert r["written"] == [2]
+
+
+def test_write_shards_refuses_an_empty_out_and_empty_or_repeated_shards(dataset, tmp_path,
+                                                                        monkeypatch):
+    data = dataset / "data"
+    monkeypatch.chdir(tmp_path)
+    # The command line refuses an empty --out: here it would write into the working folder.
+    with pytest.raises(ValueError, match=r"^out: must name a folder, got ''"):
+        cylaov.write_shards(data, "", shard_size=SIZE)
+    assert list(tmp_path.iterdir()) == []
+    # A file where the folder goes: an OSError naming out and the path, no "[Errno 0]".
+    a_file = tmp_path / "a_file"
+    a_file.write_text("x")
+    with pytest.raises(OSError) as e:
+        cylaov.write_shards(data, a_file, shard_size=SIZE)
+    assert str(e.value) == f"out {a_file}: is a regular file, not a folder"
+    out = tmp_path / "out"
+    with pytest.raises(ValueError, match=r"^shards: an empty list"):
+        cylaov.write_shards(data, out, shards=[], shard_size=SIZE)
+    with pytest.raises(ValueError, match=r"^shards: tar 0, 2 listed more than once"):
+        cylaov.write_shards(data, out, shards=[2, 0, 1, 0, 2], shard_size=SIZE)
+    assert not out.exists()
+    # The failures file is named by the tars, whatever their order in the list.
+    assert cylaov.write_shards(data, out, shards=[2, 0], shard_size=SIZE)["written"] == [0, 2]
+    assert cylaov.write_shards(data, out, shards=(0, 2), shard_size=SIZE)["skipped"] == [0, 2]
+    assert [p.name for p in out.glob("failures.*")] == ["failures.tars-000000-000002.jsonl"]
+
+
+def test_bad_keys_of_scenes_in_memory_are_named_by_key(dataset, tmp_path):
+    """The scenes of a dict are written to temporary files for the call: a key that cannot
+    be a sample's key is named as the dict's key, not as that file (gone afterwards)."""
+    scene = cylaov.Scene.load(sorted((dataset / "data" / "scenes").glob("*.json"))[0])
+    with pytest.raises(ValueError) as e:
+        cylaov.write_shards({"ok": scene, "a.b": scene, "ñ": scene, "c.json": scene},
+                            tmp_path / "out", shard_size=SIZE)
+    msg = str(e.value)
+    for key in ("a.b", "ñ", "c.json"):
+        assert f"\n  input[{key!r}]: " in msg, msg
+    assert "input['ok']" not in msg and "cylaov-scenes-" not in msg, msg
+    assert "rename the keys" in msg and "scene files" not in msg, msg
+    assert not (tmp_path / "out").exists()

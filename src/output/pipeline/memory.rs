@@ -69,9 +69,40 @@ pub fn render_memory(
     planes + copies * file + encoder + pngs + 2 * MIB
 }
 
+/// Bytes the planes of a render of `width × height` with `aovs` hold when they are kept in
+/// memory as they are, with no file written (the Python package hands them to numpy
+/// without a copy): one buffer per AOV, 4 bytes a sample; and for `normal_camera` without
+/// `normal`, the world normals it is rotated from, alive until the rotation is done. What
+/// a caller adds of its own comes on top, as do the scene, its prepared cylinders and the
+/// BVH (see [`render_memory`]).
+pub fn planes_memory((width, height): (u32, u32), aovs: &[Aov]) -> u64 {
+    let channels: u64 = aovs.iter().map(|&a| channel_names(a).len() as u64).sum();
+    let rotated_from = if aovs.contains(&Aov::NormalCamera) && !aovs.contains(&Aov::Normal) {
+        channel_names(Aov::Normal).len() as u64
+    } else {
+        0
+    };
+    width as u64 * height as u64 * 4 * (channels + rotated_from)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Planes kept in memory: 4 bytes a channel a pixel, and the world normals beside a
+    /// `normal_camera` asked for alone (the render fills them first, then rotates them).
+    #[test]
+    fn the_planes_estimate_counts_channels_and_the_rotated_normals() {
+        let px = 640 * 480;
+        let est = |aovs: &[Aov]| planes_memory((640, 480), aovs);
+        assert_eq!(est(&[Aov::Depth]), px * 4);
+        assert_eq!(est(&[Aov::Depth, Aov::Normal, Aov::ShapeId]), px * 4 * 5);
+        assert_eq!(est(&[Aov::Uv, Aov::Label]), px * 4 * 3);
+        assert_eq!(est(&[Aov::NormalCamera]), px * 4 * 6);
+        assert_eq!(est(&[Aov::Normal, Aov::NormalCamera]), px * 4 * 6);
+        // 8192² with every AOV: 16 channels, 4 GiB.
+        assert_eq!(planes_memory((8192, 8192), &Aov::ALL), 4 << 30);
+    }
 
     /// A render written band by band is estimated at its bands (two copies of 16 rows
     /// per thread); one holding the whole image at its planes, with a second copy when
