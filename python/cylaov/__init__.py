@@ -253,7 +253,7 @@ def _keys_for_files(message, tmp, named):
         k = m.group(1)
         return f"input[{k!r}]" if k in named else m.group(0)
 
-    message = _re.sub(prefix + r"(.+?)\.json(?=:)", key, message)
+    message = _re.sub(prefix + r"([^/()]+?)\.json(?=[:)])", key, message)
     return message.replace("rename the scene files or give them manifest names",
                            "rename the keys")
 

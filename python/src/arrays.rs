@@ -41,11 +41,14 @@ pub(crate) fn check_views_memory(
     let one = cylaov::output::pipeline::memory::planes_memory((width, height), traced)
         + width as u64 * height as u64;
     let need = one.saturating_mul(views as u64);
-    let pid = std::process::id();
+    let whose = (std::process::id(), threads);
     {
         let mut ahead = AHEAD.lock().unwrap_or_else(|e| e.into_inner());
-        if ahead.0 == pid && ahead.1 >= need {
-            ahead.1 -= need;
+        if let Some((who, left)) = ahead.as_mut()
+            && *who == whose
+            && *left >= need
+        {
+            *left -= need;
             return Ok(());
         }
     }
@@ -58,6 +61,7 @@ pub(crate) fn check_views_memory(
         ),
     };
     let more = need.saturating_mul(LOOK_AHEAD);
+    // (`pool::check_memory` drops the allowance: it is set again below.)
     let left = match crate::pool::check_memory(threads, &what, more) {
         Ok(()) => more - need,
         // Too little for that many: this call's own need decides, and the next looks again.
@@ -66,7 +70,7 @@ pub(crate) fn check_views_memory(
             0
         }
     };
-    *AHEAD.lock().unwrap_or_else(|e| e.into_inner()) = (pid, left);
+    *AHEAD.lock().unwrap_or_else(|e| e.into_inner()) = Some((whose, left));
     Ok(())
 }
 
@@ -77,8 +81,13 @@ pub(crate) fn check_views_memory(
 const LOOK_AHEAD: u64 = 64;
 
 /// Bytes views may take without a look at the memory left ([`LOOK_AHEAD`]), and the
-/// process that looked: a forked worker looks for itself.
-static AHEAD: std::sync::Mutex<(u32, u64)> = std::sync::Mutex::new((0, 0));
+/// process and `threads=` that looked: a forked worker looks for itself, and a call on
+/// another pool (which may start threads, each reserving an arena) looks anew. Any other
+/// look at the memory ([`crate::pool::check_memory`]: a cast, a scan, ...) drops it.
+pub(crate) static AHEAD: std::sync::Mutex<Option<(Looker, u64)>> = std::sync::Mutex::new(None);
+
+/// Who looked at the memory left: the process id and the call's `threads=`.
+type Looker = (u32, Option<usize>);
 
 /// AOV name and its array: the AOV's buffer, `(H, W)` or `(H, W, C)` as the render
 /// filled it.

@@ -63,6 +63,10 @@ fn pool(threads: Option<usize>) -> PyResult<Arc<rayon::ThreadPool>> {
 /// threads would take address space the package never uses), and the pool's threads have
 /// made their reservations already (see [`pool`]).
 pub(crate) fn check_memory(threads: Option<usize>, what: &str, bytes: u64) -> PyResult<()> {
+    // What this call allocates is not in the views' allowance.
+    *crate::arrays::AHEAD
+        .lock()
+        .unwrap_or_else(|e| e.into_inner()) = None;
     on_pool(threads, || cylaov::mem::check_memory(what, bytes))?.map_err(memory_error)
 }
 

@@ -257,3 +257,12 @@ def test_bad_keys_of_scenes_in_memory_are_named_by_key(dataset, tmp_path):
     assert "input['ok']" not in msg and "cylaov-scenes-" not in msg, msg
     assert "rename the keys" in msg and "scene files" not in msg, msg
     assert not (tmp_path / "out").exists()
+    # Two views with one key name both scenes, in parentheses, by key too.
+    two = json.loads(scene.to_json())
+    two["cameras"] = [two.pop("camera")] * 2
+    with pytest.raises(ValueError) as e:
+        cylaov.write_shards({"s": cylaov.Scene.from_dict(two), "s_c01": scene},
+                            tmp_path / "out", shard_size=SIZE)
+    msg = str(e.value)
+    assert "(input['s'])" in msg and "(input['s_c01'])" in msg, msg
+    assert "cylaov-scenes-" not in msg, msg

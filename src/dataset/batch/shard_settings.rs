@@ -7,8 +7,9 @@
 //! settings lock, and a run moves each finished tar into place, and merges the index, only
 //! under that lock after checking the record is still its own ([`still_held`]): a run whose
 //! dataset another replaced meanwhile stops before its next tar lands, so two runs with
-//! different settings never interleave their tars, and tars left by a run with another
-//! shard size cannot sit beside an index that does not list them.
+//! different settings never interleave their tars or failures files, and the recorded
+//! tars of a dataset with another shard size cannot sit beside an index that does not list
+//! them.
 
 use super::lock::{ShardLock, lock_named};
 use crate::output::store::atomic::atomic_write_bytes;

@@ -386,17 +386,17 @@ pub fn shard_count(input: &Path, shard_size: usize) -> Result<usize> {
 }
 
 /// The one AOV set of the dataset: `--aov`, else the scenes' own when all agree; in
-/// [`Aov::ALL`]'s order, without repeats, so the order they are given in changes neither
+/// the arrays' order ([`array_aovs`]), without repeats, so the order they are given in changes neither
 /// the settings nor a byte of the tars.
 fn dataset_aovs(
     opts: &BatchOptions,
     views: &[ViewSource],
     cameras: &[Result<super::FrameCamera, String>],
 ) -> Result<Vec<Aov>> {
+    // The arrays' order (depth, normal, then the rest in `Aov::ALL`'s), less those not asked.
     let canonical = |aovs: &[Aov]| -> Vec<Aov> {
-        Aov::ALL
-            .iter()
-            .copied()
+        array_aovs(aovs)
+            .into_iter()
             .filter(|a| aovs.contains(a))
             .collect()
     };
@@ -1108,7 +1108,11 @@ fn write_planned(
             summary.failures.extend(car.failures);
         }
     }
-    write_failures(&summary.failures_path, &summary.failures)?;
+    {
+        // As a tar lands: only while the folder still records this run's dataset.
+        let _held = shard_settings::still_held(plan.out, &plan.root, plan.settings())?;
+        write_failures(&summary.failures_path, &summary.failures)?;
+    }
     summary.problems = driven.problems;
     summary.verified = driven.verified;
     summary.index_written = plan.merge_index()?;
