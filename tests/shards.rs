@@ -507,6 +507,13 @@ fn one_folder_holds_one_dataset() {
         ["shard-000000.tar", "shard-000001.tar", "shard-000002.tar"]
     );
     assert!(!out.join("shard-000003.json").exists());
+    // With the settings the folder records, --force resumes: an array's tasks, each run
+    // with --force, never remove each other's tars.
+    let again = batch_wds(&data, &out, &["--shard-size", "4", "--force"]);
+    let said = String::from_utf8_lossy(&again.stdout).into_owned();
+    must(again);
+    assert!(said.contains("0 tars written, 3 skipped"), "{said}");
+    assert_eq!(shard_files(&out), after);
     // Two runs with different shard sizes at once into a new folder: one is refused or
     // both agree on what is there; never tars of both sizes.
     let both = dir.path().join("both");
