@@ -66,17 +66,12 @@ fn _scan<'py>(
         },
     };
     opts.validate().map_err(PyValueError::new_err)?;
-    // The library gathers the points of every azimuth step, then appends them into one
-    // scan (its columns growing to twice the points at most), which the arrays copy: about
-    // three copies of the points at the peak, with every beam giving every return. A scan
-    // that cannot fit raises `MemoryError` here, not an abort in the library.
-    let points = (opts.sensor.beams() as u64)
-        .saturating_mul(u64::from(opts.sensor.steps_per_rotation))
-        .saturating_mul(u64::from(returns));
-    let bytes = points
-        .saturating_mul(3 * POINT_BYTES)
-        .saturating_add(u64::from(opts.sensor.steps_per_rotation) * STEP_BYTES);
-    crate::pool::check_memory(threads, &format!("a scan of up to {points} points"), bytes)?;
+    // A scan that cannot fit raises `MemoryError` here, not an abort in the library.
+    crate::pool::check_memory(
+        threads,
+        &format!("a scan of up to {} points", opts.most_points()),
+        opts.memory(),
+    )?;
     let sc = &scene.get().scene;
     let points = run_stoppable(py, threads, |stop| scan::scan_until(sc, &opts, stop))?
         .map_err(PyValueError::new_err)?
@@ -99,14 +94,6 @@ fn _scan<'py>(
     }
     Ok(out)
 }
-
-/// Bytes a point takes in the columns of a scan: nine float64, five uint32 and a normal of
-/// three float32.
-const POINT_BYTES: u64 = 9 * 8 + 5 * 4 + 3 * 4;
-
-/// Bytes an azimuth step's own scan takes besides its points: fifteen columns, each a
-/// vector and its allocation.
-const STEP_BYTES: u64 = 15 * (24 + 32);
 
 /// `returns=`: 1..=15 returns a beam, as the library bounds it.
 fn returns_arg(obj: &Bound<'_, PyAny>) -> PyResult<u32> {

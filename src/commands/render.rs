@@ -12,13 +12,12 @@ use crate::output::format::depth_png::OutOfRange;
 use crate::output::format::exr::{Compression, ExrLayout};
 use crate::output::format::ply::{PLY_AOVS, encode, hits};
 use crate::output::pipeline::view::{DepthOutOfRange, DepthPngPlan, FileSink, Member, ViewPlan};
-use crate::output::store::atomic::{NewDirs, Staged, stage};
+use crate::output::store::atomic::{NewDirs, Staged, stage_bytes};
 use crate::output::store::targets::{check_output_dir, check_outputs};
 use crate::render::RenderOptions;
 use crate::scene::camera::Camera;
 use crate::scene::{self, Aov};
 use anyhow::{Context, Result, bail};
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -238,7 +237,7 @@ fn stage_ply(args: &RenderArgs, scene: &scene::Scene, path: &Path) -> Result<Sta
         args.camera
     );
     let bytes = encode(&points, &comment);
-    stage(path, |f| f.write_all(&bytes)).with_context(|| format!("writing {}", path.display()))
+    stage_bytes(path, &bytes).with_context(|| format!("writing {}", path.display()))
 }
 
 /// The output's parent folder and the preview folder, made now and removed again unless

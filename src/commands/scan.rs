@@ -1,14 +1,13 @@
 //! `cylaov scan`: a scene, a sensor (a preset or a JSON table) and its pose or trajectory
 //! → one rotation's points as LAS, PLY or `.npz` (see [`crate::scan`]).
 
-use crate::output::store::atomic::{NewDirs, stage};
+use crate::output::store::atomic::{NewDirs, stage_bytes};
 
 use crate::output::pipeline::scan_files::ScanFormat;
 use crate::output::store::targets::check_outputs;
 use crate::scan::{Motion, Noise, Pose, ScanOptions, Sensor, Trajectory};
 use crate::scene;
 use anyhow::{Context, Result, anyhow};
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 /// Everything `scan` needs from the command line.
@@ -93,6 +92,10 @@ pub fn run(args: &ScanArgs) -> Result<String> {
     opts.validate()
         .map_err(|e| anyhow!("--{}", e.replace('_', "-")))?;
     let scene = scene::load(&args.scene).with_context(|| format!("{}", args.scene.display()))?;
+    crate::mem::check_memory(
+        &format!("a scan of up to {} points", opts.most_points()),
+        opts.memory(),
+    )?;
     let points = crate::scan::scan(&scene, &opts).map_err(|e| anyhow!(e))?;
     let comment = format!(
         "cylaov {} scan of {} by {}",
@@ -106,7 +109,7 @@ pub fn run(args: &ScanArgs) -> Result<String> {
     let mut dirs = NewDirs::default();
     dirs.create_parent(&args.out)
         .with_context(|| format!("-o {}", args.out.display()))?;
-    stage(&args.out, |f| f.write_all(&bytes))
+    stage_bytes(&args.out, &bytes)
         .and_then(|s| s.commit())
         .with_context(|| format!("writing {}", args.out.display()))?;
     dirs.keep();

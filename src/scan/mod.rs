@@ -20,8 +20,8 @@
 //! each further return continues from the last one's surface point through
 //! [`RayHit::spawn`] (pbrt-v4's offset past the point's error bound, on the side the beam
 //! leaves by), so it never re-hits the surface it left and never skips the next wall: a
-//! closed cylinder crossed gives 2 returns (in, out), an open tube seen through its open
-//! end 2 as well (its inside wall, then the outside as the beam leaves), and several
+//! closed cylinder crossed gives 2 returns (in, out), an open tube entered through its
+//! open end 1 (its inside wall: the beam leaves through that same wall), and several
 //! surfaces in line give one return each. Every continued ray walks the one BVH
 //! ([`AnyOrigin`]), never a loop over the cylinders. Range is the distance along the beam
 //! from the sensor's origin.
@@ -31,11 +31,12 @@
 //! Each return `k` of beam (ring `b`, step `s`) draws from its own SplitMix64 stream,
 //! [`SplitMix64::for_item`]`(seed, (s·beams + b)·16 + k)`: first the dropout (dropped
 //! when a uniform draw is below `dropout`), then a standard normal (Marsaglia's polar
-//! method) times `range_sigma` added to the range along the beam (clamped at 0). So a
-//! point's noise depends only on (seed, beam, step, return), not on threads or order.
+//! method) times `range_sigma` added to the range along the beam. So a point's noise
+//! depends only on (seed, beam, step, return), not on threads or order. A noisy range
+//! outside `[min_range, max_range]` is dropped too: the sensor reports what it measures.
 //! `x, y, z` follow the noisy range; `range_exact` keeps the noiseless one. A beam's
-//! surviving returns are numbered again from 1 (`return_index`), `num_returns` counting
-//! them: what the sensor would report.
+//! surviving returns are sorted by their noisy ranges and numbered again from 1
+//! (`return_index`), `num_returns` counting them: what the sensor would report.
 
 pub mod pose;
 pub mod sensor;
@@ -135,7 +136,33 @@ impl ScanOptions {
         }
         Ok(())
     }
+
+    /// The most points a scan can give: every beam of every step with every return.
+    pub fn most_points(&self) -> u64 {
+        (self.sensor.beams() as u64)
+            .saturating_mul(u64::from(self.sensor.steps_per_rotation))
+            .saturating_mul(u64::from(self.returns))
+    }
+
+    /// The most memory a scan holds at its peak, for its caller to check before it starts
+    /// (the scan allocates as it goes and assumes that check made): each step's own scan,
+    /// then their points appended into one (its columns growing to twice the points at
+    /// most), which the caller copies once (into a point file's bytes, no more than
+    /// [`POINT_BYTES`] a point, or into arrays). Three copies of [`Self::most_points`].
+    pub fn memory(&self) -> u64 {
+        self.most_points()
+            .saturating_mul(3 * POINT_BYTES)
+            .saturating_add(u64::from(self.sensor.steps_per_rotation) * STEP_BYTES)
+    }
 }
+
+/// Bytes a point takes in a [`Scan`]'s columns: eight float64, six uint32 and a normal of
+/// three float32.
+pub const POINT_BYTES: u64 = 8 * 8 + 6 * 4 + 3 * 4;
+
+/// Bytes an azimuth step's own [`Scan`] takes besides its points: fifteen columns, each a
+/// vector and its allocation.
+const STEP_BYTES: u64 = 15 * (24 + 32);
 
 /// The points of a scan, one entry per point in every column, ordered by azimuth step,
 /// then ring, then return.
@@ -300,7 +327,7 @@ fn step(scene: &Scene, walker: &AnyOrigin, opts: &ScanOptions, s: u32, out: &mut
     let mut kept: Vec<(f64, Return)> = Vec::with_capacity(opts.returns as usize);
     for ring in 0..sensor.beams() {
         let elevation = sensor.elevations_deg[ring];
-        let azimuth = (head + sensor.azimuth_offsets_deg[ring]).rem_euclid(360.0);
+        let azimuth = wrap_degrees(head + sensor.azimuth_offsets_deg[ring]);
         // The rotation keeps the unit length to a few ulp; normalised again so `t` is a
         // distance to the last bit the kernels assume.
         let dir = (pose.rotation * beam_dir(elevation, azimuth)).normalize();
@@ -312,10 +339,14 @@ fn step(scene: &Scene, walker: &AnyOrigin, opts: &ScanOptions, s: u32, out: &mut
             let mut rng = SplitMix64::for_item(opts.noise.seed, beam * 16 + k as u64);
             let dropped = rng.unit() < opts.noise.dropout;
             let g = standard_normal(&mut rng);
-            if !dropped {
-                kept.push(((r.range + opts.noise.range_sigma * g).max(0.0), *r));
+            let range = r.range + opts.noise.range_sigma * g;
+            // The sensor reports what it measures: a noisy range outside its window is
+            // no return, and returns are numbered in the order of their measured ranges.
+            if !dropped && (sensor.min_range..=sensor.max_range).contains(&range) {
+                kept.push((range, *r));
             }
         }
+        kept.sort_by(|a, b| a.0.total_cmp(&b.0));
         for (i, &(range, r)) in kept.iter().enumerate() {
             let p = pose.position + dir * range;
             let cyl = &scene.cylinders[r.hit.index as usize];
@@ -336,6 +367,13 @@ fn step(scene: &Scene, walker: &AnyOrigin, opts: &ScanOptions, s: u32, out: &mut
             out.normal.push(r.hit.normal.as_vec3().to_array());
         }
     }
+}
+
+/// `degrees` wrapped into `[0, 360)`: `rem_euclid` of a tiny negative angle rounds up to
+/// 360 itself (`-1e-20 + 360`), which is 0.
+fn wrap_degrees(degrees: f64) -> f64 {
+    let a = degrees.rem_euclid(360.0);
+    if a < 360.0 { a } else { 0.0 }
 }
 
 /// Up to `returns` surfaces along the beam `origin + t·dir` (unit `dir`) with range in
@@ -362,7 +400,11 @@ fn trace_beam(
         let Some(hit) = walker.nearest(from, dir, t_min, t_max) else {
             break;
         };
-        let range = along + hit.t;
+        let range = if found.is_empty() {
+            hit.t
+        } else {
+            along_beam(origin, dir, from, &hit).unwrap_or(along + hit.t)
+        };
         if range > sensor.max_range {
             break;
         }
@@ -370,6 +412,28 @@ fn trace_beam(
         from = hit.spawn(dir);
         t_min = 0.0;
     }
+}
+
+/// The range at which the beam `origin + s·dir` itself meets the surface `hit` found by
+/// a continued ray from `from`, `None` where that cannot be trusted.
+///
+/// Why: `from` lies off the beam's line by the spawn offset (the previous hit's error
+/// bound, tens of ulps of its coordinates), so `along + hit.t` is the range of a parallel
+/// line, off by that offset over the cosine of the incidence: 1e-9 relative at a scene
+/// 1e6 from the world origin. The beam meets the plane tangent at `hit.position` (on the
+/// surface within a few ulps) at `s = (p - origin)·n / (dir·n)`; the plane departs from
+/// the surface by the offset squared over the radius between the two lines, far below
+/// one ulp. Kept only where it moves the range by no more than the offset can explain
+/// (`d / |dir·n|` for the lines' distance `d`, with 2× and an ulp of slack): a tangent
+/// beam (`dir·n` near 0) keeps the parallel line's range.
+fn along_beam(origin: DVec3, dir: DVec3, from: DVec3, hit: &RayHit) -> Option<f64> {
+    let along = (from - origin).dot(dir);
+    let parallel = along + hit.t;
+    let cos = dir.dot(hit.normal);
+    let s = (hit.position - origin).dot(hit.normal) / cos;
+    let apart = ((from - origin) - along * dir).length();
+    let explained = 2.0 * apart / cos.abs() + 4.0 * f64::EPSILON * parallel.abs();
+    (s.is_finite() && (s - parallel).abs() <= explained).then_some(s)
 }
 
 /// A standard normal draw by Marsaglia's polar method (only `+ - * /`, `ln` and `sqrt`).
@@ -381,6 +445,19 @@ fn standard_normal(rng: &mut SplitMix64) -> f64 {
         if s > 0.0 && s < 1.0 {
             return u * (-2.0 * s.ln() / s).sqrt();
         }
+    }
+}
+
+#[cfg(test)]
+mod wrap_tests {
+    use super::wrap_degrees;
+
+    #[test]
+    fn azimuths_wrap_into_0_360() {
+        assert_eq!(wrap_degrees(-1e-20), 0.0);
+        assert_eq!(wrap_degrees(-90.0), 270.0);
+        assert_eq!(wrap_degrees(360.0), 0.0);
+        assert_eq!(wrap_degrees(359.5 + 180.0), 179.5);
     }
 }
 

@@ -154,13 +154,26 @@ impl Sensor {
     }
 }
 
+/// The error of `field`, long numbers in it cut ([`crate::scene::strict::shorten`]: a
+/// resolution of 1e-300 prints 300 digits).
 fn bad(field: impl fmt::Display, msg: impl fmt::Display) -> SensorError {
-    SensorError(format!("sensor.{field}: {msg}"))
+    SensorError(crate::scene::strict::shorten(&format!(
+        "sensor.{field}: {msg}"
+    )))
 }
 
 impl SensorFile {
     /// Check every field and sort the beams into rings.
     pub fn validate(self) -> Result<Sensor, SensorError> {
+        // The name goes into the summary line and the file headers as it is.
+        if let Some(name) = &self.name
+            && name.chars().any(char::is_control)
+        {
+            return Err(bad(
+                "name",
+                format!("must not hold control characters, got {name:?}"),
+            ));
+        }
         let n = self.elevations_deg.len();
         if n == 0 || n > MAX_BEAMS {
             return Err(bad(
@@ -236,6 +249,19 @@ impl SensorFile {
                 format!("{} must be finite and > 0", self.rotation_hz),
             ));
         }
+        // Each step's time is `s / (steps · hz)`: the period must be finite (not a
+        // subnormal rate's infinity) and a step's time a normal number (not zero).
+        let step = 1.0 / (f64::from(steps) * self.rotation_hz);
+        if !(step.is_normal() && (1.0 / self.rotation_hz).is_finite()) {
+            return Err(bad(
+                "rotation_hz",
+                format!(
+                    "{:e} gives a step time of {step:e} s ({steps} steps a rotation): must \
+                     give a finite, non-zero time between steps",
+                    self.rotation_hz
+                ),
+            ));
+        }
         if !(self.min_range >= 0.0 && self.min_range.is_finite()) {
             return Err(bad(
                 "min_range",
@@ -295,6 +321,22 @@ mod tests {
         assert_eq!(e.0, "sensor.elevations_deg[3]: 95 is outside -90..90");
         let e = Sensor::from_json(r#"{"elevations_deg": [0], "rotation_hz": 10}"#).unwrap_err();
         assert!(e.0.starts_with("sensor: missing field"), "{e}");
+        let e = Sensor::from_json(
+            r#"{"name": "x\u001b[31m", "elevations_deg": [0], "points_per_rotation": 10,
+                "rotation_hz": 10, "min_range": 0, "max_range": 10}"#,
+        )
+        .unwrap_err();
+        assert_eq!(
+            e.0,
+            r#"sensor.name: must not hold control characters, got "x\u{1b}[31m""#
+        );
+        // 1e-300 printed whole is 300 digits; the message keeps 28 of them.
+        let e = Sensor::from_json(
+            r#"{"elevations_deg": [0], "azimuth_resolution_deg": 1e-300,
+                "rotation_hz": 10, "min_range": 0, "max_range": 10}"#,
+        )
+        .unwrap_err();
+        assert!(e.0.len() < 200 && e.0.contains("more)"), "{e}");
         let e = Sensor::from_json(r#"{"elevations_deg": ["a"]}"#).unwrap_err();
         assert!(
             e.0.starts_with("sensor.elevations_deg[0]: invalid type"),

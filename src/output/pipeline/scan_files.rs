@@ -122,6 +122,30 @@ const LAS_EXTRA: [(&str, u8, usize, &str); 10] = [
     ("normal_z", 9, 4, "world unit normal z"),
 ];
 
+/// Whether every value of `v` (one axis of the points) fits LAS's 32-bit integer steps
+/// under `t` (the `las` crate rounds `(value - offset) / scale` and refuses what falls
+/// outside `i32`): at 0.1 mm steps about 429 km in all, centred on the offset.
+fn check_las_span(axis: &str, v: &[f64], t: &las::Transform) -> Result<(), String> {
+    let steps = |x: f64| ((x - t.offset) / t.scale).round();
+    let fits = |x: f64| (f64::from(i32::MIN)..=f64::from(i32::MAX)).contains(&steps(x));
+    let (lo, hi) = v
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+            (a.min(x), b.max(x))
+        });
+    if v.is_empty() || (fits(lo) && fits(hi)) {
+        return Ok(());
+    }
+    let most = (f64::from(i32::MAX) - f64::from(i32::MIN)) * t.scale;
+    Err(format!(
+        "LAS: the points span {lo} to {hi} along {axis} ({} world units); LAS stores a \
+         coordinate as a 32-bit count of {} steps, {most:.0} world units at most: write \
+         .npz or .ply instead",
+        hi - lo,
+        t.scale
+    ))
+}
+
 /// The beam's elevation as the `las` crate's scan angle, which it stores as
 /// `(angle / 0.006) as i16`, truncating toward zero: half a step (0.003 degrees) added
 /// away from zero first makes that the nearest step (a truncated -13 degrees would read
@@ -182,11 +206,21 @@ pub fn las(scan: &Scan) -> Result<Vec<u8>, String> {
         scale: 1e-4,
         offset: centre(v),
     };
-    builder.transforms = Vector {
+    let transforms = Vector {
         x: t(&scan.x),
         y: t(&scan.y),
         z: t(&scan.z),
     };
+    // Checked before the writer exists: a point it cannot store is an error of
+    // `write_point`, and the writer dropped unclosed after one panics.
+    for (axis, v, t) in [
+        ("x", &scan.x, &transforms.x),
+        ("y", &scan.y, &transforms.y),
+        ("z", &scan.z, &transforms.z),
+    ] {
+        check_las_span(axis, v, t)?;
+    }
+    builder.transforms = transforms;
     let header = builder.into_header().map_err(e)?;
     let mut w = Writer::new(std::io::Cursor::new(Vec::new()), header).map_err(e)?;
     for i in 0..scan.len() {
@@ -228,6 +262,43 @@ pub fn las(scan: &Scan) -> Result<Vec<u8>, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A scan of `xs` along x (every other column zero or one), as the scan module fills it.
+    fn points_along_x(xs: &[f64]) -> Scan {
+        let n = xs.len();
+        Scan {
+            x: xs.to_vec(),
+            y: vec![0.0; n],
+            z: vec![0.0; n],
+            range: vec![1.0; n],
+            range_exact: vec![1.0; n],
+            ring: vec![0; n],
+            azimuth: vec![0.0; n],
+            elevation: vec![0.0; n],
+            time: vec![0.0; n],
+            return_index: vec![1; n],
+            num_returns: vec![1; n],
+            shape_id: vec![1; n],
+            part: vec![1; n],
+            label: vec![0; n],
+            normal: vec![[1.0, 0.0, 0.0]; n],
+        }
+    }
+
+    /// 0.1 mm steps in an i32 span 429 496.7295 units: points 400 km apart are written,
+    /// 600 km apart are refused with the axis and the span named (the `las` writer would
+    /// panic on its drop after refusing the point).
+    #[test]
+    fn las_refuses_points_beyond_its_integer_span() {
+        let bytes = las(&points_along_x(&[-200_000.0, 200_000.0])).expect("400 km fits");
+        assert!(bytes.len() > 375, "{}", bytes.len());
+        let e = las(&points_along_x(&[-300_000.0, 300_000.0])).unwrap_err();
+        assert!(
+            e.contains("-300000 to 300000 along x (600000 world units)") && e.contains(".npz"),
+            "{e}"
+        );
+        assert!(las(&points_along_x(&[])).is_ok());
+    }
 
     #[test]
     fn extra_byte_names_fit_their_fields() {

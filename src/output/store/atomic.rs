@@ -216,6 +216,19 @@ pub fn stage(path: &Path, fill: impl FnOnce(&mut File) -> io::Result<()>) -> io:
     stage_at(path, dir, &temp_prefix(path), fill)
 }
 
+/// [`stage`] with `bytes` as the content, written in pieces of at most [`PIECE`] bytes: a
+/// signal's clean-up removes the temporary file, and its `unlink` waits for a write in
+/// progress to that file, so one write of a whole large file would hold Ctrl-C up for as
+/// long as the disk takes (0.4–1.8 s for 420 MB); a 4 MiB piece takes milliseconds.
+pub fn stage_bytes(path: &Path, bytes: &[u8]) -> io::Result<Staged> {
+    stage(path, |f| {
+        bytes.chunks(PIECE).try_for_each(|piece| f.write_all(piece))
+    })
+}
+
+/// The most [`stage_bytes`] writes at once.
+pub const PIECE: usize = 4 << 20;
+
 /// [`stage`] with the temporary file in `work` (a folder of cylaov's own on the same file
 /// system, such as a batch shard's partial folder, which goes as a whole) named
 /// `PREFIX` + random characters + `.tmp`.
