@@ -52,6 +52,8 @@ out = {"hits": int(len(i)), "pixels": W * H, "model": cam["model"],
        "depth_kind": cam["depth_kind"],
        "header_model": str(hdr.get("cylaov:camera_model")),
        "header_depth_kind": str(hdr.get("cylaov:depth_kind")),
+       "header_depth_meaning": str(hdr.get("cylaov:channel:depth")),
+       "file_depth_meaning": [a["meaning"] for a in cam["aovs"] if a["name"] == "depth"][0],
        "has_fl_x": "cylaov:fl_x" in hdr, "has_ndc": "worldToNDC" in hdr}
 z, d = depth[j, i], dist[j, i]
 r = np.linalg.norm(pc, axis=1)
@@ -137,6 +139,22 @@ fn common_checks(exr: &Path, v: &Value, model: &str, depth_kind: &str, min_hits:
             .starts_with(&format!("{depth_kind}: ")),
         "{v}"
     );
+    // The depth channel's meaning names the same rule, in the header and the file.
+    let meaning = format!("{depth_kind} depth: ");
+    assert!(
+        v["header_depth_meaning"]
+            .as_str()
+            .unwrap()
+            .starts_with(&format!("depth: {meaning}")),
+        "{v}"
+    );
+    assert!(
+        v["file_depth_meaning"]
+            .as_str()
+            .unwrap()
+            .starts_with(&meaning),
+        "{v}"
+    );
     assert_eq!(v["has_fl_x"], false);
     assert_eq!(v["has_ndc"], false);
     assert!(!exr.with_extension("open3d.json").exists());
@@ -162,6 +180,41 @@ fn opencv_positions_project_onto_their_pixel_centres() {
     assert_eq!(v["euclid_pixels"], 0);
     assert!(num(&v, "planar_rel") < 1e-6, "{v}");
     assert_eq!(v["planar_below_distance"], true);
+}
+
+/// A strong distortion that rises to r_d = 3.04 at r = 1.367 and folds beyond, while the
+/// image corners need r_d = 1.364 only: Newton from the undistorted corner lands past the
+/// fold, on a mirrored sheet whose ray points 60° the other way (and sees cylinder 2
+/// there). Every pixel's ray is the one on the axis's sheet: each hit projects back onto
+/// its own pixel by `cv2.projectPoints`.
+#[test]
+fn opencv_rays_stay_on_the_axis_side_of_a_fold() {
+    let Some(py) = common::venv_python() else {
+        return;
+    };
+    let dir = common::fresh_dir("camera-models", "opencv-fold");
+    let scene = r#"{"camera": {"origin": [0, 0, 0], "target": [1, 0, 0], "up": [0, 0, 1],
+        "model": "opencv", "fx": 21.480559426740786, "fy": 21.480559426740786,
+        "cx": 23.5, "cy": 17.5, "k1": 0.42541429036981393, "k2": 0.919193210524019,
+        "k3": -0.4259741016336118, "width": 48, "height": 36},
+      "cylinders": [
+        {"p0": [5, 3.385, 2.22], "p1": [5, 3.385, 2.82], "radius": 0.3, "id": 1},
+        {"p0": [5, -6.88, -5.96], "p1": [5, -6.88, -4.36], "radius": 0.8, "id": 2}]}"#;
+    let path = dir.path().join("fold.json");
+    std::fs::write(&path, scene).unwrap();
+    let exr = dir.path().join("fold.exr");
+    common::ok(&[
+        "render",
+        path.to_str().unwrap(),
+        "-o",
+        exr.to_str().unwrap(),
+        "--aov",
+        "depth,distance,position,normal,shape_id,part",
+    ]);
+    let v = check(&py, &exr);
+    assert!(num(&v, "hits") >= 20.0, "{v}");
+    assert_eq!(v["cv2_points"], v["hits"]);
+    assert!(num(&v, "reproj_max_px") < 1e-3, "{v}");
 }
 
 #[test]
@@ -272,6 +325,16 @@ fn model_fields_are_checked_by_name() {
         (
             serde_json::json!({"model": "orthographic", "ortho_width": 0}),
             "camera.ortho_width: must be finite, > 0",
+        ),
+        // A subnormal width halves to zero; one under the spacing of coordinates at the
+        // origin (4, whose ulp is 8.9e-16) moves no pixel's ray either.
+        (
+            serde_json::json!({"model": "orthographic", "ortho_width": 5e-324}),
+            "camera.ortho_width: is too small: 5e-324 over 64x48 pixels is a pixel 0 wide",
+        ),
+        (
+            serde_json::json!({"model": "orthographic", "ortho_width": 1e-13}),
+            "camera.ortho_width: is too small: 1e-13 over 64x48 pixels is a pixel 1.5625e-15 wide, not more than the spacing of coordinates at the camera's origin (3.552713678800501e-15)",
         ),
         (
             serde_json::json!({"model": "equirectangular", "p1": 0}),

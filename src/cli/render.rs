@@ -34,7 +34,8 @@ pub struct RenderCli {
     /// Which camera of a `"cameras"` scene to render (0-based, file order).
     #[arg(long, value_name = "K", default_value_t = 0)]
     camera: usize,
-    /// Also write OUT.depth.png: 16-bit round(planar depth × --depth-scale), 0 = no depth.
+    /// Also write OUT.depth.png: 16-bit round(depth × --depth-scale), 0 = no depth (depth
+    /// is planar, except where the camera model's depth_kind says Euclidean).
     #[arg(long)]
     depth_png: bool,
     /// Depth PNG value per world unit (with --depth-png).

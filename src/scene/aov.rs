@@ -5,6 +5,7 @@
 //! Adding an AOV means one [`Aov`] variant, one row of [`AOV_TABLE`], its computation in
 //! the tracer and its test.
 
+use crate::scene::camera::Projection;
 use serde::{Deserialize, Serialize};
 
 crate::choice_enum! {
@@ -177,12 +178,25 @@ impl AovSpec {
         }
     }
 
-    /// The `cylaov:channel:NAME` header text: channels, meaning and miss value.
-    pub fn header_text(&self) -> String {
+    /// The meaning under `projection`: the table's, except `depth` under a camera whose
+    /// depth is not planar everywhere (an equirectangular or fisheye camera), which says
+    /// what it holds there.
+    pub fn meaning_under(&self, projection: &Projection) -> String {
+        match (self.aov, projection.depth_kind()) {
+            (Aov::Depth, kind) if kind != "planar" => {
+                format!("{kind} depth: {}, world units", projection.depth_meaning())
+            }
+            _ => self.meaning.to_string(),
+        }
+    }
+
+    /// The `cylaov:channel:NAME` header text: channels, meaning under `projection`
+    /// ([`Self::meaning_under`]) and miss value.
+    pub fn header_text_under(&self, projection: &Projection) -> String {
         format!(
             "{}: {}; miss = {}",
             self.channels.join(", "),
-            self.meaning,
+            self.meaning_under(projection),
             self.miss
         )
     }
@@ -394,14 +408,34 @@ mod tests {
     #[test]
     fn header_text_is_the_files_text() {
         assert_eq!(
-            Aov::Normal.spec().header_text(),
+            Aov::Normal
+                .spec()
+                .header_text_under(&Projection::Perspective),
             "normal.X, normal.Y, normal.Z: world-space unit outward normal, not flipped \
              toward the camera; miss = [0,0,0]"
         );
         assert_eq!(
-            Aov::Depth.spec().header_text(),
+            Aov::Depth
+                .spec()
+                .header_text_under(&Projection::Perspective),
             "depth: planar depth: camera-space z of the hit (distance * cos theta), world \
              units; miss = 0"
+        );
+        // An equirectangular camera's depth is the distance: its header says so.
+        let equirect = Projection::Lens(crate::scene::camera::lens::Lens::Equirectangular {
+            width: 8,
+            height: 4,
+        });
+        assert_eq!(
+            Aov::Depth.spec().header_text_under(&equirect),
+            "depth: euclidean depth: the hit's Euclidean distance from the camera centre (as \
+             distance), world units; miss = 0"
+        );
+        assert_eq!(
+            Aov::Normal.spec().header_text_under(&equirect),
+            Aov::Normal
+                .spec()
+                .header_text_under(&Projection::Perspective)
         );
     }
 

@@ -959,6 +959,34 @@ impl CameraFile {
                 ),
             ));
         }
+        // An orthographic pixel is a step of the ray origin across the view: below the
+        // spacing of f64 values at the camera's origin (or a subnormal half width, which
+        // the camera file's `ortho_width` would not give back), every pixel casts the
+        // same ray.
+        if let Projection::Orthographic {
+            half_width,
+            half_height,
+        } = projection
+        {
+            let step =
+                (2.0 * half_width / self.width as f64).min(2.0 * half_height / self.height as f64);
+            let spacing = 4.0 * f64::EPSILON * origin.abs().max_element();
+            if !(half_height.is_normal() && step > spacing) {
+                return Err(err(
+                    format!("{at}.ortho_width"),
+                    format!(
+                        "is too small: {} over {}x{} pixels is a pixel {} wide, not more \
+                         than the spacing of coordinates at the camera's origin ({}): \
+                         every pixel would cast the same ray",
+                        num(self.ortho_width.unwrap_or(2.0 * half_width)),
+                        self.width,
+                        self.height,
+                        num(step),
+                        num(spacing)
+                    ),
+                ));
+            }
+        }
         Ok(spec)
     }
 }

@@ -28,7 +28,7 @@ pub fn camera_json_path(exr: &Path) -> PathBuf {
 struct AovMeaning {
     name: &'static str,
     channels: &'static [&'static str],
-    meaning: &'static str,
+    meaning: String,
     miss: &'static str,
 }
 
@@ -143,7 +143,7 @@ pub fn camera_json(cam: &Camera, aovs: &[Aov]) -> String {
                 AovMeaning {
                     name: a.name(),
                     channels: crate::output::format::exr::channel_names(a),
-                    meaning: spec.meaning,
+                    meaning: spec.meaning_under(&cam.projection),
                     miss: spec.miss,
                 }
             })

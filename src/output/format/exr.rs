@@ -168,7 +168,7 @@ pub fn exr_attributes(cam: &Camera, aovs: &[Aov]) -> Vec<ExrAttr> {
     for &a in aovs {
         attrs.push(ExrAttr::Text(
             format!("cylaov:channel:{}", a.name()),
-            a.spec().header_text(),
+            a.spec().header_text_under(&cam.projection),
         ));
     }
     attrs

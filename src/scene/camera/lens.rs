@@ -93,6 +93,69 @@ fn distort(d: &[f64; 5], a: f64, b: f64) -> (DVec2, [[f64; 2]; 2]) {
     (DVec2::new(x, y), [[dxda, dxdb], [dyda, dydb]])
 }
 
+/// Newton's method for the normalised point whose distortion is `goal`, from `start`:
+/// the last iterate (stopped early where the Jacobian is not positive: a fold).
+fn undistort(d: &[f64; 5], goal: DVec2, start: DVec2) -> DVec2 {
+    let mut ab = start;
+    for _ in 0..NEWTON_STEPS {
+        let (p, jac) = distort(d, ab.x, ab.y);
+        let r = p - goal;
+        let det = jac[0][0] * jac[1][1] - jac[0][1] * jac[1][0];
+        if !positive(det) {
+            break;
+        }
+        let step = DVec2::new(
+            (jac[1][1] * r.x - jac[0][1] * r.y) / det,
+            (jac[0][0] * r.y - jac[1][0] * r.x) / det,
+        );
+        ab -= step;
+        if step.length() <= 1e-16 * (1.0 + ab.length()) {
+            break;
+        }
+    }
+    ab
+}
+
+/// Whether the distortion's Jacobian at `ab` has a positive determinant (false for NaN).
+fn jacobian_positive(d: &[f64; 5], ab: DVec2) -> bool {
+    let (_, jac) = distort(d, ab.x, ab.y);
+    positive(jac[0][0] * jac[1][1] - jac[0][1] * jac[1][0])
+}
+
+/// Sub-goals a root is followed through from the axis when Newton from the undistorted
+/// point lands past the radial fold.
+const CONTINUATION_STEPS: usize = 64;
+
+/// Whether the radial distortion `ρ (1 + k1 ρ² + k2 ρ⁴ + k3 ρ⁶)` rises all the way from
+/// the axis to `ρ² = u0`: its slope `g(u) = 1 + 3 k1 u + 5 k2 u² + 7 k3 u³` (in `u = ρ²`)
+/// is positive on `[0, u0]`. `g(0) = 1`, so it suffices that `g` is positive at `u0` and
+/// at its turning points inside (the roots of `g'(u) = 3 k1 + 10 k2 u + 21 k3 u²`).
+fn radial_rising(d: &[f64; 5], u0: f64) -> bool {
+    let [k1, k2, _, _, k3] = *d;
+    let g = |u: f64| 1.0 + u * (3.0 * k1 + u * (5.0 * k2 + u * 7.0 * k3));
+    let inside = |u: f64| u > 0.0 && u < u0;
+    let turning: [Option<f64>; 2] = if k3 == 0.0 {
+        [(k2 != 0.0).then(|| -3.0 * k1 / (10.0 * k2)), None]
+    } else {
+        let disc = 100.0 * k2 * k2 - 252.0 * k1 * k3;
+        if disc < 0.0 {
+            [None, None]
+        } else {
+            let q = disc.sqrt();
+            [
+                Some((-10.0 * k2 + q) / (42.0 * k3)),
+                Some((-10.0 * k2 - q) / (42.0 * k3)),
+            ]
+        }
+    };
+    positive(g(u0))
+        && turning
+            .into_iter()
+            .flatten()
+            .filter(|&u| inside(u))
+            .all(|u| positive(g(u)))
+}
+
 /// Kannala–Brandt `θ_d(θ) = θ (1 + k1 θ² + k2 θ⁴ + k3 θ⁶ + k4 θ⁸)` and its derivative.
 fn theta_d(k: &[f64; 4], t: f64) -> (f64, f64) {
     let t2 = t * t;
@@ -186,26 +249,23 @@ impl Lens {
             } => {
                 let target = DVec2::new(i as f64, j as f64);
                 let goal = DVec2::new((target.x - cx) / fx, (target.y - cy) / fy);
-                let mut ab = goal;
-                for _ in 0..NEWTON_STEPS {
-                    let (p, jac) = distort(&dist, ab.x, ab.y);
-                    let r = p - goal;
-                    let det = jac[0][0] * jac[1][1] - jac[0][1] * jac[1][0];
-                    if !positive(det) {
-                        break;
-                    }
-                    let step = DVec2::new(
-                        (jac[1][1] * r.x - jac[0][1] * r.y) / det,
-                        (jac[0][0] * r.y - jac[1][0] * r.x) / det,
-                    );
-                    ab -= step;
-                    if step.length() <= 1e-16 * (1.0 + ab.length()) {
-                        break;
+                let mut ab = undistort(&dist, goal, goal);
+                // Newton from the undistorted point may leap past a fold onto a mirrored
+                // sheet, where the Jacobian is positive again (the radial factor and its
+                // slope both negative) and the root projects back exactly: a ray pointing
+                // the other way. Such a root lies past the radial fold; then the root is
+                // followed out from the axis instead, the goal moved there in small steps.
+                if !radial_rising(&dist, ab.length_squared()) {
+                    ab = DVec2::ZERO;
+                    for s in 1..=CONTINUATION_STEPS {
+                        let sub = goal * (s as f64 / CONTINUATION_STEPS as f64);
+                        ab = undistort(&dist, sub, ab);
+                        if !(jacobian_positive(&dist, ab) && ab.is_finite()) {
+                            break;
+                        }
                     }
                 }
-                let (_, jac) = distort(&dist, ab.x, ab.y);
-                let det = jac[0][0] * jac[1][1] - jac[0][1] * jac[1][0];
-                if !positive(det) || !ab.is_finite() {
+                if !jacobian_positive(&dist, ab) || !ab.is_finite() {
                     let field = first_nonzero(&["k1", "k2", "p1", "p2", "k3"], &dist);
                     return Err(lens_err(
                         field,

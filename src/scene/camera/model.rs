@@ -234,6 +234,20 @@ impl Projection {
         }
     }
 
+    /// What `depth` holds under this projection, in words: the `depth` AOV's meaning in
+    /// the EXR header, the camera file and a tar sample's JSON, after its
+    /// [`Self::depth_kind`].
+    pub fn depth_meaning(&self) -> &'static str {
+        match self.depth_kind() {
+            "planar" => "camera-space z of the hit (distance * cos theta)",
+            "planar_in_front" => {
+                "camera-space z of the hit for rays less than 90 degrees from forward, else \
+                 its Euclidean distance from the camera centre (as distance)"
+            }
+            _ => "the hit's Euclidean distance from the camera centre (as distance)",
+        }
+    }
+
     /// The model's parameters by their scene-file names (none for the perspective model,
     /// whose `fov_deg` is the camera's).
     pub fn named_params(&self) -> serde_json::Map<String, serde_json::Value> {

@@ -69,7 +69,7 @@ pub(super) struct SampleMeta<'a> {
     scene: &'a str,
     scene_file: String,
     camera_index: usize,
-    depth_kind: &'static str,
+    depth_kind: String,
     units: &'static str,
     miss_values: serde_json::Map<String, serde_json::Value>,
     arrays: serde_json::Map<String, serde_json::Value>,
@@ -304,7 +304,11 @@ pub(super) fn view_members_and_exr(
             .display()
             .to_string(),
         camera_index: view.camera,
-        depth_kind: "planar: camera-space z of the hit (distance * cos theta)",
+        depth_kind: format!(
+            "{}: {}",
+            scene.camera.projection.depth_kind(),
+            scene.camera.projection.depth_meaning()
+        ),
         units: "world units of the scene file",
         miss_values: miss,
         arrays: shapes,
