@@ -642,3 +642,35 @@ fn generate_draws_each_model_around_the_same_scene() {
         assert!(share > 0.05, "{model:?}: {share}");
     }
 }
+
+/// `cameras --orbit` takes its size from the scene's first camera whatever its model, and
+/// its field of view only from a pinhole: an orthographic 320×240 first camera gives
+/// 320×240 pinholes of 50°.
+#[test]
+fn a_rig_takes_the_first_cameras_size_whatever_its_model() {
+    let dir = common::fresh_dir("camera-models", "rig-size");
+    let scene = dir.path().join("ortho.json");
+    std::fs::write(
+        &scene,
+        r#"{"camera": {"origin": [0, -4, 0], "target": [0, 0, 0], "up": [0, 0, 1],
+            "model": "orthographic", "ortho_width": 3, "width": 320, "height": 240},
+          "cylinders": [{"p0": [0, 0, -1], "p1": [0, 0, 1], "radius": 0.5}]}"#,
+    )
+    .unwrap();
+    let out = dir.path().join("rig.json");
+    common::ok(&[
+        "cameras",
+        scene.to_str().unwrap(),
+        "--orbit",
+        "3",
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    let s = cylaov::scene::load(&out).unwrap();
+    assert_eq!(s.cameras.len(), 3);
+    for c in &s.cameras {
+        assert_eq!((c.width, c.height), (320, 240));
+        assert!(c.projection.is_pinhole());
+        assert_eq!(c.fov_deg, 50.0);
+    }
+}

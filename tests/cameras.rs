@@ -183,6 +183,36 @@ fn bad_intrinsics_are_refused_by_field() {
         k: [0.0; 4],
     };
     assert_eq!(lens.validate(4, 4).unwrap_err().field, "cx");
+    // Each value is finite, but no ray reaches the image: named by the one at fault, not
+    // by a distortion coefficient the camera does not have.
+    let opencv = |fx: f64, cx: f64| Lens::OpenCv {
+        fx,
+        fy: 30.0,
+        cx,
+        cy: 1.0,
+        dist: [0.0; 5],
+    };
+    for (lens, field, says) in [
+        (
+            opencv(30.0, 1e300),
+            "cx",
+            "the image edge lies 3.3333333333333335e298 focal lengths from the principal point (fx = 30, cx = 1e300)",
+        ),
+        (
+            opencv(1e-300, 1.0),
+            "fx",
+            "focal lengths from the principal point (fx = 1e-300, cx = 1)",
+        ),
+        (
+            opencv(1e300, 1.0),
+            "fx",
+            "must be finite, > 0 and <= 3.4028235e38 pixels, got 1e300",
+        ),
+    ] {
+        let e = lens.validate(4, 4).unwrap_err();
+        assert_eq!(e.field, field, "{}", e.message);
+        assert!(e.message.contains(says), "{}", e.message);
+    }
 }
 
 mod common;

@@ -36,7 +36,8 @@ pub struct CamerasCli {
     /// Image height; default: the scene's first camera's.
     #[arg(long)]
     height: Option<u32>,
-    /// Horizontal field of view, degrees; default: the scene's first camera's, else 50.
+    /// Horizontal field of view, degrees (the cameras are pinholes); default: the scene's
+    /// first camera's when it is a pinhole, else 50.
     #[arg(long)]
     fov: Option<f64>,
 }
@@ -67,11 +68,9 @@ pub fn run(a: CamerasCli) -> anyhow::Result<ExitCode> {
     let rig = match count {
         None => None,
         Some(n) => {
-            // Defaults from the scene's first camera, when it is a pinhole.
-            let first = cylaov::scene::load(&a.scene)
-                .ok()
-                .map(|s| s.camera)
-                .filter(|c| c.projection == cylaov::scene::camera::Projection::Perspective);
+            // Defaults from the scene's first camera: its size whatever its model, its
+            // field of view when it is a pinhole with one across x.
+            let first = cylaov::scene::load(&a.scene).ok().map(|s| s.camera);
             let distance = match a.distance.as_str() {
                 "fit" => Distance::default(),
                 d => match d.parse::<f64>() {
@@ -91,7 +90,10 @@ pub fn run(a: CamerasCli) -> anyhow::Result<ExitCode> {
                 fov_deg: a
                     .fov
                     .or(first
-                        .filter(|c| c.fov_axis == cylaov::scene::camera::FovAxis::X)
+                        .filter(|c| {
+                            c.fov_axis == cylaov::scene::camera::FovAxis::X
+                                && c.projection == cylaov::scene::camera::Projection::Perspective
+                        })
                         .map(|c| c.fov_deg))
                     .unwrap_or(50.0),
                 ..RigSpec::new(n)

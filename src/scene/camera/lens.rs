@@ -350,7 +350,7 @@ impl Lens {
                 cy,
                 dist,
             } => {
-                check_intrinsics(fx, fy, cx, cy)?;
+                check_intrinsics(fx, fy, cx, cy, width, height)?;
                 for (n, v) in ["k1", "k2", "p1", "p2", "k3"].iter().zip(dist) {
                     if !v.is_finite() {
                         return Err(lens_err(n, format!("must be finite, got {v}")));
@@ -358,7 +358,7 @@ impl Lens {
                 }
             }
             Lens::OpenCvFisheye { fx, fy, cx, cy, k } => {
-                check_intrinsics(fx, fy, cx, cy)?;
+                check_intrinsics(fx, fy, cx, cy, width, height)?;
                 for (n, v) in ["k1", "k2", "k3", "k4"].iter().zip(k) {
                     if !v.is_finite() {
                         return Err(lens_err(n, format!("must be finite, got {v}")));
@@ -418,15 +418,54 @@ impl Lens {
     }
 }
 
-fn check_intrinsics(fx: f64, fy: f64, cx: f64, cy: f64) -> Result<(), LensError> {
+/// Focal lengths finite, positive and at most `f32::MAX` pixels (as a perspective
+/// camera's: beyond, every pixel's ray is the axis to f64 precision), a finite principal
+/// point, and the image corners a finite number of focal lengths from it (their squared
+/// normalised radius finite: else the distortion's polynomial overflows, and the fault is
+/// the focal length when it is under a pixel, else the principal point).
+fn check_intrinsics(
+    fx: f64,
+    fy: f64,
+    cx: f64,
+    cy: f64,
+    width: u32,
+    height: u32,
+) -> Result<(), LensError> {
     for (n, v) in [("fx", fx), ("fy", fy)] {
-        if !(v.is_finite() && v > 0.0) {
-            return Err(lens_err(n, format!("must be finite and > 0, got {v}")));
+        if !(v.is_finite() && v > 0.0 && v <= f64::from(f32::MAX)) {
+            return Err(lens_err(
+                n,
+                format!(
+                    "must be finite, > 0 and <= {:e} pixels, got {}",
+                    f32::MAX,
+                    crate::scene::num(v)
+                ),
+            ));
         }
     }
     for (n, v) in [("cx", cx), ("cy", cy)] {
         if !v.is_finite() {
             return Err(lens_err(n, format!("must be finite, got {v}")));
+        }
+    }
+    for (f, c, side, names) in [
+        (fx, cx, width, ("fx", "cx")),
+        (fy, cy, height, ("fy", "cy")),
+    ] {
+        let reach = (c.abs() + f64::from(side)) / f;
+        if !(reach * reach).is_finite() {
+            let field = if f < 1.0 { names.0 } else { names.1 };
+            return Err(lens_err(
+                field,
+                format!(
+                    "the image edge lies {reach:e} focal lengths from the principal point \
+                     ({} = {}, {} = {}): too far for any ray",
+                    names.0,
+                    crate::scene::num(f),
+                    names.1,
+                    crate::scene::num(c)
+                ),
+            ));
         }
     }
     Ok(())
