@@ -143,6 +143,30 @@ pub struct RawArray<'a> {
     pub shape: Vec<usize>,
     /// The samples' bytes, `shape.product()` elements of the `descr`'s size.
     pub data: &'a [u8],
+    /// Bytes of one element, read from the `descr` once (not for each element).
+    size: usize,
+}
+
+/// At most the first 200 characters of `text`, for a message about a header that may be
+/// megabytes long.
+fn clip(text: &str) -> String {
+    match text.char_indices().nth(200) {
+        Some((at, _)) => format!("{:?}… ({} bytes)", &text[..at], text.len()),
+        None => format!("{text:?}"),
+    }
+}
+
+/// Bytes of one element of numpy dtype `descr`: its digits, for numpy's number kinds
+/// (`f`, `i`, `u`, `b`, `c`); any other kind (strings `<U1`, bytes `|S3`, dates, objects)
+/// is an error naming the dtype, as a size read from its digits would not be its size.
+fn element_size(descr: &str) -> Result<usize, String> {
+    let kind = descr.as_bytes().get(1).copied();
+    descr
+        .get(2..)
+        .filter(|_| matches!(kind, Some(b'f' | b'i' | b'u' | b'b' | b'c')))
+        .and_then(|d| d.parse::<usize>().ok())
+        .filter(|&n| n > 0)
+        .ok_or(format!("an array of dtype {descr:?}; {READABLE}"))
 }
 
 /// Parse `.npy` (format 1.0, 2.0 or 3.0) bytes of a plain numeric dtype (no structured or
@@ -165,7 +189,7 @@ pub fn parse_raw(bytes: &[u8]) -> Result<RawArray<'_>, String> {
     let value = |key: &str| -> Result<&str, String> {
         let at = dict
             .find(&format!("'{key}':"))
-            .ok_or(format!("a .npy header without '{key}': {dict:?}"))?;
+            .ok_or_else(|| format!("a .npy header without '{key}': {}", clip(dict)))?;
         Ok(dict[at + key.len() + 3..].trim_start())
     };
     let descr = value("descr")?;
@@ -173,36 +197,40 @@ pub fn parse_raw(bytes: &[u8]) -> Result<RawArray<'_>, String> {
         .strip_prefix('\'')
         .and_then(|d| d.split_once('\''))
         .map(|(d, _)| d.to_string())
-        .ok_or(format!(
-            "a .npy array of dtype {}, not a plain number type",
-            descr.split(", '").next().unwrap_or(descr)
-        ))?;
+        .ok_or_else(|| {
+            format!(
+                "a .npy array of dtype {}, not a plain number type",
+                clip(descr.split(", '").next().unwrap_or(descr))
+            )
+        })?;
     let fortran_order = value("fortran_order")?.starts_with("True");
     let shape_text = value("shape")?;
     let shape_text = shape_text
         .strip_prefix('(')
         .and_then(|t| t.split_once(')'))
         .map(|(inner, _)| inner)
-        .ok_or(format!("a .npy header's shape reads {shape_text:?}"))?;
+        .ok_or_else(|| format!("a .npy header's shape reads {}", clip(shape_text)))?;
     let shape = shape_text
         .split(',')
         .map(str::trim)
         .filter(|t| !t.is_empty())
         .map(|t| {
             t.parse::<usize>()
-                .map_err(|_| format!("a .npy shape of {shape_text:?}"))
+                .map_err(|_| format!("a .npy shape of {}", clip(shape_text)))
         })
         .collect::<Result<Vec<_>, _>>()?;
+    let size = element_size(&descr)?;
     let raw = RawArray {
         descr,
         fortran_order,
         shape,
         data: &bytes[(start + len).min(bytes.len())..],
+        size,
     };
     let want = raw
         .shape
         .iter()
-        .try_fold(raw.element_size()?, |n, &d| n.checked_mul(d))
+        .try_fold(size, |n, &d| n.checked_mul(d))
         .ok_or(format!("a .npy shape of {:?} overflows", raw.shape))?;
     if raw.data.len() != want {
         return Err(format!(
@@ -214,14 +242,32 @@ pub fn parse_raw(bytes: &[u8]) -> Result<RawArray<'_>, String> {
     Ok(raw)
 }
 
+/// What [`RawArray::element`] reads, as an error names them.
+const READABLE: &str = "readable are float32, float64, (u)int8 to (u)int64 and bool";
+
 impl RawArray<'_> {
-    /// Bytes of one element: the digits of the `descr`.
-    fn element_size(&self) -> Result<usize, String> {
-        self.descr
-            .get(2..)
-            .and_then(|d| d.parse::<usize>().ok())
-            .filter(|&n| n > 0)
-            .ok_or(format!("a .npy array of dtype {:?}", self.descr))
+    /// How many elements the array holds.
+    pub fn len(&self) -> usize {
+        self.shape.iter().product()
+    }
+
+    /// Whether the array holds no element.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Whether the elements are floats (`f` kind), not integers or bools.
+    pub fn is_float(&self) -> bool {
+        self.descr.as_bytes().get(1) == Some(&b'f')
+    }
+
+    /// An error naming the dtype unless [`RawArray::get`] reads its elements (float32,
+    /// float64, integers of 1 to 8 bytes, bool).
+    pub fn check_readable(&self) -> Result<(), String> {
+        match (self.descr.as_bytes().get(1), self.size) {
+            (Some(b'f'), 4 | 8) | (Some(b'i' | b'u' | b'b'), 1 | 2 | 4 | 8) => Ok(()),
+            _ => Err(format!("an array of dtype {:?}; {READABLE}", self.descr)),
+        }
     }
 
     /// The element at byte offset `at` as a number, for the kinds and sizes numpy's
@@ -229,7 +275,7 @@ impl RawArray<'_> {
     fn element(&self, at: usize) -> Option<Element> {
         let b = self.descr.as_bytes();
         let (order, kind) = (*b.first()?, *b.get(1)?);
-        let n = self.element_size().ok().filter(|&n| n <= 8)?;
+        let n = Some(self.size).filter(|&n| n <= 8)?;
         let mut bytes = [0u8; 8];
         bytes[..n].copy_from_slice(self.data.get(at..at + n)?);
         if order == b'>' {
@@ -255,39 +301,31 @@ impl RawArray<'_> {
         }
     }
 
-    /// Every element in C order (the last index fastest, whatever the file's order), as
-    /// numbers; an error names the dtype when it is not one of those read (float32, float64,
-    /// integers of 1 to 8 bytes, bool).
-    pub fn elements(&self) -> Result<Vec<Element>, String> {
-        let size = self.element_size()?;
-        let count: usize = self.shape.iter().product();
-        // A Fortran-ordered array stores index (i, j, ...) at i + n_i (j + n_j ...): walk
-        // the C-order indices and find each one's offset through those strides.
-        let mut strides = vec![size; self.shape.len()];
-        for k in 1..self.shape.len() {
-            strides[k] = strides[k - 1] * self.shape[k - 1];
+    /// The element of C-order index `c` (the last index fastest, whatever the file's
+    /// order), read from the samples' bytes when asked: an array is never copied into a
+    /// list of values, so reading one takes no memory beyond its bytes. `None` past the
+    /// end or for a dtype [`RawArray::check_readable`] refuses.
+    pub fn get(&self, c: usize) -> Option<Element> {
+        let size = self.size;
+        if c >= self.len() {
+            return None;
         }
-        let mut index = vec![0usize; self.shape.len()];
-        let mut out = Vec::with_capacity(count);
-        for c in 0..count {
-            let at = if self.fortran_order {
-                index.iter().zip(&strides).map(|(i, s)| i * s).sum()
-            } else {
-                c * size
-            };
-            out.push(self.element(at).ok_or(format!(
-                "an array of dtype {:?}; readable are float32, float64, (u)int8 to (u)int64 and bool",
-                self.descr
-            ))?);
-            for k in (0..index.len()).rev() {
-                index[k] += 1;
-                if index[k] < self.shape[k] {
-                    break;
-                }
-                index[k] = 0;
+        let at = if self.fortran_order {
+            // Index (i, j, ...) lies at i + n_i (j + n_j ...) elements: split `c` into its
+            // indices, last first, and weigh each by the product of the dimensions before it.
+            let total = self.len();
+            let (mut rest, mut tail, mut at) = (c, 1usize, 0usize);
+            for &n in self.shape.iter().rev() {
+                let i = rest % n;
+                rest /= n;
+                tail *= n;
+                at += i * (total / tail);
             }
-        }
-        Ok(out)
+            at * size
+        } else {
+            c * size
+        };
+        self.element(at)
     }
 }
 
@@ -387,6 +425,12 @@ mod tests {
         out
     }
 
+    /// Every element in C order, as a table reads them one by one.
+    fn elements(raw: &RawArray) -> Result<Vec<Element>, String> {
+        raw.check_readable()?;
+        Ok((0..raw.len()).map(|c| raw.get(c).unwrap()).collect())
+    }
+
     /// Any numeric dtype reads to its values in C order: Fortran order transposed,
     /// big-endian swapped, short signed integers sign-extended, float32 widened exactly.
     #[test]
@@ -400,31 +444,41 @@ mod tests {
         let raw = parse_raw(&a).unwrap();
         assert_eq!(raw.shape, [2, 3]);
         let ints: Vec<Element> = (1..=6).map(Element::Int).collect();
-        assert_eq!(raw.elements().unwrap(), ints);
+        assert_eq!(elements(&raw).unwrap(), ints);
         let neg = npy_of("|i1", false, "(2,)", &[0xFF, 0x80]);
         assert_eq!(
-            parse_raw(&neg).unwrap().elements().unwrap(),
+            elements(&parse_raw(&neg).unwrap()).unwrap(),
             [Element::Int(-1), Element::Int(-128)]
         );
         let big = npy_of("<u8", false, "(1,)", &u64::MAX.to_le_bytes());
         assert_eq!(
-            parse_raw(&big).unwrap().elements().unwrap(),
+            elements(&parse_raw(&big).unwrap()).unwrap(),
             [Element::Int(u64::MAX as i128)]
         );
         let f = npy_of("<f4", false, "(1,)", &0.1f32.to_le_bytes());
         assert_eq!(
-            parse_raw(&f).unwrap().elements().unwrap(),
+            elements(&parse_raw(&f).unwrap()).unwrap(),
             [Element::Float(0.1f32 as f64)]
         );
         // Not a number type, or a size that does not match the shape.
         let c = npy_of("<c16", false, "(1,)", &[0; 16]);
         assert!(
-            parse_raw(&c)
-                .unwrap()
-                .elements()
+            elements(&parse_raw(&c).unwrap())
                 .unwrap_err()
                 .contains("<c16")
         );
+        // Strings: refused by their dtype, not by a size read from its digits.
+        let u = npy_of("<U1", false, "(3,)", &[0; 12]);
+        assert_eq!(
+            parse_raw(&u).unwrap_err(),
+            "an array of dtype \"<U1\"; readable are float32, float64, (u)int8 to (u)int64 and bool"
+        );
+        // A (2, 2, 2) array in Fortran order: element (i, j, k) at i + 2 j + 4 k.
+        let f3: Vec<u8> = (0u8..8).collect();
+        let f3 = npy_of("|u1", true, "(2, 2, 2)", &f3);
+        let want: Vec<Element> = [0, 4, 2, 6, 1, 5, 3, 7].map(Element::Int).to_vec();
+        assert_eq!(elements(&parse_raw(&f3).unwrap()).unwrap(), want);
+        assert_eq!(parse_raw(&f3).unwrap().get(8), None);
         let short = npy_of("<f8", false, "(2,)", &[0; 8]);
         assert!(
             parse_raw(&short)

@@ -693,3 +693,479 @@ fn camera_rigs_frame_any_scene_deterministically() {
     );
     assert!(!d.join("x.json").exists());
 }
+
+/// Import `text` (written to `name`) with `flags`; the scene file's cylinders.
+fn import_rows(dir: &Path, name: &str, text: &str, flags: &[&str]) -> Vec<serde_json::Value> {
+    let table = dir.join(name);
+    std::fs::write(&table, text).unwrap();
+    let out = dir.join(format!("{name}.json"));
+    let mut args = vec![
+        "import",
+        table.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+    ];
+    args.extend(flags);
+    ok(&args);
+    let scene: serde_json::Value = serde_json::from_slice(&std::fs::read(&out).unwrap()).unwrap();
+    scene["cylinders"].as_array().unwrap().clone()
+}
+
+/// A cylinder's `key` (`p0`, `p1`) as numbers.
+fn xyz(c: &serde_json::Value, key: &str) -> [f64; 3] {
+    let a = c[key].as_array().unwrap();
+    [0, 1, 2].map(|k| a[k].as_f64().unwrap())
+}
+
+/// Every row has the header's fields, counted by its separator: a quoted field holds
+/// commas and doubled quotes, an empty field between tabs stays a field, and a row of more
+/// or fewer fields is refused naming both counts, where it once shifted its values into
+/// the next columns' roles.
+#[test]
+fn rows_have_the_headers_fields() {
+    let dir = fresh_dir("import-tables", "fields");
+    let d = dir.path();
+    let cyl = import_rows(
+        d,
+        "quoted.csv",
+        "name,x0,y0,z0,x1,y1,z1,radius\n\"1,5\",0,0,0,0,0,1,0.1\n \"say \"\"hi\"\", ok\" ,1,2,3,1,2,4.5,0.25\n",
+        &[],
+    );
+    assert_eq!(cyl.len(), 2);
+    assert_eq!(xyz(&cyl[0], "p0"), [0.0, 0.0, 0.0]);
+    assert_eq!(xyz(&cyl[0], "p1"), [0.0, 0.0, 1.0]);
+    assert_eq!(cyl[0]["radius"].as_f64(), Some(0.1));
+    assert_eq!(xyz(&cyl[1], "p0"), [1.0, 2.0, 3.0]);
+    assert_eq!(xyz(&cyl[1], "p1"), [1.0, 2.0, 4.5]);
+    assert_eq!(cyl[1]["radius"].as_f64(), Some(0.25));
+    // An empty note between tabs: the radius is still the eighth field.
+    let cyl = import_rows(
+        d,
+        "note.tsv",
+        "x0\ty0\tz0\tx1\ty1\tz1\tnote\tradius\n0\t0\t0\t0\t0\t1\t\t0.5\n1\t1\t1\t1\t1\t3\tfine\t0.75\n",
+        &[],
+    );
+    assert_eq!(cyl[0]["radius"].as_f64(), Some(0.5));
+    assert_eq!(xyz(&cyl[1], "p1"), [1.0, 1.0, 3.0]);
+    assert_eq!(cyl[1]["radius"].as_f64(), Some(0.75));
+    // TreeQSM's text: runs of spaces are one separator.
+    let cyl = import_rows(
+        d,
+        "spaced.txt",
+        "0.2   2  1 2 3   0 0 1  0 1 1 0 1 0 0.2\n",
+        &[],
+    );
+    assert_eq!(xyz(&cyl[0], "p1"), [1.0, 2.0, 5.0]);
+    assert_eq!(cyl[0]["radius"].as_f64(), Some(0.2));
+
+    refused(
+        d,
+        "extra.csv",
+        "x0,y0,z0,x1,y1,z1,radius\n0,0,0,0,0,1,5,0,1\n",
+        &[],
+        "extra.csv: line 2: has 9 fields, the header (line 1) has 7 (a field holding a comma goes in double quotes)",
+    );
+    refused(
+        d,
+        "short.csv",
+        "x0,y0,z0,x1,y1,z1,radius,note\n0,0,0,0,0,1,0.5,a\n0,0,0,0,0,1,0.5\n",
+        &[],
+        "short.csv: line 3: has 7 fields, the header (line 1) has 8",
+    );
+    refused(
+        d,
+        "emptytab.tsv",
+        "x0\ty0\tz0\tx1\ty1\tz1\tradius\tnote\n0\t0\t0\t0\t0\t1\t\t5\n",
+        &[],
+        "emptytab.tsv: line 2, column 7 (radius): is empty; a number is needed",
+    );
+    refused(
+        d,
+        "open.csv",
+        "x0,y0,z0,x1,y1,z1,radius\n0,0,0,0,0,1,0.5\n0,0,0,\"0,0,1,0.5\n",
+        &[],
+        "open.csv: line 3: field 4 opens a quote that does not close on this line",
+    );
+    refused(
+        d,
+        "after.csv",
+        "x0,y0,z0,x1,y1,z1,radius\n0,0,0,0,0,1,\"0.5\"x\n",
+        &[],
+        "after.csv: line 2: field 7 has \"x\" after its closing quote",
+    );
+    let two = treeqsm15(&tree());
+    let mut lines: Vec<&str> = two.lines().collect();
+    let fourteen = lines[1].rsplit_once(' ').unwrap().0.to_string();
+    lines[1] = &fourteen;
+    refused(
+        d,
+        "mixed.txt",
+        &(lines.join("\n") + "\n"),
+        &[],
+        "mixed.txt: line 2: has 14 fields, the first row (line 1) has 15",
+    );
+}
+
+/// Two columns that read as one field (`radius` and `radius (mm)`, `x0` and `X0`) are
+/// refused naming both: neither silently wins.
+#[test]
+fn ambiguous_columns_are_refused() {
+    let dir = fresh_dir("import-tables", "ambiguous");
+    let d = dir.path();
+    refused(
+        d,
+        "dup.csv",
+        "x0,y0,z0,x1,y1,z1,radius,radius (mm)\n0,0,0,0,0,1,0.1,100\n",
+        &[],
+        "dup.csv: line 1: columns 7 (radius) and 8 (radius (mm)) are both radius; keep one, or rename the other",
+    );
+    refused(
+        d,
+        "x0.csv",
+        "x0,y0,z0,x1,y1,z1,radius,X0\n0,0,0,0,0,1,0.1,5\n",
+        &[],
+        "x0.csv: line 1: columns 1 (x0) and 8 (X0) are both x0",
+    );
+    // A header of thousands of unknown names is listed by its first 12.
+    let wide = (0..5000)
+        .map(|k| format!("c{k}"))
+        .collect::<Vec<_>>()
+        .join(",")
+        + "\n1\n";
+    refused(
+        d,
+        "wide.csv",
+        &wide,
+        &[],
+        "(c0, c1, c2, c3, c4, c5, c6, c7, c8, c9, c10, c11, … 4988 more): expected",
+    );
+    let o = cylaov(&[
+        "import",
+        d.join("wide.csv").to_str().unwrap(),
+        "-o",
+        d.join("w.json").to_str().unwrap(),
+    ]);
+    assert!(o.stderr.len() < 600, "{} bytes", o.stderr.len());
+    refused(
+        d,
+        "wider.csv",
+        &(",".repeat(20_000) + "x\n"),
+        &[],
+        "wider.csv: line 1: has 20001 fields; a table may have at most 10000 columns",
+    );
+}
+
+/// Axis and length: an axis of any finite non-zero size is a direction (1e-162 squares to
+/// a subnormal, 1e-200 to 0), and a length too short to move the end off the start is
+/// refused at its row and column.
+#[test]
+fn axes_of_any_size_and_lengths_that_vanish() {
+    let dir = fresh_dir("import-tables", "axis");
+    let d = dir.path();
+    let cyl = import_rows(
+        d,
+        "tiny.txt",
+        "0.1 1 0 0 0 2e-162 0 0 0 1 1 0 1 0 0.1\n\
+         0.1 1 0 0 0 1e-200 0 0 0 1 1 0 1 0 0.1\n\
+         0.1 5 0 0 0 3e-200 -4e-200 0 0 1 1 0 1 0 0.1\n\
+         0.1 2 0 0 0 0 3e11 4e11 0 1 1 0 1 0 0.1\n",
+        &[],
+    );
+    assert_eq!(xyz(&cyl[0], "p1"), [1.0, 0.0, 0.0]);
+    assert_eq!(xyz(&cyl[1], "p1"), [1.0, 0.0, 0.0]);
+    let p = xyz(&cyl[2], "p1");
+    assert!(
+        (p[0] - 3.0).abs() < 1e-15 && (p[1] + 4.0).abs() < 1e-15 && p[2] == 0.0,
+        "{p:?}"
+    );
+    let p = xyz(&cyl[3], "p1");
+    assert!(
+        p[0] == 0.0 && (p[1] - 1.2).abs() < 1e-15 && (p[2] - 1.6).abs() < 1e-15,
+        "{p:?}"
+    );
+    refused(
+        d,
+        "vanish.txt",
+        "0.1 1e-12 1e6 0 0 1 0 0 0 1 1 0 1 0 0.1\n",
+        &[],
+        "vanish.txt: line 1, column 2 (length): 1e-12 is too short to move the end away from the start [1000000.0, 0.0, 0.0]",
+    );
+}
+
+/// One `.npy` member: numpy's header for `descr` and `shape`, then `data`.
+fn npy(descr: &str, fortran: bool, shape: &str, data: &[u8]) -> Vec<u8> {
+    let mut dict = format!(
+        "{{'descr': '{descr}', 'fortran_order': {}, 'shape': {shape}, }}",
+        if fortran { "True" } else { "False" }
+    );
+    while (10 + dict.len() + 1) % 64 != 0 {
+        dict.push(' ');
+    }
+    dict.push('\n');
+    let mut out = b"\x93NUMPY\x01\x00".to_vec();
+    out.extend((dict.len() as u16).to_le_bytes());
+    out.extend(dict.as_bytes());
+    out.extend(data);
+    out
+}
+
+/// An `.npz` of these members, deflated as `numpy.savez_compressed` writes them.
+fn write_npz(path: &Path, members: &[(&str, Vec<u8>)]) {
+    use std::io::Write;
+    let mut zip = zip::ZipWriter::new(std::fs::File::create(path).unwrap());
+    let opts = zip::write::SimpleFileOptions::default()
+        .compression_method(zip::CompressionMethod::Deflated)
+        .large_file(true);
+    for (name, bytes) in members {
+        zip.start_file(format!("{name}.npy"), opts).unwrap();
+        zip.write_all(bytes).unwrap();
+    }
+    zip.finish().unwrap();
+}
+
+/// `cylaov args` and the most memory it held (peak resident set, bytes) and its stderr.
+#[cfg(target_os = "linux")]
+#[allow(
+    clippy::zombie_processes,
+    reason = "wait4 reaps the child, with its usage"
+)]
+fn peak_memory(args: &[&str]) -> (i32, u64, String) {
+    use std::io::Read;
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_cylaov"))
+        .args(args)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut status = 0;
+    // SAFETY: rusage is plain data, filled by wait4 for the child just spawned.
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    let pid = unsafe { libc::wait4(child.id() as i32, &mut status, 0, &mut usage) };
+    assert_eq!(pid, child.id() as i32);
+    let mut err = String::new();
+    child
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut err)
+        .unwrap();
+    (
+        libc::WEXITSTATUS(status),
+        usage.ru_maxrss as u64 * 1024,
+        err,
+    )
+}
+
+/// NumPy arrays are read element by element from their bytes, in any dtype and order: a
+/// 56 MB table of uint8 (60 KB packed) takes about its own size in memory, where decoding
+/// it to a list of values took 1.8 GB. Strings are refused by their dtype.
+#[test]
+fn npz_arrays_are_read_where_they_lie() {
+    let dir = fresh_dir("import-tables", "npz");
+    let d = dir.path();
+    // Two rows: p0 Fortran-ordered uint8, p1 big-endian int16, radius float32, ids int64.
+    let p0 = npy("|u1", true, "(2, 3)", &[1, 4, 2, 5, 3, 6]);
+    let p1: Vec<u8> = [1i16, 2, 9, -4, 5, 6]
+        .iter()
+        .flat_map(|v| v.to_be_bytes())
+        .collect();
+    let p1 = npy(">i2", false, "(2, 3)", &p1);
+    let r: Vec<u8> = [0.5f32, 0.25]
+        .iter()
+        .flat_map(|v| v.to_le_bytes())
+        .collect();
+    let id: Vec<u8> = [7i64, 9].iter().flat_map(|v| v.to_le_bytes()).collect();
+    let path = d.join("mixed.npz");
+    write_npz(
+        &path,
+        &[
+            ("p0", p0),
+            ("p1", p1),
+            ("radius", npy("<f4", false, "(2,)", &r)),
+            ("id", npy("<i8", false, "(2,)", &id)),
+        ],
+    );
+    let out = d.join("mixed.json");
+    ok(&[
+        "import",
+        path.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    let s: serde_json::Value = serde_json::from_slice(&std::fs::read(&out).unwrap()).unwrap();
+    let cyl = s["cylinders"].as_array().unwrap();
+    assert_eq!(xyz(&cyl[0], "p0"), [1.0, 2.0, 3.0]);
+    assert_eq!(xyz(&cyl[1], "p0"), [4.0, 5.0, 6.0]);
+    assert_eq!(xyz(&cyl[0], "p1"), [1.0, 2.0, 9.0]);
+    assert_eq!(xyz(&cyl[1], "p1"), [-4.0, 5.0, 6.0]);
+    assert_eq!(cyl[1]["radius"].as_f64(), Some(0.25));
+    assert_eq!(cyl[1]["id"].as_u64(), Some(9));
+
+    // Strings: named by their dtype.
+    let text = npy("<U1", false, "(2,)", &[b'1', 0, 0, 0, b'2', 0, 0, 0]);
+    let path = d.join("strings.npz");
+    let p0 = npy("|u1", false, "(2, 3)", &[0; 6]);
+    write_npz(&path, &[("p0", p0.clone()), ("p1", p0), ("radius", text)]);
+    let o = cylaov(&[
+        "import",
+        path.to_str().unwrap(),
+        "-o",
+        d.join("s.json").to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(!d.join("s.json").exists());
+    assert!(
+        err.contains("strings.npz: array radius: an array of dtype \"<U1\"; readable are float32, float64, (u)int8 to (u)int64 and bool"),
+        "{err}"
+    );
+
+    #[cfg(target_os = "linux")]
+    {
+        let n = 8_000_000;
+        let zeros = vec![0u8; n * 3];
+        let path = d.join("big.npz");
+        let shape = format!("({n}, 3)");
+        write_npz(
+            &path,
+            &[
+                ("p0", npy("|u1", false, &shape, &zeros)),
+                ("p1", npy("|u1", false, &shape, &zeros)),
+                (
+                    "radius",
+                    npy("|u1", false, &format!("({n},)"), &vec![1u8; n]),
+                ),
+            ],
+        );
+        assert!(std::fs::metadata(&path).unwrap().len() < 1 << 20);
+        let out = d.join("big.json");
+        let (code, peak, err) = peak_memory(&[
+            "import",
+            path.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+        ]);
+        assert_eq!(code, 1, "{err}");
+        assert!(err.contains("big.npz: p1[0]: zero length"), "{err}");
+        // The unpacked arrays (56 MB) and little else.
+        assert!(peak < 250 << 20, "peak memory {} MB", peak >> 20);
+        assert!(!out.exists());
+    }
+}
+
+/// A scene larger than the 512 MiB every reader accepts is refused before it is written,
+/// with its size and how many cylinders fit: 2.5 million cylinders whose float32 ends
+/// print as 17 digits take about 700 MB as JSON.
+#[test]
+fn a_scene_too_large_to_read_is_not_written() {
+    let dir = fresh_dir("import-tables", "large");
+    let d = dir.path();
+    let n = 2_500_000;
+    let f32s = |v: &[f32], rows: usize| -> Vec<u8> {
+        (0..rows)
+            .flat_map(|_| v.iter().flat_map(|x| x.to_le_bytes()))
+            .collect()
+    };
+    let path = d.join("large.npz");
+    write_npz(
+        &path,
+        &[
+            (
+                "p0",
+                npy(
+                    "<f4",
+                    false,
+                    &format!("({n}, 3)"),
+                    &f32s(&[0.1, 0.1, 0.1], n),
+                ),
+            ),
+            (
+                "p1",
+                npy(
+                    "<f4",
+                    false,
+                    &format!("({n}, 3)"),
+                    &f32s(&[0.1, 0.1, 1.1], n),
+                ),
+            ),
+            (
+                "radius",
+                npy("<f4", false, &format!("({n},)"), &f32s(&[0.1], n)),
+            ),
+        ],
+    );
+    let out = d.join("large.json");
+    let o = cylaov(&[
+        "import",
+        path.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(!out.exists());
+    let bytes: u64 = err
+        .split("would take ")
+        .nth(1)
+        .and_then(|t| t.split(' ').next())
+        .and_then(|t| t.parse().ok())
+        .unwrap_or_else(|| panic!("{err}"));
+    // Each cylinder: two lines of three 19-digit numbers, a radius, caps and a 7-digit id.
+    let each = bytes as f64 / n as f64;
+    assert!(
+        (240.0..270.0).contains(&each),
+        "{each} bytes a cylinder: {err}"
+    );
+    let fit = (536870912.0 / each.round()).floor();
+    assert!(
+        err.contains(&format!(
+            "large.npz: the scene of its {n} cylinders would take {bytes} bytes, more than the 536870912 (512 MiB) a scene file may have"
+        )) && err.contains(&format!("import fewer cylinders: at {} bytes each, about {fit} fit", each.round())),
+        "{err}"
+    );
+}
+
+/// The camera `import` places is checked in the terms the user gave: `--width` × `--height`
+/// beyond 64 megapixels, a `--fov` too small for a focal length, a table so large that the
+/// camera framing it stands beyond 1e12, each named by its flag or the table's extent.
+#[test]
+fn the_framing_cameras_limits_name_the_flags() {
+    let dir = fresh_dir("import-tables", "camera");
+    let d = dir.path();
+    let table = d.join("big.csv");
+    std::fs::write(&table, "x0,y0,z0,x1,y1,z1,radius\n0,0,0,0,0,1,0.1\n").unwrap();
+    let out = d.join("big.json");
+    let o = cylaov(&[
+        "import",
+        table.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--width",
+        "16384",
+        "--height",
+        "16384",
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(!out.exists());
+    assert_eq!(
+        err,
+        "error: --width/--height: width × height must be <= 67108864 pixels (64 megapixels, e.g. 8192 × 8192), got 16384 × 16384 = 268435456\n"
+    );
+    refused(
+        d,
+        "far.csv",
+        "x0,y0,z0,x1,y1,z1,radius\n0,0,0,0,0,9e11,0.1\n",
+        &[],
+        "far.csv: the camera framing every cylinder cannot be placed: the cylinders fill a sphere of radius 450000000000.1 about [0.0, 0.0, 450000000000.0], which --fov 50 with --width 640 --height 480 sees whole from 1363124196675.",
+    );
+    let o = cylaov(&[
+        "import",
+        d.join("far.csv").to_str().unwrap(),
+        "-o",
+        d.join("far.json").to_str().unwrap(),
+        "--fov",
+        "120",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}

@@ -82,6 +82,15 @@ pub fn run(a: ImportCli) -> anyhow::Result<ExitCode> {
             a.height
         );
     }
+    let pixels = a.width as u64 * a.height as u64;
+    if pixels > cylaov::scene::MAX_PIXELS {
+        anyhow::bail!(
+            "--width/--height: width × height must be <= {} pixels (64 megapixels, e.g. 8192 × 8192), got {} × {} = {pixels}",
+            cylaov::scene::MAX_PIXELS,
+            a.width,
+            a.height
+        );
+    }
     if !(a.fov > 0.0 && a.fov < 180.0) {
         anyhow::bail!("--fov: must be in (0, 180), got {}", a.fov);
     }

@@ -21,6 +21,7 @@ pub mod npz;
 
 use crate::scene::{CylinderFile, MAX_COORD, SceneFile, num};
 use glam::DVec3;
+use std::borrow::Cow;
 use std::fmt;
 
 /// A table layout.
@@ -271,40 +272,158 @@ fn detect(names: &[String]) -> Option<TableFormat> {
     }
 }
 
-/// How a file separates its fields: commas when its first line has one, else runs of
-/// spaces and tabs (TreeQSM's text export).
-#[derive(Clone, Copy)]
+/// How a file separates its fields, told from its first line: commas when it has one,
+/// else tabs when it has one (each comma or tab ends a field, so an empty field stays a
+/// field), else runs of spaces (TreeQSM's text export).
+#[derive(Clone, Copy, PartialEq)]
 enum Separator {
     Comma,
+    Tab,
     Space,
 }
 
-fn split(line: &str, sep: Separator) -> Vec<&str> {
-    match sep {
-        Separator::Comma => line
-            .split(',')
-            .map(|f| f.trim().trim_matches('"'))
-            .collect(),
-        Separator::Space => line.split_whitespace().collect(),
+impl Separator {
+    fn of(first: &str) -> Separator {
+        if first.contains(',') {
+            Separator::Comma
+        } else if first.contains('\t') {
+            Separator::Tab
+        } else {
+            Separator::Space
+        }
     }
 }
 
-/// A header's names. Separated by spaces and tabs, a name may hold spaces
-/// (`radius (m)`) when tabs separate the names; else a bracketed unit is its own token and
-/// is dropped.
-fn header_names(line: &str, sep: Separator) -> Vec<&str> {
-    match sep {
-        Separator::Comma => split(line, sep),
-        Separator::Space if line.contains('\t') => line
-            .split('\t')
-            .map(str::trim)
-            .filter(|f| !f.is_empty())
-            .collect(),
-        Separator::Space => line
-            .split_whitespace()
-            .filter(|f| !f.starts_with('('))
-            .collect(),
+/// Most columns a table may have (TreeQSM writes 15, SimpleForest about 30): a line of
+/// 20 million empty names would otherwise take gigabytes as names.
+const MAX_COLUMNS: usize = 10_000;
+
+/// The first `keep` fields of a line and how many it has. Between commas or tabs a field is
+/// trimmed, and one that starts with `"` runs to its closing quote (RFC 4180: it may hold
+/// the separator, and `""` is a quote), which only spaces may follow; a quoted field does
+/// not span lines. The error says which field is at fault and why.
+fn split(line: &str, sep: Separator, keep: usize) -> Result<(Vec<Cow<'_, str>>, usize), String> {
+    let sep = match sep {
+        Separator::Space => {
+            let fields = line
+                .split_whitespace()
+                .take(keep)
+                .map(Cow::Borrowed)
+                .collect();
+            return Ok((fields, line.split_whitespace().count()));
+        }
+        Separator::Comma => ',',
+        Separator::Tab => '\t',
+    };
+    let blank = |c: char| c != sep && c.is_whitespace();
+    let mut fields = Vec::new();
+    let mut count = 0;
+    let mut rest = line;
+    loop {
+        let field = rest.trim_start_matches(blank);
+        let after = if let Some(quoted) = field.strip_prefix('"') {
+            let mut value = Cow::Borrowed("");
+            let mut inner = quoted;
+            loop {
+                let Some(k) = inner.find('"') else {
+                    return Err(format!(
+                        "field {} opens a quote that does not close on this line",
+                        count + 1
+                    ));
+                };
+                match value {
+                    Cow::Borrowed(_) if inner[k + 1..].starts_with('"') => {
+                        value = Cow::Owned(format!("{}{}", &inner[..k], '"'));
+                    }
+                    Cow::Borrowed(_) => value = Cow::Borrowed(&inner[..k]),
+                    Cow::Owned(ref mut v) => {
+                        v.push_str(&inner[..k]);
+                        if inner[k + 1..].starts_with('"') {
+                            v.push('"');
+                        }
+                    }
+                }
+                if inner[k + 1..].starts_with('"') {
+                    inner = &inner[k + 2..];
+                } else {
+                    inner = &inner[k + 1..];
+                    break;
+                }
+            }
+            count += 1;
+            if fields.len() < keep {
+                fields.push(value);
+            }
+            let after = inner.trim_start_matches(blank);
+            if !after.is_empty() && !after.starts_with(sep) {
+                return Err(format!(
+                    "field {count} has {:?} after its closing quote",
+                    crate::scene::strict::shorten(after.split(sep).next().unwrap_or(after))
+                ));
+            }
+            after
+        } else {
+            let end = field.find(sep).unwrap_or(field.len());
+            count += 1;
+            if fields.len() < keep {
+                fields.push(Cow::Borrowed(field[..end].trim()));
+            }
+            &field[end..]
+        };
+        match after.strip_prefix(sep) {
+            Some(next) => rest = next,
+            None => return Ok((fields, count)),
+        }
     }
+}
+
+/// A header's names, one per field. Separated by runs of spaces, a bracketed unit
+/// (`radius (m)`, `length (in m)`) is its own words and is dropped.
+fn header_names(line: &str, sep: Separator) -> Result<Vec<Cow<'_, str>>, String> {
+    if sep != Separator::Space {
+        return Ok(split(line, sep, MAX_COLUMNS)?.0);
+    }
+    let mut names = Vec::new();
+    let mut in_unit = false;
+    for word in line.split_whitespace() {
+        if word.starts_with('(') {
+            in_unit = true;
+        }
+        if !in_unit {
+            names.push(Cow::Borrowed(word));
+        }
+        if in_unit && word.ends_with(')') {
+            in_unit = false;
+        }
+    }
+    Ok(names)
+}
+
+/// At most this many names of a list go into a message.
+const NAMES_SHOWN: usize = 12;
+
+/// `names` for a message, comma-separated: the first [`NAMES_SHOWN`], each shortened, and
+/// how many more (a header of 20 million names makes one line, not 60 MB).
+pub(crate) fn list_names(names: &[impl AsRef<str>]) -> String {
+    let mut out: Vec<String> = names
+        .iter()
+        .take(NAMES_SHOWN)
+        .map(|n| crate::scene::strict::shorten(n.as_ref()))
+        .collect();
+    if names.len() > NAMES_SHOWN {
+        out.push(format!("… {} more", names.len() - NAMES_SHOWN));
+    }
+    out.join(", ")
+}
+
+/// Room for `n` cylinders in `v`, or an error saying how much memory they need: checked
+/// against what the system leaves before anything is reserved.
+pub(crate) fn reserve_cylinders(v: &mut Vec<CylinderFile>, n: usize) -> Result<(), TableError> {
+    let what = format!("reading the table's {n} cylinders");
+    let bytes = (n as u64).saturating_mul(size_of::<CylinderFile>() as u64);
+    crate::mem::check_memory(&what, bytes)
+        .and_then(|()| crate::mem::try_reserve(v, n, &what))
+        .map_err(|e| line_err(0, e.to_string()))
 }
 
 /// Where each role's value sits in a row (0-based field index).
@@ -312,6 +431,8 @@ fn header_names(line: &str, sep: Separator) -> Vec<&str> {
 struct Columns {
     /// Field names for messages, one per field.
     names: Vec<String>,
+    /// Fields every row has: the header's, or the first row's without a header.
+    width: usize,
     start: [usize; 3],
     end: Option<[usize; 3]>,
     axis: Option<[usize; 3]>,
@@ -324,31 +445,9 @@ struct Columns {
     caps: Option<usize>,
 }
 
-impl Columns {
-    fn needed(&self) -> usize {
-        let mut all = vec![self.radius];
-        all.extend(self.start);
-        all.extend(self.end.into_iter().flatten());
-        all.extend(self.axis.into_iter().flatten());
-        all.extend(
-            [
-                self.length,
-                self.id,
-                self.branch,
-                self.order,
-                self.label,
-                self.caps,
-            ]
-            .into_iter()
-            .flatten(),
-        );
-        all.into_iter().max().unwrap_or(0) + 1
-    }
-}
-
 /// The header's names with a bare vector name (`start_point`, `axis`) spread over the
 /// three columns it heads, as TreeQSM writes them.
-fn spread(header: &[&str]) -> (Vec<String>, Vec<String>) {
+fn spread(header: &[Cow<str>]) -> (Vec<String>, Vec<String>) {
     let mut norm = Vec::new();
     let mut shown = Vec::new();
     for h in header {
@@ -362,7 +461,10 @@ fn spread(header: &[&str]) -> (Vec<String>, Vec<String>) {
             }
             _ => {
                 norm.push(n);
-                shown.push(h.trim().to_string());
+                shown.push(match h.trim() {
+                    "" => "unnamed".to_string(),
+                    h => h.to_string(),
+                });
             }
         }
     }
@@ -375,7 +477,30 @@ fn columns_from_header(
     shown: Vec<String>,
     line: usize,
 ) -> Result<Columns, TableError> {
-    let find = |list: &[&str]| list.iter().find_map(|n| norm.iter().position(|h| h == n));
+    // The one column whose normalised name is in `list`; two are refused, naming both:
+    // `radius` and `radius (mm)` read the same, and neither may silently win.
+    let find = |list: &[&str]| -> Result<Option<usize>, TableError> {
+        let mut hits = norm
+            .iter()
+            .enumerate()
+            .filter(|(_, h)| list.contains(&h.as_str()))
+            .map(|(k, _)| k);
+        let first = hits.next();
+        match (first, hits.next()) {
+            (Some(a), Some(b)) => Err(line_err(
+                line,
+                format!(
+                    "columns {} ({}) and {} ({}) are both {}; keep one, or rename the other",
+                    a + 1,
+                    crate::scene::strict::shorten(&shown[a]),
+                    b + 1,
+                    crate::scene::strict::shorten(&shown[b]),
+                    list.first().copied().unwrap_or("")
+                ),
+            )),
+            _ => Ok(first),
+        }
+    };
     let n = names(format);
     let missing = |what: &str| {
         line_err(
@@ -383,23 +508,26 @@ fn columns_from_header(
             format!(
                 "the header of this {} table has no {what} column (columns: {})",
                 format.name(),
-                shown.join(", ")
+                list_names(&shown)
             ),
         )
     };
-    let triple = |lists: [&[&str]; 3]| -> Option<[usize; 3]> {
-        Some([find(lists[0])?, find(lists[1])?, find(lists[2])?])
+    let triple = |lists: [&[&str]; 3]| -> Result<Option<[usize; 3]>, TableError> {
+        Ok(match (find(lists[0])?, find(lists[1])?, find(lists[2])?) {
+            (Some(x), Some(y), Some(z)) => Some([x, y, z]),
+            _ => None,
+        })
     };
-    let start = triple(n.start).ok_or_else(|| {
+    let start = triple(n.start)?.ok_or_else(|| {
         missing(&format!(
             "start ({})",
             n.start.map(|l| l.first().copied().unwrap_or("")).join(", ")
         ))
     })?;
-    let radius = find(n.radius).ok_or_else(|| missing(n.radius[0]))?;
-    let end = triple(n.end);
-    let axis = triple(n.axis);
-    let length = find(n.length);
+    let radius = find(n.radius)?.ok_or_else(|| missing(n.radius[0]))?;
+    let end = triple(n.end)?;
+    let axis = triple(n.axis)?;
+    let length = find(n.length)?;
     if end.is_none() && (axis.is_none() || length.is_none()) {
         return Err(missing(&format!(
             "end ({}) and no axis and length",
@@ -407,25 +535,30 @@ fn columns_from_header(
         )));
     }
     let csv = format == TableFormat::Csv;
+    let (id, branch, order) = (find(n.id)?, find(n.branch)?, find(n.order)?);
+    let label = if csv { find(&["label"])? } else { None };
+    let caps = if csv { find(&["caps"])? } else { None };
     Ok(Columns {
+        width: shown.len(),
         names: shown,
         start,
         end,
         axis,
         length,
         radius,
-        id: find(n.id),
-        branch: find(n.branch),
-        order: find(n.order),
-        label: if csv { find(&["label"]) } else { None },
-        caps: if csv { find(&["caps"]) } else { None },
+        id,
+        branch,
+        order,
+        label,
+        caps,
     })
 }
 
-/// TreeQSM without a header: the columns by position.
-fn treeqsm_positional() -> Columns {
+/// TreeQSM without a header: the columns by position, `width` of them (14 or 15).
+fn treeqsm_positional(width: usize) -> Columns {
     Columns {
         names: TREEQSM_COLUMNS.iter().map(|s| s.to_string()).collect(),
+        width,
         start: [2, 3, 4],
         end: None,
         axis: Some([5, 6, 7]),
@@ -442,7 +575,7 @@ fn treeqsm_positional() -> Columns {
 /// One data row being read: its line and fields, for values and messages.
 struct Row<'a> {
     line: usize,
-    fields: Vec<&'a str>,
+    fields: Vec<Cow<'a, str>>,
     names: &'a [String],
 }
 
@@ -460,7 +593,10 @@ impl Row<'_> {
 
     /// Field `k` as a finite number of magnitude at most [`MAX_COORD`].
     fn number(&self, k: usize) -> Result<f64, TableError> {
-        let text = self.fields[k];
+        let text = self.fields[k].trim();
+        if text.is_empty() {
+            return Err(self.fail(k, "is empty; a number is needed"));
+        }
         let x: f64 = text.parse().map_err(|_| {
             self.fail(
                 k,
@@ -503,7 +639,7 @@ impl Row<'_> {
     }
 
     fn flag(&self, k: usize) -> Result<bool, TableError> {
-        match self.fields[k].to_ascii_lowercase().as_str() {
+        match self.fields[k].trim().to_ascii_lowercase().as_str() {
             "1" | "true" | "yes" | "on" => Ok(true),
             "0" | "false" | "no" | "off" => Ok(false),
             other => Err(self.fail(
@@ -535,11 +671,7 @@ pub fn read_table(text: &str, opts: &TableOptions) -> Result<Table, TableError> 
     let Some(&(first_line, first)) = lines.peek() else {
         return Err(line_err(0, "the table has no rows"));
     };
-    let sep = if first.contains(',') {
-        Separator::Comma
-    } else {
-        Separator::Space
-    };
+    let sep = Separator::of(first);
     let (format, cols, is_header) = table_layout(first_line, first, sep, opts)?;
     if is_header {
         lines.next();
@@ -569,27 +701,35 @@ pub fn read_table(text: &str, opts: &TableOptions) -> Result<Table, TableError> 
         ));
     }
     let default_caps = opts.caps.unwrap_or(true);
-    let needed = cols.needed();
     let mut cylinders = Vec::new();
+    reserve_cylinders(
+        &mut cylinders,
+        text.bytes().filter(|&b| b == b'\n').count() + 1,
+    )?;
+    let what_sets_width = if is_header {
+        format!("the header (line {first_line}) has")
+    } else {
+        format!("the first row (line {first_line}) has")
+    };
     for (line, text) in lines {
+        let (fields, count) = split(text, sep, cols.width).map_err(|e| line_err(line, e))?;
         let row = Row {
             line,
-            fields: split(text, sep),
+            fields,
             names: &cols.names,
         };
-        if row.fields.len() < needed {
+        // A row of more or fewer fields than the header would shift every value after
+        // the odd one into the next column's role: refused, whatever the columns read.
+        if count != cols.width {
+            let hint = match sep {
+                _ if count < cols.width => "",
+                Separator::Comma => " (a field holding a comma goes in double quotes)",
+                Separator::Tab => " (a field holding a tab goes in double quotes)",
+                Separator::Space => "",
+            };
             return Err(line_err(
                 line,
-                format!(
-                    "has {} fields, the table needs at least {needed} ({})",
-                    row.fields.len(),
-                    cols.names
-                        .iter()
-                        .take(needed)
-                        .cloned()
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                ),
+                format!("has {count} fields, {what_sets_width} {}{hint}", cols.width),
             ));
         }
         cylinders.push(row_cylinder(
@@ -617,12 +757,21 @@ fn table_layout(
     sep: Separator,
     opts: &TableOptions,
 ) -> Result<(TableFormat, Columns, bool), TableError> {
-    let first_fields = split(first, sep);
+    let (first_fields, count) =
+        split(first, sep, MAX_COLUMNS).map_err(|e| line_err(first_line, e))?;
+    if count > MAX_COLUMNS {
+        return Err(line_err(
+            first_line,
+            format!("has {count} fields; a table may have at most {MAX_COLUMNS} columns"),
+        ));
+    }
     let is_header = first_fields
         .iter()
         .any(|f| !f.is_empty() && f.parse::<f64>().is_err());
     let (format, cols) = if is_header {
-        let (norm, shown) = spread(&header_names(first, sep));
+        let names = header_names(first, sep).map_err(|e| line_err(first_line, e))?;
+        let (norm, shown) = spread(&names);
+        drop(names);
         let format = match opts.format {
             Some(f) => f,
             None => detect(&norm).ok_or_else(|| {
@@ -632,7 +781,7 @@ fn table_layout(
                         "cannot tell the table format from the header ({}): expected x0,y0,z0,x1,y1,z1,radius (csv), \
                          parent, extension, branch, BranchOrder (treeqsm), ID, parentID, branchID, branchOrder \
                          (simpleforest) or cyl_ID, parent_ID, branching_order (archi); give {}",
-                        crate::scene::strict::shorten(&shown.join(", ")),
+                        list_names(&shown),
                         crate::spelling::opt("format")
                     ),
                 )
@@ -646,7 +795,7 @@ fn table_layout(
         let n = first_fields.len();
         match opts.format {
             Some(TableFormat::TreeQsm) | None if n >= 14 && (opts.format.is_some() || n <= 15) => {
-                (TableFormat::TreeQsm, treeqsm_positional())
+                (TableFormat::TreeQsm, treeqsm_positional(n))
             }
             Some(TableFormat::TreeQsm) => {
                 return Err(line_err(
@@ -713,14 +862,27 @@ fn row_cylinder(
                 return Err(row.fail(length, format!("must be > 0, got {}", num(h))));
             }
             let a = row.point(axis)?;
-            let len = a.length();
-            if len == 0.0 || !len.is_finite() {
+            // Divided by its largest component first, the axis is normalised whatever its
+            // scale: the square of 1e-162 is subnormal and of 1e-200 is 0.
+            let m = a.abs().max_element();
+            if m == 0.0 {
                 return Err(row.fail(
                     axis[0],
                     format!("the axis must be non-zero, got {:?}", a.to_array()),
                 ));
             }
-            p0 + a / len * h
+            let p1 = p0 + (a / m).normalize() * h;
+            if p1 == p0 {
+                return Err(row.fail(
+                    length,
+                    format!(
+                        "{} is too short to move the end away from the start {:?}",
+                        num(h),
+                        p0.to_array()
+                    ),
+                ));
+            }
+            p1
         }
         _ => unreachable!("columns_from_header requires end, or axis and length"),
     };
@@ -800,6 +962,12 @@ impl Table {
     /// ([`crate::scene::framing::frame_all`]); the AOVs are depth, normal and shape_id,
     /// and label when any cylinder has one.
     pub fn scene_file(&self, frame: crate::scene::framing::Frame) -> SceneFile {
+        self.clone().into_scene_file(frame)
+    }
+
+    /// [`Table::scene_file`] without a copy of the cylinders (millions of them take
+    /// hundreds of MB).
+    pub fn into_scene_file(self, frame: crate::scene::framing::Frame) -> SceneFile {
         use crate::scene::Aov;
         let mut aovs = vec![Aov::Depth, Aov::Normal, Aov::ShapeId];
         if self.cylinders.iter().any(|c| c.label != 0) {
@@ -808,7 +976,7 @@ impl Table {
         SceneFile {
             camera: Some(crate::scene::framing::frame_all(&self.cylinders, frame)),
             cameras: None,
-            cylinders: self.cylinders.clone(),
+            cylinders: self.cylinders,
             aovs: Some(aovs),
         }
     }

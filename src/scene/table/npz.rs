@@ -30,11 +30,28 @@ fn whole_err(message: impl Into<String>) -> TableError {
     }
 }
 
-/// The `.npy` members of the archive, by array name (`p0` for `p0.npy`).
-fn members(bytes: &[u8]) -> Result<Vec<(String, Vec<u8>)>, TableError> {
+/// The arrays a table reads, by name; any other member is left packed.
+const READ: [&str; 8] = [
+    "p0",
+    "p1",
+    "radius",
+    "id",
+    "label",
+    "caps",
+    "branch_order",
+    "branch",
+];
+
+/// The archive's arrays: the names of all its `.npy` members (for messages) and the
+/// unpacked bytes of those a table reads ([`READ`]), each checked against the memory left
+/// before it is inflated.
+type Members = (Vec<String>, Vec<(String, Vec<u8>)>);
+
+fn members(bytes: &[u8]) -> Result<Members, TableError> {
     let bad =
         |e: zip::result::ZipError| whole_err(format!("not a readable .npz (zip) archive: {e}"));
     let mut archive = zip::ZipArchive::new(std::io::Cursor::new(bytes)).map_err(bad)?;
+    let mut names = Vec::new();
     let mut out = Vec::new();
     let mut budget = MAX_ARRAY_BYTES;
     for k in 0..archive.len() {
@@ -43,6 +60,10 @@ fn members(bytes: &[u8]) -> Result<Vec<(String, Vec<u8>)>, TableError> {
         let Some(name) = name.strip_suffix(".npy").map(str::to_string) else {
             continue;
         };
+        names.push(name.clone());
+        if !READ.contains(&name.as_str()) || out.iter().any(|(m, _)| *m == name) {
+            continue;
+        }
         let size = member.size();
         if size > budget {
             return Err(whole_err(format!(
@@ -50,30 +71,35 @@ fn members(bytes: &[u8]) -> Result<Vec<(String, Vec<u8>)>, TableError> {
             )));
         }
         budget -= size;
-        let mut data = Vec::with_capacity(size as usize);
+        crate::mem::check_memory(&format!("unpacking array {name} ({size} bytes)"), size)
+            .map_err(|e| whole_err(e.to_string()))?;
+        let mut data = Vec::new();
+        crate::mem::try_reserve(&mut data, size as usize, &format!("array {name}"))
+            .map_err(|e| whole_err(e.to_string()))?;
         (&mut member)
             .take(size)
             .read_to_end(&mut data)
             .map_err(|e| whole_err(format!("array {name}: cannot unpack: {e}")))?;
         out.push((name, data));
     }
-    Ok(out)
+    Ok((names, out))
 }
 
-/// One named array of the table, its elements in C order.
-struct Column {
+/// One named array of the table. Its elements are read from the unpacked bytes as each
+/// is needed: a list of decoded values would take up to 8 times the bytes (a uint8 array
+/// of 60 MB, 137 KB packed, would take 480 MB as f64).
+struct Column<'a> {
     name: &'static str,
-    descr: String,
-    values: Vec<Element>,
+    raw: RawArray<'a>,
 }
 
-impl Column {
+impl<'a> Column<'a> {
     fn read(
-        members: &[(String, Vec<u8>)],
+        members: &'a [(String, Vec<u8>)],
         name: &'static str,
         n: Option<usize>,
         width: usize,
-    ) -> Result<Option<Column>, TableError> {
+    ) -> Result<Option<Column<'a>>, TableError> {
         let Some((_, bytes)) = members.iter().find(|(m, _)| m == name) else {
             return Ok(None);
         };
@@ -103,19 +129,24 @@ impl Column {
                 "array {name} must have shape {want}{n}, got {got}"
             )));
         }
-        let values = raw
-            .elements()
+        raw.check_readable()
             .map_err(|e| whole_err(format!("array {name}: {e}")))?;
-        Ok(Some(Column {
-            name,
-            descr: raw.descr,
-            values,
-        }))
+        Ok(Some(Column { name, raw }))
+    }
+
+    /// The element at `at` (C order); `label` names it if it cannot be read.
+    fn element(&self, at: usize, label: &str) -> Result<Element, TableError> {
+        self.raw.get(at).ok_or_else(|| {
+            whole_err(format!(
+                "{label}: cannot be read from array {} of dtype {}",
+                self.name, self.raw.descr
+            ))
+        })
     }
 
     /// The element at `at` (C order) as a finite number within the scene's coordinates.
     fn number(&self, at: usize, label: &str) -> Result<f64, TableError> {
-        let v = match self.values[at] {
+        let v = match self.element(at, label)? {
             Element::Float(v) => v,
             Element::Int(i) => i as f64,
         };
@@ -139,12 +170,18 @@ impl Column {
     /// The element at `row` as a whole number in `0..=max`.
     fn whole(&self, row: usize, max: u64) -> Result<u64, TableError> {
         let label = format!("{}[{row}]", self.name);
-        match self.values[row] {
+        if self.raw.is_float() {
+            return Err(whole_err(format!(
+                "array {}: must hold integers or bools, got dtype {}",
+                self.name, self.raw.descr
+            )));
+        }
+        match self.element(row, &label)? {
             Element::Int(i) if (0..=max as i128).contains(&i) => Ok(i as u64),
             Element::Int(i) => Err(whole_err(format!("{label}: must be in 0..={max}, got {i}"))),
             Element::Float(_) => Err(whole_err(format!(
                 "array {}: must hold integers or bools, got dtype {}",
-                self.name, self.descr
+                self.name, self.raw.descr
             ))),
         }
     }
@@ -158,18 +195,17 @@ pub fn read_npz(bytes: &[u8], opts: &TableOptions) -> Result<Table, TableError> 
             f.name()
         )));
     }
-    let members = members(bytes)?;
+    let (names, members) = members(bytes)?;
     let need = |name: &'static str, n: Option<usize>, width: usize| {
         Column::read(&members, name, n, width)?.ok_or_else(|| {
-            let present: Vec<&str> = members.iter().map(|(m, _)| m.as_str()).collect();
             whole_err(format!(
                 "the .npz has no array {name}; a table needs p0 (N, 3), p1 (N, 3) and radius (N,), it holds [{}]",
-                present.join(", ")
+                super::list_names(&names)
             ))
         })
     };
     let p0 = need("p0", None, 3)?;
-    let n = p0.values.len() / 3;
+    let n = p0.raw.len() / 3;
     if n == 0 {
         return Err(whole_err(
             "the table has no cylinder rows (p0 has shape (0, 3))",
@@ -201,8 +237,7 @@ pub fn read_npz(bytes: &[u8], opts: &TableOptions) -> Result<Table, TableError> 
         _ => None,
     };
 
-    let mut cylinders = Vec::with_capacity(n);
-    for row in 0..n {
+    let cylinder = |row: usize| -> Result<CylinderFile, TableError> {
         let a = p0.point(row)?;
         let b = p1.point(row)?;
         if a == b {
@@ -231,7 +266,7 @@ pub fn read_npz(bytes: &[u8], opts: &TableOptions) -> Result<Table, TableError> 
             Some(c) => c.whole(row, 1)? == 1,
             None => opts.caps.unwrap_or(true),
         };
-        cylinders.push(CylinderFile {
+        Ok(CylinderFile {
             p0: Some(a.to_array()),
             p1: Some(b.to_array()),
             radius: r,
@@ -239,7 +274,17 @@ pub fn read_npz(bytes: &[u8], opts: &TableOptions) -> Result<Table, TableError> 
             id: Some(id),
             label,
             ..CylinderFile::default()
-        });
+        })
+    };
+    // Every row is checked before room for the cylinders is asked for: a bad row is
+    // named whatever memory the whole table would need.
+    for row in 0..n {
+        cylinder(row)?;
+    }
+    let mut cylinders = Vec::new();
+    super::reserve_cylinders(&mut cylinders, n)?;
+    for row in 0..n {
+        cylinders.push(cylinder(row)?);
     }
     Ok(super::finish(TableFormat::Npz, cylinders, rule))
 }
