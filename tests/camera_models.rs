@@ -13,9 +13,13 @@ use std::path::Path;
 /// Render `model` (its fields merged into the camera) at 64×48 with every AOV; returns
 /// the output folder's EXR path.
 fn render(dir: &Path, name: &str, model: Value) -> std::path::PathBuf {
-    let scene = common::lens_test_scene(&model);
+    render_scene(dir, name, &common::lens_test_scene(&model).to_string())
+}
+
+/// Render the scene `text` as [`render`] does.
+fn render_scene(dir: &Path, name: &str, text: &str) -> std::path::PathBuf {
     let path = dir.join(format!("{name}.json"));
-    std::fs::write(&path, scene.to_string()).unwrap();
+    std::fs::write(&path, text).unwrap();
     let exr = dir.join(format!("{name}.exr"));
     common::ok(&[
         "render",
@@ -200,17 +204,7 @@ fn opencv_rays_stay_on_the_axis_side_of_a_fold() {
       "cylinders": [
         {"p0": [5, 3.385, 2.22], "p1": [5, 3.385, 2.82], "radius": 0.3, "id": 1},
         {"p0": [5, -6.88, -5.96], "p1": [5, -6.88, -4.36], "radius": 0.8, "id": 2}]}"#;
-    let path = dir.path().join("fold.json");
-    std::fs::write(&path, scene).unwrap();
-    let exr = dir.path().join("fold.exr");
-    common::ok(&[
-        "render",
-        path.to_str().unwrap(),
-        "-o",
-        exr.to_str().unwrap(),
-        "--aov",
-        "depth,distance,position,normal,shape_id,part",
-    ]);
+    let exr = render_scene(dir.path(), "fold", scene);
     let v = check(&py, &exr);
     assert!(num(&v, "hits") >= 20.0, "{v}");
     assert_eq!(v["cv2_points"], v["hits"]);
