@@ -403,7 +403,7 @@ fn trace_beam(
         let range = if found.is_empty() {
             hit.t
         } else {
-            along_beam(origin, dir, from, &hit).unwrap_or(along + hit.t)
+            along_beam(origin, dir, from, along, &hit).unwrap_or(along + hit.t)
         };
         if range > sensor.max_range {
             break;
@@ -415,7 +415,8 @@ fn trace_beam(
 }
 
 /// The range at which the beam `origin + s·dir` itself meets the surface `hit` found by
-/// a continued ray from `from`, `None` where that cannot be trusted.
+/// a continued ray from `from` (`along` the beam from `origin`), `None` where that cannot
+/// be trusted.
 ///
 /// Why: `from` lies off the beam's line by the spawn offset (the previous hit's error
 /// bound, tens of ulps of its coordinates), so `along + hit.t` is the range of a parallel
@@ -424,10 +425,9 @@ fn trace_beam(
 /// surface within a few ulps) at `s = (p - origin)·n / (dir·n)`; the plane departs from
 /// the surface by the offset squared over the radius between the two lines, far below
 /// one ulp. Kept only where it moves the range by no more than the offset can explain
-/// (`d / |dir·n|` for the lines' distance `d`, with 2× and an ulp of slack): a tangent
-/// beam (`dir·n` near 0) keeps the parallel line's range.
-fn along_beam(origin: DVec3, dir: DVec3, from: DVec3, hit: &RayHit) -> Option<f64> {
-    let along = (from - origin).dot(dir);
+/// (`d / |dir·n|` for the lines' distance `d`, with 2× and a few ulps of slack): a
+/// tangent beam (`dir·n` near 0) keeps the parallel line's range.
+fn along_beam(origin: DVec3, dir: DVec3, from: DVec3, along: f64, hit: &RayHit) -> Option<f64> {
     let parallel = along + hit.t;
     let cos = dir.dot(hit.normal);
     let s = (hit.position - origin).dot(hit.normal) / cos;
@@ -449,8 +449,8 @@ fn standard_normal(rng: &mut SplitMix64) -> f64 {
 }
 
 #[cfg(test)]
-mod wrap_tests {
-    use super::wrap_degrees;
+mod tests {
+    use super::*;
 
     #[test]
     fn azimuths_wrap_into_0_360() {
@@ -459,11 +459,6 @@ mod wrap_tests {
         assert_eq!(wrap_degrees(360.0), 0.0);
         assert_eq!(wrap_degrees(359.5 + 180.0), 179.5);
     }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
 
     #[test]
     fn normal_draws_have_unit_variance() {
