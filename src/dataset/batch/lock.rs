@@ -54,12 +54,14 @@ pub fn partial_root(out: &Path) -> Result<(PathBuf, Registration)> {
     let root = out.join(".partial");
     let mut held = signals::hold();
     let reg = held.register(Cleanup::EmptyDir, &root);
-    if let Err(e) = std::fs::create_dir(&root)
+    let made = std::fs::create_dir(&root);
+    // Before `reg` can drop: ending a registration takes the registry `held` holds.
+    drop(held);
+    if let Err(e) = made
         && e.kind() != std::io::ErrorKind::AlreadyExists
     {
         return Err(e).with_context(|| format!("creating {}", root.display()));
     }
-    drop(held);
     let m = root
         .symlink_metadata()
         .with_context(|| format!("reading {}", root.display()))?;
