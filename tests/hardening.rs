@@ -249,6 +249,111 @@ fn outputs_may_not_be_inputs_through_links() {
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
 
+/// The table a scene's `"cylinders": {"file": ...}` names is an input as much as the
+/// scene: no output of `render`, `cameras`, `export-mitsuba` or `scan` may overwrite it,
+/// whatever its name.
+#[test]
+fn a_scenes_table_is_never_overwritten() {
+    let tmp = dir("table-input");
+    let d = tmp.path();
+    let table = std::fs::read(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/tables/tree_cyl_data.txt"),
+    )
+    .unwrap();
+    let camera = r#"{"origin":[0.3,-11,5],"target":[0.3,0,2.8],"up":[0,0,1],"fov_deg":50,"width":32,"height":24}"#;
+    let mut failures = Vec::new();
+    for (name, args) in [
+        (
+            "t.csv",
+            vec!["cameras", "SCENE", "-o", "t.csv", "--orbit", "3"],
+        ),
+        ("t.csv", vec!["export-mitsuba", "SCENE", "-o", "t.csv"]),
+        (
+            "t.ply",
+            vec!["render", "SCENE", "-o", "o.exr", "--ply", "t.ply"],
+        ),
+        ("o.camera.json", vec!["render", "SCENE", "-o", "o.exr"]),
+        (
+            "t.ply",
+            vec![
+                "scan", "SCENE", "-o", "t.ply", "--sensor", "vlp16", "--pose", "0,-11,3",
+            ],
+        ),
+    ] {
+        let path = d.join(name);
+        std::fs::write(&path, &table).unwrap();
+        let scene = d.join("scene.json");
+        std::fs::write(
+            &scene,
+            format!(r#"{{"camera":{camera},"cylinders":{{"file":"{name}","format":"treeqsm"}}}}"#),
+        )
+        .unwrap();
+        let args: Vec<String> = args
+            .iter()
+            .map(|a| match *a {
+                "SCENE" => scene.display().to_string(),
+                a if a.contains('.') => d.join(a).display().to_string(),
+                a => a.to_string(),
+            })
+            .collect();
+        let o = cylaov(&args.iter().map(String::as_str).collect::<Vec<_>>());
+        let kept = std::fs::read(&path).unwrap() == table;
+        if o.status.code() != Some(1) || !stderr(&o).contains("would overwrite the input") || !kept
+        {
+            failures.push(format!(
+                "{args:?}: exit {:?}, table kept: {kept}, {}",
+                o.status.code(),
+                stderr(&o)
+            ));
+        }
+        std::fs::remove_file(&path).unwrap();
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+/// A render to `-o OUT` replaces the files an earlier render to `OUT` left beside it and
+/// this one does not write (an Open3D camera after an orthographic view, a depth PNG,
+/// the other EXR layout's files), which would describe another view.
+#[test]
+fn a_render_removes_the_files_of_an_earlier_one_it_does_not_write() {
+    let tmp = dir("render-stale");
+    let d = tmp.path();
+    let scenes = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes");
+    let out = d.join("v.exr");
+    let o = cylaov(&[
+        "render",
+        s(&scenes.join("single.json")),
+        "-o",
+        s(&out),
+        "--depth-png",
+        "--exr-layout",
+        "per-aov",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let before = [
+        "v.depth.exr",
+        "v.normal.exr",
+        "v.depth.png",
+        "v.open3d.json",
+    ];
+    for n in before {
+        assert!(d.join(n).exists(), "{n}");
+    }
+    let o = cylaov(&[
+        "render",
+        s(&scenes.join("orthographic.json")),
+        "-o",
+        s(&out),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let mut left: Vec<String> = std::fs::read_dir(d)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    left.sort();
+    assert_eq!(left, ["v.camera.json", "v.exr"]);
+}
+
 /// Run with stdout a pipe whose reader has already gone.
 fn closed_stdout(args: &[&str]) -> Output {
     let (reader, writer) = std::io::pipe().unwrap();
@@ -716,5 +821,62 @@ fn previews_and_heatmaps_carry_their_legends() {
     assert!(
         bare.len() < failing.len(),
         "no failing pixel is ringed: {bare:?}"
+    );
+}
+
+/// An AOV named twice in `--aov` is stored once, as a scene's `"aovs"` are: `render` and
+/// `batch` write the bytes of the list without the repeat (a repeated channel attribute
+/// made a header OpenEXR refuses; a repeated per-AOV file collided with itself).
+#[test]
+fn an_aov_named_twice_is_stored_once() {
+    let tmp = dir("aov-twice");
+    let d = tmp.path();
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/single.json");
+    let mut failures = Vec::new();
+    for (twice, once, layout) in [
+        ("normal,normal", "normal", "layers"),
+        ("depth,shape_id,depth", "depth,shape_id", "layers"),
+        ("depth,depth", "depth", "per-aov"),
+    ] {
+        let mut bytes = Vec::new();
+        for (tag, list) in [("twice", twice), ("once", once)] {
+            let out = d.join(format!("{tag}-{layout}.exr"));
+            let o = cylaov(&[
+                "render",
+                s(&scene),
+                "-o",
+                s(&out),
+                "--aov",
+                list,
+                "--exr-layout",
+                layout,
+            ]);
+            assert!(o.status.success(), "{list} {layout}: {}", stderr(&o));
+            let file = match layout {
+                "layers" => out,
+                _ => d.join(format!("{tag}-{layout}.depth.exr")),
+            };
+            bytes.push(std::fs::read(file).unwrap());
+        }
+        if bytes[0] != bytes[1] {
+            failures.push(format!("render --aov {twice} --exr-layout {layout}"));
+        }
+    }
+    let input = d.join("in");
+    std::fs::create_dir(&input).unwrap();
+    std::fs::copy(&scene, input.join("a.json")).unwrap();
+    let mut bytes = Vec::new();
+    for (tag, list) in [("twice", "shape_id,shape_id"), ("once", "shape_id")] {
+        let out = d.join(format!("batch-{tag}"));
+        let o = cylaov(&["batch", s(&input), "--out", s(&out), "--aov", list]);
+        assert!(o.status.success(), "{list}: {}", stderr(&o));
+        bytes.push(std::fs::read(out.join("a.exr")).unwrap());
+    }
+    if bytes[0] != bytes[1] {
+        failures.push("batch --aov shape_id,shape_id".into());
+    }
+    assert!(
+        failures.is_empty(),
+        "not the bytes without the repeat: {failures:?}"
     );
 }

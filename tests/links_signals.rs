@@ -857,3 +857,112 @@ fn too_many_open_files_is_reported_as_that() {
     assert!(se.contains("too many open files (ulimit -n)"), "{so}\n{se}");
     assert!(temps(&out).is_empty());
 }
+
+/// A SIGINT that arrives while a render's files are being renamed into place waits for the
+/// renames (they run under the clean-up's lock): the files are all the new render's, never
+/// a new camera file beside the previous render's EXR. `SLOW_COMMIT` spaces the renames
+/// 0.3 s apart; the signal goes once the first new file is in place.
+#[test]
+fn a_signal_during_the_commit_leaves_all_files_new() {
+    let tmp = dir("commit-signal");
+    let d = tmp.path();
+    let scenes = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes");
+    let (old, new) = (scenes.join("single.json"), scenes.join("cluster.json"));
+    let render = |scene: &Path, out: &Path| {
+        let o = exe()
+            .args(["render", s(scene), "-o", s(out), "--depth-png"])
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", stderr(&o));
+    };
+    // What the new render writes, for comparison.
+    let reference = d.join("reference");
+    render(&new, &reference.join("v.exr"));
+    let out = d.join("out");
+    render(&old, &out.join("v.exr"));
+    let names = ["v.exr", "v.camera.json", "v.open3d.json", "v.depth.png"];
+    let read = |dir: &Path, n: &str| std::fs::read(dir.join(n)).unwrap();
+    let old_camera = read(&out, "v.camera.json");
+    let first_in_place = |_pid: u32| {
+        names[1..]
+            .iter()
+            .any(|n| std::fs::read(out.join(n)).is_ok_and(|b| b == read(&reference, n)))
+    };
+    let o = signal_when(
+        &[
+            "render",
+            s(&new),
+            "-o",
+            s(&out.join("v.exr")),
+            "--depth-png",
+        ],
+        libc::SIGINT,
+        &first_in_place,
+        &[("CYLAOV_FAIL_WRITES", Path::new("SLOW_COMMIT"))],
+    );
+    assert_eq!(o.status.code(), Some(130), "{}", stderr(&o));
+    assert_ne!(old_camera, read(&reference, "v.camera.json"));
+    let old_files: Vec<&str> = names
+        .iter()
+        .copied()
+        .filter(|n| read(&out, n) != read(&reference, n))
+        .collect();
+    assert!(old_files.is_empty(), "not the new render's: {old_files:?}");
+    assert!(temps(&out).is_empty(), "{:?}", temps(&out));
+}
+
+/// A batch whose `OUT/.partial` cannot be made (a folder it may not write to) says so and
+/// exits 1 at once, in both formats; it never waits on itself. Run as an unprivileged user
+/// (`setpriv` to `nobody` when the tests run as root, for whom every folder is writable),
+/// with the binary and the scenes copied where that user can read them.
+#[test]
+fn a_batch_that_cannot_make_its_work_folder_fails_at_once() {
+    let tmp = dir("no-partial");
+    let d = tmp.path();
+    let ds = generated(d, 2, 32, 24, 5);
+    let bin = d.join("cylaov");
+    std::fs::copy(env!("CARGO_BIN_EXE_cylaov"), &bin).unwrap();
+    let out = d.join("out");
+    std::fs::create_dir(&out).unwrap();
+    let chmod = |mode: &str, p: &Path| {
+        let st = Command::new("chmod")
+            .args(["-R", mode, s(p)])
+            .status()
+            .unwrap();
+        assert!(st.success());
+    };
+    chmod("a+rX", d);
+    chmod("a-w", &out);
+    // SAFETY: geteuid has no preconditions and cannot fail.
+    let root = unsafe { libc::geteuid() } == 0;
+    for format in ["files", "webdataset"] {
+        let mut cmd = if root {
+            let mut c = Command::new("setpriv");
+            c.args(["--reuid=65534", "--regid=65534", "--clear-groups"])
+                .arg(&bin);
+            c
+        } else {
+            Command::new(&bin)
+        };
+        let child = cmd
+            .args(["batch", s(&ds), "--out", s(&out), "--format", format])
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let o = wait_bounded(
+            child,
+            30,
+            &format!("batch --format {format} into a read-only folder"),
+        );
+        assert_eq!(o.status.code(), Some(1), "{format}: {}", stderr(&o));
+        assert!(
+            stderr(&o).contains(&format!("creating {}", out.join(".partial").display()))
+                && stderr(&o).contains("Permission denied"),
+            "{format}: {}",
+            stderr(&o)
+        );
+    }
+    chmod("u+w", &out);
+}

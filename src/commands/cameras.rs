@@ -6,7 +6,7 @@ use crate::output::store::targets::check_outputs;
 use crate::scene::rig::CameraRig;
 use crate::scene::{self, SceneFile};
 use anyhow::{Context, Result};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 /// Everything `cameras` needs from the command line.
 #[derive(Clone, Debug)]
@@ -23,8 +23,12 @@ pub struct CamerasArgs {
 /// Write the resolved scene and return the one-line summary.
 pub fn run(args: &CamerasArgs) -> Result<String> {
     let (input, out) = (&args.scene, &args.out);
-    check_outputs(&[("-o", out)], &[input])?;
-    let mut file = scene::load_resolved(input).with_context(|| format!("{}", input.display()))?;
+    let (mut file, table) =
+        scene::load_resolved(input).with_context(|| format!("{}", input.display()))?;
+    let inputs: Vec<&Path> = std::iter::once(input.as_path())
+        .chain(table.as_deref())
+        .collect();
+    check_outputs(&[("-o", out)], &inputs)?;
     if let Some(rig) = &args.rig {
         let cameras = rig
             .resolve(&file.cylinders, "cameras")

@@ -10,8 +10,12 @@ use std::path::Path;
 
 /// Export `scene_path` to `out` and return a one-line summary.
 pub fn run(scene_path: &Path, out: &Path) -> Result<String> {
-    check_outputs(&[("-o", out)], &[scene_path])?;
-    let scene = scene::load(scene_path).with_context(|| format!("{}", scene_path.display()))?;
+    let (scene, table) =
+        scene::load_with_table(scene_path).with_context(|| format!("{}", scene_path.display()))?;
+    let inputs: Vec<&Path> = std::iter::once(scene_path)
+        .chain(table.as_deref())
+        .collect();
+    check_outputs(&[("-o", out)], &inputs)?;
     let xml = to_xml(&scene, &scene_path.display().to_string())
         .with_context(|| format!("{}", scene_path.display()))?;
     let mut dirs = NewDirs::default();

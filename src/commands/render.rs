@@ -81,6 +81,22 @@ fn member_path(out: &Path, preview: Option<&Path>, member: Member) -> PathBuf {
     }
 }
 
+/// What a render to `-o OUT` removes as it puts its files in place: the files beside `OUT`
+/// an earlier render to `OUT` may have written and this one does not (the other EXR
+/// layout's files, `OUT.open3d.json` of a pinhole view, `OUT.depth.png`), which would
+/// describe another view. Previews and `--ply` are in places the user names each time, and
+/// stay.
+fn stale(args: &RenderArgs, plan: &ViewPlan) -> Vec<PathBuf> {
+    let writes = plan.members();
+    let beside = [Member::Exr, Member::Open3d, Member::DepthPng]
+        .into_iter()
+        .chain(Aov::ALL.iter().map(|&a| Member::AovExr(a)));
+    beside
+        .filter(|m| !writes.contains(m))
+        .map(|m| member_path(&args.out, None, m))
+        .collect()
+}
+
 /// The flag a member's target is checked under.
 fn flag(member: Member) -> &'static str {
     match member {
@@ -111,16 +127,30 @@ fn check_exr_name(out: &Path) -> Result<()> {
 /// Run a render and return the one-line summary.
 pub fn run(args: &RenderArgs) -> Result<String> {
     let start = Instant::now();
-    let mut scene =
-        scene::load(&args.scene).with_context(|| format!("{}", args.scene.display()))?;
+    let (mut scene, table) =
+        scene::load_with_table(&args.scene).with_context(|| format!("{}", args.scene.display()))?;
     scene
         .select_camera(args.camera)
         .with_context(|| format!("--camera {}: {}", args.camera, args.scene.display()))?;
-    let aovs = args.aovs.clone().unwrap_or_else(|| scene.aovs.clone());
+    // `--aov`'s repeats dropped, as a scene's are.
+    let aovs = args
+        .aovs
+        .as_deref()
+        .map_or_else(|| scene.aovs.clone(), Aov::without_repeats);
     let cam = Camera::new(scene.camera);
     let plan = plan(args, cam, &aovs);
     if let Some(dir) = &args.preview {
         check_output_dir("--preview", dir)?;
+        // The previews show what the EXR stores: without one of these there is none.
+        let shown = [Aov::Normal, Aov::Depth, Aov::Distance];
+        if !aovs.iter().any(|a| shown.contains(a)) {
+            bail!(
+                "--preview {}: previews show normal, depth or distance, and the AOVs are {}: \
+                 add one with --aov",
+                dir.display(),
+                aovs.iter().map(|a| a.name()).collect::<Vec<_>>().join(",")
+            );
+        }
     }
     // None may be the scene or a file that is not a regular file (see `io::check_outputs`).
     let targets: Vec<(&str, PathBuf)> = plan
@@ -132,7 +162,10 @@ pub fn run(args: &RenderArgs) -> Result<String> {
     if let Some(ply) = &args.ply {
         list.push(("--ply", ply.as_path()));
     }
-    check_outputs(&list, &[&args.scene])?;
+    let inputs: Vec<&Path> = std::iter::once(args.scene.as_path())
+        .chain(table.as_deref())
+        .collect();
+    check_outputs(&list, &inputs)?;
     // After the target checks: a FIFO, a link or the scene itself at -o is refused as that.
     check_exr_name(&args.out)?;
     if let Some(ply) = &args.ply {
@@ -163,7 +196,12 @@ pub fn run(args: &RenderArgs) -> Result<String> {
         None => None,
     };
     let (out, preview) = (args.out.clone(), args.preview.clone());
-    let mut sink = FileSink::beside(move |m| member_path(&out, preview.as_deref(), m));
+    let stale = stale(args, &plan);
+    let mut sink =
+        FileSink::beside(move |m| member_path(&out, preview.as_deref(), m)).replacing(stale);
+    if let Some(staged) = ply {
+        sink = sink.with_staged(staged);
+    }
     let written = plan
         .execute(&scene, &args.options, &mut sink)
         .map_err(|e| match e.downcast_ref::<DepthOutOfRange>() {
@@ -178,12 +216,6 @@ pub fn run(args: &RenderArgs) -> Result<String> {
             args.out.display(),
             written.depth_zeroed
         ));
-    }
-    if let Some(staged) = ply {
-        let path = staged.path().to_path_buf();
-        staged
-            .commit()
-            .with_context(|| format!("writing {}", path.display()))?;
     }
     dirs.keep();
     let trace_ms = written.trace.as_secs_f64() * 1e3;

@@ -71,6 +71,9 @@ pub fn run(args: &ScanArgs) -> Result<String> {
     if let Some(t) = &args.trajectory {
         inputs.push(t.as_path());
     }
+    let (scene, table) =
+        scene::load_with_table(&args.scene).with_context(|| format!("{}", args.scene.display()))?;
+    inputs.extend(table.as_deref());
     check_outputs(&[("-o", &args.out)], &inputs)?;
     let sensor = load_sensor(&args.sensor)?;
     let motion = match &args.trajectory {
@@ -91,7 +94,6 @@ pub fn run(args: &ScanArgs) -> Result<String> {
     };
     opts.validate()
         .map_err(|e| anyhow!("--{}", e.replace('_', "-")))?;
-    let scene = scene::load(&args.scene).with_context(|| format!("{}", args.scene.display()))?;
     crate::mem::check_memory(
         &format!("a scan of up to {} points", opts.most_points()),
         opts.memory(),

@@ -66,6 +66,18 @@ impl Aov {
     pub fn parse(s: &str) -> Option<Aov> {
         Aov::ALL.into_iter().find(|a| a.name() == s)
     }
+
+    /// `list` in its order with repeats dropped: an AOV asked for twice is stored once (an
+    /// EXR's channels and attributes, a per-AOV file, must each be unique).
+    pub fn without_repeats(list: &[Aov]) -> Vec<Aov> {
+        let mut out: Vec<Aov> = Vec::with_capacity(list.len());
+        for &a in list {
+            if !out.contains(&a) {
+                out.push(a);
+            }
+        }
+        out
+    }
 }
 
 /// How an AOV's samples are stored in the layered EXR and handed to Python.

@@ -24,7 +24,7 @@ use glam::DVec3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::fmt;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// Largest coordinate, radius or height accepted: f32 squares overflow near 1.8e19.
 pub const MAX_COORD: f64 = 1e12;
@@ -265,6 +265,13 @@ pub struct TableRef {
     pub caps: Option<bool>,
 }
 
+impl TableRef {
+    /// The table's path: `file` taken relative to `base`, the scene file's folder.
+    pub fn path(&self, base: &Path) -> PathBuf {
+        base.join(&self.file)
+    }
+}
+
 /// A scene file whose cylinders are a [`TableRef`] or whose cameras are a
 /// [`rig::CameraRig`] (either or both), read only when the plain [`SceneFile`] is not.
 #[derive(Clone, Debug, Deserialize)]
@@ -312,6 +319,14 @@ impl SceneFileRef {
     fn resolve(self, base: &Path) -> Result<Scene, SceneError> {
         self.resolve_file(base)?.validate()
     }
+
+    /// The table file `cylinders` names, if it names one.
+    fn table(&self, base: &Path) -> Option<PathBuf> {
+        match &self.cylinders {
+            strict::ListOr::Object(r) => Some(r.path(base)),
+            strict::ListOr::List(_) => None,
+        }
+    }
 }
 
 /// The cylinders of the table `r` names, relative to `base`.
@@ -341,7 +356,7 @@ fn read_table_ref(r: &TableRef, base: &Path) -> Result<Vec<CylinderFile>, SceneE
         })?),
         None => None,
     };
-    let path = base.join(&r.file);
+    let path = r.path(base);
     let opts = TableOptions {
         format,
         label,
@@ -353,19 +368,25 @@ fn read_table_ref(r: &TableRef, base: &Path) -> Result<Vec<CylinderFile>, SceneE
 }
 
 /// The scene file `text` describes with its table and rig resolved (cylinders inline, every
-/// camera listed), tables relative to `base`; `None` when it uses neither.
-pub fn resolve_file(text: &[u8], base: &Path) -> Option<Result<SceneFile, SceneError>> {
+/// camera listed), tables relative to `base`, and the table file it read; `None` when it
+/// uses neither a table nor a rig.
+pub fn resolve_file(
+    text: &[u8],
+    base: &Path,
+) -> Option<Result<(SceneFile, Option<PathBuf>), SceneError>> {
     let file = serde_json::from_slice::<strict::Object<SceneFileRef>>(text).ok()?;
     let plain = matches!(file.0.cylinders, strict::ListOr::List(_))
         && !matches!(file.0.cameras, Some(strict::ListOr::Object(_)));
-    (!plain).then(|| file.0.resolve_file(base))
+    let table = file.0.table(base);
+    (!plain).then(|| file.0.resolve_file(base).map(|f| (f, table)))
 }
 
 /// Whether `text` is a scene whose `cylinders` is an object (a [`TableRef`]), read as
-/// such; `None` for every other text.
-fn table_scene(text: &[u8], base: &Path) -> Option<Result<Scene, SceneError>> {
+/// such, with the table's path; `None` for every other text.
+fn table_scene(text: &[u8], base: &Path) -> Option<Result<(Scene, Option<PathBuf>), SceneError>> {
     if let Ok(file) = serde_json::from_slice::<strict::Object<SceneFileRef>>(text) {
-        return Some(file.0.resolve(base));
+        let table = file.0.table(base);
+        return Some(file.0.resolve(base).map(|s| (s, table)));
     }
     // A table reference with a mistake: the message names the field inside it.
     let mut de = serde_json::Deserializer::from_slice(text);
@@ -394,16 +415,22 @@ pub const MAX_SCENE_BYTES: u64 = 512 << 20;
 /// Read and validate a scene file. It must be a regular file (through links; a FIFO would
 /// block, a device never end) of at most [`MAX_SCENE_BYTES`].
 pub fn load(path: &Path) -> Result<Scene, SceneError> {
+    load_with_table(path).map(|(scene, _)| scene)
+}
+
+/// [`load`], with the table file the scene's `cylinders` names (if it names one): an input
+/// as much as the scene file, which no output may overwrite.
+pub fn load_with_table(path: &Path) -> Result<(Scene, Option<PathBuf>), SceneError> {
     let bytes = read_bounded(path)?;
     let bytes = bytes.as_slice();
     // A plain scene with its cylinders read on every core; then plain serde_json; only a
     // file both refuse is read again with path tracking (and checked for UTF-8), for the
     // message that names the field.
     if let Some(scene) = parallel::load(bytes) {
-        return Ok(scene);
+        return Ok((scene, None));
     }
     if let Ok(file) = serde_json::from_slice::<strict::Object<SceneFile>>(bytes) {
-        return file.0.validate();
+        return file.0.validate().map(|s| (s, None));
     }
     let base = path.parent().unwrap_or(Path::new(""));
     if let Some(scene) = table_scene(bytes, base) {
@@ -411,16 +438,17 @@ pub fn load(path: &Path) -> Result<Scene, SceneError> {
     }
     let text = std::str::from_utf8(bytes)
         .map_err(|e| err("", format!("not UTF-8 text (byte {})", e.valid_up_to())))?;
-    parse_serde(text)
+    parse_serde(text).map(|s| (s, None))
 }
 
 /// Read the scene file at `path` with its table and rig resolved (cylinders inline, every
-/// camera listed), validated: the file `cylaov cameras` writes.
-pub fn load_resolved(path: &Path) -> Result<SceneFile, SceneError> {
+/// camera listed), validated: the file `cylaov cameras` writes; with the table file it
+/// read, as [`load_with_table`].
+pub fn load_resolved(path: &Path) -> Result<(SceneFile, Option<PathBuf>), SceneError> {
     let bytes = read_bounded(path)?;
     let base = path.parent().unwrap_or(Path::new(""));
-    let file = match serde_json::from_slice::<strict::Object<SceneFile>>(&bytes) {
-        Ok(file) => file.0,
+    let (file, table) = match serde_json::from_slice::<strict::Object<SceneFile>>(&bytes) {
+        Ok(file) => (file.0, None),
         Err(_) => match resolve_file(&bytes, base) {
             Some(file) => file?,
             None => {
@@ -431,7 +459,7 @@ pub fn load_resolved(path: &Path) -> Result<SceneFile, SceneError> {
         },
     };
     file.validate()?;
-    Ok(file)
+    Ok((file, table))
 }
 
 /// The bytes of `path`, a regular file (through links) of at most [`MAX_SCENE_BYTES`]:
@@ -562,7 +590,7 @@ pub fn parse(text: &str) -> Result<Scene, SceneError> {
     match serde_json::from_str::<strict::Object<SceneFile>>(text) {
         Ok(file) => file.0.validate(),
         Err(_) => match table_scene(text.as_bytes(), Path::new("")) {
-            Some(scene) => scene,
+            Some(scene) => scene.map(|(s, _)| s),
             None => parse_serde(text),
         },
     }
@@ -759,15 +787,7 @@ fn validate_scene(
         Some(list) if list.is_empty() => {
             return Err(err("aovs", "must list at least one AOV, got []"));
         }
-        Some(list) => {
-            let mut out: Vec<Aov> = Vec::new();
-            for a in list {
-                if !out.contains(a) {
-                    out.push(*a);
-                }
-            }
-            out
-        }
+        Some(list) => Aov::without_repeats(list),
     };
     Ok(Scene {
         camera: cameras[0],

@@ -96,8 +96,11 @@ impl BatchOptions {
         Ok(())
     }
 
-    /// The AOVs stored in the EXR of `scene`.
+    /// The AOVs stored in the EXR of `scene` (`--aov`'s repeats dropped, as a scene's are).
     pub fn exr_aovs(&self, scene: &Scene) -> Vec<Aov> {
-        self.aovs.clone().unwrap_or_else(|| scene.aovs.clone())
+        match &self.aovs {
+            Some(list) => Aov::without_repeats(list),
+            None => scene.aovs.clone(),
+        }
     }
 }

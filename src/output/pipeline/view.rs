@@ -28,11 +28,11 @@ use crate::output::format::exr::{
 };
 use crate::output::format::preview;
 use crate::output::pipeline::memory::{render_memory, streams};
-use crate::output::store::atomic::{Staged, commit_all, explain, stage, stage_in};
+use crate::output::store::atomic::{Staged, commit_replacing, explain, stage, stage_in};
 use crate::render::{RenderOptions, render, render_bands};
 use crate::scene::camera::Camera;
 use crate::scene::{Aov, Scene};
-use anyhow::{Context, Result, anyhow};
+use anyhow::{Context, Result};
 use std::fs::File;
 use std::io::{self, Cursor, Seek, Write};
 use std::path::{Path, PathBuf};
@@ -484,11 +484,14 @@ enum Staging {
 }
 
 /// A view's members as files: staged under temporary names, then renamed into place
-/// together (see [`commit_all`]); dropped uncommitted, the staged files are removed.
+/// together (see [`commit_replacing`]); dropped uncommitted, the staged files are removed.
 pub struct FileSink {
     name: Box<dyn Fn(Member) -> PathBuf>,
     staging: Staging,
     staged: Vec<(Member, Staged)>,
+    /// Files staged outside the view's members (`render --ply`'s point cloud), committed
+    /// with them.
+    extra: Vec<Staged>,
     stale: Vec<PathBuf>,
 }
 
@@ -499,6 +502,7 @@ impl FileSink {
             name: Box::new(name),
             staging: Staging::Beside,
             staged: Vec::new(),
+            extra: Vec::new(),
             stale: Vec::new(),
         }
     }
@@ -523,6 +527,13 @@ impl FileSink {
     /// ones would contradict); a missing one is fine.
     pub fn replacing(mut self, stale: Vec<PathBuf>) -> FileSink {
         self.stale = stale;
+        self
+    }
+
+    /// Commit `staged` (a file of the command's own) with the members, in one
+    /// [`commit_replacing`].
+    pub fn with_staged(mut self, staged: Staged) -> FileSink {
+        self.extra.push(staged);
         self
     }
 
@@ -560,24 +571,15 @@ impl ViewSink for FileSink {
     }
 
     fn commit(&mut self) -> Result<()> {
-        if let Some((_, s)) = self.staged.iter().find(|(_, s)| s.path().is_dir()) {
-            return Err(anyhow!("{} is a folder", s.path().display()))
-                .context("putting the outputs in place");
-        }
-        for path in &self.stale {
-            match std::fs::remove_file(path) {
-                Err(e) if e.kind() != io::ErrorKind::NotFound => {
-                    return Err(e).with_context(|| format!("removing the old {}", path.display()));
-                }
-                _ => {}
-            }
-        }
         // EXRs last: an EXR in place says the view is complete.
         let (exrs, others): (Vec<_>, Vec<_>) = std::mem::take(&mut self.staged)
             .into_iter()
             .partition(|(m, _)| m.is_exr());
-        let ordered = others.into_iter().chain(exrs).map(|(_, s)| s).collect();
-        commit_all(ordered).context("putting the outputs in place")
+        let ordered = std::mem::take(&mut self.extra)
+            .into_iter()
+            .chain(others.into_iter().chain(exrs).map(|(_, s)| s))
+            .collect();
+        commit_replacing(&self.stale, ordered).context("putting the outputs in place")
     }
 }
 

@@ -300,20 +300,65 @@ impl Staged {
 /// Commit staged files together: none is renamed while any destination is a folder, and
 /// if a rename still fails, the files this call already put in place are removed again.
 pub fn commit_all(staged: Vec<Staged>) -> io::Result<()> {
+    commit_replacing(&[], staged)
+}
+
+/// [`commit_all`], removing the files `stale` names first (an older run's files the new
+/// ones would contradict; a missing one is fine). The removals and renames run under the
+/// signal registry ([`signals::hold`]): a Ctrl-C meanwhile waits for them, so the files are
+/// all old or all new, never a mix.
+pub fn commit_replacing(stale: &[PathBuf], staged: Vec<Staged>) -> io::Result<()> {
     if let Some(s) = staged.iter().find(|s| s.path.is_dir()) {
         return Err(io::Error::other(format!(
             "{} is a folder",
             s.path.display()
         )));
     }
+    // Registrations end (which takes the registry) only after `held` is gone.
+    let mut registrations = Vec::with_capacity(staged.len());
+    let files: Vec<(tempfile::NamedTempFile, PathBuf)> = staged
+        .into_iter()
+        .map(|s| {
+            registrations.push(s._registered);
+            (s.file, s.path)
+        })
+        .collect();
+    let held = signals::hold();
+    let result = rename_all(stale, files);
+    drop(held);
+    drop(registrations);
+    result
+}
+
+/// The removals and renames of [`commit_replacing`], rolled back on a failed rename.
+fn rename_all(stale: &[PathBuf], files: Vec<(tempfile::NamedTempFile, PathBuf)>) -> io::Result<()> {
+    for path in stale {
+        match std::fs::remove_file(path) {
+            // Missing, or a name too long to exist (a stale name is longer than its output's).
+            Err(e)
+                if !matches!(
+                    e.kind(),
+                    io::ErrorKind::NotFound | io::ErrorKind::InvalidFilename
+                ) =>
+            {
+                return Err(io::Error::new(
+                    e.kind(),
+                    format!("removing the old {}: {e}", path.display()),
+                ));
+            }
+            _ => {}
+        }
+    }
     let mut done: Vec<PathBuf> = Vec::new();
-    let last = staged.len().saturating_sub(1);
-    for (i, s) in staged.into_iter().enumerate() {
-        let path = s.path.clone();
+    let last = files.len().saturating_sub(1);
+    for (i, (file, path)) in files.into_iter().enumerate() {
+        if i > 0 && injected() == Some(Injected::SlowCommit) {
+            std::thread::sleep(std::time::Duration::from_millis(300));
+        }
         let committed = if i == last && i > 0 && injected() == Some(Injected::LastRename) {
             Err(io::Error::from_raw_os_error(5))
         } else {
-            s.commit()
+            file.persist(&path).map(drop).map_err(|e| e.error)
         };
         if let Err(e) = committed {
             for p in &done {
@@ -336,6 +381,9 @@ enum Injected {
     /// `COMMIT`: the last rename of every [`commit_all`] of several files fails (EIO) after
     /// the others were put in place (so the roll-back runs).
     LastRename,
+    /// `SLOW_COMMIT`: every rename after the first of a [`commit_all`] waits 0.3 s (so a
+    /// signal can arrive half-way through).
+    SlowCommit,
 }
 
 fn injected() -> Option<Injected> {
@@ -345,6 +393,7 @@ fn injected() -> Option<Injected> {
         || match std::env::var("CYLAOV_FAIL_WRITES").ok()?.as_str() {
             "ENOSPC" => Some(Injected::Write(28)),
             "COMMIT" => Some(Injected::LastRename),
+            "SLOW_COMMIT" => Some(Injected::SlowCommit),
             _ => None,
         },
     )
@@ -354,7 +403,7 @@ fn injected() -> Option<Injected> {
 fn injected_failure() -> Option<i32> {
     match injected()? {
         Injected::Write(errno) => Some(errno),
-        Injected::LastRename => None,
+        Injected::LastRename | Injected::SlowCommit => None,
     }
 }
 
