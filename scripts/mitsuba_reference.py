@@ -155,12 +155,18 @@ def main(argv):
         with open(json_path) as f:
             doc = json.load(f)
         cams = doc["cameras"] if "cameras" in doc else [doc["camera"]]
+        if not isinstance(cams, list):
+            fail(f"{json_path}: \"cameras\" is a camera rig ({', '.join(map(str, cams))}), not a "
+                 "list: give the script a scene whose cameras are listed (`cylaov verify` "
+                 "expands a rig itself)")
         if not 0 <= sensor < len(cams):
             fail(f"SENSOR: {json_path} has {len(cams)} camera(s), got {sensor}")
         cam = cams[sensor]
     except (OSError, ValueError, KeyError, TypeError) as e:
         fail(f"{json_path}: cannot read the camera: {e}")
     near = float(cam.get("near_clip", 0.01))
+    if not os.path.isfile(xml_path):
+        fail(f"{xml_path}: no such file")
 
     mi.set_variant("scalar_rgb")
     if extra:

@@ -116,3 +116,73 @@ fn classes_of_a_value_error() {
         r.failures
     );
 }
+
+/// Two cylinders with the same geometry (ids 1 and 2): a reference that names the other
+/// id on every hit is on a surface at the exact answer's distance, so each such pixel is a
+/// tie (counted as coincident), with no reproduction script. The control: the second
+/// cylinder 1e-3 inside the first (radius and top), where the other id lies behind the
+/// exact hit by far more than the reference's bound (~1e-6 relative here), stays an
+/// unexplained reference error.
+#[test]
+fn coincident_cylinders_tie_and_a_surface_behind_does_not() {
+    let scene_with = |inset: f64| {
+        let json = serde_json::json!({
+            "camera": {"origin": [3, -5, 2.5], "target": [0, 0, 0.6], "up": [0, 0, 1],
+                       "fov_deg": 40, "width": 32, "height": 24},
+            "cylinders": [
+                {"p0": [0, 0, 0], "p1": [0, 0, 1.5], "radius": 0.5, "id": 1},
+                {"p0": [0, 0, 0], "p1": [0, 0, 1.5 - inset], "radius": 0.5 - inset, "id": 2}
+            ]
+        });
+        scene::parse(&json.to_string()).expect("scene")
+    };
+    let swapped = |ours: &AovImage| {
+        let mut theirs = ours.clone();
+        let mut ids = theirs.u32_channel_mut("shape_id").expect("ids");
+        for k in 0..ids.len() {
+            if ids[k] == 1 {
+                ids[k] = 2;
+            }
+        }
+        theirs
+    };
+    let tol = Tolerances::default();
+    let scene = scene_with(0.0);
+    let ours = check_render(&scene, Precision::F64, FormulaKind::Stable);
+    let ids = ours.u32_channel("shape_id").expect("ids");
+    let hits = (0..ids.len()).filter(|&k| ids[k] == 1).count();
+    assert_eq!(hits, 94);
+    assert!(
+        (0..ids.len()).all(|k| ids[k] != 2),
+        "cylaov takes the first cylinder on every hit"
+    );
+    let c = check_against(&scene, &ours, &swapped(&ours), &tol).expect("comparable");
+    let a = &c.arbitration;
+    assert!(c.passed(), "{}", c.text());
+    assert_eq!((a.ties, a.coincident), (hits, hits), "{}", c.text());
+    assert_eq!(
+        (a.unexplained_reference_errors, a.proven_reference_errors),
+        (0, 0)
+    );
+    assert!(a.pixels.iter().all(|p| p.repro.is_none()));
+    assert!(
+        c.accepted.iter().any(|l| l.contains(
+            "94 of them where another cylinder's surface lies at the exact answer's distance"
+        )),
+        "{:?}",
+        c.accepted
+    );
+    // The second cylinder 1e-3 inside: the same swap is Mitsuba off the exact answer.
+    let scene = scene_with(1e-3);
+    let ours = check_render(&scene, Precision::F64, FormulaKind::Stable);
+    let c = check_against(&scene, &ours, &swapped(&ours), &tol).expect("comparable");
+    let a = &c.arbitration;
+    assert!(!c.passed(), "{}", c.text());
+    assert_eq!((a.coincident, a.candidate_errors), (0, 0), "{}", c.text());
+    assert_eq!(
+        a.unexplained_reference_errors + a.input_rounding,
+        hits,
+        "{}",
+        c.text()
+    );
+}

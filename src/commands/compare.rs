@@ -69,6 +69,68 @@ fn header_size(path: &Path) -> Result<(u64, u64)> {
     Ok((size.0 as u64 * size.1 as u64, h.channels.list.len() as u64))
 }
 
+/// Refuse a `--scene` whose camera is not the one `a`'s header records: the camera model
+/// (`cylaov:camera_model`, a perspective camera where a file with `worldToCamera` has
+/// none) and `worldToCamera` (each entry within 1e-6 of the matrix's largest). The bounds
+/// would otherwise be another view's. A file without `worldToCamera` (a Mitsuba reference)
+/// records no camera and is taken at its word.
+fn same_camera(a: &Path, scene_path: &Path, scene: &crate::scene::Scene) -> Result<()> {
+    use exr::meta::attribute::AttributeValue;
+    let file = crate::output::store::files::open_input(a)
+        .with_context(|| format!("reading {}", a.display()))?;
+    let meta = exr::meta::MetaData::read_from_buffered(std::io::BufReader::new(file), false)
+        .with_context(|| format!("reading {}", a.display()))?;
+    let Some(h) = meta.headers.first() else {
+        bail!("{}: no image in the file", a.display());
+    };
+    let attrs = &h.own_attributes;
+    let Some(recorded) = attrs.world_to_camera else {
+        return Ok(());
+    };
+    let cam = crate::scene::camera::Camera::new(scene.camera);
+    let model = cam.projection.model().name();
+    let recorded_model = match attrs
+        .other
+        .get(&exr::meta::attribute::Text::from("cylaov:camera_model"))
+    {
+        Some(AttributeValue::Text(t)) => t.to_string(),
+        _ => "perspective".to_string(),
+    };
+    if recorded_model != model {
+        bail!(
+            "--scene {}: its camera is {model}, {} was rendered with a {recorded_model} camera",
+            scene_path.display(),
+            a.display()
+        );
+    }
+    let want = crate::output::format::exr::exr_attributes(&cam, &[])
+        .into_iter()
+        .find_map(|at| match at {
+            crate::output::format::exr::ExrAttr::M44f("worldToCamera", m) => Some(m),
+            _ => None,
+        })
+        .context("the scene's camera has no worldToCamera")?;
+    let scale = want
+        .iter()
+        .chain(&recorded)
+        .fold(1.0f64, |m, &x| m.max(f64::from(x).abs()));
+    let off = want
+        .iter()
+        .zip(&recorded)
+        .map(|(&p, &q)| (f64::from(p) - f64::from(q)).abs())
+        .fold(0.0f64, f64::max);
+    if off > 1e-6 * scale || off.is_nan() {
+        bail!(
+            "--scene {}: its camera (origin {:?}, target {:?}) is not the one {} was rendered from: its worldToCamera differs by {off:.3e}",
+            scene_path.display(),
+            scene.camera.origin.to_array(),
+            scene.camera.target.to_array(),
+            a.display()
+        );
+    }
+    Ok(())
+}
+
 /// Bytes a comparison holds at its peak, for images of `(pixels, channels)` (both held, 4
 /// bytes a sample as they are read) and per pixel of the larger, when every pixel is a hit
 /// of the same part (the worst case): 32 bytes of labels while they are built (cylinder
@@ -103,6 +165,14 @@ pub fn run(args: &CompareArgs) -> Result<CompareOutcome> {
         Some(path) => {
             let scene = crate::scene::load(path)
                 .map_err(|e| anyhow::anyhow!("--scene {}: {e}", path.display()))?;
+            same_camera(&args.a, path, &scene)?;
+            if !crate::verify::arbiter::has_mitsuba_sensor(&scene.camera.projection) {
+                bail!(
+                    "--scene {}: camera.model {}: the float32 conditioning bound follows Mitsuba's perspective and orthographic rays; compare without --scene",
+                    path.display(),
+                    scene.camera.projection.model().name()
+                );
+            }
             match Conditioning::with_ulps(&scene, &a, args.conditioning_ulps) {
                 Some(c) => Some(c),
                 None => bail!(

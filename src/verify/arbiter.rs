@@ -314,6 +314,10 @@ pub struct Pixel {
     pub candidate_off: f64,
     /// The same for Mitsuba.
     pub reference_off: f64,
+    /// Whether a side's identity differs from the exact answer's only because another
+    /// surface lies at the same distance (within that side's bound): coincident cylinders,
+    /// where either identity is right. Such a pixel is a tie.
+    pub coincident: bool,
     /// Where Mitsuba is off (a reference error, explained or not) with another shape than
     /// the exact answer's on its own float32 inputs: the reproduction of that proven
     /// reference error ([`crate::verify::repro`]).
@@ -341,6 +345,8 @@ pub struct Arbitration {
     pub candidate_errors: usize,
     /// See [`PixelClass::Tie`].
     pub ties: usize,
+    /// The ties where two surfaces lie at the same distance ([`Pixel::coincident`]).
+    pub coincident: usize,
     /// Pixels where Mitsuba is on the exact answer for its float32 inputs
     /// ([`PixelClass::InputRounding`]).
     pub input_rounding: usize,
@@ -441,8 +447,16 @@ impl Arbitration {
             ));
         }
         if self.ties > 0 {
+            let coincident = if self.coincident > 0 {
+                format!(
+                    ", {} of them where another cylinder's surface lies at the exact answer's distance within the bound (coincident surfaces: either identity is right)",
+                    self.coincident
+                )
+            } else {
+                String::new()
+            };
             out.push(format!(
-                "tie: {} px where both are within their bounds of the exact answer ({}); {}",
+                "tie: {} px where both are within their bounds of the exact answer ({}){coincident}; {}",
                 self.ties,
                 self.kinds(PixelClass::Tie),
                 self.example(PixelClass::Tie)
@@ -466,8 +480,10 @@ impl Arbitration {
     pub fn note(&self) -> Option<String> {
         self.cannot_discriminate.then(|| {
             format!(
-                "Mitsuba cannot discriminate here: its float32 ray error δ = {:.3} is as large as the scene's features ({:.3} to {:.3}); the verdict rests on the exact answer alone",
-                self.delta_max, self.feature_min, self.radius_max
+                "Mitsuba cannot discriminate here: its float32 ray error δ = {} is as large as the scene's features ({} to {}); the verdict rests on the exact answer alone",
+                size(self.delta_max),
+                size(self.feature_min),
+                size(self.radius_max)
             )
         })
     }
@@ -503,6 +519,16 @@ impl Arbitration {
         .replace("(Normal)", "(normal)")
         .replace("(Position)", "(position)")
         .replace("(NonFinite)", "(non-finite)")
+    }
+}
+
+/// A length as the notes print it: three decimals from 0.01 up (`1.093`), three
+/// significant digits below (`2.38e-5`), so a small scene's δ does not print as 0.000.
+fn size(x: f64) -> String {
+    if x == 0.0 || x.abs() >= 0.01 {
+        format!("{x:.3}")
+    } else {
+        format!("{x:.2e}")
     }
 }
 
@@ -555,6 +581,11 @@ impl Tracer<'_> {
     /// The nearest exact hit of the pixel ray `r` (`r.dir` unit) with `t` in
     /// `[r.tmin, r.tmax]` (the clip range the render uses along that ray).
     fn trace(&self, r: &PixelRay) -> Option<Exact> {
+        self.trace_where(r, |_| true)
+    }
+
+    /// [`Tracer::trace`] over the cylinders whose index `keep` accepts.
+    fn trace_where(&self, r: &PixelRay, keep: impl Fn(usize) -> bool) -> Option<Exact> {
         let (o, d, tmax) = (r.origin, r.dir, r.tmax);
         if r.tmin > r.tmax || r.tmin.is_nan() || r.tmax.is_nan() {
             // A pixel without a ray (a lens model outside its image): nothing is seen.
@@ -562,7 +593,7 @@ impl Tracer<'_> {
         }
         let (lo, hi) = (DD::new(r.tmin), DD::new(r.tmax));
         let mut best: Option<(DD, usize, crate::verify::oracle::Hit)> = None;
-        for (k, c) in self.cylinders.iter().enumerate() {
+        for (k, c) in self.cylinders.iter().enumerate().filter(|(k, _)| keep(*k)) {
             // Padded so that rounding in the box test never drops a hit.
             let pad = 1e-9 * (c.radius + c.height + c.base.length());
             if !meets_box(o, d, tmax, self.boxes[k], pad) {
@@ -638,11 +669,19 @@ impl<'a> Side<'a> {
         let side = Side {
             ids: id_channel(img, "shape_id", which)?,
             parts: id_channel(img, "part", which)?,
-            distance: img.f32_channel("distance"),
-            depth: img.f32_channel("depth"),
-            normal: img.vec3_channel("normal"),
-            position: img.vec3_channel("position").filter(|_| every_aov),
-            normal_camera: img.vec3_channel("normal_camera").filter(|_| every_aov),
+            distance: float_channel(img, "distance", which)?,
+            depth: float_channel(img, "depth", which)?,
+            normal: vec3_float(img, "normal", which)?,
+            position: if every_aov {
+                vec3_float(img, "position", which)?
+            } else {
+                None
+            },
+            normal_camera: if every_aov {
+                vec3_float(img, "normal_camera", which)?
+            } else {
+                None
+            },
         };
         if side.ids.is_none() && side.distance.is_none() && side.depth.is_none() {
             bail!("{which}: cannot tell hits from misses: no shape_id, distance or depth channel");
@@ -688,6 +727,73 @@ impl<'a> Side<'a> {
     }
 }
 
+/// The float samples of channel `name`, `None` when `img` has no such channel; a channel
+/// stored as u32 is refused, naming it (a value the check could not read would go unjudged).
+fn float_channel<'a>(
+    img: &'a AovImage,
+    name: &str,
+    which: &str,
+) -> Result<Option<Strided<'a, f32>>> {
+    match img.channel(name) {
+        None => Ok(None),
+        Some(crate::image::ChannelRef::F32(v)) => Ok(Some(v)),
+        Some(crate::image::ChannelRef::U32(_)) => {
+            bail!("{which}: {name} is stored as u32, where the check reads float samples")
+        }
+    }
+}
+
+/// The three float channels `NAME.X/Y/Z`, `None` when `img` has none of them; one or two of
+/// them, or one stored as u32, is refused, naming it.
+fn vec3_float<'a>(
+    img: &'a AovImage,
+    name: &str,
+    which: &str,
+) -> Result<Option<[Strided<'a, f32>; 3]>> {
+    let [x, y, z] = ["X", "Y", "Z"].map(|c| format!("{name}.{c}"));
+    match (
+        float_channel(img, &x, which)?,
+        float_channel(img, &y, which)?,
+        float_channel(img, &z, which)?,
+    ) {
+        (Some(x), Some(y), Some(z)) => Ok(Some([x, y, z])),
+        (None, None, None) => Ok(None),
+        (x0, y0, z0) => {
+            let lacks: Vec<&str> = [(&x, x0.is_none()), (&y, y0.is_none()), (&z, z0.is_none())]
+                .into_iter()
+                .filter(|(_, none)| *none)
+                .map(|(n, _)| n.as_str())
+                .collect();
+            bail!("{which}: {name} lacks {}", lacks.join(" and "))
+        }
+    }
+}
+
+/// The channels of `img` the exact answer does not judge (`label`, `uv.U`, …): a
+/// candidate's values there go unchecked, and the verdict says so.
+pub fn unjudged_channels(img: &AovImage) -> Vec<String> {
+    const JUDGED: [&str; 13] = [
+        "shape_id",
+        "part",
+        "distance",
+        "depth",
+        "normal.X",
+        "normal.Y",
+        "normal.Z",
+        "position.X",
+        "position.Y",
+        "position.Z",
+        "normal_camera.X",
+        "normal_camera.Y",
+        "normal_camera.Z",
+    ];
+    img.names()
+        .into_iter()
+        .filter(|n| !JUDGED.contains(n))
+        .map(str::to_string)
+        .collect()
+}
+
 /// `|a - b| / max(|a|, |b|)`.
 fn rel(a: f64, b: f64) -> f64 {
     let s = a.abs().max(b.abs());
@@ -713,6 +819,15 @@ fn same_identity(cyls: &[Cylinder], s: &Sample, hit: bool, e: Option<&Exact>) ->
     }
 }
 
+/// A side's relative bound on the distance `e.t` (and depth) at coordinate size `l`: its
+/// float32 storage plus the sideways ray error `δ / (t cos i)`, `cos i` clamped at
+/// `√(δ/r)`.
+fn t_bound(e: &Exact, cyl: &Cylinder, bound: &Bound, l: f64) -> f64 {
+    let delta = bound.delta(l);
+    let cos = e.cos.max((delta / cyl.radius).sqrt()).min(1.0);
+    bound.storage_ulps * 2.0 * EPS32 + delta / (e.t * cos)
+}
+
 /// How far a side's values are from the exact answer `e` (same identity), in units of its
 /// bound (the largest over every value it stores; ≤ 1: within), and which value that is.
 /// `axes` are the camera's OpenCV axes (x right, y down, z forward), for `normal_camera`.
@@ -727,7 +842,7 @@ fn values_off(
     let delta = bound.delta(l);
     let cos = e.cos.max((delta / cyl.radius).sqrt()).min(1.0);
     let storage = bound.storage_ulps * 2.0 * EPS32;
-    let rel_bound = storage + delta / (e.t * cos);
+    let rel_bound = t_bound(e, cyl, bound, l);
     let mut worst = (0.0f64, Kind::Distance);
     let mut judge = |off: f64, kind: Kind| {
         let off = if off.is_nan() { f64::INFINITY } else { off };
@@ -891,6 +1006,7 @@ pub fn arbitrate_against(
         unexplained_reference_errors: count(PixelClass::UnexplainedReferenceError),
         candidate_errors: count(PixelClass::CandidateError),
         ties: count(PixelClass::Tie),
+        coincident: pixels.iter().filter(|p| p.coincident).count(),
         input_rounding: count(PixelClass::InputRounding),
         proven_reference_errors: pixels.iter().filter(|p| p.repro.is_some()).count(),
         delta_max,

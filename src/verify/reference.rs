@@ -15,13 +15,17 @@
 //!    by (cylinder, part), the flat [`Tolerances`], and per-pixel float32 conditioning
 //!    bounds from the scene.
 //!
-//! In a batch, [`MitsubaVerifier`] also checks that the dataset's EXR holds exactly the
-//! samples of that render (so the file is what was verified; where it differs, the file's
-//! samples are judged against Mitsuba and the exact answer, naming the pixels), and keeps
-//! the verdict in `NAME.verify.json` beside it, keyed to the sha256 of the EXR, the view's
-//! render stamp (`NAME.render.json`), the tolerances, the rule and the script: a resumed
-//! batch does not run Mitsuba again for a view already verified, and a file altered since
-//! is checked again.
+//! In a batch, [`MitsubaVerifier`] renders the view again with the kernel its record gives
+//! ([`Written`]: `NAME.render.json`, or a tar dataset's `shards.json`) and checks that the
+//! dataset's EXR holds exactly the samples of that render: every channel of the AOVs the
+//! record lists, of the same type, bit for bit, and no other (so the file is what was
+//! verified; where it differs, the file fails, naming the first differing channel, and its
+//! samples are judged against Mitsuba and the exact answer, naming the pixels). It keeps
+//! the verdict in `NAME.verify.json` beside it, keyed to everything the verdict depends
+//! on ([`CacheKey`]): the sha256 of the EXR and of the scene as loaded now, the view, the
+//! render stamp, the kernel, the tolerances, the rule and the script. A resumed batch does
+//! not run Mitsuba again for a view already verified; a file or scene altered since is
+//! checked again.
 //!
 //! **Signals**: Mitsuba's Python runs in a process group of its own (a Ctrl-C reaches
 //! cylaov, not it) registered with `crate::output::store::signals`, as is the scratch folder, so
@@ -35,6 +39,7 @@
 use crate::dataset::batch::{Verdict, Verifier, ViewSource};
 use crate::geometry::{FormulaKind, Precision};
 use crate::image::AovImage;
+use crate::output::format::exr::channel_names;
 use crate::output::store::atomic::atomic_write_bytes;
 use crate::output::store::signals::{self, Cleanup};
 use crate::render::{RenderOptions, render};
@@ -212,13 +217,24 @@ pub fn reference_image(
 /// cylaov's render for a check: every AOV a reference renders by default (identity and
 /// the channels conditioning needs; not those a reference renders only on request).
 pub fn check_render(scene: &Scene, precision: Precision, formula: FormulaKind) -> AovImage {
+    check_render_with(scene, precision, formula, &[])
+}
+
+/// [`check_render`] with the AOVs of `also` too (those a checked file holds).
+fn check_render_with(
+    scene: &Scene,
+    precision: Precision,
+    formula: FormulaKind,
+    also: &[Aov],
+) -> AovImage {
     let aovs = Aov::ALL
         .into_iter()
         .filter(|a| {
-            !matches!(
-                a.spec().mitsuba,
-                crate::scene::aov::MitsubaSource::OnRequest(_)
-            )
+            also.contains(a)
+                || !matches!(
+                    a.spec().mitsuba,
+                    crate::scene::aov::MitsubaSource::OnRequest(_)
+                )
         })
         .collect();
     let opts = RenderOptions {
@@ -365,20 +381,35 @@ pub fn check_line(c: &ViewCheck) -> String {
 }
 
 /// The rule a cached verdict was reached by: a verdict of another rule is checked again.
-const RULE: &str = "exact-answer-arbiter-1";
+const RULE: &str = "exact-answer-arbiter-2";
 
-/// What `NAME.verify.json` holds: the verdict and what it is valid for.
+/// Everything a cached verdict depends on: a verdict whose key differs in any field is
+/// reached again.
 #[derive(Serialize, Deserialize, PartialEq, Debug)]
-struct CachedVerdict {
-    /// The view's render stamp (`NAME.render.json`), verbatim.
-    stamp: String,
-    tolerances: [f64; 5],
+struct CacheKey {
     /// The rule of the verdict ([`RULE`]).
     rule: String,
+    /// The view's batch id (`scene` or `scene/NN`).
+    view: String,
+    /// The sha256 of the scene as loaded for this check (every field, the selected camera
+    /// included): a scene edited since the file was rendered is checked again.
+    scene_sha256: String,
+    /// The view's render stamp (`NAME.render.json`), verbatim.
+    stamp: String,
+    /// The kernel the view was rendered again with.
+    precision: String,
+    formula: String,
+    tolerances: [f64; 5],
     /// The sha256 of the EXR verified.
     exr_sha256: String,
     /// FNV-1a of the reference script.
     script: String,
+}
+
+/// What `NAME.verify.json` holds: the verdict and what it is valid for.
+#[derive(Serialize, Deserialize, PartialEq, Debug)]
+struct CachedVerdict {
+    key: CacheKey,
     passed: bool,
     silhouette_px: usize,
     seam_px: usize,
@@ -405,6 +436,73 @@ fn tolerance_key(t: &Tolerances) -> [f64; 5] {
     ]
 }
 
+/// What a checked file was written with, as its record says (a batch's `NAME.render.json`
+/// beside the EXR, or a tar dataset's `shards.json`): the AOVs it holds and the kernel that
+/// rendered them. The check renders the view again with that kernel, and the file must hold
+/// exactly the channels of those AOVs.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Written {
+    /// The AOVs the file holds.
+    pub aovs: Vec<Aov>,
+    /// The kernel's precision.
+    pub precision: Precision,
+    /// The kernel's formulation.
+    pub formula: FormulaKind,
+}
+
+impl Written {
+    /// The record's `aovs`, `precision` and `formula` fields (a render stamp or
+    /// `shards.json`); `what` names the record in errors. A per-AOV stamp is refused: the
+    /// check reads a layered EXR.
+    pub fn from_record(text: &str, what: &str) -> Result<Written> {
+        use crate::choice::Choice;
+        let v: serde_json::Value =
+            serde_json::from_str(text).with_context(|| format!("reading {what}"))?;
+        let field = |name: &str| {
+            v.get(name)
+                .ok_or_else(|| anyhow::anyhow!("{what}: no {name:?} field"))
+        };
+        let text_field = |name: &str| -> Result<String> {
+            field(name)?
+                .as_str()
+                .map(str::to_string)
+                .ok_or_else(|| anyhow::anyhow!("{what}: {name}: expected a string"))
+        };
+        if let Some(layout) = v.get("exr_layout").and_then(|l| l.as_str())
+            && layout != "layers"
+        {
+            bail!("{what}: exr_layout {layout:?}: the check reads a layered EXR");
+        }
+        let aovs = field("aovs")?
+            .as_array()
+            .ok_or_else(|| anyhow::anyhow!("{what}: aovs: expected a list"))?
+            .iter()
+            .map(|a| {
+                a.as_str()
+                    .and_then(Aov::parse)
+                    .ok_or_else(|| anyhow::anyhow!("{what}: aovs: {a} is not an AOV"))
+            })
+            .collect::<Result<Vec<Aov>>>()?;
+        let precision = text_field("precision")?;
+        let formula = text_field("formula")?;
+        Ok(Written {
+            aovs,
+            precision: Precision::parse(&precision).map_err(|e| {
+                anyhow::anyhow!(
+                    "{what}: precision: {precision:?} is not one of {}",
+                    e.known.join(", ")
+                )
+            })?,
+            formula: FormulaKind::parse(&formula).map_err(|e| {
+                anyhow::anyhow!(
+                    "{what}: formula: {formula:?} is not one of {}",
+                    e.known.join(", ")
+                )
+            })?,
+        })
+    }
+}
+
 /// `batch --verify-fraction`'s verifier.
 pub struct MitsubaVerifier {
     /// The reference renderer.
@@ -412,10 +510,14 @@ pub struct MitsubaVerifier {
     /// The bounds each view is judged by (also part of the cached verdict's key).
     pub tolerances: Tolerances,
     /// The batch's precision; with `formula` it names the batch's kernel, so the check
-    /// re-renders the view exactly as the batch did.
+    /// re-renders the view exactly as the batch did. A file with a record ([`Written`])
+    /// is rendered with the record's kernel instead.
     pub precision: Precision,
     /// The batch's ray–cylinder formulation (literal or stable), the kernel's other half.
     pub formula: FormulaKind,
+    /// What every file holds where no render stamp lies beside it (a tar dataset's
+    /// `shards.json`); `None`: the kernel above and the AOVs whose channels the file has.
+    pub written: Option<Written>,
     /// Print one line per verified view on stderr (batch's log); `verify` prints its table
     /// instead.
     pub log: bool,
@@ -452,6 +554,7 @@ impl MitsubaVerifier {
             tolerances,
             precision,
             formula,
+            written: None,
             log: true,
             keep: None,
         })
@@ -464,9 +567,24 @@ fn beside(exr: &Path, suffix: &str) -> PathBuf {
     exr.with_file_name(format!("{stem}.{suffix}"))
 }
 
-/// Where `file` differs from `fresh`, one phrase per channel: its first differing sample,
-/// `depth at [x, y]: file 1.5, render 1.49` (empty: every stored sample is the render's).
-fn differing_samples(file: &AovImage, fresh: &AovImage) -> Vec<String> {
+/// The render stamp of a batch's EXR: `DIR/NAME.exr` → `DIR/NAME.render.json`.
+pub fn stamp_path(exr: &Path) -> PathBuf {
+    beside(exr, "render.json")
+}
+
+/// The AOVs some channel of which `img` holds (a file without a record).
+fn aovs_held(img: &AovImage) -> Vec<Aov> {
+    Aov::ALL
+        .into_iter()
+        .filter(|&a| channel_names(a).iter().any(|c| img.has_channel(c)))
+        .collect()
+}
+
+/// Where `file` differs from `fresh` (a render with every one of `aovs`), one phrase per
+/// channel: a channel of `aovs` the file lacks or holds with another sample type, a channel
+/// of no AOV in `aovs`, or its first differing sample, `depth at [x, y]: file 1.5, render
+/// 1.49` (empty: the file holds exactly the render's samples of `aovs`).
+fn differing_samples(file: &AovImage, fresh: &AovImage, aovs: &[Aov]) -> Vec<String> {
     if (file.width, file.height) != (fresh.width, fresh.height) {
         return vec![format!(
             "image size: file {}x{}, render {}x{}",
@@ -475,21 +593,72 @@ fn differing_samples(file: &AovImage, fresh: &AovImage) -> Vec<String> {
     }
     let w = file.width;
     let at = |k: usize| format!("[{}, {}]", k % w, k / w);
-    file.names()
-        .into_iter()
-        .filter_map(|name| {
-            use crate::image::ChannelRef as C;
-            match (file.channel(name)?, fresh.channel(name)) {
-                (C::F32(a), Some(C::F32(b))) => (0..a.len().min(b.len()))
-                    .find(|&k| a[k].to_bits() != b[k].to_bits())
-                    .map(|k| format!("{name} at {}: file {}, render {}", at(k), a[k], b[k])),
-                (C::U32(a), Some(C::U32(b))) => (0..a.len().min(b.len()))
-                    .find(|&k| a[k] != b[k])
-                    .map(|k| format!("{name} at {}: file {}, render {}", at(k), a[k], b[k])),
-                _ => Some(format!("{name}: not a channel of the render")),
-            }
-        })
-        .collect()
+    let kind = |c: &crate::image::ChannelRef| match c {
+        crate::image::ChannelRef::F32(_) => "float32",
+        crate::image::ChannelRef::U32(_) => "u32",
+    };
+    let expected: Vec<&str> = aovs
+        .iter()
+        .flat_map(|&a| channel_names(a))
+        .copied()
+        .collect();
+    let listed = || {
+        let names: Vec<&str> = aovs.iter().map(|a| a.name()).collect();
+        names.join(",")
+    };
+    let mut out = Vec::new();
+    let missing: Vec<&str> = expected
+        .iter()
+        .copied()
+        .filter(|n| !file.has_channel(n))
+        .collect();
+    if !missing.is_empty() {
+        out.push(format!(
+            "missing from the file: {} (its record lists the AOVs {})",
+            missing.join(", "),
+            listed()
+        ));
+    }
+    for name in &expected {
+        use crate::image::ChannelRef as C;
+        let Some(b) = fresh.channel(name) else {
+            out.push(format!("{name}: not a channel of the render"));
+            continue;
+        };
+        let differ = match (file.channel(name), b) {
+            (None, _) => None,
+            (Some(C::F32(a)), C::F32(b)) => (0..a.len().min(b.len()))
+                .find(|&k| a[k].to_bits() != b[k].to_bits())
+                .map(|k| format!("{name} at {}: file {}, render {}", at(k), a[k], b[k])),
+            (Some(C::U32(a)), C::U32(b)) => (0..a.len().min(b.len()))
+                .find(|&k| a[k] != b[k])
+                .map(|k| format!("{name} at {}: file {}, render {}", at(k), a[k], b[k])),
+            (Some(a), b) => Some(format!(
+                "{name}: {} in the file, {} in the render",
+                kind(&a),
+                kind(&b)
+            )),
+        };
+        out.extend(differ);
+    }
+    for name in file.names() {
+        if !expected.contains(&name) {
+            out.push(format!(
+                "{name}: not a channel of the AOVs its record lists ({})",
+                listed()
+            ));
+        }
+    }
+    out
+}
+
+/// The sha256 of `scene` as loaded (its `Debug` form: every field, floats to the last bit).
+fn scene_sha256(scene: &Scene) -> String {
+    use sha2::Digest;
+    format!(
+        "{:x}",
+        sha2::Sha256::digest(format!("{scene:?}").as_bytes())
+    )
 }
 
 /// The sha256 of a file's bytes, hex.
@@ -530,19 +699,41 @@ impl MitsubaVerifier {
             check,
             images,
         };
-        let stamp = std::fs::read_to_string(beside(exr, "render.json")).unwrap_or_default();
+        let stamp_file = stamp_path(exr);
+        let stamp = std::fs::read_to_string(&stamp_file).unwrap_or_default();
+        let file = AovImage::read_exr(exr)?;
+        // The record says what the file holds and which kernel made it: the view is
+        // rendered again with that kernel, whatever this run's options.
+        let written = if !stamp.is_empty() {
+            Written::from_record(&stamp, &stamp_file.display().to_string())?
+        } else if let Some(w) = &self.written {
+            w.clone()
+        } else {
+            Written {
+                aovs: aovs_held(&file),
+                precision: self.precision,
+                formula: self.formula,
+            }
+        };
         let cache_path = beside(exr, "verify.json");
-        let key = (tolerance_key(&self.tolerances), fnv1a(SCRIPT.as_bytes()));
-        // The verdict is the file's: an EXR changed after it was verified is checked again.
-        let sha = sha256_of(exr)?;
+        let key = CacheKey {
+            rule: RULE.into(),
+            view: view.id(),
+            scene_sha256: scene_sha256(scene),
+            stamp: stamp.clone(),
+            precision: crate::choice::Choice::choice_name(written.precision).into(),
+            formula: crate::choice::Choice::choice_name(written.formula).into(),
+            tolerances: tolerance_key(&self.tolerances),
+            // The verdict is the file's: an EXR changed after it was verified is checked
+            // again.
+            exr_sha256: sha256_of(exr)?,
+            script: fnv1a(SCRIPT.as_bytes()),
+        };
         if !fresh
             && !stamp.is_empty()
             && let Ok(text) = std::fs::read_to_string(&cache_path)
             && let Ok(c) = serde_json::from_str::<CachedVerdict>(&text)
-            && c.stamp == stamp
-            && (c.tolerances, c.script.clone()) == key
-            && c.rule == RULE
-            && c.exr_sha256 == sha
+            && c.key == key
         {
             let verdict = Verdict {
                 passes: c.passed,
@@ -550,9 +741,9 @@ impl MitsubaVerifier {
             };
             return Ok(done(verdict, None, None));
         }
-        let ours = check_render(scene, self.precision, self.formula);
-        let file = AovImage::read_exr(exr)?;
-        let differ = differing_samples(&file, &ours);
+        let bound = Bound::cylaov(written.precision);
+        let ours = check_render_with(scene, written.precision, written.formula, &written.aovs);
+        let differ = differing_samples(&file, &ours, &written.aovs);
         let _scratch = signals::register(Cleanup::Tree, work);
         let reference = reference_image(
             Ok(&self.mitsuba),
@@ -569,14 +760,7 @@ impl MitsubaVerifier {
                 exr.display(),
                 differ.join("; ")
             );
-            let check = check_against_with(
-                scene,
-                &file,
-                &reference,
-                &self.tolerances,
-                Bound::cylaov(self.precision),
-            )
-            .ok();
+            let check = check_against_with(scene, &file, &reference, &self.tolerances, bound).ok();
             for f in check.iter().flat_map(|c| &c.failures) {
                 report += &format!("\n  {f}");
             }
@@ -590,13 +774,7 @@ impl MitsubaVerifier {
                 .map(|c| self.pictures(&view.name, scene, file, reference, c));
             return Ok(done(verdict, check, images));
         }
-        let check = check_against_with(
-            scene,
-            &ours,
-            &reference,
-            &self.tolerances,
-            Bound::cylaov(self.precision),
-        )?;
+        let check = check_against_with(scene, &ours, &reference, &self.tolerances, bound)?;
         let summary = check_line(&check);
         // One line per verified view (seam and silhouette counts); a failure adds the FAIL
         // lines of `compare`. The bar, if any, redraws on the next view.
@@ -608,11 +786,7 @@ impl MitsubaVerifier {
             crate::output::console::warn(&line);
         }
         let cached = CachedVerdict {
-            stamp,
-            tolerances: key.0,
-            rule: RULE.into(),
-            exr_sha256: sha,
-            script: key.1,
+            key,
             passed: check.passed(),
             silhouette_px: check.report.silhouette_mismatches,
             seam_px: check.report.seams,
@@ -623,7 +797,7 @@ impl MitsubaVerifier {
                 check.text()
             },
         };
-        if !cached.stamp.is_empty() {
+        if !stamp.is_empty() {
             let json = serde_json::to_string_pretty(&cached)?;
             atomic_write_bytes(&cache_path, json.as_bytes())
                 .with_context(|| format!("writing {}", cache_path.display()))?;

@@ -142,7 +142,7 @@ fn matrix(m: DMat4) -> String {
 /// `s` made safe inside an XML comment. XML 1.0 (`Comment ::= '<!--' ((Char - '-') |
 /// ('-' (Char - '-')))* '-->'`) forbids `--` anywhere in the text and a `-` at its end, and
 /// only allows `Char`s: a space goes between consecutive dashes (`---` → `- - -`), after a
-/// trailing dash, and control characters other than tab/newline/CR become U+FFFD. One
+/// trailing dash, and control characters other than tab/newline/CR, U+FFFE and U+FFFF become U+FFFD. One
 /// pass, so no `--` can survive (unlike a single `replace("--", "- -")`, which leaves
 /// `- --` from `---`).
 fn comment_safe(s: &str) -> String {
@@ -151,7 +151,9 @@ fn comment_safe(s: &str) -> String {
         if c == '-' && out.ends_with('-') {
             out.push(' ');
         }
-        let valid = !c.is_control() || matches!(c, '\t' | '\n' | '\r');
+        // U+FFFE and U+FFFF are no XML `Char` either.
+        let valid = matches!(c, '\t' | '\n' | '\r')
+            || !(c.is_control() || matches!(c, '\u{fffe}' | '\u{ffff}'));
         out.push(if valid { c } else { '\u{fffd}' });
     }
     if out.ends_with('-') {
@@ -502,6 +504,11 @@ mod tests {
         assert_eq!(comment_safe("a---b"), "a- - -b");
         assert_eq!(comment_safe("a-"), "a- ");
         assert_eq!(comment_safe("a-b"), "a-b");
+        // Not XML `Char`s: a strict parser refuses them even in a comment.
+        assert_eq!(
+            comment_safe("n\u{fffe}\u{ffff}.json"),
+            "n\u{fffd}\u{fffd}.json"
+        );
     }
 
     #[test]

@@ -5,7 +5,7 @@
 
 use super::{
     Bound, Exact, Kind, Pixel, PixelClass, Sample, Side, Tracer, angle, rel, reproduce,
-    same_identity, values_off,
+    same_identity, t_bound, values_off,
 };
 use crate::geometry::Cylinder;
 use crate::scene::Scene;
@@ -127,8 +127,8 @@ impl Judge<'_> {
 
     /// One side's sample `s` against the exact answer `e` on `ray`: identity first, then
     /// values. Gives the error in units of the side's `bound` (`l` the coordinate size,
-    /// `delta` the bound there), whether the identity is the exact one, and what is off
-    /// most.
+    /// `delta` the bound there), whether the identity is the exact one, what is off most,
+    /// and whether the identity is another surface at the exact answer's distance.
     #[allow(clippy::too_many_arguments)]
     fn judge(
         &self,
@@ -139,16 +139,33 @@ impl Judge<'_> {
         (l, delta): (f64, f64),
         ray: &PixelRay,
         e: Option<&Exact>,
-    ) -> (f64, bool, Kind) {
+    ) -> (f64, bool, Kind, bool) {
         let cylinders = &self.scene.cylinders;
         if non_finite {
-            return (f64::INFINITY, false, Kind::NonFinite);
+            return (f64::INFINITY, false, Kind::NonFinite, false);
         }
         if same_identity(cylinders, s, hit, e) {
             let (off, kind) = e.map_or((0.0, Kind::Distance), |e| {
                 values_off(s, e, &cylinders[e.index], bound, l, &self.axes)
             });
-            return (off, true, kind);
+            return (off, true, kind, false);
+        }
+        // Another cylinder with the side's id whose surface (of the side's part) lies at
+        // the exact answer's distance, within the side's bound: coincident surfaces, where
+        // the exact answer's choice is only the first in file order. The side's values are
+        // judged against that surface.
+        if let (Some(e), true, Some(id)) = (e, hit, s.id) {
+            let coincident = self
+                .tracer
+                .trace_where(ray, |k| k != e.index && cylinders[k].id == id)
+                .filter(|o| {
+                    s.part.is_none_or(|p| p == o.part)
+                        && rel(o.t, e.t) <= t_bound(e, &cylinders[e.index], bound, l)
+                });
+            if let Some(o) = coincident {
+                let (off, kind) = values_off(s, &o, &cylinders[o.index], bound, l, &self.axes);
+                return (off, false, kind, true);
+            }
         }
         let nearby = self.tracer.nearby(ray, delta);
         // Another part of the exact answer's cylinder (a rim): within δ when the exact ray
@@ -165,7 +182,7 @@ impl Judge<'_> {
                 .any(|n| same_identity(cylinders, &cylinder, hit, n.as_ref()))
         };
         let kind = if seam { Kind::Seam } else { Kind::Silhouette };
-        (if within { 0.0 } else { f64::INFINITY }, false, kind)
+        (if within { 0.0 } else { f64::INFINITY }, false, kind, false)
     }
 
     /// Whether Mitsuba's sample `sb` (a hit when `hb`) is on the exact answer for its own
@@ -221,7 +238,7 @@ impl Judge<'_> {
         let l = self.coordinate_size((x, y), [&sa, &sb, &exact], e.as_ref());
         let delta_a = self.candidate_bound.delta(l);
         let delta_b = self.reference_bound.delta(l);
-        let (off_a, exact_a, worst_a) = self.judge(
+        let (off_a, exact_a, worst_a, tied_a) = self.judge(
             &sa,
             ha,
             a.non_finite(k),
@@ -237,7 +254,7 @@ impl Judge<'_> {
             None if off_a > 1.0 => worst_a,
             None => return None,
         };
-        let (off_b, _, _) = self.judge(
+        let (off_b, _, _, tied_b) = self.judge(
             &sb,
             hb,
             b.non_finite(k),
@@ -253,7 +270,7 @@ impl Judge<'_> {
             PixelClass::InputRounding
         } else if off_b > 1.0 {
             PixelClass::UnexplainedReferenceError
-        } else if exact_a {
+        } else if exact_a && !tied_b {
             PixelClass::ReferenceError
         } else {
             PixelClass::Tie
@@ -275,6 +292,7 @@ impl Judge<'_> {
             delta: delta_b,
             candidate_off: off_a,
             reference_off: off_b,
+            coincident: class == PixelClass::Tie && (tied_a || tied_b),
             repro,
         })
     }
