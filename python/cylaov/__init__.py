@@ -18,7 +18,11 @@ Functions: ``render``, ``camera_info``, ``cast_rays``, ``spawn_rays``, ``camera_
 say more; the package's documentation page is ``docs/python.md`` in the repository.
 """
 
+import functools as _functools
+import inspect as _inspect
 import json as _json
+import math as _math
+import numbers as _numbers
 import operator as _operator
 import os as _os
 import re as _re
@@ -39,7 +43,6 @@ from ._cylaov import (
     camera_rays,
     compare,
     read,
-    render,
     shard_count,
 )
 
@@ -64,6 +67,88 @@ __all__ = [
 ]
 
 
+def _shorten(text):
+    """``text`` with every run of more than 40 letters, digits or dots cut to its first 20
+    and last 8 characters with the count between, as the Rust half shortens what its
+    messages echo: a megabyte of value does not flood the terminal."""
+    return _re.sub(r"[A-Za-z0-9.]{41,}",
+                   lambda m: f"{m[0][:20]}…({len(m[0]) - 28} more)…{m[0][-8:]}", text)
+
+
+def _described(value):
+    """A value for a message: its type and its shortened repr, ``int 1``, ``str 'x'``."""
+    return f"{type(value).__name__} {_shorten(repr(value))}"
+
+
+def _is_real(value):
+    """Whether ``value`` is a real number (``int``, ``float``, a numpy real), as a ``float``
+    argument takes it; not a string, a complex number or a bool standing for one."""
+    return isinstance(value, _numbers.Real) and not isinstance(value, (bool, _np.bool_))
+
+
+# What an argument whose default is of this type must be, and how a message says it.
+_KINDS = {
+    str: (lambda v: isinstance(v, str), "a str"),
+    bool: (lambda v: isinstance(v, (bool, _np.bool_)), "a bool"),
+    float: (_is_real, "a real number"),
+}
+
+
+def _checked(*skip):
+    """Decorate a function so that each argument whose default is a ``str``, ``bool`` or
+    ``float`` (but those named in ``skip``, which take more) must be one, else
+    ``TypeError`` naming the argument and the value (``force: must be a bool, got int
+    1``): pyo3's own refusal names neither (``'int' object is not an instance of
+    'bool'``). Read from the signature, so each such argument of a wrapped function, and
+    of any added later, is checked without a line of its own."""
+
+    def wrap(f):
+        params = list(_inspect.signature(f).parameters.values())
+        kinds = {p.name: _KINDS[type(p.default)] for p in params
+                 if type(p.default) in _KINDS and p.name not in skip}
+        names = [p.name for p in params]
+
+        @_functools.wraps(f)
+        def call(*args, **kwargs):
+            for name, value in zip(names, args):
+                _check_kind(kinds, name, value)
+            for name, value in kwargs.items():
+                _check_kind(kinds, name, value)
+            return f(*args, **kwargs)
+
+        if getattr(f, "__text_signature__", None):
+            call.__text_signature__ = f.__text_signature__
+        return call
+
+    return wrap
+
+
+def _check_kind(kinds, name, value):
+    kind = kinds.get(name)
+    if kind is not None and not kind[0](value):
+        raise TypeError(f"{name}: must be {kind[1]}, got {_described(value)}")
+
+
+# The compiled functions with such arguments (the others take numbers, checked there).
+render = _checked()(_cylaov.render)
+
+
+def _real_array(x, name):
+    """``x`` as a float64 array; complex values (whose imaginary part the conversion would
+    drop with a mere warning) and what numpy cannot convert raise ``ValueError`` naming
+    ``name``, as ``Scene.from_arrays`` refuses them."""
+    try:
+        a = _np.asarray(x)
+        if a.dtype.kind == "c":
+            raise ValueError(f"{name}: complex values; rays take real numbers")
+        return _np.asarray(a, dtype=_np.float64)
+    except (TypeError, ValueError) as e:
+        if str(e).startswith(f"{name}: "):
+            raise
+        raise ValueError(f"{name}: not an array of real numbers: {_shorten(str(e))}") from None
+
+
+@_checked("t_min", "t_max")
 def cast_rays(scene, origins, directions, t_min=0.0, t_max=float("inf"),
               aovs=("t_hit", "normal", "shape_id", "part"), precision="f64",
               formula="stable", threads=None):
@@ -90,15 +175,17 @@ def cast_rays(scene, origins, directions, t_min=0.0, t_max=float("inf"),
     ``t_max``, ``float32(t_hit * |d|)`` is the EXR's ``distance``, bit for bit.
 
     Bad rays (zero or non-finite direction, ``t_min < 0``, ``t_max < t_min``) raise
-    ``ValueError`` naming the ray's flat index.
+    ``ValueError`` naming the ray's flat index; any finite non-zero direction is one, however
+    long or short (``[1e300, 0, 0]``). Complex values are refused, not cut to their real
+    part.
     """
-    d = _np.asarray(directions, dtype=_np.float64)
+    d = _real_array(directions, "directions")
     if d.ndim < 1 or d.shape[-1] != 3:
         raise ValueError(f"directions: shape must be (..., 3), got {d.shape}")
     shape = d.shape[:-1]
-    o = _np.asarray(origins, dtype=_np.float64)
-    lo = _np.asarray(t_min, dtype=_np.float64)
-    hi = _np.asarray(t_max, dtype=_np.float64)
+    o = _real_array(origins, "origins")
+    lo = _real_array(t_min, "t_min")
+    hi = _real_array(t_max, "t_max")
     try:
         wide = (_np.broadcast_to(o, d.shape), _np.broadcast_to(lo, shape),
                 _np.broadcast_to(hi, shape))
@@ -116,6 +203,7 @@ def cast_rays(scene, origins, directions, t_min=0.0, t_max=float("inf"),
     return {k: v.reshape(shape + v.shape[1:]) for k, v in out.items()}
 
 
+@_checked()
 def scan(scene, sensor, pose=(0.0, 0.0, 0.0), trajectory=None, returns=1, range_noise=0.0,
          dropout=0.0, seed=0, threads=None):
     """One rotation of a simulated LiDAR: the points as a dict of numpy arrays.
@@ -142,7 +230,7 @@ def scan(scene, sensor, pose=(0.0, 0.0, 0.0), trajectory=None, returns=1, range_
     if not isinstance(scene, Scene):
         scene = Scene.load(_os.fspath(scene))
     if isinstance(sensor, dict):
-        sensor = _json.dumps(sensor)
+        sensor = _json_text(sensor, "sensor")
     elif isinstance(sensor, (str, _os.PathLike)) and _os.path.isfile(sensor):
         with open(sensor, encoding="utf-8") as f:
             sensor = f.read()
@@ -159,9 +247,22 @@ def scan(scene, sensor, pose=(0.0, 0.0, 0.0), trajectory=None, returns=1, range_
                 raise ValueError(f"trajectory: shape must be (M, 7), got {rows.shape}")
             csv = "time,x,y,z,yaw,pitch,roll\n" + "".join(
                 ",".join(repr(float(v)) for v in r) + "\n" for r in rows)
-    pose = [float(v) for v in pose]
+    pose = _reals(pose, "pose", "(x, y, z) or (x, y, z, yaw, pitch, roll)")
     return _cylaov._scan(scene, sensor, pose, csv, returns, float(range_noise),
                          float(dropout), seed, threads)
+
+
+def _reals(values, name, what):
+    """A sequence of real numbers as floats; else ``TypeError`` naming ``name`` (or the
+    item, ``pose[1]``) and the value."""
+    if isinstance(values, (str, bytes)) or not hasattr(values, "__iter__"):
+        raise TypeError(f"{name}: {what} in numbers, got {_described(values)}")
+    out = []
+    for i, v in enumerate(values):
+        if not _is_real(v):
+            raise TypeError(f"{name}[{i}]: must be a real number, got {_described(v)}")
+        out.append(float(v))
+    return out
 
 
 def spawn_rays(hits, directions):
@@ -199,6 +300,7 @@ def spawn_rays(hits, directions):
     return _cylaov._spawn_rays(flat(p), flat(e), flat(n), flat(d)).reshape(p.shape)
 
 
+@_checked()
 def write_shards(input, out, shards=None, shard_size=1000, aovs=None, members=None,
                  precision="f64", formula="stable", depth_scale=1000.0, threads=None,
                  force=False):
@@ -308,7 +410,38 @@ def _settings_json(settings):
             return f.read()
     if not isinstance(settings, dict):
         raise TypeError(f"settings: a dict, a path to generate.json or None, got {type(settings).__name__}")
-    return _json.dumps(settings, allow_nan=False)
+    return _json_text(settings, "settings")
+
+
+def _json_text(value, name):
+    """``value`` as JSON text: dicts with ``str`` keys, lists, tuples, strings, finite
+    numbers, bools and None, numpy scalars and arrays taken as their Python values.
+    Anything else raises ``ValueError`` (a NaN or an infinity, which JSON cannot hold) or
+    ``TypeError`` naming where it lies, ``settings['fov']: must be a finite number, got
+    float nan``, where ``json`` names neither."""
+
+    def plain(v, at):
+        if isinstance(v, (_np.generic, _np.ndarray)):
+            v = v.tolist()
+        if v is None or isinstance(v, (bool, int, str)):
+            return v
+        if isinstance(v, float):
+            if not _math.isfinite(v):
+                raise ValueError(f"{at}: must be a finite number, got {_described(v)}")
+            return v
+        if isinstance(v, dict):
+            out = {}
+            for k, x in v.items():
+                if not isinstance(k, str):
+                    raise TypeError(f"{at}: keys must be str, got {_described(k)}")
+                out[k] = plain(x, f"{at}[{_shorten(repr(k))}]")
+            return out
+        if isinstance(v, (list, tuple)):
+            return [plain(x, f"{at}[{i}]") for i, x in enumerate(v)]
+        raise TypeError(f"{at}: not JSON data (a dict, list, str, finite number, bool or "
+                        f"None), got {_described(v)}")
+
+    return _json.dumps(plain(value, name), allow_nan=False)
 
 
 def generate(settings, seed, index):
@@ -326,7 +459,9 @@ class Dataset:
     """Generated views rendered on the fly: a map-style dataset (PyTorch's ``Dataset``
     protocol, without importing torch).
 
-    ``length`` counts views; with ``views_per_scene = V``, item ``i`` is camera ``i % V`` of
+    ``length`` counts views (at most ``2**63 - 1``, what ``len()`` can return);
+    ``views_per_scene=None`` takes the settings' ``views_per_scene``, else 1 (given, it must
+    agree with the settings). With ``views_per_scene = V``, item ``i`` is camera ``i % V`` of
     generated scene ``i // V`` (``generate(settings, seed, i // V)`` with V cameras). An item
     is the dict of ``render`` (``aovs`` and ``mask``) plus ``"camera_info"``; it depends on
     ``(settings, seed, i)`` alone, so every worker and process gets the same item ``i``
@@ -344,7 +479,7 @@ class Dataset:
         loader = torch.utils.data.DataLoader(ds, batch_size=8, num_workers=2)
     """
 
-    def __init__(self, settings, seed, length, aovs=("depth", "normal"), views_per_scene=1,
+    def __init__(self, settings, seed, length, aovs=("depth", "normal"), views_per_scene=None,
                  threads=None):
         self.settings = settings
         self.aovs = _names(aovs, "aovs: an AOV name or a sequence of AOV names")
@@ -353,7 +488,8 @@ class Dataset:
                                      views_per_scene, threads)
         self.seed = _operator.index(seed)
         self.length = _operator.index(length)
-        self.views_per_scene = _operator.index(views_per_scene)
+        # None: the settings' `views_per_scene`, else 1.
+        self.views_per_scene = self._views.views_per_scene
         self.threads = None if threads is None else _operator.index(threads)
 
     def __len__(self):

@@ -11,7 +11,7 @@ __version__: str
 PathLike = Union[str, "os.PathLike[str]"]
 AovName = Literal["distance", "depth", "normal", "position", "shape_id", "part", "normal_camera", "label", "uv"]
 RayOutput = Literal["t_hit", "normal", "shape_id", "part", "position", "position_error"]
-MemberName = Literal["exr", "depth.png"]
+MemberName = Literal["exr", "depth.png", "ply"]
 Settings = Union[None, Dict[str, Any], PathLike]
 
 class SceneError(ValueError):
@@ -32,7 +32,7 @@ class Scene:
     @staticmethod
     def from_table(
         path: PathLike,
-        format: Optional[Literal["csv", "treeqsm", "simpleforest", "archi"]] = None,
+        format: Optional[Literal["csv", "npz", "treeqsm", "simpleforest", "archi"]] = None,
         label: Optional[Literal["none", "branch_order", "branch", "segment"]] = None,
         caps: Optional[bool] = None,
     ) -> "Scene":
@@ -138,7 +138,7 @@ class Dataset:
         seed: int,
         length: int,
         aovs: Union[AovName, Sequence[AovName]] = ("depth", "normal"),
-        views_per_scene: int = 1,
+        views_per_scene: Optional[int] = None,
         threads: Optional[int] = None,
     ) -> None: ...
     def __len__(self) -> int: ...
