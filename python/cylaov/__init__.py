@@ -308,12 +308,18 @@ def write_shards(input, out, shards=None, shard_size=1000, aovs=None, members=No
     --format webdataset`` does, the same bytes; returns ``{"tars", "written", "skipped",
     "failed", "index_written", "problems"}`` (``problems``: what could not be cleaned up).
 
-    ``input`` is what ``batch`` takes (a scene file, a folder of them, a ``generate``
-    output), or scenes in memory: one ``Scene``, a list of them (keys ``scene_000000``,
-    ``scene_000001``, ... in order) or a dict ``{key: Scene}`` (each key names its views'
-    samples, as a scene file's stem does). Scenes in memory are written as scene files to a
-    temporary folder for the call, removed afterwards; a rerun with equal scenes skips the
-    tars already finished, as a rerun of ``batch`` does.
+    ``input`` is what ``batch`` takes (a folder of scene files, a ``generate`` output, a
+    ``.jsonl`` manifest; one scene file is refused, as ``batch`` refuses it), or scenes in
+    memory: one
+    ``Scene``, a list of them (keys ``scene_000000``, ``scene_000001``, ... in order) or a
+    dict ``{key: Scene}`` (each key names its views' samples, as a scene file's stem does).
+    Scenes in memory are written as ``OUT/scenes/KEY.json`` (with ``manifest.jsonl`` listing
+    them in the order a folder's scan takes them: the same tars), the dataset's input, which
+    ``shards.json`` records, so ``cylaov verify OUT`` reads them and equal calls write equal
+    bytes; a call with other scenes replaces them (a refused call leaves them). A rerun with
+    equal scenes skips the tars already finished, as a rerun of ``batch`` does; calls that
+    write tars of one dataset side by side pass the same scenes. An ``OUT/scenes`` that
+    this function did not write is refused, never replaced.
 
     Ctrl-C stops it with ``KeyboardInterrupt``, leaving the finished tars and no temporary
     file. ``out`` holds one dataset (``out/shards.settings.json``): a call with other
@@ -326,27 +332,141 @@ def write_shards(input, out, shards=None, shard_size=1000, aovs=None, members=No
         cylaov.write_shards(scenes, "shards", shard_size=25, aovs=("depth", "normal"))
     """
     named = _scene_files(input)
+    args = (shards, shard_size, aovs, members, precision, formula, depth_scale, threads, force)
     if named is None:
-        return _cylaov.write_shards(input, out, shards, shard_size, aovs, members, precision,
-                                    formula, depth_scale, threads, force)
-    with _tempfile.TemporaryDirectory(prefix="cylaov-scenes-") as tmp:
-        for key, scene in named.items():
-            with open(_os.path.join(tmp, key + ".json"), "w", encoding="utf-8") as f:
-                f.write(scene.to_json())
+        return _cylaov.write_shards(input, out, *args)
+    out = _os.fsdecode(out) if isinstance(out, bytes) else _os.fspath(out)
+    if not out:
+        raise ValueError("out: must name a folder, got '' (use '.' for the working folder)")
+    files = {key + ".json": scene.to_json().encode() for key, scene in named.items()}
+    # Read through a manifest: `batch` does not scan a folder inside its output for scene
+    # files (they could be its own outputs), but it reads the files a manifest lists. In
+    # the order a scan of the folder takes them (by name, bytewise): the same tars.
+    order = sorted(files, key=lambda n: n.encode("utf-8"))
+    files["manifest.jsonl"] = "".join(
+        _json.dumps({"scene": n}, ensure_ascii=False) + "\n" for n in order).encode("utf-8")
+    folder = _os.path.join(out, "scenes")
+    try:
+        return _SceneFolder(out, folder, files).call(
+            lambda: _cylaov.write_shards(folder, out, *args))
+    except ValueError as e:
+        message = str(e)
+        for path in (folder, _os.path.abspath(folder)):
+            message = _keys_for_files(message, path, named)
+        if message == str(e):
+            raise
+        raise type(e)(message) from None
+
+
+# The file that marks `OUT/scenes` as written by `write_shards` (hidden: not a scene).
+_SCENES_MARK = ".cylaov-write-shards"
+
+
+class _SceneFolder:
+    """``OUT/scenes`` holding exactly ``files`` (name: bytes) for the call made inside.
+
+    Left as it is when it holds them already (a rerun, or workers writing tars of one
+    dataset side by side); else the new files are written to a hidden folder in ``OUT``
+    and swapped in whole, the old folder kept aside: it comes back if the call is refused
+    (a ``ValueError`` with ``shards.settings.json`` unchanged: the old dataset stays with
+    its scenes, and an ``OUT`` made for the call goes again), and is removed otherwise."""
+
+    def __init__(self, out, folder, files):
+        self.out, self.folder, self.files = out, folder, files
+
+    def call(self, work):
+        """``work()`` with the folder in place."""
+        import shutil
+
+        have = self._held()
+        if have == self.files:
+            return work()
+        made_out = not _os.path.lexists(self.out)
+        _os.makedirs(self.out, exist_ok=True)
+        stage = _tempfile.mkdtemp(prefix=".scenes-", dir=self.out)
+        aside = None
         try:
-            return _cylaov.write_shards(tmp, out, shards, shard_size, aovs, members,
-                                        precision, formula, depth_scale, threads, force)
-        except ValueError as e:
-            message = _keys_for_files(str(e), tmp, named)
-            if message == str(e):
+            for name, data in self.files.items():
+                with open(_os.path.join(stage, name), "wb") as f:
+                    f.write(data)
+            with open(_os.path.join(stage, _SCENES_MARK), "w", encoding="utf-8") as f:
+                f.write("The scene files cylaov.write_shards wrote for the scenes in memory it "
+                        "was given: this dataset's input. Its next call with other scenes "
+                        "replaces them.\n")
+            settings = self._settings()
+            if have is not None:
+                aside = _tempfile.mkdtemp(prefix=".scenes-old-", dir=self.out)
+                _os.rename(self.folder, _os.path.join(aside, "scenes"))
+            try:
+                _os.rename(stage, self.folder)
+            except OSError:
+                # Another call put its folder there first: the same scenes do.
+                if self._held() != self.files:
+                    raise
+                shutil.rmtree(stage, ignore_errors=True)
+            stage = None
+            try:
+                return work()
+            except ValueError:
+                if self._settings() == settings:
+                    # Refused: OUT as it was (its old scenes back, or none, or no OUT).
+                    gone = _tempfile.mkdtemp(prefix=".scenes-", dir=self.out)
+                    _os.rename(self.folder, _os.path.join(gone, "scenes"))
+                    if aside is not None:
+                        _os.rename(_os.path.join(aside, "scenes"), self.folder)
+                    shutil.rmtree(gone, ignore_errors=True)
+                    if made_out:
+                        try:
+                            _os.rmdir(self.out)
+                        except OSError:
+                            pass
                 raise
-            raise type(e)(message) from None
+        finally:
+            if stage is not None:
+                shutil.rmtree(stage, ignore_errors=True)
+            if aside is not None:
+                shutil.rmtree(aside, ignore_errors=True)
+
+    def _held(self):
+        """What ``OUT/scenes`` holds (name: bytes; None when absent); ``ValueError`` when it
+        is there but not this function's."""
+        try:
+            names = _os.listdir(self.folder)
+        except FileNotFoundError:
+            if _os.path.lexists(self.folder):
+                raise ValueError(f"out: {self.folder} is a broken link; scenes in memory are "
+                                 "written there: remove it or choose another out") from None
+            return None
+        except NotADirectoryError:
+            raise ValueError(f"out: {self.folder} is not a folder; scenes in memory are "
+                             "written there: remove it or choose another out") from None
+        if _os.path.islink(self.folder) or _SCENES_MARK not in names:
+            raise ValueError(f"out: {self.folder} was not written by write_shards (it has no "
+                             f"{_SCENES_MARK}); scenes in memory are written there: choose "
+                             "another out, or move that folder")
+        held = {}
+        for name in names:
+            if name == _SCENES_MARK:
+                continue
+            path = _os.path.join(self.folder, name)
+            if _os.path.islink(path) or not _os.path.isfile(path):
+                held[name] = None
+                continue
+            with open(path, "rb") as f:
+                held[name] = f.read()
+        return held
+
+    def _settings(self):
+        try:
+            with open(_os.path.join(self.out, "shards.settings.json"), "rb") as f:
+                return f.read()
+        except OSError:
+            return None
 
 
 def _keys_for_files(message, tmp, named):
     """``message`` naming the scenes in memory by their keys (``input['a.b']``) where it
-    names the temporary scene files written for them, which the user never saw and which
-    are gone once the call returns."""
+    names the scene files written for them in ``OUT/scenes``, which the user never wrote."""
     if tmp not in message:
         return message
     prefix = _re.escape(_os.path.join(tmp, ""))
@@ -358,6 +478,11 @@ def _keys_for_files(message, tmp, named):
     message = _re.sub(prefix + r"([^/()]+?)\.json(?=[:)])", key, message)
     return message.replace("rename the scene files or give them manifest names",
                            "rename the keys")
+
+
+# The longest key: a scene file's name (KEY.json) takes at most 255 bytes on most file
+# systems.
+_KEY_BYTES = 255 - len(".json")
 
 
 def _scene_files(input):
@@ -380,11 +505,23 @@ def _scene_files(input):
         raise ValueError("input: no scenes (an empty list or dict)")
     for key, scene in items:
         if not isinstance(key, str):
-            raise TypeError(f"input: keys must be str, got {type(key).__name__} {key!r}")
+            raise TypeError(f"input: keys must be str, got {_described(key)}")
+        shown = _shorten(repr(key))
         if not isinstance(scene, Scene):
-            raise TypeError(f"input[{key!r}]: a Scene, got {type(scene).__name__}")
+            raise TypeError(f"input[{shown}]: a Scene, got {type(scene).__name__}")
         if not key or key in (".", "..") or "/" in key or "\\" in key or "\0" in key:
-            raise ValueError(f"input: key {key!r} cannot name a scene file")
+            raise ValueError(f"input: key {shown} cannot name a scene file")
+        if key.startswith("."):
+            raise ValueError(f"input: key {shown} starts with a dot, which hides a file: "
+                             "a scene file's name cannot")
+        try:
+            size = len(key.encode("utf-8"))
+        except UnicodeEncodeError:
+            raise ValueError(f"input: key {shown} is not valid text (a lone surrogate) and "
+                             "cannot name a scene file") from None
+        if size > _KEY_BYTES:
+            raise ValueError(f"input: key {shown} is {size} bytes of UTF-8; a scene file's "
+                             f"name takes at most {_KEY_BYTES} (and .json)")
     return dict(items)
 
 

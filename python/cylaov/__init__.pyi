@@ -163,9 +163,9 @@ def write_shards(
     force: bool = False,
 ) -> Dict[str, Any]:
     """Write tar shards `shards` (None: all) as `batch --format webdataset` does, same bytes;
-    returns {"tars", "written", "skipped", "failed", "index_written", "problems"}. `input` is a path as
-    `batch` takes, or scenes in memory: a Scene, a list (keys scene_000000, ...) or a dict
-    {key: Scene}. Ctrl-C stops it with
+    returns {"tars", "written", "skipped", "failed", "index_written", "problems"}. `input` is a folder or a
+    .jsonl manifest as `batch` takes it (not one scene file), or scenes in memory: a Scene, a list (keys scene_000000, ...) or a dict
+    {key: Scene}, written as OUT/scenes/KEY.json (the input `cylaov verify OUT` reads). Ctrl-C stops it with
     KeyboardInterrupt, leaving the finished tars (a rerun skips them) and no temporary file.
     `out` holds one dataset (`out/shards.settings.json`): a call with other settings (shard
     size, AOVs, members, inputs, kernel) raises ValueError naming each difference, unless
