@@ -18,7 +18,11 @@ Functions: ``render``, ``camera_info``, ``cast_rays``, ``spawn_rays``, ``camera_
 say more; the package's documentation page is ``docs/python.md`` in the repository.
 """
 
+import functools as _functools
+import inspect as _inspect
 import json as _json
+import math as _math
+import numbers as _numbers
 import operator as _operator
 import os as _os
 import re as _re
@@ -39,7 +43,6 @@ from ._cylaov import (
     camera_rays,
     compare,
     read,
-    render,
     shard_count,
 )
 
@@ -64,6 +67,88 @@ __all__ = [
 ]
 
 
+def _shorten(text):
+    """``text`` with every run of more than 40 letters, digits or dots cut to its first 20
+    and last 8 characters with the count between, as the Rust half shortens what its
+    messages echo: a megabyte of value does not flood the terminal."""
+    return _re.sub(r"[A-Za-z0-9.]{41,}",
+                   lambda m: f"{m[0][:20]}…({len(m[0]) - 28} more)…{m[0][-8:]}", text)
+
+
+def _described(value):
+    """A value for a message: its type and its shortened repr, ``int 1``, ``str 'x'``."""
+    return f"{type(value).__name__} {_shorten(repr(value))}"
+
+
+def _is_real(value):
+    """Whether ``value`` is a real number (``int``, ``float``, a numpy real), as a ``float``
+    argument takes it; not a string, a complex number or a bool standing for one."""
+    return isinstance(value, _numbers.Real) and not isinstance(value, (bool, _np.bool_))
+
+
+# What an argument whose default is of this type must be, and how a message says it.
+_KINDS = {
+    str: (lambda v: isinstance(v, str), "a str"),
+    bool: (lambda v: isinstance(v, (bool, _np.bool_)), "a bool"),
+    float: (_is_real, "a real number"),
+}
+
+
+def _checked(*skip):
+    """Decorate a function so that each argument whose default is a ``str``, ``bool`` or
+    ``float`` (but those named in ``skip``, which take more) must be one, else
+    ``TypeError`` naming the argument and the value (``force: must be a bool, got int
+    1``): pyo3's own refusal names neither (``'int' object is not an instance of
+    'bool'``). Read from the signature, so each such argument of a wrapped function, and
+    of any added later, is checked without a line of its own."""
+
+    def wrap(f):
+        params = list(_inspect.signature(f).parameters.values())
+        kinds = {p.name: _KINDS[type(p.default)] for p in params
+                 if type(p.default) in _KINDS and p.name not in skip}
+        names = [p.name for p in params]
+
+        @_functools.wraps(f)
+        def call(*args, **kwargs):
+            for name, value in zip(names, args):
+                _check_kind(kinds, name, value)
+            for name, value in kwargs.items():
+                _check_kind(kinds, name, value)
+            return f(*args, **kwargs)
+
+        if getattr(f, "__text_signature__", None):
+            call.__text_signature__ = f.__text_signature__
+        return call
+
+    return wrap
+
+
+def _check_kind(kinds, name, value):
+    kind = kinds.get(name)
+    if kind is not None and not kind[0](value):
+        raise TypeError(f"{name}: must be {kind[1]}, got {_described(value)}")
+
+
+# The compiled functions with such arguments (the others take numbers, checked there).
+render = _checked()(_cylaov.render)
+
+
+def _real_array(x, name):
+    """``x`` as a float64 array; complex values (whose imaginary part the conversion would
+    drop with a mere warning) and what numpy cannot convert raise ``ValueError`` naming
+    ``name``, as ``Scene.from_arrays`` refuses them."""
+    try:
+        a = _np.asarray(x)
+        if a.dtype.kind == "c":
+            raise ValueError(f"{name}: complex values; rays take real numbers")
+        return _np.asarray(a, dtype=_np.float64)
+    except (TypeError, ValueError) as e:
+        if str(e).startswith(f"{name}: "):
+            raise
+        raise ValueError(f"{name}: not an array of real numbers: {_shorten(str(e))}") from None
+
+
+@_checked("t_min", "t_max")
 def cast_rays(scene, origins, directions, t_min=0.0, t_max=float("inf"),
               aovs=("t_hit", "normal", "shape_id", "part"), precision="f64",
               formula="stable", threads=None):
@@ -90,15 +175,17 @@ def cast_rays(scene, origins, directions, t_min=0.0, t_max=float("inf"),
     ``t_max``, ``float32(t_hit * |d|)`` is the EXR's ``distance``, bit for bit.
 
     Bad rays (zero or non-finite direction, ``t_min < 0``, ``t_max < t_min``) raise
-    ``ValueError`` naming the ray's flat index.
+    ``ValueError`` naming the ray's flat index; any finite non-zero direction is one, however
+    long or short (``[1e300, 0, 0]``). Complex values are refused, not cut to their real
+    part.
     """
-    d = _np.asarray(directions, dtype=_np.float64)
+    d = _real_array(directions, "directions")
     if d.ndim < 1 or d.shape[-1] != 3:
         raise ValueError(f"directions: shape must be (..., 3), got {d.shape}")
     shape = d.shape[:-1]
-    o = _np.asarray(origins, dtype=_np.float64)
-    lo = _np.asarray(t_min, dtype=_np.float64)
-    hi = _np.asarray(t_max, dtype=_np.float64)
+    o = _real_array(origins, "origins")
+    lo = _real_array(t_min, "t_min")
+    hi = _real_array(t_max, "t_max")
     try:
         wide = (_np.broadcast_to(o, d.shape), _np.broadcast_to(lo, shape),
                 _np.broadcast_to(hi, shape))
@@ -116,6 +203,7 @@ def cast_rays(scene, origins, directions, t_min=0.0, t_max=float("inf"),
     return {k: v.reshape(shape + v.shape[1:]) for k, v in out.items()}
 
 
+@_checked()
 def scan(scene, sensor, pose=(0.0, 0.0, 0.0), trajectory=None, returns=1, range_noise=0.0,
          dropout=0.0, seed=0, threads=None):
     """One rotation of a simulated LiDAR: the points as a dict of numpy arrays.
@@ -142,7 +230,7 @@ def scan(scene, sensor, pose=(0.0, 0.0, 0.0), trajectory=None, returns=1, range_
     if not isinstance(scene, Scene):
         scene = Scene.load(_os.fspath(scene))
     if isinstance(sensor, dict):
-        sensor = _json.dumps(sensor)
+        sensor = _json_text(sensor, "sensor")
     elif isinstance(sensor, (str, _os.PathLike)) and _os.path.isfile(sensor):
         with open(sensor, encoding="utf-8") as f:
             sensor = f.read()
@@ -159,9 +247,22 @@ def scan(scene, sensor, pose=(0.0, 0.0, 0.0), trajectory=None, returns=1, range_
                 raise ValueError(f"trajectory: shape must be (M, 7), got {rows.shape}")
             csv = "time,x,y,z,yaw,pitch,roll\n" + "".join(
                 ",".join(repr(float(v)) for v in r) + "\n" for r in rows)
-    pose = [float(v) for v in pose]
+    pose = _reals(pose, "pose", "(x, y, z) or (x, y, z, yaw, pitch, roll)")
     return _cylaov._scan(scene, sensor, pose, csv, returns, float(range_noise),
                          float(dropout), seed, threads)
+
+
+def _reals(values, name, what):
+    """A sequence of real numbers as floats; else ``TypeError`` naming ``name`` (or the
+    item, ``pose[1]``) and the value."""
+    if isinstance(values, (str, bytes)) or not hasattr(values, "__iter__"):
+        raise TypeError(f"{name}: {what} in numbers, got {_described(values)}")
+    out = []
+    for i, v in enumerate(values):
+        if not _is_real(v):
+            raise TypeError(f"{name}[{i}]: must be a real number, got {_described(v)}")
+        out.append(float(v))
+    return out
 
 
 def spawn_rays(hits, directions):
@@ -199,6 +300,7 @@ def spawn_rays(hits, directions):
     return _cylaov._spawn_rays(flat(p), flat(e), flat(n), flat(d)).reshape(p.shape)
 
 
+@_checked()
 def write_shards(input, out, shards=None, shard_size=1000, aovs=None, members=None,
                  precision="f64", formula="stable", depth_scale=1000.0, threads=None,
                  force=False):
@@ -206,12 +308,18 @@ def write_shards(input, out, shards=None, shard_size=1000, aovs=None, members=No
     --format webdataset`` does, the same bytes; returns ``{"tars", "written", "skipped",
     "failed", "index_written", "problems"}`` (``problems``: what could not be cleaned up).
 
-    ``input`` is what ``batch`` takes (a scene file, a folder of them, a ``generate``
-    output), or scenes in memory: one ``Scene``, a list of them (keys ``scene_000000``,
-    ``scene_000001``, ... in order) or a dict ``{key: Scene}`` (each key names its views'
-    samples, as a scene file's stem does). Scenes in memory are written as scene files to a
-    temporary folder for the call, removed afterwards; a rerun with equal scenes skips the
-    tars already finished, as a rerun of ``batch`` does.
+    ``input`` is what ``batch`` takes (a folder of scene files, a ``generate`` output, a
+    ``.jsonl`` manifest; one scene file is refused, as ``batch`` refuses it), or scenes in
+    memory: one
+    ``Scene``, a list of them (keys ``scene_000000``, ``scene_000001``, ... in order) or a
+    dict ``{key: Scene}`` (each key names its views' samples, as a scene file's stem does).
+    Scenes in memory are written as ``OUT/scenes/KEY.json`` (with ``manifest.jsonl`` listing
+    them in the order a folder's scan takes them: the same tars), the dataset's input, which
+    ``shards.json`` records, so ``cylaov verify OUT`` reads them and equal calls write equal
+    bytes; a call with other scenes replaces them (a refused call leaves them). A rerun with
+    equal scenes skips the tars already finished, as a rerun of ``batch`` does; calls that
+    write tars of one dataset side by side pass the same scenes. An ``OUT/scenes`` that
+    this function did not write is refused, never replaced.
 
     Ctrl-C stops it with ``KeyboardInterrupt``, leaving the finished tars and no temporary
     file. ``out`` holds one dataset (``out/shards.settings.json``): a call with other
@@ -224,27 +332,141 @@ def write_shards(input, out, shards=None, shard_size=1000, aovs=None, members=No
         cylaov.write_shards(scenes, "shards", shard_size=25, aovs=("depth", "normal"))
     """
     named = _scene_files(input)
+    args = (shards, shard_size, aovs, members, precision, formula, depth_scale, threads, force)
     if named is None:
-        return _cylaov.write_shards(input, out, shards, shard_size, aovs, members, precision,
-                                    formula, depth_scale, threads, force)
-    with _tempfile.TemporaryDirectory(prefix="cylaov-scenes-") as tmp:
-        for key, scene in named.items():
-            with open(_os.path.join(tmp, key + ".json"), "w", encoding="utf-8") as f:
-                f.write(scene.to_json())
+        return _cylaov.write_shards(input, out, *args)
+    out = _os.fsdecode(out) if isinstance(out, bytes) else _os.fspath(out)
+    if not out:
+        raise ValueError("out: must name a folder, got '' (use '.' for the working folder)")
+    files = {key + ".json": scene.to_json().encode() for key, scene in named.items()}
+    # Read through a manifest: `batch` does not scan a folder inside its output for scene
+    # files (they could be its own outputs), but it reads the files a manifest lists. In
+    # the order a scan of the folder takes them (by name, bytewise): the same tars.
+    order = sorted(files, key=lambda n: n.encode("utf-8"))
+    files["manifest.jsonl"] = "".join(
+        _json.dumps({"scene": n}, ensure_ascii=False) + "\n" for n in order).encode("utf-8")
+    folder = _os.path.join(out, "scenes")
+    try:
+        return _SceneFolder(out, folder, files).call(
+            lambda: _cylaov.write_shards(folder, out, *args))
+    except ValueError as e:
+        message = str(e)
+        for path in (folder, _os.path.abspath(folder)):
+            message = _keys_for_files(message, path, named)
+        if message == str(e):
+            raise
+        raise type(e)(message) from None
+
+
+# The file that marks `OUT/scenes` as written by `write_shards` (hidden: not a scene).
+_SCENES_MARK = ".cylaov-write-shards"
+
+
+class _SceneFolder:
+    """``OUT/scenes`` holding exactly ``files`` (name: bytes) for the call made inside.
+
+    Left as it is when it holds them already (a rerun, or workers writing tars of one
+    dataset side by side); else the new files are written to a hidden folder in ``OUT``
+    and swapped in whole, the old folder kept aside: it comes back if the call is refused
+    (a ``ValueError`` with ``shards.settings.json`` unchanged: the old dataset stays with
+    its scenes, and an ``OUT`` made for the call goes again), and is removed otherwise."""
+
+    def __init__(self, out, folder, files):
+        self.out, self.folder, self.files = out, folder, files
+
+    def call(self, work):
+        """``work()`` with the folder in place."""
+        import shutil
+
+        have = self._held()
+        if have == self.files:
+            return work()
+        made_out = not _os.path.lexists(self.out)
+        _os.makedirs(self.out, exist_ok=True)
+        stage = _tempfile.mkdtemp(prefix=".scenes-", dir=self.out)
+        aside = None
         try:
-            return _cylaov.write_shards(tmp, out, shards, shard_size, aovs, members,
-                                        precision, formula, depth_scale, threads, force)
-        except ValueError as e:
-            message = _keys_for_files(str(e), tmp, named)
-            if message == str(e):
+            for name, data in self.files.items():
+                with open(_os.path.join(stage, name), "wb") as f:
+                    f.write(data)
+            with open(_os.path.join(stage, _SCENES_MARK), "w", encoding="utf-8") as f:
+                f.write("The scene files cylaov.write_shards wrote for the scenes in memory it "
+                        "was given: this dataset's input. Its next call with other scenes "
+                        "replaces them.\n")
+            settings = self._settings()
+            if have is not None:
+                aside = _tempfile.mkdtemp(prefix=".scenes-old-", dir=self.out)
+                _os.rename(self.folder, _os.path.join(aside, "scenes"))
+            try:
+                _os.rename(stage, self.folder)
+            except OSError:
+                # Another call put its folder there first: the same scenes do.
+                if self._held() != self.files:
+                    raise
+                shutil.rmtree(stage, ignore_errors=True)
+            stage = None
+            try:
+                return work()
+            except ValueError:
+                if self._settings() == settings:
+                    # Refused: OUT as it was (its old scenes back, or none, or no OUT).
+                    gone = _tempfile.mkdtemp(prefix=".scenes-", dir=self.out)
+                    _os.rename(self.folder, _os.path.join(gone, "scenes"))
+                    if aside is not None:
+                        _os.rename(_os.path.join(aside, "scenes"), self.folder)
+                    shutil.rmtree(gone, ignore_errors=True)
+                    if made_out:
+                        try:
+                            _os.rmdir(self.out)
+                        except OSError:
+                            pass
                 raise
-            raise type(e)(message) from None
+        finally:
+            if stage is not None:
+                shutil.rmtree(stage, ignore_errors=True)
+            if aside is not None:
+                shutil.rmtree(aside, ignore_errors=True)
+
+    def _held(self):
+        """What ``OUT/scenes`` holds (name: bytes; None when absent); ``ValueError`` when it
+        is there but not this function's."""
+        try:
+            names = _os.listdir(self.folder)
+        except FileNotFoundError:
+            if _os.path.lexists(self.folder):
+                raise ValueError(f"out: {self.folder} is a broken link; scenes in memory are "
+                                 "written there: remove it or choose another out") from None
+            return None
+        except NotADirectoryError:
+            raise ValueError(f"out: {self.folder} is not a folder; scenes in memory are "
+                             "written there: remove it or choose another out") from None
+        if _os.path.islink(self.folder) or _SCENES_MARK not in names:
+            raise ValueError(f"out: {self.folder} was not written by write_shards (it has no "
+                             f"{_SCENES_MARK}); scenes in memory are written there: choose "
+                             "another out, or move that folder")
+        held = {}
+        for name in names:
+            if name == _SCENES_MARK:
+                continue
+            path = _os.path.join(self.folder, name)
+            if _os.path.islink(path) or not _os.path.isfile(path):
+                held[name] = None
+                continue
+            with open(path, "rb") as f:
+                held[name] = f.read()
+        return held
+
+    def _settings(self):
+        try:
+            with open(_os.path.join(self.out, "shards.settings.json"), "rb") as f:
+                return f.read()
+        except OSError:
+            return None
 
 
 def _keys_for_files(message, tmp, named):
     """``message`` naming the scenes in memory by their keys (``input['a.b']``) where it
-    names the temporary scene files written for them, which the user never saw and which
-    are gone once the call returns."""
+    names the scene files written for them in ``OUT/scenes``, which the user never wrote."""
     if tmp not in message:
         return message
     prefix = _re.escape(_os.path.join(tmp, ""))
@@ -256,6 +478,11 @@ def _keys_for_files(message, tmp, named):
     message = _re.sub(prefix + r"([^/()]+?)\.json(?=[:)])", key, message)
     return message.replace("rename the scene files or give them manifest names",
                            "rename the keys")
+
+
+# The longest key: a scene file's name (KEY.json) takes at most 255 bytes on most file
+# systems.
+_KEY_BYTES = 255 - len(".json")
 
 
 def _scene_files(input):
@@ -278,11 +505,23 @@ def _scene_files(input):
         raise ValueError("input: no scenes (an empty list or dict)")
     for key, scene in items:
         if not isinstance(key, str):
-            raise TypeError(f"input: keys must be str, got {type(key).__name__} {key!r}")
+            raise TypeError(f"input: keys must be str, got {_described(key)}")
+        shown = _shorten(repr(key))
         if not isinstance(scene, Scene):
-            raise TypeError(f"input[{key!r}]: a Scene, got {type(scene).__name__}")
+            raise TypeError(f"input[{shown}]: a Scene, got {type(scene).__name__}")
         if not key or key in (".", "..") or "/" in key or "\\" in key or "\0" in key:
-            raise ValueError(f"input: key {key!r} cannot name a scene file")
+            raise ValueError(f"input: key {shown} cannot name a scene file")
+        if key.startswith("."):
+            raise ValueError(f"input: key {shown} starts with a dot, which hides a file: "
+                             "a scene file's name cannot")
+        try:
+            size = len(key.encode("utf-8"))
+        except UnicodeEncodeError:
+            raise ValueError(f"input: key {shown} is not valid text (a lone surrogate) and "
+                             "cannot name a scene file") from None
+        if size > _KEY_BYTES:
+            raise ValueError(f"input: key {shown} is {size} bytes of UTF-8; a scene file's "
+                             f"name takes at most {_KEY_BYTES} (and .json)")
     return dict(items)
 
 
@@ -308,7 +547,38 @@ def _settings_json(settings):
             return f.read()
     if not isinstance(settings, dict):
         raise TypeError(f"settings: a dict, a path to generate.json or None, got {type(settings).__name__}")
-    return _json.dumps(settings, allow_nan=False)
+    return _json_text(settings, "settings")
+
+
+def _json_text(value, name):
+    """``value`` as JSON text: dicts with ``str`` keys, lists, tuples, strings, finite
+    numbers, bools and None, numpy scalars and arrays taken as their Python values.
+    Anything else raises ``ValueError`` (a NaN or an infinity, which JSON cannot hold) or
+    ``TypeError`` naming where it lies, ``settings['fov']: must be a finite number, got
+    float nan``, where ``json`` names neither."""
+
+    def plain(v, at):
+        if isinstance(v, (_np.generic, _np.ndarray)):
+            v = v.tolist()
+        if v is None or isinstance(v, (bool, int, str)):
+            return v
+        if isinstance(v, float):
+            if not _math.isfinite(v):
+                raise ValueError(f"{at}: must be a finite number, got {_described(v)}")
+            return v
+        if isinstance(v, dict):
+            out = {}
+            for k, x in v.items():
+                if not isinstance(k, str):
+                    raise TypeError(f"{at}: keys must be str, got {_described(k)}")
+                out[k] = plain(x, f"{at}[{_shorten(repr(k))}]")
+            return out
+        if isinstance(v, (list, tuple)):
+            return [plain(x, f"{at}[{i}]") for i, x in enumerate(v)]
+        raise TypeError(f"{at}: not JSON data (a dict, list, str, finite number, bool or "
+                        f"None), got {_described(v)}")
+
+    return _json.dumps(plain(value, name), allow_nan=False)
 
 
 def generate(settings, seed, index):
@@ -326,7 +596,9 @@ class Dataset:
     """Generated views rendered on the fly: a map-style dataset (PyTorch's ``Dataset``
     protocol, without importing torch).
 
-    ``length`` counts views; with ``views_per_scene = V``, item ``i`` is camera ``i % V`` of
+    ``length`` counts views (at most ``2**63 - 1``, what ``len()`` can return);
+    ``views_per_scene=None`` takes the settings' ``views_per_scene``, else 1 (given, it must
+    agree with the settings). With ``views_per_scene = V``, item ``i`` is camera ``i % V`` of
     generated scene ``i // V`` (``generate(settings, seed, i // V)`` with V cameras). An item
     is the dict of ``render`` (``aovs`` and ``mask``) plus ``"camera_info"``; it depends on
     ``(settings, seed, i)`` alone, so every worker and process gets the same item ``i``
@@ -344,7 +616,7 @@ class Dataset:
         loader = torch.utils.data.DataLoader(ds, batch_size=8, num_workers=2)
     """
 
-    def __init__(self, settings, seed, length, aovs=("depth", "normal"), views_per_scene=1,
+    def __init__(self, settings, seed, length, aovs=("depth", "normal"), views_per_scene=None,
                  threads=None):
         self.settings = settings
         self.aovs = _names(aovs, "aovs: an AOV name or a sequence of AOV names")
@@ -353,7 +625,8 @@ class Dataset:
                                      views_per_scene, threads)
         self.seed = _operator.index(seed)
         self.length = _operator.index(length)
-        self.views_per_scene = _operator.index(views_per_scene)
+        # None: the settings' `views_per_scene`, else 1.
+        self.views_per_scene = self._views.views_per_scene
         self.threads = None if threads is None else _operator.index(threads)
 
     def __len__(self):

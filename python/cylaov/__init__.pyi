@@ -11,7 +11,7 @@ __version__: str
 PathLike = Union[str, "os.PathLike[str]"]
 AovName = Literal["distance", "depth", "normal", "position", "shape_id", "part", "normal_camera", "label", "uv"]
 RayOutput = Literal["t_hit", "normal", "shape_id", "part", "position", "position_error"]
-MemberName = Literal["exr", "depth.png"]
+MemberName = Literal["exr", "depth.png", "ply"]
 Settings = Union[None, Dict[str, Any], PathLike]
 
 class SceneError(ValueError):
@@ -32,7 +32,7 @@ class Scene:
     @staticmethod
     def from_table(
         path: PathLike,
-        format: Optional[Literal["csv", "treeqsm", "simpleforest", "archi"]] = None,
+        format: Optional[Literal["csv", "npz", "treeqsm", "simpleforest", "archi"]] = None,
         label: Optional[Literal["none", "branch_order", "branch", "segment"]] = None,
         caps: Optional[bool] = None,
     ) -> "Scene":
@@ -138,7 +138,7 @@ class Dataset:
         seed: int,
         length: int,
         aovs: Union[AovName, Sequence[AovName]] = ("depth", "normal"),
-        views_per_scene: int = 1,
+        views_per_scene: Optional[int] = None,
         threads: Optional[int] = None,
     ) -> None: ...
     def __len__(self) -> int: ...
@@ -163,9 +163,9 @@ def write_shards(
     force: bool = False,
 ) -> Dict[str, Any]:
     """Write tar shards `shards` (None: all) as `batch --format webdataset` does, same bytes;
-    returns {"tars", "written", "skipped", "failed", "index_written", "problems"}. `input` is a path as
-    `batch` takes, or scenes in memory: a Scene, a list (keys scene_000000, ...) or a dict
-    {key: Scene}. Ctrl-C stops it with
+    returns {"tars", "written", "skipped", "failed", "index_written", "problems"}. `input` is a folder or a
+    .jsonl manifest as `batch` takes it (not one scene file), or scenes in memory: a Scene, a list (keys scene_000000, ...) or a dict
+    {key: Scene}, written as OUT/scenes/KEY.json (the input `cylaov verify OUT` reads). Ctrl-C stops it with
     KeyboardInterrupt, leaving the finished tars (a rerun skips them) and no temporary file.
     `out` holds one dataset (`out/shards.settings.json`): a call with other settings (shard
     size, AOVs, members, inputs, kernel) raises ValueError naming each difference, unless

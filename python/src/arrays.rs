@@ -242,9 +242,12 @@ fn mask_of(planes: &[(Aov, Plane)], n: usize) -> Option<Vec<bool>> {
         Aov::Part,
         Aov::Normal,
         Aov::NormalCamera,
-        // Last: a hit exactly at the world origin reads as a miss. `render` and `Dataset`
-        // trace depth beside a lone position; only `read` of a position file relies on it.
+        // Last: a hit exactly at the world origin, or at uv (0, 0) (the seam at `p0`, a
+        // cap's centre), reads as a miss. `render` and `Dataset` trace depth beside them;
+        // only `read` of a file without a better AOV relies on them. `label` cannot tell
+        // (0 is also a cylinder without a label): a lone label file has no mask.
         Aov::Position,
+        Aov::Uv,
     ];
     for want in order {
         let Some((_, p)) = planes.iter().find(|(a, _)| *a == want) else {

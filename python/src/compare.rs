@@ -1,6 +1,6 @@
 //! `cylaov.compare`: two renders compared as `cylaov compare` compares them.
 
-use crate::convert::json_to_py;
+use crate::convert::{json_to_py, real};
 use crate::files::exr_input;
 use crate::pool::{on_pool, run};
 use crate::scene::PyScene;
@@ -27,14 +27,19 @@ fn image_of(obj: &Bound<'_, PyAny>, which: &str) -> PyResult<(AovImage, String)>
             let dtype = if a.is_u32() { "uint32" } else { "float32" };
             let arr = np.call_method1("ascontiguousarray", (arr, dtype))?;
             let shape: Vec<usize> = arr.getattr("shape")?.extract()?;
+            // (H, W) for one channel, (H, W, C) for C (`uv` 2, `normal` 3): as `render` returns.
             let (hh, ww) = match (&shape[..], names.len()) {
                 ([hh, ww], 1) => (*hh, *ww),
-                ([hh, ww, 3], 3) => (*hh, *ww),
-                _ => {
+                ([hh, ww, c], n) if n > 1 && *c == n => (*hh, *ww),
+                (_, n) => {
+                    let want = if n > 1 {
+                        format!("(H, W, {n})")
+                    } else {
+                        "(H, W)".to_string()
+                    };
                     return Err(PyValueError::new_err(format!(
-                        "{which}[{:?}]: shape {shape:?} is not (H, W){}",
-                        a.name(),
-                        if names.len() == 3 { " x 3" } else { "" }
+                        "{which}[{:?}]: shape {shape:?} is not {want}",
+                        a.name()
                     )));
                 }
             };
@@ -97,7 +102,7 @@ pub(crate) fn compare<'py>(
         for (k, v) in opts.iter() {
             let key: String = k.extract()?;
             let num = |v: &Bound<'_, PyAny>| -> PyResult<f64> {
-                let x: f64 = v.extract()?;
+                let x = real(v, &key)?;
                 if x.is_nan() || x < 0.0 {
                     return Err(PyValueError::new_err(format!(
                         "{key}: must be >= 0, got {x}"
@@ -112,7 +117,8 @@ pub(crate) fn compare<'py>(
                 "rel_depth" => tol.rel_depth = num(&v)?,
                 "normal_deg" => tol.normal_deg = num(&v)?,
                 "conditioning_ulps" => ulps = num(&v)?,
-                "scene" => scene_arg = Some(v),
+                // `None`, the stub's default, is no scene.
+                "scene" => scene_arg = (!v.is_none()).then_some(v),
                 _ => {
                     return Err(PyTypeError::new_err(format!(
                         "compare: unknown option {key:?}; one of max_mismatch_fraction, max_seam_fraction, rel_distance, rel_depth, normal_deg, scene, conditioning_ulps"

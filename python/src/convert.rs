@@ -52,7 +52,8 @@ pub(crate) fn parse_aov(name: &str, field: &str) -> PyResult<Aov> {
     Aov::parse(name).ok_or_else(|| {
         let all: Vec<_> = Aov::ALL.iter().map(|a| a.name()).collect();
         PyValueError::new_err(format!(
-            "{field}: unknown AOV {name:?}; one of {}",
+            "{field}: unknown AOV {}; one of {}",
+            shorten(&format!("{name:?}")),
             all.join(", ")
         ))
     })
@@ -89,8 +90,54 @@ pub(crate) fn names(obj: &Bound<'_, PyAny>, what: &str) -> PyResult<Vec<String>>
 
 /// The value of keyword `keyword` named `name`; the library's refusal under Python's
 /// spelling of the option (`precision: unknown value "f16": expected one of f32, f64`).
+/// A long value is shortened, as every message of the package shortens what it echoes.
 pub(crate) fn choice<T: cylaov::choice::Choice>(name: &str, keyword: &str) -> PyResult<T> {
-    T::parse(name).map_err(|e| PyValueError::new_err(format!("{keyword}: {e}")))
+    T::parse(name)
+        .map_err(|e| PyValueError::new_err(format!("{keyword}: {}", shorten(&e.to_string()))))
+}
+
+/// `text` with long runs cut ([`cylaov::scene::strict::shorten`]), so a value echoed in a
+/// message cannot flood the terminal.
+pub(crate) fn shorten(text: &str) -> String {
+    cylaov::scene::strict::shorten(text)
+}
+
+/// Optional `str` argument `name` (`None`: absent), else a `TypeError` naming it and the
+/// value: pyo3's own refusal names neither.
+pub(crate) fn opt_text(obj: Option<&Bound<'_, PyAny>>, name: &str) -> PyResult<Option<String>> {
+    match obj {
+        None => Ok(None),
+        Some(o) if o.is_none() => Ok(None),
+        Some(o) => o.extract::<String>().map(Some).map_err(|_| {
+            PyTypeError::new_err(format!("{name}: must be a str, got {}", described(o)))
+        }),
+    }
+}
+
+/// Optional `bool` argument `name` (`None`: absent): a `bool` (or numpy's), not a number
+/// standing for one; else a `TypeError` naming it and the value.
+pub(crate) fn opt_flag(obj: Option<&Bound<'_, PyAny>>, name: &str) -> PyResult<Option<bool>> {
+    match obj {
+        None => Ok(None),
+        Some(o) if o.is_none() => Ok(None),
+        Some(o) => o.extract::<bool>().map(Some).map_err(|_| {
+            PyTypeError::new_err(format!("{name}: must be a bool, got {}", described(o)))
+        }),
+    }
+}
+
+/// Real-number argument `name` (an `int`, a `float`, a numpy real; not a string), else a
+/// `TypeError` naming it and the value.
+pub(crate) fn real(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<f64> {
+    let text = obj.is_instance_of::<pyo3::types::PyString>()
+        || obj.is_instance_of::<pyo3::types::PyBytes>();
+    match obj.extract::<f64>() {
+        Ok(x) if !text => Ok(x),
+        _ => Err(PyTypeError::new_err(format!(
+            "{name}: must be a real number, got {}",
+            described(obj)
+        ))),
+    }
 }
 
 /// Integer argument `name` within `lo..=hi`, taken as Python's `operator.index` takes it

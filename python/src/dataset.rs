@@ -94,17 +94,22 @@ impl _Views {
         #[pyo3(from_py_with = seed_arg)] seed: u64,
         #[pyo3(from_py_with = length_arg)] length: u64,
         aovs: Vec<String>,
-        #[pyo3(from_py_with = views_per_scene_arg)] views_per_scene: u32,
+        #[pyo3(from_py_with = views_per_scene_arg)] views_per_scene: Option<u32>,
         #[pyo3(from_py_with = threads_arg)] threads: Option<usize>,
     ) -> PyResult<Self> {
         let (mut options, config) = options(settings, seed)?;
-        if let Some(v) = config.views_per_scene
-            && v != views_per_scene
-        {
-            return Err(PyValueError::new_err(format!(
-                "settings.views_per_scene: {v} differs from the views_per_scene argument {views_per_scene}"
-            )));
-        }
+        // `None`: the settings' count (a `generate.json` written with --views-per-scene
+        // needs no repeating), else 1; given, it must agree with the settings.
+        let views_per_scene = match (config.views_per_scene, views_per_scene) {
+            (Some(v), Some(a)) if v != a => {
+                return Err(PyValueError::new_err(format!(
+                    "settings.views_per_scene: {v} differs from the views_per_scene argument {a}"
+                )));
+            }
+            (_, Some(a)) => a,
+            (Some(v), None) => v,
+            (None, None) => 1,
+        };
         options.views_per_scene = views_per_scene;
         // The options passed before; the message names `views_per_scene` itself.
         options.validate().map_err(PyValueError::new_err)?;
@@ -119,6 +124,12 @@ impl _Views {
             aovs: parse_aovs(&aovs)?,
             threads,
         })
+    }
+
+    /// Views a scene: the argument, else the settings', else 1.
+    #[getter]
+    fn views_per_scene(&self) -> u32 {
+        self.options.views_per_scene
     }
 
     /// View `i`: the arrays of `render` and `camera_info` under `"camera_info"`.
@@ -307,15 +318,22 @@ fn index_arg(obj: &Bound<'_, PyAny>) -> PyResult<u64> {
     Ok(integer(obj, "index", 0, i128::from(u64::MAX))? as u64)
 }
 
-/// `length=` of a `Dataset`: its views, any integer of 64 bits, >= 0.
+/// `length=` of a `Dataset`: its views, 0 to 2**63 - 1: `len()` of a Python object is at
+/// most `sys.maxsize`, and a dataset whose `len` raises is of no use to a `DataLoader`.
 fn length_arg(obj: &Bound<'_, PyAny>) -> PyResult<u64> {
-    Ok(integer(obj, "length", 0, i128::from(u64::MAX))? as u64)
+    Ok(integer(obj, "length", 0, i128::from(i64::MAX))? as u64)
 }
 
-/// `views_per_scene=` of a `Dataset`: 1..=`MAX_VIEWS_PER_SCENE` (the library's bound).
-fn views_per_scene_arg(obj: &Bound<'_, PyAny>) -> PyResult<u32> {
+/// `views_per_scene=` of a `Dataset`: `None` (see `_Views::new`) or
+/// 1..=`MAX_VIEWS_PER_SCENE` (the library's bound).
+fn views_per_scene_arg(obj: &Bound<'_, PyAny>) -> PyResult<Option<u32>> {
+    if obj.is_none() {
+        return Ok(None);
+    }
     let max = cylaov::dataset::generate::MAX_VIEWS_PER_SCENE;
-    Ok(integer(obj, "views_per_scene", 1, i128::from(max))? as u32)
+    Ok(Some(
+        integer(obj, "views_per_scene", 1, i128::from(max))? as u32
+    ))
 }
 
 /// A view's dict: its arrays and `"camera_info"`.

@@ -1,10 +1,10 @@
 //! Files: cylaov's EXRs read into arrays, and hit points written as PLY.
 
 use crate::arrays::image_to_dict;
-use crate::convert::parse_aov;
+use crate::convert::{parse_aov, shorten};
 use crate::errors::os_error;
 use crate::pool::run;
-use cylaov::image::AovImage;
+use cylaov::image::{AovImage, ChannelData};
 use cylaov::output::format::exr::{channel_names, per_aov_channel_names};
 use cylaov::scene::Aov;
 use numpy::PyReadonlyArray1;
@@ -69,7 +69,23 @@ pub(crate) fn read<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, P
     let mut aovs: Vec<Aov> = Vec::new();
     if per_aov && named.len() == 1 {
         let a = parse_aov(&named[0], "header cylaov:channel")?;
-        for (from, to) in per_aov_channel_names(a).iter().zip(channel_names(a)) {
+        let want = per_aov_channel_names(a);
+        let mut have = image.names();
+        have.sort_unstable();
+        let mut sorted = want.to_vec();
+        sorted.sort_unstable();
+        if have != sorted {
+            return Err(PyValueError::new_err(format!(
+                "{}: its channels [{}] are not those of the AOV {} its header names \
+                 (cylaov:channel:{}): [{}]",
+                path.display(),
+                image.names().join(", "),
+                a.name(),
+                a.name(),
+                want.join(", ")
+            )));
+        }
+        for (from, to) in want.iter().zip(channel_names(a)) {
             image.rename_channel(from, to);
         }
         image = image.regrouped();
@@ -94,6 +110,38 @@ pub(crate) fn read<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, P
             image.names().join(", "),
             want.join("; ")
         )));
+    }
+    // A channel of no AOV read (an `A`, a lone `normal.X`), or an AOV stored in a type
+    // that is not its own (float32; ids float32 or uint32), is refused: dropped or passed
+    // on, the arrays would not be what `render` returns.
+    let used: Vec<&str> = aovs
+        .iter()
+        .flat_map(|&a| channel_names(a).iter().copied())
+        .collect();
+    let other: Vec<&str> = image
+        .names()
+        .into_iter()
+        .filter(|c| !used.contains(c))
+        .collect();
+    if !other.is_empty() {
+        return Err(PyValueError::new_err(format!(
+            "{}: channels [{}] are of no whole AOV (a vector AOV needs all its channels, \
+             as normal.X, normal.Y, normal.Z): read takes cylaov's EXRs",
+            path.display(),
+            shorten(&other.join(", "))
+        )));
+    }
+    for &a in &aovs {
+        if let Some(b) = image.aov_buffer(a)
+            && matches!(b.data, ChannelData::U32(_))
+            && !a.is_u32()
+        {
+            return Err(PyValueError::new_err(format!(
+                "{}: {} is stored as uint32; cylaov writes it as float32",
+                path.display(),
+                a.name()
+            )));
+        }
     }
     let d = image_to_dict(py, image, &aovs)?;
     d.set_item("header", header)?;

@@ -1,7 +1,6 @@
 //! `cylaov.Scene`: a validated scene, its constructors, and its pickled state.
 
-use crate::convert::json_to_py;
-use crate::convert::py_to_json;
+use crate::convert::{described, integer, json_to_py, opt_flag, opt_text, py_to_json, shorten};
 use crate::errors::{os_error, scene_error};
 use crate::pool::on_pool;
 use cylaov::dataset::generate::to_json;
@@ -133,31 +132,34 @@ impl PyScene {
     #[pyo3(signature = (path, format=None, label=None, caps=None))]
     fn from_table(
         path: PathBuf,
-        format: Option<&str>,
-        label: Option<&str>,
-        caps: Option<bool>,
+        format: Option<&Bound<'_, PyAny>>,
+        label: Option<&Bound<'_, PyAny>>,
+        caps: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<PyScene> {
         use cylaov::scene::table::{LabelRule, TableFormat, TableOptions, load_table};
-        let format = format
+        let format = opt_text(format, "format")?
             .map(|f| {
-                TableFormat::parse(f).ok_or_else(|| {
+                TableFormat::parse(&f).ok_or_else(|| {
                     PyValueError::new_err(format!(
-                        "format: expected one of {}, got {f:?}",
-                        TableFormat::ALL.map(|f| f.name()).join(", ")
+                        "format: expected one of {}, got {}",
+                        TableFormat::ALL.map(|f| f.name()).join(", "),
+                        shorten(&format!("{f:?}"))
                     ))
                 })
             })
             .transpose()?;
-        let label = label
+        let label = opt_text(label, "label")?
             .map(|l| {
-                LabelRule::parse(l).ok_or_else(|| {
+                LabelRule::parse(&l).ok_or_else(|| {
                     PyValueError::new_err(format!(
-                        "label: expected one of {}, got {l:?}",
-                        LabelRule::ALL.map(|f| f.name()).join(", ")
+                        "label: expected one of {}, got {}",
+                        LabelRule::ALL.map(|f| f.name()).join(", "),
+                        shorten(&format!("{l:?}"))
                     ))
                 })
             })
             .transpose()?;
+        let caps = opt_flag(caps, "caps")?;
         if let Err(e) = std::fs::metadata(&path) {
             return Err(os_error(&path, &e));
         }
@@ -457,6 +459,19 @@ fn ids_of(obj: &Bound<'_, PyAny>, n: usize) -> PyResult<Vec<u32>> {
                 })
                 .collect()
         }
+        // Python ints too large for any integer dtype (`[2**64, 2]`): each on its own.
+        "O" => a
+            .call_method0("tolist")?
+            .try_iter()?
+            .enumerate()
+            .map(|(i, x)| {
+                let x = x?;
+                match integer(&x, "ids", 0, i128::from(u32::MAX)) {
+                    Ok(v) => Ok(v as u32),
+                    Err(_) => Err(range(i, &described(&x))),
+                }
+            })
+            .collect(),
         _ => {
             let dtype = a.getattr("dtype")?.str()?.to_string();
             Err(PyValueError::new_err(format!(

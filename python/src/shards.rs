@@ -12,9 +12,13 @@ use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyString};
 use std::path::PathBuf;
 
+// The signatures spell the default out: a literal is what `inspect.signature` can show
+// (a constant's name shows as `...`).
+const _: () = assert!(shards::DEFAULT_SHARD_SIZE == 1000);
+
 /// The number of tar shards the views of `input` make at `shard_size` views a tar.
 #[pyfunction]
-#[pyo3(signature = (input, shard_size = shards::DEFAULT_SHARD_SIZE))]
+#[pyo3(signature = (input, shard_size = 1000))]
 pub fn shard_count(
     py: Python<'_>,
     input: PathBuf,
@@ -27,7 +31,7 @@ pub fn shard_count(
 /// as `cylaov batch INPUT --out OUT --format webdataset` does; a summary dict. `force`
 /// replaces a dataset `out` holds with other settings instead of refusing.
 #[pyfunction]
-#[pyo3(signature = (input, out, shards = None, shard_size = shards::DEFAULT_SHARD_SIZE,
+#[pyo3(signature = (input, out, shards = None, shard_size = 1000,
     aovs = None, members = None, precision = "f64", formula = "stable",
     depth_scale = 1000.0, threads = None, force = false))]
 #[allow(clippy::too_many_arguments)]

@@ -229,10 +229,17 @@ fn check_ray(i: usize, r: &Ray) -> Result<(), String> {
             v(r.origin)
         ));
     }
-    let len = r.dir.length();
-    if !(len.is_finite() && len > 0.0) {
+    let (len, _) = length_and_unit(r.dir);
+    if !(r.dir.is_finite() && len > 0.0) {
         return Err(format!(
             "rays[{i}].direction: must be finite and non-zero, got {}",
+            v(r.dir)
+        ));
+    }
+    if !len.is_finite() {
+        return Err(format!(
+            "rays[{i}].direction: its length must be at most {:e}, got {}",
+            f64::MAX,
             v(r.dir)
         ));
     }
@@ -250,6 +257,26 @@ fn check_ray(i: usize, r: &Ray) -> Result<(), String> {
         ));
     }
     Ok(())
+}
+
+/// `dir`'s length and unit vector: `length()` and `dir * (1 / len)`, a render's own
+/// arithmetic for its pixel rays (so a cast of them matches it bit for bit), where those
+/// are finite and non-zero; else, for a finite non-zero direction whose squared length
+/// leaves f64's range (`[1e300, 0, 0]`, `[1e-300, 0, 0]`), taken from `dir` divided by its
+/// largest component. A zero or non-finite direction gives a length of 0 or NaN.
+fn length_and_unit(dir: DVec3) -> (f64, DVec3) {
+    let len = dir.length();
+    let d = dir * (1.0 / len);
+    if len.is_finite() && len > 0.0 && d.is_finite() {
+        return (len, d);
+    }
+    let scale = dir.abs().max_element();
+    if !(scale.is_finite() && scale > 0.0) {
+        return (if dir.is_finite() { 0.0 } else { f64::NAN }, d);
+    }
+    let u = dir / scale;
+    let n = u.length();
+    (scale * n, u * (1.0 / n))
 }
 
 /// The hits of `rays`, or `None` once `stop` is set: the rays in flight finish, and then
@@ -331,8 +358,7 @@ fn tracer_at<'s, T: Real, F: Formula>(
 
 /// One ray through `tracer`, normalised as a render normalises its pixel rays.
 fn cast_one<T: Real, F: Formula>(scene: &Scene, tracer: &Tracer<T, F>, r: &Ray) -> Option<RayHit> {
-    let len = r.dir.length();
-    let d = r.dir * (1.0 / len);
+    let (len, d) = length_and_unit(r.dir);
     let ph: PixelHit<T> = tracer.trace_within(d, r.t_min * len, r.t_max * len)?;
     let index = ph.index;
     let cyl = &scene.cylinders[index as usize];
@@ -601,6 +627,35 @@ mod tests {
         assert!(hits > 30, "{hits} hits");
     }
 
+    /// A direction whose squared length leaves f64's range (huge or tiny) is a direction
+    /// all the same: the hit of its unit direction, `t` in units of its length.
+    #[test]
+    fn directions_of_any_finite_length_are_cast() {
+        let sc = crate::bench::dense_scene(300, 5, 211, 117);
+        let origin = Camera::new(sc.camera).origin;
+        let to = sc.cylinders[0].base + sc.cylinders[0].axis * (0.5 * sc.cylinders[0].height);
+        let unit = (to - origin).normalize();
+        let ray = |scale: f64| Ray {
+            origin,
+            dir: unit * scale,
+            t_min: 0.0,
+            t_max: f64::INFINITY,
+        };
+        let want = cast(&sc, Kernel::STABLE_F64, &[ray(1.0)]).unwrap()[0].unwrap();
+        for scale in [1e300, 1e-300, 1e-150] {
+            let got = cast(&sc, Kernel::STABLE_F64, &[ray(scale)]).unwrap()[0]
+                .unwrap_or_else(|| panic!("no hit at scale {scale:e}"));
+            assert_eq!(got.index, want.index, "scale {scale:e}");
+            let rel = (got.t * scale - want.t).abs() / want.t;
+            assert!(
+                rel < 1e-12,
+                "scale {scale:e}: t {} x {scale:e} vs {}",
+                got.t,
+                want.t
+            );
+        }
+    }
+
     /// Bad rays are refused with the ray's index and field.
     #[test]
     fn bad_rays_name_the_ray() {
@@ -622,10 +677,10 @@ mod tests {
             (
                 // Its length overflows; the numbers read as numbers, not 300 digits.
                 Ray {
-                    dir: DVec3::new(1e300, 1e300, 0.0),
+                    dir: DVec3::new(1.5e308, 1.5e308, 0.0),
                     ..good
                 },
-                "rays[1].direction: must be finite and non-zero, got [1e300, 1e300, 0]",
+                "rays[1].direction: its length must be at most 1.7976931348623157e308, got [1.5e308, 1.5e308, 0]",
             ),
             (
                 Ray {

@@ -101,9 +101,11 @@ def test_a_string_is_one_aov_everywhere():
     assert set(cylaov.render(scene, aovs="depth")) == {"depth", "mask"}
 
 
-def test_a_dataset_of_2_63_views_counts_them():
-    ds = cylaov.Dataset(None, 0, 2**63, aovs="depth")
-    assert "depth" in ds[2**63 - 1]
+def test_the_largest_dataset_counts_its_views():
+    """2**63 - 1 views, the most `len()` can return."""
+    ds = cylaov.Dataset(None, 0, 2**63 - 1, aovs="depth")
+    assert len(ds) == 2**63 - 1
+    assert "depth" in ds[2**63 - 2]
 
 
 def test_read_of_a_foreign_exr_says_what_it_expected(tmp_path):
@@ -365,7 +367,7 @@ def test_integer_arguments_name_themselves_and_their_value():
         (lambda: cylaov.Dataset(None, 0, 4, views_per_scene=0), ValueError, r"^views_per_scene: must be in 1\.\.=1000, got 0"),
         (lambda: cylaov.Dataset(None, 0, 1.5), TypeError, r"^length: must be an integer, got float 1\.5"),
         (lambda: cylaov.Dataset(None, 0, -1), ValueError, r"^length: must be >= 0, got -1"),
-        (lambda: cylaov.Dataset(None, 0, 2**64), ValueError, r"^length: must be <= 18446744073709551615, got 18446744073709551616"),
+        (lambda: cylaov.Dataset(None, 0, 2**64), ValueError, r"^length: must be <= 9223372036854775807, got 18446744073709551616"),
     ):
         with pytest.raises(exc, match=msg):
             call()

@@ -6,6 +6,7 @@ import io
 import json
 import os
 import pathlib
+import shutil
 import subprocess
 import sys
 
@@ -156,7 +157,7 @@ def test_write_shards_takes_scene_objects(dataset, tmp_path):
     assert a == b
     assert ja.pop("scenes_dir") != jb.pop("scenes_dir") == str(folder)
     assert ja == jb
-    # A rerun with equal scenes (new objects, a new temporary folder) skips every tar.
+    # A rerun with equal scenes (new objects) skips every tar.
     again = cylaov.write_shards([cylaov.Scene.load(p) for p in files], tmp_path / "from-list",
                                 shard_size=SIZE)
     assert again["skipped"] == [0, 1, 2] and again["written"] == []
@@ -244,9 +245,81 @@ def test_write_shards_refuses_an_empty_out_and_empty_or_repeated_shards(dataset,
     assert [p.name for p in out.glob("failures.*")] == ["failures.tars-000000-000002.jsonl"]
 
 
+def test_scenes_in_memory_stay_with_their_dataset(dataset, tmp_path, cli):
+    """Scenes in memory are written as OUT/scenes/KEY.json, which shards.json records: equal
+    calls write equal bytes, `cylaov verify OUT` finds the scenes, a refused call leaves
+    them, and a `scenes` folder of someone else's is never replaced."""
+    files = sorted((dataset / "data" / "scenes").glob("*.json"))
+    scenes = [cylaov.Scene.load(p) for p in files]
+    out = tmp_path / "mem"
+    cylaov.write_shards(scenes, out, shard_size=SIZE)
+    first = shard_bytes(out)
+    assert json.loads(first["shards.json"])["scenes_dir"] == str(out / "scenes")
+    names = ["scene_%06d.json" % i for i in range(VIEWS)]
+    held = [".cylaov-write-shards", "manifest.jsonl"] + names
+    assert sorted(p.name for p in (out / "scenes").iterdir()) == held
+    assert (out / "scenes" / names[3]).read_text(encoding="utf-8") == scenes[3].to_json()
+    assert not [p.name for p in out.iterdir() if p.name.startswith(".scenes")]
+    shutil.rmtree(out)
+    cylaov.write_shards(scenes, out, shard_size=SIZE)
+    assert shard_bytes(out) == first
+    r = cli("verify", out, check=False)
+    assert "is gone" not in r.stderr and "scenes' folder" not in r.stderr, r.stderr
+    assert r.returncode == 0, r.stderr
+    # Other scenes are other inputs: refused, the dataset and its scenes as they were.
+    with pytest.raises(ValueError, match="written with other settings"):
+        cylaov.write_shards(scenes[:2], out, shard_size=SIZE)
+    assert shard_bytes(out) == first
+    assert sorted(p.name for p in (out / "scenes").iterdir()) == held
+    assert not [p.name for p in out.iterdir() if p.name.startswith(".scenes")]
+    # Replaced by force: the folder holds the new scenes only.
+    r = cylaov.write_shards({"a": scenes[5], "b": scenes[6]}, out, shard_size=SIZE, force=True)
+    assert r["written"] == [0]
+    assert sorted(p.name for p in (out / "scenes").iterdir()) == [
+        ".cylaov-write-shards", "a.json", "b.json", "manifest.jsonl"]
+    assert not [p.name for p in out.iterdir() if p.name.startswith(".scenes")]
+    # A refused first call leaves no folder behind.
+    with pytest.raises(ValueError, match="unknown AOV"):
+        cylaov.write_shards(scenes, tmp_path / "fresh", aovs="nope")
+    assert not (tmp_path / "fresh").exists()
+    # A generate output's scenes are not this function's to replace.
+    gen = tmp_path / "gen"
+    shutil.copytree(dataset / "data", gen)
+    before = {p.name: p.read_bytes() for p in (gen / "scenes").iterdir()}
+    with pytest.raises(ValueError, match=r"^out: .*scenes was not written by write_shards"):
+        cylaov.write_shards(scenes[:1], gen, shard_size=SIZE)
+    assert {p.name: p.read_bytes() for p in (gen / "scenes").iterdir()} == before
+
+
+def test_write_shards_takes_a_folder_not_a_scene_file(dataset, tmp_path):
+    doc = cylaov.write_shards.__doc__
+    assert "one scene file is refused" in doc and "(a scene file," not in doc
+    with pytest.raises(ValueError):
+        cylaov.write_shards(sorted((dataset / "data" / "scenes").glob("*.json"))[0],
+                            tmp_path / "out")
+
+
+def test_keys_that_cannot_name_a_file_are_refused_by_key(dataset, tmp_path):
+    scene = cylaov.Scene.load(sorted((dataset / "data" / "scenes").glob("*.json"))[0])
+    for key, msg in (
+        (".hidden", r"^input: key '\.hidden' starts with a dot, which hides a file"),
+        ("\udcff", r"^input: key '\\udcff' is not valid text \(a lone surrogate\)"),
+        ("a" * 300, r"^input: key 'a{20}…\(272 more\)…a{8}' is 300 bytes of UTF-8; a scene "
+                    r"file's name takes at most 250 \(and \.json\)$"),
+    ):
+        with pytest.raises(ValueError, match=msg):
+            cylaov.write_shards({key: scene}, tmp_path / "out", shard_size=SIZE)
+    assert not (tmp_path / "out").exists()
+    # Shorter, a key too long for a tar member is the library's to refuse, by key.
+    with pytest.raises(ValueError, match=r"^the view names cannot all be tar shard keys.*\n  input\['k{250}'\]: tar member name is too long"):
+        cylaov.write_shards({"k" * 250: scene}, tmp_path / "out", shard_size=SIZE)
+    assert not (tmp_path / "out").exists()
+    assert cylaov.write_shards({"k" * 80: scene}, tmp_path / "out", shard_size=SIZE)["written"] == [0]
+
+
 def test_bad_keys_of_scenes_in_memory_are_named_by_key(dataset, tmp_path):
-    """The scenes of a dict are written to temporary files for the call: a key that cannot
-    be a sample's key is named as the dict's key, not as that file (gone afterwards)."""
+    """The scenes of a dict are written as OUT/scenes/KEY.json: a key that cannot be a
+    sample's key is named as the dict's key, not as that file."""
     scene = cylaov.Scene.load(sorted((dataset / "data" / "scenes").glob("*.json"))[0])
     with pytest.raises(ValueError) as e:
         cylaov.write_shards({"ok": scene, "a.b": scene, "ñ": scene, "c.json": scene},
@@ -254,7 +327,7 @@ def test_bad_keys_of_scenes_in_memory_are_named_by_key(dataset, tmp_path):
     msg = str(e.value)
     for key in ("a.b", "ñ", "c.json"):
         assert f"\n  input[{key!r}]: " in msg, msg
-    assert "input['ok']" not in msg and "cylaov-scenes-" not in msg, msg
+    assert "input['ok']" not in msg and "scenes/" not in msg, msg
     assert "rename the keys" in msg and "scene files" not in msg, msg
     assert not (tmp_path / "out").exists()
     # Two views with one key name both scenes, in parentheses, by key too.
@@ -265,4 +338,4 @@ def test_bad_keys_of_scenes_in_memory_are_named_by_key(dataset, tmp_path):
                             tmp_path / "out", shard_size=SIZE)
     msg = str(e.value)
     assert "(input['s'])" in msg and "(input['s_c01'])" in msg, msg
-    assert "cylaov-scenes-" not in msg, msg
+    assert "scenes/" not in msg, msg
