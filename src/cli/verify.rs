@@ -32,10 +32,12 @@ pub struct VerifyCli {
     /// Print the results as JSON.
     #[arg(long)]
     json: bool,
-    /// Kernel precision of cylaov's side.
+    /// Kernel precision of cylaov's side when it renders a scene file (a batch folder's
+    /// views are rendered with the kernel each view's stamp records).
     #[arg(long, value_parser = cli::choice::<Precision>(), default_value_t = Precision::F64)]
     precision: Precision,
-    /// Kernel formulation of cylaov's side.
+    /// Kernel formulation of cylaov's side when it renders a scene file (a batch folder's
+    /// views use their stamp's).
     #[arg(long, value_parser = cli::choice::<FormulaKind>(), default_value_t = FormulaKind::Stable)]
     formula: FormulaKind,
     /// Check another renderer's AOV EXR of the scene file instead of cylaov's render:
