@@ -22,7 +22,7 @@
 //! verified; where it differs, the file fails, naming the first differing channel, and its
 //! samples are judged against Mitsuba and the exact answer, naming the pixels). It keeps
 //! the verdict in `NAME.verify.json` beside it, keyed to everything the verdict depends
-//! on ([`CacheKey`]): the sha256 of the EXR and of the scene as loaded now, the view, the
+//! on (`CacheKey`): the sha256 of the EXR and of the scene as loaded now, the view, the
 //! render stamp, the kernel, the tolerances, the rule and the script. A resumed batch does
 //! not run Mitsuba again for a view already verified; a file or scene altered since is
 //! checked again.
