@@ -46,8 +46,8 @@
 
 use crate::geometry::{Cylinder, Precision, Surface};
 use crate::image::{AovImage, Strided};
-use crate::scene::Scene;
 use crate::scene::camera::{Camera, PixelRay, Projection};
+use crate::scene::{Aov, Scene};
 use crate::verify::compare::{CONDITIONING_ULPS, Tolerances, id_channel, ray_origin_size};
 use crate::verify::oracle::{DD, intersect};
 use crate::verify::oracle::{DV3, Problem};
@@ -772,24 +772,23 @@ fn vec3_float<'a>(
 /// The channels of `img` the exact answer does not judge (`label`, `uv.U`, …): a
 /// candidate's values there go unchecked, and the verdict says so.
 pub fn unjudged_channels(img: &AovImage) -> Vec<String> {
-    const JUDGED: [&str; 13] = [
-        "shape_id",
-        "part",
-        "distance",
-        "depth",
-        "normal.X",
-        "normal.Y",
-        "normal.Z",
-        "position.X",
-        "position.Y",
-        "position.Z",
-        "normal_camera.X",
-        "normal_camera.Y",
-        "normal_camera.Z",
+    // The AOVs the exact answer has a value for (label and uv it has not).
+    const JUDGED: [Aov; 7] = [
+        Aov::ShapeId,
+        Aov::Part,
+        Aov::Distance,
+        Aov::Depth,
+        Aov::Normal,
+        Aov::Position,
+        Aov::NormalCamera,
     ];
+    let judged: Vec<&str> = JUDGED
+        .iter()
+        .flat_map(|a| a.spec().channels.iter().copied())
+        .collect();
     img.names()
         .into_iter()
-        .filter(|n| !JUDGED.contains(n))
+        .filter(|n| !judged.contains(n))
         .map(str::to_string)
         .collect()
 }
