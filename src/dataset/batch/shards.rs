@@ -975,6 +975,11 @@ pub fn write_shards_until(
     let mut shard_opts = opts.clone();
     shard_opts.aovs = Some(aovs.clone());
     shard_opts.png = sopts.members.contains(&Member::DepthPng);
+    // Without the `exr` member no tar byte depends on the EXR compression: left out of the
+    // tars' stamps (as the depth scale is without `depth.png`), so changing it rewrites none.
+    if !sopts.members.contains(&Member::Exr) {
+        shard_opts.compression = Default::default();
+    }
     let plan = Plan {
         out,
         root: PathBuf::new(),
