@@ -880,3 +880,45 @@ fn an_aov_named_twice_is_stored_once() {
         "not the bytes without the repeat: {failures:?}"
     );
 }
+
+/// A camera rig whose cameras would stand past a camera origin's bound (a field of view of
+/// 1e-20 degrees) or on the cylinders' centre (a distance factor of 1e-300) is refused
+/// naming the rig's field (the flag on the command line), not the origin it would make.
+#[test]
+fn rig_distances_out_of_range_name_the_rig() {
+    let tmp = dir("rig-reach");
+    let d = tmp.path();
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cluster.json");
+    let out = d.join("c.json");
+    let mut failures = Vec::new();
+    for (flags, want) in [
+        (
+            ["--fov", "1e-20"],
+            "error: --fov: 1e-20 puts the cameras 6.2",
+        ),
+        (
+            ["--distance", "1e-300"],
+            "error: --distance: a factor of 1e-300 puts the cameras",
+        ),
+    ] {
+        let mut args = vec!["cameras", s(&scene), "-o", s(&out), "--orbit", "3"];
+        args.extend(flags);
+        let o = cylaov(&args);
+        if o.status.code() != Some(1) || !stderr(&o).starts_with(want) {
+            failures.push(format!("{flags:?}: {:?} {}", o.status.code(), stderr(&o)));
+        }
+    }
+    let rig = d.join("rig.json");
+    std::fs::write(
+        &rig,
+        r#"{"cameras": {"orbit": {"count": 2, "fov_deg": 1e-30}},
+            "cylinders": [{"p0": [0, 0, 0], "p1": [0, 0, 1], "radius": 0.5}]}"#,
+    )
+    .unwrap();
+    let o = cylaov(&["render", s(&rig), "-o", s(&d.join("r.exr"))]);
+    if o.status.code() != Some(1) || !stderr(&o).contains("cameras.orbit.fov_deg: 1e-30 puts") {
+        failures.push(format!("scene rig: {:?} {}", o.status.code(), stderr(&o)));
+    }
+    assert!(!out.exists());
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}

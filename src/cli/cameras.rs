@@ -116,6 +116,33 @@ pub fn run(a: CamerasCli) -> anyhow::Result<ExitCode> {
         out: a.out,
         rig,
     };
-    say(&commands::cameras::run(&args)?)?;
+    let from_flags = args.rig.is_some();
+    let summary = commands::cameras::run(&args).map_err(|e| {
+        // The rig's fields spelled as the flags that set them.
+        let flag = e
+            .downcast_ref::<cylaov::scene::SceneError>()
+            .filter(|_| from_flags)
+            .and_then(|se| Some((rig_flag(&se.field)?, se.message.clone())));
+        match flag {
+            Some((flag, message)) => anyhow::anyhow!("{flag}: {message}"),
+            None => e,
+        }
+    })?;
+    say(&summary)?;
     Ok(ExitCode::SUCCESS)
+}
+
+/// The flag that sets the rig field `field` (`cameras.orbit.fov_deg` → `--fov`).
+fn rig_flag(field: &str) -> Option<&'static str> {
+    let (kind, name) = field.strip_prefix("cameras.")?.split_once('.')?;
+    Some(match (kind, name) {
+        ("orbit", "count") => "--orbit",
+        ("sphere", "count") => "--sphere",
+        (_, "fov_deg") => "--fov",
+        (_, "distance") => "--distance",
+        (_, "elevation_deg") => "--elevation",
+        (_, "width") => "--width",
+        (_, "height") => "--height",
+        _ => return None,
+    })
 }

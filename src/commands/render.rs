@@ -116,8 +116,8 @@ fn check_exr_name(out: &Path) -> Result<()> {
     if !is_exr {
         bail!(
             "-o {}: the output is an OpenEXR file and its name must end in .exr; \
-             PNGs come beside it with --depth-png SCALE (16-bit depth) and --preview DIR \
-             (normal and depth previews)",
+             PNGs come beside it with --depth-png (16-bit depth, scaled by --depth-scale) \
+             and --preview DIR (normal and depth previews)",
             out.display()
         );
     }

@@ -13,8 +13,10 @@
 //! = 1).
 
 use crate::rng::SplitMix64;
-use crate::scene::framing::{Frame, band_direction, bounding_sphere, framed_camera_at, orbit};
-use crate::scene::{CameraFile, CylinderFile, SceneError, err, num};
+use crate::scene::framing::{
+    Frame, band_direction, bounding_sphere, fit_distance, framed_camera_at, orbit,
+};
+use crate::scene::{CameraFile, CylinderFile, MAX_COORD, SceneError, err, num};
 use serde::{Deserialize, Serialize};
 
 /// Most cameras one rig makes.
@@ -172,6 +174,35 @@ impl CameraRig {
             fov_deg: spec.fov_deg,
         };
         let (centre, radius) = bounding_sphere(cylinders);
+        // Where the cameras stand, checked here so the message names the rig's fields
+        // rather than the origin they produce: within a camera origin's bound, and far
+        // enough from the centre to differ from it (4 ulps of its largest coordinate).
+        let dist = fit_distance(radius, spec.fov_deg, spec.width, spec.height) * factor;
+        let centre_max = centre.abs().max_element();
+        let reach = centre_max + dist;
+        if !reach.is_finite() || reach > MAX_COORD {
+            return Err(err(
+                f("fov_deg"),
+                format!(
+                    "{} puts the cameras {} from the cylinders' centre, past the \
+                     {MAX_COORD:e} a camera's origin may reach: widen the field of view or \
+                     lower the distance factor",
+                    num(spec.fov_deg),
+                    num(dist)
+                ),
+            ));
+        }
+        if dist.is_nan() || dist <= 4.0 * f64::EPSILON * centre_max {
+            return Err(err(
+                f("distance"),
+                format!(
+                    "a factor of {} puts the cameras {} from the cylinders' centre, too close \
+                     to tell from it",
+                    num(factor),
+                    num(dist)
+                ),
+            ));
+        }
         let camera = |k: u32| {
             let mut rng = SplitMix64::for_item(spec.seed, k as u64);
             let dir = band_direction(&mut rng, lo, hi);
