@@ -273,6 +273,8 @@ fn a_scenes_table_is_never_overwritten() {
             vec!["render", "SCENE", "-o", "o.exr", "--ply", "t.ply"],
         ),
         ("o.camera.json", vec!["render", "SCENE", "-o", "o.exr"]),
+        // Not written but removed as an earlier render's depth PNG.
+        ("o.depth.png", vec!["render", "SCENE", "-o", "o.exr"]),
         (
             "t.ply",
             vec![

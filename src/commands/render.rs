@@ -12,7 +12,7 @@ use crate::output::format::depth_png::OutOfRange;
 use crate::output::format::exr::{Compression, ExrLayout};
 use crate::output::format::ply::{PLY_AOVS, encode, hits};
 use crate::output::pipeline::view::{DepthOutOfRange, DepthPngPlan, FileSink, Member, ViewPlan};
-use crate::output::store::atomic::{NewDirs, Staged, stage_bytes};
+use crate::output::store::atomic::{NAME_MAX, NewDirs, Staged, stage_bytes};
 use crate::output::store::targets::{check_output_dir, check_outputs};
 use crate::render::RenderOptions;
 use crate::scene::camera::Camera;
@@ -94,6 +94,8 @@ fn stale(args: &RenderArgs, plan: &ViewPlan) -> Vec<PathBuf> {
     beside
         .filter(|m| !writes.contains(m))
         .map(|m| member_path(&args.out, None, m))
+        // A name too long for a file cannot be there.
+        .filter(|p| p.file_name().is_some_and(|n| n.len() <= NAME_MAX))
         .collect()
 }
 
@@ -159,6 +161,10 @@ pub fn run(args: &RenderArgs) -> Result<String> {
         .map(|m| (flag(m), member_path(&args.out, args.preview.as_deref(), m)))
         .collect();
     let mut list: Vec<(&str, &Path)> = targets.iter().map(|(f, p)| (*f, p.as_path())).collect();
+    // The files an earlier render left that this one removes are checked as its outputs:
+    // never an input (a table named `OUT.depth.png`), a link or a folder.
+    let stale = stale(args, &plan);
+    list.extend(stale.iter().map(|p| ("-o", p.as_path())));
     if let Some(ply) = &args.ply {
         list.push(("--ply", ply.as_path()));
     }
@@ -196,7 +202,6 @@ pub fn run(args: &RenderArgs) -> Result<String> {
         None => None,
     };
     let (out, preview) = (args.out.clone(), args.preview.clone());
-    let stale = stale(args, &plan);
     let mut sink =
         FileSink::beside(move |m| member_path(&out, preview.as_deref(), m)).replacing(stale);
     if let Some(staged) = ply {

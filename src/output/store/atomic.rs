@@ -334,13 +334,7 @@ pub fn commit_replacing(stale: &[PathBuf], staged: Vec<Staged>) -> io::Result<()
 fn rename_all(stale: &[PathBuf], files: Vec<(tempfile::NamedTempFile, PathBuf)>) -> io::Result<()> {
     for path in stale {
         match std::fs::remove_file(path) {
-            // Missing, or a name too long to exist (a stale name is longer than its output's).
-            Err(e)
-                if !matches!(
-                    e.kind(),
-                    io::ErrorKind::NotFound | io::ErrorKind::InvalidFilename
-                ) =>
-            {
+            Err(e) if e.kind() != io::ErrorKind::NotFound => {
                 return Err(io::Error::new(
                     e.kind(),
                     format!("removing the old {}: {e}", path.display()),
