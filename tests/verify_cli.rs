@@ -5,35 +5,17 @@
 //! `CYLAOV_REQUIRE_VENV=1`.
 
 mod common;
-use common::venv_python;
+use common::{cylaov_with_venv as cylaov, text, venv_python};
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Command;
 
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
-/// `cylaov ARGS` with the venv of `python` (`.../bin/python`).
-fn cylaov(python: &Path, args: &[&str]) -> Output {
-    let venv = python.parent().and_then(Path::parent).expect("venv dir");
-    Command::new(env!("CARGO_BIN_EXE_cylaov"))
-        .args(args)
-        .env("CYLAOV_VENV", venv)
-        .output()
-        .expect("running cylaov")
-}
-
 fn s(p: &Path) -> &str {
     p.to_str().expect("utf-8 path")
-}
-
-fn text(o: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
 }
 
 #[test]

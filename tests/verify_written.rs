@@ -5,33 +5,15 @@
 //! the reference venv, unless `CYLAOV_REQUIRE_VENV=1`.
 
 mod common;
-use common::venv_python;
+use common::{cylaov_with_venv as cylaov, text, venv_python};
 
 use cylaov::image::{AovImage, Channel, ChannelData};
 use cylaov::output::format::exr::Compression;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-
-/// `cylaov ARGS` with the venv of `python` (`.../bin/python`).
-fn cylaov(python: &Path, args: &[&str]) -> Output {
-    let venv = python.parent().and_then(Path::parent).expect("venv dir");
-    Command::new(env!("CARGO_BIN_EXE_cylaov"))
-        .args(args)
-        .env("CYLAOV_VENV", venv)
-        .output()
-        .expect("running cylaov")
-}
+use std::process::Command;
 
 fn s(p: &Path) -> &str {
     p.to_str().expect("utf-8 path")
-}
-
-fn text(o: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
 }
 
 /// A small scene (two cylinders, 32×24) as `dir/scenes/a.json`.

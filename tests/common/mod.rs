@@ -60,6 +60,25 @@ pub fn cylaov(args: &[&str]) -> Output {
         .unwrap()
 }
 
+/// `cylaov ARGS` with the venv of `python` (`.../bin/python`) as its Mitsuba.
+pub fn cylaov_with_venv(python: &Path, args: &[&str]) -> Output {
+    let venv = python.parent().and_then(Path::parent).expect("venv dir");
+    Command::new(env!("CARGO_BIN_EXE_cylaov"))
+        .args(args)
+        .env("CYLAOV_VENV", venv)
+        .output()
+        .expect("running cylaov")
+}
+
+/// A run's stdout then stderr, as one text.
+pub fn text(o: &Output) -> String {
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
+}
+
 /// [`cylaov`], which must succeed; its stdout.
 pub fn ok(args: &[&str]) -> String {
     let out = cylaov(args);
