@@ -28,6 +28,14 @@ fn scenes(dir: &Path) -> PathBuf {
     scenes
 }
 
+/// `cylaov batch SCENES --out OUT EXTRA...`, which must succeed.
+fn batch(py: &Path, scenes: &Path, out: &Path, extra: &[&str]) {
+    let mut args = vec!["batch", s(scenes), "--out", s(out)];
+    args.extend_from_slice(extra);
+    let o = cylaov(py, &args);
+    assert!(o.status.success(), "{}", text(&o));
+}
+
 /// `img` with only the channels `keep` says.
 fn only(img: &AovImage, keep: impl Fn(&str) -> bool) -> AovImage {
     let channels = img
@@ -54,8 +62,7 @@ fn a_file_missing_channels_fails() {
     let dir = dir_tmp.path();
     let scenes = scenes(dir);
     let out = dir.join("out");
-    let o = cylaov(&py, &["batch", s(&scenes), "--out", s(&out), "--no-png"]);
-    assert!(o.status.success(), "{}", text(&o));
+    batch(&py, &scenes, &out, &["--no-png"]);
     let exr = out.join("a.exr");
     let full = AovImage::read_exr(&exr).expect("exr");
     only(&full, |n| n == "part")
@@ -104,18 +111,7 @@ fn a_tar_sample_missing_channels_fails() {
     let dir = dir_tmp.path();
     let scenes = scenes(dir);
     let out = dir.join("wds");
-    let o = cylaov(
-        &py,
-        &[
-            "batch",
-            s(&scenes),
-            "--out",
-            s(&out),
-            "--format",
-            "webdataset",
-        ],
-    );
-    assert!(o.status.success(), "{}", text(&o));
+    batch(&py, &scenes, &out, &["--format", "webdataset"]);
     let o = cylaov(&py, &["verify", s(&out)]);
     assert_eq!(o.status.code(), Some(0), "{}", text(&o));
     // The tar rewritten with the sample's part, mask and JSON only.
@@ -150,19 +146,7 @@ fn a_kept_verdict_is_not_reused_after_the_scene_changes() {
     let dir = dir_tmp.path();
     let scenes = scenes(dir);
     let out = dir.join("out");
-    let o = cylaov(
-        &py,
-        &[
-            "batch",
-            s(&scenes),
-            "--out",
-            s(&out),
-            "--no-png",
-            "--verify-fraction",
-            "1",
-        ],
-    );
-    assert!(o.status.success(), "{}", text(&o));
+    batch(&py, &scenes, &out, &["--no-png", "--verify-fraction", "1"]);
     assert!(out.join("a.verify.json").is_file(), "a verdict kept");
     std::fs::write(
         scenes.join("a.json"),
@@ -189,19 +173,7 @@ fn a_file_is_checked_with_the_kernel_its_stamp_records() {
     let dir = dir_tmp.path();
     let scenes = scenes(dir);
     let out = dir.join("out");
-    let o = cylaov(
-        &py,
-        &[
-            "batch",
-            s(&scenes),
-            "--out",
-            s(&out),
-            "--no-png",
-            "--precision",
-            "f32",
-        ],
-    );
-    assert!(o.status.success(), "{}", text(&o));
+    batch(&py, &scenes, &out, &["--no-png", "--precision", "f32"]);
     for extra in [&[][..], &["--json"], &["--precision", "f64", "--json"]] {
         let mut args = vec!["verify", s(&out)];
         args.extend(extra);
@@ -226,8 +198,7 @@ fn index_paths_out_of_the_folder_are_refused() {
     let dir = dir_tmp.path();
     let scenes = scenes(dir);
     let out = dir.join("out");
-    let o = cylaov(&py, &["batch", s(&scenes), "--out", s(&out), "--no-png"]);
-    assert!(o.status.success(), "{}", text(&o));
+    batch(&py, &scenes, &out, &["--no-png"]);
     let victim = dir.join("victim");
     std::fs::create_dir_all(&victim).expect("victim");
     for f in ["a.exr", "a.render.json"] {
