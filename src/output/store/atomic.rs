@@ -315,14 +315,10 @@ pub fn commit_replacing(stale: &[PathBuf], staged: Vec<Staged>) -> io::Result<()
         )));
     }
     // Registrations end (which takes the registry) only after `held` is gone.
-    let mut registrations = Vec::with_capacity(staged.len());
-    let files: Vec<(tempfile::NamedTempFile, PathBuf)> = staged
+    let (files, registrations): (Vec<_>, Vec<_>) = staged
         .into_iter()
-        .map(|s| {
-            registrations.push(s._registered);
-            (s.file, s.path)
-        })
-        .collect();
+        .map(|s| ((s.file, s.path), s._registered))
+        .unzip();
     let held = signals::hold();
     let result = rename_all(stale, files);
     drop(held);
