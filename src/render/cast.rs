@@ -280,44 +280,62 @@ fn length_and_unit(dir: DVec3) -> (f64, DVec3) {
 }
 
 /// The hits of `rays`, or `None` once `stop` is set: the rays in flight finish, and then
-/// nothing more is cast, collected or gathered (8 million rays' hits take most of a
-/// second to fill and gather).
+/// nothing more is cast or gathered.
+///
+/// Hits are found in chunks of [`CAST_CHUNK`] rays, each its own `Vec`: after a stop,
+/// rayon's `Option` collect (which still gathers every item it saw before the `None`)
+/// moves only those chunks' handles. Collecting each ray's hit instead copied every hit
+/// found so far, a third of a second after 3 s of 8 million rays.
 fn cast_with<T: Real, F: Formula>(
     scene: &Scene,
     rays: &[Ray],
     stop: &AtomicBool,
 ) -> Option<Vec<Option<RayHit>>> {
-    // Group by origin, bit for bit: rays of one group share one prepared scene.
+    // Group by origin, bit for bit: rays of one group share one prepared scene. The sort
+    // is stable, so rays from one origin (a scan) keep their order and need no scatter.
     let key = |r: &Ray| r.origin.to_array().map(f64::to_bits);
     let mut by_origin: Vec<u32> = (0..rays.len() as u32).collect();
-    by_origin.par_sort_unstable_by_key(|&i| key(&rays[i as usize]));
+    by_origin.par_sort_by_key(|&i| key(&rays[i as usize]));
     let groups: Vec<&[u32]> = by_origin
         .chunk_by(|&a, &b| key(&rays[a as usize]) == key(&rays[b as usize]))
         .collect();
     let bounds: Vec<_> = scene.cylinders.par_iter().map(|c| c.bounds()).collect();
     // A `None` item ends the collection into an `Option` as soon as rayon sees it.
     let running = || (!stop.load(Ordering::Relaxed)).then_some(());
-    let found: Vec<Vec<Option<RayHit>>> = groups
+    let found: Vec<Vec<Vec<Option<RayHit>>>> = groups
         .par_iter()
         .map(|group| {
             running()?;
             let origin = rays[group[0] as usize].origin;
             let tracer = tracer_at::<T, F>(scene, &bounds, origin, group.len());
             group
-                .par_iter()
-                .map(|&i| running().map(|()| cast_one(scene, &tracer, &rays[i as usize])))
+                .par_chunks(CAST_CHUNK)
+                .map(|chunk| {
+                    running()?;
+                    let hit = |&i: &u32| cast_one(scene, &tracer, &rays[i as usize]);
+                    Some(chunk.iter().map(hit).collect::<Vec<_>>())
+                })
                 .collect::<Option<Vec<_>>>()
         })
         .collect::<Option<Vec<_>>>()?;
     running()?;
+    // The hits in `by_origin`'s order.
+    let hits = found.into_iter().flatten().flatten();
+    if by_origin.iter().enumerate().all(|(k, &i)| k == i as usize) {
+        let mut out = Vec::with_capacity(rays.len());
+        out.extend(hits);
+        return Some(out);
+    }
     let mut out = vec![None; rays.len()];
-    for (group, hits) in groups.iter().zip(found) {
-        for (&i, h) in group.iter().zip(hits) {
-            out[i as usize] = h;
-        }
+    for (&i, hit) in by_origin.iter().zip(hits) {
+        out[i as usize] = hit;
     }
     Some(out)
 }
+
+/// Rays cast between two looks at the stop flag, and the hits of one `Vec`: about a
+/// millisecond of work, and few enough `Vec`s that their handles cost nothing.
+const CAST_CHUNK: usize = 1024;
 
 /// The scene prepared for rays from `origin`: cylinders in its frame, and the BVH (eight
 /// wide when there are rays enough to repay collapsing it, as [`Tracer::new`] decides)

@@ -122,10 +122,12 @@ def test_read_of_a_foreign_exr_says_what_it_expected(tmp_path):
 # ---- Ctrl-C during a long call -------------------------------------------------------------
 
 # How long after SIGINT the call may take to raise KeyboardInterrupt: the calling thread
-# looks for signals every 20 ms, and the work stops at its next band (a render) or view (a
-# tar). Measured 3-50 ms (render, cast_rays, Dataset[i]) and 5-75 ms (write_shards, which also removes
-# its temporary tar) on a 2-core VM at a load average of 3: 0.5 s leaves ten times that for
-# a busy machine, and still fails a call that runs on to its end (seconds).
+# looks for signals every 20 ms, and the work stops at its next band (a render), chunk of
+# rays (cast_rays) or view (a tar). Measured on an idle 2-core VM: 4-18 ms (render,
+# cast_rays, Dataset[i]), 44-64 ms (8 million rays: their finished chunks are freed) and
+# 9-36 ms (write_shards, which also removes its temporary tar); 3-75 ms at a load average of
+# 3. 0.5 s leaves several times that for a busy machine, and still fails a call that runs on
+# to its end (seconds), or whose stop waits on work proportional to the work done so far.
 LATENCY = 0.5
 
 PRELUDE = """
