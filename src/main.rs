@@ -23,7 +23,7 @@ struct Cli {
 /// The one exit-status rule of every command (also in the README).
 const EXIT_STATUS: &str = "Exit status, every command: 0 = done; 1 = input rejected (a bad scene, \
 a refused output, a full disk, too little memory) or a check failed (compare's or verify's \
-tolerances, a batch view); 2 = usage error (unknown option, bad value) or a check that could \
+tolerances, a batch view); 2 = usage error (unknown option, a flag's bad value, flags that do not go together) or a check that could \
 not be made (compare: a missing or unreadable image, too little memory; verify: a view it \
 could not check, too little memory); 129, 130, 143 = \
 stopped by SIGHUP, SIGINT, SIGTERM (128 + the signal number; unfinished files removed). A \
@@ -224,7 +224,12 @@ fn main() -> ExitCode {
         Ok(code) => code,
         Err(e) => {
             cli::report(&e);
-            ExitCode::FAILURE
+            // A flag's bad value found after parsing is a usage error, as clap's are.
+            if e.is::<cylaov::commands::Usage>() {
+                ExitCode::from(2)
+            } else {
+                ExitCode::FAILURE
+            }
         }
     }
 }

@@ -309,3 +309,145 @@ fn a_failing_output_leaves_none_of_the_outputs() {
         .collect();
     assert!(tmp_left.is_empty(), "temporary files left: {tmp_left:?}");
 }
+
+/// The exit statuses `cylaov --help` lists: a flag's value out of its range, or flags that
+/// do not go together, is a usage error (2) whether clap or the command finds it; a bad
+/// value in a file is an input refused (1), naming the file and its key. Each case says
+/// one line naming the flag, and writes nothing.
+#[test]
+fn bad_flag_values_exit_2_and_bad_file_values_exit_1() {
+    let tmp = common::fresh_dir("bad", "flags");
+    let d = tmp.path();
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/asymmetric.json");
+    let scene = scene.to_str().unwrap();
+    let generated = common::fresh_dir("bad", "flags-gen");
+    let generated = generated.path().join("g");
+    let gen_dir = generated.to_str().unwrap().to_string();
+    common::ok(&[
+        "generate", "--count", "1", "--out", &gen_dir, "--width", "8", "--height", "6",
+    ]);
+    let config = d.join("cfg.json");
+    std::fs::write(&config, r#"{"radius": "-1..2"}"#).unwrap();
+    let table = d.join("t.csv");
+    std::fs::write(&table, "x0,y0,z0,x1,y1,z1,radius\n0,0,0,0,0,1,0.1\n").unwrap();
+    let out = d.join("out");
+    let (o, cfg, tab) = (
+        out.to_str().unwrap(),
+        config.to_str().unwrap(),
+        table.to_str().unwrap(),
+    );
+    let exr = d.join("out.exr");
+    let exr = exr.to_str().unwrap();
+    let las = d.join("out.las");
+    let las = las.to_str().unwrap();
+    let cases: &[(&[&str], i32, &str)] = &[
+        (
+            &[
+                "render",
+                scene,
+                "-o",
+                exr,
+                "--depth-png",
+                "--depth-scale",
+                "0",
+            ],
+            2,
+            "--depth-scale: must be finite and > 0, got 0",
+        ),
+        (
+            &["generate", "--out", o, "--count", "1", "--volume", "1e300"],
+            2,
+            "--volume: half extents must be in [0, 1e12], got [1e300, 1e300, 1e300]",
+        ),
+        (
+            &["generate", "--out", o, "--count", "1", "--radius", "-1..2"],
+            2,
+            "--radius: must be > 0",
+        ),
+        (&["generate", "--out", o], 2, "--count: required"),
+        (
+            &["generate", "--out", o, "--count", "1", "--config", cfg],
+            1,
+            "cfg.json: radius: must be > 0",
+        ),
+        (
+            &["cameras", scene, "-o", exr, "--orbit", "0"],
+            2,
+            "--orbit: must be in 1..=",
+        ),
+        (
+            &[
+                "cameras",
+                scene,
+                "-o",
+                exr,
+                "--orbit",
+                "3",
+                "--elevation",
+                "0..90",
+            ],
+            2,
+            "--elevation: must lie in -85..85",
+        ),
+        (
+            &[
+                "cameras", scene, "-o", exr, "--orbit", "3", "--fov", "1e-20",
+            ],
+            2,
+            "--fov: 1e-20 puts the cameras",
+        ),
+        (
+            &["batch", &gen_dir, "--out", o, "--verify-fraction", "-0.1"],
+            2,
+            "--verify-fraction: must be in [0, 1], got -0.1",
+        ),
+        (
+            &["batch", &gen_dir, "--out", o, "--shard-size", "3"],
+            2,
+            "--shard-size: only with --format webdataset",
+        ),
+        (
+            &[
+                "scan",
+                scene,
+                "--sensor",
+                "vlp16",
+                "-o",
+                las,
+                "--dropout",
+                "2",
+            ],
+            2,
+            "--dropout: must be in [0, 1], got 2",
+        ),
+        (
+            &["import", tab, "-o", o, "--fov", "0"],
+            2,
+            "--fov: must be in (0, 180), got 0",
+        ),
+        (
+            &["verify", &gen_dir, "--fraction", "2"],
+            2,
+            "--fraction: must be in [0, 1], got 2",
+        ),
+    ];
+    let mut failures = Vec::new();
+    for (args, code, want) in cases {
+        let run = common::cylaov(args);
+        let err = String::from_utf8_lossy(&run.stderr);
+        if run.status.code() != Some(*code)
+            || !err.starts_with("error: ")
+            || !err.contains(want)
+            || err.trim_end().lines().count() != 1
+        {
+            failures.push(format!(
+                "{args:?}: exit {:?}, want {code}: {err}",
+                run.status.code()
+            ));
+        }
+        if [o, exr, las].iter().any(|p| Path::new(p).exists()) {
+            failures.push(format!("{args:?}: wrote an output"));
+        }
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}

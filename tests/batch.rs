@@ -860,7 +860,7 @@ fn ply_writes_each_views_hit_points() {
         &tars,
         &["--format", "webdataset", "--exr-layout", "per-aov"],
     );
-    assert_eq!(o.status.code(), Some(1));
+    assert_eq!(o.status.code(), Some(2));
     assert!(
         String::from_utf8_lossy(&o.stderr).contains(
             "--exr-layout per-aov: with --format webdataset a view's EXR (--members exr) is one layered file"

@@ -906,7 +906,7 @@ fn rig_distances_out_of_range_name_the_rig() {
         let mut args = vec!["cameras", s(&scene), "-o", s(&out), "--orbit", "3"];
         args.extend(flags);
         let o = cylaov(&args);
-        if o.status.code() != Some(1) || !stderr(&o).starts_with(want) {
+        if o.status.code() != Some(2) || !stderr(&o).starts_with(want) {
             failures.push(format!("{flags:?}: {:?} {}", o.status.code(), stderr(&o)));
         }
     }

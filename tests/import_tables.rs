@@ -688,7 +688,7 @@ fn camera_rigs_frame_any_scene_deterministically() {
     ]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(
-        o.status.code() == Some(1) && err.contains("--elevation: must lie in -85..85"),
+        o.status.code() == Some(2) && err.contains("--elevation: must lie in -85..85"),
         "{err}"
     );
     assert!(!d.join("x.json").exists());
@@ -1146,7 +1146,7 @@ fn the_framing_cameras_limits_name_the_flags() {
         "16384",
     ]);
     let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert_eq!(o.status.code(), Some(2), "{err}");
     assert!(!out.exists());
     assert_eq!(
         err,

@@ -526,7 +526,7 @@ fn a_bad_depth_scale_is_the_error_alone() {
             "--depth-scale",
             bad,
         ]);
-        assert_eq!(o.status.code(), Some(1), "{bad}");
+        assert_eq!(o.status.code(), Some(2), "{bad}");
         assert_eq!(
             stderr(&o),
             format!("error: --depth-scale: must be finite and > 0, got {bad}\n")
@@ -534,8 +534,8 @@ fn a_bad_depth_scale_is_the_error_alone() {
     }
 }
 
-/// `render --depth-png --depth-scale 0|NaN|inf`: the error alone, status 1, nothing
-/// written.
+/// `render --depth-png --depth-scale 0|NaN|inf`: the error alone, status 2 (a usage
+/// error), nothing written.
 #[test]
 fn a_bad_render_depth_scale_is_the_error_alone() {
     let _one = serial();
@@ -553,7 +553,7 @@ fn a_bad_render_depth_scale_is_the_error_alone() {
             "--depth-scale",
             bad,
         ]);
-        assert_eq!(o.status.code(), Some(1), "{bad}: {}", stderr(&o));
+        assert_eq!(o.status.code(), Some(2), "{bad}: {}", stderr(&o));
         assert_eq!(
             stderr(&o),
             format!("error: --depth-scale: must be finite and > 0, got {bad}\n")

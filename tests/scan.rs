@@ -192,7 +192,8 @@ fn bad_sensor_files_name_the_field() {
         assert!(err.contains(want), "{json}: {err}");
         assert!(!out.exists());
     }
-    // Options: each refused naming itself, never a panic.
+    // Options: each refused naming itself, never a panic; a sensor that is neither a preset
+    // nor a file is an input refused (1), a flag's bad value a usage error (2).
     for (args, want) in [
         (
             vec!["--sensor", "vlp17"],
@@ -215,11 +216,12 @@ fn bad_sensor_files_name_the_field() {
             "--pose: value 3 (\"x\") is not a finite number",
         ),
     ] {
+        let code = if args.len() == 2 { 1 } else { 2 };
         let mut a = vec!["scan", scene.as_str(), "-o", out.to_str().unwrap()];
         a.extend(args);
         let o = cylaov(&a);
         let err = String::from_utf8_lossy(&o.stderr);
-        assert_eq!(o.status.code(), Some(1), "{a:?}: {err}");
+        assert_eq!(o.status.code(), Some(code), "{a:?}: {err}");
         assert!(err.contains(want), "{a:?}: {err}");
     }
     // A scan that cannot fit is refused before it starts, naming its most points: 1024

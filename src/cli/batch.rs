@@ -5,6 +5,7 @@ use crate::cli::common::{KernelCli, TolerancesCli, say, set_threads};
 use clap::Args;
 use cylaov::choice::Choice;
 use cylaov::commands;
+use cylaov::commands::usage;
 use cylaov::dataset::batch::shards::{Member, ShardOptions};
 use cylaov::dataset::batch::{BatchOptions, ProgressMode, Schedule, Shard};
 use cylaov::output::format::depth_png::OutOfRange;
@@ -118,24 +119,24 @@ pub enum Format {
 pub fn run(a: BatchCli) -> anyhow::Result<ExitCode> {
     set_threads(a.kernel.threads)?;
     if a.format == Format::Webdataset && a.ply {
-        anyhow::bail!("--ply: with --format webdataset, ask for --members ply");
+        return usage("--ply: with --format webdataset, ask for --members ply");
     }
     if a.format == Format::Webdataset && a.exr_layout != ExrLayout::Layers {
-        anyhow::bail!(
+        return usage(format!(
             "--exr-layout {}: with --format webdataset a view's EXR (--members exr) is one \
              layered file",
             a.exr_layout.choice_name()
-        );
+        ));
     }
     if a.format == Format::Files {
         if a.shard_size.is_some() {
-            anyhow::bail!("--shard-size: only with --format webdataset");
+            return usage("--shard-size: only with --format webdataset");
         }
         if !a.members.is_empty() {
-            anyhow::bail!("--members: only with --format webdataset");
+            return usage("--members: only with --format webdataset");
         }
         if a.force {
-            anyhow::bail!("--force: only with --format webdataset");
+            return usage("--force: only with --format webdataset");
         }
     }
     let format = a.format;

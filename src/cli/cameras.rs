@@ -3,6 +3,7 @@
 use crate::cli::common::{say, shorten};
 use clap::Args;
 use cylaov::commands;
+use cylaov::commands::{Usage, usage};
 use cylaov::dataset::generate::Range;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -54,16 +55,18 @@ pub fn run(a: CamerasCli) -> anyhow::Result<ExitCode> {
     if let Some(n) = count
         && (n == 0 || n > max)
     {
-        anyhow::bail!("{flag}: must be in 1..={max}, got {n}");
+        return usage(format!("{flag}: must be in 1..={max}, got {n}"));
     }
     let e = a.elevation;
     if e.min < -85.0 || e.max > 85.0 {
-        anyhow::bail!("--elevation: must lie in -85..85 degrees (the camera's up is +z), got {e}");
+        return usage(format!(
+            "--elevation: must lie in -85..85 degrees (the camera's up is +z), got {e}"
+        ));
     }
     if let Some(f) = a.fov
         && !(f > 0.0 && f < 180.0)
     {
-        anyhow::bail!("--fov: must be in (0, 180), got {f}");
+        return usage(format!("--fov: must be in (0, 180), got {f}"));
     }
     let rig = match count {
         None => None,
@@ -75,10 +78,12 @@ pub fn run(a: CamerasCli) -> anyhow::Result<ExitCode> {
                 "fit" => Distance::default(),
                 d => match d.parse::<f64>() {
                     Ok(x) if x.is_finite() && x > 0.0 && x <= 1e6 => Distance::Factor(x),
-                    _ => anyhow::bail!(
-                        "--distance: expected fit or a factor of the fit distance in (0, 1e6], got {:?}",
-                        shorten(d)
-                    ),
+                    _ => {
+                        return usage(format!(
+                            "--distance: expected fit or a factor of the fit distance in (0, 1e6], got {:?}",
+                            shorten(d)
+                        ));
+                    }
                 },
             };
             let spec = RigSpec {
@@ -124,7 +129,7 @@ pub fn run(a: CamerasCli) -> anyhow::Result<ExitCode> {
             .filter(|_| from_flags)
             .and_then(|se| Some((rig_flag(&se.field)?, se.message.clone())));
         match flag {
-            Some((flag, message)) => anyhow::anyhow!("{flag}: {message}"),
+            Some((flag, message)) => Usage(format!("{flag}: {message}")).into(),
             None => e,
         }
     })?;

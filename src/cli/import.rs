@@ -3,6 +3,7 @@
 use crate::cli::common::{say, shorten};
 use clap::Args;
 use cylaov::commands;
+use cylaov::commands::usage;
 use cylaov::scene::framing::Frame;
 use cylaov::scene::table::{LabelRule, TableFormat, TableOptions};
 use std::path::PathBuf;
@@ -69,30 +70,30 @@ pub fn on_off(s: &str) -> Result<bool, String> {
 
 pub fn run(a: ImportCli) -> anyhow::Result<ExitCode> {
     if a.width == 0 || a.width > cylaov::scene::MAX_SIDE {
-        anyhow::bail!(
+        return usage(format!(
             "--width: must be in 1..={}, got {}",
             cylaov::scene::MAX_SIDE,
             a.width
-        );
+        ));
     }
     if a.height == 0 || a.height > cylaov::scene::MAX_SIDE {
-        anyhow::bail!(
+        return usage(format!(
             "--height: must be in 1..={}, got {}",
             cylaov::scene::MAX_SIDE,
             a.height
-        );
+        ));
     }
     let pixels = a.width as u64 * a.height as u64;
     if pixels > cylaov::scene::MAX_PIXELS {
-        anyhow::bail!(
+        return usage(format!(
             "--width/--height: width × height must be <= {} pixels (64 megapixels, e.g. 8192 × 8192), got {} × {} = {pixels}",
             cylaov::scene::MAX_PIXELS,
             a.width,
             a.height
-        );
+        ));
     }
     if !(a.fov > 0.0 && a.fov < 180.0) {
-        anyhow::bail!("--fov: must be in (0, 180), got {}", a.fov);
+        return usage(format!("--fov: must be in (0, 180), got {}", a.fov));
     }
     let args = commands::import::ImportArgs {
         table: a.table,

@@ -47,7 +47,7 @@ pub struct ScanCli {
 
 pub fn run(a: ScanCli) -> anyhow::Result<ExitCode> {
     set_threads(a.threads)?;
-    let pose = cylaov::scan::Pose::parse(&a.pose, "--pose").map_err(|e| anyhow::anyhow!(e))?;
+    let pose = cylaov::scan::Pose::parse(&a.pose, "--pose").map_err(cylaov::commands::Usage)?;
     let args = commands::scan::ScanArgs {
         scene: a.scene,
         sensor: a.sensor,

@@ -37,7 +37,7 @@ pub fn run(args: &BatchArgs) -> Result<Summary> {
     let shard = batch::resolve_shard(args.shard, args.shards, &|k| std::env::var(k).ok())
         .map_err(anyhow::Error::msg)?;
     // Bad values are refused before any advice about them is printed.
-    args.options.validate().map_err(anyhow::Error::msg)?;
+    args.options.validate().map_err(super::Usage)?;
     let verification = Verification::new(args)?;
     if args.options.png && args.options.depth_scale != NERFSTUDIO_DEPTH_SCALE {
         crate::output::console::warn(&format!(
@@ -67,7 +67,7 @@ pub fn run(args: &BatchArgs) -> Result<Summary> {
 pub fn shards(args: &BatchArgs, sopts: &ShardOptions) -> Result<ShardSummary> {
     let shard = batch::resolve_shard(args.shard, args.shards, &|k| std::env::var(k).ok())
         .map_err(anyhow::Error::msg)?;
-    args.options.validate().map_err(anyhow::Error::msg)?;
+    args.options.validate().map_err(super::Usage)?;
     let verification = Verification::new(args)?;
     let summary = batch::shards::write_shards(
         &args.input,

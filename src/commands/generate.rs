@@ -86,19 +86,30 @@ pub fn resolve(args: &GenerateArgs) -> Result<(u64, u64, GenerateOptions)> {
         Some(p) => load_config(p)?,
         None => ConfigFile::default(),
     };
+    // The flags alone first: a flag's bad value is a usage error. What is wrong after
+    // that is the config file's (every option is checked on its own).
+    let mut flags = GenerateOptions::default();
+    flags.apply(&args.flags);
+    flags.validate().map_err(super::Usage)?;
     let mut o = GenerateOptions::default();
     o.apply(&config);
     o.apply(&args.flags);
-    let count = args
-        .flags
-        .count
-        .or(config.count)
-        .context("--count: required (or \"count\" in --config)")?;
+    let Some(count) = args.flags.count.or(config.count) else {
+        return super::usage("--count: required (or \"count\" in --config)");
+    };
+    let config_key = |key: &str| match &args.config {
+        Some(path) => format!("{}: {key}", path.display()),
+        None => crate::spelling::opt(key),
+    };
     if count == 0 || count > MAX_COUNT {
-        bail!("--count: must be in 1..={MAX_COUNT}, got {count}");
+        // Clap range-checks the flag: this one is the config file's.
+        bail!(
+            "{}: must be in 1..={MAX_COUNT}, got {count}",
+            config_key("count")
+        );
     }
     let seed = args.flags.seed.or(config.seed).unwrap_or(0);
-    o.validate().map_err(anyhow::Error::msg)?;
+    o.validate_naming(&config_key).map_err(anyhow::Error::msg)?;
     Ok((count, seed, o))
 }
 

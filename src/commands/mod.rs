@@ -13,6 +13,25 @@ pub mod scan;
 pub mod stress;
 pub mod verify;
 
+/// A usage error found after the arguments parsed: a flag's value out of its range, or
+/// flags that do not go together. The binary exits 2 on it, as on clap's own usage errors
+/// (`cylaov --help` lists the exit statuses); every other error exits 1.
+#[derive(Debug)]
+pub struct Usage(pub String);
+
+impl std::fmt::Display for Usage {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for Usage {}
+
+/// `Err` of a [`Usage`] error with `message`, as `anyhow::bail!` would return it.
+pub fn usage<T>(message: impl Into<String>) -> anyhow::Result<T> {
+    Err(Usage(message.into()).into())
+}
+
 /// Write `file` to `out` (`-o`) as a scene file, one vector a line: atomically, making its
 /// missing parent folders (removed again if the write fails). `import` and `cameras`
 /// write their scenes through it.

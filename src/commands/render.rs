@@ -180,7 +180,7 @@ pub fn run(args: &RenderArgs) -> Result<String> {
     if let Some(s) = args.depth_png
         && !(s.is_finite() && s > 0.0)
     {
-        bail!("--depth-scale: must be finite and > 0, got {s}");
+        return super::usage(format!("--depth-scale: must be finite and > 0, got {s}"));
     }
     check_memory(
         &format!(

@@ -92,8 +92,8 @@ pub fn run(args: &ScanArgs) -> Result<String> {
         returns: args.returns,
         noise: args.noise,
     };
-    opts.validate()
-        .map_err(|e| anyhow!("--{}", e.replace('_', "-")))?;
+    // Every number it checks is a flag's.
+    opts.validate().map_err(super::Usage)?;
     crate::mem::check_memory(
         &format!("a scan of up to {} points", opts.most_points()),
         opts.memory(),

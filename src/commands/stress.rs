@@ -42,7 +42,7 @@ pub fn run(args: &StressArgs) -> Result<String> {
         },
     };
     if args.rays == 0 {
-        bail!("--rays: must be >= 1, got 0");
+        return super::usage("--rays: must be >= 1, got 0");
     }
     let mut outputs: Vec<(&str, &Path)> = Vec::new();
     if let Some(p) = &args.csv {

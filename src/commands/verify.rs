@@ -625,7 +625,10 @@ type Images = (AovImage, AovImage, image::RgbImage);
 /// Check every selected view of `args.input`.
 pub fn run(args: &VerifyArgs) -> Result<VerifyOutcome> {
     if !(0.0..=1.0).contains(&args.fraction) || args.fraction.is_nan() {
-        anyhow::bail!("--fraction: must be in [0, 1], got {}", args.fraction);
+        return super::usage(format!(
+            "--fraction: must be in [0, 1], got {}",
+            args.fraction
+        ));
     }
     if let Some(dir) = &args.heatmap {
         crate::output::store::targets::check_output_dir("--heatmap", dir)?;

@@ -297,7 +297,12 @@ impl GenerateOptions {
     /// Check every option; the error names the option (see [`crate::spelling`]) and the
     /// value.
     pub fn validate(&self) -> Result<(), String> {
-        use crate::spelling::opt;
+        self.validate_naming(&crate::spelling::opt)
+    }
+
+    /// [`validate`](Self::validate), naming option `key` as `opt(key)`: a front end that
+    /// read the value from a file names the file and its key.
+    pub fn validate_naming(&self, opt: &dyn Fn(&str) -> String) -> Result<(), String> {
         let c = self.cylinders;
         if c.min < 1.0 || c.max > MAX_CYLINDERS || c.min.fract() != 0.0 || c.max.fract() != 0.0 {
             return Err(format!(
@@ -320,8 +325,9 @@ impl GenerateOptions {
             .any(|v| !v.is_finite() || *v < 0.0 || *v > scene::MAX_COORD)
         {
             return Err(format!(
-                "{}: half extents must be >= 0 and finite, got {:?}",
+                "{}: half extents must be in [0, {:e}], got {:?}",
                 opt("volume"),
+                scene::MAX_COORD,
                 self.volume
             ));
         }

@@ -118,21 +118,26 @@ impl ScanOptions {
     }
 
     /// Check the numbers a user gives (the sensor is valid by construction); errors name
-    /// the option as the command line spells it.
+    /// the option as the front end spells it ([`crate::spelling`]).
     pub fn validate(&self) -> Result<(), String> {
+        use crate::spelling::opt;
         if !(1..=MAX_RETURNS).contains(&self.returns) {
             return Err(format!(
-                "returns: must be in 1..={MAX_RETURNS}, got {}",
+                "{}: must be in 1..={MAX_RETURNS}, got {}",
+                opt("returns"),
                 self.returns
             ));
         }
         let s = self.noise.range_sigma;
         if !(s >= 0.0 && s.is_finite()) {
-            return Err(format!("range_noise: must be finite and >= 0, got {s}"));
+            return Err(format!(
+                "{}: must be finite and >= 0, got {s}",
+                opt("range_noise")
+            ));
         }
         let p = self.noise.dropout;
         if !(0.0..=1.0).contains(&p) {
-            return Err(format!("dropout: must be in [0, 1], got {p}"));
+            return Err(format!("{}: must be in [0, 1], got {p}", opt("dropout")));
         }
         Ok(())
     }
