@@ -451,3 +451,139 @@ fn bad_flag_values_exit_2_and_bad_file_values_exit_1() {
     }
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
+
+/// Files whose mistakes were read past or misnamed: each refused in one line naming the
+/// file and the key, or read as meant.
+#[test]
+fn file_mistakes_name_the_file_and_key() {
+    let tmp = common::fresh_dir("bad", "file-mistakes");
+    let d = tmp.path();
+    let p = |name: &str, text: &str| {
+        let path = d.join(name);
+        std::fs::write(&path, text).unwrap();
+        path.to_str().unwrap().to_string()
+    };
+    let out = d.join("out");
+    let o = out.to_str().unwrap();
+    let csv = p("t.csv", "x0,y0,z0,x1,y1,z1,radius\n0,0,0,0,0,1,0.1\n");
+    let cam = r#""camera":{"origin":[0,-4,1],"target":[0,0,0.5],"up":[0,0,1],"fov_deg":50,"width":16,"height":12}"#;
+    let exr = d.join("r.exr");
+    let r = exr.to_str().unwrap();
+    let npy = d.join("a.npy");
+    std::fs::write(&npy, b"\x93NUMPY\x01\x00").unwrap();
+    let npy = npy.to_str().unwrap().to_string();
+    let cases: Vec<(Vec<String>, &str)> = vec![
+        // A second object after the settings was ignored: count 2, seed 0.
+        (
+            vec![
+                "generate".into(),
+                "--out".into(),
+                o.into(),
+                "--config".into(),
+                p("two.json", r#"{"count": 2} {"count": 5, "seed": 3}"#),
+            ],
+            "two.json: text after the end of the settings' JSON object at line 1 column 14",
+        ),
+        // `0.1...2` read as 0.1..0.2.
+        (
+            vec![
+                "generate".into(),
+                "--out".into(),
+                o.into(),
+                "--count".into(),
+                "1".into(),
+                "--radius".into(),
+                "0.1...2".into(),
+            ],
+            "expected MIN..MAX with two dots, got \"0.1...2\"",
+        ),
+        (
+            vec![
+                "generate".into(),
+                "--out".into(),
+                o.into(),
+                "--config".into(),
+                p("pair.json", r#"{"count": 1, "radius": [1]}"#),
+            ],
+            "pair.json: radius: expected \"MIN..MAX\", a number or [MIN, MAX], got [1]",
+        ),
+        // A table reference without its file said a list of cylinders was expected.
+        (
+            vec![
+                "render".into(),
+                p(
+                    "nofile.json",
+                    &format!(r#"{{{cam}, "cylinders": {{"format": "csv"}}}}"#),
+                ),
+                "-o".into(),
+                r.into(),
+            ],
+            "nofile.json: cylinders: missing field `file`",
+        ),
+        // A scene's label named the command line's flag.
+        (
+            vec![
+                "render".into(),
+                p(
+                    "label.json",
+                    &format!(
+                        r#"{{{cam}, "cylinders": {{"file": "t.csv", "label": "branch_order"}}}}"#
+                    ),
+                ),
+                "-o".into(),
+                r.into(),
+            ],
+            "label.json: cylinders.label: ",
+        ),
+        // One .npy array said "not UTF-8 text".
+        (
+            vec!["import".into(), npy, "-o".into(), o.into()],
+            "one NumPy array (.npy); a table of arrays is an .npz archive",
+        ),
+    ];
+    let mut failures = Vec::new();
+    for (args, want) in &cases {
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let run = common::cylaov(&args);
+        let err = String::from_utf8_lossy(&run.stderr);
+        if run.status.code() == Some(0) || !err.contains(want) || err.contains("--label") {
+            failures.push(format!("{args:?}: exit {:?}: {err}", run.status.code()));
+        }
+        if out.exists() || exr.exists() {
+            failures.push(format!("{args:?}: wrote an output"));
+        }
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+    let _ = csv;
+}
+
+/// A table's blank and comment lines take no room: a cylinder followed by two million
+/// comment lines reserved 320 MB for two million cylinders, refused under a 100 MB limit.
+#[test]
+fn comment_lines_reserve_no_cylinders() {
+    let tmp = common::fresh_dir("bad", "comment-lines");
+    let d = tmp.path();
+    let mut text = String::from("x0,y0,z0,x1,y1,z1,radius\n0,0,0,0,0,1,0.1\n");
+    text.push_str(&"#\n".repeat(2_000_000));
+    let table = d.join("t.csv");
+    std::fs::write(&table, text).unwrap();
+    let out = d.join("t.json");
+    let run = std::process::Command::new(env!("CARGO_BIN_EXE_cylaov"))
+        .args([
+            "import",
+            table.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+        ])
+        .env("CYLAOV_FAIL_ALLOC_OVER", "100000000")
+        .output()
+        .unwrap();
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let scene: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    assert_eq!(scene["cylinders"].as_array().unwrap().len(), 1);
+}

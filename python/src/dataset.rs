@@ -23,11 +23,20 @@ fn options(settings: Option<&str>, seed: u64) -> PyResult<(GenerateOptions, Conf
     let config: ConfigFile = match settings {
         None => ConfigFile::default(),
         Some(text) => {
-            let de = &mut serde_json::Deserializer::from_str(text);
-            serde_path_to_error::deserialize(de).map_err(|e| {
+            let mut de = serde_json::Deserializer::from_str(text);
+            let config = serde_path_to_error::deserialize(&mut de).map_err(|e| {
                 let path = e.path().to_string();
                 PyValueError::new_err(format!("settings.{path}: {}", e.into_inner()))
-            })?
+            })?;
+            // A second object after the first would otherwise be ignored.
+            de.end().map_err(|e| {
+                PyValueError::new_err(format!(
+                    "settings: text after the end of the JSON object at line {} column {}",
+                    e.line(),
+                    e.column()
+                ))
+            })?;
+            config
         }
     };
     if let Some(s) = config.seed

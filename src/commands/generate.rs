@@ -73,11 +73,21 @@ pub fn load_config(path: &Path) -> Result<ConfigFile> {
 
 /// The config file `path` holding `bytes`; errors name the file and the field.
 fn parse_config(path: &Path, bytes: &[u8]) -> Result<ConfigFile> {
-    let de = &mut serde_json::Deserializer::from_slice(bytes);
-    serde_path_to_error::deserialize(de).map_err(|e| {
+    let mut de = serde_json::Deserializer::from_slice(bytes);
+    let config = serde_path_to_error::deserialize(&mut de).map_err(|e| {
         let field = e.path().to_string();
         anyhow::anyhow!("{}: {field}: {}", path.display(), e.into_inner())
-    })
+    })?;
+    // A second object after the first would otherwise be ignored, settings and all.
+    de.end().map_err(|e| {
+        anyhow::anyhow!(
+            "{}: text after the end of the settings' JSON object at line {} column {}",
+            path.display(),
+            e.line(),
+            e.column()
+        )
+    })?;
+    Ok(config)
 }
 
 /// Resolve defaults < config file < flags.

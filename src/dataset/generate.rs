@@ -70,6 +70,10 @@ impl Range {
             Ok(x)
         };
         let r = match s.split_once("..") {
+            // `A...B` would read B as `.B`, a tenth of what a typo meant.
+            Some((_, b)) if b.starts_with('.') => {
+                return Err(format!("expected MIN..MAX with two dots, got {s:?}"));
+            }
             Some((a, b)) => Range::new(num(a)?, num(b)?),
             None => {
                 let x = num(s)?;
@@ -83,12 +87,15 @@ impl Range {
     }
 }
 
+/// As a message shows it: `A..B`, or `A` when the ends agree, each end in exponent form
+/// where plain would be a wall of digits (`1e300`).
 impl fmt::Display for Range {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        use crate::scene::num;
         if self.min == self.max {
-            write!(f, "{}", self.min)
+            write!(f, "{}", num(self.min))
         } else {
-            write!(f, "{}..{}", self.min, self.max)
+            write!(f, "{}..{}", num(self.min), num(self.max))
         }
     }
 }
@@ -100,6 +107,8 @@ enum RangeRepr {
     Text(String),
     Number(f64),
     Pair([f64; 2]),
+    /// Anything else, refused naming the value (an untagged enum's own error names none).
+    Other(serde_json::Value),
 }
 
 impl TryFrom<RangeRepr> for Range {
@@ -109,13 +118,22 @@ impl TryFrom<RangeRepr> for Range {
             RangeRepr::Text(s) => Range::parse(&s),
             RangeRepr::Number(x) => Range::parse(&x.to_string()),
             RangeRepr::Pair([a, b]) => Range::parse(&format!("{a}..{b}")),
+            RangeRepr::Other(v) => Err(format!(
+                "expected \"MIN..MAX\", a number or [MIN, MAX], got {}",
+                crate::scene::strict::shorten(&v.to_string())
+            )),
         }
     }
 }
 
+/// Written plain (`generate.json` keeps the bytes it always had), each end exact.
 impl From<Range> for RangeRepr {
     fn from(r: Range) -> RangeRepr {
-        RangeRepr::Text(r.to_string())
+        RangeRepr::Text(if r.min == r.max {
+            format!("{}", r.min)
+        } else {
+            format!("{}..{}", r.min, r.max)
+        })
     }
 }
 
@@ -237,6 +255,8 @@ enum VolumeRepr {
     Text(String),
     Number(f64),
     Triple([f64; 3]),
+    /// Anything else, refused naming the value.
+    Other(serde_json::Value),
 }
 
 impl TryFrom<VolumeRepr> for Volume {
@@ -246,6 +266,10 @@ impl TryFrom<VolumeRepr> for Volume {
             VolumeRepr::Text(s) => Volume::parse(&s),
             VolumeRepr::Number(x) => Ok(Volume([x; 3])),
             VolumeRepr::Triple(v) => Ok(Volume(v)),
+            VolumeRepr::Other(v) => Err(format!(
+                "expected \"X,Y,Z\", a number or [X, Y, Z] (half extents), got {}",
+                crate::scene::strict::shorten(&v.to_string())
+            )),
         }
     }
 }

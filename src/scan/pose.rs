@@ -150,7 +150,9 @@ impl Trajectory {
             return p[k - 1].1;
         }
         let ((t0, a), (t1, b)) = (p[k - 1], p[k]);
-        let s = (t - t0) / (t1 - t0);
+        // In halves: `t1 - t0` of finite times can overflow (-1e308 to 1e308 is inf, which
+        // made every `s` 0); halving is exact, so other spans give the same bits.
+        let s = (t / 2.0 - t0 / 2.0) / (t1 / 2.0 - t0 / 2.0);
         Pose {
             position: a.position.lerp(b.position, s),
             // glam's slerp takes the shorter arc (it flips b when a·b < 0).
@@ -180,6 +182,12 @@ mod tests {
         let x = mid.rotation * DVec3::X;
         assert!((x - DVec3::new(0.5f64.sqrt(), 0.5f64.sqrt(), 0.0)).length() < 1e-15);
         assert_eq!(t.at(5.0).position.x, 2.0);
+        // Times whose span overflows f64 (2e308) still interpolate: the midpoint at 0.
+        let wide = Trajectory::from_csv(
+            "time,x,y,z,yaw,pitch,roll\n-1e308,0,0,0,0,0,0\n1e308,10,0,0,0,0,0",
+        )
+        .unwrap();
+        assert_eq!(wide.at(0.0).position, DVec3::new(5.0, 0.0, 0.0));
         let e = Trajectory::from_csv("time,x,y,z,yaw,pitch,roll\n0,0,0,0,0,0,0\n0,1,0,0,0,0,0")
             .unwrap_err();
         assert_eq!(

@@ -362,8 +362,18 @@ fn read_table_ref(r: &TableRef, base: &Path) -> Result<Vec<CylinderFile>, SceneE
         label,
         caps: r.caps,
     };
-    let table = table::load_table(&path, &opts)
-        .map_err(|e| err("cylinders.file", format!("{}: {e}", path.display())))?;
+    let table = table::load_table(&path, &opts).map_err(|e| match e.option {
+        // The scene's own key, not the front end's spelling of the option.
+        Some(key) => err(
+            format!("cylinders.{key}"),
+            format!(
+                "{}: {}",
+                path.display(),
+                table::TableError { option: None, ..e }
+            ),
+        ),
+        None => err("cylinders.file", format!("{}: {e}", path.display())),
+    })?;
     Ok(table.cylinders)
 }
 
@@ -391,17 +401,17 @@ fn table_scene(text: &[u8], base: &Path) -> Option<Result<(Scene, Option<PathBuf
     // A table reference with a mistake: the message names the field inside it.
     let mut de = serde_json::Deserializer::from_slice(text);
     match serde_path_to_error::deserialize::<_, strict::Object<SceneFileRef>>(&mut de) {
-        Err(e)
-            if e.path().to_string().starts_with("cylinders.")
-                || e.path().to_string().starts_with("cameras.") =>
-        {
+        Err(e) => {
             let field = e.path().to_string();
-            Some(Err(err(
-                strict::shorten(&field),
-                strict::shorten(&e.into_inner().to_string()),
-            )))
+            let message = e.into_inner().to_string();
+            // Inside the reference, or the reference object itself missing or repeating a
+            // key (an error at `cylinders` otherwise says a list was expected).
+            let inside = field.starts_with("cylinders.") || field.starts_with("cameras.");
+            let object = (field == "cylinders" || field == "cameras")
+                && (message.starts_with("missing field") || message.starts_with("duplicate field"));
+            (inside || object).then(|| Err(err(strict::shorten(&field), strict::shorten(&message))))
         }
-        _ => None,
+        Ok(_) => None,
     }
 }
 

@@ -137,16 +137,22 @@ pub struct TableError {
     pub column: Option<(usize, String)>,
     /// Why, naming the value.
     pub message: String,
+    /// The option at fault, when the table lacks what one asks for (`label`): the message
+    /// names its value, and whoever reports it names the option as its user set it (a
+    /// flag, a keyword, a scene file's key).
+    pub option: Option<&'static str>,
 }
 
 impl fmt::Display for TableError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let message = match self.option {
+            Some(key) => format!("{} {}", crate::spelling::opt(key), self.message),
+            None => self.message.clone(),
+        };
         match (&self.column, self.line) {
-            (_, 0) => f.write_str(&self.message),
-            (Some((k, name)), line) => {
-                write!(f, "line {line}, column {k} ({name}): {}", self.message)
-            }
-            (None, line) => write!(f, "line {line}: {}", self.message),
+            (_, 0) => f.write_str(&message),
+            (Some((k, name)), line) => write!(f, "line {line}, column {k} ({name}): {message}"),
+            (None, line) => write!(f, "line {line}: {message}"),
         }
     }
 }
@@ -158,6 +164,7 @@ fn line_err(line: usize, message: impl Into<String>) -> TableError {
         line,
         column: None,
         message: message.into(),
+        option: None,
     }
 }
 
@@ -588,6 +595,7 @@ impl Row<'_> {
                 self.names.get(k).cloned().unwrap_or_else(|| "?".into()),
             )),
             message: message.into(),
+            option: None,
         }
     }
 
@@ -690,22 +698,22 @@ pub fn read_table(text: &str, opts: &TableOptions) -> Result<Table, TableError> 
         _ => None,
     };
     if let Some(Err((what, names))) = label_source {
-        return Err(line_err(
-            first_line,
-            format!(
-                "{} {}: this {} table has no {what} column ({names})",
-                crate::spelling::opt("label"),
-                label.name(),
-                format.name()
-            ),
-        ));
+        return Err(TableError {
+            option: Some("label"),
+            ..line_err(
+                first_line,
+                format!(
+                    "{}: this {} table has no {what} column ({names})",
+                    label.name(),
+                    format.name()
+                ),
+            )
+        });
     }
     let default_caps = opts.caps.unwrap_or(true);
     let mut cylinders = Vec::new();
-    reserve_cylinders(
-        &mut cylinders,
-        text.bytes().filter(|&b| b == b'\n').count() + 1,
-    )?;
+    // The rows left, not the lines: blank and comment lines take no room.
+    reserve_cylinders(&mut cylinders, lines.clone().count())?;
     let what_sets_width = if is_header {
         format!("the header (line {first_line}) has")
     } else {
@@ -951,6 +959,19 @@ pub fn load_table(path: &std::path::Path, opts: &TableOptions) -> Result<Table, 
     let bytes = crate::scene::read_bounded(path).map_err(|e| line_err(0, e.to_string()))?;
     if npz::is_zip(&bytes) {
         return npz::read_npz(&bytes, opts);
+    }
+    // Binary, so before the text's checks: their "not UTF-8" would not say what is wrong.
+    if bytes.starts_with(b"\x93NUMPY") {
+        return Err(line_err(
+            0,
+            "one NumPy array (.npy); a table of arrays is an .npz archive (numpy.savez)",
+        ));
+    }
+    if opts.format == Some(TableFormat::Npz) {
+        return Err(line_err(
+            0,
+            "an npz table is a zip archive of NumPy arrays (numpy.savez); this file is not one",
+        ));
     }
     let text = std::str::from_utf8(&bytes)
         .map_err(|e| line_err(0, format!("not UTF-8 text (byte {})", e.valid_up_to())))?;

@@ -31,6 +31,11 @@ def test_generate_is_the_cli_scene_file(cli, tmp_path):
         cylaov.generate(settings, 6, 0)
     with pytest.raises(ValueError, match="settings.colour"):
         cylaov.generate({"colour": 1}, 0, 0)
+    # A second object in the file was ignored, its seed and radius with it.
+    two = tmp_path / "two.json"
+    two.write_text('{"count": 2} {"count": 5, "seed": 3, "radius": "1..2"}')
+    with pytest.raises(ValueError, match="settings: text after the end of the JSON object at line 1 column 14"):
+        cylaov.generate(two, 0, 0)
 
 
 def _items(args):

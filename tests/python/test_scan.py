@@ -80,6 +80,17 @@ def test_las_read_by_laspy(scanned):
     np.testing.assert_allclose(np.asarray(las.scan_angle) * 0.006, z["elevation"], atol=0.003)
 
 
+def test_a_scan_with_no_points_is_an_empty_las_with_a_finite_box(tmp_path, cli):
+    # Every return dropped: the header's box was +inf..-inf on every axis.
+    laspy = pytest.importorskip("laspy")
+    scene = tmp_path / "scene.json"
+    scene.write_text(json.dumps(SCENE))
+    cli("scan", scene, "--sensor", "vlp16", "--dropout", "1", "-o", tmp_path / "e.las")
+    las = laspy.read(tmp_path / "e.las")
+    assert len(las.points) == 0 and las.header.point_count == 0
+    assert list(las.header.mins) == [0, 0, 0] and list(las.header.maxs) == [0, 0, 0]
+
+
 def test_ply_read_by_open3d(scanned):
     o3d = pytest.importorskip("open3d")
     d, z = scanned

@@ -256,7 +256,16 @@ pub fn las(scan: &Scan) -> Result<Vec<u8>, String> {
         };
         w.write_point(p).map_err(e)?;
     }
-    Ok(w.into_inner().map_err(e)?.into_inner())
+    let mut bytes = w.into_inner().map_err(e)?.into_inner();
+    if scan.x.is_empty() {
+        // No points: the writer's running bounds stay at +inf and -inf. A box of zeros is
+        // what readers take for empty. The LAS 1.4 header holds max x, min x, max y, min y,
+        // max z, min z as six little-endian f64 from byte 179.
+        for field in bytes[179..227].chunks_exact_mut(8) {
+            field.copy_from_slice(&0f64.to_le_bytes());
+        }
+    }
+    Ok(bytes)
 }
 
 #[cfg(test)]

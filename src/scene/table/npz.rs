@@ -27,6 +27,7 @@ fn whole_err(message: impl Into<String>) -> TableError {
         line: 0,
         column: None,
         message: message.into(),
+        option: None,
     }
 }
 
