@@ -204,7 +204,7 @@ def cast_rays(scene, origins, directions, t_min=0.0, t_max=float("inf"),
 
 
 @_checked()
-def scan(scene, sensor, pose=(0.0, 0.0, 0.0), trajectory=None, returns=1, range_noise=0.0,
+def scan(scene, sensor, pose=None, trajectory=None, returns=1, range_noise=0.0,
          dropout=0.0, seed=0, threads=None):
     """One rotation of a simulated LiDAR: the points as a dict of numpy arrays.
 
@@ -216,9 +216,10 @@ def scan(scene, sensor, pose=(0.0, 0.0, 0.0), trajectory=None, returns=1, range_
 
     ``scene``: a ``Scene`` or a scene file's path. ``sensor``: a preset (``"vlp16"``,
     ``"hdl32"``, ``"os1-64"``), a sensor JSON file's path, or that JSON as a dict.
-    ``pose``: ``(x, y, z)`` or ``(x, y, z, yaw, pitch, roll)`` in degrees. ``trajectory``:
-    a CSV file's path (``time,x,y,z,yaw,pitch,roll``) or an ``(M, 7)`` array of those rows,
-    replacing ``pose``. ``returns``: most returns per beam (1 to 15). ``range_noise``
+    ``pose``: ``(x, y, z)`` or ``(x, y, z, yaw, pitch, roll)`` in degrees (default the
+    origin). ``trajectory``: a CSV file's path (``time,x,y,z,yaw,pitch,roll``) or an
+    ``(M, 7)`` array of those rows (errors name the row, ``trajectory[1]``), instead of
+    ``pose`` (giving both is refused). ``returns``: most returns per beam (1 to 15). ``range_noise``
     (sigma, along the beam), ``dropout`` (probability) and ``seed``: the same seed gives
     the same points on any number of ``threads``.
 
@@ -236,20 +237,38 @@ def scan(scene, sensor, pose=(0.0, 0.0, 0.0), trajectory=None, returns=1, range_
             sensor = f.read()
     elif not isinstance(sensor, str):
         raise TypeError(f"sensor: a preset name, a JSON file's path or a dict, got {type(sensor).__name__}")
+    if pose is not None and trajectory is not None:
+        raise ValueError("pose: give pose or trajectory, not both (the trajectory's rows are "
+                         "the poses)")
     csv = None
+    rows = None
     if trajectory is not None:
         if isinstance(trajectory, (str, _os.PathLike)):
             with open(trajectory, encoding="utf-8") as f:
                 csv = f.read()
         else:
-            rows = _np.asarray(trajectory, dtype=_np.float64)
+            rows = _real_array(trajectory, "trajectory")
             if rows.ndim != 2 or rows.shape[1] != 7:
                 raise ValueError(f"trajectory: shape must be (M, 7), got {rows.shape}")
+            bad = _np.argwhere(~_np.isfinite(rows))
+            if len(bad):
+                i, j = bad[0]
+                raise ValueError(f"trajectory[{i}, {j}]: must be a finite number, got "
+                                 f"{float(rows[i, j])!r}")
             csv = "time,x,y,z,yaw,pitch,roll\n" + "".join(
                 ",".join(repr(float(v)) for v in r) + "\n" for r in rows)
-    pose = _reals(pose, "pose", "(x, y, z) or (x, y, z, yaw, pitch, roll)")
-    return _cylaov._scan(scene, sensor, pose, csv, returns, float(range_noise),
-                         float(dropout), seed, threads)
+    pose = _reals((0.0, 0.0, 0.0) if pose is None else pose, "pose",
+                  "(x, y, z) or (x, y, z, yaw, pitch, roll)")
+    try:
+        return _cylaov._scan(scene, sensor, pose, csv, returns, float(range_noise),
+                             float(dropout), seed, threads)
+    except ValueError as e:
+        # The CSV made of the rows names its lines (a header, then 1-based): name the row.
+        line = _re.match(r"trajectory line (\d+): (.*)", str(e), _re.S)
+        if rows is None or line is None:
+            raise
+        why = line.group(2).replace("previous line", "previous row")
+        raise ValueError(f"trajectory[{int(line.group(1)) - 2}]: {why}") from None
 
 
 def _reals(values, name, what):

@@ -99,7 +99,7 @@ def spawn_rays(hits: Dict[str, np.ndarray], directions: npt.ArrayLike) -> np.nda
 def scan(
     scene: Union[Scene, PathLike],
     sensor: Union[str, PathLike, Dict[str, Any]],
-    pose: Sequence[float] = (0.0, 0.0, 0.0),
+    pose: Optional[Sequence[float]] = None,
     trajectory: Union[PathLike, npt.ArrayLike, None] = None,
     returns: int = 1,
     range_noise: float = 0.0,

@@ -130,3 +130,23 @@ def test_python_scan_sensor_dict_and_errors():
     rows = np.array([[0, 0, 0, 1.5, 0, 0, 0], [1, 0, 0, 1.5, 0, 0, 0]], dtype=float)
     still = cylaov.scan(scene, sensor, trajectory=rows)
     np.testing.assert_allclose(still["x"], got["x"], rtol=1e-12)
+
+
+def test_python_scan_trajectory_rows_are_named_by_row():
+    scene = cylaov.Scene.from_dict(SCENE)
+    rows = np.array([[0, 0, 0, 1.5, 0, 0, 0], [1, 0, 0, 1.5, 0, 0, 0]], dtype=float)
+    # Rows were named as the CSV made of them: row 0 as "line 2".
+    bad = rows.copy()
+    bad[0, 2] = np.nan
+    with pytest.raises(ValueError, match=r"^trajectory\[0, 2\]: must be a finite number, got nan$"):
+        cylaov.scan(scene, "vlp16", trajectory=bad)
+    late = rows.copy()
+    late[1, 0] = 0
+    with pytest.raises(ValueError, match=r"^trajectory\[1\]: time 0 must be after the previous row's 0$"):
+        cylaov.scan(scene, "vlp16", trajectory=late)
+    # A text cell: numpy's own message, named.
+    with pytest.raises(ValueError, match=r"^trajectory: not an array of real numbers"):
+        cylaov.scan(scene, "vlp16", trajectory=[["t", 0, 0, 0, 0, 0, 0]])
+    # A pose beside a trajectory was ignored; the command line refuses the two together.
+    with pytest.raises(ValueError, match="pose: give pose or trajectory, not both"):
+        cylaov.scan(scene, "vlp16", pose=(3, 3, 3), trajectory=rows)
