@@ -137,8 +137,9 @@ pub fn opt_vec3<'de, D: Deserializer<'de>>(d: D) -> Result<Option<[f64; 3]>, D::
     Ok(Option::<V>::deserialize(d)?.map(|v| v.0))
 }
 
-/// A message with every run of more than 40 digits or letters cut to its first 20 and
-/// last 8 characters with the count between, so a 600-digit number does not flood the
+/// A message with every run of more than 40 digits or letters (of any script: a name of
+/// 10 000 `é` or `木` floods as well) cut to its first 20 and last 8 characters with the
+/// count between, so a 600-digit number does not flood the
 /// terminal: `10000000000000000000…(572 more)…00000000`.
 pub fn shorten(message: &str) -> String {
     const KEEP_HEAD: usize = 20;
@@ -148,7 +149,7 @@ pub fn shorten(message: &str) -> String {
     let mut i = 0;
     while i < chars.len() {
         let mut j = i;
-        while j < chars.len() && (chars[j].is_ascii_alphanumeric() || chars[j] == '.') {
+        while j < chars.len() && (chars[j].is_alphanumeric() || chars[j] == '.') {
             j += 1;
         }
         if j == i {
@@ -181,6 +182,11 @@ mod tests {
         assert_eq!(
             s,
             format!("got {}…(572 more)…{} here", "9".repeat(20), "9".repeat(8))
+        );
+        let name = format!("name {:?}", "木".repeat(100));
+        assert_eq!(
+            shorten(&name),
+            format!("name \"{}…(72 more)…{}\"", "木".repeat(20), "木".repeat(8))
         );
     }
 }
