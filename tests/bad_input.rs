@@ -587,3 +587,74 @@ fn comment_lines_reserve_no_cylinders() {
         serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
     assert_eq!(scene["cylinders"].as_array().unwrap().len(), 1);
 }
+
+/// `generate` refuses options that can never make a valid scene before writing anything,
+/// naming the options and their values: exit 2 for flags, 1 naming the config file's key
+/// (never a scene field of some view N, after N scenes were written).
+#[test]
+fn generate_refuses_options_that_make_invalid_scenes_up_front() {
+    let tmp = common::fresh_dir("bad", "gen-together");
+    let d = tmp.path();
+    let out = d.join("o");
+    let o = out.to_str().unwrap();
+    let cfg = d.join("cfg.json");
+    let c = cfg.to_str().unwrap();
+    let cases: &[(&[&str], &str, i32, &str)] = &[
+        (
+            &["--width", "16384", "--height", "16384"],
+            "",
+            2,
+            "--width 16384, --height 16384",
+        ),
+        (&["--volume", "1e12"], "", 2, "--volume 1000000000000"),
+        (&["--fov", "1e-10"], "", 2, "--fov 1e-10"),
+        (&["--length", "1e-300"], "", 2, "--length 1e-300"),
+        (&["--distance", "1e-300"], "", 2, "--distance 1e-300"),
+        (&["--volume", "2.2e11"], "", 2, "--volume 220000000000"),
+        (
+            &["--camera-model", "opencv", "--fov", "120"],
+            "",
+            2,
+            "fold over",
+        ),
+        (
+            &["--config", c],
+            r#"{"volume": 2.2e11}"#,
+            1,
+            "cfg.json: volume 220000000000",
+        ),
+        (
+            &["--config", c, "--fov", "1"],
+            r#"{"volume": 1e10}"#,
+            1,
+            "cfg.json: volume 10000000000,10000000000,10000000000, --length 0.2..2",
+        ),
+    ];
+    let mut failures = Vec::new();
+    for (flags, config, code, needle) in cases {
+        let _ = std::fs::remove_dir_all(&out);
+        std::fs::write(&cfg, config).unwrap();
+        let mut args = vec!["generate", "--out", o, "--count", "300"];
+        args.extend_from_slice(flags);
+        let r = common::cylaov(&args);
+        let err = common::text(&r);
+        if r.status.code() != Some(*code)
+            || !err.contains(needle)
+            || err.contains("generated view")
+            || out.exists()
+        {
+            failures.push(format!(
+                "{flags:?} {config}: exit {:?}, wrote {}: {err}",
+                r.status.code(),
+                out.exists()
+            ));
+        }
+    }
+    // A flag's value checked with the config file's others, not the defaults.
+    let _ = std::fs::remove_dir_all(&out);
+    std::fs::write(&cfg, r#"{"volume": 0}"#).unwrap();
+    common::ok(&[
+        "generate", "--out", o, "--count", "2", "--config", c, "--length", "1e-200",
+    ]);
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}

@@ -97,10 +97,15 @@ pub fn resolve(args: &GenerateArgs) -> Result<(u64, u64, GenerateOptions)> {
         None => ConfigFile::default(),
     };
     // The flags alone first: a flag's bad value is a usage error. What is wrong after
-    // that is the config file's (every option is checked on its own).
+    // that is the config file's (every option is checked on its own). Without a config
+    // file the flags are all there is: every check, options together too.
     let mut flags = GenerateOptions::default();
     flags.apply(&args.flags);
-    flags.validate().map_err(super::Usage)?;
+    match &args.config {
+        None => flags.validate(),
+        Some(_) => flags.validate_each_naming(&crate::spelling::opt),
+    }
+    .map_err(super::Usage)?;
     let mut o = GenerateOptions::default();
     o.apply(&config);
     o.apply(&args.flags);
@@ -119,7 +124,22 @@ pub fn resolve(args: &GenerateArgs) -> Result<(u64, u64, GenerateOptions)> {
         );
     }
     let seed = args.flags.seed.or(config.seed).unwrap_or(0);
-    o.validate_naming(&config_key).map_err(anyhow::Error::msg)?;
+    o.validate_each_naming(&config_key)
+        .map_err(anyhow::Error::msg)?;
+    // Options that only together make invalid scenes: each named where it came from (a
+    // flag, the config file, or the default a flag would change); a usage error unless
+    // the config file set one of them.
+    let from_file = |key: &str| !args.flags.sets(key) && config.sets(key);
+    let source_key = |key: &str| match &args.config {
+        Some(path) if from_file(key) => format!("{}: {key}", path.display()),
+        _ => crate::spelling::opt(key),
+    };
+    if let Err(c) = o.validate_together(&source_key) {
+        if c.keys.iter().any(|k| from_file(k)) {
+            bail!("{}", c.message);
+        }
+        return super::usage(c.message);
+    }
     Ok((count, seed, o))
 }
 

@@ -244,6 +244,30 @@ pub struct ConfigFile {
     pub camera_model: Option<CameraModel>,
 }
 
+impl ConfigFile {
+    /// Whether the file sets option `key` (a [`GenerateOptions`] field name).
+    pub fn sets(&self, key: &str) -> bool {
+        match key {
+            "cylinders" => self.cylinders.is_some(),
+            "radius" => self.radius.is_some(),
+            "length" => self.length.is_some(),
+            "volume" => self.volume.is_some(),
+            "caps_prob" => self.caps_prob.is_some(),
+            "width" => self.width.is_some(),
+            "height" => self.height.is_some(),
+            "fov" => self.fov.is_some(),
+            "elevation" => self.elevation.is_some(),
+            "distance" => self.distance.is_some(),
+            "views_per_scene" => self.views_per_scene.is_some(),
+            "orbit" => self.orbit.is_some(),
+            "camera_model" => self.camera_model.is_some(),
+            "count" => self.count.is_some(),
+            "seed" => self.seed.is_some(),
+            _ => false,
+        }
+    }
+}
+
 /// Half extents `X,Y,Z`, or one number for a cube.
 #[derive(Clone, Copy, Debug, PartialEq, Deserialize)]
 #[serde(try_from = "VolumeRepr")]
@@ -290,6 +314,34 @@ impl Volume {
     }
 }
 
+/// Options that can make an invalid scene together, though each is valid alone: which
+/// (config keys, as [`GenerateOptions::validate_together`] names them) and why.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Conflict {
+    /// The options the message names.
+    pub keys: Vec<&'static str>,
+    /// The message, naming each option and its value.
+    pub message: String,
+}
+
+/// The farthest from its centre, in focal lengths, an `opencv` image's corner may lie (see
+/// [`GenerateOptions::validate_together`]).
+const OPENCV_MAX_CORNER: f64 = 0.7;
+
+/// Shortest cylinder length (and orthographic half height) generate accepts at all.
+const MIN_LENGTH: f64 = 1e-290;
+
+/// Farthest the pinhole placement every camera model starts from may put a camera.
+const MAX_PINHOLE_DISTANCE: f64 = 1e150;
+
+/// How much closer than the farthest coordinate a camera may stand to its target.
+const MIN_REL_DISTANCE: f64 = 1e-6;
+
+/// Whether `x <= limit` (false when either is NaN: a NaN is never within a bound).
+fn at_most(x: f64, limit: f64) -> bool {
+    x <= limit
+}
+
 /// Largest cylinder count per generated scene.
 pub const MAX_CYLINDERS: f64 = 1_000_000.0;
 
@@ -327,6 +379,14 @@ impl GenerateOptions {
     /// [`validate`](Self::validate), naming option `key` as `opt(key)`: a front end that
     /// read the value from a file names the file and its key.
     pub fn validate_naming(&self, opt: &dyn Fn(&str) -> String) -> Result<(), String> {
+        self.validate_each_naming(opt)?;
+        self.validate_together(opt).map_err(|c| c.message)
+    }
+
+    /// The checks of one option at a time (each option's own bounds), naming option `key`
+    /// as `opt(key)`; [`validate_together`](Self::validate_together) checks the options
+    /// that only together can make an invalid scene.
+    pub fn validate_each_naming(&self, opt: &dyn Fn(&str) -> String) -> Result<(), String> {
         let c = self.cylinders;
         if c.min < 1.0 || c.max > MAX_CYLINDERS || c.min.fract() != 0.0 || c.max.fract() != 0.0 {
             return Err(format!(
@@ -400,6 +460,266 @@ impl GenerateOptions {
             ));
         }
         Ok(())
+    }
+
+    /// The checks of options that only together can make an invalid scene (a camera or a
+    /// cylinder end beyond [`scene::MAX_COORD`], ends that round to one point, an image
+    /// over [`scene::MAX_PIXELS`], a lens that folds over): refused here, before anything
+    /// is written, rather than at the scene (and seed) that first hits them. Options that
+    /// pass these and [`validate_each_naming`](Self::validate_each_naming) give a valid
+    /// scene for every seed and index. The error lists the options it is about.
+    /// Expects options that pass `validate_each_naming`.
+    pub fn validate_together(&self, opt: &dyn Fn(&str) -> String) -> Result<(), Conflict> {
+        let conflict = |keys: &[&'static str], why: String| {
+            let named: Vec<String> = keys
+                .iter()
+                .map(|k| format!("{} {}", opt(k), self.value_text(k)))
+                .collect();
+            Err(Conflict {
+                keys: keys.to_vec(),
+                message: format!("{}: {why}", named.join(", ")),
+            })
+        };
+        let (w, h) = (self.width, self.height);
+        let (wf, hf) = (w as f64, h as f64);
+        // Every camera model: the image size a scene file may have.
+        let pixels = w as u64 * h as u64;
+        if pixels > scene::MAX_PIXELS {
+            return conflict(
+                &["width", "height"],
+                format!(
+                    "width × height must be <= {} pixels (64 megapixels, e.g. 8192 × 8192), \
+                        got {pixels}",
+                    scene::MAX_PIXELS
+                ),
+            );
+        }
+        let model = self.camera_model;
+        // The fisheye's focal length is diagonal / π and it moves by the ratio of the fit
+        // distances, sin(pinhole half angle) / sin(θ at the shorter side's edge): both need
+        // (w−1) and (h−1) > 0.
+        if model == CameraModel::OpencvFisheye && (w < 2 || h < 2) {
+            return conflict(
+                &["camera_model", "width", "height"],
+                "an opencv_fisheye image needs width and height >= 2 (its focal length and \
+                    framing are set by the pixels from the centre to the edges)"
+                    .into(),
+            );
+        }
+        // The pinhole's focal length in pixels, as a scene file's camera is checked (the
+        // perspective and opencv models use the --fov one): w/2 / tan(fov/2), at most
+        // f32::MAX.
+        let tan_x = (self.fov.to_radians() / 2.0).tan();
+        let focal = wf / 2.0 / tan_x;
+        if model != CameraModel::OpencvFisheye
+            && model != CameraModel::Orthographic
+            && model != CameraModel::Equirectangular
+            && !(tan_x > 0.0 && focal <= f32::MAX as f64)
+        {
+            return conflict(
+                &["fov", "width"],
+                format!(
+                    "the focal length of {} px is beyond the {:e} a camera may have",
+                    scene::num(focal),
+                    f32::MAX
+                ),
+            );
+        }
+        // opencv: the distortion is drawn with k1 in [-0.25, 0.05], k2 in ±0.02, p1, p2 in
+        // ±1e-3 (k3 = 0). The radial slope 1 + 3 k1 ρ² + 5 k2 ρ⁴ is smallest at k1 = -0.25,
+        // k2 = -0.02, where it reaches 0 at ρ² = 1.155 and the distorted radius peaks at
+        // 0.736: an image whose corner lies further out (in focal lengths) folds over for
+        // some draws. The corner must lie within 0.7 (there the worst slope is 0.34, far
+        // above the < 0.01 the tangential terms can take away).
+        if model == CameraModel::Opencv {
+            let corner = (wf - 1.0).hypot(hf - 1.0) / 2.0 / focal;
+            if !at_most(corner, OPENCV_MAX_CORNER) {
+                return conflict(
+                    &["camera_model", "fov", "width", "height"],
+                    format!(
+                        "the image corners lie {} focal lengths from the centre, beyond the \
+                            {OPENCV_MAX_CORNER} where some drawn distortions (k1 down to -0.25) \
+                         fold over: narrow the field of view",
+                        scene::num(corner)
+                    ),
+                );
+            }
+        }
+        let vol = self.volume;
+        let max_vol = vol[0].max(vol[1]).max(vol[2]);
+        // Cylinders: the midpoint has |mid_k| <= volume_k (exactly: |2u − 1| <= 1), the ends
+        // lie half a length along a unit axis from it, so |end_k| <= volume_k + length/2;
+        // 1e-12 of relative room covers the rounding of the ends and of the top the scene
+        // check recomputes from p0 and the height.
+        let reach = max_vol + self.length.max / 2.0;
+        if !at_most(reach, scene::MAX_COORD * (1.0 - 1e-12)) {
+            return conflict(
+                &["volume", "length"],
+                format!(
+                    "cylinder ends can lie {} from the origin, beyond the {:e} a coordinate \
+                        may reach",
+                    scene::num(reach),
+                    scene::MAX_COORD
+                ),
+            );
+        }
+        // Ends that round to one point make no cylinder (the scene check wants p1 − p0 of
+        // length > 0). The unit axis has a component of at least 1/√3, so the ends differ
+        // by at least 2 · length/2 / √3 in it, around a midpoint of magnitude at most
+        // max(volume); that rounds apart when it is over 2 ulp (ulp(x) <= 2ε|x|) of the
+        // largest coordinate: length >= 4√3 ε · max(volume). Asked here with a margin,
+        // length >= 16 ε · max(volume), and at least 1e-290 (half of it normal, and the
+        // difference's square not lost below the normal range).
+        let min_length = (16.0 * f64::EPSILON * max_vol).max(MIN_LENGTH);
+        if self.length.min < min_length {
+            return conflict(
+                &["length", "volume"],
+                format!(
+                    "a cylinder this short has ends that round to one point this far from \
+                        the origin: the length must be >= {} (16 × 2^-52 × the largest half \
+                         extent, and >= {MIN_LENGTH:e})",
+                    scene::num(min_length)
+                ),
+            );
+        }
+        // Cameras. The target is jitter · volume / 4 with |jitter_k| <= 1, so |target_k| <=
+        // volume_k / 4. Every camera stands at distance D from its target (orbit cameras
+        // too: a turn about +z keeps the offset's length), so |origin_k| <= max(volume)/4 +
+        // D. D = fit · d for d drawn from --distance (fit = R / sin(smaller half angle), R
+        // the bounding radius), times the fisheye's ratio of fit distances, or 1/5 of it for
+        // equirectangular; orthographic cameras stand at 2R whatever d is.
+        let r = self.bounding_radius();
+        let fit = fit_distance(r, self.fov, w, h);
+        let d = self.distance;
+        let (lo, hi) = match model {
+            CameraModel::Orthographic => (2.0 * r, 2.0 * r),
+            CameraModel::Equirectangular => (fit * d.min * 0.2, fit * d.max * 0.2),
+            CameraModel::OpencvFisheye => {
+                let s = self.fisheye_scale();
+                (fit * d.min * s, fit * d.max * s)
+            }
+            CameraModel::Perspective | CameraModel::Opencv => (fit * d.min, fit * d.max),
+        };
+        let camera_keys: &[&'static str] = &[
+            "volume",
+            "length",
+            "radius",
+            "fov",
+            "distance",
+            "width",
+            "height",
+            "camera_model",
+        ];
+        // Every model's camera is first drawn as the pinhole's, at fit · d, then moved
+        // along its offset from the target (which is normalised: its square must stay
+        // finite, so that pinhole distance is asked to be <= 1e150). Both placements must
+        // pass the checks below: coordinates within their limit, and a camera apart from
+        // its target by far more than the rounding of its coordinates (<= ε · far per
+        // component; asked >= 1e-6 · far), so that origin ≠ target and the view direction
+        // is the drawn one to within ~1e-9 (the up vector was chosen at > 0.1 from it),
+        // and by at least 1e-100, so that squared lengths stay normal. 1e-9 of relative
+        // room covers the rounding of the distance and the placement.
+        let placements = [
+            (fit * d.min, fit * d.max, MAX_PINHOLE_DISTANCE),
+            (lo, hi, scene::MAX_COORD),
+        ];
+        for (lo, hi, limit) in placements {
+            let far = max_vol / 4.0 + hi * (1.0 + 1e-9);
+            if !at_most(far, limit) {
+                return conflict(
+                    camera_keys,
+                    format!(
+                        "cameras can stand {} from the origin, beyond the {:e} a coordinate \
+                         may reach (the scene's bounding radius is {}, the distance at which \
+                         it fills the view {})",
+                        scene::num(far),
+                        limit,
+                        scene::num(r),
+                        scene::num(fit)
+                    ),
+                );
+            }
+            let near = (far * MIN_REL_DISTANCE).max(1e-100);
+            if !at_most(near, lo) {
+                return conflict(
+                    camera_keys,
+                    format!(
+                        "cameras can stand as close as {} to what they look at, too close to \
+                         tell from it at coordinates up to {} (at least {} is needed)",
+                        scene::num(lo),
+                        scene::num(far),
+                        scene::num(near)
+                    ),
+                );
+            }
+        }
+        // far_clip = 2 (D + R) (6R orthographic): finite under the bounds above.
+        if model == CameraModel::Orthographic {
+            // ortho_width = 2R · d · max(aspect, 1): a pixel step of 2R·d / min(w, h) must
+            // exceed the spacing 4ε · max|origin_k| <= 4ε (max(volume)/4 + 2R), asked
+            // with a factor 4 of room; half the height, R·d·max(1, 1/aspect) >= R·d, must
+            // be normal (asked >= 1e-290), and the width at most MAX_COORD.
+            let width_max = 2.0 * r * d.max * (wf / hf).max(1.0);
+            if !at_most(width_max, scene::MAX_COORD * (1.0 - 1e-9)) {
+                return conflict(
+                    &["volume", "length", "radius", "distance", "width", "height"],
+                    format!(
+                        "the orthographic view can be {} wide, beyond {:e}",
+                        scene::num(width_max),
+                        scene::MAX_COORD
+                    ),
+                );
+            }
+            let step = 2.0 * r * d.min / wf.min(hf);
+            let spacing = 16.0 * f64::EPSILON * (max_vol / 4.0 + 2.0 * r);
+            if !(step > spacing && r * d.min >= MIN_LENGTH) {
+                return conflict(
+                    &["distance", "width", "height", "volume"],
+                    format!(
+                        "an orthographic pixel can be {} wide, too small to tell apart at \
+                            coordinates up to {} (more than {} is needed)",
+                        scene::num(step),
+                        scene::num(max_vol / 4.0 + 2.0 * r),
+                        scene::num(spacing)
+                    ),
+                );
+            }
+        }
+        Ok(())
+    }
+
+    /// Option `key`'s value as a message shows it.
+    fn value_text(&self, key: &str) -> String {
+        use crate::scene::num;
+        match key {
+            "cylinders" => self.cylinders.to_string(),
+            "radius" => self.radius.to_string(),
+            "length" => self.length.to_string(),
+            "volume" => self.volume.map(num).join(","),
+            "caps_prob" => num(self.caps_prob),
+            "width" => self.width.to_string(),
+            "height" => self.height.to_string(),
+            "fov" => num(self.fov),
+            "elevation" => self.elevation.to_string(),
+            "distance" => self.distance.to_string(),
+            "views_per_scene" => self.views_per_scene.to_string(),
+            "orbit" => self.orbit.to_string(),
+            "camera_model" => self.camera_model.name().to_string(),
+            _ => String::new(),
+        }
+    }
+
+    /// The factor a fisheye camera's distance is scaled by: the ratio R / sin(a) of the
+    /// fit distances of the `--fov` pinhole and the fisheye, at their smaller half angles.
+    /// The fisheye's is θ_d at the middle of the shorter side's edge (θ ≈ θ_d: the drawn
+    /// k move it by under 2%).
+    fn fisheye_scale(&self) -> f64 {
+        let (w, h) = (self.width as f64, self.height as f64);
+        let f = (w - 1.0).hypot(h - 1.0) / std::f64::consts::PI;
+        let theta = ((w.min(h) - 1.0) / 2.0 / f).min(std::f64::consts::FRAC_PI_2);
+        let tan_x = (self.fov.to_radians() / 2.0).tan();
+        let pinhole = (tan_x.min(tan_x * h / w)).atan();
+        pinhole.sin() / theta.sin()
     }
 
     /// Radius of a sphere about the origin that holds every cylinder any scene can have.
@@ -572,16 +892,12 @@ impl GenerateOptions {
             ..cam.clone()
         }
         .with_model(model, lens);
-        if let (CameraModel::OpencvFisheye, Some(f)) = (model, lens.intrinsics[0]) {
+        if let (CameraModel::OpencvFisheye, Some(_)) = (model, lens.intrinsics[0]) {
             // The pose was drawn to fit the `--fov` pinhole; bring the camera closer by the
             // ratio of the fit distances R / sin(a) of the two smaller half angles, so the
             // scene fills the fisheye's view as much. The fisheye's is θ_d at the middle of
             // the shorter side's edge (θ ≈ θ_d: the drawn k move it by under 2%).
-            let (w, h) = (self.width as f64, self.height as f64);
-            let theta = ((w.min(h) - 1.0) / 2.0 / f).min(std::f64::consts::FRAC_PI_2);
-            let tan_x = (self.fov.to_radians() / 2.0).tan();
-            let pinhole = (tan_x.min(tan_x * h / w)).atan();
-            let scale = pinhole.sin() / theta.sin();
+            let scale = self.fisheye_scale();
             let target = DVec3::from_array(cam.target);
             cam.origin = (target + (DVec3::from_array(cam.origin) - target) * scale).to_array();
         }
@@ -852,6 +1168,138 @@ mod tests {
             serde_json::to_string(&o.scene(7, 0).unwrap()).unwrap(),
             serde_json::to_string(&o.scene(8, 0).unwrap()).unwrap()
         );
+    }
+
+    /// What an edge case sets, its range, and whether it searches up.
+    type Edge = (&'static str, fn(&mut GenerateOptions, f64), f64, f64, bool);
+    /// What a bad case sets.
+    type Set = fn(&mut GenerateOptions);
+
+    /// The largest (`up`) or smallest `x` in `[lo, hi]` for which `set(o, x)` passes
+    /// `validate`, by bisection (`None` when none does).
+    fn edge(
+        base: &GenerateOptions,
+        set: fn(&mut GenerateOptions, f64),
+        lo: f64,
+        hi: f64,
+        up: bool,
+    ) -> Option<GenerateOptions> {
+        let with = |x: f64| {
+            let mut o = base.clone();
+            set(&mut o, x);
+            o
+        };
+        let (mut good, mut bad) = if up { (lo, hi) } else { (hi, lo) };
+        if with(good).validate().is_err() {
+            return None;
+        }
+        // Bisect in the exponent and mantissa alike: the midpoint of the bit patterns.
+        for _ in 0..200 {
+            let mid = f64::from_bits((good.to_bits() + bad.to_bits()) / 2);
+            if mid == good || mid == bad {
+                break;
+            }
+            if with(mid).validate().is_ok() {
+                good = mid;
+            } else {
+                bad = mid;
+            }
+        }
+        Some(with(good))
+    }
+
+    #[test]
+    fn options_at_the_edge_of_every_bound_give_valid_scenes() {
+        use CameraModel::*;
+        for model in [
+            Perspective,
+            Orthographic,
+            Opencv,
+            OpencvFisheye,
+            Equirectangular,
+        ] {
+            let base = GenerateOptions {
+                camera_model: model,
+                cylinders: Range::new(1.0, 2.0),
+                ..GenerateOptions::default()
+            };
+            let edges: [Edge; 7] = [
+                (
+                    "volume",
+                    |o, x| o.volume = [x, x / 3.0, x / 7.0],
+                    1.0,
+                    1e12,
+                    true,
+                ),
+                ("distance max", |o, x| o.distance.max = x, 1.0, 1e6, true),
+                (
+                    "distance min",
+                    |o, x| o.distance.min = x,
+                    1e-300,
+                    0.55,
+                    false,
+                ),
+                ("fov", |o, x| o.fov = x, 1e-300, 50.0, false),
+                ("fov up", |o, x| o.fov = x, 1.0, 179.999, true),
+                ("length", |o, x| o.length.min = x, 1e-300, 0.2, false),
+                (
+                    "length tiny volume",
+                    |o, x| {
+                        o.volume = [1e-3; 3];
+                        o.length.min = x;
+                    },
+                    1e-300,
+                    0.2,
+                    false,
+                ),
+            ];
+            for (what, set, lo, hi, up) in edges {
+                let Some(o) = edge(&base, set, lo, hi, up) else {
+                    continue;
+                };
+                for i in 0..40 {
+                    if let Err(e) = o.scene(3, i) {
+                        panic!("{model:?} at the {what} edge ({o:?}): {e}");
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn options_that_make_invalid_scenes_are_refused_up_front() {
+        let bad = |f: fn(&mut GenerateOptions)| {
+            let mut o = GenerateOptions::default();
+            f(&mut o);
+            o.validate().unwrap_err()
+        };
+        let cases: [(Set, &str); 8] = [
+            (
+                |o| (o.width, o.height) = (16384, 16384),
+                "width 16384, height 16384",
+            ),
+            (|o| o.volume = [1e12; 3], "volume"),
+            (|o| o.volume = [2.2e11; 3], "cameras can stand"),
+            (|o| o.fov = 1e-10, "fov 1e-10"),
+            (|o| o.length = Range::new(1e-300, 1.0), "length 1e-300..1"),
+            (
+                |o| o.distance = Range::new(1e-300, 1.0),
+                "distance 1e-300..1",
+            ),
+            (
+                |o| (o.camera_model, o.fov) = (CameraModel::Opencv, 120.0),
+                "fold over",
+            ),
+            (
+                |o| (o.camera_model, o.height) = (CameraModel::OpencvFisheye, 1),
+                "width and height >= 2",
+            ),
+        ];
+        for (f, needle) in cases {
+            let e = bad(f);
+            assert!(e.contains(needle), "{e}");
+            assert!(!e.contains("generated view"), "{e}");
+        }
     }
 
     #[test]
