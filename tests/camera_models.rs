@@ -668,3 +668,59 @@ fn a_rig_takes_the_first_cameras_size_whatever_its_model() {
         assert_eq!(c.fov_deg, 50.0);
     }
 }
+
+/// Times `Lens::validate` (every pixel unprojected) for 1920×1080 OpenCV cameras, a mild
+/// and a strong distortion, and a fisheye: run with `--ignored --nocapture` to compare
+/// builds on one machine.
+#[test]
+#[ignore]
+fn lens_validation_timing_1920x1080() {
+    use cylaov::scene::camera::lens::Lens;
+    let lenses = [
+        (
+            "opencv mild",
+            Lens::OpenCv {
+                fx: 1200.0,
+                fy: 1260.0,
+                cx: 959.5,
+                cy: 539.5,
+                dist: [-0.21, 0.04, 0.0012, -0.0017, 0.005],
+            },
+        ),
+        (
+            "opencv strong",
+            Lens::OpenCv {
+                fx: 900.0,
+                fy: 900.0,
+                cx: 955.0,
+                cy: 545.0,
+                dist: [
+                    0.42541429036981393,
+                    0.919193210524019,
+                    0.01,
+                    -0.02,
+                    -0.4259741016336118,
+                ],
+            },
+        ),
+        (
+            "fisheye",
+            Lens::OpenCvFisheye {
+                fx: 540.0,
+                fy: 555.0,
+                cx: 948.0,
+                cy: 702.0,
+                k: [0.03, -0.004, 0.0006, -0.00003],
+            },
+        ),
+    ];
+    for (name, lens) in lenses {
+        let mut best = f64::INFINITY;
+        for _ in 0..3 {
+            let t = std::time::Instant::now();
+            lens.validate(1920, 1080).unwrap();
+            best = best.min(t.elapsed().as_secs_f64());
+        }
+        println!("validate 1920x1080 {name}: {best:.3} s (best of 3)");
+    }
+}
