@@ -112,28 +112,25 @@ pub fn resolve(args: &GenerateArgs) -> Result<(u64, u64, GenerateOptions)> {
     let Some(count) = args.flags.count.or(config.count) else {
         return super::usage("--count: required (or \"count\" in --config)");
     };
-    let config_key = |key: &str| match &args.config {
-        Some(path) => format!("{}: {key}", path.display()),
-        None => crate::spelling::opt(key),
-    };
-    if count == 0 || count > MAX_COUNT {
-        // Clap range-checks the flag: this one is the config file's.
-        bail!(
-            "{}: must be in 1..={MAX_COUNT}, got {count}",
-            config_key("count")
-        );
-    }
-    let seed = args.flags.seed.or(config.seed).unwrap_or(0);
-    o.validate_each_naming(&config_key)
-        .map_err(anyhow::Error::msg)?;
-    // Options that only together make invalid scenes: each named where it came from (a
-    // flag, the config file, or the default a flag would change); a usage error unless
-    // the config file set one of them.
+    // Each option named where its value came from: the config file's key, else the flag
+    // (the flags passed their own checks above, so what fails below is mostly the file's).
     let from_file = |key: &str| !args.flags.sets(key) && config.sets(key);
     let source_key = |key: &str| match &args.config {
         Some(path) if from_file(key) => format!("{}: {key}", path.display()),
         _ => crate::spelling::opt(key),
     };
+    if count == 0 || count > MAX_COUNT {
+        // The flag is range-checked as it is parsed: this one is the config file's.
+        bail!(
+            "{}: must be in 1..={MAX_COUNT}, got {count}",
+            source_key("count")
+        );
+    }
+    let seed = args.flags.seed.or(config.seed).unwrap_or(0);
+    o.validate_each_naming(&source_key)
+        .map_err(anyhow::Error::msg)?;
+    // Options that only together make invalid scenes: a usage error unless the config file
+    // set one of them.
     if let Err(c) = o.validate_together(&source_key) {
         if c.keys.iter().any(|k| from_file(k)) {
             bail!("{}", c.message);

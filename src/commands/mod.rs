@@ -14,7 +14,7 @@ pub mod stress;
 pub mod verify;
 
 /// A usage error found after the arguments parsed: a flag's value out of its range, or
-/// flags that do not go together. The binary exits 2 on it, as on clap's own usage errors
+/// flags that do not go together. The binary exits 2 on it, as on the parser's own usage errors
 /// (`cylaov --help` lists the exit statuses); every other error exits 1.
 #[derive(Debug)]
 pub struct Usage(pub String);

@@ -765,6 +765,25 @@ mod tests {
     /// The root for `goal` followed from the axis in 2000 fixed steps of a few Newton
     /// iterations each, with the smallest Jacobian determinant met on the way: an
     /// independent, slow reference for the principal branch.
+    /// Pixel `(i, j)`'s ray of the `opencv` lens `lens` in normalised coordinates, and the
+    /// reference's root for it with its smallest Jacobian determinant ([`reference_root`]).
+    fn ray_and_reference(lens: &Lens, i: u32, j: u32) -> (DVec2, DVec2, f64) {
+        let Lens::OpenCv {
+            fx,
+            fy,
+            cx,
+            cy,
+            dist,
+        } = *lens
+        else {
+            panic!("not an opencv lens: {lens:?}")
+        };
+        let v = lens.unproject(i, j).unwrap();
+        let goal = DVec2::new((i as f64 - cx) / fx, (j as f64 - cy) / fy);
+        let (want, min_det) = reference_root(&dist, goal);
+        (DVec2::new(v.x / v.z, v.y / v.z), want, min_det)
+    }
+
     fn reference_root(d: &[f64; 5], goal: DVec2) -> (DVec2, f64) {
         let (mut ab, mut min_det) = (DVec2::ZERO, f64::INFINITY);
         for s in 1..=2000 {
@@ -838,13 +857,10 @@ mod tests {
         lens.validate(24, 18).unwrap();
         for j in 0..18 {
             for i in 0..24 {
-                let v = lens.unproject(i, j).unwrap();
-                let back = lens.project(v).unwrap();
+                let back = lens.project(lens.unproject(i, j).unwrap()).unwrap();
                 assert!((back - DVec2::new(i as f64, j as f64)).length() < 1e-9);
-                let goal = DVec2::new((i as f64 - cx) / fx, (j as f64 - cy) / fy);
-                let (want, min_det) = reference_root(&dist, goal);
+                let (got, want, min_det) = ray_and_reference(&lens, i, j);
                 assert!(min_det > 0.0);
-                let got = DVec2::new(v.x / v.z, v.y / v.z);
                 assert!((got - want).length() < 1e-9, "({i}, {j}): {got} vs {want}");
             }
         }
@@ -885,10 +901,7 @@ mod tests {
             accepted += 1;
             for j in 0..18 {
                 for i in 0..24 {
-                    let v = lens.unproject(i, j).unwrap();
-                    let goal = DVec2::new((i as f64 - cx) / fx, (j as f64 - cy) / fy);
-                    let (want, min_det) = reference_root(&dist, goal);
-                    let got = DVec2::new(v.x / v.z, v.y / v.z);
+                    let (got, want, min_det) = ray_and_reference(&lens, i, j);
                     assert!(min_det > 0.0, "{lens:?} ({i}, {j})");
                     assert!((got - want).length() < 1e-8, "{lens:?} ({i}, {j})");
                 }
