@@ -101,22 +101,30 @@ fn distort(d: &[f64; 5], a: f64, b: f64) -> (DVec2, [[f64; 2]; 2]) {
 fn undistort(d: &[f64; 5], goal: DVec2, start: DVec2) -> DVec2 {
     let mut ab = start;
     for _ in 0..NEWTON_STEPS {
-        let (p, jac) = distort(d, ab.x, ab.y);
-        let r = p - goal;
-        let det = jac[0][0] * jac[1][1] - jac[0][1] * jac[1][0];
+        let (step, det) = newton_step(d, ab, goal);
         if !positive(det) {
             break;
         }
-        let step = DVec2::new(
-            (jac[1][1] * r.x - jac[0][1] * r.y) / det,
-            (jac[0][0] * r.y - jac[1][0] * r.x) / det,
-        );
-        ab -= step;
+        ab += step;
         if step.length() <= 1e-16 * (1.0 + ab.length()) {
             break;
         }
     }
     ab
+}
+
+/// Newton's step from `ab` toward the point the distortion maps to `goal`:
+/// `J⁻¹ (goal − distort(ab))` by Cramer's rule on the 2×2 Jacobian `J` at `ab`, with `J`'s
+/// determinant, which each caller checks is positive before it trusts the step.
+fn newton_step(d: &[f64; 5], ab: DVec2, goal: DVec2) -> (DVec2, f64) {
+    let (p, jac) = distort(d, ab.x, ab.y);
+    let det = jac[0][0] * jac[1][1] - jac[0][1] * jac[1][0];
+    let r = goal - p;
+    let step = DVec2::new(
+        (jac[1][1] * r.x - jac[0][1] * r.y) / det,
+        (jac[0][0] * r.y - jac[1][0] * r.x) / det,
+    );
+    (step, det)
 }
 
 /// Whether the distortion's Jacobian at `ab` has a positive determinant (false for NaN).
@@ -178,16 +186,10 @@ fn branch_step(d: &[f64; 5], ab: DVec2, goal: DVec2) -> Option<DVec2> {
     let mut x = ab;
     let mut predictor = None;
     for _ in 0..12 {
-        let (p, jac) = distort(d, x.x, x.y);
-        let det = jac[0][0] * jac[1][1] - jac[0][1] * jac[1][0];
+        let (dx, det) = newton_step(d, x, goal);
         if !positive(det) {
             return None;
         }
-        let r = goal - p;
-        let dx = DVec2::new(
-            (jac[1][1] * r.x - jac[0][1] * r.y) / det,
-            (jac[0][0] * r.y - jac[1][0] * r.x) / det,
-        );
         x += dx;
         let first = *predictor.get_or_insert(x);
         if !x.is_finite() {
@@ -671,14 +673,7 @@ impl Lens {
                 // Cheap first: the centre's root within [`PREDICTOR_GAP`] of the tangent
                 // step from the corner is on the corner's branch; else the branch is
                 // followed there, and must arrive at the same root.
-                let (p, jac) = distort(d, ab_corner.x, ab_corner.y);
-                let det = jac[0][0] * jac[1][1] - jac[0][1] * jac[1][0];
-                let r = goal - p;
-                let pred = ab_corner
-                    + DVec2::new(
-                        (jac[1][1] * r.x - jac[0][1] * r.y) / det,
-                        (jac[0][0] * r.y - jac[1][0] * r.x) / det,
-                    );
+                let pred = ab_corner + newton_step(d, ab_corner, goal).0;
                 if (ab - pred).length() <= PREDICTOR_GAP * (ab - ab_corner).length() {
                     continue;
                 }
