@@ -21,6 +21,7 @@
 use std::io;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Mutex, MutexGuard};
 
 /// What the clean-up does with a registered path.
@@ -197,9 +198,26 @@ pub fn install() {
 #[cfg(not(target_os = "linux"))]
 pub fn install() {}
 
+/// Set by the clean-up thread once it has a signal, before it waits for the registry.
+static CAUGHT: AtomicBool = AtomicBool::new(false);
+
+/// Call last in `main`, before it returns: a signal the clean-up thread already has is
+/// that thread's to finish (128 + its number). A signal that came while a commit held the
+/// registry ([`hold`]) has the clean-up waiting for the lock the commit just let go; a
+/// `main` returning at once would race it to the exit and could exit 0.
+pub fn settle() {
+    if CAUGHT.load(Ordering::SeqCst) {
+        // The clean-up thread `_exit`s once it has the lock; wait for it.
+        loop {
+            std::thread::park();
+        }
+    }
+}
+
 /// Kill the children's groups, remove what is registered, say so, exit.
 #[cfg(target_os = "linux")]
 fn stop(sig: i32) -> ! {
+    CAUGHT.store(true, Ordering::SeqCst);
     // Held until `_exit`: nothing is staged or spawned after this point.
     let r = registry();
     let removed = remove_all(&r);
